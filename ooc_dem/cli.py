@@ -1,0 +1,337 @@
+"""`ooc-dem` command line. Every user error is one line on stderr and exit code 2."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+EXIT_USAGE = 2
+
+
+class CliError(Exception):
+    pass
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, no usage dump
+        print(f"ooc-dem: error: {message} (see `{self.prog} --help`)", file=sys.stderr)
+        sys.exit(EXIT_USAGE)
+
+
+def _positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
+    return v
+
+
+def _nonneg_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
+    return v
+
+
+def _positive_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not v > 0 or v != v or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="ooc-dem", description="Out-of-core 2D DEM of soil-wheel interaction "
+                "(serial domain decomposition, bit-identical modes).")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    def add_scenario_args(q):
+        q.add_argument("scenario", help="built-in name (see `ooc-dem scenarios`) or a TOML file")
+        q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                       help="override a scenario value (repeatable)")
+
+    q = sub.add_parser("run", help="run a scenario")
+    add_scenario_args(q)
+    q.add_argument("--out", required=False, help="output directory (a new store); default runs/<scenario>")
+    q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc"])
+    q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"])
+    q.add_argument("--domains", type=_positive_int, help="number of sub-domains D (ddm, ooc)")
+    q.add_argument("--block", type=_positive_int, help="steps per epoch K (temporal blocking)")
+    g = q.add_mutually_exclusive_group()
+    g.add_argument("--steps", type=_nonneg_int, help="total steps to run")
+    g.add_argument("--duration", type=_positive_float, help="total simulated time to run, s")
+    q.add_argument("--checkpoint-every", type=_positive_int, metavar="STEPS",
+                   help="commit an epoch every STEPS steps")
+    q.add_argument("--durable", action="store_true", help="fsync files and directory before each commit")
+    q.add_argument("--bed", help="a prepared bed directory (from `ooc-dem prepare`)")
+    q.add_argument("--no-progress", action="store_true")
+    q.add_argument("--no-figures", action="store_true")
+
+    q = sub.add_parser("prepare", help="generate and settle the scenario's bed")
+    add_scenario_args(q)
+    q.add_argument("--out", required=True, help="directory for the settled bed")
+    q.add_argument("--no-progress", action="store_true")
+
+    q = sub.add_parser("resume", help="continue a killed or finished run from its last committed epoch")
+    q.add_argument("store")
+    g = q.add_mutually_exclusive_group()
+    g.add_argument("--steps", type=_nonneg_int, help="new total step count")
+    g.add_argument("--until", type=_positive_float, help="new total simulated time, s")
+    q.add_argument("--no-progress", action="store_true")
+    q.add_argument("--no-figures", action="store_true")
+
+    q = sub.add_parser("checkpoint", help="inspect the epochs of a store")
+    csub = q.add_subparsers(dest="ckpt_command", required=True, parser_class=_Parser)
+    for name, hlp in (("hash", "SHA-256 of the latest state in canonical order"),
+                      ("list", "list committed epochs"), ("verify", "verify checksums"),
+                      ("inspect", "show one epoch")):
+        c = csub.add_parser(name, help=hlp)
+        c.add_argument("store")
+        c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
+
+    sub.add_parser("scenarios", help="list built-in scenarios")
+
+    q = sub.add_parser("report", help="regenerate figures and print the wheel-performance table")
+    q.add_argument("store")
+
+    q = sub.add_parser("compare", help="compare two runs (Table 3 style) and their final states")
+    q.add_argument("a")
+    q.add_argument("b")
+
+    q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
+    add_scenario_args(q)
+    q.add_argument("--slips", required=True, help="comma-separated slips, e.g. 0.1,0.2,0.4")
+    q.add_argument("--out", required=True)
+    q.add_argument("--no-progress", action="store_true")
+    return p
+
+
+# ------------------------------------------------------------------ commands
+
+
+def _load(args):
+    from .scenario import load_scenario
+    return load_scenario(args.scenario, args.set)
+
+
+def cmd_scenarios(args):
+    from .scenario import builtin_names, load_scenario
+    for name in builtin_names():
+        if name == "bed-N":
+            print("bed-N        bare bed of N discs (e.g. bed-7000, bed-100k, bed-1m), tiled from `bed`")
+            continue
+        sc = load_scenario(name)
+        print(f"{name:12s} {sc.scenario.description}")
+    return 0
+
+
+def cmd_prepare(args):
+    import numpy as np
+    from .bed import settled_bed, surface_height
+    sc = _load(args)
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise CliError(f"--out {out}: directory exists and is not empty")
+    bed = settled_bed(sc, progress=None if args.no_progress else _settle_progress(sc))
+    out.mkdir(parents=True, exist_ok=True)
+    np.savez(out / "bed.npz", **bed.arrays())
+    (out / "scenario.toml").write_text(sc.to_toml())
+    surf = surface_height(bed, sc.bin.length, sc.soil.r_max)
+    info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf,
+            "bed_hash": sc.bed_hash()}
+    (out / "bed.json").write_text(json.dumps(info, indent=2))
+    print(json.dumps(info))
+    return 0
+
+
+def _settle_progress(sc):
+    import time
+    state = {"last": 0.0}
+
+    def cb(t, speed):
+        if time.time() - state["last"] > 1.0:
+            state["last"] = time.time()
+            print(f"settling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s (target {sc.bed.settle_speed:.1e})",
+                  file=sys.stderr, flush=True)
+    return cb
+
+
+def _load_bed(path, sc):
+    import numpy as np
+    from .state import Particles
+    f = Path(path) / "bed.npz"
+    if not f.is_file():
+        raise CliError(f"--bed {path}: no bed.npz (make one with `ooc-dem prepare`)")
+    try:
+        with np.load(f) as z:
+            bed = Particles(**{k: z[k] for k in z.files})
+    except Exception as e:
+        raise CliError(f"--bed {path}: unreadable bed.npz ({type(e).__name__})") from None
+    if len(bed) != sc.soil.n:
+        raise CliError(f"--bed {path}: holds {len(bed)} discs, the scenario has soil.n = {sc.soil.n}")
+    return bed
+
+
+def cmd_run(args):
+    from .engine.run import RunOptions, Simulation
+    sc = _load(args)
+    steps = args.steps
+    if args.duration is not None:
+        steps = int(round(args.duration / sc.physics.dt))
+    out = args.out or os.path.join("runs", sc.name)
+    opts = RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
+                      steps=steps, checkpoint_every=args.checkpoint_every, durable=args.durable,
+                      progress=not args.no_progress, figures=not args.no_figures)
+    sim = Simulation(sc, out, opts)
+    bed = _load_bed(args.bed, sc) if args.bed else None
+    sim.start(bed)
+    summary = sim.run()
+    _print_run_result(summary, out)
+    return 0
+
+
+def _print_run_result(summary, out):
+    from .plots import print_table
+    if "slip" in summary:
+        print(print_table(summary))
+    print(f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
+          f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}")
+    print(f"state hash: {summary['state_hash']}")
+    print(f"output: {out}")
+
+
+def cmd_resume(args):
+    from .engine.run import resume_simulation
+    sim = resume_simulation(args.store, steps=args.steps, until=args.until,
+                            progress=not args.no_progress, figures=not args.no_figures)
+    if sim is None:
+        return 0
+    summary = sim.run()
+    _print_run_result(summary, args.store)
+    return 0
+
+
+def cmd_checkpoint(args):
+    from .engine.run import read_all_particles
+    from .checkpoint import hash_particles
+    from storage import open_store
+    store = open_store(args.store)
+    try:
+        if args.ckpt_command == "list":
+            for step in store.epochs():
+                r = store.read_epoch(step)
+                _, attrs = r.read_globals()
+                n = sum(r.domain_len(d) for d in r.domains())
+                cur = " (current)" if step == store.current() else ""
+                print(f"epoch {step:>10d}  t = {attrs.get('time', 0):.6f} s  discs {n}  "
+                      f"domains {len(r.domains())}{cur}")
+                r.close()
+            return 0
+        if args.ckpt_command == "verify":
+            problems = store.verify(args.epoch)
+            for w in getattr(store, "warnings", []):
+                print(f"warning: {w}")
+            if problems:
+                for pr in problems:
+                    print(f"FAIL {pr}")
+                raise CliError(f"{args.store}: {len(problems)} problem(s) found")
+            print(f"OK: {args.store} epochs {store.epochs()} verified")
+            return 0
+        reader = store.read_epoch(args.epoch)
+        arrays, attrs = reader.read_globals()
+        p = read_all_particles(reader)
+        if args.ckpt_command == "hash":
+            print(hash_particles(p, arrays["wheel_state"], int(attrs["step"])))
+        else:  # inspect
+            info = {"step": attrs.get("step"), "time": attrs.get("time"), "discs": len(p),
+                    "domains": {str(d): reader.domain_len(d) for d in reader.domains()},
+                    "wheel_state": [float(v) for v in arrays["wheel_state"]],
+                    "mode": attrs.get("mode")}
+            print(json.dumps(info, indent=2))
+        reader.close()
+        return 0
+    finally:
+        store.close()
+
+
+def cmd_report(args):
+    from .plots import make_figures, print_table
+    out = Path(args.store)
+    f = out / "summary.json"
+    if not f.is_file():
+        raise CliError(f"{out}: no summary.json (not a finished ooc-dem run)")
+    try:
+        summary = json.loads(f.read_text())
+    except json.JSONDecodeError:
+        raise CliError(f"{f}: not valid JSON") from None
+    if "slip" in summary:
+        figs = make_figures(out)
+        print(print_table(summary))
+        for fig in figs:
+            print(f"figure: {fig}")
+    else:
+        print(json.dumps(summary, indent=2))
+    return 0
+
+
+def cmd_compare(args):
+    from .compare import compare_runs
+    print(compare_runs(args.a, args.b))
+    return 0
+
+
+def cmd_sweep(args):
+    from .sweep_slip import run_slip_sweep
+    try:
+        slips = [float(s) for s in args.slips.split(",") if s.strip()]
+    except ValueError:
+        raise CliError(f"--slips {args.slips!r}: must be comma-separated numbers") from None
+    if not slips or any(not (0.0 <= s < 1.0) for s in slips):
+        raise CliError(f"--slips {args.slips!r}: each slip must be in [0, 1)")
+    run_slip_sweep(args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress)
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "prepare": cmd_prepare, "resume": cmd_resume, "checkpoint": cmd_checkpoint,
+            "scenarios": cmd_scenarios, "report": cmd_report, "compare": cmd_compare, "sweep": cmd_sweep}
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from .bed import BedError
+    from .engine.run import RunError
+    from .engine.stepper import EngineError
+    from .scenario import ScenarioError
+    known = (CliError, ScenarioError, RunError, EngineError, BedError)
+    try:
+        from storage import StoreError
+        known = known + (StoreError,)
+    except ImportError:
+        pass
+    try:
+        return COMMANDS[args.command](args)
+    except known as e:
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        print(f"ooc-dem: error: {msg}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("ooc-dem: interrupted (the last committed epoch is kept; `ooc-dem resume` continues)",
+              file=sys.stderr)
+        return 130
+    except OSError as e:
+        print(f"ooc-dem: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,371 @@
+"""Simulation: a scenario advanced in one of the execution modes, with epochs,
+time series, summary and figures written into its output directory (a store).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..bed import settled_bed, surface_height
+from ..checkpoint import particles_to_record, record_to_particles
+from ..physics.forces import WS_SIZE, WS_X, WS_Y
+from ..scenario import Scenario, ScenarioError, scenario_from_toml
+from ..state import FORMAT_VERSION, Particles
+from .stepper import DomainStepper, EngineError, Model
+
+MODES = ("monolithic", "ddm", "ooc")
+BACKENDS = ("hdf5", "zarr", "memory")
+
+
+class RunError(RuntimeError):
+    """A run cannot start or continue (message is one line)."""
+
+
+@dataclass
+class RunOptions:
+    mode: str = "monolithic"
+    backend: str = "hdf5"
+    domains: int | None = None
+    block: int | None = None
+    steps: int | None = None            # total steps to run (from step 0)
+    checkpoint_every: int | None = None  # steps between committed epochs
+    durable: bool = False
+    progress: bool = True
+    figures: bool = True
+
+
+def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
+    """Wheel centre above the bed under x0, lug tips drop_gap above the highest disc."""
+    w = sc.wheel
+    ws = np.zeros(WS_SIZE)
+    under = np.abs(bed.x - w.x0) < w.lug_tip_radius + sc.soil.r_max
+    top = float((bed.y[under] + bed.r[under]).max()) if under.any() else float((bed.y + bed.r).max())
+    ws[WS_X] = w.x0
+    ws[WS_Y] = top + w.lug_tip_radius + w.drop_gap
+    return ws
+
+
+def total_steps(sc: Scenario, opts: RunOptions) -> int:
+    if opts.steps is not None:
+        return int(opts.steps)
+    if sc.wheel.enabled:
+        return int(round((sc.wheel.settle_time + sc.wheel.travel_time) / sc.physics.dt))
+    return int(sc.output.run_steps)
+
+
+class Progress:
+    """tqdm bar over simulated time, with steps/s; silent when disabled."""
+
+    def __init__(self, enabled: bool, total_steps: int, dt: float, label: str):
+        self.bar = None
+        self.dt = dt
+        if enabled and total_steps > 0:
+            from tqdm import tqdm
+            self.bar = tqdm(total=total_steps, desc=label, unit="step", unit_scale=True,
+                            mininterval=1.0, file=sys.stderr, dynamic_ncols=True,
+                            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} steps "
+                                       "[{elapsed}<{remaining}, {rate_fmt}] {postfix}")
+
+    def update(self, step: int, n: int, **post):
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"t={step * self.dt:.4f} s " + " ".join(f"{k}={v}" for k, v in post.items()),
+                                     refresh=False)
+            self.bar.update(n)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+class MonolithicEngine:
+    """The whole bin as one domain, advanced in place (the fair memory baseline)."""
+
+    name = "monolithic"
+
+    def __init__(self, particles: Particles, wheel_state: np.ndarray, model: Model):
+        self.model = model
+        self.stepper = DomainStepper(particles, model, wheel_state)
+        self.resident_max = len(particles)
+
+    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+        return self.stepper.advance(step0, nsteps)
+
+    @property
+    def wheel_state(self) -> np.ndarray:
+        return self.stepper.ws
+
+    def particles(self) -> Particles:
+        return self.stepper.p
+
+    def write_domains(self, writer) -> None:
+        p = self.stepper.p
+        order = np.argsort(p.x, kind="stable")
+        q = p.take(order)
+        attrs = {"xmin": float(q.x[0]) if len(q) else 0.0, "xmax": float(q.x[-1]) if len(q) else 0.0}
+        writer.write_domain(0, particles_to_record(q), attrs)
+
+    def info(self) -> dict:
+        return {"resident_max": self.resident_max, "neighbour_rebuilds": self.stepper.rebuilds}
+
+
+def read_all_particles(reader) -> Particles:
+    """All discs of an epoch (every domain group), sorted by id."""
+    parts = [record_to_particles(reader.read_domain(d)) for d in reader.domains()]
+    return Particles.concat(parts).sorted_by_id()
+
+
+def default_checkpoint_every(sc: Scenario, steps: int) -> int:
+    """One epoch per simulated second of a wheel run (at most ~100 per run), else only at the end."""
+    if sc.wheel.enabled:
+        every = int(round(1.0 / sc.physics.dt))
+        return max(every, -(-steps // 100)) if steps else every
+    return max(1, steps)
+
+
+class Simulation:
+    """A scenario run in one mode, writing its store, series, summary and figures into ``out``."""
+
+    def __init__(self, sc: Scenario, out: str | Path, opts: RunOptions | None = None):
+        self.sc = sc
+        self.out = Path(out)
+        self.opts = opts or RunOptions()
+        if self.opts.mode not in MODES:
+            raise RunError(f"--mode {self.opts.mode!r}: must be one of {', '.join(MODES)}")
+        if self.opts.backend not in BACKENDS:
+            raise RunError(f"--backend {self.opts.backend!r}: must be one of {', '.join(BACKENDS)}")
+        self.model = Model.from_scenario(sc)
+        self.steps = total_steps(sc, self.opts)
+        if self.steps < 0:
+            raise RunError(f"--steps {self.steps}: must be >= 0")
+        self.checkpoint_every = self.opts.checkpoint_every or default_checkpoint_every(sc, self.steps)
+        if self.checkpoint_every < 1:
+            raise RunError(f"--checkpoint-every {self.checkpoint_every}: must be >= 1 step")
+        self.store = None
+        self.engine = None
+        self.metrics = None
+        self.step = 0
+        self.surface = 0.0
+        self.wall_time = 0.0
+        self.redecompositions: list = []
+
+    # ------------------------------------------------------------------ setup
+    def _meta(self) -> dict:
+        o = self.opts
+        return {"engine": "ooc-dem", "engine_version": __version__, "format_version": FORMAT_VERSION,
+                "scenario_toml": self.sc.to_toml(), "scenario_hash": self.sc.hash(),
+                "scenario_name": self.sc.name,
+                "run": {"mode": o.mode, "backend": o.backend, "domains": o.domains, "block": o.block,
+                        "steps": self.steps, "checkpoint_every": self.checkpoint_every}}
+
+    def _store_backend(self) -> str:
+        # monolithic and DDM checkpoint to a file store too; the backend is the user's choice
+        return self.opts.backend
+
+    def start(self, bed: Particles | None = None) -> None:
+        from storage import StoreError, create_store
+        if self.out.exists() and any(self.out.iterdir()):
+            raise RunError(f"--out {self.out}: directory exists and is not empty (use a new directory, "
+                           f"or `ooc-dem resume {self.out}` to continue a run)")
+        if bed is None:
+            bed = settled_bed(self.sc, progress=self._bed_progress())
+        ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
+        self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max)
+        try:
+            self.store = create_store(self.out, self._store_backend(), self._meta())
+        except StoreError as e:
+            raise RunError(str(e)) from None
+        np.savez(self.out / "initial.npz", id=bed.id, x=bed.x, y=bed.y, r=bed.r,
+                 surface=np.float64(self.surface))
+        (self.out / "scenario.toml").write_text(self.sc.to_toml())
+        self.engine = self._make_engine(bed, ws)
+        if self.sc.wheel.enabled:
+            from ..metrics import WheelMetrics
+            self.metrics = WheelMetrics(self.sc, self.surface, self.steps)
+        self.step = 0
+        self.commit()
+
+    def _make_engine(self, particles: Particles, ws: np.ndarray):
+        if self.opts.mode == "monolithic":
+            return MonolithicEngine(particles, ws, self.model)
+        from .sweep import SweepEngine
+        return SweepEngine.create(self, particles, ws)
+
+    def _bed_progress(self):
+        if not self.opts.progress:
+            return None
+        state = {"last": 0.0}
+
+        def cb(t, speed):
+            if time.time() - state["last"] > 1.0:
+                state["last"] = time.time()
+                print(f"\rsettling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s "
+                      f"(target {self.sc.bed.settle_speed:.1e})", end="", file=sys.stderr, flush=True)
+        return cb
+
+    # ------------------------------------------------------------ checkpoint
+    def commit(self) -> None:
+        from storage import StoreError
+        attrs = {"step": self.step, "time": self.step * self.sc.physics.dt, "surface": self.surface,
+                 "scenario_hash": self.sc.hash(), "mode": self.opts.mode,
+                 "wall_time": self.wall_time, "redecompositions": self.redecompositions,
+                 "format_version": FORMAT_VERSION, "engine_version": __version__}
+        attrs["engine"] = self.engine.info()
+        arrays = {"wheel_state": np.asarray(self.engine.wheel_state, np.float64).copy()}
+        if self.metrics is not None:
+            arrays.update(self.metrics.state_arrays())
+        try:
+            if hasattr(self.engine, "commit_epoch"):
+                self.engine.commit_epoch(self.step, arrays, attrs, self.opts.durable)
+                return
+            writer = self.store.begin_epoch(self.step)
+            try:
+                self.engine.write_domains(writer)
+                writer.write_globals(arrays, attrs)
+                writer.commit(durable=self.opts.durable)
+            except BaseException:
+                writer.abort()
+                raise
+        except StoreError as e:
+            raise RunError(str(e)) from None
+
+    # ------------------------------------------------------------------- run
+    def run(self) -> dict:
+        if self.engine is None:
+            self.start()
+        dt = self.sc.physics.dt
+        bar = Progress(self.opts.progress, self.steps - self.step, dt, f"{self.sc.name} [{self.opts.mode}]")
+        chunk_pref = getattr(self.engine, "preferred_chunk", 2000)
+        t_start = time.time() - self.wall_time
+        try:
+            while self.step < self.steps:
+                next_ckpt = (self.step // self.checkpoint_every + 1) * self.checkpoint_every
+                n = min(self.steps, next_ckpt, self.step + chunk_pref) - self.step
+                rec = self.engine.advance(self.step, n)
+                if self.metrics is not None:
+                    self.metrics.add(rec, self.step)
+                self.step += n
+                self.wall_time = time.time() - t_start
+                post = {}
+                if self.sc.wheel.enabled and len(rec):
+                    post["x"] = f"{rec[-1, 1]:.4f}"
+                bar.update(self.step, n, **post)
+                if self.step % self.checkpoint_every == 0 or self.step == self.steps:
+                    self.commit()
+        except EngineError as e:
+            raise RunError(f"{e} (last committed epoch kept in {self.out})") from None
+        finally:
+            bar.close()
+        return self.finish()
+
+    def finish(self) -> dict:
+        summary = {"scenario": self.sc.name, "scenario_hash": self.sc.hash(), "mode": self.opts.mode,
+                   "backend": self.opts.backend, "steps": self.step,
+                   "simulated_time_s": self.step * self.sc.physics.dt,
+                   "wall_time_s": round(self.wall_time, 3), "n_discs": self.n_discs(),
+                   "engine": self.engine.info()}
+        if self.metrics is not None:
+            summary.update(self.metrics.summary())
+            write_series_csv(self.out / "series.csv", self.metrics.series())
+        summary["state_hash"] = self.state_hash()
+        (self.out / "summary.json").write_text(json.dumps(summary, indent=2))
+        if self.opts.figures and self.metrics is not None:
+            from ..plots import make_figures
+            make_figures(self.out)
+        return summary
+
+    def n_discs(self) -> int:
+        if hasattr(self.engine, "n_discs"):
+            return self.engine.n_discs()
+        return len(self.engine.particles())
+
+    def state_hash(self) -> str:
+        from ..checkpoint import hash_particles
+        from storage import open_store
+        store = open_store(self.out)
+        reader = store.read_epoch()
+        p = read_all_particles(reader)
+        arrays, attrs = reader.read_globals()
+        h = hash_particles(p, arrays["wheel_state"], int(attrs["step"]))
+        reader.close()
+        store.close()
+        return h
+
+
+def write_series_csv(path: Path, rows: np.ndarray) -> None:
+    from ..metrics import SERIES_COLUMNS, SERIES_UNITS
+    header = ",".join(f"{c} [{u}]" for c, u in zip(SERIES_COLUMNS, SERIES_UNITS))
+    np.savetxt(path, rows, delimiter=",", header=header, comments="", fmt="%.10g")
+
+
+def resume_simulation(path, steps: int | None = None, until: float | None = None,
+                      progress: bool = True, figures: bool = True) -> "Simulation | None":
+    """Reopen a run's store at its last intact epoch and return a Simulation ready to run.
+
+    Returns None (after a message) when the run is already finished.
+    """
+    from storage import StoreError, open_store
+    path = Path(path)
+    try:
+        store = open_store(path)
+    except StoreError as e:
+        raise RunError(str(e)) from None
+    meta = store.meta or {}
+    if meta.get("engine") != "ooc-dem":
+        raise RunError(f"{path}: not an ooc-dem run store")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise RunError(f"{path}: store format version {meta.get('format_version')} is not supported "
+                       f"(this engine reads version {FORMAT_VERSION})")
+    try:
+        sc = scenario_from_toml(meta["scenario_toml"])
+    except (KeyError, ScenarioError) as e:
+        raise RunError(f"{path}: stored scenario unreadable ({e})") from None
+    if sc.hash() != meta.get("scenario_hash"):
+        raise RunError(f"{path}: stored scenario does not match its hash (store damaged or edited)")
+    run = meta["run"]
+    total = run["steps"]
+    if until is not None:
+        total = int(round(until / sc.physics.dt))
+    elif steps is not None:
+        total = steps
+    opts = RunOptions(mode=run["mode"], backend=run["backend"], domains=run["domains"], block=run["block"],
+                      steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
+                      figures=figures)
+    sim = Simulation(sc, path, opts)
+    try:
+        reader = store.read_epoch()
+    except StoreError as e:
+        raise RunError(str(e)) from None
+    for w in getattr(store, "warnings", []):
+        print(f"ooc-dem: warning: {w}", file=sys.stderr)
+    arrays, attrs = reader.read_globals()
+    if attrs.get("scenario_hash") != sc.hash():
+        raise RunError(f"{path}: epoch {reader.step} was written by a different scenario")
+    step = int(attrs["step"])
+    sim.store = store
+    sim.step = step
+    sim.surface = float(attrs["surface"])
+    sim.wall_time = float(attrs.get("wall_time", 0.0))
+    sim.redecompositions = list(attrs.get("redecompositions", []))
+    if sc.wheel.enabled:
+        from ..metrics import WheelMetrics
+        sim.metrics = WheelMetrics(sc, sim.surface, max(total, step))
+        sim.metrics.load_state(arrays)
+    if sim.opts.mode == "monolithic":
+        particles = read_all_particles(reader)
+        sim.engine = MonolithicEngine(particles, arrays["wheel_state"], sim.model)
+    else:
+        from .sweep import SweepEngine
+        sim.engine = SweepEngine.reopen(sim, reader, arrays, attrs)
+    reader.close()
+    if step >= total:
+        print(f"{path}: run already finished at step {step} (nothing to do)")
+        return None
+    return sim

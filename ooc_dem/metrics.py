@@ -1,0 +1,178 @@
+"""Wheel performance: slip, net traction, gross traction, torque, sinkage.
+
+Sign conventions: the wheel drives in +x turning clockwise at omega > 0;
+net traction = horizontal soil force on the wheel (+ forward);
+torque = soil torque on the wheel, counter-clockwise positive (it resists the
+clockwise drive, so it is positive when driving); gross traction = torque / R;
+slip s = 1 - v / (R omega); sinkage = initial surface height - lowest rim point.
+
+Accumulation is sequential, step by step, so the numbers do not depend on how
+the steps were grouped into blocks (modes and restarts give the same bits).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .engine.stepper import (REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y, REC_DB)
+
+SERIES_COLUMNS = ("t", "t_travel", "x", "y", "vx", "omega", "slip", "net_traction",
+                  "vertical_force", "torque", "gross_traction", "sinkage", "drawbar")
+SERIES_UNITS = ("s", "s", "m", "m", "m/s", "rad/s", "-", "N", "N", "N m", "N", "m", "N")
+
+# interval accumulator layout
+I_N, I_VX, I_WZ, I_FX, I_FY, I_TQ, I_Y, I_DB, I_X, I_YLAST, I_T = range(11)
+N_IACC = 11
+# window accumulator layout (per window)
+W_N, W_FX, W_FY, W_TQ, W_SINK, W_X0, W_X1, W_T0, W_T1 = range(9)
+N_WACC = 9
+
+
+@njit(cache=True)
+def _accumulate(rec, steps_per_row, step0, iacc, rows, nrows, wacc, windows, surface, radius, omega):
+    """Fold per-step records into interval rows and window sums (sequentially)."""
+    for s in range(rec.shape[0]):
+        t = rec[s, REC_T]
+        iacc[I_N] += 1.0
+        iacc[I_VX] += rec[s, REC_VX]
+        iacc[I_WZ] += rec[s, REC_WZ]
+        iacc[I_FX] += rec[s, REC_FX]
+        iacc[I_FY] += rec[s, REC_FY]
+        iacc[I_TQ] += rec[s, REC_TQ]
+        iacc[I_Y] += rec[s, REC_Y]
+        iacc[I_DB] += rec[s, REC_DB]
+        iacc[I_X] = rec[s, REC_X]
+        iacc[I_YLAST] = rec[s, REC_Y]
+        iacc[I_T] = t
+        for k in range(windows.shape[0]):
+            if t >= windows[k, 0] and t < windows[k, 1]:
+                if wacc[k, W_N] == 0.0:
+                    wacc[k, W_X0] = rec[s, REC_X]
+                    wacc[k, W_T0] = t
+                wacc[k, W_N] += 1.0
+                wacc[k, W_FX] += rec[s, REC_FX]
+                wacc[k, W_FY] += rec[s, REC_FY]
+                wacc[k, W_TQ] += rec[s, REC_TQ]
+                wacc[k, W_SINK] += surface - (rec[s, REC_Y] - radius)
+                wacc[k, W_X1] = rec[s, REC_X]
+                wacc[k, W_T1] = t
+        if ((step0 + s + 1) % steps_per_row) == 0:
+            n = iacc[I_N]
+            r = nrows[0]
+            if r < rows.shape[0]:
+                rows[r, 0] = t
+                rows[r, 2] = iacc[I_X]
+                rows[r, 3] = iacc[I_YLAST]
+                rows[r, 4] = iacc[I_VX] / n
+                rows[r, 5] = -iacc[I_WZ] / n
+                rows[r, 6] = (1.0 - (iacc[I_VX] / n) / (radius * omega)) if omega > 0 and iacc[I_WZ] != 0.0 else np.nan
+                rows[r, 7] = iacc[I_FX] / n
+                rows[r, 8] = iacc[I_FY] / n
+                rows[r, 9] = iacc[I_TQ] / n
+                rows[r, 10] = iacc[I_TQ] / n / radius
+                rows[r, 11] = surface - (iacc[I_Y] / n - radius)
+                rows[r, 12] = iacc[I_DB] / n
+                nrows[0] = r + 1
+            iacc[:] = 0.0
+
+
+class WheelMetrics:
+    """Time series and window averages of the wheel's performance."""
+
+    def __init__(self, sc, surface: float, total_steps: int):
+        self.sc = sc
+        self.surface = float(surface)
+        dt = sc.physics.dt
+        self.steps_per_row = max(1, int(round(sc.output.series_interval / dt)))
+        self.iacc = np.zeros(N_IACC)
+        self.rows = np.full((total_steps // self.steps_per_row + 1, len(SERIES_COLUMNS)), np.nan)
+        self.nrows = np.zeros(1, np.int64)
+        w = sc.wheel
+        t0 = w.settle_time
+        self.windows = np.array([
+            [t0, t0 + w.travel_time],
+            [t0 + sc.output.steady_start, t0 + min(sc.output.steady_end, w.travel_time)],
+            [t0 - min(0.1 * w.settle_time, 0.1), t0],   # static sinkage: end of settling
+        ])
+        self.wacc = np.zeros((len(self.windows), N_WACC))
+        self.static_sinkage = math.nan
+
+    def add(self, rec: np.ndarray, step0: int) -> None:
+        if len(rec) == 0:
+            return
+        w = self.sc.wheel
+        _accumulate(rec, self.steps_per_row, step0, self.iacc, self.rows, self.nrows, self.wacc,
+                    self.windows, self.surface, w.radius, w.omega)
+
+    # ---- persistence (checkpoint) ----------------------------------------
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        n = int(self.nrows[0])
+        return {"metrics_iacc": self.iacc.copy(), "metrics_wacc": self.wacc.copy(),
+                "metrics_rows": self.rows[:n].copy()}
+
+    def load_state(self, arrays: dict[str, np.ndarray]) -> None:
+        self.iacc[:] = arrays["metrics_iacc"]
+        self.wacc[:] = arrays["metrics_wacc"]
+        rows = arrays["metrics_rows"]
+        self.rows[: len(rows)] = rows
+        self.nrows[0] = len(rows)
+
+    # ---- results -----------------------------------------------------------
+    def series(self) -> np.ndarray:
+        rows = self.rows[: int(self.nrows[0])].copy()
+        rows[:, 1] = rows[:, 0] - self.sc.wheel.settle_time
+        return rows
+
+    def _window(self, k: int) -> dict:
+        a = self.wacc[k]
+        w = self.sc.wheel
+        n = a[W_N]
+        if n == 0:
+            return {"steps": 0}
+        t0 = self.windows[k, 0] - w.settle_time
+        t1 = self.windows[k, 1] - w.settle_time
+        dur = a[W_T1] - a[W_T0] + self.sc.physics.dt
+        dist = a[W_X1] - a[W_X0]
+        ro = w.radius * w.omega
+        return {
+            "steps": int(n),
+            "window_s": [float(t0), float(t1)],
+            "slip": float(1.0 - dist / (ro * dur)) if ro > 0 else None,
+            "net_traction": float(a[W_FX] / n),
+            "vertical_force": float(a[W_FY] / n),
+            "torque": float(a[W_TQ] / n),
+            "gross_traction": float(a[W_TQ] / n / w.radius),
+            "sinkage": float(a[W_SINK] / n),
+            "travel_distance": float(dist),
+        }
+
+    def summary(self) -> dict:
+        whole, steady, static = self._window(0), self._window(1), self._window(2)
+
+        def q(key, unit):
+            return {"unit": unit,
+                    "whole_travel": {"value": whole.get(key), "window_s": whole.get("window_s")},
+                    "steady": {"value": steady.get(key), "window_s": steady.get("window_s")}}
+
+        out = {
+            "time_origin": "start of travel (end of the wheel's settling)",
+            "slip": q("slip", "-"),
+            "net_traction": q("net_traction", "N"),
+            "gross_traction": q("gross_traction", "N"),
+            "torque": q("torque", "N m"),
+            "vertical_force": q("vertical_force", "N"),
+            "travel_distance": q("travel_distance", "m"),
+            "sinkage": q("sinkage", "m"),
+        }
+        mr = {}
+        for name, win in (("whole_travel", whole), ("steady", steady)):
+            if win.get("steps"):
+                mr[name] = {"value": win["gross_traction"] - win["net_traction"], "window_s": win["window_s"]}
+        out["motion_resistance"] = {"unit": "N", **mr}
+        out["sinkage"]["static"] = {"value": static.get("sinkage"),
+                                    "window_s": static.get("window_s"),
+                                    "note": "mean over the last part of the settling phase (omega = 0)"}
+        out["surface_height"] = {"unit": "m", "value": self.surface}
+        return out

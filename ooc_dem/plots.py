@@ -1,0 +1,489 @@
+"""Matplotlib figures and text tables of a wheel run.
+
+* ``make_figures(out_dir)`` writes ``OUT/figures/series.png`` (time series),
+  ``deformation.png`` (the paper's Figs. 5-6: initial bed in horizontal layers,
+  final bed with each disc in its initial layer colour, the wheel with its lugs)
+  and ``displacement.png`` (gridded displacement vectors).
+* ``print_table(summary)`` formats ``summary.json`` like the paper's Table 3.
+* ``sweep_plot(csv, png)`` draws a drawbar-pull--slip curve.
+
+Everything runs headless (Agg backend); discs are drawn at their true radii with
+one ``EllipseCollection``, so ~10^4 discs render in about a second.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .fields import displacements, gridded_displacement, layer_index
+
+LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
+DPI = 150
+
+
+# ------------------------------------------------------------------ helpers
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    """Columns of a comma-separated file with a one-line header; ``name [unit]`` -> ``name``."""
+    path = Path(path)
+    with open(path) as f:
+        header = f.readline().strip()
+    names = [h.strip().split(" [")[0].strip() for h in header.split(",")]
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    if data.size == 0:
+        data = np.zeros((0, len(names)))
+    if data.shape[1] != len(names):
+        raise ValueError(f"{path}: header has {len(names)} columns, rows have {data.shape[1]}")
+    return {n: data[:, k] for k, n in enumerate(names)}
+
+
+def read_series(path) -> dict[str, np.ndarray]:
+    """``series.csv`` as a dict of column arrays keyed by name without unit (``t_travel``, ``slip``...)."""
+    return _read_csv(path)
+
+
+def _window(summary: dict | None, key: str, name: str):
+    try:
+        w = summary[key][name]["window_s"]
+        return (float(w[0]), float(w[1])) if w is not None else None
+    except (KeyError, TypeError, IndexError):
+        return None
+
+
+def _load_scenario(out: Path):
+    f = out / "scenario.toml"
+    if not f.exists():
+        return None
+    from .scenario import scenario_from_toml
+    return scenario_from_toml(f.read_text())
+
+
+def _read_final(out: Path):
+    """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
+    from storage import open_store
+    from .engine.run import read_all_particles
+    store = open_store(out)
+    try:
+        reader = store.read_epoch()
+        try:
+            p = read_all_particles(reader)
+            arrays, _ = reader.read_globals()
+            ws = np.asarray(arrays["wheel_state"], dtype=np.float64).copy()
+        finally:
+            reader.close()
+    finally:
+        store.close()
+    return p.id.copy(), p.x.copy(), p.y.copy(), p.r.copy(), ws
+
+
+def _discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=1, alpha=None):
+    """All discs as one EllipseCollection at true radius (data units)."""
+    from matplotlib.collections import EllipseCollection
+    from matplotlib.colors import to_rgba_array
+    facecolors = to_rgba_array(facecolors if isinstance(facecolors, str) else list(facecolors))
+    d = 2.0 * np.asarray(r, dtype=np.float64)
+    coll = EllipseCollection(d, d, np.zeros_like(d), units="xy",
+                             offsets=np.column_stack([x, y]), offset_transform=ax.transData,
+                             facecolors=facecolors, edgecolors=edgecolor, linewidths=linewidth,
+                             zorder=zorder, alpha=alpha)
+    ax.add_collection(coll)
+    return coll
+
+
+def draw_wheel(ax, x, y, theta, radius, n_lugs, lug_tip_radius, lug_thickness=0.002,
+               fill=True, zorder=5, color="k", alpha=1.0, linestyle="-"):
+    """Rim circle plus ``n_lugs`` radial lugs (from R to the tip) at angles theta + 2 pi k / n."""
+    from matplotlib.patches import Circle, Polygon
+    ax.add_patch(Circle((x, y), radius, facecolor="#b8c4d0" if fill else "none",
+                        edgecolor=color, linewidth=1.0, zorder=zorder, alpha=alpha, linestyle=linestyle))
+    half = 0.5 * lug_thickness
+    for k in range(int(n_lugs)):
+        phi = theta + 2.0 * math.pi * k / n_lugs
+        ux, uy = math.cos(phi), math.sin(phi)
+        nx, ny = -uy, ux
+        pts = [(x + ux * rr + nx * s, y + uy * rr + ny * s)
+               for rr, s in ((radius, -half), (lug_tip_radius, -half), (lug_tip_radius, half), (radius, half))]
+        ax.add_patch(Polygon(pts, closed=True, facecolor=color if fill else "none", edgecolor=color,
+                             linewidth=0.8, zorder=zorder + 0.1, alpha=alpha, linestyle=linestyle))
+    ax.plot([x], [y], marker="+", color=color, markersize=6, zorder=zorder + 0.2, alpha=alpha)
+
+
+def _panel_size(xr: float, yr: float, max_w: float = 10.0, max_h: float = 6.0) -> tuple[float, float]:
+    """Inches (width, height) of an equal-aspect panel of data size xr x yr within max_w x max_h."""
+    aspect = yr / xr if xr > 0 else 1.0
+    w, h = max_w, max_w * aspect
+    if h > max_h:
+        w, h = max_h / aspect, max_h
+    return max(w, 4.0), max(h, 1.5)
+
+
+def _n_layers(depth: float, r: np.ndarray) -> int:
+    """About four mean disc diameters per layer, 4..16 layers."""
+    d = 2.0 * float(np.mean(r)) if len(r) else depth / 8
+    return int(np.clip(round(depth / (4.0 * d)), 4, 16))
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=DPI)
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    return path
+
+
+# ------------------------------------------------------------------ figures
+
+
+def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
+    plt = _pyplot()
+    t = series.get("t_travel", series.get("t"))
+    steady = _window(summary, "slip", "steady")
+    if steady is None and sc is not None:
+        steady = (sc.output.steady_start, min(sc.output.steady_end, sc.wheel.travel_time))
+    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(9, 9.5), constrained_layout=True)
+    a_slip, a_tr, a_tq, a_sk = axes
+
+    a_slip.plot(t, series["slip"], color="C0", lw=1.0)
+    a_slip.set_ylabel("slip s [-]")
+    ws = _summary_value(summary, "slip", "steady")
+    if ws is not None and math.isfinite(ws):
+        a_slip.axhline(ws, color="C0", ls=":", lw=1.0, label=f"steady mean {ws:.3f}")
+
+    a_tr.plot(t, series["net_traction"], color="C1", lw=0.8, label="net traction")
+    a_tr.plot(t, series["gross_traction"], color="C2", lw=0.8, label="gross traction (torque / R)")
+    db = series.get("drawbar")
+    if db is not None and np.any(np.abs(db[np.isfinite(db)]) > 0):
+        a_tr.plot(t, -db, color="k", ls="--", lw=1.0, label="drawbar load")
+    a_tr.set_ylabel("traction [N]")
+    a_tr.legend(loc="lower right", fontsize=8, ncol=3)
+
+    a_tq.plot(t, series["torque"], color="C3", lw=0.8)
+    a_tq.set_ylabel("torque [N m]")
+
+    a_sk.plot(t, 1e3 * series["sinkage"], color="C4", lw=1.0)
+    a_sk.set_ylabel("sinkage [mm]")
+    a_sk.set_xlabel("travel time [s]  (0 = end of the wheel's settling)")
+
+    for k, ax in enumerate(axes):
+        if steady is not None:
+            ax.axvspan(steady[0], steady[1], color="0.85", alpha=0.6, zorder=0,
+                       label="steady window" if k == 0 else None)
+        if len(t) and np.nanmin(t) < 0:
+            ax.axvline(0.0, color="0.4", lw=0.8, ls="-.")
+        ax.grid(True, lw=0.3, alpha=0.6)
+    if a_slip.get_legend_handles_labels()[0]:
+        a_slip.legend(loc="lower right", fontsize=8)
+    name = (summary or {}).get("scenario") or (sc.name if sc is not None else "")
+    title = f"Wheel performance — {name}" if name else "Wheel performance"
+    if steady is not None:
+        title += f"  (shaded: steady window {steady[0]:g}–{steady[1]:g} s)"
+    fig.suptitle(title, fontsize=11)
+    return _save(fig, path)
+
+
+def _summary_value(summary, key, name):
+    try:
+        v = summary[key][name]["value"]
+        return None if v is None else float(v)
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _placement(sc, x, y, r):
+    """The wheel's initial centre, as the engine places it (run.place_wheel): above x0 with the
+    lug tips drop_gap above the highest disc under the wheel; theta = 0."""
+    w = sc.wheel
+    if len(x) == 0:
+        return w.x0, w.lug_tip_radius + w.drop_gap
+    under = np.abs(x - w.x0) < w.lug_tip_radius + sc.soil.r_max
+    top = float((y[under] + r[under]).max()) if under.any() else float((y + r).max())
+    return w.x0, top + w.lug_tip_radius + w.drop_gap
+
+
+def _zoom(sc, series, ws_final, bed_x, bed_y, bed_r, surface):
+    """(x0, x1, y0, y1): from the wheel's start - 1.5 R to its final x + 1.5 R, floor to wheel top."""
+    lo_x = float(np.min(bed_x - bed_r)) if len(bed_x) else 0.0
+    hi_x = float(np.max(bed_x + bed_r)) if len(bed_x) else 1.0
+    if sc is not None:
+        lo_x = min(lo_x, 0.0)
+        hi_x = max(hi_x, sc.bin.length)
+    y0 = min(0.0, float(np.min(bed_y - bed_r))) if len(bed_y) else 0.0
+    y1 = surface
+    if sc is not None and sc.wheel.enabled and ws_final is not None:
+        R = sc.wheel.radius
+        start, y_start = _placement(sc, bed_x, bed_y, bed_r)
+        xa = max(lo_x, min(start, ws_final[0]) - 1.5 * R)
+        xb = min(hi_x, max(start, ws_final[0]) + 1.5 * R)
+        y1 = max(surface, ws_final[1] + sc.wheel.lug_tip_radius, y_start + sc.wheel.lug_tip_radius)
+        if series is not None and len(series.get("y", [])):
+            y1 = max(y1, float(np.nanmax(series["y"])) + sc.wheel.lug_tip_radius)
+    else:
+        xa, xb = lo_x, hi_x
+    pad = 0.02 * (y1 - y0)
+    return xa, xb, y0 - pad, y1 + pad
+
+
+def _deformation_figure(init, final, sc, series, path: Path):
+    plt = _pyplot()
+    iid, ix, iy, ir, surface = init
+    fid, fx, fy, fr, ws = final
+    n_layers = _n_layers(surface, ir)
+    layer = layer_index(iy, surface, n_layers)
+    colours = np.array(LAYER_COLOURS)[layer % 2]
+    # final discs take the layer colour of the same id
+    fcol = np.full(len(fid), "#4a7fbf", dtype=object)   # discs not in the initial bed (none expected)
+    if len(iid):
+        order = np.argsort(iid, kind="stable")
+        pos = np.clip(np.searchsorted(iid[order], fid), 0, len(iid) - 1)
+        known = iid[order][pos] == fid
+        fcol[known] = colours[order][pos[known]]
+
+    xa, xb, ya, yb = _zoom(sc, series, ws, ix, iy, ir, surface)
+    width_in, panel_h = _panel_size(xb - xa, yb - ya)
+    fig, axes = plt.subplots(2, 1, figsize=(width_in + 0.8, 2 * panel_h + 1.0), sharex=True, sharey=True,
+                             constrained_layout=True)
+    a0, a1 = axes
+    m0 = (ix + ir > xa) & (ix - ir < xb)
+    _discs(a0, ix[m0], iy[m0], ir[m0], colours[m0])
+    m1 = (fx + fr > xa) & (fx - fr < xb)
+    _discs(a1, fx[m1], fy[m1], fr[m1], fcol[m1])
+    wheel_on = sc is not None and sc.wheel.enabled and ws is not None
+    if wheel_on:
+        w = sc.wheel
+        x_start, y_start = _placement(sc, ix, iy, ir)
+        draw_wheel(a0, x_start, y_start, 0.0, w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
+                   fill=False, color="0.35", linestyle="--")
+        draw_wheel(a1, ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
+    for ax in axes:
+        ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=3)
+        ax.set_xlim(xa, xb)
+        ax.set_ylim(ya, yb)
+        ax.set_aspect("equal")
+        ax.set_ylabel("y [m]")
+    a1.set_xlabel("x [m]")
+    a0.set_title(f"initial bed: {n_layers} horizontal layers of {1e3 * surface / n_layers:.1f} mm "
+                 f"(dotted: initial surface" + ("; dashed: wheel as placed)" if wheel_on else ")"),
+                 fontsize=10)
+    title = "final state: each disc keeps its initial layer colour"
+    if wheel_on:
+        title += f"; wheel at x = {ws[0]:.3f} m, θ = {math.degrees(ws[4]):.0f}°"
+    a1.set_title(title, fontsize=10)
+    return _save(fig, path)
+
+
+def _displacement_figure(init, final, sc, series, path: Path):
+    plt = _pyplot()
+    iid, ix, iy, ir, surface = init
+    fid, fx, fy, fr, ws = final
+    dx, dy = displacements(iid, ix, iy, fid, fx, fy)
+    xa, xb, ya, yb = _zoom(sc, series, ws, ix, iy, ir, surface)
+    dmean = 2.0 * float(np.mean(ir)) if len(ir) else 0.004
+    cell = max(2.5 * dmean, (xb - xa) / 45.0)
+    sel = (ix >= xa) & (ix <= xb)
+    grid = gridded_displacement(ix[sel], iy[sel], dx[sel], dy[sel], cell,
+                                extent=(xa, xb, max(ya, 0.0), surface), min_count=2)
+    mag = np.hypot(grid.u, grid.v)
+    finite = np.isfinite(mag)
+    # true scale unless arrows would overlap badly; the key gives the scale either way
+    big = float(np.percentile(mag[finite], 98)) if finite.any() else 0.0
+    scale = 1.0 if big <= 1.5 * cell or big == 0.0 else big / (1.5 * cell)
+
+    width_in, panel_h = _panel_size(xb - xa, yb - ya)
+    fig, ax = plt.subplots(figsize=(width_in + 2.0, panel_h + 0.9), constrained_layout=True)
+    m0 = (ix + ir > xa) & (ix - ir < xb)
+    _discs(ax, ix[m0], iy[m0], ir[m0], "#eeeeee", edgecolor="#cccccc", linewidth=0.1, zorder=0)
+    if finite.any():
+        q = ax.quiver(grid.x[finite], grid.y[finite], grid.u[finite], grid.v[finite], 1e3 * mag[finite],
+                      angles="xy", scale_units="xy", scale=scale, cmap="viridis", width=0.0025, zorder=2)
+        cb = fig.colorbar(q, ax=ax, shrink=0.8)
+        cb.set_label("displacement [mm]")
+        ref = _nice(big if big > 0 else cell)
+        ax.quiverkey(q, 0.97, 0.95, ref, f"{1e3 * ref:g} mm", labelpos="W", coordinates="axes",
+                     color="k", fontproperties={"size": 8})
+    wheel_on = sc is not None and sc.wheel.enabled and ws is not None
+    if wheel_on:
+        w = sc.wheel
+        draw_wheel(ax, ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
+                   fill=False, color="0.2", zorder=3)
+    ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=1)
+    ax.set_xlim(xa, xb)
+    ax.set_ylim(ya, yb)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    how = "true scale" if scale == 1.0 else f"scaled ×{1 / scale:.2g}"
+    ax.set_title(f"soil displacement (final − initial), mean over {1e3 * cell:.0f} mm cells of initial "
+                 f"position; arrows {how}" + ("; wheel at its final position" if wheel_on else ""),
+                 fontsize=9)
+    return _save(fig, path)
+
+
+def _nice(v: float) -> float:
+    """A round number (1, 2, 5 x 10^k) not above v."""
+    if not v > 0:
+        return 1e-3
+    e = math.floor(math.log10(v))
+    for m in (5.0, 2.0, 1.0):
+        if m * 10.0 ** e <= v:
+            return m * 10.0 ** e
+    return 10.0 ** e
+
+
+def make_figures(out_dir, final=None) -> list[Path]:
+    """Write the run's figures into ``OUT/figures/``; return their paths.
+
+    ``final`` = (id, x, y, r, wheel_state) skips reading the store's last epoch.
+    Figures whose inputs are missing (no ``series.csv``, no ``initial.npz``) are
+    skipped.
+    """
+    out = Path(out_dir)
+    fig_dir = out / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    sc = _load_scenario(out)
+    summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else None
+    series = read_series(out / "series.csv") if (out / "series.csv").exists() else None
+    written: list[Path] = []
+    if series is not None:
+        written.append(_series_figure(series, summary, sc, fig_dir / "series.png"))
+    if (out / "initial.npz").exists():
+        with np.load(out / "initial.npz") as z:
+            init = (z["id"].astype(np.int64), z["x"].astype(np.float64), z["y"].astype(np.float64),
+                    z["r"].astype(np.float64), float(z["surface"]))
+        if final is None:
+            final = _read_final(out)
+        fid, fx, fy, fr, ws = final
+        final = (np.asarray(fid, np.int64), np.asarray(fx, np.float64), np.asarray(fy, np.float64),
+                 np.asarray(fr, np.float64), None if ws is None else np.asarray(ws, np.float64))
+        written.append(_deformation_figure(init, final, sc, series, fig_dir / "deformation.png"))
+        written.append(_displacement_figure(init, final, sc, series, fig_dir / "displacement.png"))
+    return written
+
+
+# ------------------------------------------------------------------ tables
+
+# Nakashima (2008) Table 3, without DDM, whole 45 s of travel
+PAPER_TABLE3 = {"slip": 0.736, "net_traction": 9.968, "gross_traction": 12.697,
+                "motion_resistance": 12.697 - 9.968, "wall_time_s": 6844.0}
+
+
+def print_table(summary: dict, reference: dict | None = None) -> str:
+    """Table-3-style text table of a run's ``summary.json`` (returned, not printed).
+
+    Columns: the whole-travel and the steady window, each labelled with its
+    bounds (s of travel). For the ``paper2008`` scenario a column with the
+    paper's values (without DDM) is added unless ``reference`` is given; pass
+    ``reference={}`` to suppress it.
+    """
+    cols = ("whole_travel", "steady")
+    heads = []
+    for c in cols:
+        w = _window(summary, "slip", c) or _window(summary, "net_traction", c)
+        label = "whole travel" if c == "whole_travel" else "steady"
+        heads.append(f"{label} {w[0]:g}–{w[1]:g} s" if w else label)
+    if reference is None:
+        reference = PAPER_TABLE3 if summary.get("scenario") == "paper2008" else {}
+    if reference:
+        heads.append("paper 2008 (no DDM)")
+
+    def fmt(v, scale=1.0, digits=3):
+        if v is None:
+            return "—"
+        try:
+            v = float(v) * scale
+        except (TypeError, ValueError):
+            return "—"
+        return "nan" if not math.isfinite(v) else f"{v:.{digits}f}"
+
+    rows = []
+    spec = (("wheel slip (-)", "slip", 1.0, 3), ("net traction (N)", "net_traction", 1.0, 3),
+            ("gross traction (N)", "gross_traction", 1.0, 3),
+            ("motion resistance (N)", "motion_resistance", 1.0, 3),
+            ("torque (N m)", "torque", 1.0, 4))
+    for label, key, scale, digits in spec:
+        row = [label] + [fmt(_summary_value(summary, key, c), scale, digits) for c in cols]
+        if reference:
+            row.append(fmt(reference.get(key), 1.0, digits))
+        rows.append(row)
+    static = _summary_value(summary, "sinkage", "static")
+    row = ["static sinkage (mm)", fmt(static, 1e3, 1), ""]
+    if reference:
+        row.append("—")
+    rows.append(row)
+    row = ["travelling sinkage (mm)"] + [fmt(_summary_value(summary, "sinkage", c), 1e3, 1) for c in cols]
+    if reference:
+        row.append("—")
+    rows.append(row)
+    if summary.get("wall_time_s") is not None:
+        row = ["wall time (s)", fmt(summary["wall_time_s"], 1.0, 1), ""]
+        if reference:
+            row.append(fmt(reference.get("wall_time_s"), 1.0, 0))
+        rows.append(row)
+
+    header = ["quantity"] + heads
+    widths = [max(len(r[k]) for r in rows + [header]) for k in range(len(header))]
+
+    def line(r):
+        return "  ".join([r[0].ljust(widths[0])] + [r[k].rjust(widths[k]) for k in range(1, len(r))])
+
+    name = summary.get("scenario", "")
+    extra = ", ".join(str(summary[k]) for k in ("mode", "backend") if summary.get(k))
+    title = f"Wheel performance — {name}" + (f" ({extra})" if extra else "")
+    out = [title, line(header), "  ".join("-" * w for w in widths)] + [line(r) for r in rows]
+    notes = ["windows in s of travel (0 = end of the wheel's settling); motion resistance = gross − net"]
+    sw = _window(summary, "sinkage", "static")
+    if static is not None:
+        notes.append("static sinkage: mean at the end of settling (ω = 0)"
+                     + (f", t = {sw[0]:g}–{sw[1]:g} s" if sw else ""))
+    if reference:
+        notes.append("paper 2008: Nakashima, CIGR Ejournal PM 08 006, Table 3 (whole 45 s, 2008 Mac Pro)")
+    return "\n".join(out + [""] + notes)
+
+
+# ------------------------------------------------------------------ sweep
+
+
+def sweep_plot(csv_path, png_path) -> Path:
+    """Drawbar pull (net traction) and gross traction vs slip, and sinkage vs slip.
+
+    ``csv_path`` has a header with columns ``slip,drawbar_pull`` and optionally
+    ``gross_traction`` and ``sinkage`` (m); unit suffixes like ``drawbar_pull [N]``
+    are accepted.
+    """
+    plt = _pyplot()
+    cols = _read_csv(csv_path)
+    for need in ("slip", "drawbar_pull"):
+        if need not in cols:
+            raise ValueError(f"{csv_path}: missing column {need!r} (have {', '.join(cols)})")
+    order = np.argsort(cols["slip"], kind="stable")
+    s = cols["slip"][order]
+    has_sink = "sinkage" in cols
+    fig, axes = plt.subplots(2 if has_sink else 1, 1, sharex=True, squeeze=False,
+                             figsize=(7, 7 if has_sink else 4.5), constrained_layout=True)
+    ax = axes[0, 0]
+    ax.plot(s, cols["drawbar_pull"][order], "o-", color="C1", label="drawbar pull (net traction)")
+    if "gross_traction" in cols:
+        ax.plot(s, cols["gross_traction"][order], "s--", color="C2", label="gross traction (torque / R)")
+    ax.axhline(0.0, color="0.5", lw=0.6)
+    ax.set_ylabel("force [N]")
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(True, lw=0.3, alpha=0.6)
+    ax.set_title("drawbar pull – slip", fontsize=11)
+    if has_sink:
+        a2 = axes[1, 0]
+        a2.plot(s, 1e3 * cols["sinkage"][order], "^-", color="C4")
+        a2.set_ylabel("sinkage [mm]")
+        a2.grid(True, lw=0.3, alpha=0.6)
+    axes[-1, 0].set_xlabel("slip s [-]")
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    return _save(fig, png_path)

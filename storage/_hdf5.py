@@ -1,0 +1,110 @@
+"""HDF5 epoch format: one file per epoch, one group per sub-domain, contiguous datasets."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._util import ATTRS_KEY, FORMAT, drop_page_cache, fsync_path, remove_path, sha256_file
+
+EXT = "h5"
+IS_DIR = False
+_RDCC_NBYTES = 1 << 20
+
+
+def _h5py():
+    import h5py
+    return h5py
+
+
+def _open(path, mode):
+    # no file locking (stores live on network/scratch filesystems), small chunk cache, no SWMR
+    return _h5py().File(path, mode, locking=False, rdcc_nbytes=_RDCC_NBYTES)
+
+
+class Writer:
+    """Writes one epoch into the file `path` (a temporary name, renamed by the caller)."""
+
+    def __init__(self, path: str, step: int):
+        self.path = path
+        self.f = None
+        self.f = _open(path, "w-")
+        self.f.attrs["ooc_dem_format"] = FORMAT
+        self.f.attrs["step"] = np.int64(step)
+        self.f.create_group("domains")
+
+    def write_group(self, group: str, arrays: dict[str, np.ndarray], attrs_json: str) -> None:
+        g = self.f.create_group(group)
+        g.attrs[ATTRS_KEY] = attrs_json
+        for name, a in arrays.items():
+            g.create_dataset(name, data=a)   # contiguous layout: row ranges are read in place
+        self.f.flush()
+        drop_page_cache(self.path)           # starts write-back, drops clean pages
+
+    def finish(self, durable: bool) -> list[tuple[str, int, str]]:
+        """Close the file and return [(relpath within epoch, size, sha256)] ("" = the file itself)."""
+        f, self.f = self.f, None
+        f.close()
+        if durable:
+            fsync_path(self.path)
+        size, sha = sha256_file(self.path)
+        return [("", size, sha)]
+
+    def abort(self) -> None:
+        f, self.f = self.f, None
+        if f is not None:
+            try:
+                f.close()
+            except Exception:  # noqa: BLE001 - the file is being thrown away
+                pass
+        remove_path(self.path)
+
+
+class Reader:
+    def __init__(self, path: str):
+        self.path = path
+        self.f = _open(path, "r")
+
+    def has_group(self, group: str) -> bool:
+        obj = self.f.get(group)
+        return isinstance(obj, _h5py().Group)
+
+    def array_info(self, group: str, name: str):
+        obj = self.f.get(f"{group}/{name}")
+        if not isinstance(obj, _h5py().Dataset):
+            return None
+        return tuple(obj.shape), obj.dtype
+
+    def attrs_json(self, group: str):
+        v = self.f[group].attrs.get(ATTRS_KEY)
+        if isinstance(v, bytes):
+            v = v.decode()
+        return v
+
+    def _ds(self, group, name):
+        obj = self.f.get(f"{group}/{name}")
+        if not isinstance(obj, _h5py().Dataset):
+            raise KeyError(f"dataset /{group}/{name} missing")
+        return obj
+
+    def read_full(self, group, name, shape, dtype) -> np.ndarray:
+        ds = self._ds(group, name)
+        if tuple(ds.shape) != tuple(shape):
+            raise ValueError(f"dataset /{group}/{name} has shape {ds.shape}, manifest says {tuple(shape)}")
+        out = np.empty(shape, dtype=dtype)
+        if out.ndim == 0:
+            out[()] = ds[()]
+        elif out.size:
+            ds.read_direct(out)
+        return out
+
+    def read_range(self, group, name, start, stop, out) -> None:
+        if stop > start:
+            self._ds(group, name).read_direct(out, np.s_[start:stop], np.s_[0:stop - start])
+
+    def after_read(self) -> None:
+        drop_page_cache(self.path)
+
+    def close(self) -> None:
+        f, self.f = self.f, None
+        if f is not None:
+            f.close()

@@ -1,0 +1,160 @@
+"""Memory backend: the same store semantics held in dicts (for tests and serial DDM runs).
+
+Every memory store lives in a module-level registry keyed by its path string, so
+open_store("mem://name") reopens it for as long as the process lives (or until
+drop_memory_store). Arrays are copied on write and on read, and the "files" of an
+epoch are its arrays and attrs, checksummed over their bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from ._util import StoreError, to_json
+
+_REGISTRY: dict[str, "Backing"] = {}
+
+
+class Backing:
+    def __init__(self):
+        self.manifest_json: str | None = None
+        # epoch path -> group -> {"arrays": {name: ndarray}, "attrs": json str}
+        self.epochs: dict[str, dict[str, dict]] = {}
+
+
+def _file_entries(base: str, groups: dict) -> list[dict]:
+    files = []
+    for g, content in groups.items():
+        for name, a in content["arrays"].items():
+            files.append({"path": f"{base}/{g}/{name}", "size": int(a.nbytes),
+                          "sha256": hashlib.sha256(a.tobytes()).hexdigest()})
+        raw = content["attrs"].encode()
+        files.append({"path": f"{base}/{g}/.attrs", "size": len(raw),
+                      "sha256": hashlib.sha256(raw).hexdigest()})
+    return files
+
+
+class Writer:
+    def __init__(self):
+        self.groups: dict[str, dict] = {}
+
+    def write_group(self, group, arrays, attrs_json):
+        self.groups[group] = {"arrays": {n: np.array(a, copy=True) for n, a in arrays.items()},
+                              "attrs": attrs_json}
+
+    def abort(self):
+        self.groups = {}
+
+
+class Reader:
+    def __init__(self, groups: dict, path: str):
+        self.groups = groups
+        self.path = path
+
+    def has_group(self, group):
+        return group in self.groups
+
+    def array_info(self, group, name):
+        a = self.groups.get(group, {}).get("arrays", {}).get(name)
+        return None if a is None else (tuple(a.shape), a.dtype)
+
+    def attrs_json(self, group):
+        return self.groups[group]["attrs"]
+
+    def _a(self, group, name):
+        a = self.groups.get(group, {}).get("arrays", {}).get(name)
+        if a is None:
+            raise KeyError(f"array {group}/{name} missing")
+        return a
+
+    def read_full(self, group, name, shape, dtype):
+        a = self._a(group, name)
+        if tuple(a.shape) != tuple(shape):
+            raise ValueError(f"array {group}/{name} has shape {a.shape}, manifest says {tuple(shape)}")
+        return np.array(a, dtype=dtype, copy=True)
+
+    def read_range(self, group, name, start, stop, out):
+        out[...] = self._a(group, name)[start:stop]
+
+    def after_read(self):
+        pass
+
+    def close(self):
+        self.groups = {}
+
+
+class Place:
+    """Manifest + epochs of one memory store."""
+
+    is_memory = True
+
+    def __init__(self, key: str, backing: Backing):
+        self.key = key
+        self.b = backing
+
+    def read_manifest(self) -> dict:
+        import json
+        if self.b.manifest_json is None:
+            raise StoreError(f"{self.key}: MANIFEST.json missing or unreadable")
+        return json.loads(self.b.manifest_json)
+
+    def write_manifest(self, m: dict, durable: bool = False) -> None:
+        self.b.manifest_json = to_json(m, f"{self.key}: manifest")
+
+    def used_on_disk(self, basename: str) -> bool:
+        return basename in self.b.epochs
+
+    def new_writer(self, step: int, basename: str) -> Writer:
+        return Writer()
+
+    def tmp_name(self, basename: str) -> str:
+        return f"{self.key}/{basename} (uncommitted)"
+
+    def publish(self, writer: Writer, basename: str, durable: bool) -> tuple[str, list[dict]]:
+        self.b.epochs[basename] = writer.groups
+        return basename, _file_entries(basename, writer.groups)
+
+    def exists(self, entry) -> bool:
+        return entry["path"] in self.b.epochs
+
+    def remove_epoch(self, entry) -> None:
+        self.b.epochs.pop(entry["path"], None)
+
+    def open_reader(self, entry) -> Reader:
+        groups = self.b.epochs.get(entry["path"])
+        if groups is None:
+            raise FileNotFoundError(f"{self.key}/{entry['path']}: epoch missing")
+        return Reader(groups, f"{self.key}/{entry['path']}")
+
+    def check_files(self, entry) -> list[str]:
+        problems = []
+        groups = self.b.epochs.get(entry["path"])
+        if groups is None:
+            return [f"{self.key}/{entry['path']}: epoch missing"]
+        for f in entry["files"]:
+            base, _, rest = f["path"].partition("/")
+            g, _, name = rest.rpartition("/")
+            grp = groups.get(g)
+            where = f"{self.key}/{f['path']}"
+            if grp is None or (name != ".attrs" and name not in grp["arrays"]):
+                problems.append(f"{where}: missing")
+                continue
+            raw = grp["attrs"].encode() if name == ".attrs" else grp["arrays"][name].tobytes()
+            if len(raw) != f["size"]:
+                problems.append(f"{where}: size {len(raw)} != recorded {f['size']} (truncated?)")
+            elif hashlib.sha256(raw).hexdigest() != f["sha256"]:
+                problems.append(f"{where}: sha256 mismatch (content changed)")
+        return problems
+
+    def repair(self, m: dict) -> list[str]:
+        named = {e["path"] for e in (m.get("current"), m.get("previous")) if e}
+        removed = [p for p in self.b.epochs if p not in named]
+        for p in removed:
+            del self.b.epochs[p]
+        return [f"{self.key}/{p}" for p in removed]
+
+    def wipe(self) -> None:
+        self.b.manifest_json = None
+        self.b.epochs.clear()

@@ -1,0 +1,269 @@
+"""Helpers shared by the storage backends (no physics, no backend imports)."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import json
+import os
+import re
+import shutil
+from collections.abc import Mapping
+
+import numpy as np
+
+FORMAT = "ooc-dem-store"
+FORMAT_VERSION = 1
+MANIFEST = "MANIFEST.json"
+MANIFEST_TMP = "MANIFEST.json.tmp"
+EPOCH_DIR = "epochs"
+ATTRS_KEY = "ooc_dem_attrs"  # JSON string attribute holding a group's attrs
+
+# e000000001234.h5, e000000001234.r1.zarr (".rN" = rewrite of a step still named by the manifest)
+EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(\.r\d+)?\.(h5|zarr)$")
+ARRAY_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}$")
+_RESERVED_NAMES = {"zarr.json", ".zattrs", ".zgroup", ".zarray", "c"}
+
+_DISK_FULL_ERRNOS = {errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)}
+_DISK_FULL_TEXT = re.compile(
+    r"errno = (%s)\b|No space left|File too large|Disk quota exceeded"
+    % "|".join(str(e) for e in sorted(_DISK_FULL_ERRNOS)))
+
+
+class StoreError(Exception):
+    """Storage failure; the message names the path and what is wrong (one line)."""
+
+
+def epoch_basename(step: int, ext: str, rev: int = 0) -> str:
+    return f"e{step:012d}" + (f".r{rev}" if rev else "") + f".{ext}"
+
+
+def domain_group(d: int) -> str:
+    return f"domains/d{d:04d}"
+
+
+GLOBALS_GROUP = "globals"
+
+
+# --------------------------------------------------------------------------- errors
+
+def is_disk_full(exc: BaseException) -> bool:
+    if isinstance(exc, OSError) and exc.errno in _DISK_FULL_ERRNOS:
+        return True
+    return bool(_DISK_FULL_TEXT.search(str(exc)))
+
+
+def write_error(path, exc: BaseException) -> StoreError:
+    """StoreError for a failed write of `path` (disk full is named as such)."""
+    detail = " ".join(str(exc).split()) or type(exc).__name__
+    m = re.search(r"errno = (\d+), error message = '([^']*)'", detail)   # HDF5's verbose form
+    if m:
+        detail = f"[Errno {m.group(1)}] {m.group(2)}"
+    elif len(detail) > 240:
+        detail = detail[:240] + "..."
+    if is_disk_full(exc):
+        return StoreError(f"{path}: disk full or file too large ({detail})")
+    return StoreError(f"{path}: write failed ({type(exc).__name__}: {detail})")
+
+
+# --------------------------------------------------------------------------- JSON
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"object of type {type(o).__name__} is not JSON serialisable")
+
+
+def to_json(obj, what: str, indent=None) -> str:
+    try:
+        return json.dumps(obj, default=_json_default, indent=indent)
+    except (TypeError, ValueError) as e:
+        raise StoreError(f"{what}: not JSON-serialisable ({e})") from None
+
+
+def json_roundtrip(obj, what: str):
+    return json.loads(to_json(obj, what))
+
+
+# --------------------------------------------------------------------------- arrays
+
+def check_array_name(name, where: str) -> str:
+    if not isinstance(name, str) or not ARRAY_NAME_RE.match(name) or name in _RESERVED_NAMES:
+        raise StoreError(f"{where}: invalid array name {name!r} "
+                         f"(letters, digits, _ . + -; not starting with . or -)")
+    return name
+
+
+def prepare_arrays(arrays, where: str, min_ndim: int) -> dict[str, np.ndarray]:
+    """Validate names/dtypes; return C-contiguous native-byte-order arrays."""
+    if not isinstance(arrays, Mapping):
+        raise StoreError(f"{where}: arrays must be a dict name -> numpy array")
+    out = {}
+    for name, a in arrays.items():
+        check_array_name(name, where)
+        a = np.asarray(a)
+        if a.dtype.kind not in "biufc" or a.dtype.fields is not None:
+            raise StoreError(f"{where}: array {name!r} has non-numeric dtype {a.dtype}")
+        if a.ndim < min_ndim:
+            raise StoreError(f"{where}: array {name!r} must have at least {min_ndim} dimension(s)")
+        if not a.dtype.isnative:
+            a = a.astype(a.dtype.newbyteorder("="))
+        out[name] = a if a.flags.c_contiguous else a.copy(order="C")  # (ascontiguousarray makes 0-d 1-d)
+    return out
+
+
+def array_meta(arrays: dict[str, np.ndarray]) -> dict:
+    return {n: [list(a.shape), a.dtype.str] for n, a in arrays.items()}
+
+
+def normalize_rows(rows, n: int, where: str):
+    """None -> None; slice -> (start, stop) if step 1; otherwise a 1-D int64 index array."""
+    if rows is None:
+        return None
+    if isinstance(rows, slice):
+        start, stop, step = rows.indices(n)
+        if step == 1:
+            return (start, max(start, stop))
+        return np.arange(start, stop, step, dtype=np.int64)
+    idx = np.asarray(rows)
+    if idx.dtype == bool:
+        if idx.shape != (n,):
+            raise StoreError(f"{where}: boolean row mask has shape {idx.shape}, expected ({n},)")
+        return np.flatnonzero(idx).astype(np.int64)
+    if idx.ndim != 1 or (idx.size and idx.dtype.kind not in "iu"):
+        raise StoreError(f"{where}: rows must be a slice, a 1-D integer index array or a boolean mask")
+    idx = idx.astype(np.int64, copy=True)
+    idx[idx < 0] += n
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise StoreError(f"{where}: row index out of range for {n} rows")
+    return idx
+
+
+def gather_rows(read_range, idx: np.ndarray, shape, dtype, window_bytes: int = 1 << 20):
+    """Read rows `idx` using read_range(start, stop, out_view) over windows of nearby rows.
+
+    Only the rows spanned by each window are read (windows are at most
+    `window_bytes` wide), so a sparse selection never reads the whole array.
+    """
+    out = np.empty((idx.size,) + tuple(shape[1:]), dtype=dtype)
+    if idx.size == 0:
+        return out
+    order = None
+    if np.any(idx[1:] < idx[:-1]):
+        order = np.argsort(idx, kind="stable")
+        idx = idx[order]
+    row_bytes = max(1, int(np.prod(shape[1:], dtype=np.int64)) * np.dtype(dtype).itemsize)
+    max_span = max(1, window_bytes // row_bytes)
+    i = 0
+    m = idx.size
+    buf = None
+    while i < m:
+        start = int(idx[i])
+        j = int(np.searchsorted(idx, start + max_span, side="left"))
+        stop = int(idx[j - 1]) + 1
+        if stop - start == j - i and np.all(np.diff(idx[i:j]) == 1):
+            read_range(start, stop, out[i:j])           # contiguous run: read straight into place
+        else:
+            if buf is None or buf.shape[0] < stop - start:
+                buf = np.empty((max(stop - start, 1),) + tuple(shape[1:]), dtype=dtype)
+            view = buf[: stop - start]
+            read_range(start, stop, view)
+            out[i:j] = view[idx[i:j] - start]
+        i = j
+    if order is not None:
+        res = np.empty_like(out)
+        res[order] = out
+        out = res
+    return out
+
+
+# --------------------------------------------------------------------------- files
+
+def drop_page_cache(path, sync: bool = False) -> None:
+    """Ask the kernel to drop cached pages of `path` (a file, or every file under a directory).
+
+    Uses posix_fadvise(POSIX_FADV_DONTNEED); dirty pages cannot be dropped until
+    written back (the call starts write-back), pass sync=True to fdatasync first.
+    Never raises: it is a hint.
+    """
+    if not hasattr(os, "posix_fadvise"):
+        return
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        for root, _dirs, files in os.walk(path):
+            for f in files:
+                drop_page_cache(os.path.join(root, f), sync)
+        return
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        if sync:
+            os.fdatasync(fd)
+        os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def sha256_file(path, drop_cache: bool = True) -> tuple[int, str]:
+    """(size, sha256 hex) of a file's bytes."""
+    h = hashlib.sha256()
+    size = 0
+    with open(path, "rb", buffering=0) as f:
+        buf = bytearray(1 << 20)
+        mv = memoryview(buf)
+        while True:
+            k = f.readinto(buf)
+            if not k:
+                break
+            h.update(mv[:k])
+            size += k
+        if drop_cache and hasattr(os, "posix_fadvise"):
+            with contextlib.suppress(OSError):
+                os.posix_fadvise(f.fileno(), 0, 0, os.POSIX_FADV_DONTNEED)
+    return size, h.hexdigest()
+
+
+def fsync_path(path) -> None:
+    fd = os.open(os.fspath(path), os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_tree(path) -> None:
+    """fsync every file and directory under `path` (bottom-up), then `path` itself."""
+    for root, dirs, files in os.walk(path, topdown=False):
+        for f in files:
+            fsync_path(os.path.join(root, f))
+        fsync_path(root)
+
+
+def remove_path(path) -> None:
+    """Remove a file or a directory tree; missing is fine."""
+    try:
+        if os.path.isdir(path) and not os.path.islink(path):
+            shutil.rmtree(path)
+        else:
+            os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+def pread_into(fd: int, out: np.ndarray, offset: int, what: str) -> None:
+    """Fill the C-contiguous array `out` with bytes read at `offset`."""
+    mv = memoryview(out.reshape(-1).view(np.uint8)) if out.size else memoryview(b"")
+    done = 0
+    total = len(mv)
+    while done < total:
+        k = os.preadv(fd, [mv[done:]], offset + done)
+        if k <= 0:
+            raise StoreError(f"{what}: file is truncated (wanted {total} bytes at offset {offset})")
+        done += k

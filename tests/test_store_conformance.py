@@ -1,0 +1,710 @@
+"""Conformance tests of the storage package: every backend must pass all of them."""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+import storage
+from storage import StoreError, create_store, drop_memory_store, open_store
+from storage._util import gather_rows, write_error
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+BACKENDS = ["hdf5", "zarr", "memory"]
+DISK = ["hdf5", "zarr"]
+
+
+# ----------------------------------------------------------------------------- helpers
+
+@pytest.fixture(params=BACKENDS)
+def backend(request):
+    return request.param
+
+
+@pytest.fixture
+def spath(tmp_path, backend):
+    """Store location for `backend` (memory stores get a unique mem:// key)."""
+    p = f"mem://{tmp_path}" if backend == "memory" else str(tmp_path / "store")
+    yield p
+    drop_memory_store(p)
+
+
+def domain_arrays(step: int, d: int, n: int = 12) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(1000 * step + d)
+    return {
+        "x": rng.standard_normal(n),                                  # float64
+        "ids": np.arange(n, dtype=np.int64) + 100 * d,                # int64
+        "mat": rng.integers(-5, 5, size=n, dtype=np.int32),           # int32
+        "vel": rng.standard_normal((n, 2)),                           # 2-D
+        "flag": rng.random(n) < 0.5,                                  # bool
+        "w": rng.random(n).astype(np.float32),
+        "hist_ptr": np.arange(n + 1, dtype=np.int64),                 # different length
+        "hist_partner": np.zeros(0, dtype=np.int64),                  # empty
+        "empty2d": np.zeros((0, 3), dtype=np.float64),                # empty 2-D
+    }
+
+
+def write_epoch(store, step, ndom=2, n=12, durable=False):
+    w = store.begin_epoch(step)
+    for d in range(ndom):
+        w.write_domain(d, domain_arrays(step, d, n), {"d": d, "step": step, "bounds": [0.5 * d, 0.5 * d + 0.5]})
+    w.write_globals({"step": np.array(step, dtype=np.int64), "wheel": np.arange(6.0) + step},
+                    {"rng": {"state": 2**100 + step}, "scenario": "quick"})
+    w.commit(durable=durable)
+
+
+def assert_same(a: np.ndarray, b: np.ndarray):
+    assert a.dtype == b.dtype and a.shape == b.shape
+    assert a.tobytes() == b.tobytes()
+
+
+def assert_epoch(store, step, ndom=2, n=12, reader=None):
+    r = reader or store.read_epoch(step)
+    assert r.step == step
+    assert r.domains() == list(range(ndom))
+    for d in range(ndom):
+        exp = domain_arrays(step, d, n)
+        got = r.read_domain(d)
+        assert list(got) == list(exp)
+        for k in exp:
+            assert_same(got[k], exp[k])
+        assert r.domain_attrs(d) == {"d": d, "step": step, "bounds": [0.5 * d, 0.5 * d + 0.5]}
+        assert r.domain_len(d) == n
+    g, gattrs = r.read_globals()
+    assert_same(g["step"], np.array(step, dtype=np.int64))
+    assert_same(g["wheel"], np.arange(6.0) + step)
+    assert gattrs == {"rng": {"state": 2**100 + step}, "scenario": "quick"}
+    r.close()
+
+
+def epoch_entries(spath) -> list[str]:
+    return sorted(os.listdir(os.path.join(spath, "epochs")))
+
+
+def current_path(spath) -> pathlib.Path:
+    m = json.loads(pathlib.Path(spath, "MANIFEST.json").read_text())
+    return pathlib.Path(spath, m["current"]["path"])
+
+
+def a_data_file(spath) -> pathlib.Path:
+    """A file holding array data of the current epoch (the HDF5 file, or a zarr chunk)."""
+    p = current_path(spath)
+    if p.is_file():
+        return p
+    return p / "domains" / "d0000" / "x" / "c" / "0"
+
+
+def flip_byte(path: pathlib.Path, offset: int | None = None):
+    data = bytearray(path.read_bytes())
+    i = len(data) // 2 if offset is None else offset
+    data[i] ^= 0x40
+    path.write_bytes(bytes(data))
+
+
+# ----------------------------------------------------------------------------- round trips
+
+def test_roundtrip_arrays_attrs_globals_and_reopen(spath, backend):
+    meta = {"scenario": "[bed]\nn = 10\n", "hash": "abc", "engine": "0.1.0", "nested": {"k": [1, 2.5, None]}}
+    s = create_store(spath, backend, meta)
+    assert s.backend == backend and s.meta == meta
+    assert s.current() is None and s.epochs() == []
+    with pytest.raises(StoreError, match="no committed epoch"):
+        s.read_epoch()
+    write_epoch(s, 10)
+    assert s.current() == 10 and s.epochs() == [10]
+    assert_epoch(s, 10)
+    assert_epoch(s, 10, reader=s.read_epoch())
+    s.close()
+    with pytest.raises(StoreError, match="closed"):
+        s.begin_epoch(11)
+
+    s2 = open_store(spath)
+    assert s2.backend == backend and s2.meta == meta and s2.current() == 10
+    assert s2.verify() == []
+    assert_epoch(s2, 10, reader=s2.read_epoch())
+    r = s2.read_epoch()
+    assert r.domain_arrays(1)["vel"] == ((12, 2), np.dtype(np.float64))
+    sub = r.read_domain(1, names=["vel", "ids"])
+    assert list(sub) == ["vel", "ids"]
+    with pytest.raises(StoreError, match="no array 'nope'"):
+        r.read_domain(1, names=["nope"])
+    with pytest.raises(StoreError, match="no domain 7"):
+        r.read_domain(7)
+    r.close()
+    s2.close()
+
+
+def test_returned_arrays_are_independent(spath, backend):
+    s = create_store(spath, backend, {})
+    a = np.arange(5.0)
+    w = s.begin_epoch(1)
+    w.write_domain(0, {"a": a})
+    a[0] = 99.0                                   # caller reuses its buffer after writing
+    w.commit()
+    r = s.read_epoch()
+    got = r.read_domain(0)["a"]
+    assert got[0] == 0.0
+    got[1] = -1.0                                 # caller mutates what it read
+    assert r.read_domain(0)["a"][1] == 1.0
+    assert s.verify() == []
+
+
+def test_numpy_scalars_in_attrs_and_non_native_byte_order(spath, backend):
+    s = create_store(spath, backend, {"n": np.int64(3)})
+    w = s.begin_epoch(0)
+    w.write_domain(0, {"be": np.arange(4, dtype=">f8")}, {"k": np.float64(0.1), "v": np.arange(3)})
+    w.commit()
+    r = s.read_epoch()
+    got = r.read_domain(0)["be"]
+    assert got.dtype == np.dtype("=f8") and np.array_equal(got, np.arange(4.0))
+    assert r.domain_attrs(0) == {"k": 0.1, "v": [0, 1, 2]}
+    assert s.meta == {"n": 3}
+
+
+def test_domain_without_arrays_and_no_globals(spath, backend):
+    s = create_store(spath, backend, {})
+    w = s.begin_epoch(0)
+    w.write_domain(3, {}, {"empty": True})
+    w.commit()
+    r = s.read_epoch()
+    assert r.domains() == [3] and r.domain_len(3) == 0
+    assert r.read_domain(3) == {} and r.domain_attrs(3) == {"empty": True}
+    assert r.read_globals() == ({}, {})
+    assert s.verify() == []
+
+
+def test_invalid_input_is_refused(spath, backend):
+    s = create_store(spath, backend, {})
+    w = s.begin_epoch(1)
+    with pytest.raises(StoreError, match="invalid array name"):
+        w.write_domain(0, {"a/b": np.zeros(2)})
+    with pytest.raises(StoreError, match="non-numeric dtype"):
+        w.write_domain(0, {"s": np.array(["x"])})
+    with pytest.raises(StoreError, match="at least 1 dimension"):
+        w.write_domain(0, {"s": np.array(1.0)})
+    with pytest.raises(StoreError, match="JSON"):
+        w.write_domain(0, {"a": np.zeros(1)}, {"bad": object()})
+    w.write_domain(0, {"a": np.zeros(1)})         # the writer is still usable
+    with pytest.raises(StoreError, match="already written"):
+        w.write_domain(0, {"a": np.zeros(1)})
+    with pytest.raises(StoreError, match="still being written"):
+        s.begin_epoch(2)
+    w.write_globals({}, {})
+    with pytest.raises(StoreError, match="already written"):
+        w.write_globals({}, {})
+    w.commit()
+    with pytest.raises(StoreError, match="committed"):
+        w.write_domain(1, {})
+    with pytest.raises(StoreError, match="unknown backend"):
+        create_store(spath + "x", "sqlite", {})
+
+
+# ----------------------------------------------------------------------------- partial reads
+
+def test_partial_row_reads(spath, backend):
+    n = 1000
+    s = create_store(spath, backend, {})
+    arrays = {"x": np.arange(n, dtype=np.float64) * 0.5, "v": np.arange(3 * n, dtype=np.int32).reshape(n, 3),
+              "f": np.arange(n) % 3 == 0, "ptr": np.arange(n + 1, dtype=np.int64)}
+    w = s.begin_epoch(1)
+    w.write_domain(0, arrays)
+    w.commit()
+    r = open_store(spath).read_epoch()
+    selections = [slice(10, 20), slice(0, n), slice(990, 2000), slice(5, 5), slice(None, None, 7),
+                  slice(900, 100, -3), np.array([0, 1, 2, 500, 501, 999]), np.array([999, 3, 3, 0]),
+                  np.array([], dtype=np.int64), np.array([-1, -2]), np.arange(n) % 5 == 1]
+    for sel in selections:
+        got = r.read_domain(0, names=["x", "v", "f"], rows=sel)
+        for k in ("x", "v", "f"):
+            assert_same(got[k], arrays[k][sel])
+    with pytest.raises(StoreError, match="out of range"):
+        r.read_domain(0, names=["x"], rows=np.array([n]))
+    with pytest.raises(StoreError, match="rows must be"):
+        r.read_domain(0, names=["x"], rows=np.array([[1]]))
+    assert_same(r.read_domain(0, names=["ptr"], rows=np.array([n]))["ptr"], np.array([n]))
+    r.close()
+
+
+def test_gather_rows_windows_match_fancy_indexing():
+    a = np.arange(5000 * 2, dtype=np.float64).reshape(5000, 2)
+    calls = []
+
+    def read_range(s, e, out):
+        calls.append((s, e))
+        out[...] = a[s:e]
+
+    rng = np.random.default_rng(0)
+    idx = np.sort(rng.choice(5000, 300, replace=False))
+    got = gather_rows(read_range, idx, a.shape, a.dtype, window_bytes=1600)   # 100 rows per window
+    assert_same(got, a[idx])
+    assert max(e - s for s, e in calls) <= 100                  # never reads more than a window
+    assert sum(e - s for s, e in calls) < a.shape[0]            # ... nor the whole array
+    calls.clear()
+    assert_same(gather_rows(read_range, np.arange(100, 4000), a.shape, a.dtype, 1600), a[100:4000])
+    assert all(e - s <= 100 for s, e in calls)
+
+
+def test_zarr_partial_read_only_touches_requested_bytes(tmp_path):
+    """Rows before a truncation point are readable: the reader never loads the whole chunk."""
+    p = str(tmp_path / "s")
+    s = create_store(p, "zarr", {})
+    x = np.arange(1000, dtype=np.float64)
+    w = s.begin_epoch(1)
+    w.write_domain(0, {"x": x})
+    w.commit()
+    s.close()
+    chunk = a_data_file(p)
+    with open(chunk, "r+b") as f:
+        f.truncate(400 * 8)
+    s = open_store(p)
+    r = s.read_epoch(verify=False)
+    assert_same(r.read_domain(0, rows=slice(100, 200))["x"], x[100:200])
+    assert_same(r.read_domain(0, rows=np.array([1, 399]))["x"], x[[1, 399]])
+    with pytest.raises(StoreError, match="truncated"):
+        r.read_domain(0, rows=slice(300, 500))
+    with pytest.raises(StoreError, match="corrupt"):
+        s.read_epoch()
+
+
+# ----------------------------------------------------------------------------- commit protocol
+
+def test_uncommitted_and_aborted_writers_leave_current_unchanged(spath, backend):
+    s = create_store(spath, backend, {})
+    write_epoch(s, 1)
+    # aborted writer
+    w = s.begin_epoch(2)
+    w.write_domain(0, domain_arrays(2, 0))
+    w.abort()
+    w.abort()                                          # idempotent
+    assert s.current() == 1
+    # exception inside the context manager aborts
+    with pytest.raises(ZeroDivisionError):
+        with s.begin_epoch(2) as w:
+            w.write_domain(0, domain_arrays(2, 0))
+            1 / 0
+    # leaving the block without commit discards the epoch
+    with s.begin_epoch(2) as w:
+        w.write_domain(0, domain_arrays(2, 0))
+    assert s.current() == 1
+    if backend != "memory":
+        assert epoch_entries(spath) == ["e000000000001." + ("h5" if backend == "hdf5" else "zarr")]
+    # a writer that is never finished (crash): reopening cleans up and sees epoch 1
+    w = s.begin_epoch(2)
+    w.write_domain(0, domain_arrays(2, 0))
+    w.write_domain(1, domain_arrays(2, 1))
+    if backend != "memory":
+        assert any(".tmp-" in n for n in epoch_entries(spath))
+    s2 = open_store(spath)
+    assert s2.current() == 1 and s2.epochs() == [1]
+    assert_epoch(s2, 1, reader=s2.read_epoch())
+    if backend != "memory":
+        assert not any(".tmp-" in n for n in epoch_entries(spath))
+        assert any(".tmp-" in r for r in s2.repaired)
+    w.abort()
+    s2.close()
+
+
+def test_failed_manifest_write_leaves_store_unchanged(spath, backend, monkeypatch):
+    s = create_store(spath, backend, {})
+    write_epoch(s, 1)
+    w = s.begin_epoch(2)
+    w.write_domain(0, domain_arrays(2, 0))
+    if backend == "memory":
+        def boom(m, durable=False):
+            raise StoreError(f"{spath}/MANIFEST.json: disk full or file too large (simulated)")
+        monkeypatch.setattr(s._place, "write_manifest", boom)
+    else:
+        def boom(src, dst):
+            raise OSError(28, "No space left on device")
+        monkeypatch.setattr(os, "replace", boom)            # (after the data: zarr uses it too)
+    with pytest.raises(StoreError, match="disk full or file too large"):
+        w.commit()
+    monkeypatch.undo()
+    assert s.current() == 1 and s.epochs() == [1]
+    if backend != "memory":
+        assert [n[:14] for n in epoch_entries(spath)] == ["e000000000001."]
+        assert not pathlib.Path(spath, "MANIFEST.json.tmp").exists()
+    s2 = open_store(spath)
+    assert s2.current() == 1 and s2.verify() == [] and s2.repaired == []
+    write_epoch(s, 2)                                    # and the store is still usable
+    assert s.epochs() == [1, 2] and open_store(spath).verify() == []
+
+
+def test_repair_removes_leftovers(spath, backend):
+    if backend == "memory":
+        pytest.skip("no files")
+    s = create_store(spath, backend, {})
+    write_epoch(s, 1)
+    s.close()
+    cur = current_path(spath)
+    stray = cur.with_name(cur.name.replace("000000001", "000000099"))
+    (shutil.copytree if cur.is_dir() else shutil.copy)(cur, stray)          # renamed but never committed
+    pathlib.Path(spath, "MANIFEST.json.tmp").write_text("{half a manif")
+    pathlib.Path(spath, "epochs", cur.name + ".tmp-12345").write_bytes(b"partial")
+    pathlib.Path(spath, "notes.txt").write_text("user file")              # not ours: left alone
+    s = open_store(spath, repair=False)
+    assert len(epoch_entries(spath)) == 3 and s.repaired == []
+    s = open_store(spath)
+    assert epoch_entries(spath) == [cur.name]
+    assert len(s.repaired) == 3
+    assert not pathlib.Path(spath, "MANIFEST.json.tmp").exists()
+    assert pathlib.Path(spath, "notes.txt").exists()
+    assert s.verify() == []
+
+
+def test_previous_epoch_kept_older_removed(spath, backend):
+    s = create_store(spath, backend, {})
+    write_epoch(s, 1)
+    write_epoch(s, 2, durable=True)
+    assert s.epochs() == [1, 2]
+    write_epoch(s, 3)
+    assert s.epochs() == [2, 3] and s.current() == 3
+    if backend != "memory":
+        assert [n[:14] for n in epoch_entries(spath)] == ["e000000000002.", "e000000000003."]
+        m = json.loads(pathlib.Path(spath, "MANIFEST.json").read_text())
+        assert m["format"] == "ooc-dem-store" and m["format_version"] == 1 and m["backend"] == backend
+        assert m["current"]["step"] == 3 and m["previous"]["step"] == 2
+        for f in m["current"]["files"]:
+            assert os.path.getsize(os.path.join(spath, f["path"])) == f["size"]
+    assert_epoch(s, 2)
+    assert_epoch(s, 3)
+    with pytest.raises(StoreError, match="not in the manifest"):
+        s.read_epoch(1)
+    with pytest.raises(StoreError, match="not newer than the previous"):
+        s.begin_epoch(2)
+    assert open_store(spath).epochs() == [2, 3]
+
+
+def test_prune(spath, backend):
+    s = create_store(spath, backend, {})
+    assert s.prune(1) == []
+    for step in (5, 6, 7):
+        write_epoch(s, step)
+    assert s.prune(2) == []
+    assert s.prune(1) == [6]
+    assert s.epochs() == [7] and s.prune(0) == [] and s.epochs() == [7]
+    if backend != "memory":
+        assert [n[:14] for n in epoch_entries(spath)] == ["e000000000007."]
+    s2 = open_store(spath)
+    assert s2.epochs() == [7] and s2.verify() == []
+    write_epoch(s2, 8)
+    assert s2.epochs() == [7, 8]
+
+
+# ----------------------------------------------------------------------------- verification
+
+def _corrupt(spath, backend, how):
+    """Damage epoch 2's domain data; return the name expected in the problem message."""
+    if backend == "memory":
+        from storage import _memory
+        b = _memory._REGISTRY[spath]
+        e = json.loads(b.manifest_json)["current"]["path"]
+        grp = b.epochs[e]
+        if how == "flip":
+            grp["domains/d0000"]["arrays"]["x"][3] += 1e-12
+            return "d0000/x"
+        if how == "truncate":
+            grp["domains/d0000"]["arrays"]["x"] = grp["domains/d0000"]["arrays"]["x"][:5].copy()
+            return "d0000/x"
+        del grp["domains/d0001"]
+        return "d0001"
+    f = a_data_file(spath)
+    if how == "flip":
+        if backend == "hdf5":
+            import h5py
+            with h5py.File(f, "r", locking=False) as h:
+                off = h["domains/d0000/x"].id.get_offset()
+            flip_byte(f, off + 8)
+        else:
+            flip_byte(f)
+        return f.name
+    if how == "truncate":
+        with open(f, "r+b") as fh:
+            fh.truncate(f.stat().st_size - 9)
+        return f.name
+    if backend == "hdf5":
+        import h5py
+        with h5py.File(f, "r+", locking=False) as h:
+            del h["domains/d0001"]
+    else:
+        shutil.rmtree(current_path(spath) / "domains" / "d0001")
+    return "d0001"
+
+
+@pytest.mark.parametrize("how", ["flip", "truncate", "delete_group"])
+def test_verify_detects_damage_and_falls_back(spath, backend, how):
+    s = create_store(spath, backend, {})
+    write_epoch(s, 1)
+    write_epoch(s, 2)
+    s.close()
+    name = _corrupt(spath, backend, how)
+    s = open_store(spath)
+    problems = s.verify()
+    assert problems and all(p.startswith("epoch 2: ") for p in problems)
+    assert any(name in p for p in problems), problems
+    if how == "delete_group":
+        assert any("group /domains/d0001 missing" in p for p in problems), problems
+    assert s.verify(1) == []
+    assert s.verify(2) == problems
+    # the current epoch fails -> fall back to the previous one, with a warning
+    r = s.read_epoch()
+    assert r.step == 1 and s.warnings and "using previous epoch 1" in s.warnings[0]
+    assert_epoch(s, 1, reader=r)
+    with pytest.raises(StoreError, match="epoch 2 is corrupt"):
+        s.read_epoch(2)
+    # resuming from epoch 1 rewrites epoch 2 without touching the damaged one in place
+    write_epoch(s, 2)
+    assert s.epochs() == [1, 2] and s.verify() == []
+    s3 = open_store(spath)
+    assert s3.verify() == [] and s3.read_epoch().step == 2 and not s3.warnings
+    assert_epoch(s3, 2)
+
+
+def test_both_epochs_corrupt_raises(spath, backend):
+    s = create_store(spath, backend, {})
+    write_epoch(s, 1)
+    s.close()
+    _corrupt(spath, backend, "flip")
+    with pytest.raises(StoreError, match="no previous epoch"):
+        open_store(spath).read_epoch()
+    s = open_store(spath)
+    write_epoch(s, 1)          # same step as the corrupt current: replaces it
+    write_epoch(s, 2)
+    s.close()
+    _corrupt(spath, backend, "flip")
+    if backend == "memory":
+        from storage import _memory
+        b = _memory._REGISTRY[spath]
+        prev = json.loads(b.manifest_json)["previous"]["path"]
+        b.epochs[prev]["domains/d0001"]["arrays"]["ids"][0] = -7
+    else:
+        m = json.loads(pathlib.Path(spath, "MANIFEST.json").read_text())
+        p = pathlib.Path(spath, m["previous"]["files"][-1]["path"])
+        with open(p, "r+b") as fh:
+            fh.truncate(p.stat().st_size - 1)
+    with pytest.raises(StoreError, match="epoch 2 is corrupt .* and previous epoch 1 too"):
+        open_store(spath).read_epoch()
+
+
+@pytest.mark.parametrize("backend_", DISK)
+def test_missing_or_unreadable_manifest(tmp_path, backend_):
+    p = str(tmp_path / "s")
+    s = create_store(p, backend_, {})
+    write_epoch(s, 1)
+    write_epoch(s, 2)
+    s.close()
+    before = epoch_entries(p)
+    mp = pathlib.Path(p, "MANIFEST.json")
+    good = mp.read_text()
+    mp.write_text(good[: len(good) // 2])
+    with pytest.raises(StoreError, match="MANIFEST.json missing or unreadable"):
+        open_store(p)
+    mp.unlink()
+    with pytest.raises(StoreError, match="MANIFEST.json missing or unreadable"):
+        open_store(p)
+    assert epoch_entries(p) == before                 # nothing deleted by a failed open
+    mp.write_text(good)
+    assert open_store(p).verify() == []
+    bad = json.loads(good)
+    bad["format_version"] = 99
+    mp.write_text(json.dumps(bad))
+    with pytest.raises(StoreError, match="unsupported format_version 99"):
+        open_store(p)
+    bad = json.loads(good)
+    bad["current"]["files"] = "nope"
+    mp.write_text(json.dumps(bad))
+    with pytest.raises(StoreError, match="malformed"):
+        open_store(p)
+
+
+# ----------------------------------------------------------------------------- opening / creating
+
+@pytest.mark.parametrize("backend_", DISK)
+def test_foreign_directory_refused(tmp_path, backend_):
+    d = tmp_path / "foreign"
+    d.mkdir()
+    (d / "thesis.tex").write_text("precious")
+    with pytest.raises(StoreError, match="not an ooc-dem store"):
+        create_store(str(d), backend_, {})
+    with pytest.raises(StoreError, match="not an ooc-dem store"):
+        open_store(str(d))
+    (d / "MANIFEST.json").write_text(json.dumps({"format": "something-else"}))
+    with pytest.raises(StoreError, match="not an ooc-dem store"):
+        create_store(d, backend_, {})
+    with pytest.raises(StoreError, match="not an ooc-dem store"):
+        open_store(d)
+    assert sorted(os.listdir(d)) == ["MANIFEST.json", "thesis.tex"]
+    f = tmp_path / "file"
+    f.write_text("x")
+    with pytest.raises(StoreError, match="not a directory"):
+        create_store(f, backend_, {})
+    with pytest.raises(StoreError, match="does not exist"):
+        open_store(tmp_path / "nowhere")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(StoreError, match="not an ooc-dem store"):
+        open_store(tmp_path / "empty")
+    s = create_store(tmp_path / "empty", backend_, {"ok": 1})          # empty dir is fine
+    assert open_store(tmp_path / "empty").meta == {"ok": 1}
+    s.close()
+
+
+def test_create_over_existing_store_replaces_it(spath, backend):
+    s = create_store(spath, backend, {"run": 1})
+    write_epoch(s, 1)
+    s.close()
+    other = "zarr" if backend == "hdf5" else "hdf5" if backend == "zarr" else "memory"
+    s = create_store(spath, other, {"run": 2})
+    assert s.current() is None and s.epochs() == []
+    s2 = open_store(spath)
+    assert s2.meta == {"run": 2} and s2.backend == other and s2.current() is None
+    if backend != "memory":
+        assert epoch_entries(spath) == []
+
+
+def test_memory_registry():
+    key = "mem://conformance-registry"
+    s = create_store(key, "memory", {"a": 1})
+    write_epoch(s, 4)
+    s.close()
+    s2 = open_store(key)
+    assert s2.current() == 4 and s2.meta == {"a": 1}
+    assert_epoch(s2, 4)
+    assert drop_memory_store(key)
+    with pytest.raises(StoreError, match="no such memory store"):
+        open_store(key)
+
+
+def test_store_errors_are_one_line():
+    e = write_error("/x/e1.h5", RuntimeError("Can't write (file write failed: errno = 27,\n"
+                                             " error message = 'File too large')"))
+    assert isinstance(e, StoreError) and "\n" not in str(e)
+    assert str(e).startswith("/x/e1.h5: disk full or file too large (")
+    assert "disk full" in str(write_error("p", OSError(28, "No space left on device")))
+    assert "write failed" in str(write_error("p", OSError(13, "Permission denied")))
+
+
+def test_drop_page_cache_never_raises(tmp_path):
+    f = tmp_path / "f"
+    f.write_bytes(b"x" * 10000)
+    storage.drop_page_cache(f)
+    storage.drop_page_cache(f, sync=True)
+    storage.drop_page_cache(tmp_path)
+    storage.drop_page_cache(tmp_path / "missing")
+
+
+# ----------------------------------------------------------------------------- property test
+
+_DTYPES = [np.bool_, np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint16, np.uint32,
+           np.uint64, np.float16, np.float32, np.float64, np.complex64, np.complex128]
+
+
+@st.composite
+def array_dicts(draw):
+    k = draw(st.integers(0, 4))
+    names = draw(st.lists(st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True),
+                          min_size=k, max_size=k, unique=True))
+    out = {}
+    for n in names:
+        dtype = np.dtype(draw(st.sampled_from(_DTYPES)))
+        shape = draw(st.one_of(hnp.array_shapes(min_dims=1, max_dims=1, min_side=0, max_side=40),
+                               hnp.array_shapes(min_dims=2, max_dims=2, min_side=0, max_side=6)))
+        out[n] = draw(hnp.arrays(dtype, shape))       # includes nan / inf / -0.0 / extremes
+    return out
+
+
+def test_random_arrays_roundtrip_bit_exact(tmp_path, backend):
+    p = f"mem://{tmp_path}" if backend == "memory" else str(tmp_path / "s")
+    s = create_store(p, backend, {})
+    state = {"step": 0}
+
+    @settings(max_examples=25, deadline=None, database=None,
+              suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    @given(doms=st.lists(array_dicts(), min_size=1, max_size=3), attrs=st.dictionaries(
+        st.text(max_size=5), st.one_of(st.integers(), st.floats(allow_nan=False), st.text(max_size=5)),
+        max_size=3), rows=st.data())
+    def check(doms, attrs, rows):
+        state["step"] += 1
+        with s.begin_epoch(state["step"]) as w:
+            for d, arrays in enumerate(doms):
+                w.write_domain(d, arrays, attrs)
+            w.commit()
+        r = s.read_epoch()
+        assert r.step == state["step"] and r.domains() == list(range(len(doms)))
+        for d, arrays in enumerate(doms):
+            got = r.read_domain(d)
+            assert list(got) == list(arrays)
+            assert r.domain_attrs(d) == attrs
+            for n, a in arrays.items():
+                assert_same(got[n], a)
+                assert np.array_equal(got[n], a, equal_nan=a.dtype.kind in "fc")
+            if arrays:
+                first = next(iter(arrays.values()))
+                assert r.domain_len(d) == first.shape[0]
+                idx = np.array(sorted(rows.draw(st.sets(st.integers(0, max(0, first.shape[0] - 1)), max_size=5)))
+                               if first.shape[0] else [], dtype=np.int64)
+                part = r.read_domain(d, rows=idx, names=[next(iter(arrays))])
+                assert_same(part[next(iter(arrays))], first[idx])
+        r.close()
+
+    check()
+    assert s.verify() == []
+    drop_memory_store(p)
+
+
+# ----------------------------------------------------------------------------- disk full
+
+_DISK_FULL_CHILD = textwrap.dedent("""
+    import os, resource, signal, sys
+    sys.path.insert(0, {repo!r})
+    import numpy as np, h5py, zarr
+    import storage
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    s = storage.create_store({path!r}, {backend!r}, {{"run": "disk-full"}})
+    w = s.begin_epoch(1)
+    w.write_domain(0, {{"x": np.arange(1000.0)}}, {{"ok": True}})
+    w.commit()
+    resource.setrlimit(resource.RLIMIT_FSIZE, (256 * 1024, 256 * 1024))
+    try:
+        w = s.begin_epoch(2)
+        w.write_domain(0, {{"x": np.arange(1000.0)}})
+        w.write_domain(1, {{"x": np.zeros(200_000)}})       # 1.6 MB > limit
+        w.commit()
+    except storage.StoreError as e:
+        print("STOREERROR", e)
+        print("ENTRIES", sorted(os.listdir(os.path.join({path!r}, "epochs"))))
+        print("CURRENT", s.current())
+    else:
+        print("NO ERROR")
+""")
+
+
+@pytest.mark.parametrize("backend_", DISK)
+def test_disk_full_gives_store_error_and_keeps_committed_epoch(tmp_path, backend_):
+    p = str(tmp_path / "s")
+    res = subprocess.run([sys.executable, "-c", _DISK_FULL_CHILD.format(repo=str(REPO), path=p, backend=backend_)],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    out = res.stdout
+    assert "STOREERROR" in out, out + res.stderr
+    line = next(x for x in out.splitlines() if x.startswith("STOREERROR"))
+    assert "disk full or file too large" in line, line
+    assert f"ENTRIES ['e000000000001.{'h5' if backend_ == 'hdf5' else 'zarr'}']" in out, out
+    assert "CURRENT 1" in out
+    s = open_store(p)
+    assert s.epochs() == [1] and s.verify() == [] and s.meta == {"run": "disk-full"}
+    r = s.read_epoch()
+    assert_same(r.read_domain(0)["x"], np.arange(1000.0))
+    assert r.domain_attrs(0) == {"ok": True}
+    write_epoch(s, 2)                                    # the store is still usable
+    assert s.epochs() == [1, 2]

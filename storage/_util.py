@@ -23,7 +23,7 @@ ATTRS_KEY = "ooc_dem_attrs"  # JSON string attribute holding a group's attrs
 # e000000001234.h5, e000000001234.r1.zarr (".rN" = rewrite of a step still named by the manifest)
 EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(\.r\d+)?\.(h5|zarr)$")
 ARRAY_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}$")
-_RESERVED_NAMES = {"zarr.json", ".zattrs", ".zgroup", ".zarray", "c"}
+_RESERVED_NAMES = {"zarr.json"}
 
 _DISK_FULL_ERRNOS = {errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)}
 _DISK_FULL_TEXT = re.compile(

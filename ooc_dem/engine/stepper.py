@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numba import njit
 
@@ -16,14 +17,15 @@ from ..physics.contact import N_FIELDS, KN, KS, ZN, ZT, MU, MUR, ZR
 from ..physics.forces import (ERR_HIST_OVERFLOW, ERR_NBR_OVERFLOW, WG_CAP, WG_ENABLED,
                               WG_LUG_IN, WG_LUG_OUT, WG_MASS, WG_NLUGS, WG_R, WG_SIZE,
                               WS_THETA, WS_VX, WS_VY, WS_WZ, WS_X, WS_Y, compute_forces,
-                              make_scratch, wheel_reaction)
-from ..physics.integrate import (WC_DRAWBAR, WC_OMEGA, WC_RAMP, WC_SETTLE, WC_SIZE, WC_SLIP,
+                              lug_directions, make_scratch, wheel_reaction)
+from ..physics.integrate import (N_CHUNKS, WC_DRAWBAR, WC_OMEGA, WC_RAMP, WC_SETTLE, WC_SIZE, WC_SLIP,
                                  WC_SLIPMODE, apply_wheel_controls, drawbar_force,
                                  integrate_discs, integrate_wheel)
-from ..physics.neighbors import build_neighbors, max_displacement2, spatial_order
+from ..physics.neighbors import build_neighbors, spatial_order
 from ..state import Particles
 
 NBR_CAP = 24
+SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
 
 # per-step wheel record columns
 REC_COLUMNS = ("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar", "contacts")
@@ -99,17 +101,23 @@ def _run_steps(nsteps, step0, dt, gx, gy, skin, n, x, y, vx, vy, w, r, mass, ine
                nbr, nbr_n, xref, yref, hist_n, hist_id, hist_ft, hist_mr, fx, fy, tq,
                cp, walls, wg, ws, wc, wfx, wfy, wtq, wcount, sid, sf, err, rec, rebuild_now):
     wheel = wg[0] > 0.5
+    lugdir = np.zeros((max(1, int(wg[WG_NLUGS])), 2))
+    part = np.zeros(N_CHUNKS)
     if rebuild_now:
         build_neighbors(x, y, r, gid, n, skin, nbr, nbr_n, xref, yref, err)
     half2 = 0.25 * skin * skin
     rebuilds = 0
+    wfxs = 0.0
+    wfys = 0.0
+    wtqs = 0.0
     for s in range(nsteps):
         t = (step0 + s) * dt
         if wheel:
             apply_wheel_controls(t, ws, wg, wc)
+            lug_directions(ws[WS_THETA], int(wg[WG_NLUGS]), lugdir)
         compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid, nbr, nbr_n,
                        hist_n, hist_id, hist_ft, hist_mr, fx, fy, tq, cp, walls, wg, ws,
-                       wfx, wfy, wtq, wcount, sid, sf, dt, err)
+                       wfx, wfy, wtq, wcount, lugdir, sid, sf, dt, err)
         if err[0] != 0 or err[1] != 0:
             return s, rebuilds
         if wheel:
@@ -126,10 +134,11 @@ def _run_steps(nsteps, step0, dt, gx, gy, skin, n, x, y, vx, vy, w, r, mass, ine
             rec[s, 9] = wtqs
             rec[s, 10] = drawbar_force(t, wc)
             rec[s, 11] = cnt
-        integrate_discs(n, x, y, vx, vy, w, mass, inertia, fx, fy, tq, gx, gy, dt)
+        disp2 = integrate_discs(n, x, y, vx, vy, w, mass, inertia, fx, fy, tq, gx, gy, dt,
+                                xref, yref, part)
         if wheel:
             integrate_wheel(t, ws, wg, wc, wfxs, wfys, gy, dt)
-        if max_displacement2(x, y, xref, yref, n) > half2:
+        if disp2 > half2:
             build_neighbors(x, y, r, gid, n, skin, nbr, nbr_n, xref, yref, err)
             rebuilds += 1
             if err[1] != 0:
@@ -170,20 +179,36 @@ class DomainStepper:
         """Advance nsteps from global step step0; returns the per-step wheel records."""
         m, p = self.model, self.p
         rec = np.zeros((nsteps if m.wheel_enabled else 0, N_REC))
-        done, rb = _run_steps(nsteps, step0, m.dt, m.gx, m.gy, m.skin, self.n, p.x, p.y, p.vx, p.vy,
+        # small domains run on one thread: a parallel launch costs more than it saves
+        # there, and the result is the same whatever the thread count (DESIGN section 3)
+        threads = numba.get_num_threads()
+        if self.n < SERIAL_BELOW:
+            numba.set_num_threads(1)
+        try:
+            done, rb = self._run(nsteps, step0, rec)
+        finally:
+            numba.set_num_threads(threads)
+        self._built = True
+        self.rebuilds += rb
+        self._check(step0 + done, nsteps)
+        return rec
+
+    def _run(self, nsteps, step0, rec):
+        m, p = self.model, self.p
+        return _run_steps(nsteps, step0, m.dt, m.gx, m.gy, m.skin, self.n, p.x, p.y, p.vx, p.vy,
                               p.w, p.r, p.mass, p.inertia, p.mat, p.id, self.nbr, self.nbr_n,
                               self.xref, self.yref, p.hist_n, p.hist_id, p.hist_ft, p.hist_mr,
                               self.fx, self.fy, self.tq, m.cp, m.walls, m.wg, self.ws, m.wc,
                               self.wfx, self.wfy, self.wtq, self.wcount, self.sid, self.sf,
-                              self.err, rec, not self._built)
-        self._built = True
-        self.rebuilds += rb
+                          self.err, rec, not self._built)
+
+    def _check(self, at, nsteps):
+        p = self.p
         if self.err[ERR_HIST_OVERFLOW]:
-            raise EngineError(f"contact history overflow at step {step0 + done}: a disc has more than "
+            raise EngineError(f"contact history overflow at step {at}: a disc has more than "
                               f"{p.hist_id.shape[1]} contacts (overlaps too large: check dt, kn, or the bed)")
         if self.err[ERR_NBR_OVERFLOW]:
-            raise EngineError(f"neighbour list overflow at step {step0 + done}: more than {NBR_CAP} "
+            raise EngineError(f"neighbour list overflow at step {at}: more than {NBR_CAP} "
                               f"discs within reach of one disc (bed too dense or exploded)")
         if not np.isfinite(p.x).all():
-            raise EngineError(f"non-finite position at step {step0 + nsteps}: the run is unstable")
-        return rec
+            raise EngineError(f"non-finite position at step {at}: the run is unstable")

@@ -47,12 +47,13 @@ def _lookup(hid, hft, hmr, i, hn, p, pid):
 def compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
                    nbr, nbr_n, hist_n, hist_id, hist_ft, hist_mr,
                    fx, fy, tq, cp, walls, wg, ws,
-                   wfx, wfy, wtq, wcount, scratch_id, scratch_f, dt, err):
+                   wfx, wfy, wtq, wcount, lugdir, scratch_id, scratch_f, dt, err):
     """Forces and torques on discs 0..n-1 at time n; rewrites their history.
 
     walls = [length, has_left, has_right, has_bottom]. Wheel reactions of disc i
     (force and torque on the wheel about its centre) go to wfx/wfy/wtq[i] with
     wcount[i] the number of wheel contacts, for a canonical sum by the caller.
+    lugdir[k] = (cos, sin) of lug k's direction (see lug_directions).
     """
     cap = hist_id.shape[1]
     t_wall = cp.shape[0] - 2
@@ -105,9 +106,8 @@ def compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
                 c = cp[t_wheel, ti]
                 meff = mi * wmass / (mi + wmass)
                 for lug in range(nlugs):
-                    phi = theta + 2.0 * math.pi * lug / nlugs
-                    ux = math.cos(phi)
-                    uy = math.sin(phi)
+                    ux = lugdir[lug, 0]
+                    uy = lugdir[lug, 1]
                     sproj = dxw * ux + dyw * uy
                     if sproj < lug_in:
                         sproj = lug_in
@@ -284,6 +284,15 @@ def compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
             hist_ft[i, q] = scratch_f[tid, 0, q]
             hist_mr[i, q] = scratch_f[tid, 1, q]
         hist_n[i] = k
+
+
+@njit(cache=True)
+def lug_directions(theta, nlugs, lugdir):
+    """Unit vectors of the lugs at wheel angle theta (lug k at theta + 2 pi k / n)."""
+    for k in range(nlugs):
+        phi = theta + 2.0 * math.pi * k / nlugs
+        lugdir[k, 0] = math.cos(phi)
+        lugdir[k, 1] = math.sin(phi)
 
 
 @njit(cache=True)

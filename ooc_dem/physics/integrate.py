@@ -14,14 +14,30 @@ WC_SETTLE, WC_OMEGA, WC_SLIPMODE, WC_DRAWBAR, WC_RAMP, WC_SLIP = range(6)
 WC_SIZE = 6
 
 
+N_CHUNKS = 64
+
+
 @njit(parallel=True, cache=True)
-def integrate_discs(n, x, y, vx, vy, w, mass, inertia, fx, fy, tq, gx, gy, dt):
-    for i in prange(n):
-        vx[i] += (fx[i] / mass[i] + gx) * dt
-        vy[i] += (fy[i] / mass[i] + gy) * dt
-        w[i] += tq[i] / inertia[i] * dt
-        x[i] += vx[i] * dt
-        y[i] += vy[i] * dt
+def integrate_discs(n, x, y, vx, vy, w, mass, inertia, fx, fy, tq, gx, gy, dt, xref, yref, part):
+    """Advance discs 0..n-1 one step; returns the largest squared displacement since
+    the last neighbour build (a max is order-free, so the chunking never changes it).
+    part is scratch of N_CHUNKS entries."""
+    size = (n + N_CHUNKS - 1) // N_CHUNKS
+    for c in prange(N_CHUNKS):
+        m = 0.0
+        for i in range(c * size, min(n, (c + 1) * size)):
+            vx[i] += (fx[i] / mass[i] + gx) * dt
+            vy[i] += (fy[i] / mass[i] + gy) * dt
+            w[i] += tq[i] / inertia[i] * dt
+            x[i] += vx[i] * dt
+            y[i] += vy[i] * dt
+            ddx = x[i] - xref[i]
+            ddy = y[i] - yref[i]
+            d = ddx * ddx + ddy * ddy
+            if d > m:
+                m = d
+        part[c] = m
+    return part.max()
 
 
 @njit(cache=True)

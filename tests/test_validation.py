@@ -1,0 +1,598 @@
+"""Physics validation against analytic results (shared/reference/validation.md).
+
+Every test states its formula and its tolerance in its docstring. Units are SI.
+The reference disc: r = 0.01 m, density 2000 kg/m^3, slice thickness 0.1 m
+(m = rho pi r^2 b = 0.0628 kg, I = m r^2 / 2), kn = 1e5 N/m, ks = kn/3 unless a
+test says otherwise. Time steps resolve a contact with several hundred steps.
+
+Conventions of the engine that the tests rely on (ooc_dem/physics):
+- the bottom wall is y = 0 with normal +y; an incline of angle theta is modelled
+  by tilting gravity: gx = g sin(theta), gy = -g cos(theta); down-slope is +x;
+- spin w is counter-clockwise positive, so a disc rolling in +x has w < 0 and the
+  velocity of its contact point with the floor is u = vx + w r;
+- leapfrog: after a step the state holds x_(n+1) and v_(n+1/2).
+
+The kernels run on one numba thread here (module fixture): the machine has two
+cores that may be busy with a long simulation, and spinning worker threads of
+tiny systems are then very slow. Results do not depend on the thread count
+(DESIGN section 3).
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pytest
+
+from ooc_dem.engine.stepper import DomainStepper, Model
+from ooc_dem.physics.contact import KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT, contact_force
+from ooc_dem.physics.forces import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, WG_SIZE
+from ooc_dem.physics.integrate import WC_SIZE
+from ooc_dem.state import Particles
+
+G = 9.81
+R = 0.01
+RHO = 2000.0
+B = 0.1
+M = RHO * math.pi * R * R * B
+I_DISC = 0.5 * M * R * R
+KN0 = 1.0e5
+KS0 = KN0 / 3.0
+TC_WALL = math.pi * math.sqrt(M / KN0)          # undamped disc-wall contact time
+TC_PAIR = math.pi * math.sqrt(0.5 * M / KN0)    # undamped equal-disc contact time
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_numba_thread():
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(old)
+
+
+# --------------------------------------------------------------------- helpers
+
+
+def pair_params(kn=KN0, ks=None, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0) -> np.ndarray:
+    v = np.zeros(N_FIELDS)
+    v[KN] = kn
+    v[KS] = kn / 3.0 if ks is None else ks
+    v[ZN], v[ZT], v[MU], v[MUR], v[ZR] = zn, zt, mu, mur, zr
+    return v
+
+
+def make_model(dt, disc=None, wall=None, gx=0.0, gy=0.0, bottom=False, left=False, right=False,
+               length=1.0e3, r_max=R) -> Model:
+    cp = np.zeros((3, 3, N_FIELDS))
+    if disc is not None:
+        cp[0, 0] = disc
+    if wall is not None:
+        cp[1, 0] = wall
+        cp[0, 1] = wall
+    walls = np.array([length, float(left), float(right), float(bottom)])
+    return Model(dt=dt, gx=gx, gy=gy, skin=0.2 * r_max, cp=cp, walls=walls, wg=np.zeros(WG_SIZE),
+                 wc=np.zeros(WC_SIZE), wheel_enabled=False, r_max=r_max)
+
+
+def make_discs(x, y, r=R, vx=0.0, vy=0.0, w=0.0) -> Particles:
+    x = np.atleast_1d(np.asarray(x, dtype=float))
+    n = len(x)
+    p = Particles.new(x, np.broadcast_to(np.asarray(y, float), (n,)),
+                      np.broadcast_to(np.asarray(r, float), (n,)), RHO, B)
+    p.vx[:] = vx
+    p.vy[:] = vy
+    p.w[:] = w
+    return p
+
+
+def incline(theta_deg):
+    th = math.radians(theta_deg)
+    return th, G * math.sin(th), -G * math.cos(th)
+
+
+def trajectory(st: DomainStepper, nsteps: int, every: int = 1, forces: bool = False):
+    """Advance `every` steps at a time; arrays [k, disc] of the state after k*every steps.
+
+    Row 0 is the initial state. Positions are at t = k*every*dt, velocities at
+    t - dt/2. With forces=True also the contact forces (and torques) computed in
+    the last step of each chunk, i.e. at positions of row k - 1 when every == 1.
+    """
+    p = st.p
+    keys = ("x", "y", "vx", "vy", "w")
+    out = {k: [getattr(p, k).copy()] for k in keys}
+    if forces:
+        for k in ("fx", "fy", "tq"):
+            out[k] = [np.zeros(len(p))]
+    step = 0
+    while step < nsteps:
+        st.advance(step, every)
+        step += every
+        for k in keys:
+            out[k].append(getattr(p, k).copy())
+        if forces:
+            out["fx"].append(st.fx.copy())
+            out["fy"].append(st.fy.copy())
+            out["tq"].append(st.tq.copy())
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def first_crossing(t, f):
+    """Time of the first sign change of f from > 0 to <= 0, linearly interpolated."""
+    k = np.flatnonzero((f[:-1] > 0) & (f[1:] <= 0))
+    assert len(k), "no crossing found"
+    k = k[0]
+    s = f[k] / (f[k] - f[k + 1])
+    return t[k] + s * (t[k + 1] - t[k]), k, s
+
+
+def rel_err(measured, expected):
+    return abs(measured - expected) / abs(expected)
+
+
+def _hist_value(p, i, pid, which="ft"):
+    arr = p.hist_ft if which == "ft" else p.hist_mr
+    for s in range(p.hist_n[i]):
+        if p.hist_id[i, s] == pid:
+            return arr[i, s]
+    return 0.0
+
+
+# ------------------------------------------------------------- 1. restitution
+
+CLAMPED_E = {0.1: 0.744, 0.2: 0.572, 0.3: 0.451, 0.5: 0.298, 1.0: 0.135}
+
+
+def _restitution_wall(zeta, v0=0.5):
+    dt = TC_WALL / 1000
+    p = make_discs(0.5, R + 0.01 * R, vy=-v0)
+    st = DomainStepper(p, make_model(dt, wall=pair_params(zn=zeta), bottom=True), reorder=False)
+    st.advance(0, int((0.01 * R / v0 + 2.0 * TC_WALL) / dt))
+    assert p.y[0] > R, "disc still in contact"
+    return p.vy[0] / v0
+
+
+def _restitution_pair(zeta, v0=0.5):
+    dt = TC_PAIR / 1000
+    gap = 0.01 * R
+    p = make_discs([-(R + gap / 2), R + gap / 2], 0.0, vx=np.array([0.5 * v0, -0.5 * v0]))
+    st = DomainStepper(p, make_model(dt, disc=pair_params(zn=zeta)), reorder=False)
+    st.advance(0, int((gap / v0 + 2.0 * TC_PAIR) / dt))
+    assert p.x[1] - p.x[0] > 2 * R, "discs still in contact"
+    return (p.vx[1] - p.vx[0]) / v0
+
+
+@pytest.mark.parametrize("zeta", sorted(CLAMPED_E))
+def test_restitution_clamped_engine(zeta):
+    """Clamped convention (the engine's law: Fn = max(0, kn d - cn vn)), full engine.
+
+    A disc dropped on the bottom wall (m* = m) and two equal discs head-on
+    (m* = m/2), no gravity, dt = t_c/1000. e = |v_out / v_in| must match the
+    tabulated clamped values 0.744, 0.572, 0.451, 0.298, 0.135 (zeta = 0.1, 0.2,
+    0.3, 0.5, 1.0; the last is e^-2) to 1 % relative.
+    """
+    e_tab = CLAMPED_E[zeta]
+    e_wall = _restitution_wall(zeta)
+    e_pair = _restitution_pair(zeta)
+    assert rel_err(e_wall, e_tab) < 0.01, (e_wall, e_tab)
+    assert rel_err(e_pair, e_tab) < 0.01, (e_pair, e_tab)
+
+
+def _voigt_unclamped(delta, vn, kn, zeta, meff):
+    """The engine's normal force with its no-tension clamp undone.
+
+    contact_force returns max(0, kn d - cn vn); that expression is odd in
+    (d, vn), so f(d, vn) - f(-d, -vn) = kn d - cn vn exactly (one term is 0).
+    """
+    a = contact_force(0.0, 1.0, delta, 0.0, vn, 0.0, 0.0, 0.0, R, meff, 1.0, R, 0.0, 0.0,
+                      kn, kn / 3, zeta, 0.0, 0.0, 0.0, 0.0, 1e-6)[0]
+    b = contact_force(0.0, 1.0, -delta, 0.0, -vn, 0.0, 0.0, 0.0, R, meff, 1.0, R, 0.0, 0.0,
+                      kn, kn / 3, zeta, 0.0, 0.0, 0.0, 0.0, 1e-6)[0]
+    return a - b
+
+
+def _unclamped_collision(zeta, meff=0.5 * M, kn=KN0, v0=0.5, nper=2000):
+    """RK4 of the relative normal motion m* dvn/dt = F, d(delta)/dt = -vn.
+
+    Starts at first touch (delta = 0, vn = -v0); returns (e, t_c, peak overlap)
+    at the return of the overlap to zero.
+    """
+    h = math.pi * math.sqrt(meff / kn) / nper
+
+    def rhs(d, v):
+        return -v, _voigt_unclamped(d, v, kn, zeta, meff) / meff
+
+    d, v, t, dmax = 0.0, -v0, 0.0, 0.0
+    for _ in range(20 * nper):
+        k1 = rhs(d, v)
+        k2 = rhs(d + 0.5 * h * k1[0], v + 0.5 * h * k1[1])
+        k3 = rhs(d + 0.5 * h * k2[0], v + 0.5 * h * k2[1])
+        k4 = rhs(d + h * k3[0], v + h * k3[1])
+        dn = d + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+        vn = v + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+        if dn <= 0.0 and t > 0.0:
+            s = d / (d - dn)
+            return (v + s * (vn - v)) / v0, t + s * h, dmax
+        d, v, t = dn, vn, t + h
+        dmax = max(dmax, d)
+    raise AssertionError("overlap never returned to zero")
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.1, 0.2, 0.3, 0.5, 0.8])
+def test_restitution_and_duration_unclamped(zeta):
+    """Unclamped (pure Voigt) convention, from the engine's contact_force.
+
+    The clamp is undone algebraically (see _voigt_unclamped) and the relative
+    normal motion of an equal-disc pair (m* = m/2) is integrated with RK4 (2000
+    steps per contact). Checks, each to 1 % relative:
+    e = exp(-pi z / sqrt(1 - z^2)) (e = 1 at z = 0, absolute 1 %) and
+    t_c = pi / (w0 sqrt(1 - z^2)), w0 = sqrt(kn/m*).
+    This checks the engine's kn and its damping coefficient 2 z sqrt(m* kn).
+    """
+    meff = 0.5 * M
+    e, tc, _ = _unclamped_collision(zeta, meff)
+    e_th = math.exp(-math.pi * zeta / math.sqrt(1 - zeta * zeta))
+    tc_th = math.pi / (math.sqrt(KN0 / meff) * math.sqrt(1 - zeta * zeta))
+    assert abs(e - e_th) < 0.01 * e_th, (e, e_th)
+    assert rel_err(tc, tc_th) < 0.01, (tc, tc_th)
+
+
+# ---------------------------------------------------------- 2. contact duration
+
+
+@pytest.mark.parametrize("kind", ["pair", "wall"])
+def test_contact_duration_and_peak_overlap_undamped(kind):
+    """Undamped head-on contact in the full engine (no clamp acts when zeta = 0).
+
+    t_c = pi sqrt(m*/kn), peak overlap d = v0 sqrt(m*/kn), peak force kn d;
+    m* = m/2 for two equal discs, m* = m for a disc on the wall. Contact start
+    and end are interpolated linearly between steps (positions move linearly
+    within a step). Tolerance 1 % relative each; dt = t_c/1000.
+    """
+    v0 = 0.5
+    if kind == "pair":
+        meff, tc_th = 0.5 * M, TC_PAIR
+        dt = tc_th / 1000
+        gap = 0.01 * R
+        p = make_discs([-(R + gap / 2), R + gap / 2], 0.0, vx=np.array([0.5 * v0, -0.5 * v0]))
+        model = make_model(dt, disc=pair_params())
+    else:
+        meff, tc_th = M, TC_WALL
+        dt = tc_th / 1000
+        gap = 0.01 * R
+        p = make_discs(0.5, R + gap, vy=-v0)
+        model = make_model(dt, wall=pair_params(), bottom=True)
+    st = DomainStepper(p, model, reorder=False)
+    tr = trajectory(st, int((gap / v0 + 1.3 * tc_th) / dt), forces=True)
+    t = np.arange(len(tr["x"])) * dt
+    if kind == "pair":
+        overlap = 2 * R - (tr["x"][:, 1] - tr["x"][:, 0])
+        force = np.abs(tr["fx"][:, 1])
+    else:
+        overlap = R - tr["y"][:, 0]
+        force = np.abs(tr["fy"][:, 0])
+    t_on, _, _ = first_crossing(t, -overlap)
+    k_on = np.flatnonzero(overlap > 0)[0]
+    t_off, _, _ = first_crossing(t[k_on:], overlap[k_on:])
+    tc = t_off - t_on
+    d_th = v0 * math.sqrt(meff / KN0)
+    assert rel_err(tc, tc_th) < 0.01, (tc, tc_th)
+    assert rel_err(overlap.max(), d_th) < 0.01, (overlap.max(), d_th)
+    assert rel_err(force.max(), KN0 * d_th) < 0.01, (force.max(), KN0 * d_th)
+
+
+# ---------------------------------------------------------- 3. block on incline
+
+
+def _on_incline(theta_deg, wall, t_end, block=False, ramp=0.0, dt=5e-6, every=100):
+    """One disc (or rotation-locked block) on the bottom wall under tilted gravity.
+
+    Starts at the static normal overlap m g cos(theta)/kn, at rest. With ramp > 0
+    the tilt grows linearly from 0 to theta over `ramp` seconds (quasi-static
+    loading: a sudden tilt makes the friction overshoot its static value while
+    the body is brought to rest, which can slip a body that would rest).
+    Returns (theta, particles, trajectory, velocity times).
+    """
+    th = math.radians(theta_deg)
+    p = make_discs(0.0, R - M * G * math.cos(0.0 if ramp > 0 else th) / KN0)
+    if block:
+        p.inertia[:] = np.inf          # rotation locked: a block
+    model = make_model(dt, wall=wall, bottom=True)
+    st = DomainStepper(p, model, reorder=False)
+    keys = ("x", "y", "vx", "vy", "w")
+    tr = {k: [getattr(p, k).copy()] for k in keys}
+    nsteps = int(round(t_end / dt))
+    for step in range(0, nsteps, every):
+        t = step * dt
+        a = th if ramp <= 0 else th * min(1.0, t / ramp)
+        model.gx, model.gy = G * math.sin(a), -G * math.cos(a)
+        st.advance(step, every)
+        for k in keys:
+            tr[k].append(getattr(p, k).copy())
+    tr = {k: np.array(v) for k, v in tr.items()}
+    t = np.arange(len(tr["x"])) * every * dt - 0.5 * dt   # velocity times
+    return th, p, tr, t
+
+
+def _slope(t, v, t1, t2):
+    k1, k2 = np.searchsorted(t, [t1, t2])
+    k2 = min(k2, len(t) - 1)
+    return (v[k2] - v[k1]) / (t[k2] - t[k1])
+
+
+def test_block_rests_on_incline_below_friction_angle():
+    """Rotation-locked block (inertia = inf), mu = 0.5, tilted quasi-statically
+    (over 0.03 s) to tan(theta) = 0.95 mu, then held 0.03 s: it rests.
+
+    With no slip the friction equals m g sin(theta) (< mu m g cos(theta)) and is
+    carried by the tangential spring: stored spring = m g sin(theta) and the
+    block's displacement = its elastic stretch m g sin(theta)/ks, both to 1 %
+    (any slip would add to the displacement); final speed < 1e-6 m/s.
+    """
+    mu = 0.5
+    theta = math.degrees(math.atan(0.95 * mu))
+    wall = pair_params(zn=0.5, zt=0.5, mu=mu)
+    th, p, tr, _ = _on_incline(theta, wall, 0.06, block=True, ramp=0.03)
+    f = M * G * math.sin(th)
+    assert rel_err(tr["x"][-1, 0], f / KS0) < 0.01, (tr["x"][-1, 0], f / KS0)
+    assert abs(tr["vx"][-1, 0]) < 1e-6
+    assert p.w[0] == 0.0
+    s = _hist_value(p, 0, ID_WALL_BOTTOM)
+    assert rel_err(abs(s), f) < 0.01, (s, f)
+
+
+@pytest.mark.parametrize("theta_deg, mu", [(30.0, 0.3), (math.degrees(math.atan(0.55)), 0.5)])
+def test_block_slides_on_incline_above_friction_angle(theta_deg, mu):
+    """Rotation-locked block with tan(theta) > mu slides: a = g (sin - mu cos).
+
+    Cases: theta = 30 deg, mu = 0.3 (a = 2.36 m/s^2) and tan(theta) = 1.1 mu,
+    mu = 0.5 (a = 0.43 m/s^2). Sudden tilt; a is the slope of vx over
+    0.02 s..0.06 s. Tolerance 1 % relative.
+    """
+    wall = pair_params(zn=0.5, zt=0.5, mu=mu)
+    th, p, tr, t = _on_incline(theta_deg, wall, 0.06, block=True)
+    a_th = G * (math.sin(th) - mu * math.cos(th))
+    a = _slope(t, tr["vx"][:, 0], 0.02, 0.06)
+    assert rel_err(a, a_th) < 0.01, (a, a_th)
+    assert p.w[0] == 0.0
+
+
+# ---------------------------------------------------------- 4. disc on incline
+
+
+def test_disc_rolls_without_slip_on_incline():
+    """Disc on an incline, theta = 20 deg, mu = 0.5 >= tan(theta)/3 = 0.12: rolls.
+
+    a = (2/3) g sin(theta) and angular acceleration -a/r (rolling in +x is
+    clockwise); slopes of vx and w over 0.02 s..0.08 s. Tolerance 1 % relative;
+    the contact-point slip speed |vx + w r| stays below 1e-3 |vx|.
+    """
+    th, p, tr, t = _on_incline(20.0, pair_params(zn=0.5, zt=0.5, mu=0.5), 0.08)
+    a_th = 2.0 / 3.0 * G * math.sin(th)
+    a = _slope(t, tr["vx"][:, 0], 0.02, 0.08)
+    alpha = _slope(t, tr["w"][:, 0], 0.02, 0.08)
+    assert rel_err(a, a_th) < 0.01, (a, a_th)
+    assert rel_err(alpha, -a_th / R) < 0.01, (alpha, -a_th / R)
+    slip = tr["vx"][-1, 0] + tr["w"][-1, 0] * R
+    assert abs(slip) < 1e-3 * abs(tr["vx"][-1, 0]), slip
+
+
+def test_disc_slides_and_spins_up_on_steep_incline():
+    """theta = 30 deg, mu = 0.1 < tan(theta)/3 = 0.19: the disc slips throughout.
+
+    a = g (sin(theta) - mu cos(theta)) = 4.06 m/s^2 and angular acceleration
+    -2 mu g cos(theta)/r = -170 rad/s^2 (clockwise). Slopes over 0.02..0.06 s;
+    tolerance 1 % relative each.
+    """
+    mu = 0.1
+    th, p, tr, t = _on_incline(30.0, pair_params(zn=0.5, zt=0.5, mu=mu), 0.06)
+    a_th = G * (math.sin(th) - mu * math.cos(th))
+    alpha_th = -2.0 * mu * G * math.cos(th) / R
+    a = _slope(t, tr["vx"][:, 0], 0.02, 0.06)
+    alpha = _slope(t, tr["w"][:, 0], 0.02, 0.06)
+    assert rel_err(a, a_th) < 0.01, (a, a_th)
+    assert rel_err(alpha, alpha_th) < 0.01, (alpha, alpha_th)
+    assert tr["vx"][-1, 0] + tr["w"][-1, 0] * R > 0.1  # still slipping
+
+
+# ------------------------------------------------------- 5. rolling resistance
+
+
+def test_rolling_resistance_holds_disc_below_eta():
+    """Disc-wall rolling resistance eta_r = 0.2 (limit eta_r r Fn), mu = 0.8,
+    tilted quasi-statically (0.03 s) to tan(theta) = 0.95 eta_r, held 0.07 s:
+    the disc rests.
+
+    At rest the friction is f = m g sin(theta) and the rolling moment f r
+    (< eta_r r m g cos): the stored rolling spring must equal f r to 1 %. With
+    no slip and no plastic rolling the centre moves by the two elastic
+    stretches, 2 f/ks (tangential spring f/ks plus rotation f/(ks r) times r,
+    since kr = ks r^2), to 1 %; final speed < 1e-6 m/s.
+    """
+    eta = 0.2
+    theta = math.degrees(math.atan(0.95 * eta))
+    wall = pair_params(zn=0.5, zt=0.5, mu=0.8, mur=eta, zr=0.5)
+    th, p, tr, t = _on_incline(theta, wall, 0.10, ramp=0.03)
+    f = M * G * math.sin(th)
+    assert abs(tr["vx"][-1, 0]) < 1e-6 and abs(tr["w"][-1, 0]) < 1e-6 / R
+    assert rel_err(tr["x"][-1, 0], 2 * f / KS0) < 0.01, (tr["x"][-1, 0], 2 * f / KS0)
+    mr = _hist_value(p, 0, ID_WALL_BOTTOM, "mr")
+    assert rel_err(abs(mr), f * R) < 0.01, (mr, f * R)
+
+
+@pytest.mark.parametrize("theta_deg", [25.0, math.degrees(math.atan(1.1 * 0.2))])
+def test_rolling_resistance_disc_rolls_above_eta(theta_deg):
+    """eta_r = 0.2, tan(theta) > eta_r (theta = 25 deg, and tan(theta) = 1.1
+    eta_r), mu = 0.8: the disc rolls.
+
+    With the rolling moment at its limit eta_r r m g cos(theta) and no slip,
+    m a = m g sin - F and I a/r = F r - eta_r r m g cos give
+    a = (2/3) g (sin(theta) - eta_r cos(theta)) (1.58 and 0.13 m/s^2; needs
+    mu >= (tan + 2 eta_r)/3). Slope of vx over 0.02..0.08 s; 1 % relative.
+    """
+    eta = 0.2
+    wall = pair_params(zn=0.5, zt=0.5, mu=0.8, mur=eta, zr=0.5)
+    th, p, tr, t = _on_incline(theta_deg, wall, 0.08)
+    a_th = 2.0 / 3.0 * G * (math.sin(th) - eta * math.cos(th))
+    a = _slope(t, tr["vx"][:, 0], 0.02, 0.08)
+    assert rel_err(a, a_th) < 0.01, (a, a_th)
+
+
+# ------------------------------------------------------- 6. sliding to rolling
+
+
+def test_sliding_to_rolling_on_flat_ground():
+    """Disc launched with v0 = 0.5 m/s and no spin on flat ground, mu = 0.3.
+
+    Rolling (contact-point speed vx + w r = 0) begins at t = v0/(3 mu g) with
+    speed (2/3) v0 after sliding 5 v0^2/(18 mu g). The first zero of the slip
+    speed is interpolated between steps. Tolerance 1 % relative each.
+    """
+    v0, mu = 0.5, 0.3
+    dt = 5e-6
+    wall = pair_params(zn=0.5, zt=0.5, mu=mu)
+    p = make_discs(0.0, R - M * G / KN0, vx=v0)
+    st = DomainStepper(p, make_model(dt, wall=wall, gy=-G, bottom=True), reorder=False)
+    t_th = v0 / (3 * mu * G)
+    every = 4
+    tr = trajectory(st, int(1.2 * t_th / dt), every=every)
+    tv = np.arange(len(tr["x"])) * every * dt - 0.5 * dt     # velocity times
+    slip = tr["vx"][:, 0] + tr["w"][:, 0] * R
+    t_roll, k, s = first_crossing(tv, slip)
+    v_roll = tr["vx"][k, 0] + s * (tr["vx"][k + 1, 0] - tr["vx"][k, 0])
+    tx = tv + 0.5 * dt
+    x_roll = np.interp(t_roll, tx, tr["x"][:, 0])
+    assert rel_err(t_roll, t_th) < 0.01, (t_roll, t_th)
+    assert rel_err(v_roll, 2.0 / 3.0 * v0) < 0.01, (v_roll, 2 * v0 / 3)
+    d_th = 5 * v0 * v0 / (18 * mu * G)
+    assert rel_err(x_roll, d_th) < 0.01, (x_roll, d_th)
+
+
+# --------------------------------------------------------- 7. oblique impact
+
+
+def _oblique(theta_deg, mu, v=0.5):
+    th = math.radians(theta_deg)
+    dt = TC_WALL / 1000
+    gap = 0.01 * R
+    p = make_discs(0.5, R + gap, vx=v * math.sin(th), vy=-v * math.cos(th))
+    st = DomainStepper(p, make_model(dt, wall=pair_params(ks=KN0 / 3, mu=mu), bottom=True),
+                       reorder=False)
+    st.advance(0, int((gap / (v * math.cos(th)) + 1.5 * TC_WALL) / dt))
+    assert p.y[0] > R, "still in contact"
+    return th, v, p.vx[0], p.vy[0], p.w[0]
+
+
+def test_oblique_impact_sticking():
+    """Disc-wall impact, ks = kn/3, no damping, theta = 30 deg from the normal,
+    mu = 0.5 (tan(theta) = 0.58 <= 3 mu): tangential and normal periods are equal
+    and the contact sticks. The contact-point tangential velocity reverses
+    (u' = -u, u = vx + w r), centre e_t = vx'/vx = 1/3, spin
+    w' = -(4/3) v sin(theta)/r (moving in +x: clockwise), e_n = 1.
+    Tolerance 1 % relative each (u' relative to u).
+    """
+    th, v, vx, vy, w = _oblique(30.0, 0.5)
+    u_in = v * math.sin(th)
+    assert rel_err(vx + w * R, -u_in) < 0.01, (vx + w * R, -u_in)
+    assert rel_err(vx / u_in, 1.0 / 3.0) < 0.01, vx / u_in
+    assert rel_err(w, -4.0 / 3.0 * v * math.sin(th) / R) < 0.01
+    assert rel_err(vy / (v * math.cos(th)), 1.0) < 0.01
+
+
+def test_oblique_impact_sliding():
+    """Disc-wall impact, ks = kn/3, no damping, theta = 45 deg, mu = 0.1
+    (tan(theta) = 1 > 3 mu): slides throughout. e_t = 1 - 2 mu/tan(theta) = 0.8,
+    e_n = 1, w' = -4 mu v cos(theta)/r. Tolerance 1 % relative each.
+    """
+    mu = 0.1
+    th, v, vx, vy, w = _oblique(45.0, mu)
+    assert rel_err(vx / (v * math.sin(th)), 1 - 2 * mu / math.tan(th)) < 0.01
+    assert rel_err(vy / (v * math.cos(th)), 1.0) < 0.01
+    assert rel_err(w, -4 * mu * v * math.cos(th) / R) < 0.01, (w, -4 * mu * v * math.cos(th) / R)
+
+
+# --------------------------------------------------- 8. opposite spins, head-on
+
+
+def test_equal_opposite_spins_head_on_exact():
+    """Two equal discs, spins +w and -w, head-on with friction mu = 0.5,
+    damping 0.3: the contact points move together, so the tangential force is
+    exactly zero: torques == 0 at every step, spins, vy and y unchanged bit for
+    bit (exact, tolerance 0), while the normal collision does happen.
+    """
+    v0, w0 = 0.5, 40.0
+    dt = TC_PAIR / 500
+    gap = 0.01 * R
+    p = make_discs([-(R + gap / 2), R + gap / 2], 0.0, vx=np.array([0.5 * v0, -0.5 * v0]),
+                   w=np.array([w0, -w0]))
+    st = DomainStepper(p, make_model(dt, disc=pair_params(zn=0.3, zt=0.3, mu=0.5)), reorder=False)
+    tr = trajectory(st, int((gap / v0 + 1.5 * TC_PAIR) / dt), forces=True)
+    assert np.abs(tr["fx"]).max() > 0                       # they did collide
+    assert p.vx[0] < 0 < p.vx[1]                            # and rebounded
+    assert np.all(tr["tq"] == 0.0)
+    assert np.all(tr["fy"] == 0.0)
+    assert np.all(tr["w"][:, 0] == w0) and np.all(tr["w"][:, 1] == -w0)
+    assert np.all(tr["vy"] == 0.0) and np.all(tr["y"] == 0.0)
+
+
+# ------------------------------------------------------------- 9. energy
+
+
+def _energy(p, x, y, vx, vy, w, L, kn):
+    """Kinetic + potential + spring energy; velocities at the integer time."""
+    e = 0.5 * p.mass * (vx * vx + vy * vy) + 0.5 * p.inertia * w * w + p.mass * G * y
+    es = 0.0
+    r = p.r
+    for i in range(len(x)):
+        for d in (r[i] - x[i], r[i] - (L - x[i]), r[i] - y[i]):
+            if d > 0:
+                es += 0.5 * kn * d * d
+        for j in range(i + 1, len(x)):
+            d = r[i] + r[j] - math.hypot(x[j] - x[i], y[j] - y[i])
+            if d > 0:
+                es += 0.5 * kn * d * d
+    return float(e.sum() + es)
+
+
+def test_energy_conserved_without_damping_and_friction():
+    """8 discs (r in [0.7, 1] x 0.01 m) bouncing in a box 0.1 m wide (left,
+    right and bottom walls) under gravity, no damping, no friction, dt = 1e-5
+    (w dt <= 0.04 for the stiffest pair). Energy E = sum(m v^2/2 + I w^2/2 +
+    m g y) + sum(kn d^2/2) evaluated at integer steps with v_n = (v_(n-1/2) +
+    v_(n+1/2))/2, sampled every 1000 steps over 1 s (> 100 collisions).
+    Bound: max |E - E0| / E0 < 0.5 %.
+    """
+    rng = np.random.default_rng(3)
+    n, L, dt = 8, 0.1, 1e-5
+    r = rng.uniform(0.7 * R, R, n)
+    x = 0.012 + (L - 0.024) * np.arange(n) / (n - 1)
+    y = 0.02 + 0.03 * rng.random(n) + (np.arange(n) % 2) * 0.025
+    p = Particles.new(x, y, r, RHO, B)
+    p.vx[:] = rng.normal(0, 0.8, n)
+    p.vy[:] = rng.normal(0, 0.8, n)
+    p.w[:] = rng.normal(0, 10.0, n)
+    prm = pair_params(mu=0.0)
+    model = make_model(dt, disc=prm, wall=prm, gy=-G, bottom=True, left=True, right=True,
+                       length=L, r_max=R)
+    st = DomainStepper(p, model, reorder=False)
+    w_start = p.w.copy()
+    energies, contacts_seen, step = [], 0, 0
+    prev = set()
+    total = int(1.0 / dt)
+    while step < total:
+        x0, y0, vx0, vy0 = p.x.copy(), p.y.copy(), p.vx.copy(), p.vy.copy()
+        st.advance(step, 1)
+        step += 1
+        if step % 1000 == 1:
+            energies.append(_energy(p, x0, y0, 0.5 * (vx0 + p.vx), 0.5 * (vy0 + p.vy), p.w, L, KN0))
+        # count contact starts (a contact lasts > 20 steps; sample every 10)
+        st.advance(step, 9)
+        step += 9
+        now = {(i, int(p.hist_id[i, s])) for i in range(n) for s in range(p.hist_n[i])}
+        contacts_seen += len(now - prev)
+        prev = now
+    energies = np.array(energies)
+    drift = np.abs(energies - energies[0]).max() / energies[0]
+    assert contacts_seen > 100, contacts_seen
+    assert drift < 0.005, drift
+    assert np.array_equal(p.w, w_start)  # no friction: spins never change

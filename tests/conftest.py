@@ -1,0 +1,46 @@
+"""Shared fixtures: small scenarios and settled beds (cached across tests and runs)."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ooc_dem.scenario import load_scenario
+
+# a short wheel run on the quick rig: 0.1 s of settling, 0.4 s of travel
+WHEEL_TEST = ["wheel.settle_time=0.1", "wheel.travel_time=0.4", "wheel.drawbar_ramp=0.1",
+              "output.steady_start=0.1", "output.steady_end=0.4"]
+
+
+def run_cli(*args, check=False, timeout=900, env=None):
+    """Run `ooc-dem ...` in a fresh interpreter; returns CompletedProcess."""
+    e = dict(os.environ)
+    if env:
+        e.update(env)
+    cp = subprocess.run([sys.executable, "-m", "ooc_dem.cli", *map(str, args)], capture_output=True,
+                        text=True, timeout=timeout, env=e)
+    if check and cp.returncode != 0:
+        raise AssertionError(f"ooc-dem {' '.join(map(str, args))} failed ({cp.returncode}):\n{cp.stderr}")
+    return cp
+
+
+@pytest.fixture(scope="session")
+def quick_scenario():
+    return load_scenario("quick")
+
+
+def state_arrays(p):
+    """Every state array of a Particles set, sorted by id, history slots beyond the count zeroed."""
+    from ooc_dem.state import clean_history
+    q = p.sorted_by_id()
+    clean_history(q)
+    return q.arrays()
+
+
+def assert_same_state(a, b):
+    sa, sb = state_arrays(a), state_arrays(b)
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        assert sa[k].dtype == sb[k].dtype, k
+        assert np.array_equal(sa[k], sb[k]), f"state array {k!r} differs"

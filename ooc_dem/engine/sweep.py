@@ -95,6 +95,7 @@ class SweepEngine:
         self.D = len(self.bounds) - 1
         self.ws = np.asarray(wheel_state, np.float64).copy()
         self.src = src
+        self.fixed = False  # True: bounds given by the caller, never redefined
         self.resident_max = 0
         self.resident_last: list[int] = []
         self._n = None
@@ -110,14 +111,20 @@ class SweepEngine:
 
     # ---------------------------------------------------------------- setup
     @classmethod
-    def create(cls, sim, particles: Particles, ws: np.ndarray) -> "SweepEngine":
+    def create(cls, sim, particles: Particles, ws: np.ndarray, bounds=None) -> "SweepEngine":
+        """Split the discs into slabs (by the scenario's policy, or the given bounds)."""
         sc = sim.sc
         D = sim.opts.domains or sc.decomposition.domains
         K = sim.opts.block or sc.decomposition.block
         src = RamEpochs() if sim.opts.mode == "ddm" else None
         eng = cls(sim, np.array([-np.inf, np.inf]), ws, K, src)
-        eng.D = D
-        eng.bounds = eng.decompose(particles.x, step=0)
+        if bounds is None:
+            eng.D = D
+            eng.bounds = eng.decompose(particles.x, step=0)
+        else:
+            eng.bounds = np.asarray(bounds, np.float64)
+            eng.D = len(eng.bounds) - 1
+            eng.fixed = True
         groups = owner(eng.bounds, particles.x)
         for d in range(eng.D):
             rec, attrs = group_record(particles.take(np.flatnonzero(groups == d)))
@@ -155,7 +162,7 @@ class SweepEngine:
         """Advance every slab k <= K steps (the halo is sized for K)."""
         sc = self.sc
         src = self._reader()
-        if sc.wheel.enabled and sc.decomposition.policy == "wheel" and self.D > 1:
+        if sc.wheel.enabled and sc.decomposition.policy == "wheel" and self.D > 1 and not self.fixed:
             if not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach, self.margin_required):
                 self.bounds = self.decompose(self._all_x(src), step0)
         wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if sc.wheel.enabled else -1
@@ -231,3 +238,27 @@ class SweepEngine:
             src.write_domain(d, reader.read_domain(d), reader.domain_attrs(d))
         src.swap()
         return eng
+
+
+class _Run:
+    """The few attributes of a Simulation that the sweep needs (for direct use)."""
+
+    def __init__(self, sc, mode="ddm", block=1):
+        from types import SimpleNamespace
+        self.sc = sc
+        self.model = Model.from_scenario(sc)
+        self.opts = SimpleNamespace(mode=mode, domains=None, block=block)
+        self.redecompositions = []
+
+
+def sweep_run(sc, particles: Particles, wheel_state, steps: int, bounds=None, domains=None, block=1):
+    """Advance discs `steps` steps with the serial-DDM sweep; returns (particles, wheel_state, records, engine).
+
+    `bounds` fixes the slab bounds (D+1 ascending values, -inf and +inf at the ends);
+    otherwise the scenario's policy with `domains` sub-domains is used.
+    """
+    run = _Run(sc, "ddm", block)
+    run.opts.domains = domains
+    eng = SweepEngine.create(run, particles, np.asarray(wheel_state, np.float64), bounds=bounds)
+    rec = eng.advance(0, steps)
+    return eng.particles(), eng.wheel_state, rec, eng

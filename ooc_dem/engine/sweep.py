@@ -85,6 +85,8 @@ def group_record(p: Particles) -> tuple[dict, dict]:
 class SweepEngine:
     """Serial DDM (epochs in RAM) or out-of-core (epochs in a store) with blocks of K steps."""
 
+    folds_records = property(lambda self: self.src is None)
+
     def __init__(self, sim, bounds: np.ndarray, wheel_state: np.ndarray, block: int, src):
         self.sim = sim
         self.sc = sim.sc
@@ -96,8 +98,12 @@ class SweepEngine:
         self.ws = np.asarray(wheel_state, np.float64).copy()
         self.src = src
         self.fixed = False  # True: bounds given by the caller, never redefined
+        self._writer = None         # out-of-core: epoch being written
+        self._store_reader = None   # out-of-core: current committed epoch
+        self.committed_step = None
         self.resident_max = 0
         self.resident_last: list[int] = []
+        self.resident_first: list[int] | None = None
         self._n = None
         sc = self.sc
         hop = 2.0 * sc.soil.r_max + sc.bed.skin
@@ -118,6 +124,8 @@ class SweepEngine:
         K = sim.opts.block or sc.decomposition.block
         src = RamEpochs() if sim.opts.mode == "ddm" else None
         eng = cls(sim, np.array([-np.inf, np.inf]), ws, K, src)
+        if src is None:
+            eng._writer = sim.store.begin_epoch(0)
         if bounds is None:
             eng.D = D
             eng.bounds = eng.decompose(particles.x, step=0)
@@ -138,8 +146,9 @@ class SweepEngine:
         if self.src is not None:
             self.src.write_domain(d, rec, attrs)
         else:
-            self._pending = getattr(self, "_pending", {})
-            self._pending[d] = (rec, attrs)
+            if self._writer is None:
+                raise RuntimeError("out-of-core sweep without an open epoch writer")
+            self._writer.write_domain(d, rec, attrs)
 
     def decompose(self, x: np.ndarray, step: int) -> np.ndarray:
         sc = self.sc
@@ -153,7 +162,34 @@ class SweepEngine:
 
     # -------------------------------------------------------------- the sweep
     def _reader(self):
-        return self.src
+        return self.src if self.src is not None else self._store_reader
+
+    def commit_epoch(self, step, arrays, attrs, durable=False) -> None:
+        """Out-of-core: finish the epoch being written (globals + manifest commit).
+        DDM: copy the RAM epoch into the run's store."""
+        if self.src is not None:
+            writer = self.sim.store.begin_epoch(step)
+            try:
+                self.write_domains(writer)
+                writer.write_globals(arrays, attrs)
+                writer.commit(durable=durable)
+            except BaseException:
+                writer.abort()
+                raise
+            return
+        if self.committed_step == step:
+            return  # the sweep that reached this step committed it already
+        writer, self._writer = self._writer, None
+        try:
+            writer.write_globals(arrays, attrs)
+            writer.commit(durable=durable)
+        except BaseException:
+            writer.abort()
+            raise
+        self.committed_step = step
+        if self._store_reader is not None:
+            self._store_reader.close()
+        self._store_reader = self.sim.store.read_epoch()
 
     def _all_x(self, src) -> np.ndarray:
         return np.concatenate([src.read_domain(d, ["x"])["x"] for d in src.domains()])
@@ -166,6 +202,17 @@ class SweepEngine:
             if not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach, self.margin_required):
                 self.bounds = self.decompose(self._all_x(src), step0)
         wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if sc.wheel.enabled else -1
+        if self.src is None:
+            self._writer = self.sim.store.begin_epoch(step0 + k)
+        try:
+            return self._sweep_domains(src, step0, k, wslab)
+        except BaseException:
+            if self._writer is not None:
+                self._writer.abort()
+                self._writer = None
+            raise
+
+    def _sweep_domains(self, src, step0: int, k: int, wslab: int) -> np.ndarray:
         rec_wheel = np.zeros((0, 12))
         new_ws = self.ws
         resident = []
@@ -192,9 +239,16 @@ class SweepEngine:
             del st, local, pieces
         self.ws = new_ws
         self.resident_last = resident
+        if self.resident_first is None:
+            self.resident_first = list(resident)
         self.resident_max = max(self.resident_max, max(resident) if resident else 0)
         if self.src is not None:
             self.src.swap()
+        else:
+            # the epoch is complete: fold the wheel records, then commit it (every sweep)
+            self.sim.fold(rec_wheel, step0)
+            self.sim.step = step0 + k
+            self.sim.commit()
         return rec_wheel
 
     def advance(self, step0: int, nsteps: int) -> np.ndarray:
@@ -231,6 +285,12 @@ class SweepEngine:
     def reopen(cls, sim, reader, arrays, attrs) -> "SweepEngine":
         sc = sim.sc
         K = sim.opts.block or sc.decomposition.block
+        if sim.opts.mode == "ooc":
+            bounds = np.array([-np.inf, *attrs["engine"]["bounds"], np.inf])
+            eng = cls(sim, bounds, arrays["wheel_state"], K, None)
+            eng._store_reader = sim.store.read_epoch(reader.step)
+            eng.committed_step = int(attrs["step"])
+            return eng
         src = RamEpochs()
         bounds = np.array([-np.inf, *attrs["engine"]["bounds"], np.inf])
         eng = cls(sim, bounds, arrays["wheel_state"], K, src)

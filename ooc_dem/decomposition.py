@@ -20,7 +20,8 @@ def _quantile_bounds(xs_sorted: np.ndarray, k: int, lo: float, hi: float) -> lis
     out = []
     for j in range(1, k):
         if len(sel) == 0:
-            out.append(lo + (hi - lo) * j / k)
+            # an empty side: degenerate (empty) slabs at its finite end
+            out.append(lo if np.isfinite(lo) else hi if np.isfinite(hi) else 0.0)
         else:
             idx = min(len(sel) - 1, int(round(j * len(sel) / k)))
             out.append(float(sel[idx]))

@@ -21,7 +21,7 @@ from ..checkpoint import particles_to_record, record_to_particles
 from ..decomposition import equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok
 from ..physics.forces import WS_X
 from ..state import Particles
-from .stepper import DomainStepper, Model
+from .stepper import DomainStepper, EngineError, Model
 
 
 class RamEpochs:
@@ -216,6 +216,7 @@ class SweepEngine:
         rec_wheel = np.zeros((0, 12))
         new_ws = self.ws
         resident = []
+        owned_total = 0
         for d in range(self.D):
             lo, hi = self.bounds[d], self.bounds[d + 1]
             pieces = [q for g in src.domains()
@@ -234,9 +235,13 @@ class SweepEngine:
             if d == wslab:
                 rec_wheel = rec
                 new_ws = st.ws.copy()
+            owned_total += len(owned)
             grec, attrs = group_record(st.p.take(owned))
             self._stage(d, grec, attrs)
             del st, local, pieces
+        if self._n is not None and owned_total != self._n:
+            raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
+                              f"(bounds {self.bounds.tolist()}): decomposition error")
         self.ws = new_ws
         self.resident_last = resident
         if self.resident_first is None:
@@ -290,6 +295,7 @@ class SweepEngine:
             eng = cls(sim, bounds, arrays["wheel_state"], K, None)
             eng._store_reader = sim.store.read_epoch(reader.step)
             eng.committed_step = int(attrs["step"])
+            eng._n = sum(int(reader.domain_attrs(d).get("n", 0)) for d in reader.domains())
             return eng
         src = RamEpochs()
         bounds = np.array([-np.inf, *attrs["engine"]["bounds"], np.inf])
@@ -297,6 +303,7 @@ class SweepEngine:
         for d in reader.domains():
             src.write_domain(d, reader.read_domain(d), reader.domain_attrs(d))
         src.swap()
+        eng._n = eng.n_discs()
         return eng
 
 

@@ -130,7 +130,14 @@ def _cached(sc: Scenario, build, progress=None) -> Particles:
 def settled_bed(sc: Scenario, progress=None, use_cache: bool = True) -> Particles:
     """The settled bed of a scenario (sorted by id), cached on disk by its bed hash."""
     if sc.bed.tile > 0 and sc.soil.n > sc.bed.tile:
-        return Particles.concat(list(tiled_bed_parts(sc, progress=progress, use_cache=use_cache)))
+        # filled part by part into one allocation (no list of parts plus a concatenated copy)
+        bed = Particles.empty(sc.soil.n)
+        at = 0
+        for part in tiled_bed_parts(sc, progress=progress, use_cache=use_cache, tiles_per_part=8):
+            for k in bed.arrays():
+                getattr(bed, k)[at:at + len(part)] = getattr(part, k)
+            at += len(part)
+        return bed
 
     def build(progress):
         bed, _ = settle(sc, initial_fill(sc), progress)
@@ -156,28 +163,34 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
     ntiles = -(-n_total // n_tile)
     extra = ntiles * n_tile - n_total
     top_first = np.argsort(-(tile.y + tile.r), kind="stable")
+    templates: dict = {}
     for start in range(0, ntiles, tiles_per_part):
         parts = []
         for k in range(start, min(ntiles, start + tiles_per_part)):
             drop = extra // ntiles + (1 if k < extra % ntiles else 0)
-            keep = np.ones(n_tile, bool)
-            keep[top_first[:drop]] = False
-            parts.append(_tile_copy(tile, keep, k, ntiles, tile_len))
+            key = (drop, k % 2 == 1, k > 0, k < ntiles - 1)
+            if key not in templates:
+                keep = np.ones(n_tile, bool)
+                keep[top_first[:drop]] = False
+                templates[key] = _tile_template(tile, keep, *key[1:], tile_len)
+            q = templates[key].take(np.arange(len(templates[key])))  # a copy
+            q.x += k * tile_len
+            q.id += k * n_tile
+            used = np.arange(q.hist_id.shape[1])[None, :] < q.hist_n[:, None]
+            q.hist_id[used & (q.hist_id >= 0)] += k * n_tile
+            parts.append(q)
         yield Particles.concat(parts)
 
 
-def _tile_copy(tile: Particles, keep, k: int, ntiles: int, tile_len: float) -> Particles:
+def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, right_inner: bool,
+                   tile_len: float) -> Particles:
+    """One tile copy at offset 0 with tile-local ids (shifted per copy by the caller)."""
     from .physics.forces import ID_WALL_LEFT, ID_WALL_RIGHT
-    n_tile = len(tile)
     q = tile.take(np.flatnonzero(keep))
-    mirrored = k % 2 == 1
     if mirrored:
         q.x[:] = tile_len - q.x
         q.vx[:] = -q.vx
         q.w[:] = -q.w
-    q.x += k * tile_len
-    q.id[:] = k * n_tile + q.id
-    left_inner, right_inner = k > 0, k < ntiles - 1
     hid, hft, hmr, hn = q.hist_id.copy(), q.hist_ft.copy(), q.hist_mr.copy(), q.hist_n.copy()
     q.hist_id[:] = 0
     q.hist_ft[:] = 0.0
@@ -193,7 +206,6 @@ def _tile_copy(tile: Particles, keep, k: int, ntiles: int, tile_len: float) -> P
             if pid >= 0:
                 if not keep[pid]:
                     continue
-                pid = k * n_tile + pid
             else:
                 if mirrored and pid in (ID_WALL_LEFT, ID_WALL_RIGHT):
                     pid = ID_WALL_LEFT if pid == ID_WALL_RIGHT else ID_WALL_RIGHT

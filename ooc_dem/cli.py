@@ -108,6 +108,15 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("a")
     q.add_argument("b")
 
+    q = sub.add_parser("profile", help="peak RSS of each mode (fresh subprocess each) against monolithic")
+    add_scenario_args(q)
+    q.add_argument("--modes", default="monolithic,ddm,ooc", help="comma-separated: monolithic,ddm,ooc")
+    q.add_argument("--out", required=True, help="directory for memory.json, memory.md, memory.png")
+    q.add_argument("--domains", type=_positive_int)
+    q.add_argument("--block", type=_positive_int)
+    q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr"])
+    q.add_argument("--steps", type=_positive_int, default=200, help="steps measured per mode")
+
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)
     q.add_argument("--slips", required=True, help="comma-separated slips, e.g. 0.1,0.2,0.4")
@@ -302,7 +311,30 @@ def cmd_sweep(args):
     return 0
 
 
-COMMANDS = {"run": cmd_run, "prepare": cmd_prepare, "resume": cmd_resume, "checkpoint": cmd_checkpoint,
+def cmd_profile(args):
+    from .profiling import MODES, profile
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    bad = [m for m in modes if m not in MODES]
+    if not modes or bad:
+        raise CliError(f"--modes {args.modes!r}: each must be one of {', '.join(MODES)}")
+    _load(args)  # validate the scenario and overrides before spawning anything
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise CliError(f"--out {out}: directory exists and is not empty")
+    try:
+        doc = profile(args.scenario, modes, out, overrides=args.set, backend=args.backend,
+                      domains=args.domains, block=args.block, steps=args.steps)
+    except RuntimeError as e:
+        raise CliError(str(e)) from None
+    print((out / "memory.md").read_text())
+    for r in doc["runs"]:
+        if r.get("above_baseline_ratio_to_monolithic") is not None and r["mode"] != "monolithic":
+            print(f"{r['mode']}: peak above baseline = {r['above_baseline_ratio_to_monolithic']:.3f} x monolithic")
+    print(f"report: {out / 'memory.json'}  {out / 'memory.md'}  figure: {out / 'memory.png'}")
+    return 0
+
+
+COMMANDS = {"profile": cmd_profile, "run": cmd_run, "prepare": cmd_prepare, "resume": cmd_resume, "checkpoint": cmd_checkpoint,
             "scenarios": cmd_scenarios, "report": cmd_report, "compare": cmd_compare, "sweep": cmd_sweep}
 
 

@@ -82,6 +82,13 @@ class Particles:
     def take(self, idx) -> "Particles":
         return Particles(**{k: v[idx] for k, v in self.arrays().items()})
 
+    def permute_inplace(self, perm) -> "Particles":
+        """Reorder every array in place (one array-sized temporary at a time, never a second state)."""
+        for k in ALL_FIELDS:
+            a = getattr(self, k)
+            a[...] = a[perm]
+        return self
+
     def sorted_by_id(self) -> "Particles":
         return self.take(np.argsort(self.id, kind="stable"))
 

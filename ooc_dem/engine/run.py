@@ -169,11 +169,17 @@ class Simulation:
         # monolithic and DDM checkpoint to a file store too; the backend is the user's choice
         return self.opts.backend
 
-    def start(self, bed: Particles | None = None) -> None:
+    def start(self, bed: Particles | None = None, streamed: bool = False) -> None:
+        """Create the store and the initial epoch. ``streamed``: an out-of-core run of a
+        tiled bare bed writes its bed into the store tile by tile (never the whole bed in RAM)."""
         from storage import StoreError, create_store
         if self.out.exists() and any(self.out.iterdir()):
             raise RunError(f"--out {self.out}: directory exists and is not empty (use a new directory, "
                            f"or `ooc-dem resume {self.out}` to continue a run)")
+        sc = self.sc
+        if (streamed and bed is None and self.opts.mode == "ooc" and not sc.wheel.enabled
+                and 0 < sc.bed.tile < sc.soil.n):
+            return self._start_streamed()
         if bed is None:
             bed = settled_bed(self.sc, progress=self._bed_progress())
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
@@ -189,6 +195,22 @@ class Simulation:
         if self.sc.wheel.enabled:
             from ..metrics import WheelMetrics
             self.metrics = WheelMetrics(self.sc, self.surface, self.steps)
+        self.step = 0
+        self.commit()
+
+    def _start_streamed(self) -> None:
+        from storage import StoreError, create_store
+        from ..bed import tiled_bed_parts
+        from .sweep import SweepEngine
+        parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
+        surf = [surface_height(p, p.x.max() - p.x.min(), self.sc.soil.r_max) for p in parts()]
+        self.surface = float(np.mean(surf))
+        try:
+            self.store = create_store(self.out, self._store_backend(), self._meta())
+        except StoreError as e:
+            raise RunError(str(e)) from None
+        (self.out / "scenario.toml").write_text(self.sc.to_toml())
+        self.engine = SweepEngine.create_streamed(self, parts, np.zeros(WS_SIZE))
         self.step = 0
         self.commit()
 

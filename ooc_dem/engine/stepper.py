@@ -153,7 +153,7 @@ class DomainStepper:
                  reorder: bool = True):
         if reorder and len(particles) > 1:
             perm = spatial_order(particles.x, particles.y, len(particles), 2 * model.r_max + model.skin)
-            particles = particles.take(perm)
+            particles.permute_inplace(perm)  # the caller's discs, reordered: no second copy
         self.p = particles
         self.model = model
         self.n = len(particles)

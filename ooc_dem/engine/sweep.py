@@ -142,6 +142,39 @@ class SweepEngine:
             src.swap()
         return eng
 
+    @classmethod
+    def create_streamed(cls, sim, parts, ws: np.ndarray) -> "SweepEngine":
+        """Out-of-core start from a bed produced in x-ordered parts (``parts()`` yields them),
+        never holding the whole bed: pass 1 keeps only x (for the bounds), pass 2 writes
+        each sub-domain's group as soon as no later part can add to it."""
+        sc = sim.sc
+        eng = cls(sim, np.array([-np.inf, np.inf]), ws, sim.opts.block or sc.decomposition.block, None)
+        eng.D = sim.opts.domains or sc.decomposition.domains
+        x = np.concatenate([p.x for p in parts()])
+        eng._n = len(x)
+        eng.bounds = eng.decompose(x, step=0)
+        del x
+        eng._writer = sim.store.begin_epoch(0)
+        pending: dict[int, list] = {d: [] for d in range(eng.D)}
+        written = set()
+
+        def flush(upto: float):
+            for d in range(eng.D):
+                if d not in written and eng.bounds[d + 1] <= upto:
+                    rec, attrs = group_record(Particles.concat(pending.pop(d)))
+                    eng._stage(d, rec, attrs)
+                    written.add(d)
+
+        for part in parts():
+            flush(float(part.x.min()))
+            g = owner(eng.bounds, part.x)
+            for d in np.unique(g):
+                if int(d) in written:
+                    raise RuntimeError("bed parts are not in x order")
+                pending[int(d)].append(part.take(np.flatnonzero(g == d)))
+        flush(np.inf)
+        return eng
+
     def _stage(self, d, rec, attrs):
         if self.src is not None:
             self.src.write_domain(d, rec, attrs)

@@ -1,0 +1,245 @@
+"""Memory profiling: each mode in a fresh subprocess, peak RSS against the monolithic baseline.
+
+A child process imports the engine, warms up the JIT on a tiny problem (numba's
+cache makes that a load, not a compile), sets the scenario up (bed, store), and
+then resets the kernel's peak-RSS counter (``/proc/self/clear_refs`` = 5) so that
+``VmHWM`` measures the run itself. It records the baseline RSS at that moment,
+the peak (VmHWM and ru_maxrss), a sampled RSS time series, the resident disc
+counts and the theoretical state size. Files written and read by the stores are
+dropped from the page cache (``posix_fadvise(DONTNEED)``) by the storage layer.
+"""
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+MODES = ("monolithic", "ddm", "ooc")
+
+
+def _status_kb(field: str) -> int:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return -1
+
+
+def rss_bytes() -> int:
+    return _status_kb("VmRSS") * 1024
+
+
+def hwm_bytes() -> int:
+    return _status_kb("VmHWM") * 1024
+
+
+def reset_peak() -> bool:
+    """Reset VmHWM to the current RSS (Linux >= 4.0); False if not possible."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+class RssSampler(threading.Thread):
+    """Samples VmRSS every `interval` seconds in a background thread."""
+
+    def __init__(self, interval: float = 0.05):
+        super().__init__(daemon=True)
+        self.interval = interval
+        self.t0 = time.perf_counter()
+        self.samples: list[tuple[float, int]] = []
+        self._halt = threading.Event()
+
+    def run(self):
+        while not self._halt.is_set():
+            self.samples.append((time.perf_counter() - self.t0, rss_bytes()))
+            self._halt.wait(self.interval)
+
+    def stop(self):
+        self._halt.set()
+        self.join()
+        self.samples.append((time.perf_counter() - self.t0, rss_bytes()))
+
+
+def _warm_up(mode: str, backend: str, tmp: Path) -> None:
+    """Run a tiny bed through the same code path so every kernel is compiled or loaded."""
+    from .engine.run import RunOptions, Simulation
+    from .scenario import load_scenario
+    sc = load_scenario("bed-300", ["decomposition.policy=equal"])
+    opts = RunOptions(mode=mode, backend=backend, domains=2, block=2, steps=4, progress=False,
+                      figures=False)
+    sim = Simulation(sc, tmp / "warmup", opts)
+    sim.start()
+    sim.run()
+
+
+def child(args) -> dict:
+    """One mode, measured in this (fresh) process."""
+    import shutil
+    import tempfile
+    from .engine.run import RunOptions, Simulation
+    from .scenario import load_scenario
+    from .state import BYTES_PER_DISC
+    t_import = rss_bytes()
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    _warm_up(args.mode, args.backend, Path(tempfile.mkdtemp(dir=work)))
+    sc = load_scenario(args.scenario, args.set)
+    steps = args.steps
+    opts = RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
+                      steps=steps, checkpoint_every=max(1, steps), progress=False, figures=False)
+    out = work / f"run-{args.mode}"
+    shutil.rmtree(out, ignore_errors=True)
+    sim = Simulation(sc, out, opts)
+    # baseline: after imports and JIT warm-up, before the scenario's state exists; the peak
+    # then covers setup (bed, store) and run alike, so no mode hides its state in the baseline
+    import gc
+    gc.collect()
+    baseline = rss_bytes()
+    reset_ok = reset_peak()
+    sampler = RssSampler(args.interval)
+    sampler.start()
+    t0 = time.perf_counter()
+    sim.start(streamed=True)
+    t_setup = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    summary = sim.run()
+    elapsed = time.perf_counter() - t0
+    sampler.stop()
+    peak = hwm_bytes() if reset_ok else max(s[1] for s in sampler.samples)
+    n = summary["n_discs"]
+    eng = summary["engine"]
+    res = {
+        "mode": args.mode, "backend": args.backend if args.mode == "ooc" else None,
+        "scenario": sc.name, "n_discs": n, "steps": steps,
+        "domains": eng.get("domains"), "block": eng.get("block"),
+        "rss_after_imports_bytes": t_import, "baseline_rss_bytes": baseline,
+        "peak_rss_bytes": peak, "peak_above_baseline_bytes": peak - baseline,
+        "peak_rss_lifetime_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        "peak_reset_ok": reset_ok,
+        "theoretical_state_bytes": n * BYTES_PER_DISC,
+        "resident_discs_max": eng.get("resident_max"),
+        "setup_s": round(t_setup, 3), "run_s": round(elapsed, 3),
+        "particle_steps_per_s": n * steps / elapsed if elapsed > 0 else None,
+        "state_hash": summary["state_hash"],
+        "rss_series": [[round(t, 4), b] for t, b in sampler.samples],
+    }
+    if not args.keep:
+        shutil.rmtree(out, ignore_errors=True)
+    return res
+
+
+def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains=None, block=None,
+              steps=20, work: Path, interval=0.05, keep=False, threads=None) -> dict:
+    cmd = [sys.executable, "-m", "ooc_dem.profiling", "--child", scenario, "--mode", mode,
+           "--backend", backend, "--steps", str(steps), "--work", str(work), "--interval", str(interval)]
+    for s in overrides:
+        cmd += ["--set", s]
+    if domains:
+        cmd += ["--domains", str(domains)]
+    if block:
+        cmd += ["--block", str(block)]
+    if keep:
+        cmd.append("--keep")
+    env = dict(os.environ)
+    if threads:
+        env["NUMBA_NUM_THREADS"] = str(threads)
+    cp = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if cp.returncode != 0:
+        last = (cp.stderr.strip().splitlines() or ["(no output)"])[-1]
+        raise RuntimeError(f"profiling child for mode {mode} failed: {last}")
+    return json.loads(cp.stdout.strip().splitlines()[-1])
+
+
+def report(results: list[dict], out: Path) -> dict:
+    """Write memory.json, memory.md and memory.png; returns the JSON document."""
+    out.mkdir(parents=True, exist_ok=True)
+    mono = next((r for r in results if r["mode"] == "monolithic"), None)
+    doc = {"runs": results}
+    if mono:
+        for r in results:
+            r["peak_ratio_to_monolithic"] = r["peak_rss_bytes"] / mono["peak_rss_bytes"]
+            base = mono["peak_above_baseline_bytes"]
+            r["above_baseline_ratio_to_monolithic"] = (r["peak_above_baseline_bytes"] / base) if base > 0 else None
+    (out / "memory.json").write_text(json.dumps(doc, indent=2))
+    mib = 1 / 2**20
+    lines = ["| mode | discs | D | K | baseline RSS (MiB) | peak RSS (MiB) | peak − baseline (MiB) | "
+             "÷ monolithic (peak − baseline) | resident discs (max) | state (MiB) | particle-steps/s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        ratio = r.get("above_baseline_ratio_to_monolithic")
+        lines.append(
+            f"| {r['mode']}{'/' + r['backend'] if r.get('backend') else ''} | {r['n_discs']} | "
+            f"{r.get('domains') or 1} | {r.get('block') or 1} | {r['baseline_rss_bytes'] * mib:.1f} | "
+            f"{r['peak_rss_bytes'] * mib:.1f} | {r['peak_above_baseline_bytes'] * mib:.1f} | "
+            f"{'' if ratio is None else f'{ratio:.3f}'} | {r.get('resident_discs_max')} | "
+            f"{r['theoretical_state_bytes'] * mib:.1f} | {r['particle_steps_per_s']:.3g} |")
+    md = "\n".join(lines) + "\n"
+    (out / "memory.md").write_text(md)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for r in results:
+        s = np.array(r["rss_series"], dtype=float)
+        if len(s):
+            ax.plot(s[:, 0], s[:, 1] * mib, label=f"{r['mode']} (peak {r['peak_rss_bytes'] * mib:.0f} MiB)")
+    ax.set_xlabel("time since the run started [s]")
+    ax.set_ylabel("RSS [MiB]")
+    ax.set_title(f"RSS over time — {results[0]['scenario']}, {results[0]['n_discs']} discs")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "memory.png", dpi=110)
+    plt.close(fig)
+    return doc
+
+
+def profile(scenario: str, modes, out: Path, overrides=(), backend="hdf5", domains=None, block=None,
+            steps=20) -> dict:
+    results = []
+    for m in modes:
+        results.append(run_child(scenario, m, overrides=overrides, backend=backend, domains=domains,
+                                 block=block, steps=steps, work=out / "work"))
+        r = results[-1]
+        print(f"{m}: peak {r['peak_rss_bytes'] / 2**20:.1f} MiB, above baseline "
+              f"{r['peak_above_baseline_bytes'] / 2**20:.1f} MiB, resident max {r['resident_discs_max']}",
+              file=sys.stderr, flush=True)
+    import shutil
+    shutil.rmtree(out / "work", ignore_errors=True)
+    return report(results, out)
+
+
+def _main():
+    import argparse
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--child", action="store_true")
+    ap.add_argument("scenario")
+    ap.add_argument("--mode", choices=MODES)
+    ap.add_argument("--backend", default="hdf5")
+    ap.add_argument("--domains", type=int)
+    ap.add_argument("--block", type=int)
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--work", required=True)
+    ap.add_argument("--interval", type=float, default=0.05)
+    ap.add_argument("--set", action="append", default=[])
+    ap.add_argument("--keep", action="store_true")
+    args = ap.parse_args()
+    print(json.dumps(child(args)))
+
+
+if __name__ == "__main__":
+    _main()

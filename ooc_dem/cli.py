@@ -90,14 +90,27 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--no-progress", action="store_true")
     q.add_argument("--no-figures", action="store_true")
 
-    q = sub.add_parser("checkpoint", help="inspect the epochs of a store")
+    q = sub.add_parser("checkpoint", help="list, verify, inspect, prune and export the epochs of a store")
     csub = q.add_subparsers(dest="ckpt_command", required=True, parser_class=_Parser)
     for name, hlp in (("hash", "SHA-256 of the latest state in canonical order"),
-                      ("list", "list committed epochs"), ("verify", "verify checksums"),
+                      ("list", "list committed epochs"),
+                      ("verify", "verify checksums and structure (exit 2 if a problem is found)"),
                       ("inspect", "show one epoch")):
         c = csub.add_parser(name, help=hlp)
         c.add_argument("store")
-        c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
+        if name != "list":
+            c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
+    c = csub.add_parser("prune", help="delete committed epochs beyond the newest N (never the current)")
+    c.add_argument("store")
+    c.add_argument("--keep", type=_positive_int, required=True, metavar="N",
+                   help="number of newest committed epochs to keep (>= 1; the current is always kept)")
+    c = csub.add_parser("export", help="write one epoch as XDMF+HDF5, VTK or CSV")
+    c.add_argument("store")
+    c.add_argument("--format", choices=["xdmf", "vtk", "csv"],
+                   help="xdmf (NAME.xdmf + NAME.h5), vtk (legacy ASCII .vtk, or XML if --out ends in "
+                        ".vtp) or csv; default from the --out suffix")
+    c.add_argument("--out", required=True, metavar="FILE", help="output file")
+    c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
 
     sub.add_parser("scenarios", help="list built-in scenarios")
 
@@ -230,33 +243,208 @@ def cmd_resume(args):
     return 0
 
 
+def _one_line(text) -> str:
+    return " ".join(str(text).split())
+
+
+def _store_leftovers(path, manifest: dict) -> list[str]:
+    """Temporaries and unnamed epoch files in a store directory (what `resume` would delete)."""
+    from storage._util import EPOCH_DIR, EPOCH_NAME_RE, MANIFEST_TMP
+    root = Path(path)
+    out = [str(root / n) for n in sorted(os.listdir(root)) if n.startswith(MANIFEST_TMP)]
+    edir = root / EPOCH_DIR
+    named = {os.path.basename(e["path"]) for e in (manifest.get("current"), manifest.get("previous")) if e}
+    if edir.is_dir():
+        out += [str(edir / n) for n in sorted(os.listdir(edir))
+                if ".tmp-" in n or (EPOCH_NAME_RE.match(n) and n not in named)]
+    return out
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _tmp_pid(name: str) -> int | None:
+    tail = name.rpartition(".tmp-")[2] if ".tmp-" in name else ""
+    return int(tail) if tail.isdigit() else None
+
+
+def _live_writers(path) -> list[int]:
+    """Pids of running processes that have a temporary epoch in the store (a run writing it)."""
+    edir = Path(path) / "epochs"
+    names = os.listdir(edir) if edir.is_dir() else []
+    return sorted({pid for pid in map(_tmp_pid, names) if pid is not None and _pid_alive(pid)})
+
+
+def _read_manifest(path) -> dict:
+    from storage import StoreError
+    try:
+        with open(Path(path) / "MANIFEST.json", "rb") as f:
+            return json.loads(f.read())
+    except (OSError, ValueError) as e:
+        raise StoreError(f"{path}: MANIFEST.json missing or unreadable ({e})") from None
+
+
+def _checkpoint_list(store, path) -> None:
+    m = _read_manifest(path)
+    entries = [("previous", m.get("previous")), ("current", m.get("current"))]
+    entries = [(role, e) for role, e in entries if e]
+    if not entries:
+        print(f"{path}: no committed epoch")
+        return
+    for role, e in entries:
+        files = e.get("files", [])
+        size = sum(int(f.get("size", 0)) for f in files)
+        bad = []
+        for f in files:
+            p = Path(path, *f["path"].split("/"))
+            try:
+                st = p.stat().st_size
+            except OSError:
+                bad.append(f"{p}: missing")
+                continue
+            if st != f["size"]:
+                bad.append(f"{p}: size {st} != recorded {f['size']}")
+        line = f"epoch {e['step']:>10d}  {e['path']}  {size / 1e6:8.3f} MB  domains {len(e.get('domains', {}))}"
+        if bad:
+            print(f"{line}  DAMAGED ({bad[0]}{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}) "
+                  f"({role})")
+            continue
+        try:
+            r = store.read_epoch(e["step"], verify=False)   # sizes match; `verify` checks the bytes
+            try:
+                _, attrs = r.read_globals()
+                n = sum(r.domain_len(d) for d in r.domains())
+            finally:
+                r.close()
+            print(f"{line}  t = {attrs.get('time', 0):.6f} s  discs {n}  ({role})")
+        except Exception as ex:  # noqa: BLE001 - listing goes on; `verify` names the problem
+            print(f"{line}  UNREADABLE ({_one_line(ex)}) ({role})")
+
+
+def _checkpoint_verify(store, args) -> int:
+    problems = store.verify(args.epoch)
+    if args.epoch is None and store.current() is None:
+        print(f"{args.store}: no committed epoch (nothing to verify)")
+    m = _read_manifest(args.store)
+    if problems:
+        # a run writing the store may have replaced an epoch while it was being checked
+        named = {e["step"] for e in (m.get("current"), m.get("previous")) if e}
+        gone = {s for s in (_problem_step(p) for p in problems) if s is not None and s not in named}
+        for s in sorted(gone):
+            print(f"note: epoch {s} was superseded by a newer commit while being verified "
+                  f"(a run is writing this store)")
+        problems = [p for p in problems if _problem_step(p) not in gone]
+    for p in _store_leftovers(args.store, m):
+        pid = _tmp_pid(os.path.basename(p))
+        if pid is not None and _pid_alive(pid):
+            print(f"note: {p}: epoch being written by running process {pid}")
+        else:
+            print(f"warning: {p}: leftover of an interrupted write, not part of any committed "
+                  f"epoch (`ooc-dem resume` deletes it)")
+    if problems:
+        for pr in problems:
+            print(f"FAIL {_one_line(pr)}")
+        raise CliError(f"{args.store}: {len(problems)} problem(s) found")
+    which = store.epochs() if args.epoch is None else [args.epoch]
+    print(f"OK: {args.store} epochs {which} verified")
+    return 0
+
+
+def _problem_step(problem: str) -> int | None:
+    head = problem.split(":", 1)[0]
+    return int(head[6:]) if head.startswith("epoch ") and head[6:].isdigit() else None
+
+
+def _checkpoint_prune(args) -> int:
+    from storage import open_store
+    live = _live_writers(args.store)
+    if live:
+        raise CliError(f"{args.store}: a run is writing this store (pid {', '.join(map(str, live))}); "
+                       f"prune it when the run has stopped")
+    store = open_store(args.store, repair=True)
+    try:
+        for p in store.repaired:
+            print(f"removed leftover {p}")
+        cur = store.current()
+        if cur is None:
+            print(f"{args.store}: no committed epoch (nothing to prune)")
+            return 0
+        # never leave only a damaged epoch: the one kept must verify first
+        bad = store.verify(cur)
+        if bad:
+            raise CliError(f"{args.store}: refusing to prune: current epoch {cur} fails verification "
+                           f"({_one_line(bad[0])}); the previous epoch is its fallback")
+        m = _read_manifest(args.store)
+        before = {e["step"]: e["path"] for e in (m.get("previous"), m.get("current")) if e}
+        removed = store.prune(args.keep)
+        for s in removed:
+            print(f"removed epoch {s} ({before.get(s, '?')})")
+        if not removed:
+            print(f"nothing to remove: {len(before)} committed epoch(s), keeping up to {args.keep}")
+        print(f"kept epochs {store.epochs()} (current {cur})")
+        for w in store.warnings:
+            print(f"warning: {_one_line(w)}")
+        return 0
+    finally:
+        store.close()
+
+
+def _checkpoint_export(store, args) -> int:
+    from .export import ExportError, export_snapshot, infer_format, read_snapshot
+    fmt = args.format or infer_format(args.out)
+    if fmt is None:
+        raise CliError(f"--out {args.out}: cannot tell the format from the suffix; give --format "
+                       f"xdmf|vtk|csv")
+    out = Path(args.out)
+    if out.resolve().parent == (Path(args.store) / "epochs").resolve():
+        raise CliError(f"--out {args.out}: not inside the store's epochs/ directory")
+    reader = store.read_epoch(args.epoch)
+    _warn_fallback(store)
+    try:
+        snap = read_snapshot(reader, args.store)
+    finally:
+        reader.close()
+    try:
+        files = export_snapshot(snap, fmt, out)
+    except ExportError as e:
+        raise CliError(str(e)) from None
+    print(f"exported epoch {snap.step} ({len(snap)} discs, t = {snap.time:.6f} s) as {fmt}: "
+          + ", ".join(map(str, files)))
+    return 0
+
+
+def _warn_fallback(store) -> None:
+    for w in getattr(store, "warnings", []):
+        print(f"ooc-dem: warning: {_one_line(w)}", file=sys.stderr)
+
+
 def cmd_checkpoint(args):
     from .engine.run import read_all_particles
     from .checkpoint import hash_particles
     from storage import open_store
-    store = open_store(args.store)
+    if args.ckpt_command == "prune":
+        return _checkpoint_prune(args)
+    # read-only: no repair (a running writer's temporary epoch must not be deleted under it)
+    store = open_store(args.store, repair=False)
     try:
         if args.ckpt_command == "list":
-            for step in store.epochs():
-                r = store.read_epoch(step)
-                _, attrs = r.read_globals()
-                n = sum(r.domain_len(d) for d in r.domains())
-                cur = " (current)" if step == store.current() else ""
-                print(f"epoch {step:>10d}  t = {attrs.get('time', 0):.6f} s  discs {n}  "
-                      f"domains {len(r.domains())}{cur}")
-                r.close()
+            _checkpoint_list(store, args.store)
             return 0
         if args.ckpt_command == "verify":
-            problems = store.verify(args.epoch)
-            for w in getattr(store, "warnings", []):
-                print(f"warning: {w}")
-            if problems:
-                for pr in problems:
-                    print(f"FAIL {pr}")
-                raise CliError(f"{args.store}: {len(problems)} problem(s) found")
-            print(f"OK: {args.store} epochs {store.epochs()} verified")
-            return 0
+            return _checkpoint_verify(store, args)
+        if args.ckpt_command == "export":
+            return _checkpoint_export(store, args)
         reader = store.read_epoch(args.epoch)
+        _warn_fallback(store)
         arrays, attrs = reader.read_globals()
         p = read_all_particles(reader)
         if args.ckpt_command == "hash":

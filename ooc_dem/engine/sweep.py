@@ -24,6 +24,17 @@ from ..state import Particles
 from .stepper import DomainStepper, EngineError, Model
 
 
+def _block(sim) -> int:
+    """K: the run's --block, else for out-of-core chosen from the geometry, else the scenario's."""
+    if sim.opts.block:
+        return sim.opts.block
+    sc = sim.sc
+    if sim.opts.mode == "ooc":
+        D = sim.opts.domains or sc.decomposition.domains
+        return max(sc.decomposition.block, auto_block(sc, D, sc.bin.length))
+    return sc.decomposition.block
+
+
 class RamEpochs:
     """Epoch e and e+1 held in RAM as per-domain records (serial DDM's store)."""
 
@@ -82,6 +93,14 @@ def group_record(p: Particles) -> tuple[dict, dict]:
     return particles_to_record(q), attrs
 
 
+def auto_block(sc, domains: int, length: float) -> int:
+    """K for out-of-core: the largest block whose redundant halo work (2 K hop / slab width)
+    stays at or below 10 % of a slab, capped at 200 steps; at least 1."""
+    hop = 2.0 * sc.soil.r_max + sc.bed.skin
+    width = length / max(1, domains)
+    return int(max(1, min(200, (0.05 * width) // hop)))
+
+
 class SweepEngine:
     """Serial DDM (epochs in RAM) or out-of-core (epochs in a store) with blocks of K steps."""
 
@@ -121,7 +140,7 @@ class SweepEngine:
         """Split the discs into slabs (by the scenario's policy, or the given bounds)."""
         sc = sim.sc
         D = sim.opts.domains or sc.decomposition.domains
-        K = sim.opts.block or sc.decomposition.block
+        K = _block(sim)
         src = RamEpochs() if sim.opts.mode == "ddm" else None
         eng = cls(sim, np.array([-np.inf, np.inf]), ws, K, src)
         if src is None:
@@ -148,7 +167,7 @@ class SweepEngine:
         never holding the whole bed: pass 1 keeps only x (for the bounds), pass 2 writes
         each sub-domain's group as soon as no later part can add to it."""
         sc = sim.sc
-        eng = cls(sim, np.array([-np.inf, np.inf]), ws, sim.opts.block or sc.decomposition.block, None)
+        eng = cls(sim, np.array([-np.inf, np.inf]), ws, _block(sim), None)
         eng.D = sim.opts.domains or sc.decomposition.domains
         x = np.concatenate([p.x for p in parts()])
         eng._n = len(x)
@@ -322,7 +341,7 @@ class SweepEngine:
     @classmethod
     def reopen(cls, sim, reader, arrays, attrs) -> "SweepEngine":
         sc = sim.sc
-        K = sim.opts.block or sc.decomposition.block
+        K = int(attrs["engine"]["block"])
         if sim.opts.mode == "ooc":
             bounds = np.array([-np.inf, *attrs["engine"]["bounds"], np.inf])
             eng = cls(sim, bounds, arrays["wheel_state"], K, None)

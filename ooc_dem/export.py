@@ -1,0 +1,344 @@
+"""Export one committed epoch: XDMF 3 (+ HDF5), VTK PolyData (legacy ASCII or XML .vtp), CSV.
+
+Every format holds one point per disc, sorted by id, with the disc's radius,
+velocity, spin, id, mass and material, plus the wheel state, the step and the
+simulated time:
+
+* ``xdmf``: ``NAME.h5`` beside ``NAME.xdmf``. The HDF5 file holds ``/positions``
+  (N x 3, z = 0), ``/velocity`` (N x 3, vz = 0), ``/radius``, ``/spin``, ``/id``,
+  ``/mass``, ``/material``, ``/connectivity`` (N x 1, the Polyvertex cells) and
+  ``/wheel_state`` (x, y, vx, vy, theta, omega) with ``step``/``time`` attributes.
+  The XDMF file is one Uniform grid with a Polyvertex topology and node-centred
+  attributes; the wheel state, step and time are Grid-centred attributes (field
+  data in ParaView's XDMF 3 reader).
+* ``vtk``: legacy ASCII ``.vtk`` PolyData (points + VERTICES, POINT_DATA, dataset
+  FIELD data for the wheel), or VTK XML PolyData if the file name ends in ``.vtp``.
+* ``csv``: ``#`` comment lines (epoch, time, wheel state), a header row
+  ``id,x,y,vx,vy,w,r,mass,mat`` and one row per disc.
+
+Floats are written so that they read back to the same bits (``repr``; HDF5 as
+float64). Only the per-disc scalars are read from the store (never the contact
+history), domain group by domain group. Files are written under a temporary name
+and renamed when complete.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.sax.saxutils import escape, quoteattr
+
+import numpy as np
+
+from .state import SCALAR_FIELDS
+
+FORMATS = ("xdmf", "vtk", "csv")
+CSV_COLUMNS = ("id", "x", "y", "vx", "vy", "w", "r", "mass", "mat")
+WHEEL_NAMES = ("x", "y", "vx", "vy", "theta", "omega")   # order of the stored wheel_state
+_SUFFIX_FORMAT = {".xdmf": "xdmf", ".xmf": "xdmf", ".vtk": "vtk", ".vtp": "vtk", ".csv": "csv"}
+_ROWS_PER_WRITE = 65536
+
+
+class ExportError(Exception):
+    """An export cannot be written (one-line message)."""
+
+
+@dataclass
+class Snapshot:
+    """The exported content of one epoch: per-disc columns sorted by id, wheel, step, time."""
+    step: int
+    time: float
+    cols: dict[str, np.ndarray]
+    wheel_state: np.ndarray
+    info: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.cols["id"])
+
+
+def infer_format(out) -> str | None:
+    return _SUFFIX_FORMAT.get(Path(out).suffix.lower())
+
+
+def read_snapshot(reader, source: str = "") -> Snapshot:
+    """The columns of CSV_COLUMNS of every domain group of an epoch reader, sorted by id."""
+    names = list(CSV_COLUMNS)
+    parts = [reader.read_domain(d, names) for d in reader.domains()]
+    cols = {}
+    for k in names:
+        dt = SCALAR_FIELDS[k]
+        cols[k] = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
+                   else np.zeros(0, dt))
+    order = np.argsort(cols["id"], kind="stable")
+    cols = {k: np.ascontiguousarray(v[order]) for k, v in cols.items()}
+    arrays, attrs = reader.read_globals()
+    wheel = np.zeros(len(WHEEL_NAMES))
+    if "wheel_state" in arrays:
+        ws = np.asarray(arrays["wheel_state"], np.float64).ravel()
+        wheel[:min(len(ws), len(wheel))] = ws[:len(wheel)]
+    step = int(attrs.get("step", reader.step))
+    info = {"source": str(source), "mode": attrs.get("mode", "")}
+    return Snapshot(step, float(attrs.get("time", 0.0)), cols, wheel, info)
+
+
+def export_snapshot(snap: Snapshot, fmt: str, out) -> list[Path]:
+    """Write `snap` as `fmt` to `out`; returns the files written."""
+    out = Path(out)
+    if fmt not in FORMATS:
+        raise ExportError(f"--format {fmt!r}: must be one of {', '.join(FORMATS)}")
+    if out.is_dir():
+        raise ExportError(f"--out {out}: is a directory (give a file name)")
+    if not out.parent.is_dir():
+        raise ExportError(f"--out {out}: directory {out.parent} does not exist")
+    if fmt == "xdmf":
+        return _write_xdmf(snap, out)
+    if fmt == "vtk":
+        return [_write_vtp(snap, out) if out.suffix.lower() == ".vtp" else _write_vtk_legacy(snap, out)]
+    return [_write_csv(snap, out)]
+
+
+# ------------------------------------------------------------------ helpers
+
+class _Atomic:
+    """Open `path` for writing under a temporary name; renamed into place on success."""
+
+    def __init__(self, path: Path, mode: str = "w"):
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f"{self.path.name}.tmp-{os.getpid()}")
+        self.mode = mode
+        self.f = None
+
+    def __enter__(self):
+        try:
+            self.f = open(self.tmp, self.mode, encoding=None if "b" in self.mode else "ascii",
+                          newline=None if "b" in self.mode else "\n")
+        except OSError as e:
+            raise ExportError(_oserror(self.path, e)) from None
+        return self.f
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            self.f.close()
+            if exc_type is None:
+                os.replace(self.tmp, self.path)
+        except OSError as e:
+            _unlink(self.tmp)
+            raise ExportError(_oserror(self.path, e)) from None
+        if exc_type is not None:
+            _unlink(self.tmp)
+            if issubclass(exc_type, OSError):
+                raise ExportError(_oserror(self.path, exc)) from None
+        return False
+
+
+def _unlink(p) -> None:
+    try:
+        os.unlink(p)
+    except FileNotFoundError:
+        pass
+
+
+def _oserror(path, e: BaseException) -> str:
+    detail = getattr(e, "strerror", None) or " ".join(str(e).split()) or type(e).__name__
+    return f"{path}: cannot write ({detail})"
+
+
+def _fmt(a: np.ndarray) -> list[str]:
+    """Text of each value that reads back to the same bits (repr of Python floats/ints)."""
+    return [repr(v) for v in a.tolist()] if a.dtype.kind == "f" else [str(v) for v in a.tolist()]
+
+
+def _write_columns(f, columns: list[np.ndarray], sep: str) -> None:
+    """One line per row, the columns' values joined by sep (in slices, to bound memory)."""
+    n = len(columns[0]) if columns else 0
+    for s in range(0, n, _ROWS_PER_WRITE):
+        texts = [_fmt(c[s:s + _ROWS_PER_WRITE]) for c in columns]
+        f.write("".join(sep.join(row) + "\n" for row in zip(*texts)))
+
+
+def _field_items(snap: Snapshot) -> list[tuple[str, str, str]]:
+    """(name, kind "f"|"i", text) of the per-epoch values (field data)."""
+    items = [("step", "i", str(snap.step)), ("time", "f", repr(float(snap.time)))]
+    items += [(f"wheel_{n}", "f", repr(float(v))) for n, v in zip(WHEEL_NAMES, snap.wheel_state)]
+    return items
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _description(snap: Snapshot) -> str:
+    return _one_line(f"ooc-dem epoch {snap.step} t = {snap.time!r} s, {len(snap)} discs"
+                     + (f", from {snap.info['source']}" if snap.info.get("source") else ""))
+
+
+def _xml_comment(text: str) -> str:
+    return escape(text).replace("--", "- -")
+
+
+def _xyz(a, b) -> np.ndarray:
+    out = np.zeros((len(a), 3), np.float64)
+    out[:, 0] = a
+    out[:, 1] = b
+    return out
+
+
+# ------------------------------------------------------------------ XDMF + HDF5
+
+def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
+    import h5py
+    h5 = out.with_suffix(".h5")
+    if h5 == out:
+        raise ExportError(f"--out {out}: give the .xdmf name; the HDF5 data is written beside it "
+                          f"as {out.stem}.h5")
+    if ":" in h5.name:
+        raise ExportError(f"--out {out}: the file name must not contain ':' (XDMF HDF references)")
+    c, n = snap.cols, len(snap)
+    data = {
+        "positions": _xyz(c["x"], c["y"]),
+        "velocity": _xyz(c["vx"], c["vy"]),
+        "radius": c["r"], "spin": c["w"], "id": c["id"], "mass": c["mass"], "material": c["mat"],
+        "connectivity": np.arange(n, dtype=np.int64).reshape(n, 1),
+    }
+    tmp = h5.with_name(f"{h5.name}.tmp-{os.getpid()}")
+    try:
+        with h5py.File(tmp, "w") as f:
+            for k, v in data.items():
+                f.create_dataset(k, data=v)
+            ws = f.create_dataset("wheel_state", data=np.asarray(snap.wheel_state, np.float64))
+            ws.attrs["components"] = ",".join(WHEEL_NAMES)
+            f.attrs["step"] = np.int64(snap.step)
+            f.attrs["time"] = np.float64(snap.time)
+            f.attrs["description"] = _description(snap)
+        os.replace(tmp, h5)
+    except OSError as e:
+        _unlink(tmp)
+        raise ExportError(_oserror(h5, e)) from None
+
+    def item(name, dims, kind, size):
+        typ = "Int" if kind in "iu" else "Float"
+        return (f'<DataItem Dimensions="{dims}" DataType="{typ}" Precision="{size}" '
+                f'Format="HDF">{escape(h5.name)}:/{name}</DataItem>')
+
+    lines = ['<?xml version="1.0" ?>',
+             f"<!-- {_xml_comment(_description(snap))} -->",
+             '<Xdmf Version="3.0">',
+             "  <Domain>",
+             '    <Grid Name="discs" GridType="Uniform">',
+             f'      <Topology TopologyType="Polyvertex" NumberOfElements="{n}" NodesPerElement="1">',
+             f"        {item('connectivity', f'{n} 1', 'i', 8)}",
+             "      </Topology>",
+             '      <Geometry GeometryType="XYZ">',
+             f"        {item('positions', f'{n} 3', 'f', 8)}",
+             "      </Geometry>"]
+    for name, atype in (("radius", "Scalar"), ("velocity", "Vector"), ("spin", "Scalar"),
+                        ("id", "Scalar"), ("mass", "Scalar"), ("material", "Scalar")):
+        a = data[name]
+        dims = f"{n} 3" if a.ndim == 2 else f"{n}"
+        lines += [f'      <Attribute Name="{name}" AttributeType="{atype}" Center="Node">',
+                  f"        {item(name, dims, a.dtype.kind, a.dtype.itemsize)}",
+                  "      </Attribute>"]
+    # per-epoch values: Grid-centred attributes = field data in ParaView's XDMF 3 reader
+    for name, kind, text in _field_items(snap):
+        typ = "Int" if kind == "i" else "Float"
+        lines += [f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Grid">',
+                  f'        <DataItem Dimensions="1" DataType="{typ}" Precision="8" Format="XML">'
+                  f"{text}</DataItem>",
+                  "      </Attribute>"]
+    lines += ["    </Grid>", "  </Domain>", "</Xdmf>", ""]
+    with _Atomic(out) as f:
+        f.write("\n".join(lines))
+    return [out, h5]
+
+
+# ------------------------------------------------------------------ VTK
+
+def _vtk_legacy_type(a: np.ndarray) -> str:
+    if a.dtype.kind == "f":
+        return "double"
+    if a.size and (int(a.max()) > np.iinfo(np.int32).max or int(a.min()) < np.iinfo(np.int32).min):
+        return "vtktypeint64"
+    return "int"
+
+
+def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
+    c, n = snap.cols, len(snap)
+    zeros = np.zeros(n)
+    with _Atomic(out) as f:
+        f.write("# vtk DataFile Version 4.2\n")
+        f.write(_description(snap)[:255] + "\n")
+        f.write("ASCII\nDATASET POLYDATA\n")
+        items = _field_items(snap)
+        f.write(f"FIELD FieldData {len(items)}\n")
+        for name, kind, text in items:
+            f.write(f"{name} 1 1 {'vtktypeint64' if kind == 'i' else 'double'}\n{text}\n")
+        f.write(f"POINTS {n} double\n")
+        _write_columns(f, [c["x"], c["y"], zeros], " ")
+        f.write(f"VERTICES {n} {2 * n}\n")
+        _write_columns(f, [np.ones(n, np.int64), np.arange(n, dtype=np.int64)], " ")
+        f.write(f"POINT_DATA {n}\n")
+        f.write("SCALARS radius double 1\nLOOKUP_TABLE default\n")
+        _write_columns(f, [c["r"]], " ")
+        f.write("VECTORS velocity double\n")
+        _write_columns(f, [c["vx"], c["vy"], zeros], " ")
+        # further point arrays as a FIELD block: a legacy reader keeps only the first SCALARS
+        # unless told to read them all, but always reads every FIELD array
+        more = (("spin", c["w"]), ("id", c["id"]), ("mass", c["mass"]), ("material", c["mat"]))
+        f.write(f"FIELD point_arrays {len(more)}\n")
+        for name, a in more:
+            f.write(f"{name} 1 {n} {_vtk_legacy_type(a)}\n")
+            _write_columns(f, [a], " ")
+    return out
+
+
+_VTP_TYPE = {"f8": "Float64", "i8": "Int64", "i4": "Int32"}
+
+
+def _vtp_array(f, name, a: np.ndarray, ncomp: int = 1, columns=None, indent="        ") -> None:
+    t = _VTP_TYPE[f"{a.dtype.kind}{a.dtype.itemsize}"]
+    nm = f' Name="{name}"' if name else ""
+    f.write(f'{indent}<DataArray type="{t}"{nm} NumberOfComponents="{ncomp}" format="ascii">\n')
+    _write_columns(f, columns if columns is not None else [a], " ")
+    f.write(f"{indent}</DataArray>\n")
+
+
+def _write_vtp(snap: Snapshot, out: Path) -> Path:
+    c, n = snap.cols, len(snap)
+    zeros = np.zeros(n)
+    with _Atomic(out) as f:
+        f.write('<?xml version="1.0"?>\n')
+        f.write(f"<!-- {_xml_comment(_description(snap))} -->\n")
+        f.write('<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
+                'header_type="UInt64">\n  <PolyData>\n    <FieldData>\n')
+        for name, kind, text in _field_items(snap):
+            t = "Int64" if kind == "i" else "Float64"
+            f.write(f'      <DataArray type="{t}" Name={quoteattr(name)} NumberOfTuples="1" '
+                    f'format="ascii">{text}</DataArray>\n')
+        f.write("    </FieldData>\n")
+        f.write(f'    <Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+                f'NumberOfStrips="0" NumberOfPolys="0">\n')
+        f.write('      <PointData Scalars="radius" Vectors="velocity">\n')
+        for name, a in (("radius", c["r"]), ("spin", c["w"]), ("id", c["id"]), ("mass", c["mass"]),
+                        ("material", c["mat"])):
+            _vtp_array(f, name, a)
+        _vtp_array(f, "velocity", c["vx"], 3, [c["vx"], c["vy"], zeros])
+        f.write("      </PointData>\n      <Points>\n")
+        _vtp_array(f, "positions", c["x"], 3, [c["x"], c["y"], zeros])
+        f.write("      </Points>\n      <Verts>\n")
+        _vtp_array(f, "connectivity", np.arange(n, dtype=np.int64))
+        _vtp_array(f, "offsets", np.arange(1, n + 1, dtype=np.int64))
+        f.write("      </Verts>\n    </Piece>\n  </PolyData>\n</VTKFile>\n")
+    return out
+
+
+# ------------------------------------------------------------------ CSV
+
+def _write_csv(snap: Snapshot, out: Path) -> Path:
+    with _Atomic(out) as f:
+        f.write(f"# {_description(snap)}\n")
+        f.write(f"# step={snap.step} time={float(snap.time)!r}\n")
+        f.write("# wheel_state " + ",".join(f"{k}={float(v)!r}" for k, v in
+                                            zip(WHEEL_NAMES, snap.wheel_state)) + "\n")
+        f.write(",".join(CSV_COLUMNS) + "\n")
+        _write_columns(f, [snap.cols[k] for k in CSV_COLUMNS], ",")
+    return out

@@ -159,7 +159,7 @@ class DomainStepper:
         self.n = len(particles)
         n = self.n
         self.ws = np.zeros(6) if wheel_state is None else np.array(wheel_state, dtype=np.float64)
-        self.nbr = np.zeros((n, NBR_CAP), np.int64)
+        self.nbr = np.zeros((n, NBR_CAP), np.int32)
         self.nbr_n = np.zeros(n, np.int32)
         self.xref = np.zeros(n)
         self.yref = np.zeros(n)

@@ -225,7 +225,7 @@ def compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
                 stq += ri * ft + mom
         # ---------------------------------------------------------- discs
         for q in range(nbr_n[i]):
-            j = nbr[i, q]
+            j = np.int64(nbr[i, q])
             gj = gid[j]
             # canonical orientation: a has the lower id
             # (i is the unsigned prange index; keep a and b both int64)
@@ -250,7 +250,8 @@ def compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
             p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, gj)
             nx = dx / d
             ny = dy / d
-            c = cp[mat[a], mat[b]]
+            ta = mat[a]
+            tb = mat[b]
             ma = mass[a]
             mb = mass[b]
             ia = inertia[a]
@@ -258,7 +259,8 @@ def compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
             fn, ft, s_new, mom, m_new = contact_force(
                 nx, ny, delta, vx[b] - vx[a], vy[b] - vy[a], w[a], w[b], ra, rb,
                 ma * mb / (ma + mb), ia * ib / (ia + ib), ra * rb / (ra + rb),
-                s_old, m_old, c[KN], c[KS], c[ZN], c[ZT], c[MU], c[MUR], c[ZR], dt)
+                s_old, m_old, cp[ta, tb, KN], cp[ta, tb, KS], cp[ta, tb, ZN], cp[ta, tb, ZT],
+                cp[ta, tb, MU], cp[ta, tb, MUR], cp[ta, tb, ZR], dt)
             if k >= cap:
                 err[0] = 1
                 break

@@ -78,7 +78,7 @@ def _gather(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin, nbr
                         if k >= cap:
                             err[1] = 1
                             break
-                        nbr[i, k] = j
+                        nbr[i, k] = np.int32(j)
                         k += 1
         # insertion sort by global id (lists are short)
         for a in range(1, k):

@@ -353,7 +353,13 @@ def _checkpoint_verify(store, args) -> int:
     if problems:
         for pr in problems:
             print(f"FAIL {_one_line(pr)}")
-        raise CliError(f"{args.store}: {len(problems)} problem(s) found")
+        bad = {_problem_step(p) for p in problems}
+        cur, prev = m.get("current"), m.get("previous")
+        hint = ""
+        if args.epoch is None and cur and cur["step"] in bad:
+            hint = (f"; `ooc-dem resume` falls back to epoch {prev['step']}" if prev and prev["step"] not in bad
+                    else "; no intact epoch to resume from")
+        raise CliError(f"{args.store}: {len(problems)} problem(s) found{hint}")
     which = store.epochs() if args.epoch is None else [args.epoch]
     print(f"OK: {args.store} epochs {which} verified")
     return 0
@@ -549,7 +555,8 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 130
     except OSError as e:
-        print(f"ooc-dem: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"ooc-dem: error: {where}{e.strerror or e}", file=sys.stderr)
         return EXIT_USAGE
 
 

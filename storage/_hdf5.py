@@ -32,7 +32,29 @@ class Writer:
         self.f.attrs["step"] = np.int64(step)
         self.f.create_group("domains")
 
+    def _check_room(self, nbytes: int) -> None:
+        """Refuse a write that cannot fit *before* HDF5 tries it.
+
+        HDF5 reports a failed write (EFBIG under RLIMIT_FSIZE, ENOSPC on a full disk)
+        while it closes a dataset, where h5py can only print it, and a later flush
+        then crashes the process; so the room is checked here and the error raised
+        as an ordinary OSError that the store turns into a one-line StoreError.
+        """
+        import errno
+        import os
+        import resource
+        need = int(nbytes) + 8192   # datasets plus headroom for HDF5 object headers
+        size = os.path.getsize(self.path)
+        soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+        if soft != resource.RLIM_INFINITY and size + need > soft:
+            raise OSError(errno.EFBIG, "File too large (file-size limit reached)", self.path)
+        st = os.statvfs(os.path.dirname(os.path.abspath(self.path)))
+        if st.f_bavail * st.f_frsize < need:
+            raise OSError(errno.ENOSPC, "No space left on device", self.path)
+
     def write_group(self, group: str, arrays: dict[str, np.ndarray], attrs_json: str) -> None:
+        self.f.flush()
+        self._check_room(sum(np.asarray(a).nbytes for a in arrays.values()) + len(attrs_json))
         g = self.f.create_group(group)
         g.attrs[ATTRS_KEY] = attrs_json
         for name, a in arrays.items():

@@ -22,9 +22,9 @@ CKPT = 30
 OOC = ["--mode", "ooc", "--domains", "3", "--block", "10"]
 
 
-def _run(out, *extra, scenario="bed-1200", steps=STEPS, **kw):
+def _run(out, *extra, scenario="bed-1200", steps=STEPS, ckpt=CKPT, **kw):
     return subprocess.run([sys.executable, "-m", "ooc_dem.cli", "run", scenario, "--out", str(out),
-                           "--steps", str(steps), "--checkpoint-every", str(CKPT), "--no-progress",
+                           "--steps", str(steps), "--checkpoint-every", str(ckpt), "--no-progress",
                            "--no-figures", *map(str, extra)], capture_output=True, text=True,
                           timeout=600, **kw)
 
@@ -34,6 +34,9 @@ def _hash(store):
 
 
 def _one_line_error(cp, *needles):
+    if cp.returncode < 0:
+        pytest.fail(f"killed by {signal.Signals(-cp.returncode).name} instead of exit 2; stderr ends: "
+                    f"{cp.stderr.strip()[-600:]}")
     assert cp.returncode == 2, (cp.returncode, cp.stdout, cp.stderr)
     assert "Traceback" not in cp.stderr, cp.stderr
     lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
@@ -88,6 +91,15 @@ def pristine(tmp_path_factory):
             made[backend] = out
         return made[backend]
     return get
+
+
+@pytest.fixture(scope="module")
+def wheel_store(tmp_path_factory):
+    """A short run of the quick rig (wheel state not zero)."""
+    out = tmp_path_factory.mktemp("wheel") / "run"
+    cp = _run(out, scenario="quick", steps=60)
+    assert cp.returncode == 0, cp.stderr
+    return out
 
 
 # ------------------------------------------------------------------ export
@@ -154,9 +166,10 @@ def test_export_xdmf_read_by_meshio(pristine, tmp_path):
     assert m.cells[0].type == "vertex" and len(m.cells[0].data) == len(p)
 
 
-def test_export_csv_round_trip(pristine, tmp_path):
-    store = pristine("zarr")
+def test_export_csv_round_trip(wheel_store, tmp_path):
+    store = wheel_store
     p, ws, step = _epoch_data(store)
+    assert ws[0] != 0 and ws[1] != 0
     out = tmp_path / "snap.csv"
     run_cli("checkpoint", "export", store, "--format", "csv", "--out", out, check=True)
     lines = out.read_text().splitlines()
@@ -185,8 +198,8 @@ def _vtk_legacy_points(path):
     return np.array([[float(v) for v in ln.split()] for ln in lines[i + 1:i + 1 + n]]), lines
 
 
-def test_export_vtk_legacy_and_xml(reference, tmp_path):
-    store, _ = reference
+def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
+    store = wheel_store
     p, ws, step = _epoch_data(store)
     vtk, vtp = tmp_path / "snap.vtk", tmp_path / "snap.vtp"
     run_cli("checkpoint", "export", store, "--format", "vtk", "--out", vtk, check=True)
@@ -280,6 +293,22 @@ def _chunk_file(epoch_dir):
     return p
 
 
+def _running(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _dead_pid():
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
 def corrupt(store, backend, kind):
     cur, m = _current_path(store)
     prev = Path(store) / m["previous"]["path"]
@@ -297,11 +326,12 @@ def corrupt(store, backend, kind):
             shutil.rmtree(cur / "domains" / "d0001")
     elif kind == "delete_manifest":
         os.unlink(Path(store) / "MANIFEST.json")
-    elif kind == "stray_tmp":
+    elif kind == "stray_tmp":   # left by a killed writer (pid 123, or another pid that is not running)
+        pid = 123 if not _running(123) else _dead_pid()
         e = Path(store) / "epochs"
-        (e / f"e000000000130.{'h5' if backend == 'hdf5' else 'zarr'}.tmp-123").write_bytes(b"\0" * 999)
-        (e / "e000000000120.r1.h5.tmp-123").mkdir()
-        (e / "e000000000120.r1.h5.tmp-123" / "zarr.json").write_text("{")
+        (e / f"e000000000130.{'h5' if backend == 'hdf5' else 'zarr'}.tmp-{pid}").write_bytes(b"\0" * 999)
+        (e / f"e000000000120.r1.zarr.tmp-{pid}").mkdir()
+        (e / f"e000000000120.r1.zarr.tmp-{pid}" / "zarr.json").write_text("{")
         (Path(store) / "MANIFEST.json.tmp").write_text('{"half": ')
     elif kind == "both_epochs":
         _flip_byte(cur if backend == "hdf5" else _chunk_file(cur))
@@ -342,7 +372,8 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
             assert any(PROBLEM[kind] in ln for ln in fails), cp.stdout
         if kind == "delete_group":
             assert any("d0001" in ln for ln in fails), cp.stdout
-        _one_line_error(cp, "problem(s) found")
+        _one_line_error(cp, "problem(s) found", "no intact epoch" if kind == "both_epochs"
+                        else "falls back to epoch 110")
 
     before = _tree(store)
     cp = run_cli("resume", store, "--no-progress", "--no-figures")
@@ -369,9 +400,10 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
 
 # ------------------------------------------------------------------ full disk
 
-# the quick rig with one series row per step: the wheel's series is part of every epoch, so
-# epochs grow by one row (104 bytes) per step and a file-size limit can fall between two epochs
+# the quick rig with one series row per step: the wheel's series is part of every epoch, so an
+# epoch grows by one row (104 bytes) per step and a file-size limit can fall between two epochs
 FULL = ["--set", "output.series_interval=1e-5"]
+FULL_STEPS, FULL_CKPT = 600, 150        # epochs grow by ~15.6 kB from one to the next
 
 
 def _limit_file_size(nbytes):
@@ -383,21 +415,22 @@ def _limit_file_size(nbytes):
 
 def test_full_disk_stops_cleanly_and_resumes(tmp_path):
     ref = tmp_path / "ref"
-    cp = _run(ref, *FULL, scenario="quick")
+    cp = _run(ref, *FULL, scenario="quick", steps=FULL_STEPS, ckpt=FULL_CKPT)
     assert cp.returncode == 0, cp.stderr
     ref_hash = _hash(ref)
     _, m = _current_path(ref)
     size_prev, size_cur = m["previous"]["files"][0]["size"], m["current"]["files"][0]["size"]
-    assert (m["previous"]["step"], m["current"]["step"]) == (90, 120)
-    assert size_prev < size_cur, (size_prev, size_cur)
-    limit = (size_prev + size_cur) // 2      # epochs 0..90 fit, epoch 120 does not
+    assert (m["previous"]["step"], m["current"]["step"]) == (450, 600)
+    assert size_cur - size_prev > 10_000, (size_prev, size_cur)
+    # epochs 450 and 600 cannot fit; 300 and before fit with > 15 kB to spare
+    limit = size_prev - 1024
 
     out = tmp_path / "run"
-    cp = _run(out, *FULL, scenario="quick", preexec_fn=_limit_file_size(limit))
-    line = _one_line_error(cp, "disk full or file too large")
-    assert "e000000000120" in line
+    cp = _run(out, *FULL, scenario="quick", steps=FULL_STEPS, ckpt=FULL_CKPT,
+              preexec_fn=_limit_file_size(limit))
+    _one_line_error(cp, "disk full or file too large")
     _, m = _current_path(out)
-    assert (m["previous"]["step"], m["current"]["step"]) == (60, 90)
+    assert 0 < m["current"]["step"] < FULL_STEPS, m["current"]["step"]
     assert not [n for n in os.listdir(out / "epochs") if ".tmp-" in n]
     cp = run_cli("checkpoint", "verify", out)
     assert cp.returncode == 0 and "OK" in cp.stdout, cp.stdout + cp.stderr

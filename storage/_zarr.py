@@ -3,6 +3,8 @@ one uncompressed chunk per array (chunks = full shape), no sharding, no consolid
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import sys
 
@@ -30,25 +32,83 @@ def walk_files(root: str) -> list[str]:
     return sorted(out)
 
 
+def _raw_ok(a: np.ndarray) -> bool:
+    """Arrays written without the zarr library: 1-D or more, bool/int/uint/float."""
+    return a.ndim >= 1 and a.dtype.kind in "biuf" and a.dtype.fields is None
+
+
+def _array_metadata(a: np.ndarray) -> bytes:
+    """The zarr v3 array metadata zarr 3.x writes for an uncompressed one-chunk array."""
+    kind = a.dtype.kind
+    fill = False if kind == "b" else (0.0 if kind == "f" else 0)
+    bytes_codec = {"name": "bytes"}
+    if a.dtype.itemsize > 1:
+        bytes_codec["configuration"] = {"endian": "little"}
+    meta = {
+        "shape": list(a.shape),
+        "data_type": a.dtype.name,
+        "chunk_grid": {"name": "regular",
+                       "configuration": {"chunk_shape": [max(1, s) for s in a.shape]}},
+        "chunk_key_encoding": {"name": "default", "configuration": {"separator": "/"}},
+        "fill_value": fill,
+        "codecs": [bytes_codec],
+        "attributes": {},
+        "zarr_format": 3,
+        "node_type": "array",
+        "storage_transformers": [],
+    }
+    return json.dumps(meta, indent=2).encode()
+
+
+def _write_file(path: str, data: bytes, hashed: dict, rel: str) -> None:
+    """Write a new file; remember (size, mtime, sha256) so it is not read back to be hashed."""
+    with open(path, "xb") as f:
+        f.write(data)
+    st = os.stat(path)
+    hashed[rel] = (st.st_size, st.st_mtime_ns, hashlib.sha256(data).hexdigest())
+    drop_page_cache(path)
+
+
 class Writer:
     """Writes one epoch into the directory `path` (a temporary name, renamed by the caller)."""
 
     def __init__(self, path: str, step: int):
-        zarr, LocalStore = _zarr()
         self.path = path
         self._hashed: dict[str, tuple[int, int, str]] = {}   # rel -> (size, mtime_ns, sha)
-        self.root = zarr.open_group(store=LocalStore(path), mode="w-", zarr_format=3,
-                                    attributes={"ooc_dem_format": FORMAT, "step": int(step)})
-        self._groups = {"": self.root, "domains": self.root.create_group("domains")}
+        self._zgroups = None                                  # zarr handles, only for fallbacks
+        os.makedirs(path)                                     # a new directory, as zarr's "w-"
+        self._write_group_doc("", {"ooc_dem_format": FORMAT, "step": int(step)})
+        self._write_group_doc("domains", {})
 
-    def _group(self, group: str, attrs_json: str):
-        parent, _, leaf = group.rpartition("/")
-        return self._groups[parent].create_group(leaf, attributes={ATTRS_KEY: attrs_json})
+    def _write_group_doc(self, group: str, attributes: dict) -> None:
+        """A zarr v3 group: its directory and metadata document (what zarr 3.x writes)."""
+        gdir = os.path.join(self.path, *group.split("/")) if group else self.path
+        if group:
+            os.mkdir(gdir)
+        doc = json.dumps({"attributes": attributes, "zarr_format": 3, "node_type": "group"}, indent=2)
+        rel = f"{group}/zarr.json" if group else "zarr.json"
+        _write_file(os.path.join(gdir, "zarr.json"), doc.encode(), self._hashed, rel)
+
+    def _group(self, group: str, attrs_json: str) -> None:
+        self._write_group_doc(group, {ATTRS_KEY: attrs_json})
+
+    def _zarr_group(self, group: str):
+        zarr, LocalStore = _zarr()
+        if self._zgroups is None:
+            self._zgroups = zarr.open_group(store=LocalStore(self.path), mode="r+", zarr_format=3)
+        return self._zgroups[group]
 
     def write_group(self, group: str, arrays: dict[str, np.ndarray], attrs_json: str) -> None:
-        g = self._group(group, attrs_json)
+        self._group(group, attrs_json)
+        gdir = os.path.join(self.path, *group.split("/"))
         for name, a in arrays.items():
-            arr = g.create_array(
+            if _raw_ok(a):
+                # the zarr v3 array written directly (metadata document + its one chunk file):
+                # byte for byte what zarr writes, without zarr's per-array async round trips,
+                # which cost milliseconds per array and dominated out-of-core sweeps
+                self._write_raw(gdir, f"{group}/{name}", name, a)
+                continue
+            arr = self._zarr_group(group).create_array(
                 name, shape=a.shape, dtype=a.dtype,
                 chunks=tuple(max(1, s) for s in a.shape),  # one chunk per array
                 shards=None, filters=None, compressors=None, fill_value=0,
@@ -56,9 +116,18 @@ class Writer:
             if a.size:
                 arr[...] = a
         # hash the group's files while they are hot, then drop them from the page cache
-        gdir = os.path.join(self.path, *group.split("/"))
         for rel in walk_files(gdir):
             self._hash(f"{group}/{rel}")
+
+    def _write_raw(self, gdir: str, rel: str, name: str, a: np.ndarray) -> None:
+        adir = os.path.join(gdir, name)
+        os.mkdir(adir)
+        _write_file(os.path.join(adir, "zarr.json"), _array_metadata(a), self._hashed, f"{rel}/zarr.json")
+        if a.size:
+            ck = ["c"] + ["0"] * a.ndim
+            os.makedirs(os.path.join(adir, *ck[:-1]), exist_ok=True)
+            data = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<")).tobytes()
+            _write_file(os.path.join(adir, *ck), data, self._hashed, f"{rel}/{'/'.join(ck)}")
 
     def _hash(self, rel: str) -> str:
         p = os.path.join(self.path, *rel.split("/"))
@@ -83,61 +152,110 @@ class Writer:
         remove_path(self.path)
 
 
+class _Member:
+    """An array of an epoch group: shape, dtype, and its chunk file when it can be read raw."""
+    __slots__ = ("shape", "dtype", "raw", "name")
+
+    def __init__(self, shape, dtype, raw, name):
+        self.shape, self.dtype, self.raw, self.name = shape, dtype, raw, name
+
+
+def _read_json(path: str):
+    with open(path, "rb") as f:
+        return json.loads(f.read())
+
+
+def _member(adir: str, meta: dict, name: str) -> _Member:
+    """Parse array metadata; `raw` is the chunk path for an uncompressed one-chunk array in
+    native byte order (what the writer produces), else None (read through zarr)."""
+    shape = tuple(int(v) for v in meta["shape"])
+    dtype = np.dtype(meta["data_type"])
+    raw = None
+    codecs = meta.get("codecs") or []
+    grid = meta.get("chunk_grid") or {}
+    cke = meta.get("chunk_key_encoding") or {}
+    if (len(codecs) == 1 and codecs[0].get("name") == "bytes"
+            and (codecs[0].get("configuration") or {}).get("endian", sys.byteorder) == sys.byteorder
+            and dtype.isnative and not meta.get("storage_transformers")
+            and grid.get("name") == "regular"
+            and tuple(grid.get("configuration", {}).get("chunk_shape", ())) == tuple(max(1, v) for v in shape)
+            and cke.get("name") == "default"
+            and (cke.get("configuration") or {}).get("separator", "/") == "/" and len(shape) >= 1):
+        raw = os.path.join(adir, "c", *(["0"] * len(shape)))
+    return _Member(shape, dtype, raw, name)
+
+
 class Reader:
+    """Reads an epoch's zarr v3 hierarchy from its metadata documents directly (plain JSON
+    files), falling back to the zarr library for arrays not in the writer's simple form."""
+
     def __init__(self, path: str):
-        zarr, LocalStore = _zarr()
         self.path = path
         if not os.path.isdir(path):
             raise FileNotFoundError(f"{path}: epoch directory missing")
-        self.root = zarr.open_group(store=LocalStore(path, read_only=True), mode="r",
-                                    zarr_format=3, use_consolidated=False)
-        self._arrays: dict[tuple[str, str], tuple] = {}
-        self._groups: dict[str, dict | None] = {}
+        meta = _read_json(os.path.join(path, "zarr.json"))
+        if meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
+            raise ValueError(f"{path}: not a zarr v3 group")
+        self._zroot = None
+        self._groups: dict[str, tuple | None] = {}
         self._touched: set[str] = set()
 
-    def _members(self, group: str):
-        """name -> zarr.Array of a group (fetched concurrently, once), or None if no such group."""
+    def _zarr_root(self):
+        if self._zroot is None:
+            zarr, LocalStore = _zarr()
+            self._zroot = zarr.open_group(store=LocalStore(self.path, read_only=True), mode="r",
+                                          zarr_format=3, use_consolidated=False)
+        return self._zroot
+
+    def _group_meta(self, group: str):
+        """(group attributes, name -> _Member), read once; None if no such group."""
         if group not in self._groups:
-            zarr, _ = _zarr()
+            gdir = os.path.join(self.path, *group.split("/"))
             try:
-                g = self.root[group]
-            except (KeyError, FileNotFoundError):
-                g = None
-            self._groups[group] = dict(g.arrays()) if isinstance(g, zarr.Group) else None
+                meta = _read_json(os.path.join(gdir, "zarr.json"))
+            except FileNotFoundError:
+                meta = None
+            if not isinstance(meta, dict) or meta.get("node_type") != "group":
+                self._groups[group] = None
+                return None
+            members = {}
+            for name in sorted(os.listdir(gdir)):
+                adir = os.path.join(gdir, name)
+                mpath = os.path.join(adir, "zarr.json")
+                if not os.path.isfile(mpath):
+                    continue
+                am = _read_json(mpath)
+                if am.get("node_type") == "array":
+                    members[name] = _member(adir, am, f"{group}/{name}")
+            self._groups[group] = (meta.get("attributes") or {}, members)
         return self._groups[group]
 
+    def _members(self, group: str):
+        gm = self._group_meta(group)
+        return None if gm is None else gm[1]
+
     def has_group(self, group: str) -> bool:
-        return self._members(group) is not None
+        return self._group_meta(group) is not None
 
     def array_info(self, group: str, name: str):
         a = (self._members(group) or {}).get(name)
         return None if a is None else (tuple(a.shape), a.dtype)
 
     def attrs_json(self, group: str):
-        return self.root[group].attrs.get(ATTRS_KEY)
+        gm = self._group_meta(group)
+        if gm is None:
+            raise KeyError(f"group {group} missing")
+        return gm[0].get(ATTRS_KEY)
 
     def _array(self, group, name):
-        """(zarr array, chunk file path or None if the raw fast path does not apply)."""
-        key = (group, name)
-        hit = self._arrays.get(key)
-        if hit is None:
-            from zarr.codecs import BytesCodec
-            a = (self._members(group) or {}).get(name)
-            if a is None:
-                raise KeyError(f"array {group}/{name} missing")
-            md = a.metadata
-            raw = None
-            codecs = tuple(md.codecs)
-            endian = getattr(codecs[0], "endian", None) if len(codecs) == 1 else None
-            endian = getattr(endian, "value", endian)
-            if (len(codecs) == 1 and isinstance(codecs[0], BytesCodec)
-                    and endian in (None, sys.byteorder) and a.dtype.isnative
-                    and tuple(md.chunk_grid.chunk_shape) == tuple(max(1, s) for s in a.shape)):
-                ck = md.chunk_key_encoding.encode_chunk_key((0,) * a.ndim)
-                raw = os.path.join(self.path, *group.split("/"), name, *ck.split("/"))
-            hit = (a, raw)
-            self._arrays[key] = hit
-        return hit
+        """(member, chunk file path or None if the raw fast path does not apply)."""
+        a = (self._members(group) or {}).get(name)
+        if a is None:
+            raise KeyError(f"array {group}/{name} missing")
+        return a, a.raw
+
+    def _via_zarr(self, a: _Member):
+        return self._zarr_root()[a.name]
 
     def _pread(self, raw, what, out, offset):
         try:
@@ -160,7 +278,7 @@ class Reader:
         if raw is not None:
             self._pread(raw, f"{group}/{name}", out, 0)
         else:
-            out[...] = a[...]
+            out[...] = self._via_zarr(a)[...]
         return out
 
     def read_range(self, group, name, start, stop, out) -> None:
@@ -171,7 +289,7 @@ class Reader:
             row_bytes = out.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
             self._pread(raw, f"{group}/{name}", out, start * row_bytes)   # only the asked rows
         else:
-            out[...] = a[start:stop]
+            out[...] = self._via_zarr(a)[start:stop]
 
     def after_read(self) -> None:
         for p in self._touched:
@@ -179,6 +297,5 @@ class Reader:
         self._touched.clear()
 
     def close(self) -> None:
-        self._arrays.clear()
         self._groups.clear()
-        self.root = None
+        self._zroot = None

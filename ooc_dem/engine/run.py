@@ -315,13 +315,11 @@ class Simulation:
         return len(self.engine.particles())
 
     def state_hash(self) -> str:
-        from ..checkpoint import hash_particles
+        from ..checkpoint import hash_epoch
         from storage import open_store
         store = open_store(self.out)
         reader = store.read_epoch()
-        p = read_all_particles(reader)
-        arrays, attrs = reader.read_globals()
-        h = hash_particles(p, arrays["wheel_state"], int(attrs["step"]))
+        h = hash_epoch(reader)   # streamed: never the whole state in RAM
         reader.close()
         store.close()
         return h

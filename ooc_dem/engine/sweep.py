@@ -36,11 +36,14 @@ def _block(sim) -> int:
 
 
 class RamEpochs:
-    """Epoch e and e+1 held in RAM as per-domain records (serial DDM's store)."""
+    """Epoch e and e+1 held in RAM as per-domain disc sets sorted by x (serial DDM's store).
+
+    The discs stay ``Particles`` (no record round trip each sweep: that conversion cost more
+    than the physics at K = 1); the store-record view is made only for commits."""
 
     def __init__(self):
-        self.current: dict[int, tuple[dict, dict]] = {}
-        self.next: dict[int, tuple[dict, dict]] = {}
+        self.current: dict[int, tuple[Particles, dict]] = {}
+        self.next: dict[int, tuple[Particles, dict]] = {}
 
     # reader side
     def domains(self):
@@ -49,16 +52,22 @@ class RamEpochs:
     def domain_attrs(self, d):
         return self.current[d][1]
 
+    def domain_particles(self, d) -> Particles:
+        return self.current[d][0]
+
     def read_domain(self, d, names=None, rows=None):
-        rec = self.current[d][0]
+        rec = particles_to_record(self.current[d][0])
         names = names or list(rec)
         if rows is None:
             return {k: rec[k] for k in names}
         return {k: rec[k][rows] for k in names}
 
     # writer side
+    def write_particles(self, d, p: Particles, attrs):
+        self.next[d] = (p, attrs)
+
     def write_domain(self, d, arrays, attrs):
-        self.next[d] = (arrays, attrs)
+        self.next[d] = (record_to_particles(arrays), attrs)
 
     def swap(self):
         self.current, self.next = self.next, {}
@@ -70,6 +79,10 @@ def _read_rows(src, d, lo: float, hi: float) -> Particles | None:
     n = int(attrs.get("n", 0))
     if n == 0 or attrs["xmax"] < lo or attrs["xmin"] >= hi:
         return None
+    if isinstance(src, RamEpochs):   # views of the held discs (concatenated, i.e. copied, later)
+        p = src.domain_particles(d)
+        a, b = int(np.searchsorted(p.x, lo, "left")), int(np.searchsorted(p.x, hi, "left"))
+        return p.take(slice(a, b)) if b > a else None
     x = src.read_domain(d, ["x"])["x"]
     a, b = int(np.searchsorted(x, lo, "left")), int(np.searchsorted(x, hi, "left"))
     if b <= a:
@@ -85,12 +98,14 @@ def _read_rows(src, d, lo: float, hi: float) -> Particles | None:
     return record_to_particles(rec)
 
 
-def group_record(p: Particles) -> tuple[dict, dict]:
-    """A domain group: discs sorted by x (strips are then contiguous), with its x extent."""
-    q = p.take(np.argsort(p.x, kind="stable"))
+def group_of(p: Particles, rows=None) -> tuple[Particles, dict]:
+    """A domain group: discs `rows` of p (all if None) sorted by x (strips are then
+    contiguous), with its x extent. One gather, whatever `rows` is."""
+    rows = np.arange(len(p)) if rows is None else np.asarray(rows)
+    q = p.take(rows[np.argsort(p.x[rows], kind="stable")])
     attrs = {"n": len(q), "xmin": float(q.x[0]) if len(q) else 0.0,
              "xmax": float(q.x[-1]) if len(q) else 0.0}
-    return particles_to_record(q), attrs
+    return q, attrs
 
 
 def auto_block(sc, domains: int, length: float) -> int:
@@ -154,8 +169,7 @@ class SweepEngine:
             eng.fixed = True
         groups = owner(eng.bounds, particles.x)
         for d in range(eng.D):
-            rec, attrs = group_record(particles.take(np.flatnonzero(groups == d)))
-            eng._stage(d, rec, attrs)
+            eng._stage(d, *group_of(particles, np.flatnonzero(groups == d)))
         eng._n = len(particles)
         if src is not None:
             src.swap()
@@ -180,8 +194,7 @@ class SweepEngine:
         def flush(upto: float):
             for d in range(eng.D):
                 if d not in written and eng.bounds[d + 1] <= upto:
-                    rec, attrs = group_record(Particles.concat(pending.pop(d)))
-                    eng._stage(d, rec, attrs)
+                    eng._stage(d, *group_of(Particles.concat(pending.pop(d))))
                     written.add(d)
 
         for part in parts():
@@ -194,13 +207,13 @@ class SweepEngine:
         flush(np.inf)
         return eng
 
-    def _stage(self, d, rec, attrs):
+    def _stage(self, d, q: Particles, attrs):
         if self.src is not None:
-            self.src.write_domain(d, rec, attrs)
+            self.src.write_particles(d, q, attrs)
         else:
             if self._writer is None:
                 raise RuntimeError("out-of-core sweep without an open epoch writer")
-            self._writer.write_domain(d, rec, attrs)
+            self._writer.write_domain(d, particles_to_record(q), attrs)
 
     def decompose(self, x: np.ndarray, step: int) -> np.ndarray:
         sc = self.sc
@@ -244,6 +257,8 @@ class SweepEngine:
         self._store_reader = self.sim.store.read_epoch()
 
     def _all_x(self, src) -> np.ndarray:
+        if isinstance(src, RamEpochs):
+            return np.concatenate([src.domain_particles(d).x for d in src.domains()])
         return np.concatenate([src.read_domain(d, ["x"])["x"] for d in src.domains()])
 
     def sweep(self, step0: int, k: int) -> np.ndarray:
@@ -273,12 +288,14 @@ class SweepEngine:
             lo, hi = self.bounds[d], self.bounds[d + 1]
             pieces = [q for g in src.domains()
                       if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
+            # the pieces are x-sorted strips: already in a cache-friendly order, and memory
+            # order never changes a result (DESIGN section 3), so no spatial re-sort here
             local = Particles.concat(pieces)
             resident.append(len(local))
             if d == wslab:
-                st = DomainStepper(local, self.model, self.ws)
+                st = DomainStepper(local, self.model, self.ws, reorder=False)
             else:
-                st = DomainStepper(local, self.model_nowheel, None)
+                st = DomainStepper(local, self.model_nowheel, None, reorder=False)
             owned = np.flatnonzero((st.p.x >= lo) & (st.p.x < hi))
             if len(local):
                 rec = st.advance(step0, k)
@@ -288,8 +305,7 @@ class SweepEngine:
                 rec_wheel = rec
                 new_ws = st.ws.copy()
             owned_total += len(owned)
-            grec, attrs = group_record(st.p.take(owned))
-            self._stage(d, grec, attrs)
+            self._stage(d, *group_of(st.p, owned))
             del st, local, pieces
         if self._n is not None and owned_total != self._n:
             raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
@@ -325,6 +341,8 @@ class SweepEngine:
 
     def particles(self) -> Particles:
         src = self._reader()
+        if isinstance(src, RamEpochs):
+            return Particles.concat([src.domain_particles(d) for d in src.domains()])
         return Particles.concat([record_to_particles(src.read_domain(d)) for d in src.domains()])
 
     def write_domains(self, writer) -> None:

@@ -85,10 +85,13 @@ def test_resume_finished_run_is_noop(tmp_path):
     assert run_cli("checkpoint", "hash", out, check=True).stdout.strip() == h
 
 
-def test_resume_extends_run_to_same_bits(tmp_path):
-    """Run 30 steps, then resume to 60: equals a straight 60-step run."""
+@pytest.mark.parametrize("mode", [["--mode", "monolithic"], ["--mode", "ddm", "--domains", "3"]])
+def test_resume_extends_run_to_same_bits(tmp_path, mode):
+    """Run 30 steps (committing every 10), then resume to 60: equals a straight
+    monolithic 60-step run."""
     a, b = tmp_path / "a", tmp_path / "b"
-    run_cli("run", "bed-1200", "--out", a, "--steps", "30", "--no-progress", check=True)
+    run_cli("run", "bed-1200", "--out", a, "--steps", "30", "--checkpoint-every", "10", *mode,
+            "--no-progress", check=True)
     run_cli("resume", a, "--steps", "60", "--no-progress", check=True)
     run_cli("run", "bed-1200", "--out", b, "--steps", "60", "--no-progress", check=True)
     ha = run_cli("checkpoint", "hash", a, check=True).stdout.strip()

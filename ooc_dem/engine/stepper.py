@@ -182,12 +182,14 @@ class DomainStepper:
         # small domains run on one thread: a parallel launch costs more than it saves
         # there, and the result is the same whatever the thread count (DESIGN section 3)
         threads = numba.get_num_threads()
-        if self.n < SERIAL_BELOW:
+        serial = self.n < SERIAL_BELOW and threads > 1
+        if serial:
             numba.set_num_threads(1)
         try:
             done, rb = self._run(nsteps, step0, rec)
         finally:
-            numba.set_num_threads(threads)
+            if serial:
+                numba.set_num_threads(threads)
         self._built = True
         self.rebuilds += rb
         self._check(step0 + done, nsteps)

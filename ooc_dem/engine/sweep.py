@@ -8,8 +8,9 @@ discs. Ownership is by position: a disc belongs to the slab holding its x at the
 start of the sweep, so migration needs no bookkeeping, and its contact history
 travels with it.
 
-Serial DDM runs this sweep over epochs held in RAM; out-of-core runs it over an
-HDF5 or zarr store, committing every epoch.
+Out-of-core runs this sweep over an HDF5 or zarr store, committing every epoch.
+Serial DDM runs the same sweep over epochs held in RAM, with its sub-domains kept
+alive between sweeps (``live.LiveDomains``: same bits, no per-sweep rebuilding).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from ..checkpoint import particles_to_record, record_to_particles
 from ..decomposition import equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok
 from ..physics.forces import WS_X
 from ..state import Particles
+from .live import LiveDomains
 from .stepper import DomainStepper, EngineError, Model
 
 
@@ -79,10 +81,6 @@ def _read_rows(src, d, lo: float, hi: float) -> Particles | None:
     n = int(attrs.get("n", 0))
     if n == 0 or attrs["xmax"] < lo or attrs["xmin"] >= hi:
         return None
-    if isinstance(src, RamEpochs):   # views of the held discs (concatenated, i.e. copied, later)
-        p = src.domain_particles(d)
-        a, b = int(np.searchsorted(p.x, lo, "left")), int(np.searchsorted(p.x, hi, "left"))
-        return p.take(slice(a, b)) if b > a else None
     x = src.read_domain(d, ["x"])["x"]
     a, b = int(np.searchsorted(x, lo, "left")), int(np.searchsorted(x, hi, "left"))
     if b <= a:
@@ -147,6 +145,13 @@ class SweepEngine:
         self.reach = max(w.radius, w.lug_tip_radius) + sc.soil.r_max if w.enabled else 0.0
         # no owned disc of another slab may feel the wheel within a block
         self.margin_required = self.halo + 2.0 * sc.soil.r_max + self.K * sc.physics.dt * 1.0
+        # serial DDM: persistent sub-domains (None until the first sweep or after a
+        # rebuild), and whether they hold newer states than self.src
+        self._live: LiveDomains | None = None
+        self._live_newer = False
+        self.live_builds = 0
+        # x motion a live local set tolerates before it is rebuilt (one contact hop)
+        self.membership_skin = hop
         self.preferred_chunk = max(self.K, (2000 // self.K) * self.K)
 
     # ---------------------------------------------------------------- setup
@@ -227,7 +232,15 @@ class SweepEngine:
 
     # -------------------------------------------------------------- the sweep
     def _reader(self):
-        return self.src if self.src is not None else self._store_reader
+        if self.src is None:
+            return self._store_reader
+        if self._live is not None and self._live_newer:
+            # the live sub-domains hold the newest states: the epoch's groups are
+            # each slab's owned discs (ownership at the start of the last sweep)
+            live = self._live
+            self.src.current = {d: group_of(live.p, live.owned_rows(d)) for d in range(live.D)}
+            self._live_newer = False
+        return self.src
 
     def commit_epoch(self, step, arrays, attrs, durable=False) -> None:
         """Out-of-core: finish the epoch being written (globals + manifest commit).
@@ -264,13 +277,15 @@ class SweepEngine:
     def sweep(self, step0: int, k: int) -> np.ndarray:
         """Advance every slab k <= K steps (the halo is sized for K)."""
         sc = self.sc
-        src = self._reader()
         if sc.wheel.enabled and sc.decomposition.policy == "wheel" and self.D > 1 and not self.fixed:
             if not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach, self.margin_required):
-                self.bounds = self.decompose(self._all_x(src), step0)
+                self.bounds = self.decompose(self._all_x(self._reader()), step0)
+                self._live = None
         wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if sc.wheel.enabled else -1
-        if self.src is None:
-            self._writer = self.sim.store.begin_epoch(step0 + k)
+        if self.src is not None:
+            return self._sweep_live(step0, k, wslab)
+        src = self._reader()
+        self._writer = self.sim.store.begin_epoch(step0 + k)
         try:
             return self._sweep_domains(src, step0, k, wslab)
         except BaseException:
@@ -279,7 +294,38 @@ class SweepEngine:
                 self._writer = None
             raise
 
+    def _sweep_live(self, step0: int, k: int, wslab: int) -> np.ndarray:
+        """Serial DDM: the sweep over persistent in-RAM sub-domains (see live.py)."""
+        live = self._live
+        if live is not None and (live.wslab != wslab or not live.refresh()):
+            self._reader()   # fold the live states into the epoch's groups, then rebuild
+            live = None
+        if live is None:
+            src = self._reader()
+            discs = Particles.concat([src.domain_particles(d) for d in src.domains()])
+            live = LiveDomains(discs, self.bounds, self.halo, self.membership_skin, self.model,
+                               self.model_nowheel, self.ws, wslab)
+            self._live = live
+            self.live_builds += 1
+            # the live sub-domains are now the only copy kept (the groups are made
+            # from them again when a commit or a rebuild needs them)
+            src.current = {}
+            del discs
+        self._live_newer = True
+        rec_wheel, ws = live.advance(step0, k)
+        if ws is not None:
+            self.ws = ws
+        self._note_resident(live.resident())
+        return rec_wheel
+
+    def _note_resident(self, resident: list[int]) -> None:
+        self.resident_last = resident
+        if self.resident_first is None:
+            self.resident_first = list(resident)
+        self.resident_max = max(self.resident_max, max(resident) if resident else 0)
+
     def _sweep_domains(self, src, step0: int, k: int, wslab: int) -> np.ndarray:
+        """Out-of-core: each slab rebuilt from epoch e, advanced, its owned discs written to e+1."""
         rec_wheel = np.zeros((0, 12))
         new_ws = self.ws
         resident = []
@@ -311,17 +357,11 @@ class SweepEngine:
             raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")
         self.ws = new_ws
-        self.resident_last = resident
-        if self.resident_first is None:
-            self.resident_first = list(resident)
-        self.resident_max = max(self.resident_max, max(resident) if resident else 0)
-        if self.src is not None:
-            self.src.swap()
-        else:
-            # the epoch is complete: fold the wheel records, then commit it (every sweep)
-            self.sim.fold(rec_wheel, step0)
-            self.sim.step = step0 + k
-            self.sim.commit()
+        self._note_resident(resident)
+        # the epoch is complete: fold the wheel records, then commit it (every sweep)
+        self.sim.fold(rec_wheel, step0)
+        self.sim.step = step0 + k
+        self.sim.commit()
         return rec_wheel
 
     def advance(self, step0: int, nsteps: int) -> np.ndarray:
@@ -354,7 +394,8 @@ class SweepEngine:
         return {"domains": self.D, "block": self.K, "halo_m": self.halo,
                 "resident_max": self.resident_max, "resident_last_sweep": self.resident_last,
                 "bounds": [float(v) for v in self.bounds[1:-1]],
-                "redecompositions": len(self.sim.redecompositions)}
+                "redecompositions": len(self.sim.redecompositions),
+                **({"local_set_builds": self.live_builds} if self.src is not None else {})}
 
     @classmethod
     def reopen(cls, sim, reader, arrays, attrs) -> "SweepEngine":
@@ -388,14 +429,18 @@ class _Run:
         self.redecompositions = []
 
 
-def sweep_run(sc, particles: Particles, wheel_state, steps: int, bounds=None, domains=None, block=1):
+def sweep_run(sc, particles: Particles, wheel_state, steps: int, bounds=None, domains=None, block=1,
+              membership_skin=None):
     """Advance discs `steps` steps with the serial-DDM sweep; returns (particles, wheel_state, records, engine).
 
     `bounds` fixes the slab bounds (D+1 ascending values, -inf and +inf at the ends);
-    otherwise the scenario's policy with `domains` sub-domains is used.
+    otherwise the scenario's policy with `domains` sub-domains is used. `membership_skin`
+    overrides how far (m) discs may move before the local sets are rebuilt.
     """
     run = _Run(sc, "ddm", block)
     run.opts.domains = domains
     eng = SweepEngine.create(run, particles, np.asarray(wheel_state, np.float64), bounds=bounds)
+    if membership_skin is not None:
+        eng.membership_skin = membership_skin
     rec = eng.advance(0, steps)
     return eng.particles(), eng.wheel_state, rec, eng

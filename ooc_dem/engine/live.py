@@ -84,7 +84,6 @@ def _assign_owners(ids, x, off, bounds, owner_row, owned):
     return count
 
 
-
 class LiveDomains:
     """All sub-domains of a serial-DDM run with their halos and steppers, kept in RAM."""
 

@@ -38,14 +38,14 @@ def _block(sim) -> int:
 
 
 class RamEpochs:
-    """Epoch e and e+1 held in RAM as per-domain disc sets sorted by x (serial DDM's store).
+    """Serial DDM's epoch in RAM: per-domain disc sets sorted by x, with their attrs.
 
-    The discs stay ``Particles`` (no record round trip each sweep: that conversion cost more
-    than the physics at K = 1); the store-record view is made only for commits."""
+    Between sweeps the live sub-domains (live.py) hold the newest states; this view is
+    made from them only when a commit, a re-decomposition or a rebuild needs it. The
+    discs stay ``Particles``; the store-record view is made only for commits."""
 
     def __init__(self):
         self.current: dict[int, tuple[Particles, dict]] = {}
-        self.next: dict[int, tuple[Particles, dict]] = {}
 
     # reader side
     def domains(self):
@@ -66,13 +66,10 @@ class RamEpochs:
 
     # writer side
     def write_particles(self, d, p: Particles, attrs):
-        self.next[d] = (p, attrs)
+        self.current[d] = (p, attrs)
 
     def write_domain(self, d, arrays, attrs):
-        self.next[d] = (record_to_particles(arrays), attrs)
-
-    def swap(self):
-        self.current, self.next = self.next, {}
+        self.current[d] = (record_to_particles(arrays), attrs)
 
 
 def _read_rows(src, d, lo: float, hi: float) -> Particles | None:
@@ -176,8 +173,6 @@ class SweepEngine:
         for d in range(eng.D):
             eng._stage(d, *group_of(particles, np.flatnonzero(groups == d)))
         eng._n = len(particles)
-        if src is not None:
-            src.swap()
         return eng
 
     @classmethod
@@ -298,8 +293,7 @@ class SweepEngine:
         """Serial DDM: the sweep over persistent in-RAM sub-domains (see live.py)."""
         live = self._live
         if live is not None and (live.wslab != wslab or not live.refresh()):
-            self._reader()   # fold the live states into the epoch's groups, then rebuild
-            live = None
+            live = None  # rebuilt below from the epoch's groups (_reader folds the live states in)
         if live is None:
             src = self._reader()
             discs = Particles.concat([src.domain_particles(d) for d in src.domains()])
@@ -413,7 +407,6 @@ class SweepEngine:
         eng = cls(sim, bounds, arrays["wheel_state"], K, src)
         for d in reader.domains():
             src.write_domain(d, reader.read_domain(d), reader.domain_attrs(d))
-        src.swap()
         eng._n = eng.n_discs()
         return eng
 

@@ -405,23 +405,23 @@ def _checkpoint_prune(args) -> int:
 
 
 def _checkpoint_export(store, args) -> int:
-    from .export import ExportError, export_snapshot, infer_format, read_snapshot
+    from .checkpoint import StateError
+    from .export import ExportError, check_targets, export_snapshot, infer_format, output_files, read_snapshot
     fmt = args.format or infer_format(args.out)
     if fmt is None:
         raise CliError(f"--out {args.out}: cannot tell the format from the suffix; give --format "
                        f"xdmf|vtk|csv")
     out = Path(args.out)
-    if out.resolve().parent == (Path(args.store) / "epochs").resolve():
-        raise CliError(f"--out {args.out}: not inside the store's epochs/ directory")
-    reader = store.read_epoch(args.epoch)
-    _warn_fallback(store)
     try:
-        snap = read_snapshot(reader, args.store)
-    finally:
-        reader.close()
-    try:
+        check_targets(output_files(fmt, out), out)   # before reading anything
+        reader = store.read_epoch(args.epoch)
+        _warn_fallback(store)
+        try:
+            snap = read_snapshot(reader, args.store)
+        finally:
+            reader.close()
         files = export_snapshot(snap, fmt, out)
-    except ExportError as e:
+    except (ExportError, StateError) as e:
         raise CliError(str(e)) from None
     print(f"exported epoch {snap.step} ({len(snap)} discs, t = {snap.time:.6f} s) as {fmt}: "
           + ", ".join(map(str, files)))
@@ -537,7 +537,8 @@ def main(argv=None) -> int:
     from .engine.run import RunError
     from .engine.stepper import EngineError
     from .scenario import ScenarioError
-    known = (CliError, ScenarioError, RunError, EngineError, BedError)
+    from .checkpoint import StateError
+    known = (CliError, ScenarioError, RunError, EngineError, BedError, StateError)
     try:
         from storage import StoreError
         known = known + (StoreError,)

@@ -24,13 +24,18 @@ and renamed when complete.
 from __future__ import annotations
 
 import os
+import stat
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
+from .checkpoint import check_unique_sorted, validate_globals
 from .state import SCALAR_FIELDS
+
+STORE_MANIFEST = "MANIFEST.json"   # its presence marks a directory as an ooc-dem store
 
 FORMATS = ("xdmf", "vtk", "csv")
 CSV_COLUMNS = ("id", "x", "y", "vx", "vy", "w", "r", "mass", "mat")
@@ -71,14 +76,12 @@ def read_snapshot(reader, source: str = "") -> Snapshot:
                    else np.zeros(0, dt))
     order = np.argsort(cols["id"], kind="stable")
     cols = {k: np.ascontiguousarray(v[order]) for k, v in cols.items()}
+    check_unique_sorted(cols["id"], f"{source}: epoch {reader.step}")
     arrays, attrs = reader.read_globals()
-    wheel = np.zeros(len(WHEEL_NAMES))
-    if "wheel_state" in arrays:
-        ws = np.asarray(arrays["wheel_state"], np.float64).ravel()
-        wheel[:min(len(ws), len(wheel))] = ws[:len(wheel)]
-    step = int(attrs.get("step", reader.step))
-    info = {"source": str(source), "mode": attrs.get("mode", "")}
-    return Snapshot(step, float(attrs.get("time", 0.0)), cols, wheel, info)
+    validate_globals(arrays, attrs, f"{source}: epoch {reader.step}")
+    info = {"source": str(source), "mode": str(attrs.get("mode", ""))}
+    return Snapshot(attrs["step"], float(attrs.get("time", 0.0)), cols,
+                    np.asarray(arrays["wheel_state"], np.float64), info)
 
 
 def export_snapshot(snap: Snapshot, fmt: str, out) -> list[Path]:
@@ -86,10 +89,7 @@ def export_snapshot(snap: Snapshot, fmt: str, out) -> list[Path]:
     out = Path(out)
     if fmt not in FORMATS:
         raise ExportError(f"--format {fmt!r}: must be one of {', '.join(FORMATS)}")
-    if out.is_dir():
-        raise ExportError(f"--out {out}: is a directory (give a file name)")
-    if not out.parent.is_dir():
-        raise ExportError(f"--out {out}: directory {out.parent} does not exist")
+    check_targets(output_files(fmt, out), out)
     if fmt == "xdmf":
         return _write_xdmf(snap, out)
     if fmt == "vtk":
@@ -97,22 +97,69 @@ def export_snapshot(snap: Snapshot, fmt: str, out) -> list[Path]:
     return [_write_csv(snap, out)]
 
 
+def output_files(fmt: str, out: Path) -> list[Path]:
+    """Every file an export of `fmt` to `out` writes (XDMF writes its HDF5 data beside it)."""
+    out = Path(out)
+    if fmt == "xdmf":
+        h5 = out.with_suffix(".h5")
+        if h5 == out:
+            raise ExportError(f"--out {out}: give the .xdmf name; the HDF5 data is written beside it "
+                              f"as {out.stem}.h5")
+        return [out, h5]
+    return [out]
+
+
+def check_targets(files: list[Path], out: Path) -> None:
+    """Refuse to write anywhere but a new path or an existing regular file outside every store.
+
+    An export replaces its targets, so a target that is a directory, a device, a FIFO or a
+    symlink, or that lies inside an ooc-dem store (a directory holding MANIFEST.json, at any
+    depth above the target), is refused: an export must never replace a store's manifest or
+    epochs, nor a system file such as /dev/null.
+    """
+    for f in files:
+        try:
+            st = os.lstat(f)
+        except FileNotFoundError:
+            st = None
+        except OSError as e:
+            raise ExportError(f"--out {out}: cannot inspect {f} ({e.strerror})") from None
+        if st is not None and not stat.S_ISREG(st.st_mode):
+            kind = "a directory" if stat.S_ISDIR(st.st_mode) else (
+                "a symlink" if stat.S_ISLNK(st.st_mode) else "not a regular file")
+            raise ExportError(f"--out {out}: {f} is {kind} (give a new file name or a regular file)")
+        parent = f.parent.resolve()
+        if not parent.is_dir():
+            raise ExportError(f"--out {out}: directory {f.parent} does not exist")
+        for d in (parent, *parent.parents):
+            if (d / STORE_MANIFEST).exists():
+                raise ExportError(f"--out {out}: {f} would be inside the ooc-dem store {d} "
+                                  f"(write exports outside any store)")
+
+
 # ------------------------------------------------------------------ helpers
 
 class _Atomic:
-    """Open `path` for writing under a temporary name; renamed into place on success."""
+    """Open `path` for writing under a temporary name; renamed into place on success.
+
+    The temporary is created exclusively with an unpredictable name (mkstemp), so a
+    planted file or symlink of that name can never redirect the write.
+    """
 
     def __init__(self, path: Path, mode: str = "w"):
         self.path = Path(path)
-        self.tmp = self.path.with_name(f"{self.path.name}.tmp-{os.getpid()}")
         self.mode = mode
+        self.tmp = None
         self.f = None
 
     def __enter__(self):
         try:
+            self.tmp = _new_temp(self.path)
             self.f = open(self.tmp, self.mode, encoding=None if "b" in self.mode else "ascii",
                           newline=None if "b" in self.mode else "\n")
         except OSError as e:
+            if self.tmp is not None:
+                _unlink(self.tmp)
             raise ExportError(_oserror(self.path, e)) from None
         return self.f
 
@@ -129,6 +176,16 @@ class _Atomic:
             if issubclass(exc_type, OSError):
                 raise ExportError(_oserror(self.path, exc)) from None
         return False
+
+
+def _new_temp(path: Path) -> Path:
+    """A new, empty temporary file beside `path` (created exclusively, unpredictable name)."""
+    fd, name = tempfile.mkstemp(prefix=f"{path.name}.tmp-", dir=path.parent)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.fchmod(fd, 0o666 & ~umask)   # an export is an ordinary file, not mkstemp's private 0600
+    os.close(fd)
+    return Path(name)
 
 
 def _unlink(p) -> None:
@@ -187,10 +244,7 @@ def _xyz(a, b) -> np.ndarray:
 
 def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
     import h5py
-    h5 = out.with_suffix(".h5")
-    if h5 == out:
-        raise ExportError(f"--out {out}: give the .xdmf name; the HDF5 data is written beside it "
-                          f"as {out.stem}.h5")
+    _, h5 = output_files("xdmf", out)
     if ":" in h5.name:
         raise ExportError(f"--out {out}: the file name must not contain ':' (XDMF HDF references)")
     c, n = snap.cols, len(snap)
@@ -200,7 +254,10 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
         "radius": c["r"], "spin": c["w"], "id": c["id"], "mass": c["mass"], "material": c["mat"],
         "connectivity": np.arange(n, dtype=np.int64).reshape(n, 1),
     }
-    tmp = h5.with_name(f"{h5.name}.tmp-{os.getpid()}")
+    try:
+        tmp = _new_temp(h5)
+    except OSError as e:
+        raise ExportError(_oserror(h5, e)) from None
     try:
         with h5py.File(tmp, "w") as f:
             for k, v in data.items():

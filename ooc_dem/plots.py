@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -135,7 +136,11 @@ def _n_layers(depth: float, r: np.ndarray) -> int:
 
 
 def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=DPI)
+    # under a temporary name, renamed when complete: a kill never leaves a torn figure that a
+    # resume would take for a finished one
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp, dpi=DPI)
+    os.replace(tmp, path)
     import matplotlib.pyplot as plt
     plt.close(fig)
     return path
@@ -339,6 +344,11 @@ def _nice(v: float) -> float:
     return 10.0 ** e
 
 
+# the figures make_figures writes for a wheel run (into OUT/figures/)
+SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE = "series.png", "deformation.png", "displacement.png"
+FIGURE_NAMES = (SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE)
+
+
 def make_figures(out_dir, final=None) -> list[Path]:
     """Write the run's figures into ``OUT/figures/``; return their paths.
 
@@ -354,7 +364,7 @@ def make_figures(out_dir, final=None) -> list[Path]:
     series = read_series(out / "series.csv") if (out / "series.csv").exists() else None
     written: list[Path] = []
     if series is not None:
-        written.append(_series_figure(series, summary, sc, fig_dir / "series.png"))
+        written.append(_series_figure(series, summary, sc, fig_dir / SERIES_FIGURE))
     if (out / "initial.npz").exists():
         with np.load(out / "initial.npz") as z:
             init = (z["id"].astype(np.int64), z["x"].astype(np.float64), z["y"].astype(np.float64),
@@ -364,8 +374,8 @@ def make_figures(out_dir, final=None) -> list[Path]:
         fid, fx, fy, fr, ws = final
         final = (np.asarray(fid, np.int64), np.asarray(fx, np.float64), np.asarray(fy, np.float64),
                  np.asarray(fr, np.float64), None if ws is None else np.asarray(ws, np.float64))
-        written.append(_deformation_figure(init, final, sc, series, fig_dir / "deformation.png"))
-        written.append(_displacement_figure(init, final, sc, series, fig_dir / "displacement.png"))
+        written.append(_deformation_figure(init, final, sc, series, fig_dir / DEFORMATION_FIGURE))
+        written.append(_displacement_figure(init, final, sc, series, fig_dir / DISPLACEMENT_FIGURE))
     return written
 
 

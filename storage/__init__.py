@@ -95,7 +95,7 @@ nearby rows (at most 1 MiB wide), never the whole array.
 
 from ._util import StoreError, drop_page_cache
 from .store import (BACKENDS, EpochReader, EpochWriter, Store, create_store, drop_memory_store,
-                    open_store)
+                    open_store, store_owns)
 
 __all__ = [
     "BACKENDS",
@@ -107,4 +107,5 @@ __all__ = [
     "drop_memory_store",
     "drop_page_cache",
     "open_store",
+    "store_owns",
 ]

@@ -619,3 +619,10 @@ class EpochReader:
                 r.close()
             except Exception:  # noqa: BLE001
                 pass
+
+
+def store_owns(root, name: str) -> bool:
+    """Whether the entry `name` directly inside store directory `root` is the store's own
+    (its manifest, a manifest temporary, the epochs directory or the lock file)."""
+    from ._util import EPOCH_DIR, MANIFEST, MANIFEST_TMP
+    return name in (MANIFEST, EPOCH_DIR, ".ooc-dem.lock") or name.startswith(MANIFEST_TMP)

@@ -116,6 +116,31 @@ class MonolithicEngine:
         return {"resident_max": self.resident_max, "neighbour_rebuilds": self.stepper.rebuilds}
 
 
+# what `run` puts into its output directory before the first commit
+_RUN_SETUP_FILES = ("initial.npz", "scenario.toml")
+
+
+def _stopped_before_first_commit(out: Path) -> bool:
+    """Whether `out` is a run that was stopped (killed, disk full) before its first commit.
+
+    Such a directory holds nothing to lose: a store with no committed epoch and the run's own
+    set-up files. `run --out` may start afresh there (create_store replaces the store and
+    refuses if a live writer holds it); anything else in the directory makes it a user's.
+    """
+    from storage import StoreError, open_store, store_owns
+    try:
+        store = open_store(out, repair=False)
+    except StoreError:
+        return False
+    try:
+        if store.current() is not None or store.meta.get("engine") != "ooc-dem":
+            return False
+    finally:
+        store.close()
+    own = set(_RUN_SETUP_FILES) | {n + ".tmp" for n in _RUN_SETUP_FILES}
+    return all(n in own or store_owns(out, n) for n in os.listdir(out))
+
+
 def read_all_particles(reader) -> Particles:
     """All discs of an epoch (every domain group), sorted by id."""
     parts = [record_to_particles(reader.read_domain(d)) for d in reader.domains()]
@@ -173,7 +198,7 @@ class Simulation:
         """Create the store and the initial epoch. ``streamed``: an out-of-core run of a
         tiled bare bed writes its bed into the store tile by tile (never the whole bed in RAM)."""
         from storage import StoreError, create_store
-        if self.out.exists() and any(self.out.iterdir()):
+        if self.out.exists() and any(self.out.iterdir()) and not _stopped_before_first_commit(self.out):
             raise RunError(f"--out {self.out}: directory exists and is not empty (use a new directory, "
                            f"or `ooc-dem resume {self.out}` to continue a run)")
         sc = self.sc
@@ -294,6 +319,11 @@ class Simulation:
         return self.finish()
 
     def finish(self) -> dict:
+        """Write series.csv, summary.json and the figures from the committed final state.
+
+        Each file is written under a temporary name and renamed, so a kill leaves each
+        either absent or complete; `complete_outputs` (run by resume) finishes the rest.
+        """
         summary = {"scenario": self.sc.name, "scenario_hash": self.sc.hash(), "mode": self.opts.mode,
                    "backend": self.opts.backend, "steps": self.step,
                    "simulated_time_s": self.step * self.sc.physics.dt,
@@ -303,11 +333,29 @@ class Simulation:
             summary.update(self.metrics.summary())
             write_series_csv(self.out / "series.csv", self.metrics.series())
         summary["state_hash"] = self.state_hash()
-        (self.out / "summary.json").write_text(json.dumps(summary, indent=2))
+        _write_atomic(self.out / "summary.json", json.dumps(summary, indent=2))
         if self.opts.figures and self.metrics is not None:
             from ..plots import make_figures
             make_figures(self.out)
         return summary
+
+    def complete_outputs(self) -> list[str]:
+        """After the last commit: write whichever outputs a kill left unwritten; return their names."""
+        from ..plots import FIGURE_NAMES, make_figures
+        try:
+            summary = json.loads((self.out / "summary.json").read_text())
+            complete = isinstance(summary, dict) and summary.get("steps") == self.step
+        except (OSError, ValueError):
+            complete = False
+        if not complete:
+            self.finish()
+            return ["summary.json"] + (["series.csv"] if self.metrics is not None else []) + (
+                ["figures"] if self.opts.figures and self.metrics is not None else [])
+        if self.opts.figures and self.metrics is not None and not all(
+                (self.out / "figures" / f).is_file() for f in FIGURE_NAMES):
+            make_figures(self.out)
+            return ["figures"]
+        return []
 
     def n_discs(self) -> int:
         if hasattr(self.engine, "n_discs"):
@@ -325,19 +373,68 @@ class Simulation:
         return h
 
 
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def write_series_csv(path: Path, rows: np.ndarray) -> None:
     from ..metrics import SERIES_COLUMNS, SERIES_UNITS
     header = ",".join(f"{c} [{u}]" for c, u in zip(SERIES_COLUMNS, SERIES_UNITS))
-    np.savetxt(path, rows, delimiter=",", header=header, comments="", fmt="%.10g")
+    tmp = path.with_name(path.name + ".tmp")
+    np.savetxt(tmp, rows, delimiter=",", header=header, comments="", fmt="%.10g")
+    os.replace(tmp, path)
+
+
+# the run options a store's meta must hold, with the types a resume accepts
+_RUN_OPTION_TYPES = {"mode": (str,), "backend": (str,), "domains": (int, type(None)),
+                     "block": (int, type(None)), "steps": (int,), "checkpoint_every": (int,)}
+
+
+def _stored_run_options(meta: dict, path) -> dict:
+    """The run options recorded in a store's meta, checked (a store is untrusted input)."""
+    run = meta.get("run")
+    if not isinstance(run, dict):
+        raise RunError(f"{path}: store meta has no run options (not written by `ooc-dem run`)")
+    for key, types in _RUN_OPTION_TYPES.items():
+        v = run.get(key)
+        if type(v) not in types:
+            raise RunError(f"{path}: stored run option {key!r} = {v!r} has the wrong type "
+                           f"(store damaged or edited)")
+    if run["mode"] not in MODES or run["backend"] not in BACKENDS:
+        raise RunError(f"{path}: stored run mode/backend {run['mode']!r}/{run['backend']!r} unknown")
+    for key in ("domains", "block"):
+        if run[key] is not None and not 1 <= run[key] <= 100_000:
+            raise RunError(f"{path}: stored run option {key!r} = {run[key]!r} out of range")
+    if run["steps"] < 0 or run["checkpoint_every"] < 1:
+        raise RunError(f"{path}: stored run options steps/checkpoint_every out of range")
+    return run
+
+
+def _check_engine_attrs(engine, n_domains: int, where: str) -> None:
+    """The decomposition a sweep engine resumes from: block K and the slab bounds."""
+    if not isinstance(engine, dict):
+        raise RunError(f"{where}: globals attribute 'engine' missing")
+    block, bounds = engine.get("block"), engine.get("bounds")
+    if type(block) is not int or not 1 <= block <= 100_000:
+        raise RunError(f"{where}: stored block K = {block!r}: must be an integer in [1, 100000]")
+    if (not isinstance(bounds, list) or len(bounds) != n_domains - 1
+            or not all(type(b) in (int, float) and math.isfinite(b) for b in bounds)
+            or any(b1 < b0 for b0, b1 in zip(bounds, bounds[1:]))):
+        raise RunError(f"{where}: stored slab bounds must be {n_domains - 1} finite ascending numbers")
 
 
 def resume_simulation(path, steps: int | None = None, until: float | None = None,
                       progress: bool = True, figures: bool = True) -> "Simulation | None":
     """Reopen a run's store at its last intact epoch and return a Simulation ready to run.
 
-    Returns None (after a message) when the run is already finished.
+    Returns None (after a message) when the run is already finished; if its outputs
+    (summary, series, figures) were not all written - a kill after the last commit -
+    they are written first, from the committed state.
     """
     from storage import StoreError, open_store
+    from ..checkpoint import StateError, validate_epoch
     path = Path(path)
     try:
         store = open_store(path)
@@ -347,15 +444,22 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     if meta.get("engine") != "ooc-dem":
         raise RunError(f"{path}: not an ooc-dem run store")
     if meta.get("format_version") != FORMAT_VERSION:
-        raise RunError(f"{path}: store format version {meta.get('format_version')} is not supported "
+        raise RunError(f"{path}: store format version {meta.get('format_version')!r} is not supported "
                        f"(this engine reads version {FORMAT_VERSION})")
+    toml = meta.get("scenario_toml")
+    if not isinstance(toml, str):
+        raise RunError(f"{path}: stored scenario missing (store damaged or edited)")
     try:
-        sc = scenario_from_toml(meta["scenario_toml"])
-    except (KeyError, ScenarioError) as e:
-        raise RunError(f"{path}: stored scenario unreadable ({e})") from None
+        sc = scenario_from_toml(toml)
+    except (ScenarioError, ValueError, RecursionError) as e:   # tomllib's errors are ValueErrors
+        raise RunError(f"{path}: stored scenario unreadable ({' '.join(str(e).split())})") from None
     if sc.hash() != meta.get("scenario_hash"):
         raise RunError(f"{path}: stored scenario does not match its hash (store damaged or edited)")
-    run = meta["run"]
+    run = _stored_run_options(meta, path)
+    if store.current() is None:
+        raise RunError(f"{path}: no committed epoch: the run stopped before its first checkpoint; "
+                       f"start it again with `ooc-dem run {sc.name} --out {path}` (it replaces "
+                       f"this empty store)")
     total = run["steps"]
     if until is not None:
         total = int(round(until / sc.physics.dt))
@@ -367,31 +471,43 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     sim = Simulation(sc, path, opts)
     try:
         reader = store.read_epoch()
-    except StoreError as e:
+        validate_epoch(reader, str(path))
+    except (StoreError, StateError) as e:
         raise RunError(str(e)) from None
     for w in getattr(store, "warnings", []):
         print(f"ooc-dem: warning: {w}", file=sys.stderr)
     arrays, attrs = reader.read_globals()
     if attrs.get("scenario_hash") != sc.hash():
         raise RunError(f"{path}: epoch {reader.step} was written by a different scenario")
-    step = int(attrs["step"])
+    if attrs["step"] != reader.step:
+        raise RunError(f"{path}: epoch {reader.step} says it holds step {attrs['step']}")
+    step = attrs["step"]
     sim.store = store
     sim.step = step
-    sim.surface = float(attrs["surface"])
+    sim.surface = float(attrs.get("surface", 0.0))
     sim.wall_time = float(attrs.get("wall_time", 0.0))
     sim.redecompositions = list(attrs.get("redecompositions", []))
-    if sc.wheel.enabled:
-        from ..metrics import WheelMetrics
-        sim.metrics = WheelMetrics(sc, sim.surface, max(total, step))
-        sim.metrics.load_state(arrays)
-    if sim.opts.mode == "monolithic":
-        particles = read_all_particles(reader)
-        sim.engine = MonolithicEngine(particles, arrays["wheel_state"], sim.model)
-    else:
-        from .sweep import SweepEngine
-        sim.engine = SweepEngine.reopen(sim, reader, arrays, attrs)
-    reader.close()
+    try:
+        if sc.wheel.enabled:
+            from ..metrics import WheelMetrics
+            sim.metrics = WheelMetrics(sc, sim.surface, max(total, step))
+            try:
+                sim.metrics.load_state(arrays)
+            except (KeyError, ValueError) as e:   # missing or mis-shaped accumulators
+                raise RunError(f"{path}: epoch {reader.step}: stored wheel metrics unusable "
+                               f"({type(e).__name__}: {' '.join(str(e).split())})") from None
+        if sim.opts.mode == "monolithic":
+            particles = read_all_particles(reader)
+            sim.engine = MonolithicEngine(particles, arrays["wheel_state"], sim.model)
+        else:
+            from .sweep import SweepEngine
+            _check_engine_attrs(attrs.get("engine"), len(reader.domains()), f"{path}: epoch {reader.step}")
+            sim.engine = SweepEngine.reopen(sim, reader, arrays, attrs)
+    finally:
+        reader.close()
     if step >= total:
-        print(f"{path}: run already finished at step {step} (nothing to do)")
+        done = sim.complete_outputs()
+        print(f"{path}: run already finished at step {step}"
+              + (f" (wrote its missing outputs: {', '.join(done)})" if done else " (nothing to do)"))
         return None
     return sim

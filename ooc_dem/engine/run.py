@@ -317,7 +317,7 @@ class Simulation:
     def state_hash(self) -> str:
         from ..checkpoint import hash_epoch
         from storage import open_store
-        store = open_store(self.out)
+        store = open_store(self.out, repair=False)   # read-only: this run holds the write lock
         reader = store.read_epoch()
         h = hash_epoch(reader)   # streamed: never the whole state in RAM
         reader.close()

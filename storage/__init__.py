@@ -94,13 +94,15 @@ nearby rows (at most 1 MiB wide), never the whole array.
 """
 
 from ._util import StoreError, drop_page_cache
-from .store import (BACKENDS, EpochReader, EpochWriter, Store, create_store, drop_memory_store,
-                    open_store)
+from .store import (BACKENDS, EpochInfo, EpochReader, EpochWriter, Leftover, Store, create_store,
+                    drop_memory_store, open_store)
 
 __all__ = [
     "BACKENDS",
+    "EpochInfo",
     "EpochReader",
     "EpochWriter",
+    "Leftover",
     "Store",
     "StoreError",
     "create_store",

@@ -223,7 +223,11 @@ class Place:
             return [bad]
         problems = []
         for f in entry["files"]:
-            p = self.resolver.path(f["path"], base)
+            try:
+                p = self.resolver.path(f["path"], base)
+            except StoreError as e:
+                problems.append(str(e))
+                continue
             try:
                 st = os.lstat(p)
             except OSError:
@@ -243,11 +247,10 @@ class Place:
             return [bad]
         problems = []
         for f in entry["files"]:
-            p = self.resolver.path(f["path"], base)
-            if not self.resolver.has_no_links(p):
-                problems.append(f"{p}: reached through a symbolic link (not allowed)")
-                continue
             try:
+                p = self.resolver.path(f["path"], base)
+                if not self.resolver.has_no_links(p):
+                    raise StoreError(f"{p}: reached through a symbolic link (not allowed)")
                 sha = sha256_regular(p, f["size"])
             except StoreError as e:
                 problems.append(str(e))

@@ -188,9 +188,10 @@ def _check_entry(e, role: str, where: str, place, ext: str) -> None:
     if not isinstance(e.get("committed_at", ""), str):
         raise StoreError(f"{what}: malformed committed_at {_show(e.get('committed_at'))}")
     if not place.is_memory:
+        # the epoch itself must resolve inside epochs/; its files are strictly below it (checked
+        # above), so only links inside the epoch could lead elsewhere: those are verification
+        # problems of that epoch (Place.check_files), not reasons to refuse the whole store
         place.resolver.path(epoch, what)
-        for p in seen:
-            place.resolver.path(p, what)
 
 
 def _validate_manifest(m, where: str, backends, place_for):
@@ -255,21 +256,21 @@ def open_store(path, repair: bool = True) -> "Store":
         return store
     if key.startswith("mem://"):
         raise StoreError(f"{key}: no such memory store in this process")
-    kind, info = _classify_existing(key)
-    lock = _lock.StoreLock(key) if repair else None
+    _kind, info = _classify_existing(key)
+    m, place = _validate_manifest(info, key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
+    if not repair:
+        return Store(place, key, m, writable=False)
+    lock = _lock.StoreLock(key)   # only now: a store refused above is left exactly as it was
     try:
-        if lock is not None:     # read again under the lock: a writer may have committed since
-            kind, info = _classify_existing(key)
+        _kind, info = _classify_existing(key)   # again: a writer may have committed meanwhile
         m, place = _validate_manifest(info, key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
-        store = Store(place, key, m, lock, writable=repair)
-        if repair:
-            try:
-                store.repaired = place.repair(m)
-            except OSError as e:
-                raise StoreError(f"{key}: repair failed ({e})") from e
+        store = Store(place, key, m, lock)
+        try:
+            store.repaired = place.repair(m)
+        except OSError as e:
+            raise StoreError(f"{key}: repair failed ({e})") from e
     except BaseException:
-        if lock is not None:
-            lock.release()
+        lock.release()
         raise
     return store
 
@@ -409,11 +410,15 @@ class Store:
                                      tuple(self._place.size_problems(e))))
         return out
 
-    def leftovers(self) -> list[Leftover]:
-        """Temporaries and unnamed epoch files (what open_store(repair=True) would delete)."""
+    def leftovers(self, manifest: dict | None = None) -> list[Leftover]:
+        """Temporaries and unnamed epoch files (what open_store(repair=True) would delete).
+
+        `manifest` (from ``manifest(fresh=True)``) judges "unnamed" by what is committed now
+        rather than when this Store was opened (a run may be writing the store)."""
         self._check_open()
+        m = self._m if manifest is None else manifest
         return [Leftover(p, pid, pid is not None and _pid_running(pid))
-                for p, pid in self._place.leftovers(self._m)]
+                for p, pid in self._place.leftovers(m)]
 
     def live_writers(self) -> list[int]:
         """Pids of processes writing this store: the holder of its write lock (0 if its pid is
@@ -435,13 +440,13 @@ class Store:
         current one too; a step <= current (e.g. resuming after a fallback to the
         previous epoch) replaces the current epoch when committed.
         """
-        self._check_open()
+        self._check_writable()
         try:
             step = operator.index(step)
         except TypeError:
             raise StoreError(f"{self.path}: epoch step must be an int, got {step!r}") from None
-        if step < 0:
-            raise StoreError(f"{self.path}: epoch step must be >= 0, got {step}")
+        if not 0 <= step <= _MAX_INT64:
+            raise StoreError(f"{self.path}: epoch step must be in [0, 2**63), got {step}")
         if self._writer is not None and self._writer._state == "open":
             raise StoreError(f"{self.path}: epoch {self._writer.step} is still being written "
                              f"(commit or abort it first)")

@@ -35,10 +35,13 @@ def _holder_pid(fd: int) -> int | None:
 
 
 def _open(path: str, flags: int) -> int:
+    """The lock file, which a hostile store may have made a link, a FIFO or a hard link to a
+    file elsewhere: only a regular file of one link is used (the pid is written into it)."""
     fd = os.open(path, flags | _NOFOLLOW | getattr(os, "O_NONBLOCK", 0), 0o644)
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
         os.close(fd)
-        raise OSError(f"{path} is not a regular file")
+        raise OSError("not a regular file of one link")
     return fd
 
 

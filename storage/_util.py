@@ -235,8 +235,8 @@ def drop_page_cache(path, sync: bool = False) -> None:
             for f in files:
                 drop_page_cache(os.path.join(root, f), sync)
         return
-    try:
-        fd = os.open(path, os.O_RDONLY)
+    try:   # never blocks on a FIFO, never follows a link: a hint is not worth a risk
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0))
     except OSError:
         return
     try:

@@ -306,6 +306,19 @@ def test_a_second_writer_is_refused_while_a_run_writes(pristine, tmp_path):
     assert _manifest(store)["current"]["step"] == step + CKPT
 
 
+@pytest.mark.parametrize("kind", ["hard link", "symlink"])
+def test_a_planted_lock_file_is_never_written_through(pristine, tmp_path, kind):
+    """The writer writes its pid into the lock file: a lock file that is another name of a
+    file outside the store must be refused, not truncated."""
+    store, victim = _make(pristine, tmp_path)
+    lock = store / ".ooc-dem.lock"
+    lock.unlink()
+    (os.link if kind == "hard link" else os.symlink)(victim / "precious.txt", lock)
+    vbefore = _snapshot(victim)
+    _one_line_error(_cli("resume", store, *RESUME_MORE), ".ooc-dem.lock")
+    assert _snapshot(victim) == vbefore
+
+
 def test_lock_file_is_part_of_the_store(tmp_path):
     """In one process: a second writer is refused, readers are not; closing releases; a
     directory holding only the lock file counts as empty."""

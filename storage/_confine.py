@@ -38,16 +38,21 @@ _OPEN_FLAGS = (os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBL
                | getattr(os, "O_CLOEXEC", 0))
 
 
+def _short(v) -> str:
+    r = repr(v)
+    return r if len(r) <= 80 else r[:77] + "..."
+
+
 def rel_parts(value, what: str) -> list[str]:
     """The parts of a relative "/"-separated path read from a store, or StoreError."""
     if not isinstance(value, str):
         raise StoreError(f"{what}: path must be a string, got {type(value).__name__}")
     if not value or "\0" in value or value.startswith("/"):
-        raise StoreError(f"{what}: path {value!r} must be relative, non-empty and without NUL")
+        raise StoreError(f"{what}: path {_short(value)} must be relative, non-empty and without NUL")
     parts = value.split("/")
     for p in parts:
         if p in ("", ".", "..") or not _PART_RE.match(p):
-            raise StoreError(f"{what}: path {value!r} has a forbidden part {p!r} "
+            raise StoreError(f"{what}: path {_short(value)} has a forbidden part {_short(p)} "
                              f"(parts are non-empty names of letters, digits and _ . + -, "
                              f"not . or ..)")
     return parts
@@ -59,10 +64,10 @@ def epoch_path(value, ext: str, step: int, what: str) -> str:
     name = parts[-1]
     m = _EPOCH_NAME_RE.match(name)
     if len(parts) != 2 or parts[0] != EPOCH_DIR or m is None or m.group(3) != ext:
-        raise StoreError(f"{what}: path {value!r} is not an epoch path "
+        raise StoreError(f"{what}: path {_short(value)} is not an epoch path "
                          f"({EPOCH_DIR}/e<step, 12+ digits>[.r<n>].{ext})")
     if int(m.group(1)) != step:
-        raise StoreError(f"{what}: path {value!r} names step {int(m.group(1))}, the entry says {step}")
+        raise StoreError(f"{what}: path {_short(value)} names step {int(m.group(1))}, the entry says {step}")
     return value
 
 
@@ -70,9 +75,9 @@ def file_path(value, epoch: str, inside: bool, what: str) -> str:
     """Check a file entry of epoch `epoch`: strictly below it (inside=True) or the epoch itself."""
     rel_parts(value, what)
     if inside and not value.startswith(epoch + "/"):
-        raise StoreError(f"{what}: file {value!r} is not inside its epoch {epoch}")
+        raise StoreError(f"{what}: file {_short(value)} is not inside its epoch {epoch}")
     if not inside and value != epoch:
-        raise StoreError(f"{what}: file {value!r} is not the epoch file {epoch}")
+        raise StoreError(f"{what}: file {_short(value)} is not the epoch file {epoch}")
     return value
 
 

@@ -29,6 +29,7 @@ _IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
 _MAX_INT64 = 2**63 - 1
 _MAX_NDIM = 32
 _MAX_DOMAIN_ID = 10**9 - 1
+_MAX_NAME_CHARS = 200          # ARRAY_NAME_RE's limit, checked first to keep messages short
 _SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
 _DOMAIN_KEY_RE = re.compile(r"^(0|[1-9][0-9]{0,8})$")   # str(d) of a domain id d >= 0
 
@@ -120,6 +121,8 @@ def _check_arrays(arrays, what: str, min_ndim: int) -> int:
     """Check {name: [shape, dtype]}; return the bytes the arrays need."""
     nbytes = 0
     for name, spec in _dict(arrays, what).items():
+        if not isinstance(name, str) or len(name) > _MAX_NAME_CHARS:
+            raise StoreError(f"{what}: invalid array name {_show(name)}")
         check_array_name(name, what)
         where = f"{what} {name!r}"
         if not (isinstance(spec, list) and len(spec) == 2):

@@ -413,7 +413,6 @@ HOSTILE = {
         {"../x": [[1], "<f8"]}), "array name"),
     "domains not a dict": (_set("current", "domains", [1]), "domains"),
     "step null": (_set("previous", "step", None), "step"),
-    "entry not an object": (lambda m: m.update(previous="epochs/e000000000010.h5"), "previous epoch"),
     "previous without current": (lambda m: m.update(current=None), "no current"),
     "meta nested 200 deep": (_nest(200), "nested"),
 }

@@ -247,114 +247,72 @@ def _one_line(text) -> str:
     return " ".join(str(text).split())
 
 
-def _store_leftovers(path, manifest: dict) -> list[str]:
-    """Temporaries and unnamed epoch files in a store directory (what `resume` would delete)."""
-    from storage._util import EPOCH_DIR, EPOCH_NAME_RE, MANIFEST_TMP
-    root = Path(path)
-    out = [str(root / n) for n in sorted(os.listdir(root)) if n.startswith(MANIFEST_TMP)]
-    edir = root / EPOCH_DIR
-    named = {os.path.basename(e["path"]) for e in (manifest.get("current"), manifest.get("previous")) if e}
-    if edir.is_dir():
-        out += [str(edir / n) for n in sorted(os.listdir(edir))
-                if ".tmp-" in n or (EPOCH_NAME_RE.match(n) and n not in named)]
-    return out
+def _store_leftovers(store, manifest: dict | None = None) -> list:
+    """Temporaries and unnamed epoch files of a store (what `resume` would delete)."""
+    return store.leftovers(manifest)
 
 
-def _pid_alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+def _live_writers(store) -> list[int]:
+    """Pids of running processes writing the store (its lock holder, temporaries' writers)."""
+    return store.live_writers()
 
 
-def _tmp_pid(name: str) -> int | None:
-    tail = name.rpartition(".tmp-")[2] if ".tmp-" in name else ""
-    return int(tail) if tail.isdigit() else None
-
-
-def _live_writers(path) -> list[int]:
-    """Pids of running processes that have a temporary epoch in the store (a run writing it)."""
-    edir = Path(path) / "epochs"
-    names = os.listdir(edir) if edir.is_dir() else []
-    return sorted({pid for pid in map(_tmp_pid, names) if pid is not None and _pid_alive(pid)})
-
-
-def _read_manifest(path) -> dict:
-    from storage import StoreError
-    try:
-        with open(Path(path) / "MANIFEST.json", "rb") as f:
-            return json.loads(f.read())
-    except (OSError, ValueError) as e:
-        raise StoreError(f"{path}: MANIFEST.json missing or unreadable ({e})") from None
+def _read_manifest(store) -> dict:
+    """The store's validated manifest as it is now (a run may have committed since opening)."""
+    return store.manifest(fresh=True)
 
 
 def _checkpoint_list(store, path) -> None:
-    m = _read_manifest(path)
-    entries = [("previous", m.get("previous")), ("current", m.get("current"))]
-    entries = [(role, e) for role, e in entries if e]
-    if not entries:
+    infos = store.list_epochs()
+    if not infos:
         print(f"{path}: no committed epoch")
         return
-    for role, e in entries:
-        files = e.get("files", [])
-        size = sum(int(f.get("size", 0)) for f in files)
-        bad = []
-        for f in files:
-            p = Path(path, *f["path"].split("/"))
-            try:
-                st = p.stat().st_size
-            except OSError:
-                bad.append(f"{p}: missing")
-                continue
-            if st != f["size"]:
-                bad.append(f"{p}: size {st} != recorded {f['size']}")
-        line = f"epoch {e['step']:>10d}  {e['path']}  {size / 1e6:8.3f} MB  domains {len(e.get('domains', {}))}"
+    for info in infos:
+        line = (f"epoch {info.step:>10d}  {info.path}  {info.nbytes / 1e6:8.3f} MB  "
+                f"domains {info.n_domains}")
+        bad = info.problems
         if bad:
             print(f"{line}  DAMAGED ({bad[0]}{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}) "
-                  f"({role})")
+                  f"({info.role})")
             continue
         try:
-            r = store.read_epoch(e["step"], verify=False)   # sizes match; `verify` checks the bytes
+            r = store.read_epoch(info.step, verify=False)   # sizes match; `verify` checks the bytes
             try:
                 _, attrs = r.read_globals()
                 n = sum(r.domain_len(d) for d in r.domains())
             finally:
                 r.close()
-            print(f"{line}  t = {attrs.get('time', 0):.6f} s  discs {n}  ({role})")
+            t = attrs.get("time", 0)
+            t = f"{t:.6f}" if isinstance(t, (int, float)) else "?"
+            print(f"{line}  t = {t} s  discs {n}  ({info.role})")
         except Exception as ex:  # noqa: BLE001 - listing goes on; `verify` names the problem
-            print(f"{line}  UNREADABLE ({_one_line(ex)}) ({role})")
+            print(f"{line}  UNREADABLE ({_one_line(ex)}) ({info.role})")
 
 
 def _checkpoint_verify(store, args) -> int:
     problems = store.verify(args.epoch)
     if args.epoch is None and store.current() is None:
         print(f"{args.store}: no committed epoch (nothing to verify)")
-    m = _read_manifest(args.store)
+    m = _read_manifest(store)
     if problems:
         # a run writing the store may have replaced an epoch while it was being checked
-        named = {e["step"] for e in (m.get("current"), m.get("previous")) if e}
+        named = {e["step"] for e in (m["current"], m["previous"]) if e}
         gone = {s for s in (_problem_step(p) for p in problems) if s is not None and s not in named}
         for s in sorted(gone):
             print(f"note: epoch {s} was superseded by a newer commit while being verified "
                   f"(a run is writing this store)")
         problems = [p for p in problems if _problem_step(p) not in gone]
-    for p in _store_leftovers(args.store, m):
-        pid = _tmp_pid(os.path.basename(p))
-        if pid is not None and _pid_alive(pid):
-            print(f"note: {p}: epoch being written by running process {pid}")
+    for x in _store_leftovers(store, m):
+        if x.running:
+            print(f"note: {x.path}: epoch being written by running process {x.pid}")
         else:
-            print(f"warning: {p}: leftover of an interrupted write, not part of any committed "
+            print(f"warning: {x.path}: leftover of an interrupted write, not part of any committed "
                   f"epoch (`ooc-dem resume` deletes it)")
     if problems:
         for pr in problems:
             print(f"FAIL {_one_line(pr)}")
         bad = {_problem_step(p) for p in problems}
-        cur, prev = m.get("current"), m.get("previous")
+        cur, prev = m["current"], m["previous"]
         hint = ""
         if args.epoch is None and cur and cur["step"] in bad:
             hint = (f"; `ooc-dem resume` falls back to epoch {prev['step']}" if prev and prev["step"] not in bad
@@ -372,11 +330,12 @@ def _problem_step(problem: str) -> int | None:
 
 def _checkpoint_prune(args) -> int:
     from storage import open_store
-    live = _live_writers(args.store)
+    with open_store(args.store, repair=False) as looking:
+        live = _live_writers(looking)
     if live:
         raise CliError(f"{args.store}: a run is writing this store (pid {', '.join(map(str, live))}); "
                        f"prune it when the run has stopped")
-    store = open_store(args.store, repair=True)
+    store = open_store(args.store, repair=True)    # the write lock: no run can start meanwhile
     try:
         for p in store.repaired:
             print(f"removed leftover {p}")
@@ -389,8 +348,7 @@ def _checkpoint_prune(args) -> int:
         if bad:
             raise CliError(f"{args.store}: refusing to prune: current epoch {cur} fails verification "
                            f"({_one_line(bad[0])}); the previous epoch is its fallback")
-        m = _read_manifest(args.store)
-        before = {e["step"]: e["path"] for e in (m.get("previous"), m.get("current")) if e}
+        before = {info.step: info.path for info in store.list_epochs()}
         removed = store.prune(args.keep)
         for s in removed:
             print(f"removed epoch {s} ({before.get(s, '?')})")

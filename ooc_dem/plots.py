@@ -74,7 +74,7 @@ def _read_final(out: Path):
     """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
     from storage import open_store
     from .engine.run import read_all_particles
-    store = open_store(out)
+    store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
     try:
         reader = store.read_epoch()
         try:

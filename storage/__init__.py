@@ -10,6 +10,8 @@ On-disk layout
 ::
 
     STORE/
+      .ooc-dem.lock      the write lock: flock(LOCK_EX) by the one process writing the store,
+                         which writes its pid into it (for messages); never deleted (see Writers)
       MANIFEST.json      {"format": "ooc-dem-store", "format_version": 1, "backend": "hdf5"|"zarr",
                           "meta": {...}, "created_at": iso time,
                           "current": EPOCH|null, "previous": EPOCH|null}
@@ -32,7 +34,7 @@ On-disk layout
 * Paths in the manifest are relative to STORE and use "/". "files" lists the HDF5
   file, or every file under the zarr directory individually; "sha256" is over the
   file's bytes. The memory backend lists one pseudo-file per array (checksum over
-  the array bytes) and per group's attrs.
+  the array bytes) and per group's attrs, under the same "epochs/<name>.mem" paths.
 * "n" is the row count of the domain's first array (0 if none); arrays of one
   domain may have different lengths (e.g. CSR pointers and entries).
 * dtype is numpy's ``dtype.str`` (e.g. "<f8"); arrays are stored in native byte
@@ -44,6 +46,50 @@ On-disk layout
 * A step rewritten while the manifest still names an epoch of that step (resuming
   after a fallback) gets the name ``e<step>.r1.h5`` (``.r2`` ...): a committed epoch
   is never modified in place.
+
+A store is untrusted input
+-------------------------
+A store may come from someone else; nothing in it may make this package read, write or
+delete outside it (``_confine`` is the one place that resolves its paths). open_store
+validates the whole manifest first and refuses, with a one-line StoreError, anything
+that is not exactly what this package writes:
+
+* types and ranges everywhere: steps, sizes, shapes are non-negative ints below 2**63
+  (not bools, floats or strings), sha256 is 64 lowercase hex digits, domain keys are
+  canonical ids ("0", "17"; not "01", "-1", " 1"), dtypes are numeric numpy ``dtype.str``
+  strings, array names as above, the arrays' bytes fit in the epoch's recorded files;
+* paths: a str, relative, "/"-separated, no "."/".."/empty part, no NUL, only the
+  characters our names use; an epoch path is exactly ``epochs/<name>`` with <name> an
+  epoch name of the store's backend *for that step*; file entries are the epoch file
+  itself (HDF5: exactly that one) or strictly below it (zarr: at least one, and the
+  regular files found under the epoch directory must be exactly the listed ones);
+  an epoch resolves (symbolic links followed) inside the real ``epochs/``, which must be
+  a real directory, not a symbolic link;
+* current and previous have different paths and previous.step < current.step;
+* MANIFEST.json is a regular file (not followed if a link) of at most 64 MiB, valid
+  JSON nested at most 100 levels (checked with fstat before it is read).
+
+Reading and checking: only regular files are read (O_NOFOLLOW | O_NONBLOCK, fstat), their
+size is compared with the manifest before reading and no more than that is ever read (a
+FIFO or /dev/zero cannot hang a read); a symbolic link or special file inside an epoch,
+or a file reached through one, is a verification problem of that epoch; HDF5 soft and
+external links and external or virtual datasets are not followed. Deleting: prune
+deletes only the previous epoch the manifest names (never the current one, the manifest,
+``epochs/`` or the store); repair deletes only direct children of the real ``epochs/``
+whose names are ours (``e<step>[.rN].<ext>.tmp-<pid>`` and epoch names the manifest does
+not name) and ``MANIFEST.json.tmp``, unlinking symbolic links rather than following them.
+
+Writers
+-------
+One process writes a store at a time. ``create_store`` and ``open_store(repair=True)``
+take an exclusive ``flock`` on ``STORE/.ooc-dem.lock`` (refused with "another process is
+writing this store (pid N)"; a second writer in the same process is refused too) and
+hold it until ``Store.close()`` or the process's death (the kernel drops it: a SIGKILLed
+run leaves no stale lock). ``open_store(repair=False)`` opens read-only: no lock,
+nothing deleted, begin_epoch/prune refused; it works while a run writes (verify, list,
+hash, inspect, export). The lock file is never deleted: another process may hold it
+open, and a new file under the same name would exclude nobody. Memory stores live in
+one process and take no lock.
 
 Commit protocol
 ---------------
@@ -61,14 +107,23 @@ fallback) replaces the current epoch and keeps the previous one.
 
 Recovery
 --------
-``open_store(path, repair=True)`` deletes ``MANIFEST.json.tmp``, ``*.tmp-*`` and
-epoch files the manifest does not name (listed in ``store.repaired``); it assumes a
-single writer per store. A missing or unparsable manifest is a StoreError (nothing
-is deleted). ``read_epoch()`` verifies the current epoch's sizes and sha256 (once per
+``open_store(path, repair=True)`` takes the write lock, then deletes
+``MANIFEST.json.tmp``, ``*.tmp-<pid>`` and epoch files the manifest does not name
+(listed in ``store.repaired``; ``Store.leftovers()`` lists them without deleting). A
+missing, unparsable or invalid manifest is a StoreError (nothing is deleted or written). ``read_epoch()`` verifies the current epoch's sizes and sha256 (once per
 Store object; epochs this object committed count as verified) and falls back to the
 previous epoch if they fail, recording a message in ``store.warnings``; if both
 fail it raises StoreError naming the file and the problem. Wrong data is never
 returned silently.
+
+Queries for tools
+-----------------
+``Store.list_epochs()`` (EpochInfo: role, step, path, size, domains, size problems; no
+data read), ``Store.leftovers()`` (Leftover: path, writer pid, whether it runs),
+``Store.live_writers()`` (pids of the lock holder and of running temporaries' writers)
+and ``Store.manifest(fresh=False)`` (a copy of the validated manifest; fresh=True reads
+the store's current one again) are what ``ooc-dem checkpoint`` uses; nothing outside
+this package reads MANIFEST.json itself.
 
 Errors
 ------
@@ -94,13 +149,15 @@ nearby rows (at most 1 MiB wide), never the whole array.
 """
 
 from ._util import StoreError, drop_page_cache
-from .store import (BACKENDS, EpochReader, EpochWriter, Store, create_store, drop_memory_store,
-                    open_store, store_owns)
+from .store import (BACKENDS, EpochInfo, EpochReader, EpochWriter, Leftover, Store, create_store,
+                    drop_memory_store, open_store, store_owns)
 
 __all__ = [
     "BACKENDS",
+    "EpochInfo",
     "EpochReader",
     "EpochWriter",
+    "Leftover",
     "Store",
     "StoreError",
     "create_store",

@@ -1,54 +1,112 @@
-"""Manifest and epoch files of a store directory (HDF5 or zarr)."""
+"""Manifest and epoch files of a store directory (HDF5 or zarr).
+
+Every path taken from a manifest goes through ``_confine`` (see there); every file read
+is a regular file opened without following symbolic links, read no further than allowed.
+"""
 
 from __future__ import annotations
 
-import json
 import os
+import stat
 
 from . import _hdf5, _zarr
-from ._util import (EPOCH_DIR, EPOCH_NAME_RE, FORMAT, MANIFEST, MANIFEST_TMP, StoreError,
-                    drop_page_cache, fsync_path, remove_path, sha256_file, to_json, write_error)
+from ._confine import Resolver, open_regular, read_regular, sha256_regular
+from ._util import (EPOCH_DIR, EPOCH_NAME_RE, FORMAT, LOCK_FILE, MANIFEST, MANIFEST_TMP,
+                    MAX_MANIFEST_BYTES, TMP_NAME_RE, StoreError, drop_page_cache, fsync_path,
+                    parse_json, remove_path, to_json, write_error)
 
 FORMATS = {"hdf5": _hdf5, "zarr": _zarr}
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+class ManifestUnreadable(StoreError):
+    """MANIFEST.json is missing, not a regular file, too big or not valid JSON."""
+
+    def __init__(self, mpath: str, reason: str):
+        self.reason = reason
+        super().__init__(f"{mpath}: MANIFEST.json missing or unreadable ({reason})")
+
+
+def read_manifest_file(mpath: str):
+    """The parsed JSON of a MANIFEST.json: a regular file of at most MAX_MANIFEST_BYTES."""
+    try:
+        return parse_json(read_regular(mpath, MAX_MANIFEST_BYTES), mpath)
+    except StoreError as e:             # messages are "<mpath>: <reason>"
+        raise ManifestUnreadable(mpath, str(e)[len(mpath) + 2:]) from None
+
+
+def _is_real_dir(path: str) -> bool:
+    try:
+        return stat.S_ISDIR(os.lstat(path).st_mode)
+    except OSError:
+        return False
 
 
 def classify(root: str) -> tuple[str, object]:
-    """Look at a path: ("absent"|"empty"|"foreign"|"damaged"|"store", manifest-or-reason)."""
+    """Look at a path: ("absent"|"empty"|"foreign"|"damaged"|"store", manifest-or-reason).
+
+    The lock file alone does not make a directory non-empty (it is ours, and kept)."""
     if not os.path.lexists(root):
         return "absent", None
     if not os.path.isdir(root):
         return "foreign", "it is not a directory"
-    entries = os.listdir(root)
+    entries = [n for n in os.listdir(root) if n != LOCK_FILE]
     if not entries:
         return "empty", None
     mpath = os.path.join(root, MANIFEST)
     edir = os.path.join(root, EPOCH_DIR)
-    looks_ours = os.path.isdir(edir) and all(
-        EPOCH_NAME_RE.match(n.split(".tmp-")[0]) for n in os.listdir(edir))
-    if os.path.isfile(mpath):
+    looks_ours = _is_real_dir(edir) and all(
+        EPOCH_NAME_RE.match(n) or TMP_NAME_RE.match(n) for n in os.listdir(edir))
+    if os.path.lexists(mpath):
         try:
-            with open(mpath, "rb") as f:
-                m = json.loads(f.read())
-        except (OSError, ValueError) as e:
+            m = read_manifest_file(mpath)
+        except ManifestUnreadable as e:
             if looks_ours:
-                return "damaged", f"{type(e).__name__}: {e}"
+                return "damaged", e.reason
             return "foreign", "MANIFEST.json is not an ooc-dem manifest"
         if isinstance(m, dict) and m.get("format") == FORMAT:
             return "store", m
         if looks_ours and not isinstance(m, dict):
             return "damaged", "manifest is not a JSON object"
         return "foreign", "MANIFEST.json is not an ooc-dem manifest"
-    if looks_ours or (os.path.isdir(edir) and os.path.exists(os.path.join(root, MANIFEST_TMP))):
+    if looks_ours or (_is_real_dir(edir) and os.path.lexists(os.path.join(root, MANIFEST_TMP))):
         return "damaged", "MANIFEST.json missing"
     return "foreign", "no MANIFEST.json"
 
 
 def wipe(root: str) -> None:
-    """Remove a store's own files (manifest, temporaries, epochs) - nothing else."""
-    for n in os.listdir(root):
-        if n == MANIFEST or n.startswith(MANIFEST_TMP):
-            remove_path(os.path.join(root, n))
-    remove_path(os.path.join(root, EPOCH_DIR))
+    """Remove a store's own files (manifest, its temporary, epochs) - nothing else.
+
+    The lock file stays: the caller holds it (see _lock)."""
+    for n in (MANIFEST, MANIFEST_TMP):
+        remove_path(os.path.join(root, n))
+    remove_path(os.path.join(root, EPOCH_DIR))    # a symbolic link is unlinked, not followed
+
+
+def _walk_epoch(base: str) -> tuple[dict[str, str], list[str]]:
+    """Regular files under an epoch directory (rel "/"-path -> path) and problems (symbolic
+    links, other special files), without following any symbolic link."""
+    files, problems = {}, []
+    stack = [("", base)]
+    while stack:
+        rel, d = stack.pop()
+        try:
+            with os.scandir(d) as it:
+                items = sorted(it, key=lambda x: x.name)
+        except OSError as e:
+            problems.append(f"{d}: unreadable directory ({e.strerror or e})")
+            continue
+        for x in items:
+            r = f"{rel}/{x.name}" if rel else x.name
+            if x.is_symlink():
+                problems.append(f"{x.path}: symbolic link inside the epoch (not allowed)")
+            elif x.is_dir(follow_symlinks=False):
+                stack.append((r, x.path))
+            elif x.is_file(follow_symlinks=False):
+                files[r] = x.path
+            else:
+                problems.append(f"{x.path}: not a regular file")
+    return files, problems
 
 
 class Place:
@@ -56,24 +114,23 @@ class Place:
 
     def __init__(self, root: str, backend: str):
         self.root = root
+        self.backend = backend
         self.fmt = FORMATS[backend]
         self.edir = os.path.join(root, EPOCH_DIR)
         self.mpath = os.path.join(root, MANIFEST)
+        self.resolver = Resolver(root)
 
     # ------------------------------------------------------------------ manifest
-    def read_manifest(self) -> dict:
-        try:
-            with open(self.mpath, "rb") as f:
-                m = json.loads(f.read())
-        except (OSError, ValueError) as e:
-            raise StoreError(f"{self.mpath}: MANIFEST.json missing or unreadable ({e})") from None
-        return m
+    def read_manifest(self):
+        return read_manifest_file(self.mpath)
 
     def write_manifest(self, m: dict, durable: bool = False) -> None:
         data = to_json(m, f"{self.mpath}: manifest", indent=1).encode()
         tmp = os.path.join(self.root, MANIFEST_TMP)
         try:
-            with open(tmp, "wb") as f:
+            remove_path(tmp)       # exclusive create below: never written through a planted link
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644)
+            with open(fd, "wb") as f:
                 f.write(data)
                 f.flush()
                 if durable:
@@ -122,59 +179,119 @@ class Place:
                  for r, size, sha in inner]
         return rel, files
 
+    def _epoch(self, entry) -> str:
+        return self.resolver.path(entry["path"], f"{self.root}: epoch {entry['step']}")
+
     def exists(self, entry) -> bool:
-        return os.path.exists(os.path.join(self.root, entry["path"]))
+        return os.path.lexists(self._epoch(entry))
 
     def remove_epoch(self, entry) -> None:
-        remove_path(os.path.join(self.root, entry["path"]))
+        """Delete an epoch the manifest named: a direct child of the real epochs/ directory
+        (checked again here, just before deleting; a symbolic link is unlinked, not followed)."""
+        self.resolver.check_epoch_dir()
+        remove_path(self._epoch(entry))
+
+    def _check_epoch_kind(self, base: str) -> str | None:
+        """Problem if the epoch is not what its backend writes (a real file or directory)."""
+        try:
+            st = os.lstat(base)
+        except FileNotFoundError:
+            return f"{base}: missing"
+        except OSError as e:
+            return f"{base}: unreadable ({e.strerror or e})"
+        if stat.S_ISLNK(st.st_mode):
+            return f"{base}: is a symbolic link (not allowed)"
+        want_dir = self.fmt.IS_DIR
+        if want_dir and not stat.S_ISDIR(st.st_mode):
+            return f"{base}: not a directory"
+        if not want_dir and not stat.S_ISREG(st.st_mode):
+            return f"{base}: not a regular file"
+        return None
 
     def open_reader(self, entry):
-        return self.fmt.Reader(os.path.join(self.root, entry["path"]))
+        base = self._epoch(entry)
+        bad = self._check_epoch_kind(base)
+        if bad:
+            raise StoreError(bad)
+        return self.fmt.Reader(base)
 
-    def check_files(self, entry) -> list[str]:
+    def size_problems(self, entry) -> list[str]:
+        """Missing, special or wrong-sized files of an epoch (metadata only, no data read)."""
+        base = self._epoch(entry)
+        bad = self._check_epoch_kind(base)
+        if bad:
+            return [bad]
         problems = []
-        base = os.path.join(self.root, entry["path"])
-        if not os.path.exists(base):
-            return [f"{base}: missing"]
-        listed = set()
         for f in entry["files"]:
-            p = os.path.join(self.root, *f["path"].split("/"))
-            listed.add(os.path.normpath(p))
             try:
-                size = os.stat(p).st_size
+                p = self.resolver.path(f["path"], base)
+            except StoreError as e:
+                problems.append(str(e))
+                continue
+            try:
+                st = os.lstat(p)
             except OSError:
                 problems.append(f"{p}: missing")
                 continue
-            if size != f["size"]:
-                problems.append(f"{p}: size {size} != recorded {f['size']} (truncated?)")
-                continue
+            if not stat.S_ISREG(st.st_mode):
+                problems.append(f"{p}: not a regular file")
+            elif st.st_size != f["size"]:
+                problems.append(f"{p}: size {st.st_size} != recorded {f['size']}")
+        return problems
+
+    def check_files(self, entry) -> list[str]:
+        """Sizes and sha256 of every listed file, which must be all the epoch's files."""
+        base = self._epoch(entry)
+        bad = self._check_epoch_kind(base)
+        if bad:
+            return [bad]
+        problems = []
+        for f in entry["files"]:
             try:
-                _, sha = sha256_file(p)
-            except OSError as e:
-                problems.append(f"{p}: unreadable ({e})")
+                p = self.resolver.path(f["path"], base)
+                if not self.resolver.has_no_links(p):
+                    raise StoreError(f"{p}: reached through a symbolic link (not allowed)")
+                sha = sha256_regular(p, f["size"])
+            except StoreError as e:
+                problems.append(str(e))
                 continue
             if sha != f["sha256"]:
                 problems.append(f"{p}: sha256 mismatch (content changed)")
-        if os.path.isdir(base):
-            for rel in _zarr.walk_files(base):
-                p = os.path.normpath(os.path.join(base, *rel.split("/")))
-                if p not in listed:
-                    problems.append(f"{p}: unexpected file (not in manifest)")
+        if self.fmt.IS_DIR:
+            found, odd = _walk_epoch(base)
+            problems += odd
+            listed = {f["path"][len(entry["path"]) + 1:] for f in entry["files"]}
+            problems += [f"{found[r]}: unexpected file (not in manifest)"
+                         for r in sorted(found) if r not in listed]
         return problems
 
-    def repair(self, m: dict) -> list[str]:
-        """Delete temporaries and epoch files the manifest does not name; return what went."""
-        removed = []
-        for n in os.listdir(self.root):
-            if n.startswith(MANIFEST_TMP):
-                remove_path(os.path.join(self.root, n))
-                removed.append(os.path.join(self.root, n))
-        if not os.path.isdir(self.edir):
-            os.makedirs(self.edir, exist_ok=True)
-            return removed
-        named = {os.path.basename(e["path"]) for e in (m.get("current"), m.get("previous")) if e}
+    # ------------------------------------------------------------------ leftovers
+    def leftovers(self, m: dict) -> list[tuple[str, int | None]]:
+        """(path, writer pid or None) of what an interrupted write leaves: MANIFEST.json.tmp,
+        ``*.tmp-<pid>`` epochs and epoch files the manifest does not name. Only direct
+        children of the real epochs/ directory with names of ours are considered."""
+        out = []
+        tmp = os.path.join(self.root, MANIFEST_TMP)
+        if os.path.lexists(tmp):
+            out.append((tmp, None))
+        if not _is_real_dir(self.edir):
+            return out
+        named = {e["path"].rpartition("/")[2] for e in (m.get("current"), m.get("previous")) if e}
         for n in sorted(os.listdir(self.edir)):
-            if ".tmp-" in n or (EPOCH_NAME_RE.match(n) and n not in named):
-                remove_path(os.path.join(self.edir, n))
-                removed.append(os.path.join(self.edir, n))
+            t = TMP_NAME_RE.match(n)
+            if t:
+                out.append((os.path.join(self.edir, n), int(t.group(2))))
+            elif EPOCH_NAME_RE.match(n) and n not in named:
+                out.append((os.path.join(self.edir, n), None))
+        return out
+
+    def repair(self, m: dict) -> list[str]:
+        """Delete the leftovers (the caller holds the store's write lock); return what went."""
+        self.resolver.check_epoch_dir()
+        removed = []
+        for p, _pid in self.leftovers(m):
+            remove_path(p)                  # a symbolic link is unlinked, never followed
+            removed.append(p)
+        if not os.path.lexists(self.edir):
+            os.makedirs(self.edir, exist_ok=True)
         return removed

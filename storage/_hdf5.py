@@ -84,26 +84,51 @@ class Writer:
 class Reader:
     def __init__(self, path: str):
         self.path = path
+        self._objs = {}            # path -> object, checked once (see _get)
         self.f = _open(path, "r")
 
+    def _get(self, path: str):
+        """The object at `path`, following hard links only: a soft or external link, or a
+        dataset whose data lives in other files (external storage, virtual datasets), would
+        make a hostile epoch file read outside the store."""
+        if path in self._objs:
+            return self._objs[path]
+        h5py = _h5py()
+        obj = self.f
+        for part in path.split("/"):
+            if not isinstance(obj, h5py.Group):
+                return None
+            link = obj.get(part, getlink=True)
+            if link is None:
+                return None
+            if not isinstance(link, h5py.HardLink):
+                raise ValueError(f"/{path}: is a {type(link).__name__} (only hard links are read)")
+            obj = obj[part]
+        if isinstance(obj, h5py.Dataset) and (obj.external or obj.is_virtual):
+            raise ValueError(f"/{path}: data stored outside the epoch file (not read)")
+        self._objs[path] = obj
+        return obj
+
     def has_group(self, group: str) -> bool:
-        obj = self.f.get(group)
-        return isinstance(obj, _h5py().Group)
+        return isinstance(self._get(group), _h5py().Group)
 
     def array_info(self, group: str, name: str):
-        obj = self.f.get(f"{group}/{name}")
+        obj = self._get(f"{group}/{name}")
         if not isinstance(obj, _h5py().Dataset):
             return None
         return tuple(obj.shape), obj.dtype
 
     def attrs_json(self, group: str):
-        v = self.f[group].attrs.get(ATTRS_KEY)
+        g = self._get(group)
+        if g is None:
+            raise KeyError(f"group /{group} missing")
+        v = g.attrs.get(ATTRS_KEY)
         if isinstance(v, bytes):
             v = v.decode()
         return v
 
     def _ds(self, group, name):
-        obj = self.f.get(f"{group}/{name}")
+        obj = self._get(f"{group}/{name}")
         if not isinstance(obj, _h5py().Dataset):
             raise KeyError(f"dataset /{group}/{name} missing")
         return obj
@@ -127,6 +152,7 @@ class Reader:
         drop_page_cache(self.path)
 
     def close(self) -> None:
+        self._objs.clear()
         f, self.f = self.f, None
         if f is not None:
             f.close()

@@ -12,7 +12,7 @@ import hashlib
 
 import numpy as np
 
-from ._util import StoreError, to_json
+from ._util import EPOCH_DIR, StoreError, parse_json, to_json
 
 _REGISTRY: dict[str, "Backing"] = {}
 
@@ -20,7 +20,8 @@ _REGISTRY: dict[str, "Backing"] = {}
 class Backing:
     def __init__(self):
         self.manifest_json: str | None = None
-        # epoch path -> group -> {"arrays": {name: ndarray}, "attrs": json str}
+        # epoch path ("epochs/<name>", as on disk) -> group -> {"arrays": {name: ndarray},
+        # "attrs": json str}
         self.epochs: dict[str, dict[str, dict]] = {}
 
 
@@ -94,17 +95,16 @@ class Place:
         self.key = key
         self.b = backing
 
-    def read_manifest(self) -> dict:
-        import json
+    def read_manifest(self):
         if self.b.manifest_json is None:
             raise StoreError(f"{self.key}: MANIFEST.json missing or unreadable")
-        return json.loads(self.b.manifest_json)
+        return parse_json(self.b.manifest_json.encode(), f"{self.key}: MANIFEST.json")
 
     def write_manifest(self, m: dict, durable: bool = False) -> None:
         self.b.manifest_json = to_json(m, f"{self.key}: manifest")
 
     def used_on_disk(self, basename: str) -> bool:
-        return basename in self.b.epochs
+        return f"{EPOCH_DIR}/{basename}" in self.b.epochs
 
     def new_writer(self, step: int, basename: str) -> Writer:
         return Writer()
@@ -113,8 +113,9 @@ class Place:
         return f"{self.key}/{basename} (uncommitted)"
 
     def publish(self, writer: Writer, basename: str, durable: bool) -> tuple[str, list[dict]]:
-        self.b.epochs[basename] = writer.groups
-        return basename, _file_entries(basename, writer.groups)
+        rel = f"{EPOCH_DIR}/{basename}"
+        self.b.epochs[rel] = writer.groups
+        return rel, _file_entries(rel, writer.groups)
 
     def exists(self, entry) -> bool:
         return entry["path"] in self.b.epochs
@@ -128,13 +129,24 @@ class Place:
             raise FileNotFoundError(f"{self.key}/{entry['path']}: epoch missing")
         return Reader(groups, f"{self.key}/{entry['path']}")
 
+    def size_problems(self, entry) -> list[str]:
+        if entry["path"] not in self.b.epochs:
+            return [f"{self.key}/{entry['path']}: epoch missing"]
+        return []
+
+    def leftovers(self, m: dict) -> list[tuple[str, int | None]]:
+        return []          # nothing is written under a temporary name
+
     def check_files(self, entry) -> list[str]:
         problems = []
         groups = self.b.epochs.get(entry["path"])
         if groups is None:
             return [f"{self.key}/{entry['path']}: epoch missing"]
+        actual = {f["path"] for f in _file_entries(entry["path"], groups)}
+        listed = {f["path"] for f in entry["files"]}
+        problems += [f"{self.key}/{p}: unexpected (not in manifest)" for p in sorted(actual - listed)]
         for f in entry["files"]:
-            base, _, rest = f["path"].partition("/")
+            rest = f["path"][len(entry["path"]) + 1:]
             g, _, name = rest.rpartition("/")
             grp = groups.get(g)
             where = f"{self.key}/{f['path']}"

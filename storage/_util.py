@@ -19,9 +19,20 @@ MANIFEST = "MANIFEST.json"
 MANIFEST_TMP = "MANIFEST.json.tmp"
 EPOCH_DIR = "epochs"
 ATTRS_KEY = "ooc_dem_attrs"  # JSON string attribute holding a group's attrs
+# held (flock, exclusive) by the one process writing the store; never deleted, since a
+# process may hold it open: a new file under the same name would not exclude anybody
+LOCK_FILE = ".ooc-dem.lock"
+# a manifest lists a few files per array of two epochs: far below this even for huge runs;
+# anything bigger is not ours and is refused before it is read
+MAX_MANIFEST_BYTES = 64 << 20
+# our manifests and attrs nest a few levels; deeper JSON is refused (it would exhaust the
+# interpreter's recursion in json, copy or h5py/zarr code reading it later)
+MAX_JSON_DEPTH = 100
 
 # e000000001234.h5, e000000001234.r1.zarr (".rN" = rewrite of a step still named by the manifest)
 EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(\.r\d+)?\.(h5|zarr)$")
+# the temporary an epoch is written under by process <pid>: e000000001234.h5.tmp-<pid>
+TMP_NAME_RE = re.compile(r"^(e\d{12,}(?:\.r\d+)?\.(?:h5|zarr))\.tmp-(\d{1,10})$")
 ARRAY_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}$")
 _RESERVED_NAMES = {"zarr.json"}
 
@@ -86,6 +97,33 @@ def to_json(obj, what: str, indent=None) -> str:
 
 def json_roundtrip(obj, what: str):
     return json.loads(to_json(obj, what))
+
+
+def json_depth(obj) -> int:
+    """Nesting depth of a JSON value (0 for a scalar), without recursion."""
+    depth, stack = 0, [(obj, 1)]
+    while stack:
+        o, d = stack.pop()
+        if isinstance(o, dict):
+            o = list(o.values())
+        if isinstance(o, list):
+            depth = max(depth, d)
+            stack.extend((v, d + 1) for v in o if isinstance(v, (dict, list)))
+    return depth
+
+
+def parse_json(data: bytes, what: str):
+    """json.loads for untrusted bytes: every failure (bad syntax, bad UTF-8, nesting that
+    exhausts the recursion limit, over-long integers) is a one-line StoreError."""
+    try:
+        obj = json.loads(data)
+    except RecursionError:
+        raise StoreError(f"{what}: JSON nested too deeply") from None
+    except ValueError as e:     # JSONDecodeError, UnicodeDecodeError, int digit limit
+        raise StoreError(f"{what}: not valid JSON ({' '.join(str(e).split())[:200]})") from None
+    if json_depth(obj) > MAX_JSON_DEPTH:
+        raise StoreError(f"{what}: JSON nested deeper than {MAX_JSON_DEPTH} levels")
+    return obj
 
 
 # --------------------------------------------------------------------------- arrays
@@ -197,8 +235,8 @@ def drop_page_cache(path, sync: bool = False) -> None:
             for f in files:
                 drop_page_cache(os.path.join(root, f), sync)
         return
-    try:
-        fd = os.open(path, os.O_RDONLY)
+    try:   # never blocks on a FIFO, never follows a link: a hint is not worth a risk
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0))
     except OSError:
         return
     try:

@@ -10,11 +10,14 @@ import sys
 
 import numpy as np
 
-from ._util import (ATTRS_KEY, FORMAT, StoreError, drop_page_cache, fsync_tree, pread_into,
-                    remove_path, sha256_file)
+from ._confine import open_regular, read_regular
+from ._util import (ATTRS_KEY, FORMAT, StoreError, drop_page_cache, fsync_tree, parse_json,
+                    pread_into, remove_path, sha256_file)
 
 EXT = "zarr"
 IS_DIR = True
+# a zarr metadata document of ours is a few hundred bytes; bigger ones are not read
+_MAX_DOC_BYTES = 1 << 20
 
 
 def _zarr():
@@ -160,16 +163,28 @@ class _Member:
         self.shape, self.dtype, self.raw, self.name = shape, dtype, raw, name
 
 
-def _read_json(path: str):
-    with open(path, "rb") as f:
-        return json.loads(f.read())
+def _read_json(path: str) -> dict:
+    """A metadata document of an epoch (untrusted): a small regular file holding a JSON object."""
+    try:
+        doc = parse_json(read_regular(path, _MAX_DOC_BYTES), path)
+    except StoreError as e:
+        if str(e).endswith(": missing"):
+            raise FileNotFoundError(str(e)) from None
+        raise ValueError(str(e)) from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: not a JSON object")
+    return doc
 
 
 def _member(adir: str, meta: dict, name: str) -> _Member:
     """Parse array metadata; `raw` is the chunk path for an uncompressed one-chunk array in
     native byte order (what the writer produces), else None (read through zarr)."""
-    shape = tuple(int(v) for v in meta["shape"])
-    dtype = np.dtype(meta["data_type"])
+    shape, dtype = meta.get("shape"), meta.get("data_type")
+    if not (isinstance(shape, list) and all(type(v) is int and v >= 0 for v in shape)
+            and isinstance(dtype, str)):
+        raise ValueError(f"{adir}: malformed array metadata (shape, data_type)")
+    shape = tuple(shape)
+    dtype = np.dtype(dtype)
     raw = None
     codecs = meta.get("codecs") or []
     grid = meta.get("chunk_grid") or {}
@@ -193,6 +208,7 @@ class Reader:
         self.path = path
         if not os.path.isdir(path):
             raise FileNotFoundError(f"{path}: epoch directory missing")
+        self._real = os.path.realpath(path)
         meta = _read_json(os.path.join(path, "zarr.json"))
         if meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
             raise ValueError(f"{path}: not a zarr v3 group")
@@ -218,16 +234,25 @@ class Reader:
             if not isinstance(meta, dict) or meta.get("node_type") != "group":
                 self._groups[group] = None
                 return None
+            if os.path.realpath(gdir) != os.path.join(self._real, *group.split("/")):
+                raise ValueError(f"{gdir}: reached through a symbolic link (not allowed)")
             members = {}
             for name in sorted(os.listdir(gdir)):
                 adir = os.path.join(gdir, name)
                 mpath = os.path.join(adir, "zarr.json")
-                if not os.path.isfile(mpath):
+                if os.path.islink(adir) or not os.path.isfile(mpath) or os.path.islink(mpath):
                     continue
                 am = _read_json(mpath)
                 if am.get("node_type") == "array":
-                    members[name] = _member(adir, am, f"{group}/{name}")
-            self._groups[group] = (meta.get("attributes") or {}, members)
+                    m = _member(adir, am, f"{group}/{name}")
+                    if m.raw is not None and os.path.realpath(m.raw) != os.path.join(
+                            self._real, os.path.relpath(m.raw, self.path)):
+                        raise ValueError(f"{m.raw}: reached through a symbolic link (not allowed)")
+                    members[name] = m
+            attributes = meta.get("attributes") or {}
+            if not isinstance(attributes, dict):
+                raise ValueError(f"{gdir}: malformed group attributes")
+            self._groups[group] = (attributes, members)
         return self._groups[group]
 
     def _members(self, group: str):
@@ -259,9 +284,11 @@ class Reader:
 
     def _pread(self, raw, what, out, offset):
         try:
-            fd = os.open(raw, os.O_RDONLY)
-        except FileNotFoundError:
-            raise StoreError(f"{raw}: chunk file missing ({what})") from None
+            fd = open_regular(raw)     # a regular file (no link, no FIFO): reads are bounded
+        except StoreError as e:
+            if str(e).endswith(": missing"):
+                raise StoreError(f"{raw}: chunk file missing ({what})") from None
+            raise
         try:
             pread_into(fd, out, offset, raw)
         finally:

@@ -3,23 +3,35 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import datetime as _dt
 import json
 import operator
 import os
+import re
 import weakref
 from collections.abc import Mapping
 
 import numpy as np
 
-from . import _disk, _memory
-from ._util import (FORMAT, FORMAT_VERSION, GLOBALS_GROUP, StoreError, array_meta, domain_group,
-                    epoch_basename, gather_rows, json_roundtrip, normalize_rows, prepare_arrays,
-                    remove_path, to_json, write_error)
+from . import _confine, _disk, _lock, _memory
+from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, GLOBALS_GROUP, LOCK_FILE, MANIFEST,
+                    MANIFEST_TMP, MAX_JSON_DEPTH, StoreError, array_meta, check_array_name, domain_group,
+                    epoch_basename, gather_rows, json_depth, json_roundtrip, normalize_rows,
+                    prepare_arrays, remove_path, to_json, write_error)
 
 BACKENDS = ("hdf5", "zarr", "memory")
 _EXT = {"hdf5": "h5", "zarr": "zarr", "memory": "mem"}
 _IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
+
+# the limits of what a manifest may say (beyond them it is not ours): steps, sizes and array
+# dimensions are stored as int64; numpy arrays have at most 64 dimensions, ours far fewer
+_MAX_INT64 = 2**63 - 1
+_MAX_NDIM = 32
+_MAX_DOMAIN_ID = 10**9 - 1
+_MAX_NAME_CHARS = 200          # ARRAY_NAME_RE's limit, checked first to keep messages short
+_SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
+_DOMAIN_KEY_RE = re.compile(r"^(0|[1-9][0-9]{0,8})$")   # str(d) of a domain id d >= 0
 
 
 def _now() -> str:
@@ -33,14 +45,20 @@ def _key(path) -> str:
         raise StoreError(f"{path!r}: store path must be a str or os.PathLike") from None
 
 
+def _show(v) -> str:
+    """A value from a manifest for a one-line message (short, whatever it is)."""
+    r = repr(v)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
 # ============================================================================ open / create
 
 def create_store(path, backend: str, meta: dict) -> "Store":
-    """Create a new, empty store at `path`.
+    """Create a new, empty store at `path` and hold its write lock until closed.
 
     An existing ooc-dem store at `path` is replaced (its manifest and epochs are
-    deleted; other files in the directory are left alone). An existing non-empty
-    path that is not an ooc-dem store is refused.
+    deleted; other files in the directory are left alone) unless another process is
+    writing it. An existing non-empty path that is not an ooc-dem store is refused.
     """
     key = _key(path)
     if backend not in BACKENDS:
@@ -50,6 +68,8 @@ def create_store(path, backend: str, meta: dict) -> "Store":
     manifest = {"format": FORMAT, "format_version": FORMAT_VERSION, "backend": backend,
                 "meta": json_roundtrip(dict(meta), f"{key}: meta"),
                 "created_at": _now(), "current": None, "previous": None}
+    if json_depth(manifest) > MAX_JSON_DEPTH:    # it could not be opened again
+        raise StoreError(f"{key}: meta nested deeper than {MAX_JSON_DEPTH - 1} levels")
     if backend == "memory":
         backing = _memory.Backing()
         place = _memory.Place(key, backing)
@@ -61,66 +81,204 @@ def create_store(path, backend: str, meta: dict) -> "Store":
         raise StoreError(f"{key}: refusing to create a store here: path exists and is not an "
                          f"ooc-dem store ({why})")
     try:
-        if kind in ("store", "damaged"):
-            _disk.wipe(key)
-        os.makedirs(os.path.join(key, "epochs"), exist_ok=True)
+        os.makedirs(key, exist_ok=True)
     except OSError as e:
         raise write_error(key, e) from e
-    _memory._REGISTRY.pop(key, None)
-    place = _disk.Place(key, backend)
-    place.write_manifest(manifest, durable=True)
-    return Store(place, key, manifest)
+    lock = _lock.StoreLock(key)         # before anything is deleted: not under a running writer
+    try:
+        kind, why = _disk.classify(key)
+        if kind == "foreign":
+            raise StoreError(f"{key}: refusing to create a store here: path exists and is not an "
+                             f"ooc-dem store ({why})")
+        try:
+            if kind in ("store", "damaged"):
+                _disk.wipe(key)
+            os.makedirs(os.path.join(key, "epochs"), exist_ok=True)
+        except OSError as e:
+            raise write_error(key, e) from e
+        _memory._REGISTRY.pop(key, None)
+        place = _disk.Place(key, backend)
+        place.write_manifest(manifest, durable=True)
+    except BaseException:
+        lock.release()
+        raise
+    return Store(place, key, manifest, lock)
 
 
-def _check_entry(e, what):
-    if e is None:
-        return
-    if not isinstance(e, dict) or not isinstance(e.get("step"), int) \
-            or not isinstance(e.get("path"), str) or not isinstance(e.get("files"), list) \
-            or not isinstance(e.get("domains"), dict):
-        raise ValueError(f"bad {what} epoch entry")
-    for f in e["files"]:
-        if not (isinstance(f, dict) and isinstance(f.get("path"), str)
-                and isinstance(f.get("size"), int) and isinstance(f.get("sha256"), str)):
-            raise ValueError(f"bad file entry in {what} epoch")
+def _int(v, what: str, lo: int = 0, hi: int = _MAX_INT64) -> int:
+    if type(v) is not int or not lo <= v <= hi:      # (bool is an int subclass: refused)
+        raise StoreError(f"{what}: must be an integer in [{lo}, {hi}], got {_show(v)}")
+    return v
 
 
-def _validate_manifest(m, where: str, backends) -> dict:
+def _dict(v, what: str) -> dict:
+    if not isinstance(v, dict):
+        raise StoreError(f"{what}: malformed (must be a JSON object, got {_show(v)})")
+    return v
+
+
+def _check_arrays(arrays, what: str, min_ndim: int) -> int:
+    """Check {name: [shape, dtype]}; return the bytes the arrays need."""
+    nbytes = 0
+    for name, spec in _dict(arrays, what).items():
+        if not isinstance(name, str) or len(name) > _MAX_NAME_CHARS:
+            raise StoreError(f"{what}: invalid array name {_show(name)}")
+        check_array_name(name, what)
+        where = f"{what} {name!r}"
+        if not (isinstance(spec, list) and len(spec) == 2):
+            raise StoreError(f"{where}: malformed (must be [shape, dtype], got {_show(spec)})")
+        shape, dtype = spec
+        if not (isinstance(shape, list) and min_ndim <= len(shape) <= _MAX_NDIM):
+            raise StoreError(f"{where}: malformed shape {_show(shape)} (a list of {min_ndim} to "
+                             f"{_MAX_NDIM} non-negative integers)")
+        count = 1
+        for n in shape:
+            count *= _int(n, f"{where} shape")
+        dt = None
+        if isinstance(dtype, str) and len(dtype) <= 8:
+            try:
+                dt = np.dtype(dtype)
+            except (TypeError, ValueError):
+                dt = None
+        if dt is None or dt.kind not in "biufc" or dt.fields is not None or dt.str != dtype:
+            raise StoreError(f"{where}: dtype {_show(dtype)} is not a numeric numpy dtype string "
+                             f"(such as '<f8', '<i8', '|b1')")
+        nbytes += count * dt.itemsize
+        if nbytes > _MAX_INT64:
+            raise StoreError(f"{where}: arrays larger than 2**63 bytes")
+    return nbytes
+
+
+def _check_entry(e, role: str, where: str, place, ext: str) -> None:
+    """Check one epoch entry of a manifest, confining its paths (see _confine)."""
+    what = f"{where}/{MANIFEST}: {role} epoch"
+    e = _dict(e, what)
+    step = _int(e.get("step"), f"{what} step")
+    epoch = _confine.epoch_path(e.get("path"), ext, step, what)
+    files = e.get("files")
+    if not isinstance(files, list):
+        raise StoreError(f"{what}: malformed \"files\" (must be a list of file entries)")
+    inside = place.is_memory or place.fmt.IS_DIR
+    seen, stored = set(), 0
+    for f in files:
+        f = _dict(f, f"{what} file entry")
+        p = _confine.file_path(f.get("path"), epoch, inside, what)
+        if p in seen:
+            raise StoreError(f"{what}: file {p!r} listed twice")
+        seen.add(p)
+        stored += _int(f.get("size"), f"{what} file {p!r} size")
+        sha = f.get("sha256")
+        if not (isinstance(sha, str) and _SHA256_RE.match(sha)):
+            raise StoreError(f"{what}: file {p!r} sha256 {_show(sha)} is not 64 lowercase hex digits")
+    # the checksums must cover the epoch's own files, always (see check_files for zarr: the
+    # files found must be exactly the listed ones)
+    if not place.is_memory and not seen:
+        raise StoreError(f"{what}: lists no files (its data would go unchecked)")
+    domains = _dict(e.get("domains"), f"{what} domains")
+    needed = 0
+    for d, info in domains.items():
+        if not (isinstance(d, str) and _DOMAIN_KEY_RE.match(d)):
+            raise StoreError(f"{what}: domain key {_show(d)} is not a domain id "
+                             f"(0 to {_MAX_DOMAIN_ID}, written without sign or leading zeros)")
+        info = _dict(info, f"{what} domain {d}")
+        _int(info.get("n"), f"{what} domain {d} n")
+        needed += _check_arrays(info.get("arrays"), f"{what} domain {d} arrays", 1)
+    g = e.get("globals")
+    if g is not None:
+        needed += _check_arrays(_dict(g, f"{what} globals").get("arrays"), f"{what} globals arrays", 0)
+    if needed > stored:     # our arrays are stored uncompressed: their bytes are in the files
+        raise StoreError(f"{what}: arrays need {needed} bytes but its files hold only {stored}")
+    if not isinstance(e.get("committed_at", ""), str):
+        raise StoreError(f"{what}: malformed committed_at {_show(e.get('committed_at'))}")
+    if not place.is_memory:
+        # the epoch itself must resolve inside epochs/; its files are strictly below it (checked
+        # above), so only links inside the epoch could lead elsewhere: those are verification
+        # problems of that epoch (Place.check_files), not reasons to refuse the whole store
+        place.resolver.path(epoch, what)
+
+
+def _validate_manifest(m, where: str, backends, place_for):
+    """Check everything later code relies on, so that it can trust the manifest's entries.
+
+    `place_for(backend)` gives the place whose paths the entries must resolve in.
+    Returns (manifest, place)."""
     if not isinstance(m, dict) or m.get("format") != FORMAT:
         raise StoreError(f"{where}: not an ooc-dem store (MANIFEST.json has no "
                          f"\"format\": \"{FORMAT}\")")
     v = m.get("format_version")
-    if v != FORMAT_VERSION:
-        raise StoreError(f"{where}: unsupported format_version {v!r} (this code reads {FORMAT_VERSION})")
-    if m.get("backend") not in backends:
-        raise StoreError(f"{where}: MANIFEST.json names backend {m.get('backend')!r}, "
+    if type(v) is not int or v != FORMAT_VERSION:
+        raise StoreError(f"{where}: unsupported format_version {_show(v)} (this code reads "
+                         f"{FORMAT_VERSION})")
+    backend = m.get("backend")
+    if not isinstance(backend, str) or backend not in backends:
+        raise StoreError(f"{where}: MANIFEST.json names backend {_show(backend)}, "
                          f"expected one of {', '.join(backends)}")
-    try:
-        _check_entry(m.get("current"), "current")
-        _check_entry(m.get("previous"), "previous")
-        if not isinstance(m.get("meta", {}), dict):
-            raise ValueError("meta is not an object")
-    except ValueError as e:
-        raise StoreError(f"{where}: MANIFEST.json missing or unreadable (malformed: {e})") from None
+    place = place_for(backend)
+    if not place.is_memory:
+        place.resolver.check_epoch_dir()
+    if not isinstance(m.get("meta", {}), dict):
+        raise StoreError(f"{where}: MANIFEST.json missing or unreadable (malformed: meta is not "
+                         f"an object)")
+    if not isinstance(m.get("created_at", ""), str):
+        raise StoreError(f"{where}: MANIFEST.json missing or unreadable (malformed: created_at)")
+    cur, prev = m.get("current"), m.get("previous")
+    ext = _EXT[backend]
+    for role, e in (("current", cur), ("previous", prev)):
+        if e is not None:
+            _check_entry(e, role, where, place, ext)
+    if prev is not None:
+        what = f"{where}/{MANIFEST}"
+        if cur is None:
+            raise StoreError(f"{what}: names a previous epoch but no current one")
+        if prev["path"] == cur["path"]:
+            raise StoreError(f"{what}: previous and current epoch are the same path {cur['path']!r}")
+        if not prev["step"] < cur["step"]:
+            raise StoreError(f"{what}: previous epoch step {prev['step']} is not older than the "
+                             f"current {cur['step']}")
     m.setdefault("meta", {})
     m.setdefault("previous", None)
     m.setdefault("current", None)
-    return m
+    return m, place
 
 
 def open_store(path, repair: bool = True) -> "Store":
-    """Open an existing store; with repair, delete temporaries and unnamed epoch files."""
+    """Open an existing store.
+
+    repair=True opens it for writing: takes the store's write lock (StoreError if another
+    process holds it) and deletes temporaries and unnamed epoch files. repair=False opens
+    it read-only: no lock, nothing deleted, writing refused; it works while a run writes.
+    """
     key = _key(path)
     backing = _memory._REGISTRY.get(key)
     if backing is not None:
         place = _memory.Place(key, backing)
-        m = _validate_manifest(place.read_manifest(), key, ("memory",))
-        store = Store(place, key, m)
+        m, _ = _validate_manifest(place.read_manifest(), key, ("memory",), lambda _b: place)
+        store = Store(place, key, m, writable=repair)
         if repair:
             store.repaired = place.repair(m)
         return store
     if key.startswith("mem://"):
         raise StoreError(f"{key}: no such memory store in this process")
+    _kind, info = _classify_existing(key)
+    m, place = _validate_manifest(info, key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
+    if not repair:
+        return Store(place, key, m, writable=False)
+    lock = _lock.StoreLock(key)   # only now: a store refused above is left exactly as it was
+    try:
+        _kind, info = _classify_existing(key)   # again: a writer may have committed meanwhile
+        m, place = _validate_manifest(info, key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
+        store = Store(place, key, m, lock)
+        try:
+            store.repaired = place.repair(m)
+        except OSError as e:
+            raise StoreError(f"{key}: repair failed ({e})") from e
+    except BaseException:
+        lock.release()
+        raise
+    return store
+
+
+def _classify_existing(key: str) -> tuple[str, dict]:
     kind, info = _disk.classify(key)
     if kind == "absent":
         raise StoreError(f"{key}: no such store (path does not exist)")
@@ -128,15 +286,7 @@ def open_store(path, repair: bool = True) -> "Store":
         raise StoreError(f"{key}: not an ooc-dem store ({info or 'empty directory'})")
     if kind == "damaged":
         raise StoreError(f"{key}: MANIFEST.json missing or unreadable ({info})")
-    m = _validate_manifest(info, key, ("hdf5", "zarr"))
-    place = _disk.Place(key, m["backend"])
-    store = Store(place, key, m)
-    if repair:
-        try:
-            store.repaired = place.repair(m)
-        except OSError as e:
-            raise StoreError(f"{key}: repair failed ({e})") from e
-    return store
+    return kind, info
 
 
 def drop_memory_store(path) -> bool:
@@ -146,10 +296,44 @@ def drop_memory_store(path) -> bool:
 
 # ============================================================================ Store
 
+@dataclasses.dataclass(frozen=True)
+class EpochInfo:
+    """One committed epoch of a manifest, as `Store.list_epochs` reports it (no data read)."""
+    role: str                   # "previous" or "current"
+    step: int
+    path: str                   # relative to the store: "epochs/<name>"
+    location: str               # where it is (the store path joined with `path`)
+    nbytes: int                 # total recorded size of its files
+    n_domains: int
+    problems: tuple[str, ...]   # missing, special or wrong-sized files (sizes only, no checksums)
+
+
+@dataclasses.dataclass(frozen=True)
+class Leftover:
+    """What an interrupted write left in a store (`open_store(repair=True)` deletes it)."""
+    path: str
+    pid: int | None             # the writing process of a ``*.tmp-<pid>`` temporary
+    running: bool               # whether that process is running (it may still be writing)
+
+
+def _pid_running(pid: int) -> bool:
+    if pid == os.getpid():      # our own pid on a leftover: an earlier process that had it
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:     # exists, belongs to someone else
+        return True
+    except OverflowError:
+        return False
+    return True
+
+
 class Store:
     """A run's epochs. See the package docstring for layout and guarantees."""
 
-    def __init__(self, place, path: str, manifest: dict):
+    def __init__(self, place, path: str, manifest: dict, lock=None, writable: bool = True):
         self._place = place
         self.path = path
         self.backend = manifest["backend"]
@@ -160,6 +344,8 @@ class Store:
         self._writer: EpochWriter | None = None
         self._readers: weakref.WeakSet = weakref.WeakSet()
         self._closed = False
+        self._lock = lock                 # the store's write lock (disk stores open for writing)
+        self.writable = writable
 
     def __repr__(self):
         return f"Store({self.path!r}, backend={self.backend!r}, current={self.current()})"
@@ -178,6 +364,12 @@ class Store:
     def _check_open(self):
         if self._closed:
             raise StoreError(f"{self.path}: store is closed")
+
+    def _check_writable(self):
+        self._check_open()
+        if not self.writable:
+            raise StoreError(f"{self.path}: store was opened read-only (repair=False); open it "
+                             f"with repair=True to write")
 
     def _entries(self) -> list[dict]:
         """previous, current (those present in the manifest), oldest first."""
@@ -199,6 +391,50 @@ class Store:
         cur = self._m["current"]
         return None if cur is None else cur["step"]
 
+    def manifest(self, fresh: bool = False) -> dict:
+        """A copy of the (validated) manifest; fresh=True reads it again from the store, e.g. to
+        see what a run writing the store has committed since this Store was opened."""
+        self._check_open()
+        if not fresh:
+            return copy.deepcopy(self._m)
+        backends = ("memory",) if self._place.is_memory else ("hdf5", "zarr")
+        m, _ = _validate_manifest(self._place.read_manifest(), self.path, backends,
+                                  lambda _b: self._place)
+        return m
+
+    def list_epochs(self) -> list[EpochInfo]:
+        """The committed epochs, oldest first, with sizes checked (not their checksums)."""
+        self._check_open()
+        out = []
+        for role, e in (("previous", self._m["previous"]), ("current", self._m["current"])):
+            if e is not None:
+                out.append(EpochInfo(role, e["step"], e["path"], self._where(e),
+                                     sum(f["size"] for f in e["files"]), len(e["domains"]),
+                                     tuple(self._place.size_problems(e))))
+        return out
+
+    def leftovers(self, manifest: dict | None = None) -> list[Leftover]:
+        """Temporaries and unnamed epoch files (what open_store(repair=True) would delete).
+
+        `manifest` (from ``manifest(fresh=True)``) judges "unnamed" by what is committed now
+        rather than when this Store was opened (a run may be writing the store)."""
+        self._check_open()
+        m = self._m if manifest is None else manifest
+        return [Leftover(p, pid, pid is not None and _pid_running(pid))
+                for p, pid in self._place.leftovers(m)]
+
+    def live_writers(self) -> list[int]:
+        """Pids of processes writing this store: the holder of its write lock (0 if its pid is
+        unknown) and running processes with a temporary epoch in it; [] if none."""
+        self._check_open()
+        if self._place.is_memory:
+            return []
+        pids = {x.pid for x in self.leftovers() if x.running}
+        holder = None if self._lock is not None else _lock.live_writer(self.path)
+        if holder is not None:
+            pids.add(holder)
+        return sorted(pids)
+
     # ------------------------------------------------------------------ writing
     def begin_epoch(self, step: int) -> "EpochWriter":
         """Start writing epoch `step`. Nothing is visible until commit().
@@ -207,13 +443,13 @@ class Store:
         current one too; a step <= current (e.g. resuming after a fallback to the
         previous epoch) replaces the current epoch when committed.
         """
-        self._check_open()
+        self._check_writable()
         try:
             step = operator.index(step)
         except TypeError:
             raise StoreError(f"{self.path}: epoch step must be an int, got {step!r}") from None
-        if step < 0:
-            raise StoreError(f"{self.path}: epoch step must be >= 0, got {step}")
+        if not 0 <= step <= _MAX_INT64:
+            raise StoreError(f"{self.path}: epoch step must be in [0, 2**63), got {step}")
         if self._writer is not None and self._writer._state == "open":
             raise StoreError(f"{self.path}: epoch {self._writer.step} is still being written "
                              f"(commit or abort it first)")
@@ -254,7 +490,7 @@ class Store:
                 self._verified.discard(e["path"])
                 try:
                     self._place.remove_epoch(e)
-                except OSError as ex:
+                except (OSError, StoreError) as ex:
                     self.warnings.append(f"{self.path}: could not delete old epoch {e['path']}: {ex}")
 
     # ------------------------------------------------------------------ reading / checking
@@ -370,23 +606,22 @@ class Store:
 
     # ------------------------------------------------------------------ maintenance
     def prune(self, keep: int) -> list[int]:
-        """Delete committed epochs beyond the newest `keep` (the current one is always kept)."""
-        self._check_open()
+        """Delete committed epochs beyond the newest `keep` (the current one is always kept).
+
+        Only the previous epoch can go: it is an epoch the manifest names, distinct from the
+        current one (checked when the store was opened), inside the real epochs/ directory
+        (checked again when it is deleted). The manifest, epochs/ and the store stay."""
+        self._check_writable()
         keep = max(1, operator.index(keep))
-        entries = self._entries()
-        drop = entries[:-keep] if len(entries) > keep else []
-        drop = [e for e in drop if e is not self._m["current"]]
-        if not drop:
+        prev = self._m["previous"]
+        if keep >= 2 or prev is None:
             return []
-        paths = {e["path"] for e in drop}
-        new_m = dict(self._m, previous=None if self._m["previous"] and
-                     self._m["previous"]["path"] in paths else self._m["previous"])
-        self._place.write_manifest(new_m, durable=False)
+        new_m = dict(self._m, previous=None)
+        self._place.write_manifest(new_m, durable=False)   # first forget it, then delete it
         self._m = new_m
-        for e in drop:
-            self._verified.discard(e["path"])
-            self._place.remove_epoch(e)
-        return [e["step"] for e in drop]
+        self._verified.discard(prev["path"])
+        self._place.remove_epoch(prev)
+        return [prev["step"]]
 
     def close(self) -> None:
         if self._closed:
@@ -396,6 +631,9 @@ class Store:
         for r in list(self._readers):
             r.close()
         self._closed = True
+        lock, self._lock = self._lock, None
+        if lock is not None:
+            lock.release()
 
 
 # ============================================================================ writer
@@ -624,5 +862,4 @@ class EpochReader:
 def store_owns(root, name: str) -> bool:
     """Whether the entry `name` directly inside store directory `root` is the store's own
     (its manifest, a manifest temporary, the epochs directory or the lock file)."""
-    from ._util import EPOCH_DIR, MANIFEST, MANIFEST_TMP
-    return name in (MANIFEST, EPOCH_DIR, ".ooc-dem.lock") or name.startswith(MANIFEST_TMP)
+    return name in (MANIFEST, EPOCH_DIR, LOCK_FILE) or name.startswith(MANIFEST_TMP)

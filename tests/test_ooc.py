@@ -15,7 +15,7 @@ def run(sc, out, bed, steps, **kw):
     sim = Simulation(sc, out, opts)
     sim.start(bed.take(np.arange(len(bed))))
     summary = sim.run()
-    store = open_store(out)
+    store = open_store(out, repair=False)   # read-only: `sim` still holds the write lock
     reader = store.read_epoch()
     p = read_all_particles(reader)
     arrays, _ = reader.read_globals()
@@ -92,7 +92,7 @@ def test_streamed_hash_equals_in_memory_hash(bare, tmp_path, chunk):
     sc, bed, _ = bare
     _, p, arrays, _ = run(sc, tmp_path / "o", bed, 30, mode="ooc", backend="hdf5", domains=6, block=10)
     assert p.hist_n.sum() > len(p)          # a loaded bed: the history is part of the hash
-    store = open_store(tmp_path / "o")
+    store = open_store(tmp_path / "o", repair=False)   # (the run returned above holds the write lock)
     reader = store.read_epoch()
     _, attrs = reader.read_globals()
     assert len(reader.domains()) == 6

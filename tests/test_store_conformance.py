@@ -221,7 +221,7 @@ def test_partial_row_reads(spath, backend):
     w = s.begin_epoch(1)
     w.write_domain(0, arrays)
     w.commit()
-    r = open_store(spath).read_epoch()
+    r = open_store(spath, repair=False).read_epoch()      # a reader beside the open writer
     selections = [slice(10, 20), slice(0, n), slice(990, 2000), slice(5, 5), slice(None, None, 7),
                   slice(900, 100, -3), np.array([0, 1, 2, 500, 501, 999]), np.array([999, 3, 3, 0]),
                   np.array([], dtype=np.int64), np.array([-1, -2]), np.arange(n) % 5 == 1]
@@ -306,6 +306,9 @@ def test_uncommitted_and_aborted_writers_leave_current_unchanged(spath, backend)
     w.write_domain(1, domain_arrays(2, 1))
     if backend != "memory":
         assert any(".tmp-" in n for n in epoch_entries(spath))
+        with pytest.raises(StoreError, match="already has this store open for writing"):
+            open_store(spath)                   # a second writer is refused while s holds the lock
+        s._lock.release()                       # the crash: the kernel drops a dead writer's lock
     s2 = open_store(spath)
     assert s2.current() == 1 and s2.epochs() == [1]
     assert_epoch(s2, 1, reader=s2.read_epoch())
@@ -336,10 +339,10 @@ def test_failed_manifest_write_leaves_store_unchanged(spath, backend, monkeypatc
     if backend != "memory":
         assert [n[:14] for n in epoch_entries(spath)] == ["e000000000001."]
         assert not pathlib.Path(spath, "MANIFEST.json.tmp").exists()
-    s2 = open_store(spath)
-    assert s2.current() == 1 and s2.verify() == [] and s2.repaired == []
+    s2 = open_store(spath, repair=False)                 # (s still holds the write lock)
+    assert s2.current() == 1 and s2.verify() == [] and s2.leftovers() == []
     write_epoch(s, 2)                                    # and the store is still usable
-    assert s.epochs() == [1, 2] and open_store(spath).verify() == []
+    assert s.epochs() == [1, 2] and open_store(spath, repair=False).verify() == []
 
 
 @pytest.mark.parametrize("backend", DISK)      # leftovers are files: the memory backend has none
@@ -383,7 +386,7 @@ def test_previous_epoch_kept_older_removed(spath, backend):
         s.read_epoch(1)
     with pytest.raises(StoreError, match="not newer than the previous"):
         s.begin_epoch(2)
-    assert open_store(spath).epochs() == [2, 3]
+    assert open_store(spath, repair=False).epochs() == [2, 3]
 
 
 def test_prune(spath, backend):
@@ -396,6 +399,7 @@ def test_prune(spath, backend):
     assert s.epochs() == [7] and s.prune(0) == [] and s.epochs() == [7]
     if backend != "memory":
         assert [n[:14] for n in epoch_entries(spath)] == ["e000000000007."]
+    s.close()
     s2 = open_store(spath)
     assert s2.epochs() == [7] and s2.verify() == []
     write_epoch(s2, 8)
@@ -466,7 +470,7 @@ def test_verify_detects_damage_and_falls_back(spath, backend, how):
     # resuming from epoch 1 rewrites epoch 2 without touching the damaged one in place
     write_epoch(s, 2)
     assert s.epochs() == [1, 2] and s.verify() == []
-    s3 = open_store(spath)
+    s3 = open_store(spath, repair=False)
     assert s3.verify() == [] and s3.read_epoch().step == 2 and not s3.warnings
     assert_epoch(s3, 2)
 
@@ -477,7 +481,7 @@ def test_both_epochs_corrupt_raises(spath, backend):
     s.close()
     _corrupt(spath, backend, "flip")
     with pytest.raises(StoreError, match="no previous epoch"):
-        open_store(spath).read_epoch()
+        open_store(spath, repair=False).read_epoch()
     s = open_store(spath)
     write_epoch(s, 1)          # same step as the corrupt current: replaces it
     write_epoch(s, 2)
@@ -494,7 +498,7 @@ def test_both_epochs_corrupt_raises(spath, backend):
         with open(p, "r+b") as fh:
             fh.truncate(p.stat().st_size - 1)
     with pytest.raises(StoreError, match="epoch 2 is corrupt .* and previous epoch 1 too"):
-        open_store(spath).read_epoch()
+        open_store(spath, repair=False).read_epoch()
 
 
 @pytest.mark.parametrize("backend_", DISK)
@@ -555,7 +559,7 @@ def test_foreign_directory_refused(tmp_path, backend_):
     with pytest.raises(StoreError, match="not an ooc-dem store"):
         open_store(tmp_path / "empty")
     s = create_store(tmp_path / "empty", backend_, {"ok": 1})          # empty dir is fine
-    assert open_store(tmp_path / "empty").meta == {"ok": 1}
+    assert open_store(tmp_path / "empty", repair=False).meta == {"ok": 1}
     s.close()
 
 
@@ -566,7 +570,7 @@ def test_create_over_existing_store_replaces_it(spath, backend):
     other = "zarr" if backend == "hdf5" else "hdf5" if backend == "zarr" else "memory"
     s = create_store(spath, other, {"run": 2})
     assert s.current() is None and s.epochs() == []
-    s2 = open_store(spath)
+    s2 = open_store(spath, repair=False)
     assert s2.meta == {"run": 2} and s2.backend == other and s2.current() is None
     if backend != "memory":
         assert epoch_entries(spath) == []

@@ -282,6 +282,9 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     (out / "notes.txt").write_text("mine")          # a user's file: the directory is not ours
     _one_line_error(run_cli(*args), "not empty")
     (out / "notes.txt").unlink()
+    from storage import open_store
+    with open_store(out):                          # a live run still setting up holds the store
+        _one_line_error(run_cli(*args), "another process is writing this store")
     cp = run_cli(*args)
     assert cp.returncode == 0, cp.stderr
     assert run_cli("checkpoint", "verify", out).returncode == 0

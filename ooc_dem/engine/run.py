@@ -316,7 +316,14 @@ class Simulation:
             raise RunError(f"{e} (last committed epoch kept in {self.out})") from None
         finally:
             bar.close()
-        return self.finish()
+        summary = self.finish()
+        self.close()
+        return summary
+
+    def close(self) -> None:
+        """Release the store (and its write lock); the outputs stay in the run directory."""
+        if self.store is not None:
+            self.store.close()
 
     def finish(self) -> dict:
         """Write series.csv, summary.json and the figures from the committed final state.
@@ -365,7 +372,7 @@ class Simulation:
     def state_hash(self) -> str:
         from ..checkpoint import hash_epoch
         from storage import open_store
-        store = open_store(self.out)
+        store = open_store(self.out, repair=False)   # read-only: this run holds the write lock
         reader = store.read_epoch()
         h = hash_epoch(reader)   # streamed: never the whole state in RAM
         reader.close()
@@ -434,12 +441,25 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     they are written first, from the committed state.
     """
     from storage import StoreError, open_store
-    from ..checkpoint import StateError, validate_epoch
     path = Path(path)
     try:
         store = open_store(path)
     except StoreError as e:
         raise RunError(str(e)) from None
+    try:
+        sim = _reopen(store, path, steps, until, progress, figures)
+    except BaseException:
+        store.close()           # releases the write lock: a refused resume leaves the store free
+        raise
+    if sim is None:
+        store.close()
+    return sim
+
+
+def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "Simulation | None":
+    """resume_simulation's work on an open store (None: the run was already finished)."""
+    from storage import StoreError
+    from ..checkpoint import StateError, validate_epoch
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":
         raise RunError(f"{path}: not an ooc-dem run store")

@@ -178,7 +178,7 @@ def _worker_main() -> int:
             resource.setrlimit(resource.RLIMIT_AS, (limit, resource.RLIM_INFINITY))
         except (ValueError, OSError):
             limit = None
-    send({"ready": True, "pid": os.getpid(), "baseline_rss": base.get("VmRSS", 0),
+    send({"ready": True, "pid": os.getpid(), "scratch": str(scratch), "baseline_rss": base.get("VmRSS", 0),
           "vm_size": base.get("VmSize", 0), "rlimit_as": limit,
           "commands": sorted(_subcommands())})
     for line in proto_in:
@@ -281,6 +281,14 @@ class Worker:
         rc = self.proc.wait()
         return f"worker died ({'signal ' + signal.Signals(-rc).name if rc < 0 else f'exit {rc}'})"
 
+    def _dead_stderr(self) -> str:
+        """What the dead worker's command had written to its (captured) stderr."""
+        try:
+            with open(Path(self.info["scratch"]) / "stderr", "rb") as f:
+                return f.read()[-20000:].decode("utf-8", "replace")
+        except (KeyError, OSError):
+            return ""
+
     def call(self, argv, cwd, timeout=CASE_TIMEOUT) -> dict:
         """{"rc", "stdout", "stderr", "exc", "elapsed", "hwm", ...} or {"rc": None, "error": ...}."""
         if self.proc is None or self.proc.poll() is not None:
@@ -293,14 +301,13 @@ class Worker:
             self.proc.stdin.flush()
             res = self._read(timeout)
         except (WorkerDied, BrokenPipeError) as e:
-            self.proc = self.proc if self.proc and self.proc.poll() is None else self.proc
             self.kill()
-            return {"rc": None, "error": str(e), "elapsed": time.monotonic() - t0, "stderr": "",
-                    "stdout": ""}
+            return {"rc": None, "error": str(e), "elapsed": time.monotonic() - t0,
+                    "stderr": self._dead_stderr(), "stdout": ""}
         if res is None:
             self.kill()
             return {"rc": None, "error": f"timeout after {timeout:.0f} s", "elapsed": timeout,
-                    "stderr": "", "stdout": ""}
+                    "stderr": self._dead_stderr(), "stdout": ""}
         res["peak_seen"] = self.peak_seen
         return res
 
@@ -318,6 +325,8 @@ class Worker:
                 f.close()
             except Exception:  # noqa: BLE001
                 pass
+        if self.info.get("scratch"):
+            shutil.rmtree(self.info["scratch"], ignore_errors=True)
 
     def close(self):
         if self.proc is not None and self.proc.poll() is None:
@@ -326,6 +335,8 @@ class Worker:
                 self.proc.wait(timeout=10)
             except Exception:  # noqa: BLE001
                 self.kill()
+        if self.info.get("scratch"):
+            shutil.rmtree(self.info["scratch"], ignore_errors=True)
 
 
 # =====================================================================================
@@ -635,6 +646,8 @@ def apply_edit(world: World, ed: dict) -> None:
             return
         (run / "MANIFEST.json").write_text(text)
     elif op == "epochs_symlink":
+        if (run / "epochs").is_symlink() or not (run / "epochs").is_dir():
+            return
         shutil.copytree(run / "epochs", world.w / "victim_epochs", symlinks=True)
         shutil.rmtree(run / "epochs")
         os.symlink("../victim_epochs", run / "epochs")
@@ -667,6 +680,8 @@ def apply_edit(world: World, ed: dict) -> None:
         _edit_attrs(world, ed)
     elif op == "runfile":
         p = run / ed["name"]
+        if p.is_dir() and not p.is_symlink() and not ed.get("delete"):
+            shutil.rmtree(p)
         if "text" in ed:
             p.write_text(ed["text"], encoding="utf-8", errors="surrogatepass")
         elif "json" in ed:
@@ -929,22 +944,36 @@ def _stderr_lines(text: str) -> list[str]:
     return [ln for ln in text.splitlines() if ln.strip()]
 
 
-def failure_class(rec: dict) -> str:
+def failure_class(rec: dict, err: str | None = None) -> str:
     """A short key that groups failures with the same cause."""
     prop = rec["property"]
     cmd = " ".join(x for x in _command_of(rec["argv"]) if x)
-    err = rec.get("stderr") or ""
+    err = (rec.get("stderr") or "") if err is None else err
     where = ""
     if "Traceback" in err:
         frames = re.findall(r'File "([^"]+)", line \d+, in (\S+)', err)
         own = [f"{Path(f).parent.name}/{Path(f).name}:{fn}" for f, fn in frames
                if ("ooc_dem" in f or "storage" in f) and "fuzzing.py" not in f]
         last = [ln for ln in err.strip().splitlines() if ln and not ln.startswith(" ")][-1:]
-        exc = last[0].split(":")[0] if last else "?"
+        exc = rec.get("exc") or (last[0].split(":")[0] if last else "?")
         where = f"{exc} at {own[-1] if own else (frames[-1][1] if frames else '?')}"
+    elif rec.get("exc"):
+        where = rec["exc"]
     elif rec.get("error"):
         where = re.sub(r"\d+(\.\d+)?", "N", rec["error"])
     return f"{prop} | {cmd} | {where}".strip(" |")
+
+
+def fast_tmp() -> str | None:
+    """/dev/shm when usable (a case creates and deletes a few hundred files; tmpfs is ~50x faster)."""
+    d = "/dev/shm"
+    try:
+        st = os.statvfs(d)
+        if os.access(d, os.W_OK) and st.f_bavail * st.f_frsize > 2 * GiB:
+            return d
+    except OSError:
+        pass
+    return None
 
 
 class Fuzzer:
@@ -954,7 +983,7 @@ class Fuzzer:
                  timeout=CASE_TIMEOUT, mem_bound=MEM_BOUND, keep_failed: int = 0, log=None):
         self._tmp = None
         if workdir is None:
-            self._tmp = tempfile.TemporaryDirectory(prefix="ooc-dem-fuzz-")
+            self._tmp = tempfile.TemporaryDirectory(prefix="ooc-dem-fuzz-", dir=fast_tmp())
             workdir = Path(self._tmp.name)
         self.work = Path(workdir)
         self.cases_dir = self.work / "cases"
@@ -1011,7 +1040,7 @@ class Fuzzer:
             return fails
         argv = [str(a) for a in case["argv"]]
         cmd, sub = _command_of(argv)
-        if cmd and cmd not in self.commands and not cmd.startswith("-"):
+        if cmd == "check" and cmd not in self.commands:
             self.missing[cmd] = self.missing.get(cmd, 0) + 1
             if cmd == "check":
                 # `check` not merged yet: `profile SCENARIO --set ... --out victim` validates the
@@ -1043,8 +1072,10 @@ class Fuzzer:
         rec = {"strategy": case.get("strategy"), "base": case.get("base", "h5"),
                "edits": case.get("edits", []), "argv": [str(a) for a in case["argv"]],
                "property": prop, "detail": detail, "exit_code": res.get("rc"),
-               "stderr": (res.get("stderr") or "")[-3000:], "error": res.get("error")}
-        rec["class"] = failure_class(rec)
+               "exc": res.get("exc"), "error": res.get("error")}
+        err = res.get("stderr") or ""
+        rec["stderr"] = err if len(err) <= 3000 else err[:1000] + "\n...\n" + err[-2000:]
+        rec["class"] = failure_class(rec, err)
         self.log(f"FAIL [{rec['class']}] {' '.join(rec['argv'])}: {detail}")
         return rec
 

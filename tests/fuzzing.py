@@ -301,13 +301,17 @@ class Worker:
             self.proc.stdin.flush()
             res = self._read(timeout)
         except (WorkerDied, BrokenPipeError) as e:
+            err = self._dead_stderr()
             self.kill()
+            self.kill_cleanup()
             return {"rc": None, "error": str(e), "elapsed": time.monotonic() - t0,
-                    "stderr": self._dead_stderr(), "stdout": ""}
+                    "stderr": err, "stdout": ""}
         if res is None:
             self.kill()
+            err = self._dead_stderr()
+            self.kill_cleanup()
             return {"rc": None, "error": f"timeout after {timeout:.0f} s", "elapsed": timeout,
-                    "stderr": self._dead_stderr(), "stdout": ""}
+                    "stderr": err, "stdout": ""}
         res["peak_seen"] = self.peak_seen
         return res
 
@@ -325,6 +329,8 @@ class Worker:
                 f.close()
             except Exception:  # noqa: BLE001
                 pass
+
+    def kill_cleanup(self):
         if self.info.get("scratch"):
             shutil.rmtree(self.info["scratch"], ignore_errors=True)
 
@@ -523,11 +529,14 @@ def _set(tree, path, value):
         return value
     parent = tree
     for k in path[:-1]:
-        parent = parent[k] if isinstance(parent, (dict, list)) else None
-        if parent is None:
+        if isinstance(parent, dict) and isinstance(k, str):
+            parent = parent.get(k)
+        elif isinstance(parent, list) and isinstance(k, int) and -len(parent) <= k < len(parent):
+            parent = parent[k]
+        else:
             return tree
     k = path[-1]
-    if isinstance(parent, dict):
+    if isinstance(parent, dict) and isinstance(k, str):
         parent[k] = value
     elif isinstance(parent, list) and isinstance(k, int) and -len(parent) <= k < len(parent):
         parent[k] = value
@@ -680,8 +689,11 @@ def apply_edit(world: World, ed: dict) -> None:
         _edit_attrs(world, ed)
     elif op == "runfile":
         p = run / ed["name"]
-        if p.is_dir() and not p.is_symlink() and not ed.get("delete"):
-            shutil.rmtree(p)
+        if not ed.get("delete") and "summary_set" not in ed:
+            if p.is_symlink():
+                p.unlink()
+            elif p.is_dir():
+                shutil.rmtree(p)
         if "text" in ed:
             p.write_text(ed["text"], encoding="utf-8", errors="surrogatepass")
         elif "json" in ed:
@@ -1012,6 +1024,15 @@ class Fuzzer:
         self.failures: list[dict] = []
         self.elapsed = 0.0
         self.max_peak = 0
+        self.history: list[dict] = []     # the last cases run in the current worker
+
+    def restart_worker(self):
+        """A fresh worker (a strategy's cases cannot be hit by an earlier one's heap damage)."""
+        self.worker.kill()
+        self.worker.kill_cleanup()
+        self.worker.restarts += 1
+        self.worker.start()
+        self.history = []
 
     def close(self):
         self.worker.close()
@@ -1053,7 +1074,14 @@ class Fuzzer:
         session0 = sorted(os.listdir(self.cases_dir))
         stores0 = {d: snapshot(world.w / d) for d in ("run", "run2")}
         committed0 = _committed(world.run)
+        restarts = self.worker.restarts
         res = self.worker.call(argv, world.w, timeout=self.timeout)
+        if self.worker.proc is None or self.worker.proc.poll() is not None or self.worker.restarts != restarts:
+            self.history = []
+        if res.get("rc") is None and self.history:
+            res["preceded_by"] = list(self.history)
+        self.history = (self.history + [{"base": case.get("base", "h5"), "edits": short(case.get("edits", [])),
+                                         "argv": short(argv)}])[-3:]
         fails += self.check(case, argv, world, res, outside0, session0, stores0, committed0)
         self._finish(root, fails, t0)
         return fails
@@ -1073,6 +1101,9 @@ class Fuzzer:
                "edits": case.get("edits", []), "argv": [str(a) for a in case["argv"]],
                "property": prop, "detail": detail, "exit_code": res.get("rc"),
                "exc": res.get("exc"), "error": res.get("error")}
+        if res.get("preceded_by"):
+            # a crash may be heap damage done by an earlier case in the same worker
+            rec["preceded_by"] = res["preceded_by"]
         err = res.get("stderr") or ""
         rec["stderr"] = err if len(err) <= 3000 else err[:1000] + "\n...\n" + err[-2000:]
         rec["class"] = failure_class(rec, err)
@@ -1162,6 +1193,8 @@ class Fuzzer:
                 "failure_classes": [{"class": k, "count": v["count"], "argv": short(v["example"]["argv"]),
                                      "base": v["example"]["base"], "edits": short(v["example"]["edits"]),
                                      "exit_code": v["example"]["exit_code"],
+                                     **({"preceded_by": v["example"]["preceded_by"]}
+                                        if v["example"].get("preceded_by") else {}),
                                      "detail": v["example"]["detail"],
                                      "stderr": v["example"]["stderr"][-1500:]}
                                     for k, v in sorted(classes.items())]}
@@ -1844,6 +1877,8 @@ def run_strategy(fuzzer: Fuzzer, name: str, n: int, seed: int | None = None, kno
     from hypothesis import seed as hseed
     strategies = strategies or build_strategies()
     before = fuzzer.counts.get(name, 0)
+    if fuzzer.n:
+        fuzzer.restart_worker()
 
     @settings(max_examples=max(n, 1), deadline=None, derandomize=seed is None, database=None,
               phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck),

@@ -44,7 +44,9 @@ def _report(fails) -> str:
         f = fs[0]
         out.append(f"- [{len(fs)}x] {k}\n    argv: {fuzzing.short(f['argv'])}\n    base: {f['base']}"
                    f"  edits: {str(fuzzing.short(f['edits']))[:400]}\n    {f['detail']}"
-                   f"\n    stderr: {(f['stderr'] or '').strip()[-400:]}")
+                   f"\n    stderr: {(f['stderr'] or '').strip()[-400:]}"
+                   + (f"\n    (crash after, in the same worker: {fuzzing.short(f['preceded_by'])})"
+                      if f.get("preceded_by") else ""))
     return "\n".join(out)
 
 

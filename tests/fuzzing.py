@@ -215,8 +215,9 @@ class WorkerDied(Exception):
 class Worker:
     """A long-lived `ooc_dem.cli.main` runner with a per-call timeout and a memory watch."""
 
-    def __init__(self, warmup=(), mem_bound=MEM_BOUND, use_rlimit=True, prepare=None):
+    def __init__(self, warmup=(), mem_bound=MEM_BOUND, use_rlimit=True, prepare=None, errlog=None):
         self.warmup = [list(w) for w in warmup]
+        self.errlog = errlog            # the worker's own stderr (what glibc prints when it aborts)
         self.prepare = prepare
         self.mem_bound = mem_bound
         self.use_rlimit = use_rlimit
@@ -231,10 +232,15 @@ class Worker:
         env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
             [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
         env.pop("PYTHONHASHSEED", None)
-        self.proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.DEVNULL, env=env, start_new_session=True,
-                                     text=True, bufsize=1)
+        err = open(self.errlog, "wb") if self.errlog else subprocess.DEVNULL
+        try:
+            self.proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker"],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=err, env=env, start_new_session=True,
+                                         text=True, bufsize=1)
+        finally:
+            if self.errlog:
+                err.close()
         self.proc.stdin.write(json.dumps({"warmup": self.warmup,
                                           "rlimit_as": self.mem_bound if self.use_rlimit else None})
                               + "\n")
@@ -334,15 +340,33 @@ class Worker:
         if self.info.get("scratch"):
             shutil.rmtree(self.info["scratch"], ignore_errors=True)
 
-    def close(self):
+    def close(self) -> int | None:
+        """End the worker normally; its exit status (a damaged heap aborts at interpreter exit)."""
+        rc = None
         if self.proc is not None and self.proc.poll() is None:
             try:
                 self.proc.stdin.close()
-                self.proc.wait(timeout=10)
+                rc = self.proc.wait(timeout=30)
             except Exception:  # noqa: BLE001
                 self.kill()
+        elif self.proc is not None:
+            rc = self.proc.returncode
+        for f in (self.proc.stdout,) if self.proc is not None else ():
+            try:
+                f.close()
+            except Exception:  # noqa: BLE001
+                pass
+        self.proc = None
         if self.info.get("scratch"):
             shutil.rmtree(self.info["scratch"], ignore_errors=True)
+        return rc
+
+    def errlog_tail(self) -> str:
+        try:
+            with open(self.errlog, "rb") as f:
+                return f.read()[-2000:].decode("utf-8", "replace")
+        except (TypeError, OSError):
+            return ""
 
 
 # =====================================================================================
@@ -992,7 +1016,9 @@ class Fuzzer:
     """Owns the session directory, the base runs and the worker; runs and checks cases."""
 
     def __init__(self, workdir: Path | None = None, bases_dir: Path | None = None,
-                 timeout=CASE_TIMEOUT, mem_bound=MEM_BOUND, keep_failed: int = 0, log=None):
+                 timeout=CASE_TIMEOUT, mem_bound=MEM_BOUND, keep_failed: int = 0, log=None,
+                 bisect_budget_s: float = 150.0):
+        self.bisect_budget_s = bisect_budget_s
         self._tmp = None
         if workdir is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="ooc-dem-fuzz-", dir=fast_tmp())
@@ -1012,7 +1038,7 @@ class Fuzzer:
             warm.mkdir()
             for b, d in self.bases.items():
                 shutil.copytree(d, warm / b)
-        self.worker = Worker(prepare=prepare, warmup=[(["checkpoint", "verify", b], str(warm)) for b in self.bases] +
+        self.worker = Worker(prepare=prepare, errlog=self.work / "worker-stderr.log", warmup=[(["checkpoint", "verify", b], str(warm)) for b in self.bases] +
                              [(["resume", "h5", "--steps", "21", "--no-progress", "--no-figures"], str(warm)),
                               (["resume", "zarr", "--steps", "21", "--no-progress", "--no-figures"], str(warm)),
                               (["report", "h5"], str(warm))],
@@ -1025,6 +1051,7 @@ class Fuzzer:
         self.elapsed = 0.0
         self.max_peak = 0
         self.history: list[dict] = []     # the last cases run in the current worker
+        self.worker_cases: list[dict] = []  # every case run in the current worker
 
     def restart_worker(self):
         """A fresh worker (a strategy's cases cannot be hit by an earlier one's heap damage)."""
@@ -1033,6 +1060,60 @@ class Fuzzer:
         self.worker.restarts += 1
         self.worker.start()
         self.history = []
+        self.worker_cases = []
+
+    def end_worker(self, bisect_budget_s: float | None = None) -> None:
+        """Stop the worker normally; if it aborts at exit, some case damaged its heap (an
+        out-of-bounds write in a kernel): find that case by bisection in fresh workers."""
+        cases = self.worker_cases
+        self.worker_cases, self.history = [], []
+        rc = self.worker.close()
+        if rc in (0, None) or not cases:
+            return
+        why = f"worker exited with {signal.Signals(-rc).name if rc < 0 else rc} at interpreter exit: " \
+              + " ".join(self.worker.errlog_tail().split())[-300:]
+        budget = self.bisect_budget_s if bisect_budget_s is None else bisect_budget_s
+        culprit, note = self._bisect(cases, time.monotonic() + budget)
+        rec = self._fail(culprit or cases[-1], "heap_damage",
+                         why + (f"; bisected to this case ({note})" if culprit else
+                                f"; not bisected ({note}); {len(cases)} cases ran in that worker"),
+                         {"rc": rc, "stderr": self.worker.errlog_tail()})
+        if not culprit:
+            rec["preceded_by"] = [{"base": c.get("base"), "argv": short(c["argv"]),
+                                   "edits": short(c.get("edits", []))} for c in cases[-5:]]
+        self.failures.append(rec)
+
+    def _aborts(self, cases) -> bool:
+        saved = (self.n, dict(self.counts), list(self.failures), dict(self.missing), self.elapsed, self.max_peak)
+        try:
+            self.worker.start()
+            for c in cases:
+                self.run_case(c)
+            self.worker_cases = []
+            return self.worker.close() not in (0, None) or len(self.failures) > len(saved[2]) and any(
+                f["property"] == "crash_or_timeout" for f in self.failures[len(saved[2]):])
+        finally:
+            self.n, self.counts, self.failures, self.missing, self.elapsed, self.max_peak = saved
+            self.history = []
+
+    def _bisect(self, cases, deadline):
+        """The single case that makes a fresh worker abort, or (None, why)."""
+        engine = [c for c in cases if _command_of(c["argv"])[0] in ("resume", "run", "sweep", "prepare")]
+        if engine and time.monotonic() < deadline and self._aborts(engine):
+            cases = engine
+        elif time.monotonic() >= deadline or not self._aborts(cases):
+            return None, "the abort did not recur"
+        while len(cases) > 1:
+            if time.monotonic() > deadline:
+                return None, f"bisection ran out of time with {len(cases)} candidates"
+            half = cases[: len(cases) // 2]
+            if self._aborts(half):
+                cases = half
+            elif self._aborts(cases[len(cases) // 2:]):
+                cases = cases[len(cases) // 2:]
+            else:
+                return None, f"needs several of {len(cases)} cases together"
+        return cases[0], "it alone makes a fresh worker abort at exit"
 
     def close(self):
         self.worker.close()
@@ -1053,8 +1134,13 @@ class Fuzzer:
         try:
             if "run2" in json.dumps(case):
                 world.add_run2()
-            for ed in case.get("edits", []):
-                apply_edit(world, ed)
+            for i, ed in enumerate(case.get("edits", [])):
+                try:
+                    apply_edit(world, ed)
+                except (ValueError, UnicodeDecodeError, KeyError, IndexError, TypeError, OSError):
+                    if i == 0:
+                        raise
+                    # an earlier edit damaged what this one edits (e.g. flipped bytes in zarr.json)
         except Exception as e:  # noqa: BLE001 - an edit that does not apply is a harness problem
             fails.append(self._fail(case, "harness", f"edit failed: {type(e).__name__}: {e}", {}))
             self._finish(root, fails, t0)
@@ -1076,12 +1162,15 @@ class Fuzzer:
         committed0 = _committed(world.run)
         restarts = self.worker.restarts
         res = self.worker.call(argv, world.w, timeout=self.timeout)
-        if self.worker.proc is None or self.worker.proc.poll() is not None or self.worker.restarts != restarts:
-            self.history = []
+        died = self.worker.proc is None or self.worker.proc.poll() is not None or self.worker.restarts != restarts
         if res.get("rc") is None and self.history:
             res["preceded_by"] = list(self.history)
-        self.history = (self.history + [{"base": case.get("base", "h5"), "edits": short(case.get("edits", [])),
-                                         "argv": short(argv)}])[-3:]
+        if died or res.get("rc") is None:
+            self.history, self.worker_cases = [], []
+        else:
+            self.history = (self.history + [{"base": case.get("base", "h5"), "edits": short(case.get("edits", [])),
+                                             "argv": short(argv)}])[-3:]
+            self.worker_cases.append(case)
         fails += self.check(case, argv, world, res, outside0, session0, stores0, committed0)
         self._finish(root, fails, t0)
         return fails
@@ -1877,8 +1966,6 @@ def run_strategy(fuzzer: Fuzzer, name: str, n: int, seed: int | None = None, kno
     from hypothesis import seed as hseed
     strategies = strategies or build_strategies()
     before = fuzzer.counts.get(name, 0)
-    if fuzzer.n:
-        fuzzer.restart_worker()
 
     @settings(max_examples=max(n, 1), deadline=None, derandomize=seed is None, database=None,
               phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck),
@@ -1894,6 +1981,7 @@ def run_strategy(fuzzer: Fuzzer, name: str, n: int, seed: int | None = None, kno
         body = hseed(seed)(body)
     if n > 0 or known:
         body()
+    fuzzer.end_worker()          # the next strategy gets a fresh worker
     return fuzzer.counts.get(name, 0) - before
 
 

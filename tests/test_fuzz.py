@@ -25,7 +25,7 @@ TIMEOUT = 10.0     # s per command in the default run (tools/fuzz.py: 20 s)
 
 @pytest.fixture(scope="module")
 def fuzzer(tmp_path_factory):
-    fz = fuzzing.Fuzzer(bases_dir=tmp_path_factory.mktemp("fuzz-bases"), timeout=TIMEOUT)
+    fz = fuzzing.Fuzzer(bases_dir=tmp_path_factory.mktemp("fuzz-bases"), timeout=TIMEOUT, bisect_budget_s=60)
     yield fz
     fz.close()
 

@@ -11,31 +11,42 @@ world, runs the command in a long-lived worker process and checks, for every cas
 * the worker's peak RSS during the case stays below a bound above its baseline (the worker also
   runs under RLIMIT_AS = its warm size + the bound, so a huge allocation is a MemoryError, i.e. a
   traceback, instead of swapping the machine);
-* nothing outside the run directories (``w/run``, ``w/run2``, ``w/out``) is created, changed or
+* nothing outside the run directories (``w/run``, ``w/run2``, ``w/out``, ``w/runs``) is created, changed or
   deleted (snapshot of the whole case root: type, size, mtime, mode, sha256, link target);
 * read-only commands (`checkpoint list|verify|inspect|hash|export`, `compare`, `check`) leave the
   stores byte-identical (`report` may add ``figures/``); a command that exits 2 leaves the
   committed files (MANIFEST.json and the files it names) byte-identical;
 * a write command (`resume`, `checkpoint prune`, `run --out run`) that exits 0 and changed the
   manifest leaves a store that `checkpoint verify` accepts;
+* the worker exits cleanly after each strategy: an abort at interpreter exit ("free(): invalid
+  pointer") means some case damaged the heap (an out-of-bounds write in a kernel); the case is
+  found by bisection in fresh workers and reported as ``heap_damage``;
 * per-case expectations, e.g. ``verify`` of an epoch whose bytes were flipped without fixing the
   checksum must not exit 0, and ``export --out`` over MANIFEST.json / an epoch file / a device
   must be refused (exit 2).
 
 World of a case (cwd of the command is ``R/w``)::
 
-    R/                      case root (everything below is snapshotted except run, run2, out)
+    R/                      case root (everything below is snapshotted except w/run, w/run2,
+                            w/out, w/runs)
       dev/zero -> /dev/zero (so that "../../dev/zero" from the store stays inside R)
       w/
         run/                the store under test (copy of a base run: MANIFEST.json, epochs/,
                             summary.json, series.csv, initial.npz, scenario.toml)
-        run2/               an untouched copy of the other base run (for `compare`)
+        run2/               an untouched copy of the other base run (for `compare`; only made when
+                            the case names it)
         out/                empty directory for --out files
+        runs/               (not made) where `run` without --out writes runs/<scenario name>
         victim/             a.txt, sub/b.txt
         victim_file
-        victim_epochs/      copy of run/epochs (for "epochs/ is a symlink" cases)
+        victim_epochs/      copy of run/epochs, made by the "epochs/ is a symlink to it" edit
         link_victim -> victim, link_file -> victim_file, link_zero -> /dev/zero,
         dev_null -> /dev/null, dev_full -> /dev/full, scenario.toml (a valid tiny scenario)
+
+Scenario cases use `ooc-dem check SCENARIO ...`; while the parser has no `check` command they
+run as `ooc-dem profile SCENARIO --set ... --modes monolithic --out victim`, which loads and
+validates the scenario the same way and then refuses the non-empty --out (counted in the
+summary's ``commands_missing``).
 
 All hostile paths resolve inside R (never more than two ".." above the store, absolute paths
 only into R, devices only through symlinks), so a buggy delete or write can only hit R.
@@ -846,7 +857,6 @@ def _edit_array(world: World, ed: dict):
                 new = _semantic(g[name][()], ed["kind"], ed.get("rows", [0.0]))
                 del g[name]
                 g.create_dataset(name, data=new)
-        rels = [e["path"]]
         if ed.get("update_meta"):
             _sync_meta_hdf5(world, ed["which"])
     else:
@@ -879,7 +889,6 @@ def _edit_array(world: World, ed: dict):
                     meta["chunk_grid"]["configuration"]["chunk_shape"] = list(new.shape)
                     meta["data_type"] = names_.get(new.dtype.newbyteorder("<").str, meta["data_type"])
                     (adir / "zarr.json").write_text(json.dumps(meta, indent=2))
-        rels = None
         if ed.get("update_meta"):
             _sync_meta_zarr(world, ed["which"])
     _fix_all_checksums(world, ed["which"])

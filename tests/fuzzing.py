@@ -1053,6 +1053,18 @@ class Fuzzer:
                               (["report", "h5"], str(warm))],
                              mem_bound=mem_bound).start()
         self.commands = set(self.worker.info.get("commands", []))
+        # the state hash after `resume --steps 30` of each intact base: a resume that falls back
+        # from a damaged current epoch to the previous one must end with these bits
+        self.ref_hash = {}
+        ref = self.work / "ref"
+        shutil.rmtree(ref, ignore_errors=True)
+        ref.mkdir()
+        for b, d in self.bases.items():
+            shutil.copytree(d, ref / b)
+            self.worker.call(["resume", b, "--steps", "30", "--no-progress", "--no-figures"], ref)
+            h = self.worker.call(["checkpoint", "hash", b], ref)
+            self.ref_hash[b] = (h.get("stdout") or "").strip().splitlines()[-1:] or None
+        shutil.rmtree(ref, ignore_errors=True)
         self.n = 0
         self.counts: dict[str, int] = {}
         self.missing: dict[str, int] = {}
@@ -1270,6 +1282,15 @@ class Fuzzer:
         exp = dict(case.get("expect", {}))
         if cmd == "checkpoint" and sub == "export" and out_opt in EXPORT_OUTS_BAD:
             exp["refuse"] = f"export --out {out_opt} ({EXPORT_OUTS_BAD[out_opt]}) accepted"
+        if exp.get("same_bits_as_intact") and rc == 0:
+            h = self.worker.call(["checkpoint", "hash", "run"], world.w, timeout=self.timeout)
+            got = (h.get("stdout") or "").strip().splitlines()[-1:]
+            want = self.ref_hash.get(case.get("base", "h5"))
+            if want and got != want:
+                fails.append(self._fail(case, "resumed_from_wrong_data",
+                                        f"resume of a detectably invalid current epoch exited 0 and ended "
+                                        f"with state hash {got[0][:16] if got else None}... instead of the "
+                                        f"intact run's {want[0][:16]}... (neither refused nor fell back)", res))
         if exp.get("refuse") and rc == 0:
             fails.append(self._fail(case, "accepted_bad_input", exp["refuse"], res))
         return fails
@@ -1689,9 +1710,40 @@ def build_strategies():
             "manifest": manifest_case(), "epoch": epoch_case(), "runfiles": runfiles_case()}
 
 
+PER_DISC = ("id", "x", "y", "vx", "vy", "w", "r", "mass", "inertia", "mat", "hist_n")
+FINITE = ("x", "y", "vx", "vy", "w", "r", "mass", "inertia")
+
+
+def invalid_current(edits) -> bool:
+    """Whether the edits make the current epoch's state detectably invalid (not finite, duplicate
+    ids, history counts beyond capacity, arrays of the wrong length, bad wheel state, missing
+    step/time attributes), whatever the checksums say."""
+    for ed in edits:
+        if ed.get("which") != "current":
+            continue
+        if ed["op"] == "array":
+            n, k = ed["name"], ed["kind"]
+            if k == "delete":
+                return True
+            if ed["group"] == "domain":
+                if (n in FINITE and k in ("nan", "inf", "all_nan")) or (n == "id" and k == "dup") \
+                        or (n == "hist_n" and k in ("99", "all_99", "neg")) \
+                        or (n in PER_DISC and k in ("shorter", "longer", "empty", "2d")):
+                    return True
+            elif n == "wheel_state" and k in ("nan", "inf", "all_nan", "shorter", "longer", "empty", "2d"):
+                return True
+        elif ed["op"] == "attrs" and ed["group"] == "globals" and ed["value"] in (
+                None, "garbage", "[]", "null", '"\u0000"', "[" * 100000, '{"step": "x"}'):
+            return True
+    return False
+
+
 def _epoch_expect(case: dict) -> dict:
-    """`checkpoint verify` must not accept an epoch whose bytes changed without a checksum fix."""
+    """`checkpoint verify` must not accept an epoch whose bytes changed without a checksum fix;
+    `resume` of a detectably invalid current epoch must refuse or fall back (same final bits)."""
     argv = case["argv"]
+    if argv[0] == "resume" and invalid_current(case["edits"]):
+        case.setdefault("expect", {})["same_bits_as_intact"] = True
     damaged = set()
     for ed in case["edits"]:
         if ed["op"] == "flip" and not ed.get("recompute"):
@@ -1701,8 +1753,9 @@ def _epoch_expect(case: dict) -> dict:
     if argv[:2] == ["checkpoint", "verify"] and damaged:
         epoch = _opt(argv, "--epoch")
         if epoch is None or (epoch == "10" and "previous" in damaged) or (epoch == "20" and "current" in damaged):
-            case["expect"] = {"refuse": f"verify exit 0 although the {'/'.join(sorted(damaged))} epoch's "
-                                        f"bytes changed (checksums not recomputed)"}
+            case.setdefault("expect", {})["refuse"] = (
+                f"verify exit 0 although the {'/'.join(sorted(damaged))} epoch's bytes changed "
+                f"(checksums not recomputed)")
     return case
 
 
@@ -1960,6 +2013,7 @@ def _known_cases() -> dict:
           _c("runfiles", ["compare", "run", "run2"], [{"op": "runfile", "name": "initial.npz", "npz": {"x": "object"}}]),
           _c("runfiles", ["compare", "run", "run2"], [{"op": "runfile", "name": "series.csv", "text": "1e308," * 13 + "\n"}]),
           _c("runfiles", ["compare", "run", "run2"], [{"op": "runfile_link", "name": "summary.json", "target": "/dev/zero"}])]
+    ep = [_epoch_expect(c) for c in ep]
     return {"scenario": scen, "scenario_file": scen_file, "cli": cli, "manifest": man, "epoch": ep,
             "runfiles": rf}
 

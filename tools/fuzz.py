@@ -80,9 +80,9 @@ def main(argv=None) -> int:
         fz.close()
     summary.update({"seed": a.seed, "requested_cases": a.cases, "generated_per_strategy": per,
                     "timeout_s": a.timeout, "wall_s": round(time.monotonic() - t0, 1),
-                    "all_failures": [{k: fuzzing.short(f.get(k)) for k in
-                                      ("class", "strategy", "base", "edits", "argv", "property", "detail", "preceded_by",
-                                       "exit_code", "stderr", "kept_dir") if f.get(k) is not None}
+                    "all_failures": [{k: (f[k][-1500:] if k == "stderr" else fuzzing.short(f[k])) for k in
+                                      ("class", "strategy", "base", "edits", "argv", "property", "detail",
+                                       "preceded_by", "exit_code", "stderr", "kept_dir") if f.get(k) is not None}
                                      for f in fz.failures]})
     summary["ok"] = not fz.failures
     print(json.dumps(summary, indent=2, ensure_ascii=False))

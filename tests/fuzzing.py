@@ -112,6 +112,8 @@ def _worker_main() -> int:
     os.dup2(null, 0)                                  # the CLI never reads the protocol
     os.environ.setdefault("MPLBACKEND", "Agg")
     scratch = Path(tempfile.mkdtemp(prefix="ooc-dem-fuzz-worker-"))
+    import atexit
+    atexit.register(shutil.rmtree, scratch, True)
     sys.setrecursionlimit(max(sys.getrecursionlimit(), 1000))
 
     def send(obj):

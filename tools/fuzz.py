@@ -1,0 +1,93 @@
+#!/usr/bin/env python
+"""Long fuzz run of the `ooc-dem` command line (the setting of tests/test_fuzz.py, longer).
+
+    python tools/fuzz.py --cases 5000 [--seed S] [--strategies scenario,cli,manifest,...]
+
+Runs the strategies of tests/fuzzing.py (hostile scenario values, scenario files, CLI flags,
+manifest edits, epoch edits, run-directory files; plus every bug found by hand) in one long-lived
+worker process and checks every case: exit 0, or exit 2 with exactly one line on stderr; nothing
+outside the run directories created, changed or deleted; committed epochs untouched by a refused
+command; peak RSS bounded; no timeout. --cases is split over the chosen strategies in the
+proportions of the default test run.
+
+Prints one JSON object on stdout (progress goes to stderr): cases per strategy, elapsed time,
+cases/s, the distinct failure classes (one reproducer each) and every failure (argv, edits, exit
+code, stderr, the property that broke). Exit status 1 on any failure.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load(name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def main(argv=None) -> int:
+    fuzzing = _load("fuzzing", ROOT / "tests" / "fuzzing.py")
+    weights = _load("_test_fuzz_budget", ROOT / "tests" / "test_fuzz.py").BUDGET
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--cases", type=int, default=5000, help="generated cases in total (default %(default)s)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="hypothesis seed (default: derandomized, the same cases every run)")
+    p.add_argument("--strategies", default=",".join(fuzzing.STRATEGY_NAMES),
+                   help="comma-separated subset of: " + ", ".join(fuzzing.STRATEGY_NAMES))
+    p.add_argument("--timeout", type=float, default=fuzzing.CASE_TIMEOUT, help="per command, s")
+    p.add_argument("--mem-bound-gib", type=float, default=fuzzing.MEM_BOUND / fuzzing.GiB,
+                   help="peak RSS above the worker's baseline, GiB")
+    p.add_argument("--no-known", action="store_true", help="skip the known-bug examples")
+    p.add_argument("--workdir", help="keep case directories here (default: a temporary directory)")
+    p.add_argument("--keep-failed", type=int, default=0, metavar="K",
+                   help="keep the directories of the first K failing cases (with --workdir)")
+    p.add_argument("--quiet", action="store_true", help="no per-failure progress on stderr")
+    a = p.parse_args(argv)
+    names = [s.strip() for s in a.strategies.split(",") if s.strip()]
+    bad = [s for s in names if s not in fuzzing.STRATEGY_NAMES]
+    if bad or not names:
+        p.error(f"--strategies: unknown {bad}; choose from {', '.join(fuzzing.STRATEGY_NAMES)}")
+    if a.cases < 0:
+        p.error("--cases must be >= 0")
+    total_w = sum(weights[s] for s in names)
+    per = {s: int(round(a.cases * weights[s] / total_w)) for s in names}
+
+    def log(msg):
+        if not a.quiet:
+            print(msg[:400], file=sys.stderr, flush=True)
+
+    t0 = time.monotonic()
+    fz = fuzzing.Fuzzer(workdir=Path(a.workdir) if a.workdir else None, timeout=a.timeout,
+                        mem_bound=int(a.mem_bound_gib * fuzzing.GiB), keep_failed=a.keep_failed, log=log)
+    try:
+        strategies = fuzzing.build_strategies()
+        for s in names:
+            ts = time.monotonic()
+            n = fuzzing.run_strategy(fz, s, per[s], seed=a.seed, known=not a.no_known, strategies=strategies)
+            print(f"fuzz: {s}: {n} cases in {time.monotonic() - ts:.1f} s", file=sys.stderr, flush=True)
+        summary = fz.summary()
+    finally:
+        fz.close()
+    summary.update({"seed": a.seed, "requested_cases": a.cases, "generated_per_strategy": per,
+                    "timeout_s": a.timeout, "wall_s": round(time.monotonic() - t0, 1),
+                    "all_failures": [{k: (f[k][-1500:] if k == "stderr" else fuzzing.short(f[k])) for k in
+                                      ("class", "strategy", "base", "edits", "argv", "property", "detail",
+                                       "preceded_by", "exit_code", "stderr", "kept_dir") if f.get(k) is not None}
+                                     for f in fz.failures]})
+    summary["ok"] = not fz.failures
+    print(json.dumps(summary, indent=2, ensure_ascii=False))
+    return 0 if summary["ok"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

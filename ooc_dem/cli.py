@@ -199,14 +199,16 @@ def cmd_scenarios(args):
 def cmd_prepare(args):
     import numpy as np
     from .bed import settled_bed, surface_height
+    from .engine.run import check_bed_memory
     sc = _load(args)
+    check_bed_memory(sc)   # before the bed is allocated
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise CliError(f"--out {out}: directory exists and is not empty")
     bed = settled_bed(sc, progress=None if args.no_progress else _settle_progress(sc))
     out.mkdir(parents=True, exist_ok=True)
     np.savez(out / "bed.npz", **bed.arrays())
-    (out / "scenario.toml").write_text(sc.to_toml())
+    (out / "scenario.toml").write_text(sc.to_toml(), encoding="utf-8")
     surf = surface_height(bed, sc.bin.length, sc.soil.r_max)
     info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf,
             "bed_hash": sc.bed_hash()}
@@ -518,15 +520,9 @@ def cmd_checkpoint(args):
 
 
 def cmd_report(args):
-    from .plots import make_figures, print_table
+    from .plots import make_figures, print_table, read_summary
     out = Path(args.store)
-    f = out / "summary.json"
-    if not f.is_file():
-        raise CliError(f"{out}: no summary.json (not a finished ooc-dem run)")
-    try:
-        summary = json.loads(f.read_text())
-    except json.JSONDecodeError:
-        raise CliError(f"{f}: not valid JSON") from None
+    summary = read_summary(out)   # validated: a hostile or foreign file is a one-line error
     if "slip" in summary:
         figs = make_figures(out)
         print(print_table(summary))
@@ -588,7 +584,8 @@ def main(argv=None) -> int:
     from .engine.run import RunError
     from .engine.stepper import EngineError
     from .scenario import ScenarioError
-    known = (CliError, ScenarioError, RunError, EngineError, BedError)
+    from .plots import RunFileError
+    known = (CliError, ScenarioError, RunError, EngineError, BedError, RunFileError)
     try:
         from storage import StoreError
         known = known + (StoreError,)

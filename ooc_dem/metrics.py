@@ -154,11 +154,12 @@ class WheelMetrics:
         t1 = self.windows[k, 1] - w.settle_time
         dur = a[W_T1] - a[W_T0] + self.sc.physics.dt
         dist = a[W_X1] - a[W_X0]
-        ro = w.radius * w.omega
+        # slip needs a distance the rim would roll; a vanishing radius or omega has none
+        rolled = w.radius * w.omega * dur
         return {
             "steps": int(n),
             "window_s": [float(t0), float(t1)],
-            "slip": float(1.0 - dist / (ro * dur)) if ro > 0 else None,
+            "slip": float(1.0 - dist / rolled) if rolled > 0 else None,
             "net_traction": float(a[W_FX] / n),
             "vertical_force": float(a[W_FY] / n),
             "torque": float(a[W_TQ] / n),

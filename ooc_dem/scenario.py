@@ -529,11 +529,11 @@ def _parse_toml(text: str, src: str) -> dict:
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise ScenarioError(f"scenario {show(src)}: invalid TOML ({_first_line(e)})") from None
+        raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML ({_first_line(e)})") from None
     except RecursionError:
-        raise ScenarioError(f"scenario {show(src)}: invalid TOML (tables or arrays nested too deeply)") from None
+        raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML (tables or arrays nested too deeply)") from None
     except ValueError as e:   # an integer beyond Python's int-string conversion limit
-        raise ScenarioError(f"scenario {show(src)}: invalid TOML ({_first_line(e)})") from None
+        raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML ({_first_line(e)})") from None
 
 
 def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Scenario:
@@ -544,7 +544,7 @@ def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Sce
     if src.startswith("bed-") and _builtin_text(src) is None:
         n = _parse_count(src[4:])
         if n is None:
-            raise ScenarioError(f"scenario {show(src)}: bed-N needs a disc count N such as bed-7000, "
+            raise ScenarioError(f"scenario {show(src, 400)}: bed-N needs a disc count N such as bed-7000, "
                                 f"bed-100k, bed-1m")
         data = bed_scenario_dict(n)
     else:
@@ -558,14 +558,14 @@ def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Sce
                 is_file, size = False, 0
             if not is_file:
                 raise ScenarioError(
-                    f"scenario {show(src)}: not a built-in ({', '.join(builtin_names())}) and no such file")
+                    f"scenario {show(src, 400)}: not a built-in ({', '.join(builtin_names())}) and no such file")
             if size > MAX_SCENARIO_FILE:
-                raise ScenarioError(f"scenario {show(src)}: {size} bytes; a scenario file is at most "
+                raise ScenarioError(f"scenario {show(src, 400)}: {size} bytes; a scenario file is at most "
                                     f"{MAX_SCENARIO_FILE} bytes")
             try:
                 text = p.read_text(encoding="utf-8")
             except (OSError, UnicodeDecodeError) as e:
-                raise ScenarioError(f"scenario {show(src)}: cannot read ({_first_line(e)})") from None
+                raise ScenarioError(f"scenario {show(src, 400)}: cannot read ({_first_line(e)})") from None
         data = _parse_toml(text, src)
     data = apply_overrides(data, overrides or [])
     return scenario_from_dict(data)

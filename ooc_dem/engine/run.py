@@ -202,6 +202,20 @@ def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> Ru
                    streamed_bed=streamed, memory_bytes=need, memory_available_bytes=have)
 
 
+def check_bed_memory(sc: Scenario) -> int:
+    """`ooc-dem prepare`: the whole settled bed is held (an untiled bed is settled as one domain).
+    Returns the estimated bytes; refuses what cannot fit, naming soil.n."""
+    tiled = 0 < sc.bed.tile < sc.soil.n
+    per_disc = 2 * STATE_BYTES_PER_DISC if tiled else MONOLITHIC_BYTES_PER_DISC
+    need = BASELINE_BYTES + sc.soil.n * per_disc
+    have = machine_memory()
+    if need > have:
+        raise RunError(f"soil.n = {sc.soil.n}: preparing the bed needs about {_fmt_bytes(need)} of memory, "
+                       f"this machine has {_fmt_bytes(have)} (`ooc-dem run --mode ooc` streams a tiled bed "
+                       f"instead)")
+    return need
+
+
 def _memory_message(sc, opts, steps, need, have, streamed) -> str:
     series_rows = steps // max(1, int(round(sc.output.series_interval / sc.physics.dt))) + 1
     series = 3 * series_rows * SERIES_ROW_BYTES if sc.wheel.enabled else 0

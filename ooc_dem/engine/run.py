@@ -21,7 +21,8 @@ from ..checkpoint import particles_to_record, record_to_particles
 from ..physics.forces import WS_SIZE, WS_X, WS_Y
 from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, ScenarioError, big, critical_time_step,
                         scenario_from_toml, show, steps_for_duration)
-from ..state import FORMAT_VERSION, Particles
+from ..metrics import N_SERIES
+from ..state import BYTES_PER_DISC, FORMAT_VERSION, Particles
 from .stepper import DomainStepper, EngineError, Model
 
 MODES = ("monolithic", "ddm", "ooc")
@@ -72,13 +73,13 @@ def total_steps(sc: Scenario, opts: RunOptions) -> int:
 
 # ---- memory plan: bytes a run holds per disc, measured (peak RSS above the interpreter's
 # baseline, bed-200000, `tools/memsweep.py`-style) and rounded up
-STATE_BYTES_PER_DISC = 368          # state.BYTES_PER_DISC: one copy of a disc's state
+STATE_BYTES_PER_DISC = BYTES_PER_DISC   # one copy of a disc's state (368 B)
 MONOLITHIC_BYTES_PER_DISC = 1100    # state + neighbour lists + forces + set-up copies (measured ~1070)
 RESIDENT_BYTES_PER_DISC = 1100      # a disc resident in a sub-domain (the same per-domain step)
 OOC_SETUP_BYTES_PER_DISC = 400      # out-of-core set-up from a bed held in RAM (measured ~370)
 STREAMED_SETUP_BYTES_PER_DISC = 16  # out-of-core set-up of a streamed bed: x of every disc, twice
 BASELINE_BYTES = 250 << 20          # interpreter, numpy, numba, compiled kernels
-SERIES_ROW_BYTES = 13 * 8           # one series.csv row (metrics.SERIES_COLUMNS float64)
+SERIES_ROW_BYTES = N_SERIES * 8    # one series.csv row (float64 columns)
 MIN_DISCS_PER_DOMAIN = 20           # a sub-domain of fewer discs is all halo and overhead
 
 

@@ -136,7 +136,7 @@ def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
     limit = max_domains(sc)
     if D > limit:
         what = f"--domains {D}" if opts.domains else f"decomposition.domains = {D}"
-        raise RunError(f"{what}: at most {limit} sub-domains for this bed ({sc.soil.n} discs, "
+        raise RunError(f"{what}: at most {limit} sub-domain{'s' if limit > 1 else ''} for this bed ({sc.soil.n} discs, "
                        f"bin.length {sc.bin.length:g} m: each slab needs >= {MIN_DISCS_PER_DOMAIN} discs "
                        f"and >= one contact hop {_hop(sc):.3g} m)")
     # K exactly as the sweep will choose it (its own rule, not a copy)

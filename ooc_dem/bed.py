@@ -8,7 +8,6 @@ overlap, and a tile can be produced per sub-domain without holding the bed.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 from pathlib import Path
@@ -16,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .engine.stepper import DomainStepper, Model
-from .scenario import Scenario, ScenarioError, scenario_from_dict
+from .scenario import MAX_STEPS, Scenario, ScenarioError, scenario_from_dict
 from .state import Particles
 
 
@@ -68,10 +67,12 @@ def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:
     model = Model.from_scenario(sc).without_wheel()
     stepper = DomainStepper(p, model)
     dt = sc.physics.dt
-    chunk = max(1, int(round(0.005 / dt)))  # check every 5 ms of simulated time
+    # bed.max_settle_time / dt is at most MAX_STEPS (scenario validation); the fixed
+    # intervals below are capped so that a tiny dt cannot make them overflow
     max_steps = int(math.ceil(sc.bed.max_settle_time / dt))
+    chunk = max(1, min(max_steps, int(round(min(0.005 / dt, MAX_STEPS)))))  # check every 5 ms of simulated time
     step = 0
-    min_steps = int(round(0.05 / dt))
+    min_steps = int(round(min(0.05 / dt, MAX_STEPS + 1)))
     while True:
         stepper.advance(step, chunk)
         step += chunk

@@ -24,9 +24,9 @@ def _positive_int(text):
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        raise argparse.ArgumentTypeError(f"{_show(text)} is not an integer") from None
     if v < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
+        raise argparse.ArgumentTypeError(f"{_show(text)} must be >= 1")
     return v
 
 
@@ -34,23 +34,51 @@ def _nonneg_int(text):
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        raise argparse.ArgumentTypeError(f"{_show(text)} is not an integer") from None
     if v < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
+        raise argparse.ArgumentTypeError(f"{_show(text)} must be >= 0")
     return v
+
+
+def _show(text) -> str:
+    from .scenario import show
+    return show(text, 40)
+
+
+def _count(lo: int, hi: int):
+    """An integer flag in [lo, hi]; integral scientific notation (1e6) is accepted."""
+    from decimal import Decimal, InvalidOperation
+    from .scenario import big
+
+    def parse(text):
+        allowed = f"an integer in [{lo}, {big(hi)}]" if hi >= 10**6 else f"an integer in [{lo}, {hi}]"
+        t = text.strip().replace("_", "")
+        try:
+            if len(t) > 40:   # also keeps int() clear of Python's digit limit
+                raise InvalidOperation
+            d = Decimal(t)
+            if not d.is_finite() or d != d.to_integral_value():
+                raise InvalidOperation
+        except (InvalidOperation, ValueError):
+            raise argparse.ArgumentTypeError(f"{_show(text)} is not {allowed}") from None
+        if not lo <= d <= hi:
+            raise argparse.ArgumentTypeError(f"{_show(text)} must be {allowed}")
+        return int(d)
+    return parse
 
 
 def _positive_float(text):
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        raise argparse.ArgumentTypeError(f"{_show(text)} is not a number") from None
     if not v > 0 or v != v or v == float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
+        raise argparse.ArgumentTypeError(f"{_show(text)} must be a finite number > 0")
     return v
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
     p = _Parser(prog="ooc-dem", description="Out-of-core 2D DEM of soil-wheel interaction "
                 "(serial domain decomposition, bit-identical modes).")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -60,18 +88,24 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                        help="override a scenario value (repeatable)")
 
+    def add_plan_args(q):
+        """The options `run` and `check` share (check validates them exactly as run would)."""
+        q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc"])
+        q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"],
+                       help="memory: the store lives only in this process (no resume); summary, "
+                            "series and figures are still written to --out")
+        q.add_argument("--domains", type=_count(1, MAX_DOMAINS), help="number of sub-domains D (ddm, ooc)")
+        q.add_argument("--block", type=_count(1, MAX_BLOCK), help="steps per epoch K (temporal blocking)")
+        g = q.add_mutually_exclusive_group()
+        g.add_argument("--steps", type=_count(0, MAX_STEPS), help="total steps to run")
+        g.add_argument("--duration", type=_positive_float, help="total simulated time to run, s")
+        q.add_argument("--checkpoint-every", type=_count(1, MAX_STEPS), metavar="STEPS",
+                       help="commit an epoch every STEPS steps")
+
     q = sub.add_parser("run", help="run a scenario")
     add_scenario_args(q)
     q.add_argument("--out", required=False, help="output directory (a new store); default runs/<scenario>")
-    q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc"])
-    q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"])
-    q.add_argument("--domains", type=_positive_int, help="number of sub-domains D (ddm, ooc)")
-    q.add_argument("--block", type=_positive_int, help="steps per epoch K (temporal blocking)")
-    g = q.add_mutually_exclusive_group()
-    g.add_argument("--steps", type=_nonneg_int, help="total steps to run")
-    g.add_argument("--duration", type=_positive_float, help="total simulated time to run, s")
-    q.add_argument("--checkpoint-every", type=_positive_int, metavar="STEPS",
-                   help="commit an epoch every STEPS steps")
+    add_plan_args(q)
     q.add_argument("--durable", action="store_true", help="fsync files and directory before each commit")
     q.add_argument("--bed", help="a prepared bed directory (from `ooc-dem prepare`)")
     q.add_argument("--no-progress", action="store_true")
@@ -85,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("resume", help="continue a killed or finished run from its last committed epoch")
     q.add_argument("store")
     g = q.add_mutually_exclusive_group()
-    g.add_argument("--steps", type=_nonneg_int, help="new total step count")
+    g.add_argument("--steps", type=_count(0, MAX_STEPS), help="new total step count")
     g.add_argument("--until", type=_positive_float, help="new total simulated time, s")
     q.add_argument("--no-progress", action="store_true")
     q.add_argument("--no-figures", action="store_true")
@@ -114,6 +148,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("scenarios", help="list built-in scenarios")
 
+    q = sub.add_parser("check", help="validate a scenario and run options as `run` would; print the "
+                                     "resolved plan as JSON (no files, no bed, no stepping)")
+    add_scenario_args(q)
+    add_plan_args(q)
+
     q = sub.add_parser("report", help="regenerate figures and print the wheel-performance table")
     q.add_argument("store")
 
@@ -125,10 +164,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_args(q)
     q.add_argument("--modes", default="monolithic,ddm,ooc", help="comma-separated: monolithic,ddm,ooc")
     q.add_argument("--out", required=True, help="directory for memory.json, memory.md, memory.png")
-    q.add_argument("--domains", type=_positive_int)
-    q.add_argument("--block", type=_positive_int)
+    q.add_argument("--domains", type=_count(1, MAX_DOMAINS))
+    q.add_argument("--block", type=_count(1, MAX_BLOCK))
     q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr"])
-    q.add_argument("--steps", type=_positive_int, default=200, help="steps measured per mode")
+    q.add_argument("--steps", type=_count(1, MAX_STEPS), default=200, help="steps measured per mode")
 
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)
@@ -160,14 +199,16 @@ def cmd_scenarios(args):
 def cmd_prepare(args):
     import numpy as np
     from .bed import settled_bed, surface_height
+    from .engine.run import check_bed_memory
     sc = _load(args)
+    check_bed_memory(sc)   # before the bed is allocated
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise CliError(f"--out {out}: directory exists and is not empty")
     bed = settled_bed(sc, progress=None if args.no_progress else _settle_progress(sc))
     out.mkdir(parents=True, exist_ok=True)
     np.savez(out / "bed.npz", **bed.arrays())
-    (out / "scenario.toml").write_text(sc.to_toml())
+    (out / "scenario.toml").write_text(sc.to_toml(), encoding="utf-8")
     surf = surface_height(bed, sc.bin.length, sc.soil.r_max)
     info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf,
             "bed_hash": sc.bed_hash()}
@@ -204,21 +245,33 @@ def _load_bed(path, sc):
     return bed
 
 
+def _run_options(args):
+    from .engine.run import RunOptions
+    return RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
+                      steps=args.steps, duration=args.duration, checkpoint_every=args.checkpoint_every,
+                      durable=getattr(args, "durable", False),
+                      progress=not getattr(args, "no_progress", True),
+                      figures=not getattr(args, "no_figures", True))
+
+
 def cmd_run(args):
-    from .engine.run import RunOptions, Simulation
+    from .engine.run import Simulation
     sc = _load(args)
-    steps = args.steps
-    if args.duration is not None:
-        steps = int(round(args.duration / sc.physics.dt))
     out = args.out or os.path.join("runs", sc.name)
-    opts = RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
-                      steps=steps, checkpoint_every=args.checkpoint_every, durable=args.durable,
-                      progress=not args.no_progress, figures=not args.no_figures)
-    sim = Simulation(sc, out, opts)
+    sim = Simulation(sc, out, _run_options(args))   # plans and checks everything (ooc-dem check)
     bed = _load_bed(args.bed, sc) if args.bed else None
-    sim.start(bed)
+    sim.start(bed, streamed=True)   # a tiled bare bed goes into an out-of-core store tile by tile
     summary = sim.run()
     _print_run_result(summary, out)
+    return 0
+
+
+def cmd_check(args):
+    """`run`'s validation and planning (Simulation's own plan_run), without a run."""
+    from .engine.run import plan_run
+    sc = _load(args)
+    plan = plan_run(sc, _run_options(args))
+    print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict()}, indent=2))
     return 0
 
 
@@ -425,15 +478,9 @@ def cmd_checkpoint(args):
 
 
 def cmd_report(args):
-    from .plots import make_figures, print_table
+    from .plots import make_figures, print_table, read_summary
     out = Path(args.store)
-    f = out / "summary.json"
-    if not f.is_file():
-        raise CliError(f"{out}: no summary.json (not a finished ooc-dem run)")
-    try:
-        summary = json.loads(f.read_text())
-    except json.JSONDecodeError:
-        raise CliError(f"{f}: not valid JSON") from None
+    summary = read_summary(out)   # validated: a hostile or foreign file is a one-line error
     if "slip" in summary:
         figs = make_figures(out)
         print(print_table(summary))
@@ -485,7 +532,7 @@ def cmd_profile(args):
     return 0
 
 
-COMMANDS = {"profile": cmd_profile, "run": cmd_run, "prepare": cmd_prepare, "resume": cmd_resume, "checkpoint": cmd_checkpoint,
+COMMANDS = {"check": cmd_check, "profile": cmd_profile, "run": cmd_run, "prepare": cmd_prepare, "resume": cmd_resume, "checkpoint": cmd_checkpoint,
             "scenarios": cmd_scenarios, "report": cmd_report, "compare": cmd_compare, "sweep": cmd_sweep}
 
 
@@ -496,7 +543,8 @@ def main(argv=None) -> int:
     from .engine.stepper import EngineError
     from .scenario import ScenarioError
     from .checkpoint import StateError
-    known = (CliError, ScenarioError, RunError, EngineError, BedError, StateError)
+    from .plots import RunFileError
+    known = (CliError, ScenarioError, RunError, EngineError, BedError, StateError, RunFileError)
     try:
         from storage import StoreError
         known = known + (StoreError,)
@@ -505,7 +553,7 @@ def main(argv=None) -> int:
     try:
         return COMMANDS[args.command](args)
     except known as e:
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        msg = _one_line(e) or type(e).__name__
         print(f"ooc-dem: error: {msg}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
@@ -514,7 +562,13 @@ def main(argv=None) -> int:
         return 130
     except OSError as e:
         where = f"{e.filename}: " if e.filename else ""
-        print(f"ooc-dem: error: {where}{e.strerror or e}", file=sys.stderr)
+        print(f"ooc-dem: error: {where}{_one_line(e.strerror or e)}", file=sys.stderr)
+        return EXIT_USAGE
+    except MemoryError as e:
+        # the plan refuses runs that cannot fit (estimated); this is the machine disagreeing
+        detail = _one_line(e) or "an allocation failed"
+        print(f"ooc-dem: error: out of memory ({detail}); the last committed epoch is kept",
+              file=sys.stderr)
         return EXIT_USAGE
 
 

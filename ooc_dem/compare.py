@@ -1,24 +1,13 @@
 """`ooc-dem compare A B`: Table-3-style comparison of two runs and their final states."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from .engine.run import RunError
-
-
-def _summary(d: Path) -> dict:
-    f = Path(d) / "summary.json"
-    if not f.is_file():
-        raise RunError(f"{d}: no summary.json (not a finished ooc-dem run)")
-    try:
-        return json.loads(f.read_text())
-    except json.JSONDecodeError:
-        raise RunError(f"{f}: not valid JSON") from None
+from .plots import read_summary
 
 
 def compare_runs(a, b) -> str:
-    sa, sb = _summary(a), _summary(b)
+    sa, sb = read_summary(Path(a)), read_summary(Path(b))   # validated (hostile files: one-line errors)
 
     def val(s, key, win="whole_travel"):
         v = s.get(key)
@@ -26,7 +15,7 @@ def compare_runs(a, b) -> str:
 
     def label(s):
         e = s.get("engine", {})
-        extra = f", D={e['domains']}, K={e['block']}" if "domains" in e else ""
+        extra = f", D={e['domains']}, K={e.get('block', '?')}" if "domains" in e else ""
         return f"{s.get('mode')}{extra}"
 
     rows = [("wheel slip (-)", "slip", "{:.6f}"), ("net traction (N)", "net_traction", "{:.6f}"),
@@ -44,7 +33,7 @@ def compare_runs(a, b) -> str:
                 out.append(f"{name:24s} {fa:>28s} {fb:>28s}")
     out.append(f"{'elapsed time (s)':24s} {sa.get('wall_time_s', float('nan')):>28.1f} "
                f"{sb.get('wall_time_s', float('nan')):>28.1f}")
-    out.append(f"{'steps':24s} {sa.get('steps'):>28} {sb.get('steps'):>28}")
+    out.append(f"{'steps':24s} {sa['steps']:>28} {sb['steps']:>28}")
     ha, hb = sa.get("state_hash"), sb.get("state_hash")
     same = ha is not None and ha == hb
     out.append(f"final states: {'BIT-IDENTICAL' if same else 'DIFFERENT'} (sha256 {ha[:16] if ha else '?'}… vs "

@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import os
 import stat
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
+from .atomic import new_temp
 from .checkpoint import check_unique_sorted, validate_globals
 from .state import SCALAR_FIELDS
 
@@ -142,8 +142,7 @@ def check_targets(files: list[Path], out: Path) -> None:
 class _Atomic:
     """Open `path` for writing under a temporary name; renamed into place on success.
 
-    The temporary is created exclusively with an unpredictable name (mkstemp), so a
-    planted file or symlink of that name can never redirect the write.
+    The temporary comes from ``atomic.new_temp`` (exclusive, unpredictable name).
     """
 
     def __init__(self, path: Path, mode: str = "w"):
@@ -154,7 +153,7 @@ class _Atomic:
 
     def __enter__(self):
         try:
-            self.tmp = _new_temp(self.path)
+            self.tmp = new_temp(self.path)
             self.f = open(self.tmp, self.mode, encoding=None if "b" in self.mode else "ascii",
                           newline=None if "b" in self.mode else "\n")
         except OSError as e:
@@ -176,16 +175,6 @@ class _Atomic:
             if issubclass(exc_type, OSError):
                 raise ExportError(_oserror(self.path, exc)) from None
         return False
-
-
-def _new_temp(path: Path) -> Path:
-    """A new, empty temporary file beside `path` (created exclusively, unpredictable name)."""
-    fd, name = tempfile.mkstemp(prefix=f"{path.name}.tmp-", dir=path.parent)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.fchmod(fd, 0o666 & ~umask)   # an export is an ordinary file, not mkstemp's private 0600
-    os.close(fd)
-    return Path(name)
 
 
 def _unlink(p) -> None:
@@ -255,7 +244,7 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
         "connectivity": np.arange(n, dtype=np.int64).reshape(n, 1),
     }
     try:
-        tmp = _new_temp(h5)
+        tmp = new_temp(h5)
     except OSError as e:
         raise ExportError(_oserror(h5, e)) from None
     try:

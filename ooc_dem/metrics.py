@@ -22,6 +22,12 @@ SERIES_COLUMNS = ("t", "t_travel", "x", "y", "vx", "omega", "slip", "net_tractio
                   "vertical_force", "torque", "gross_traction", "sinkage", "drawbar")
 SERIES_UNITS = ("s", "s", "m", "m", "m/s", "rad/s", "-", "N", "N", "N m", "N", "m", "N")
 
+# series row layout: the column index of each SERIES_COLUMNS name
+(S_T, S_T_TRAVEL, S_X, S_Y, S_VX, S_OMEGA, S_SLIP, S_NET_TRACTION, S_VERTICAL_FORCE, S_TORQUE,
+ S_GROSS_TRACTION, S_SINKAGE, S_DRAWBAR) = range(len(SERIES_COLUMNS))
+N_SERIES = len(SERIES_COLUMNS)
+SERIES_START_ROWS = 1024   # the series buffer starts this long and doubles when full
+
 # interval accumulator layout
 I_N, I_VX, I_WZ, I_FX, I_FY, I_TQ, I_Y, I_DB, I_X, I_YLAST, I_T = range(11)
 N_IACC = 11
@@ -61,19 +67,19 @@ def _accumulate(rec, steps_per_row, step0, iacc, rows, nrows, wacc, windows, sur
         if ((step0 + s + 1) % steps_per_row) == 0:
             n = iacc[I_N]
             r = nrows[0]
-            if r < rows.shape[0]:
-                rows[r, 0] = t
-                rows[r, 2] = iacc[I_X]
-                rows[r, 3] = iacc[I_YLAST]
-                rows[r, 4] = iacc[I_VX] / n
-                rows[r, 5] = -iacc[I_WZ] / n
-                rows[r, 6] = (1.0 - (iacc[I_VX] / n) / (radius * omega)) if omega > 0 and iacc[I_WZ] != 0.0 else np.nan
-                rows[r, 7] = iacc[I_FX] / n
-                rows[r, 8] = iacc[I_FY] / n
-                rows[r, 9] = iacc[I_TQ] / n
-                rows[r, 10] = iacc[I_TQ] / n / radius
-                rows[r, 11] = surface - (iacc[I_Y] / n - radius)
-                rows[r, 12] = iacc[I_DB] / n
+            if r < rows.shape[0]:   # the caller sized rows for this record (WheelMetrics.add)
+                rows[r, S_T] = t
+                rows[r, S_X] = iacc[I_X]
+                rows[r, S_Y] = iacc[I_YLAST]
+                rows[r, S_VX] = iacc[I_VX] / n
+                rows[r, S_OMEGA] = -iacc[I_WZ] / n
+                rows[r, S_SLIP] = (1.0 - (iacc[I_VX] / n) / (radius * omega)) if omega > 0 and iacc[I_WZ] != 0.0 else np.nan
+                rows[r, S_NET_TRACTION] = iacc[I_FX] / n
+                rows[r, S_VERTICAL_FORCE] = iacc[I_FY] / n
+                rows[r, S_TORQUE] = iacc[I_TQ] / n
+                rows[r, S_GROSS_TRACTION] = iacc[I_TQ] / n / radius
+                rows[r, S_SINKAGE] = surface - (iacc[I_Y] / n - radius)
+                rows[r, S_DRAWBAR] = iacc[I_DB] / n
                 nrows[0] = r + 1
             iacc[:] = 0.0
 
@@ -87,7 +93,9 @@ class WheelMetrics:
         dt = sc.physics.dt
         self.steps_per_row = max(1, int(round(sc.output.series_interval / dt)))
         self.iacc = np.zeros(N_IACC)
-        self.rows = np.full((total_steps // self.steps_per_row + 1, len(SERIES_COLUMNS)), np.nan)
+        # sized by the rows kept so far, not by the run's total step count (--steps 1e10 must
+        # not allocate the whole series up front); grown by doubling (amortised) in add()
+        self.rows = np.full((min(total_steps // self.steps_per_row + 1, SERIES_START_ROWS), N_SERIES), np.nan)
         self.nrows = np.zeros(1, np.int64)
         w = sc.wheel
         t0 = w.settle_time
@@ -102,9 +110,19 @@ class WheelMetrics:
     def add(self, rec: np.ndarray, step0: int) -> None:
         if len(rec) == 0:
             return
+        self._reserve(int(self.nrows[0]) + len(rec) // self.steps_per_row + 1)
         w = self.sc.wheel
         _accumulate(rec, self.steps_per_row, step0, self.iacc, self.rows, self.nrows, self.wacc,
                     self.windows, self.surface, w.radius, w.omega)
+
+    def _reserve(self, rows: int) -> None:
+        """Room for at least ``rows`` series rows (never fewer than before; the new rows NaN)."""
+        have = self.rows.shape[0]
+        if rows <= have:
+            return
+        grown = np.full((max(rows, 2 * have), N_SERIES), np.nan)
+        grown[:have] = self.rows
+        self.rows = grown
 
     # ---- persistence (checkpoint) ----------------------------------------
     def state_arrays(self) -> dict[str, np.ndarray]:
@@ -116,13 +134,14 @@ class WheelMetrics:
         self.iacc[:] = arrays["metrics_iacc"]
         self.wacc[:] = arrays["metrics_wacc"]
         rows = arrays["metrics_rows"]
+        self._reserve(len(rows))
         self.rows[: len(rows)] = rows
         self.nrows[0] = len(rows)
 
     # ---- results -----------------------------------------------------------
     def series(self) -> np.ndarray:
         rows = self.rows[: int(self.nrows[0])].copy()
-        rows[:, 1] = rows[:, 0] - self.sc.wheel.settle_time
+        rows[:, S_T_TRAVEL] = rows[:, S_T] - self.sc.wheel.settle_time
         return rows
 
     def _window(self, k: int) -> dict:
@@ -135,11 +154,12 @@ class WheelMetrics:
         t1 = self.windows[k, 1] - w.settle_time
         dur = a[W_T1] - a[W_T0] + self.sc.physics.dt
         dist = a[W_X1] - a[W_X0]
-        ro = w.radius * w.omega
+        # slip needs a distance the rim would roll; a vanishing radius or omega has none
+        rolled = w.radius * w.omega * dur
         return {
             "steps": int(n),
             "window_s": [float(t0), float(t1)],
-            "slip": float(1.0 - dist / (ro * dur)) if ro > 0 else None,
+            "slip": float(1.0 - dist / rolled) if rolled > 0 else None,
             "net_traction": float(a[W_FX] / n),
             "vertical_force": float(a[W_FY] / n),
             "torque": float(a[W_TQ] / n),

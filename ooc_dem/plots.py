@@ -15,9 +15,13 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
+import warnings
 from pathlib import Path
 
 import numpy as np
+
+from .atomic import write_replacing
 
 from .fields import displacements, gridded_displacement, layer_index
 
@@ -35,23 +39,189 @@ def _pyplot():
     return plt
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
+class RunFileError(ValueError):
+    """A file of a run directory is missing, unreadable or not what ooc-dem writes (one line)."""
+
+
+MAX_SUMMARY_BYTES = 16 << 20   # summary.json is a few kB; anything this big is not ours
+MAX_SCENARIO_BYTES = 1 << 20
+MAX_HEADER_CHARS = 4096
+SERIES_NEEDED = ("slip", "net_traction", "gross_traction", "torque", "sinkage")   # the series figure's
+INITIAL_ARRAYS = ("id", "x", "y", "r", "surface")
+
+
+def run_file(out, name: str, required: bool = False) -> Path | None:
+    """``out/name`` if it is a regular file inside ``out`` (a symlink may not lead outside the run
+    directory, and a FIFO or device is never opened); None if absent and not required."""
+    out = Path(out)
+    f = out / name
+    if not os.path.lexists(f):
+        if required:
+            raise RunFileError(f"{out}: no {name} (not a finished ooc-dem run)")
+        return None
+    try:
+        real = f.resolve(strict=True)
+        inside = real.is_relative_to(out.resolve(strict=True))
+        regular = stat.S_ISREG(os.stat(real).st_mode)
+    except (OSError, RuntimeError) as e:   # dangling or looping symlink
+        raise RunFileError(f"{f}: unreadable ({_one_line(e)})") from None
+    if not inside:
+        raise RunFileError(f"{f}: leads outside the run directory (refused)")
+    if not regular:
+        raise RunFileError(f"{f}: not a regular file")
+    return f
+
+
+def _one_line(e) -> str:
+    text = " ".join(str(e).split()) or type(e).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+# what Simulation.finish writes; `report` and `compare` need all of it
+SUMMARY_FIELDS = {"scenario": str, "scenario_hash": str, "mode": str, "backend": str, "steps": int,
+                  "simulated_time_s": _is_number, "wall_time_s": _is_number, "n_discs": int,
+                  "engine": dict, "state_hash": str}
+WHEEL_QUANTITIES = ("slip", "net_traction", "gross_traction", "torque", "vertical_force",
+                    "travel_distance", "sinkage", "motion_resistance")
+WINDOWS = ("whole_travel", "steady", "static")
+
+
+def _type_ok(v, want) -> bool:
+    if want is int:
+        return isinstance(v, int) and not isinstance(v, bool)
+    if isinstance(want, type):
+        return isinstance(v, want)
+    return want(v)
+
+
+def validate_summary(summary, f, complete: bool = True) -> dict:
+    """``summary`` as Simulation.finish writes it, or RunFileError naming ``f`` and the key.
+    ``complete``: every key finish writes must be there (not only well-typed when present)."""
+    if not isinstance(summary, dict):
+        raise RunFileError(f"{f}: not a JSON object")
+    for key, want in SUMMARY_FIELDS.items():
+        if key not in summary:
+            if complete:
+                raise RunFileError(f"{f}: missing key {key!r}")
+            continue
+        if not _type_ok(summary[key], want):
+            raise RunFileError(f"{f}: {key!r} has the wrong type ({type(summary[key]).__name__})")
+    engine = summary.get("engine", {})
+    for key in ("domains", "block"):
+        if key in engine and not _type_ok(engine[key], int):
+            raise RunFileError(f"{f}: 'engine.{key}' must be an integer")
+    wheel = "slip" in summary
+    for q in WHEEL_QUANTITIES:
+        if q not in summary:
+            if wheel and complete:
+                raise RunFileError(f"{f}: missing key {q!r} (a wheel run's summary has it)")
+            continue
+        entry = summary[q]
+        if not isinstance(entry, dict):
+            raise RunFileError(f"{f}: {q!r} must be an object")
+        for win in WINDOWS:
+            if win not in entry:
+                continue
+            w = entry[win]
+            where = f"{q}.{win}"
+            if not isinstance(w, dict):
+                raise RunFileError(f"{f}: {where!r} must be an object")
+            if w.get("value") is not None and not _is_number(w["value"]):
+                raise RunFileError(f"{f}: '{where}.value' must be a number or null")
+            ws = w.get("window_s")
+            if ws is not None and not (isinstance(ws, list) and len(ws) == 2 and all(map(_is_number, ws))):
+                raise RunFileError(f"{f}: '{where}.window_s' must be [start, end] in s or null")
+    surf = summary.get("surface_height")
+    if surf is not None and not (isinstance(surf, dict) and (surf.get("value") is None or _is_number(surf["value"]))):
+        raise RunFileError(f"{f}: 'surface_height' must be an object with a numeric value")
+    return summary
+
+
+def read_summary(out, complete: bool = True) -> dict | None:
+    """The run's ``summary.json``, validated (None if absent and not ``complete``)."""
+    f = run_file(out, "summary.json", required=complete)
+    if f is None:
+        return None
+    if f.stat().st_size > MAX_SUMMARY_BYTES:
+        raise RunFileError(f"{f}: {f.stat().st_size} bytes, too large for a summary "
+                           f"(at most {MAX_SUMMARY_BYTES})")
+    try:
+        summary = json.loads(f.read_bytes())
+    except (ValueError, RecursionError) as e:   # bad JSON or UTF-8, nesting, digit limit
+        raise RunFileError(f"{f}: not valid JSON ({_one_line(e)})") from None
+    return validate_summary(summary, f, complete)
+
+
+def _read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
     """Columns of a comma-separated file with a one-line header; ``name [unit]`` -> ``name``."""
     path = Path(path)
-    with open(path) as f:
-        header = f.readline().strip()
-    names = [h.strip().split(" [")[0].strip() for h in header.split(",")]
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    try:
+        with open(path, encoding="utf-8") as f:
+            header = f.readline(MAX_HEADER_CHARS).strip()
+        names = [h.strip().split(" [")[0].strip() for h in header.split(",")]
+        missing = [n for n in needed if n not in names]
+        if not header or missing:
+            raise RunFileError(f"{path}: header has no column {(missing or needed or ['(any)'])[0]!r} "
+                               f"(not a series written by ooc-dem)")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # "input contained no data": a header-only file is valid
+            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8")
+    except RunFileError:
+        raise
+    except (ValueError, UnicodeDecodeError, OSError) as e:
+        raise RunFileError(f"{path}: not a numeric CSV table ({_one_line(e)})") from None
     if data.size == 0:
         data = np.zeros((0, len(names)))
     if data.shape[1] != len(names):
-        raise ValueError(f"{path}: header has {len(names)} columns, rows have {data.shape[1]}")
+        raise RunFileError(f"{path}: header has {len(names)} columns, rows have {data.shape[1]}")
     return {n: data[:, k] for k, n in enumerate(names)}
 
 
 def read_series(path) -> dict[str, np.ndarray]:
     """``series.csv`` as a dict of column arrays keyed by name without unit (``t_travel``, ``slip``...)."""
-    return _read_csv(path)
+    cols = _read_csv(path, SERIES_NEEDED)
+    if "t_travel" not in cols and "t" not in cols:
+        raise RunFileError(f"{path}: header has no column 't_travel' or 't'")
+    return cols
+
+
+def read_initial(path) -> tuple:
+    """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as written."""
+    import zipfile
+    import zlib
+    try:
+        z = np.load(path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise RunFileError(f"{path}: not an npz archive")
+        with z:
+            missing = [k for k in INITIAL_ARRAYS if k not in z.files]
+            if missing:
+                raise RunFileError(f"{path}: no array {missing[0]!r}")
+            arrays = {k: z[k] for k in INITIAL_ARRAYS}
+    except RunFileError:
+        raise
+    except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, NotImplementedError) as e:
+        raise RunFileError(f"{path}: not a readable npz archive ({_one_line(e)})") from None
+    n = None
+    for k in ("id", "x", "y", "r"):
+        a = arrays[k]
+        if a.ndim != 1 or a.dtype.kind not in ("iu" if k == "id" else "iuf"):
+            raise RunFileError(f"{path}: {k!r} must be a 1-D {'integer' if k == 'id' else 'numeric'} array "
+                               f"(has shape {a.shape}, dtype {a.dtype.str})")
+        if n is not None and len(a) != n:
+            raise RunFileError(f"{path}: {k!r} has {len(a)} entries, 'id' has {n}")
+        n = len(a)
+        if k != "id" and not np.isfinite(a).all():
+            raise RunFileError(f"{path}: {k!r} holds non-finite values")
+    surface = arrays["surface"]
+    if surface.size != 1 or surface.dtype.kind not in "iuf" or not np.isfinite(surface).all():
+        raise RunFileError(f"{path}: 'surface' must be one finite number")
+    return (arrays["id"].astype(np.int64), arrays["x"].astype(np.float64), arrays["y"].astype(np.float64),
+            arrays["r"].astype(np.float64), float(surface.reshape(-1)[0]))
 
 
 def _window(summary: dict | None, key: str, name: str):
@@ -63,11 +233,28 @@ def _window(summary: dict | None, key: str, name: str):
 
 
 def _load_scenario(out: Path):
-    f = out / "scenario.toml"
-    if not f.exists():
+    f = run_file(out, "scenario.toml")
+    if f is None:
         return None
-    from .scenario import scenario_from_toml
-    return scenario_from_toml(f.read_text())
+    from .scenario import ScenarioError, scenario_from_toml
+    if f.stat().st_size > MAX_SCENARIO_BYTES:
+        raise RunFileError(f"{f}: too large for a scenario")
+    try:
+        return scenario_from_toml(f.read_text(encoding="utf-8"))
+    except (ScenarioError, UnicodeDecodeError) as e:
+        raise RunFileError(f"{f}: not a valid scenario ({_one_line(e)})") from None
+
+
+def _has_store(out: Path) -> bool:
+    """A store to read the final state from: on disk, or a memory store of this process."""
+    if os.path.lexists(out / "MANIFEST.json"):
+        return True
+    from storage import StoreError, open_store
+    try:
+        open_store(out, repair=False).close()
+    except StoreError:
+        return False
+    return True
 
 
 def _read_final(out: Path):
@@ -138,9 +325,7 @@ def _n_layers(depth: float, r: np.ndarray) -> int:
 def _save(fig, path: Path) -> Path:
     # under a temporary name, renamed when complete: a kill never leaves a torn figure that a
     # resume would take for a finished one
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=DPI)
-    os.replace(tmp, path)
+    write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"))
     import matplotlib.pyplot as plt
     plt.close(fig)
     return path
@@ -358,17 +543,23 @@ def make_figures(out_dir, final=None) -> list[Path]:
     """
     out = Path(out_dir)
     fig_dir = out / "figures"
+    if os.path.lexists(fig_dir) and not stat.S_ISDIR(os.lstat(fig_dir).st_mode):
+        # a symlink here would send the figures (and their replacement) anywhere
+        raise RunFileError(f"{fig_dir}: not a directory of the run (a symlink or a file; refused)")
     fig_dir.mkdir(parents=True, exist_ok=True)
     sc = _load_scenario(out)
-    summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else None
-    series = read_series(out / "series.csv") if (out / "series.csv").exists() else None
+    summary = read_summary(out, complete=False)
+    series_file = run_file(out, "series.csv")
+    series = read_series(series_file) if series_file is not None else None
     written: list[Path] = []
     if series is not None:
         written.append(_series_figure(series, summary, sc, fig_dir / SERIES_FIGURE))
-    if (out / "initial.npz").exists():
-        with np.load(out / "initial.npz") as z:
-            init = (z["id"].astype(np.int64), z["x"].astype(np.float64), z["y"].astype(np.float64),
-                    z["r"].astype(np.float64), float(z["surface"]))
+    initial_file = run_file(out, "initial.npz")
+    if initial_file is not None and final is None and not _has_store(out):
+        # a `--backend memory` run's store lived only in its process: no final state to draw
+        initial_file = None
+    if initial_file is not None:
+        init = read_initial(initial_file)
         if final is None:
             final = _read_final(out)
         fid, fx, fy, fr, ws = final
@@ -470,10 +661,7 @@ def sweep_plot(csv_path, png_path) -> Path:
     are accepted.
     """
     plt = _pyplot()
-    cols = _read_csv(csv_path)
-    for need in ("slip", "drawbar_pull"):
-        if need not in cols:
-            raise ValueError(f"{csv_path}: missing column {need!r} (have {', '.join(cols)})")
+    cols = _read_csv(csv_path, ("slip", "drawbar_pull"))
     order = np.argsort(cols["slip"], kind="stable")
     s = cols["slip"][order]
     has_sink = "sinkage" in cols

@@ -11,8 +11,9 @@ import dataclasses
 import hashlib
 import json
 import math
+import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,53 @@ from typing import Any
 
 class ScenarioError(ValueError):
     """A scenario value, file or override is invalid (message is one line)."""
+
+
+# Every step count a run derives (from durations, --steps, --duration, --until) is at most
+# this: 1e10 steps is 2000 x paper2008's 4.6 M steps, months of wall time at any size, so a
+# larger count is a typo; it also keeps every step number far inside int64 in the kernels.
+MAX_STEPS = 10**10
+# bounds of decomposition.domains / --domains and decomposition.block / --block
+MAX_DOMAINS = 4096
+MAX_BLOCK = 10000
+# scenario.name becomes the default output directory runs/<name>: one safe path component
+NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,99}")
+NAME_ALLOWED = "1-100 letters, digits and _ . + - (not starting with . + or -; it names runs/<name>)"
+MAX_TEXT = 10_000          # characters of a string value (descriptions end up in every manifest)
+MAX_SCENARIO_FILE = 1 << 20  # bytes of a scenario TOML file
+
+
+def show(value: Any, limit: int = 60) -> str:
+    """A value as it may appear in a one-line message: never recursive, never long,
+    never an int-to-decimal conversion past Python's digit limit."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return repr(value) if value.bit_length() <= 200 else f"<an integer of {value.bit_length()} bits>"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        r = repr(value)
+        return r if len(r) <= limit else r[: limit - 4] + "...'"
+    if isinstance(value, dict):
+        return "<a table>"
+    if isinstance(value, list):
+        return "<an array>"
+    return f"<a {type(value).__name__}>"
+
+
+def big(n: int) -> str:
+    """A large round count as people write it: 1e10, 2e9."""
+    return f"{n:.0e}".replace("e+0", "e").replace("e+", "e")
+
+
+def steps_for_duration(seconds: float, dt: float, what: str) -> int:
+    """round(seconds / dt), refused (naming ``what``) unless finite and at most MAX_STEPS."""
+    n = seconds / dt   # float division: inf on overflow, never an exception (dt > 0)
+    if not (0.0 <= n <= MAX_STEPS):
+        raise ScenarioError(f"{what}: {show(seconds)} s at physics.dt = {dt!r} s is {n:.3g} steps, "
+                            f"more than the maximum {big(MAX_STEPS)}")
+    return int(round(n))
 
 
 # ---------------------------------------------------------------- sections
@@ -167,33 +215,48 @@ class Scenario:
 _POS = (lambda v: v > 0, "a number > 0")
 _NONNEG = (lambda v: v >= 0, "a number >= 0")
 _RATIO = (lambda v: 0 <= v <= 1, "a number in [0, 1]")
+
+
+def _within(lo: float, hi: float, lo_open: bool = False, what: str = "a number"):
+    """A closed (or left-open) interval. The upper bounds are far beyond any soil bin; they
+    exist so that every derived quantity (masses, steps, grid sizes) stays finite."""
+    if lo_open:
+        return (lambda v: lo < v <= hi, f"{what} in ({lo:g}, {hi:g}]")
+    return (lambda v: lo <= v <= hi, f"{what} in [{lo:g}, {hi:g}]")
+
+
+_LENGTH = _within(0.0, 1e6, lo_open=True)      # m
+_GAP = _within(0.0, 1e6)                        # m, may be 0
+_COUNT = lambda hi: (lambda v: 0 <= v <= hi, f"an integer in [0, {big(hi)}]")
 _CONSTRAINTS: dict[tuple[str, str], tuple] = {
-    ("physics", "gravity"): _NONNEG,
-    ("physics", "thickness"): _POS,
+    ("scenario", "name"): (lambda v: NAME_RE.fullmatch(v) is not None, NAME_ALLOWED),
+    ("scenario", "description"): (lambda v: len(v) <= MAX_TEXT, f"at most {MAX_TEXT} characters"),
+    ("physics", "gravity"): _within(0.0, 1000.0),
+    ("physics", "thickness"): _LENGTH,
     ("physics", "dt"): _POS,
-    ("physics", "contacts_per_disc"): (lambda v: v >= 1, "a number >= 1"),
-    ("bin", "length"): _POS,
-    ("bin", "height"): _POS,
+    ("physics", "contacts_per_disc"): (lambda v: 1 <= v <= 1000, "a number in [1, 1000]"),
+    ("bin", "length"): _LENGTH,
+    ("bin", "height"): _LENGTH,
     ("soil", "n"): (lambda v: 1 <= v <= 2_000_000_000, "an integer in [1, 2e9]"),
-    ("soil", "r_min"): _POS,
-    ("soil", "r_max"): _POS,
-    ("soil", "density"): _POS,
-    ("soil", "seed"): (lambda v: 0 <= v < 2**63, "an integer >= 0"),
+    ("soil", "r_min"): _LENGTH,
+    ("soil", "r_max"): _LENGTH,
+    ("soil", "density"): _within(0.0, 1e6, lo_open=True),
+    ("soil", "seed"): (lambda v: 0 <= v < 2**63, "an integer in [0, 2^63)"),
     ("bed", "settle_speed"): _POS,
     ("bed", "max_settle_time"): _POS,
-    ("bed", "tile"): (lambda v: v >= 0, "an integer >= 0"),
-    ("bed", "skin"): _POS,
-    ("wheel", "radius"): _POS,
-    ("wheel", "width"): _POS,
-    ("wheel", "load"): _POS,
+    ("bed", "tile"): _COUNT(2_000_000_000),
+    ("bed", "skin"): _LENGTH,
+    ("wheel", "radius"): _LENGTH,
+    ("wheel", "width"): _LENGTH,
+    ("wheel", "load"): _within(0.0, 1e6, lo_open=True),
     ("wheel", "n_lugs"): (lambda v: 0 <= v <= 360, "an integer in [0, 360]"),
-    ("wheel", "lug_tip_radius"): _POS,
-    ("wheel", "lug_thickness"): _POS,
-    ("wheel", "x0"): _NONNEG,
-    ("wheel", "drop_gap"): _NONNEG,
-    ("wheel", "omega"): _NONNEG,
+    ("wheel", "lug_tip_radius"): _LENGTH,
+    ("wheel", "lug_thickness"): _LENGTH,
+    ("wheel", "x0"): _GAP,
+    ("wheel", "drop_gap"): _GAP,
+    ("wheel", "omega"): _within(0.0, 1000.0),
     ("wheel", "control"): (lambda v: v in ("drawbar", "slip"), "one of 'drawbar', 'slip'"),
-    ("wheel", "drawbar_load"): _NONNEG,
+    ("wheel", "drawbar_load"): _within(0.0, 1e6),
     ("wheel", "drawbar_ramp"): _NONNEG,
     ("wheel", "slip"): (lambda v: -1 <= v < 1, "a number in [-1, 1)"),
     ("wheel", "settle_time"): _NONNEG,
@@ -201,19 +264,19 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("output", "series_interval"): _POS,
     ("output", "steady_start"): _NONNEG,
     ("output", "steady_end"): _NONNEG,
-    ("output", "run_steps"): (lambda v: v >= 0, "an integer >= 0"),
+    ("output", "run_steps"): _COUNT(MAX_STEPS),
     ("decomposition", "policy"): (lambda v: v in ("wheel", "equal"), "one of 'wheel', 'equal'"),
-    ("decomposition", "domains"): (lambda v: 1 <= v <= 4096, "an integer in [1, 4096]"),
-    ("decomposition", "block"): (lambda v: 1 <= v <= 10000, "an integer in [1, 10000]"),
-    ("decomposition", "margin"): _NONNEG,
+    ("decomposition", "domains"): (lambda v: 1 <= v <= MAX_DOMAINS, f"an integer in [1, {MAX_DOMAINS}]"),
+    ("decomposition", "block"): (lambda v: 1 <= v <= MAX_BLOCK, f"an integer in [1, {MAX_BLOCK}]"),
+    ("decomposition", "margin"): _GAP,
 }
 _PAIR_CONSTRAINTS = {
     "kn": _POS,
     "ks": _POS,
     "damping_n": (lambda v: 0 <= v <= 10, "a number in [0, 10]"),
     "damping_t": (lambda v: 0 <= v <= 10, "a number in [0, 10]"),
-    "friction": _NONNEG,
-    "rolling_friction": _NONNEG,
+    "friction": _within(0.0, 100.0),
+    "rolling_friction": _within(0.0, 100.0),
     "rolling_damping": (lambda v: 0 <= v <= 10, "a number in [0, 10]"),
 }
 
@@ -231,23 +294,36 @@ def _coerce(path: str, value: Any, typ) -> Any:
             return value
     elif typ is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            v = float(value)
+            try:
+                v = float(value)
+            except OverflowError:   # an integer beyond the float range
+                v = math.inf
             if not math.isfinite(v):
-                raise ScenarioError(f"{path} = {value!r}: must be a finite number")
-            return v
+                raise ScenarioError(f"{path} = {show(value)}: must be a finite number")
+            return v + 0.0   # -0.0 -> 0.0: one spelling of zero in the stored TOML and the hash
     elif typ is str:
         if isinstance(value, str):
+            try:
+                value.encode("utf-8")
+            except UnicodeEncodeError:
+                raise ScenarioError(f"{path} = {show(value)}: not valid Unicode text "
+                                    f"(lone surrogate)") from None
             return value
-    raise ScenarioError(f"{path} = {value!r}: must be {_type_name(typ)}")
+    raise ScenarioError(f"{path} = {show(value)}: must be {_type_name(typ)}")
+
+
+def _show_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", key) else show(key, 40)
 
 
 def _build(cls, data: Any, path: str, defaults):
     if not isinstance(data, dict):
-        raise ScenarioError(f"{path} = {data!r}: must be a table")
+        raise ScenarioError(f"{path} = {show(data)}: must be a table")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise ScenarioError(f"{path}.{unknown[0]}: unknown key (allowed: {', '.join(fields)})")
+        where = f"{path}.{_show_key(unknown[0])}" if path else _show_key(unknown[0])
+        raise ScenarioError(f"{where}: unknown key (allowed: {', '.join(fields)})")
     kwargs = {}
     for name, f in fields.items():
         default = getattr(defaults, name)
@@ -266,13 +342,13 @@ def _check_ranges(sc: Scenario) -> None:
     for (sec, key), (pred, allowed) in _CONSTRAINTS.items():
         v = getattr(getattr(sc, sec), key)
         if not pred(v):
-            raise ScenarioError(f"{sec}.{key} = {v!r}: must be {allowed}")
+            raise ScenarioError(f"{sec}.{key} = {show(v)}: must be {allowed}")
     for pair in ("soil_soil", "soil_wall", "soil_wheel"):
         p = getattr(sc.contact, pair)
         for key, (pred, allowed) in _PAIR_CONSTRAINTS.items():
             v = getattr(p, key)
             if not pred(v):
-                raise ScenarioError(f"contact.{pair}.{key} = {v!r}: must be {allowed}")
+                raise ScenarioError(f"contact.{pair}.{key} = {show(v)}: must be {allowed}")
     s = sc.soil
     if s.r_max < s.r_min:
         raise ScenarioError(f"soil.r_max = {s.r_max!r}: must be >= soil.r_min ({s.r_min!r})")
@@ -291,35 +367,73 @@ def _check_ranges(sc: Scenario) -> None:
     o = sc.output
     if o.steady_end < o.steady_start:
         raise ScenarioError(f"output.steady_end = {o.steady_end!r}: must be >= output.steady_start ({o.steady_start!r})")
-    dt, crit = sc.physics.dt, critical_time_step(sc)
+    _check_derived(sc)
+    dt, (crit, stiffest) = sc.physics.dt, _critical_step(sc)
     if dt > crit:
         raise ScenarioError(
             f"physics.dt = {dt!r}: above the stability limit {crit:.3e} s of the stiffest contact "
-            f"(dt_crit = (2/w)(sqrt(1+z^2)-z)); use dt <= {crit:.3e}")
+            f"({stiffest} on the lightest disc (soil.r_min, soil.density, physics.thickness) with "
+            f"physics.contacts_per_disc contacts: dt_crit = (2/w)(sqrt(1+z^2)-z)); use dt <= {crit:.3e}")
+
+
+def _check_derived(sc: Scenario) -> None:
+    """Quantities computed from several keys: finite, positive, and step counts bounded
+    (each message names the keys that make the quantity)."""
+    s, ph = sc.soil, sc.physics
+    for key, r in (("soil.r_min", s.r_min), ("soil.r_max", s.r_max)):
+        m = disc_mass(sc, r)
+        if not (0.0 < m < math.inf and 0.0 < 0.5 * m * r * r < math.inf):
+            raise ScenarioError(
+                f"{key} = {r!r}: a disc of this radius has mass soil.density * pi * r^2 * "
+                f"physics.thickness = {m:.3g} kg (moment of inertia {0.5 * m * r * r:.3g}): "
+                f"must be finite and > 0")
+    if sc.wheel.enabled:
+        mass = sc.wheel_mass
+        if not (0.0 < mass < math.inf):
+            raise ScenarioError(f"wheel.load = {sc.wheel.load!r}: the wheel mass wheel.load / physics.gravity "
+                                f"= {mass:.3g} kg must be finite and > 0")
+        steps_for_duration(sc.wheel.settle_time + sc.wheel.travel_time, ph.dt,
+                           "wheel.settle_time + wheel.travel_time")
+    steps_for_duration(sc.bed.max_settle_time, ph.dt, "bed.max_settle_time")
+    steps_for_duration(sc.output.series_interval, ph.dt, "output.series_interval")
+
+
+def disc_mass(sc: Scenario, r: float) -> float:
+    """density * pi * r^2 * thickness, as the engine computes it (products: inf or 0, never an exception)."""
+    return sc.soil.density * math.pi * r * r * sc.physics.thickness
 
 
 def critical_time_step(sc: Scenario) -> float:
     """Critical explicit step of the stiffest contact (validation.md).
 
     w = sqrt(n_c * kn / m_min) with n_c contacts per disc, z the damping ratio;
-    rolling springs are included through their rotational frequency.
+    rolling springs are included through their rotational frequency. Called on
+    validated values (0 < m_min < inf): 0.0 when a stiffness overflows, never an exception.
     """
+    return _critical_step(sc)[0]
+
+
+def _critical_step(sc: Scenario) -> tuple[float, str]:
+    """(critical step, the key of the stiffness that sets it)."""
     s = sc.soil
-    m_min = s.density * math.pi * s.r_min**2 * sc.physics.thickness
-    i_min = 0.5 * m_min * s.r_min**2
+    m_min = disc_mass(sc, s.r_min)
+    i_min = 0.5 * m_min * s.r_min * s.r_min
     nc = sc.physics.contacts_per_disc
-    worst = math.inf
-    pairs = [sc.contact.soil_soil, sc.contact.soil_wall]
-    if sc.wheel.enabled:
-        pairs.append(sc.contact.soil_wheel)
-    for p in pairs:
-        for k, z in ((p.kn, p.damping_n), (p.ks, p.damping_t)):
-            w = math.sqrt(nc * k / m_min)
-            worst = min(worst, 2.0 / w * (math.sqrt(1 + z * z) - z))
+    worst, which = math.inf, "none"
+    pairs = ["soil_soil", "soil_wall"] + (["soil_wheel"] if sc.wheel.enabled else [])
+
+    def limit(w2: float, z: float) -> float:
+        return 2.0 / math.sqrt(w2) * (math.sqrt(1 + z * z) - z) if w2 > 0 else math.inf
+
+    for name in pairs:
+        p = getattr(sc.contact, name)
         # tangential spring acting on rotation: torque ks r^2 on inertia I
-        w = math.sqrt(nc * p.ks * s.r_min**2 / i_min)
-        worst = min(worst, 2.0 / w * (math.sqrt(1 + p.damping_t**2) - p.damping_t))
-    return worst
+        for key, w2, z in (("kn", nc * p.kn / m_min, p.damping_n), ("ks", nc * p.ks / m_min, p.damping_t),
+                           ("ks", nc * p.ks * s.r_min * s.r_min / i_min, p.damping_t)):
+            lim = limit(w2, z)
+            if lim < worst:
+                worst, which = lim, f"contact.{name}.{key}"
+    return worst, which
 
 
 # --------------------------------------------------------------- loading
@@ -332,6 +446,8 @@ def builtin_names() -> list[str]:
 
 
 def _builtin_text(name: str) -> str | None:
+    if NAME_RE.fullmatch(name) is None:   # never a path: built-ins are files of one package
+        return None
     f = resources.files("ooc_dem.scenarios") / f"{name}.toml"
     if f.is_file():
         return f.read_text()
@@ -339,17 +455,20 @@ def _builtin_text(name: str) -> str | None:
 
 
 def _parse_count(text: str) -> int | None:
+    """N of ``bed-N``: a positive whole number, optionally with a k or m suffix (``100k``, ``1.5m``)."""
     t = text.lower().replace("_", "")
     mult = 1
     if t.endswith("k"):
         mult, t = 1000, t[:-1]
     elif t.endswith("m"):
         mult, t = 1_000_000, t[:-1]
+    if not t or len(t) > 30:
+        return None
     try:
         v = float(t) * mult
     except ValueError:
         return None
-    if v != int(v) or v < 1:
+    if not math.isfinite(v) or v < 1 or v != int(v):   # inf, nan, 1e400, 0, -5, 12.5
         return None
     return int(v)
 
@@ -369,28 +488,52 @@ def bed_scenario_dict(n: int) -> dict:
     return base
 
 
-def _parse_value(text: str) -> Any:
+def _parse_value(text: str, item: str) -> Any:
+    """A --set value as TOML (``1e-5``, ``true``, ``"x"``, ``[1, 2]``); a bare word is a string."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text  # bare word -> string
+    except RecursionError:
+        raise ScenarioError(f"--set {show(item)}: value nested too deeply") from None
+    except ValueError as e:   # e.g. an integer beyond Python's int-string conversion limit
+        raise ScenarioError(f"--set {show(item)}: unreadable value ({_first_line(e)})") from None
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).splitlines()[0] if str(e) else type(e).__name__
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
     for item in overrides or []:
         if "=" not in item:
-            raise ScenarioError(f"--set {item!r}: expected section.key=value")
+            raise ScenarioError(f"--set {show(item)}: expected section.key=value")
         key, text = item.split("=", 1)
         parts = key.strip().split(".")
         if len(parts) < 2 or not all(parts):
-            raise ScenarioError(f"--set {item!r}: key must be section.key (e.g. physics.dt=1e-5)")
+            raise ScenarioError(f"--set {show(item)}: key must be section.key (e.g. physics.dt=1e-5)")
+        if len(parts) > 3:   # the deepest key is contact.<pair>.<key>
+            raise ScenarioError(f"--set {show(item)}: key {show(key, 40)} has {len(parts)} parts; "
+                                f"keys are section.key or contact.pair.key")
         node = data
         for p in parts[:-1]:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise ScenarioError(f"--set {item!r}: {p} is not a section")
-        node[parts[-1]] = _parse_value(text.strip())
+                raise ScenarioError(f"--set {show(item)}: {_show_key(p)} is not a section")
+        node[parts[-1]] = _parse_value(text.strip(), item)
     return data
+
+
+def _parse_toml(text: str, src: str) -> dict:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML ({_first_line(e)})") from None
+    except RecursionError:
+        raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML (tables or arrays nested too deeply)") from None
+    except ValueError as e:   # an integer beyond Python's int-string conversion limit
+        raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML ({_first_line(e)})") from None
 
 
 def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Scenario:
@@ -401,23 +544,29 @@ def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Sce
     if src.startswith("bed-") and _builtin_text(src) is None:
         n = _parse_count(src[4:])
         if n is None:
-            raise ScenarioError(f"scenario {src!r}: bed-N needs a disc count N such as bed-7000, bed-100k, bed-1m")
+            raise ScenarioError(f"scenario {show(src, 400)}: bed-N needs a disc count N such as bed-7000, "
+                                f"bed-100k, bed-1m")
         data = bed_scenario_dict(n)
     else:
         text = _builtin_text(src)
         if text is None:
             p = Path(src)
-            if not p.is_file():
-                raise ScenarioError(
-                    f"scenario {src!r}: not a built-in ({', '.join(builtin_names())}) and no such file")
             try:
-                text = p.read_text()
+                is_file = p.is_file()
+                size = p.stat().st_size if is_file else 0
+            except (OSError, ValueError):   # name too long, NUL byte
+                is_file, size = False, 0
+            if not is_file:
+                raise ScenarioError(
+                    f"scenario {show(src, 400)}: not a built-in ({', '.join(builtin_names())}) and no such file")
+            if size > MAX_SCENARIO_FILE:
+                raise ScenarioError(f"scenario {show(src, 400)}: {size} bytes; a scenario file is at most "
+                                    f"{MAX_SCENARIO_FILE} bytes")
+            try:
+                text = p.read_text(encoding="utf-8")
             except (OSError, UnicodeDecodeError) as e:
-                raise ScenarioError(f"scenario {src!r}: cannot read ({e})") from None
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as e:
-            raise ScenarioError(f"scenario {src!r}: invalid TOML ({e})") from None
+                raise ScenarioError(f"scenario {show(src, 400)}: cannot read ({_first_line(e)})") from None
+        data = _parse_toml(text, src)
     data = apply_overrides(data, overrides or [])
     return scenario_from_dict(data)
 
@@ -429,7 +578,25 @@ def scenario_from_dict(data: dict) -> Scenario:
 
 
 def scenario_from_toml(text: str) -> Scenario:
-    return scenario_from_dict(tomllib.loads(text))
+    return scenario_from_dict(_parse_toml(text, "(stored)"))
+
+
+def toml_string(text: str) -> str:
+    """A TOML basic string for any text: quote, backslash and control characters escaped,
+    everything else written as itself (UTF-8). JSON's \\uD83D surrogate pairs are not TOML."""
+    out = ['"']
+    for ch in text:
+        code = ord(ch)
+        if ch == '"':
+            out.append('\\"')
+        elif ch == "\\":
+            out.append("\\\\")
+        elif code < 0x20 or code == 0x7F:
+            out.append(f"\\u{code:04X}")
+        else:
+            out.append(ch)
+    out.append('"')
+    return "".join(out)
 
 
 def dict_to_toml(d: dict) -> str:
@@ -443,7 +610,7 @@ def dict_to_toml(d: dict) -> str:
             return repr(v)
         if isinstance(v, int):
             return str(v)
-        return json.dumps(v)
+        return toml_string(str(v))
 
     def emit(prefix, table):
         scal = {k: v for k, v in table.items() if not isinstance(v, dict)}

@@ -14,17 +14,35 @@ from .scenario import load_scenario
 CSV_NAME = "drawbar_pull_slip.csv"
 
 
+def steady_window_problem(sc) -> str | None:
+    """Why the steady window (whose mean net traction is the drawbar pull) holds no step, or None."""
+    o, w = sc.output, sc.wheel
+    end = min(o.steady_end, w.travel_time)
+    if end - o.steady_start < sc.physics.dt:
+        return (f"output.steady_start = {o.steady_start!r}, output.steady_end = {o.steady_end!r}: the steady "
+                f"window [{o.steady_start:g}, {end:g}] s of travel (cut at wheel.travel_time = "
+                f"{w.travel_time:g} s) holds no step; the drawbar pull is its mean")
+    return None
+
+
 def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out: Path,
                    progress: bool = True) -> list[dict]:
     if out.exists() and any(out.iterdir()):
         raise RunError(f"--out {out}: directory exists and is not empty")
+    dirs = [out / f"slip_{s:.3f}" for s in slips]
+    if len(set(dirs)) != len(dirs):
+        raise RunError("--slips: two slips share the directory name slip_<s to 3 decimals>; give distinct slips")
     scs = [load_scenario(scenario, [*overrides, "wheel.control=slip", f"wheel.slip={s!r}"]) for s in slips]
     if not scs[0].wheel.enabled:
         raise RunError(f"scenario {scenario!r} has no wheel (wheel.enabled = false)")
+    problem = steady_window_problem(scs[0])
+    if problem:
+        raise RunError(problem)
+    # every run planned (and checked) before the first one starts
+    sims = [Simulation(sc, d, RunOptions(progress=progress, figures=False)) for sc, d in zip(scs, dirs)]
     out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for s, sc in zip(slips, scs):
-        sim = Simulation(sc, out / f"slip_{s:.3f}", RunOptions(progress=progress, figures=False))
+    for s, sim in zip(slips, sims):
         summary = sim.run()
         st = lambda k: summary[k]["steady"]["value"]
         rows.append({"slip": s, "drawbar_pull": st("net_traction"), "gross_traction": st("gross_traction"),

@@ -10,7 +10,7 @@ import os
 import stat
 
 from . import _hdf5, _zarr
-from ._confine import Resolver, open_regular, read_regular, sha256_regular
+from ._confine import Resolver, read_regular, sha256_regular
 from ._util import (EPOCH_DIR, EPOCH_NAME_RE, FORMAT, LOCK_FILE, MANIFEST, MANIFEST_TMP,
                     MAX_MANIFEST_BYTES, TMP_NAME_RE, StoreError, drop_page_cache, fsync_path,
                     parse_json, remove_path, to_json, write_error)

@@ -5,7 +5,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ooc_dem.bed import initial_fill, settled_bed
-from ooc_dem.engine.run import RunOptions, Simulation, place_wheel
+from ooc_dem.engine.run import place_wheel
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.engine.sweep import sweep_run
 from ooc_dem.physics.forces import ID_WALL_BOTTOM

@@ -1,7 +1,6 @@
 """Memory profiler: real subprocesses, real RSS; out-of-core keeps one sub-domain resident."""
 import json
 
-import numpy as np
 
 from conftest import run_cli
 

@@ -3,22 +3,27 @@ time series, summary and figures written into its output directory (a store).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 from .. import __version__
+from ..atomic import write_replacing
 from ..bed import settled_bed, surface_height
 from ..checkpoint import particles_to_record, record_to_particles
 from ..physics.forces import WS_SIZE, WS_X, WS_Y
-from ..scenario import Scenario, ScenarioError, scenario_from_toml
-from ..state import FORMAT_VERSION, Particles
+from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, ScenarioError, big, critical_time_step,
+                        scenario_from_toml, show, steps_for_duration)
+from ..metrics import N_SERIES
+from ..state import BYTES_PER_DISC, FORMAT_VERSION, Particles
 from .stepper import DomainStepper, EngineError, Model
 
 MODES = ("monolithic", "ddm", "ooc")
@@ -36,6 +41,7 @@ class RunOptions:
     domains: int | None = None
     block: int | None = None
     steps: int | None = None            # total steps to run (from step 0)
+    duration: float | None = None       # or: total simulated time to run, s (from t = 0)
     checkpoint_every: int | None = None  # steps between committed epochs
     durable: bool = False
     progress: bool = True
@@ -55,10 +61,182 @@ def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
 
 def total_steps(sc: Scenario, opts: RunOptions) -> int:
     if opts.steps is not None:
+        if not 0 <= opts.steps <= MAX_STEPS:
+            raise RunError(f"--steps {show(opts.steps)}: must be in [0, {big(MAX_STEPS)}]")
         return int(opts.steps)
+    if opts.duration is not None:
+        return steps_for_duration(opts.duration, sc.physics.dt, f"--duration {show(opts.duration)}")
     if sc.wheel.enabled:
-        return int(round((sc.wheel.settle_time + sc.wheel.travel_time) / sc.physics.dt))
+        return steps_for_duration(sc.wheel.settle_time + sc.wheel.travel_time, sc.physics.dt,
+                                  "wheel.settle_time + wheel.travel_time")
     return int(sc.output.run_steps)
+
+
+# ---- memory plan: bytes a run holds per disc, measured (peak RSS above the interpreter's
+# baseline, bed-200000, `tools/memsweep.py`-style) and rounded up
+STATE_BYTES_PER_DISC = BYTES_PER_DISC   # one copy of a disc's state (368 B)
+MONOLITHIC_BYTES_PER_DISC = 1100    # state + neighbour lists + forces + set-up copies (measured ~1070)
+RESIDENT_BYTES_PER_DISC = 1100      # a disc resident in a sub-domain (the same per-domain step)
+OOC_SETUP_BYTES_PER_DISC = 400      # out-of-core set-up from a bed held in RAM (measured ~370)
+STREAMED_SETUP_BYTES_PER_DISC = 16  # out-of-core set-up of a streamed bed: x of every disc, twice
+BASELINE_BYTES = 250 << 20          # interpreter, numpy, numba, compiled kernels
+SERIES_ROW_BYTES = N_SERIES * 8    # one series.csv row (float64 columns)
+MIN_DISCS_PER_DOMAIN = 20           # a sub-domain of fewer discs is all halo and overhead
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run will do, resolved and checked before anything is allocated or written
+    (``ooc-dem check`` prints it)."""
+    scenario: str
+    mode: str
+    backend: str
+    n_discs: int
+    steps: int
+    simulated_time_s: float
+    dt_s: float
+    dt_critical_s: float
+    checkpoint_every: int
+    domains: int
+    block: int
+    streamed_bed: bool
+    memory_bytes: int
+    memory_available_bytes: int
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def _fmt_bytes(n: float) -> str:
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{n / 1e3:.1f} kB"
+
+
+def _hop(sc: Scenario) -> float:
+    """One contact hop: the farthest a contact reaches (2 r_max) plus the Verlet skin."""
+    return 2.0 * sc.soil.r_max + sc.bed.skin
+
+
+def max_domains(sc: Scenario) -> int:
+    """The most sub-domains that make sense for the bed: each slab at least one contact hop
+    wide and holding at least MIN_DISCS_PER_DOMAIN discs (and at most MAX_DOMAINS)."""
+    by_width = int(sc.bin.length // _hop(sc))
+    by_discs = sc.soil.n // MIN_DISCS_PER_DOMAIN
+    return max(1, min(MAX_DOMAINS, by_width, by_discs))
+
+
+def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
+    if opts.mode == "monolithic":
+        return 1, 1
+    from .sweep import _block
+    D = opts.domains or sc.decomposition.domains
+    if opts.domains is not None and not 1 <= opts.domains <= MAX_DOMAINS:
+        raise RunError(f"--domains {show(opts.domains)}: must be in [1, {MAX_DOMAINS}]")
+    limit = max_domains(sc)
+    if D > limit:
+        what = f"--domains {D}" if opts.domains else f"decomposition.domains = {D}"
+        raise RunError(f"{what}: at most {limit} sub-domain{'s' if limit > 1 else ''} for this bed ({sc.soil.n} discs, "
+                       f"bin.length {sc.bin.length:g} m: each slab needs >= {MIN_DISCS_PER_DOMAIN} discs "
+                       f"and >= one contact hop {_hop(sc):.3g} m)")
+    # K exactly as the sweep will choose it (its own rule, not a copy)
+    K = _block(SimpleNamespace(sc=sc, opts=SimpleNamespace(mode=opts.mode, domains=D, block=opts.block)))
+    return D, K
+
+
+def streamable(sc: Scenario, opts: RunOptions) -> bool:
+    """An out-of-core run of a tiled bare bed writes its bed into the store tile by tile."""
+    return opts.mode == "ooc" and not sc.wheel.enabled and 0 < sc.bed.tile < sc.soil.n
+
+
+def estimate_memory(sc: Scenario, opts: RunOptions, steps: int, domains: int, block: int,
+                    streamed: bool) -> int:
+    """Bytes the run needs at its peak (rough: the constants above, measured)."""
+    n = sc.soil.n
+    if opts.mode == "monolithic":
+        state = n * MONOLITHIC_BYTES_PER_DISC
+    else:
+        # resident: a slab plus halo strips K + 1 hops wide on both sides
+        halo = 2.0 * (block + 1) * _hop(sc) / sc.bin.length
+        if opts.mode == "ddm":
+            # every slab is resident with its halo, plus the epoch's groups for commits
+            state = n * (RESIDENT_BYTES_PER_DISC * (1.0 + domains * halo) + STATE_BYTES_PER_DISC)
+        else:
+            slab = n * RESIDENT_BYTES_PER_DISC * min(1.0, 1.0 / domains + halo)
+            setup = n * (STREAMED_SETUP_BYTES_PER_DISC if streamed else OOC_SETUP_BYTES_PER_DISC)
+            state = max(slab, setup)
+    if opts.backend == "memory":
+        state += 3 * n * STATE_BYTES_PER_DISC   # the in-process store: current, previous, being written
+    series = 0.0
+    if sc.wheel.enabled:
+        per_row = max(1, int(round(sc.output.series_interval / sc.physics.dt)))
+        # the grown buffer (up to twice the rows) plus the copy each commit writes
+        series = 3.0 * (steps // per_row + 1) * SERIES_ROW_BYTES
+    return int(BASELINE_BYTES + state + series)
+
+
+def machine_memory() -> int:
+    import psutil
+    return int(psutil.virtual_memory().total)
+
+
+def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> RunPlan:
+    """Resolve and check a run's options against its scenario and this machine (no allocation,
+    no file, no bed): the shared planning of `run`, `check` and `resume`."""
+    if opts.mode not in MODES:
+        raise RunError(f"--mode {show(opts.mode)}: must be one of {', '.join(MODES)}")
+    if opts.backend not in BACKENDS:
+        raise RunError(f"--backend {show(opts.backend)}: must be one of {', '.join(BACKENDS)}")
+    steps = total_steps(sc, opts)
+    if opts.checkpoint_every is not None and not 1 <= opts.checkpoint_every <= MAX_STEPS:
+        raise RunError(f"--checkpoint-every {show(opts.checkpoint_every)}: must be in [1, {big(MAX_STEPS)}] steps")
+    every = opts.checkpoint_every or default_checkpoint_every(sc, steps)
+    D, K = _domains_and_block(sc, opts)
+    streamed = streamable(sc, opts) if streamed is None else streamed
+    need = estimate_memory(sc, opts, steps, D, K, streamed)
+    have = machine_memory()
+    if need > have:
+        raise RunError(_memory_message(sc, opts, steps, need, have, streamed))
+    return RunPlan(scenario=sc.name, mode=opts.mode, backend=opts.backend, n_discs=sc.soil.n, steps=steps,
+                   simulated_time_s=steps * sc.physics.dt, dt_s=sc.physics.dt,
+                   dt_critical_s=critical_time_step(sc), checkpoint_every=every, domains=D, block=K,
+                   streamed_bed=streamed, memory_bytes=need, memory_available_bytes=have)
+
+
+def check_bed_memory(sc: Scenario) -> int:
+    """`ooc-dem prepare`: the whole settled bed is held (an untiled bed is settled as one domain).
+    Returns the estimated bytes; refuses what cannot fit, naming soil.n."""
+    tiled = 0 < sc.bed.tile < sc.soil.n
+    per_disc = 2 * STATE_BYTES_PER_DISC if tiled else MONOLITHIC_BYTES_PER_DISC
+    need = BASELINE_BYTES + sc.soil.n * per_disc
+    have = machine_memory()
+    if need > have:
+        raise RunError(f"soil.n = {sc.soil.n}: preparing the bed needs about {_fmt_bytes(need)} of memory, "
+                       f"this machine has {_fmt_bytes(have)} (`ooc-dem run --mode ooc` streams a tiled bed "
+                       f"instead)")
+    return need
+
+
+def _memory_message(sc, opts, steps, need, have, streamed) -> str:
+    series_rows = steps // max(1, int(round(sc.output.series_interval / sc.physics.dt))) + 1
+    series = 3 * series_rows * SERIES_ROW_BYTES if sc.wheel.enabled else 0
+    if series > need / 2:
+        what = (f"output.series_interval = {sc.output.series_interval!r}: {steps} steps keep "
+                f"{series_rows} series rows")
+    else:
+        what = f"soil.n = {sc.soil.n}"
+    msg = (f"{what}: the run needs about {_fmt_bytes(need)} of memory ({opts.mode}), this machine "
+           f"has {_fmt_bytes(have)}")
+    if opts.mode != "ooc" and series <= need / 2:
+        ooc = RunOptions(**{**dataclasses.asdict(opts), "mode": "ooc", "domains": None, "block": None})
+        D = max_domains(sc)
+        alt = estimate_memory(sc, ooc, steps, D, 1, streamable(sc, ooc))
+        if alt <= have:
+            msg += f"; --mode ooc --domains {D} would need about {_fmt_bytes(alt)}"
+    elif opts.mode == "ooc" and series <= need / 2 and not streamed and not sc.wheel.enabled:
+        msg += " (out-of-core set-up holds the bed unless it is tiled: bed.tile)"
+    return msg
 
 
 class Progress:
@@ -150,7 +328,7 @@ def read_all_particles(reader) -> Particles:
 def default_checkpoint_every(sc: Scenario, steps: int) -> int:
     """One epoch per simulated second of a wheel run (at most ~100 per run), else only at the end."""
     if sc.wheel.enabled:
-        every = int(round(1.0 / sc.physics.dt))
+        every = int(round(min(1.0 / sc.physics.dt, MAX_STEPS)))   # a tiny dt: 1/dt overflows
         return max(every, -(-steps // 100)) if steps else every
     return max(1, steps)
 
@@ -162,17 +340,11 @@ class Simulation:
         self.sc = sc
         self.out = Path(out)
         self.opts = opts or RunOptions()
-        if self.opts.mode not in MODES:
-            raise RunError(f"--mode {self.opts.mode!r}: must be one of {', '.join(MODES)}")
-        if self.opts.backend not in BACKENDS:
-            raise RunError(f"--backend {self.opts.backend!r}: must be one of {', '.join(BACKENDS)}")
+        # everything checked and sized before a byte is allocated or a file written
+        self.plan = plan_run(sc, self.opts)
         self.model = Model.from_scenario(sc)
-        self.steps = total_steps(sc, self.opts)
-        if self.steps < 0:
-            raise RunError(f"--steps {self.steps}: must be >= 0")
-        self.checkpoint_every = self.opts.checkpoint_every or default_checkpoint_every(sc, self.steps)
-        if self.checkpoint_every < 1:
-            raise RunError(f"--checkpoint-every {self.checkpoint_every}: must be >= 1 step")
+        self.steps = self.plan.steps
+        self.checkpoint_every = self.plan.checkpoint_every
         self.store = None
         self.engine = None
         self.metrics = None
@@ -202,9 +374,10 @@ class Simulation:
             raise RunError(f"--out {self.out}: directory exists and is not empty (use a new directory, "
                            f"or `ooc-dem resume {self.out}` to continue a run)")
         sc = self.sc
-        if (streamed and bed is None and self.opts.mode == "ooc" and not sc.wheel.enabled
-                and 0 < sc.bed.tile < sc.soil.n):
+        if streamed and bed is None and streamable(sc, self.opts):
             return self._start_streamed()
+        if self.plan.streamed_bed:   # planned for a streamed bed, but the whole bed will be in RAM
+            self.plan = plan_run(sc, self.opts, streamed=False)
         if bed is None:
             bed = settled_bed(self.sc, progress=self._bed_progress())
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
@@ -213,9 +386,11 @@ class Simulation:
             self.store = create_store(self.out, self._store_backend(), self._meta())
         except StoreError as e:
             raise RunError(str(e)) from None
+        # a memory store lives in this process only; the run's other outputs still go to --out
+        self.out.mkdir(parents=True, exist_ok=True)
         np.savez(self.out / "initial.npz", id=bed.id, x=bed.x, y=bed.y, r=bed.r,
                  surface=np.float64(self.surface))
-        (self.out / "scenario.toml").write_text(self.sc.to_toml())
+        (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:
             from ..metrics import WheelMetrics
@@ -234,7 +409,8 @@ class Simulation:
             self.store = create_store(self.out, self._store_backend(), self._meta())
         except StoreError as e:
             raise RunError(str(e)) from None
-        (self.out / "scenario.toml").write_text(self.sc.to_toml())
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = SweepEngine.create_streamed(self, parts, np.zeros(WS_SIZE))
         self.step = 0
         self.commit()
@@ -381,17 +557,14 @@ class Simulation:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_replacing(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def write_series_csv(path: Path, rows: np.ndarray) -> None:
     from ..metrics import SERIES_COLUMNS, SERIES_UNITS
     header = ",".join(f"{c} [{u}]" for c, u in zip(SERIES_COLUMNS, SERIES_UNITS))
-    tmp = path.with_name(path.name + ".tmp")
-    np.savetxt(tmp, rows, delimiter=",", header=header, comments="", fmt="%.10g")
-    os.replace(tmp, path)
+    write_replacing(path, lambda tmp: np.savetxt(tmp, rows, delimiter=",", header=header, comments="",
+                                                 fmt="%.10g"))
 
 
 # the run options a store's meta must hold, with the types a resume accepts
@@ -482,9 +655,9 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
                        f"this empty store)")
     total = run["steps"]
     if until is not None:
-        total = int(round(until / sc.physics.dt))
+        total = steps_for_duration(until, sc.physics.dt, f"--until {show(until)}")
     elif steps is not None:
-        total = steps
+        total = total_steps(sc, RunOptions(steps=steps))
     opts = RunOptions(mode=run["mode"], backend=run["backend"], domains=run["domains"], block=run["block"],
                       steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
                       figures=figures)

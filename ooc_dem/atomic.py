@@ -1,0 +1,39 @@
+"""Output files written under a temporary name and renamed into place.
+
+A kill leaves each output either absent or complete, never torn. The temporary is
+created exclusively with an unpredictable name (mkstemp) beside its target, so a
+file or symlink planted in a run directory (which may come from someone else) can
+never redirect the write; `os.replace` then replaces the target's directory entry
+itself, not whatever a symlink there points to.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+
+def new_temp(path) -> Path:
+    """A new, empty temporary file beside `path`, with an ordinary file's permissions."""
+    path = Path(path)
+    fd, name = tempfile.mkstemp(prefix=f"{path.name}.tmp-", dir=path.parent)
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)   # not mkstemp's private 0600: outputs are for reading
+    finally:
+        os.close(fd)
+    return Path(name)
+
+
+def write_replacing(path, write) -> None:
+    """Call ``write(temporary_path)``, then rename the temporary over `path`."""
+    tmp = new_temp(path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise

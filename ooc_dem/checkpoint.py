@@ -79,6 +79,8 @@ def validate_record(rec: dict, where: str) -> None:
 
 def validate_globals(arrays: dict, attrs: dict, where: str) -> None:
     """Refuse an epoch's globals group that lacks what a resume needs (StateError)."""
+    if not isinstance(attrs, dict):
+        raise StateError(f"{where}: globals attributes are not an object")
     ws = arrays.get("wheel_state")
     if ws is None:
         raise StateError(f"{where}: globals hold no wheel_state")
@@ -144,6 +146,8 @@ def validate_epoch(reader, where: str) -> None:
         rec = reader.read_domain(d)
         validate_record(rec, at)
         dattrs = reader.domain_attrs(d)
+        if not isinstance(dattrs, dict):
+            raise StateError(f"{at}: attributes are not an object")
         for key in ("xmin", "xmax"):
             v = dattrs.get(key, 0.0)
             if type(v) not in (int, float) or not math.isfinite(v):

@@ -1,5 +1,6 @@
 """Shared fixtures: small scenarios and settled beds (cached across tests and runs)."""
 import os
+import signal
 import subprocess
 import sys
 
@@ -23,6 +24,21 @@ def run_cli(*args, check=False, timeout=900, env=None):
     if check and cp.returncode != 0:
         raise AssertionError(f"ooc-dem {' '.join(map(str, args))} failed ({cp.returncode}):\n{cp.stderr}")
     return cp
+
+
+def one_line_error(cp, *needles) -> str:
+    """Assert the bad-input rule on a finished `ooc-dem` process: exit code 2 (not a signal),
+    exactly one non-empty line on stderr, no traceback, every needle in that line; return it."""
+    if cp.returncode < 0:
+        pytest.fail(f"killed by {signal.Signals(-cp.returncode).name} instead of exit 2; stderr ends: "
+                    f"{cp.stderr.strip()[-600:]}")
+    assert cp.returncode == 2, (cp.returncode, cp.stdout[-2000:], cp.stderr[-3000:])
+    assert "Traceback" not in cp.stderr, cp.stderr[-3000:]
+    lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, cp.stderr[-3000:]
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    return lines[0]
 
 
 @pytest.fixture(scope="session")

@@ -95,15 +95,6 @@ def _status() -> dict:
     return out
 
 
-def _reset_hwm() -> bool:
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
-
-
 def _worker_main() -> int:
     import resource
     proto_in = os.fdopen(os.dup(0), "r", encoding="utf-8")
@@ -122,6 +113,7 @@ def _worker_main() -> int:
 
     def call(argv, cwd):
         from ooc_dem.cli import main
+        from ooc_dem.profiling import reset_peak
         os.chdir(cwd)
         outp, errp = scratch / "stdout", scratch / "stderr"
         sys.stdout.flush()
@@ -131,7 +123,7 @@ def _worker_main() -> int:
         with open(outp, "wb") as fo, open(errp, "wb") as fe:
             os.dup2(fo.fileno(), 1)
             os.dup2(fe.fileno(), 2)
-            hwm_reset = _reset_hwm()
+            hwm_reset = reset_peak()
             t0 = time.monotonic()
             try:
                 rc = main(list(argv))

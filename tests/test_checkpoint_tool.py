@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import run_cli
+from conftest import one_line_error, run_cli
 
 STEPS = 120
 CKPT = 30
@@ -31,19 +31,6 @@ def _run(out, *extra, scenario="bed-1200", steps=STEPS, ckpt=CKPT, **kw):
 
 def _hash(store):
     return run_cli("checkpoint", "hash", store, check=True).stdout.strip()
-
-
-def _one_line_error(cp, *needles):
-    if cp.returncode < 0:
-        pytest.fail(f"killed by {signal.Signals(-cp.returncode).name} instead of exit 2; stderr ends: "
-                    f"{cp.stderr.strip()[-600:]}")
-    assert cp.returncode == 2, (cp.returncode, cp.stdout, cp.stderr)
-    assert "Traceback" not in cp.stderr, cp.stderr
-    lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, cp.stderr
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
-    return lines[0]
 
 
 def _epoch_data(store, step=None):
@@ -231,12 +218,12 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
 
 def test_export_bad_arguments(reference, tmp_path):
     store, _ = reference
-    _one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "snap.dat"), "--format")
-    _one_line_error(run_cli("checkpoint", "export", store, "--format", "xdmf", "--out", tmp_path / "s.h5"),
+    one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "snap.dat"), "--format")
+    one_line_error(run_cli("checkpoint", "export", store, "--format", "xdmf", "--out", tmp_path / "s.h5"),
                     "s.h5")
-    _one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "s.csv", "--epoch", "7"),
+    one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "s.csv", "--epoch", "7"),
                     "epoch 7")
-    _one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "nodir" / "s.csv"),
+    one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "nodir" / "s.csv"),
                     "does not exist")
     assert not list(tmp_path.iterdir())
 
@@ -260,7 +247,7 @@ def test_list_and_prune(pristine, tmp_path):
     assert cp.returncode == 0 and "OK" in cp.stdout, cp.stdout + cp.stderr
     assert _hash(store) == h
     assert len(run_cli("checkpoint", "list", store, check=True).stdout.splitlines()) == 1
-    _one_line_error(run_cli("checkpoint", "prune", store, "--keep", "0"), "--keep")
+    one_line_error(run_cli("checkpoint", "prune", store, "--keep", "0"), "--keep")
 
 
 def test_prune_refuses_to_drop_the_fallback_of_a_damaged_epoch(pristine, tmp_path):
@@ -269,7 +256,7 @@ def test_prune_refuses_to_drop_the_fallback_of_a_damaged_epoch(pristine, tmp_pat
     cur, _ = _current_path(store)
     _flip_byte(cur)
     before = _tree(store)
-    _one_line_error(run_cli("checkpoint", "prune", store, "--keep", "1"), "refusing to prune", "120")
+    one_line_error(run_cli("checkpoint", "prune", store, "--keep", "1"), "refusing to prune", "120")
     assert _tree(store) == before
     cp = run_cli("checkpoint", "list", store, check=True)   # list still works on a damaged store
     assert "(previous)" in cp.stdout and "(current)" in cp.stdout
@@ -356,7 +343,7 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
 
     cp = run_cli("checkpoint", "verify", store)
     if kind == "delete_manifest":
-        _one_line_error(cp, "MANIFEST.json missing")
+        one_line_error(cp, "MANIFEST.json missing")
     elif kind == "stray_tmp":
         assert cp.returncode == 0, cp.stdout + cp.stderr
         warned = [ln for ln in cp.stdout.splitlines() if ln.startswith("warning:")]
@@ -372,17 +359,17 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
             assert any(PROBLEM[kind] in ln for ln in fails), cp.stdout
         if kind == "delete_group":
             assert any("d0001" in ln for ln in fails), cp.stdout
-        _one_line_error(cp, "problem(s) found", "no intact epoch" if kind == "both_epochs"
+        one_line_error(cp, "problem(s) found", "no intact epoch" if kind == "both_epochs"
                         else "falls back to epoch 110")
 
     before = _tree(store)
     cp = run_cli("resume", store, "--no-progress", "--no-figures")
     if kind == "delete_manifest":        # nothing names an intact epoch: stop, touch nothing
-        _one_line_error(cp, "MANIFEST.json")
+        one_line_error(cp, "MANIFEST.json")
         assert _tree(store) == before
         return
     if kind == "both_epochs":
-        _one_line_error(cp, "epoch 120 is corrupt", "previous epoch 110 too")
+        one_line_error(cp, "epoch 120 is corrupt", "previous epoch 110 too")
         assert _tree(store) == before
         return
     assert cp.returncode == 0, cp.stderr
@@ -428,7 +415,7 @@ def test_full_disk_stops_cleanly_and_resumes(tmp_path):
     out = tmp_path / "run"
     cp = _run(out, *FULL, scenario="quick", steps=FULL_STEPS, ckpt=FULL_CKPT,
               preexec_fn=_limit_file_size(limit))
-    _one_line_error(cp, "disk full or file too large")
+    one_line_error(cp, "disk full or file too large")
     _, m = _current_path(out)
     assert 0 < m["current"]["step"] < FULL_STEPS, m["current"]["step"]
     assert not [n for n in os.listdir(out / "epochs") if ".tmp-" in n]

@@ -15,7 +15,7 @@ import numpy as np
 import psutil
 import pytest
 
-from conftest import WHEEL_TEST, run_cli
+from conftest import WHEEL_TEST, one_line_error, run_cli
 
 from ooc_dem import cli
 from ooc_dem.scenario import Scenario, dict_to_toml
@@ -29,17 +29,6 @@ def toml_string(text: str) -> str:
     special = {'"': '\\"', "\\": "\\\\"}
     return '"' + "".join(special.get(c) or (f"\\u{ord(c):04X}" if ord(c) < 0x20 or ord(c) == 0x7F else c)
                          for c in text) + '"'
-
-
-def one_line_error(cp, *needles) -> str:
-    """Assert the rule; return the line."""
-    assert cp.returncode == 2, (cp.returncode, cp.stderr[-3000:])
-    assert "Traceback" not in cp.stderr, cp.stderr[-3000:]
-    lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, cp.stderr[-3000:]
-    for needle in needles:
-        assert needle in lines[0], lines[0]
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

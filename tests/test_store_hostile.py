@@ -11,7 +11,6 @@ import copy
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -20,7 +19,7 @@ from pathlib import Path
 import h5py
 import pytest
 
-from conftest import run_cli
+from conftest import one_line_error, run_cli
 
 STEPS, CKPT = 20, 10                 # current epoch 20, previous epoch 10
 RESUME_MORE = ["--steps", "40", "--no-progress", "--no-figures"]   # commits 30 and 40
@@ -93,18 +92,6 @@ def _cli(*args, timeout=HANG_TIMEOUT_S):
         pytest.fail(f"`ooc-dem {' '.join(map(str, args))}` hung (no answer in {timeout} s)")
 
 
-def _one_line_error(cp, *needles):
-    if cp.returncode < 0:
-        pytest.fail(f"killed by {signal.Signals(-cp.returncode).name}: {cp.stderr.strip()[-600:]}")
-    assert cp.returncode == 2, (cp.returncode, cp.stdout[-2000:], cp.stderr[-2000:])
-    assert "Traceback" not in cp.stderr, cp.stderr
-    lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, cp.stderr
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
-    return lines[0]
-
-
 def _path_to_root(store) -> str:
     """"../" enough times to climb from the store directory to "/"."""
     return "../" * (len(Path(store).resolve().parts) - 1)
@@ -118,7 +105,7 @@ def test_prune_never_deletes_a_previous_path_outside_the_store(pristine, tmp_pat
     _edit(store, lambda m: m["previous"].update(
         path="../victim" if where == "relative" else str(victim)))
     before, vbefore = _snapshot(store), _snapshot(victim)
-    _one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "previous epoch", "victim")
+    one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "previous epoch", "victim")
     assert _snapshot(victim) == vbefore
     assert _snapshot(store) == before
 
@@ -128,7 +115,7 @@ def test_resume_never_deletes_a_previous_path_outside_the_store(pristine, tmp_pa
     store, victim = _make(pristine, tmp_path)
     _edit(store, lambda m: m["previous"].update(path="../victim/sub/data.bin"))
     vbefore = _snapshot(victim)
-    _one_line_error(_cli("resume", store, *RESUME_MORE), "previous epoch")
+    one_line_error(_cli("resume", store, *RESUME_MORE), "previous epoch")
     assert _snapshot(victim) == vbefore
 
 
@@ -145,7 +132,7 @@ def test_resume_never_deletes_a_current_epoch_outside_the_store(pristine, tmp_pa
         m["current"]["files"][0]["path"] = outside
     _edit(store, point_outside)
     vbefore = _snapshot(victim)
-    _one_line_error(_cli("resume", store, *RESUME_MORE), "current epoch", "victim")
+    one_line_error(_cli("resume", store, *RESUME_MORE), "current epoch", "victim")
     assert _snapshot(victim) == vbefore
 
 
@@ -161,7 +148,7 @@ def test_repair_never_deletes_through_a_symlinked_epochs_dir(pristine, tmp_path)
     vbefore = _snapshot(victim)
     for cmd in (("resume", store, *RESUME_MORE), ("checkpoint", "prune", store, "--keep", "1"),
                 ("checkpoint", "verify", store)):
-        _one_line_error(_cli(*cmd), "epochs", "symbolic link")
+        one_line_error(_cli(*cmd), "epochs", "symbolic link")
         assert _snapshot(victim) == vbefore
 
 
@@ -172,7 +159,7 @@ def test_a_file_entry_on_dev_zero_is_refused_not_read_forever(pristine, tmp_path
     _edit(store, lambda m: m["current"]["files"].append({"path": zero, "size": 0, "sha256": "0" * 64}))
     before = _snapshot(store)
     cmd = ("checkpoint", "verify", store) if command == "verify" else ("resume", store, *RESUME_MORE)
-    _one_line_error(_cli(*cmd), "current epoch", "dev/zero")
+    one_line_error(_cli(*cmd), "current epoch", "dev/zero")
     assert _snapshot(store) == before
 
 
@@ -184,7 +171,7 @@ def test_prune_never_deletes_the_store_its_epochs_dir_or_its_manifest(pristine, 
     store, victim = _make(pristine, tmp_path)
     _edit(store, lambda m: m["previous"].update(path=path))
     before = _snapshot(store)
-    _one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "previous epoch")
+    one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "previous epoch")
     assert _snapshot(store) == before
 
 
@@ -201,7 +188,7 @@ def test_prune_never_deletes_the_current_epoch_named_as_previous(pristine, tmp_p
             m["previous"]["step"] = m["current"]["step"]
     _edit(store, alias)
     before = _snapshot(store)
-    _one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "MANIFEST.json")
+    one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "MANIFEST.json")
     assert _snapshot(store) == before
     cp = _cli("checkpoint", "list", store)
     assert cp.returncode == 2 and "Traceback" not in cp.stderr, cp.stderr
@@ -233,16 +220,16 @@ def test_an_epoch_whose_files_are_not_listed_is_refused(pristine, tmp_path, list
     _edit(store, unlist)
     cp = _cli("checkpoint", "verify", store)
     assert "OK" not in cp.stdout, cp.stdout
-    _one_line_error(cp, "current epoch")
+    one_line_error(cp, "current epoch")
     before = _snapshot(store)
-    _one_line_error(_cli("resume", store, *RESUME_MORE), "current epoch")
+    one_line_error(_cli("resume", store, *RESUME_MORE), "current epoch")
     assert _snapshot(store) == before
 
 
 def test_zarr_epoch_files_must_be_exactly_the_listed_ones(pristine, tmp_path):
     store, victim = _make(pristine, tmp_path, "zarr")
     _edit(store, lambda m: m["current"].update(files=[]))
-    _one_line_error(_cli("checkpoint", "verify", store), "current epoch", "no files")
+    one_line_error(_cli("checkpoint", "verify", store), "current epoch", "no files")
 
 
 def test_a_symlink_inside_a_zarr_epoch_is_a_verification_problem(pristine, tmp_path):
@@ -257,7 +244,7 @@ def test_a_symlink_inside_a_zarr_epoch_is_a_verification_problem(pristine, tmp_p
     cp = _cli("checkpoint", "verify", store)
     fails = [ln for ln in cp.stdout.splitlines() if ln.startswith("FAIL ")]
     assert any("epoch 20:" in ln and "symbolic link" in ln for ln in fails), cp.stdout
-    _one_line_error(cp, "problem(s) found", "falls back to epoch 10")
+    one_line_error(cp, "problem(s) found", "falls back to epoch 10")
     cp = _cli("resume", store, *RESUME_MORE)
     assert cp.returncode == 0 and "Traceback" not in cp.stderr, cp.stderr
     assert "using previous epoch 10" in cp.stderr, cp.stderr
@@ -289,9 +276,9 @@ def test_a_second_writer_is_refused_while_a_run_writes(pristine, tmp_path):
                              "--no-figures"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         _wait_for_commit(store, proc)
-        _one_line_error(_cli("resume", store, "--no-progress", "--no-figures"),
+        one_line_error(_cli("resume", store, "--no-progress", "--no-figures"),
                         "another process is writing this store", f"pid {proc.pid}")
-        _one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"),
+        one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"),
                         "is writing this store", str(proc.pid))
         for cmd in ("verify", "list", "hash"):        # read-only: never refused
             cp = _cli("checkpoint", cmd, store)
@@ -315,7 +302,7 @@ def test_a_planted_lock_file_is_never_written_through(pristine, tmp_path, kind):
     lock.unlink()
     (os.link if kind == "hard link" else os.symlink)(victim / "precious.txt", lock)
     vbefore = _snapshot(victim)
-    _one_line_error(_cli("resume", store, *RESUME_MORE), ".ooc-dem.lock")
+    one_line_error(_cli("resume", store, *RESUME_MORE), ".ooc-dem.lock")
     assert _snapshot(victim) == vbefore
 
 
@@ -426,7 +413,7 @@ def test_hostile_manifest_fields_give_one_line(pristine, tmp_path, case):
     before = _snapshot(store)
     for cmd in (("checkpoint", "verify", store), ("checkpoint", "list", store),
                 ("resume", store, *RESUME_MORE)):
-        _one_line_error(_cli(*cmd), "MANIFEST.json", needle)
+        one_line_error(_cli(*cmd), "MANIFEST.json", needle)
         assert _snapshot(store) == before
 
 
@@ -462,7 +449,7 @@ def test_hostile_manifest_files_give_one_line(pristine, tmp_path, case):
     before = _snapshot(store)
     for cmd in (("checkpoint", "verify", store), ("resume", store, *RESUME_MORE),
                 ("checkpoint", "prune", store, "--keep", "1")):
-        _one_line_error(_cli(*cmd), "MANIFEST.json", needle)
+        one_line_error(_cli(*cmd), "MANIFEST.json", needle)
         assert _snapshot(store) == before
 
 

@@ -14,20 +14,10 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import WHEEL_TEST, run_cli
+from conftest import WHEEL_TEST, one_line_error, run_cli
 
 STEPS = 40
 CKPT = 20
-
-
-def _one_line_error(cp, *needles):
-    assert cp.returncode == 2, (cp.returncode, cp.stdout, cp.stderr)
-    assert "Traceback" not in cp.stderr, cp.stderr
-    lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, cp.stderr
-    for n in needles:
-        assert n in lines[0], (n, lines[0])
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -121,13 +111,13 @@ def test_consistently_tampered_epoch_is_refused(run_copy, case):
     _tamper_current(run_copy, edit)
     assert run_cli("checkpoint", "verify", run_copy).returncode == 0   # the checksums do pass
     before = (run_copy / "MANIFEST.json").read_bytes()
-    _one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
+    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
                             "--no-figures"), needle)
     assert (run_copy / "MANIFEST.json").read_bytes() == before        # nothing committed over it
     if case in ("duplicate-ids", "globals-attrs-without-step", "wheel-state-nan", "hist_n-99"):
-        _one_line_error(run_cli("checkpoint", "hash", run_copy))
+        one_line_error(run_cli("checkpoint", "hash", run_copy))
     if case in ("duplicate-ids", "globals-attrs-without-step", "wheel-state-nan"):
-        _one_line_error(run_cli("checkpoint", "export", run_copy, "--out", run_copy.parent / "x.csv"))
+        one_line_error(run_cli("checkpoint", "export", run_copy, "--out", run_copy.parent / "x.csv"))
 
 
 def test_missing_globals_group_is_refused(run_copy):
@@ -136,7 +126,7 @@ def test_missing_globals_group_is_refused(run_copy):
     m = _tamper_current(run_copy, drop_globals)
     m["current"]["globals"] = None
     (run_copy / "MANIFEST.json").write_text(json.dumps(m))
-    _one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), "wheel_state")
+    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), "wheel_state")
 
 
 HOSTILE_META = {
@@ -155,7 +145,7 @@ def test_hostile_run_meta_is_refused(run_copy, case):
     m = _manifest(run_copy)
     edit(m["meta"])
     (run_copy / "MANIFEST.json").write_text(json.dumps(m))
-    _one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), needle)
+    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), needle)
 
 
 def test_hostile_engine_attrs_are_refused(tmp_path):
@@ -170,7 +160,7 @@ def test_hostile_engine_attrs_are_refused(tmp_path):
         a["engine"]["bounds"] = ["left", 0.2]
         f["globals"].attrs["ooc_dem_attrs"] = json.dumps(a)
     _tamper_current(out, bad_bounds)
-    _one_line_error(run_cli("resume", out, "--steps", 40, "--no-progress", "--no-figures"), "bounds")
+    one_line_error(run_cli("resume", out, "--steps", 40, "--no-progress", "--no-figures"), "bounds")
 
 
 # ------------------------------------------------------------------ export --out
@@ -185,12 +175,12 @@ def test_export_never_replaces_store_files(run_copy):
                run_copy / "epochs" / "new.csv", run_copy / "final.vtk"]
     for t in targets:
         before = t.read_bytes() if t.exists() else None
-        _one_line_error(_export(run_copy, t, "--format", "csv"), "store")
+        one_line_error(_export(run_copy, t, "--format", "csv"), "store")
         assert (t.read_bytes() if t.exists() else None) == before, t
     # XDMF writes NAME.h5 beside NAME.xdmf: the .h5 sibling is checked too
     cur = run_copy / m["current"]["path"]
     before = cur.read_bytes()
-    _one_line_error(_export(run_copy, cur.with_suffix(".xdmf")), "store")
+    one_line_error(_export(run_copy, cur.with_suffix(".xdmf")), "store")
     assert cur.read_bytes() == before
     assert run_cli("checkpoint", "verify", run_copy).returncode == 0
 
@@ -210,7 +200,7 @@ def test_export_refuses_what_is_not_a_regular_file(run_copy, tmp_path):
         cases.append(dev)
     for c in cases:
         mode = os.lstat(c).st_mode
-        _one_line_error(_export(run_copy, c, "--format", "csv"), str(c))
+        one_line_error(_export(run_copy, c, "--format", "csv"), str(c))
         assert os.lstat(c).st_mode == mode
     assert target.read_text() == "keep me"
     # an existing regular file outside any store is replaced, and gets ordinary permissions
@@ -275,16 +265,16 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     sim = Simulation(sc, out, RunOptions(steps=20, progress=False, figures=False))
     create_store(out, "hdf5", sim._meta()).close()
     (out / "scenario.toml").write_text(sc.to_toml())
-    line = _one_line_error(run_cli("resume", out, "--no-progress"), "no committed epoch")
+    line = one_line_error(run_cli("resume", out, "--no-progress"), "no committed epoch")
     assert f"--out {out}" in line and "ooc-dem run" in line
     args = ["run", "quick", "--out", out, "--steps", 20, "--no-progress", "--no-figures",
             *sum((["--set", s] for s in WHEEL_TEST), [])]
     (out / "notes.txt").write_text("mine")          # a user's file: the directory is not ours
-    _one_line_error(run_cli(*args), "not empty")
+    one_line_error(run_cli(*args), "not empty")
     (out / "notes.txt").unlink()
     from storage import open_store
     with open_store(out):                          # a live run still setting up holds the store
-        _one_line_error(run_cli(*args), "another process is writing this store")
+        one_line_error(run_cli(*args), "another process is writing this store")
     cp = run_cli(*args)
     assert cp.returncode == 0, cp.stderr
     assert run_cli("checkpoint", "verify", out).returncode == 0

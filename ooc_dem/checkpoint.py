@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from .physics.forces import WS_SIZE
+from .scenario import show
 from .state import HIST_CAP, HIST_FIELDS, SCALAR_FIELDS, Particles, canonical_bytes
 
 
@@ -89,11 +90,11 @@ def validate_globals(arrays: dict, attrs: dict, where: str) -> None:
                          f"{ws.shape}")
     step = attrs.get("step")
     if type(step) is not int or step < 0:
-        raise StateError(f"{where}: globals attribute 'step' = {step!r}: must be an integer >= 0")
+        raise StateError(f"{where}: globals attribute 'step' = {show(step)}: must be an integer >= 0")
     for key in ("time", "surface", "wall_time"):
         v = attrs.get(key, 0.0)
         if type(v) not in (int, float) or not math.isfinite(v):
-            raise StateError(f"{where}: globals attribute {key!r} = {v!r}: must be a finite number")
+            raise StateError(f"{where}: globals attribute {key!r} = {show(v)}: must be a finite number")
     red = attrs.get("redecompositions", [])
     if not isinstance(red, list):
         raise StateError(f"{where}: globals attribute 'redecompositions' must be a list")
@@ -151,9 +152,9 @@ def validate_epoch(reader, where: str) -> None:
         for key in ("xmin", "xmax"):
             v = dattrs.get(key, 0.0)
             if type(v) not in (int, float) or not math.isfinite(v):
-                raise StateError(f"{at}: attribute {key!r} = {v!r}: must be a finite number")
+                raise StateError(f"{at}: attribute {key!r} = {show(v)}: must be a finite number")
         if "n" in dattrs and dattrs["n"] != len(rec["id"]):
-            raise StateError(f"{at}: attribute 'n' = {dattrs['n']!r}, the domain holds "
+            raise StateError(f"{at}: attribute 'n' = {show(dattrs['n'])}, the domain holds "
                              f"{len(rec['id'])} discs")
         if (np.diff(rec["x"]) < 0).any():   # halo reads bisect the rows by x
             raise StateError(f"{at}: discs not sorted by x")

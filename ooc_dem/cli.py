@@ -426,7 +426,6 @@ def _checkpoint_export(store, args) -> int:
     try:
         check_targets(output_files(fmt, out), out)   # before reading anything
         reader = store.read_epoch(args.epoch)
-        _warn_fallback(store)
         try:
             snap = read_snapshot(reader, args.store)
         finally:
@@ -434,6 +433,7 @@ def _checkpoint_export(store, args) -> int:
         files = export_snapshot(snap, fmt, out)
     except (ExportError, StateError) as e:
         raise CliError(str(e)) from None
+    _warn_fallback(store)   # after the work: a refusal stays one line
     print(f"exported epoch {snap.step} ({len(snap)} discs, t = {snap.time:.6f} s) as {fmt}: "
           + ", ".join(map(str, files)))
     return 0
@@ -445,7 +445,7 @@ def _warn_fallback(store) -> None:
 
 
 def cmd_checkpoint(args):
-    from .checkpoint import hash_epoch
+    from .checkpoint import hash_epoch, validate_globals
     from storage import open_store
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
@@ -460,18 +460,22 @@ def cmd_checkpoint(args):
         if args.ckpt_command == "export":
             return _checkpoint_export(store, args)
         reader = store.read_epoch(args.epoch)
-        _warn_fallback(store)
-        arrays, attrs = reader.read_globals()
-        if args.ckpt_command == "hash":
-            print(hash_epoch(reader))   # streamed: a store larger than RAM hashes too
-        else:  # inspect
-            n = sum(reader.domain_len(d) for d in reader.domains())
-            info = {"step": attrs.get("step"), "time": attrs.get("time"), "discs": n,
-                    "domains": {str(d): reader.domain_len(d) for d in reader.domains()},
-                    "wheel_state": [float(v) for v in arrays["wheel_state"]],
-                    "mode": attrs.get("mode")}
-            print(json.dumps(info, indent=2))
-        reader.close()
+        try:
+            if args.ckpt_command == "hash":
+                out = hash_epoch(reader)   # streamed: a store larger than RAM hashes too
+            else:  # inspect
+                arrays, attrs = reader.read_globals()
+                validate_globals(arrays, attrs, f"{args.store}: epoch {reader.step}")
+                info = {"step": attrs["step"], "time": attrs.get("time"),
+                        "discs": sum(reader.domain_len(d) for d in reader.domains()),
+                        "domains": {str(d): reader.domain_len(d) for d in reader.domains()},
+                        "wheel_state": [float(v) for v in arrays["wheel_state"]],
+                        "mode": attrs.get("mode")}
+                out = json.dumps(info, indent=2)
+        finally:
+            reader.close()
+        _warn_fallback(store)   # after the work: a refusal stays one line
+        print(out)
         return 0
     finally:
         store.close()

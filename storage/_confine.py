@@ -39,6 +39,10 @@ _OPEN_FLAGS = (os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBL
 
 
 def _short(v) -> str:
+    """A value from a store as a message may show it: short, and never an int-to-decimal
+    conversion past Python's digit limit (which raises)."""
+    if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 200:
+        return f"<an integer of {v.bit_length()} bits>"
     r = repr(v)
     return r if len(r) <= 80 else r[:77] + "..."
 

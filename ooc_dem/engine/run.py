@@ -574,19 +574,20 @@ _RUN_OPTION_TYPES = {"mode": (str,), "backend": (str,), "domains": (int, type(No
 
 def _stored_run_options(meta: dict, path) -> dict:
     """The run options recorded in a store's meta, checked (a store is untrusted input)."""
-    run = meta.get("run")
-    if not isinstance(run, dict):
+    stored = meta.get("run")
+    if not isinstance(stored, dict):
         raise RunError(f"{path}: store meta has no run options (not written by `ooc-dem run`)")
+    run = {key: stored.get(key) for key in _RUN_OPTION_TYPES}
     for key, types in _RUN_OPTION_TYPES.items():
-        v = run.get(key)
-        if type(v) not in types:
-            raise RunError(f"{path}: stored run option {key!r} = {v!r} has the wrong type "
+        if type(run[key]) not in types:
+            raise RunError(f"{path}: stored run option {key!r} = {show(run[key])} has the wrong type "
                            f"(store damaged or edited)")
     if run["mode"] not in MODES or run["backend"] not in BACKENDS:
-        raise RunError(f"{path}: stored run mode/backend {run['mode']!r}/{run['backend']!r} unknown")
+        raise RunError(f"{path}: stored run mode/backend {show(run['mode'])}/{show(run['backend'])} "
+                       f"unknown")
     for key in ("domains", "block"):
         if run[key] is not None and not 1 <= run[key] <= 100_000:
-            raise RunError(f"{path}: stored run option {key!r} = {run[key]!r} out of range")
+            raise RunError(f"{path}: stored run option {key!r} = {show(run[key])} out of range")
     if run["steps"] < 0 or run["checkpoint_every"] < 1:
         raise RunError(f"{path}: stored run options steps/checkpoint_every out of range")
     return run
@@ -598,7 +599,7 @@ def _check_engine_attrs(engine, n_domains: int, where: str) -> None:
         raise RunError(f"{where}: globals attribute 'engine' missing")
     block, bounds = engine.get("block"), engine.get("bounds")
     if type(block) is not int or not 1 <= block <= 100_000:
-        raise RunError(f"{where}: stored block K = {block!r}: must be an integer in [1, 100000]")
+        raise RunError(f"{where}: stored block K = {show(block)}: must be an integer in [1, 100000]")
     if (not isinstance(bounds, list) or len(bounds) != n_domains - 1
             or not all(type(b) in (int, float) and math.isfinite(b) for b in bounds)
             or any(b1 < b0 for b0, b1 in zip(bounds, bounds[1:]))):
@@ -637,7 +638,7 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
     if meta.get("engine") != "ooc-dem":
         raise RunError(f"{path}: not an ooc-dem run store")
     if meta.get("format_version") != FORMAT_VERSION:
-        raise RunError(f"{path}: store format version {meta.get('format_version')!r} is not supported "
+        raise RunError(f"{path}: store format version {show(meta.get('format_version'))} is not supported "
                        f"(this engine reads version {FORMAT_VERSION})")
     toml = meta.get("scenario_toml")
     if not isinstance(toml, str):
@@ -667,8 +668,6 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
         validate_epoch(reader, str(path))
     except (StoreError, StateError) as e:
         raise RunError(str(e)) from None
-    for w in getattr(store, "warnings", []):
-        print(f"ooc-dem: warning: {w}", file=sys.stderr)
     arrays, attrs = reader.read_globals()
     if attrs.get("scenario_hash") != sc.hash():
         raise RunError(f"{path}: epoch {reader.step} was written by a different scenario")
@@ -698,6 +697,8 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
             sim.engine = SweepEngine.reopen(sim, reader, arrays, attrs)
     finally:
         reader.close()
+    for w in store.warnings:   # only once the epoch is accepted: a refusal stays one line
+        print(f"ooc-dem: warning: {w}", file=sys.stderr)
     if step >= total:
         done = sim.complete_outputs()
         print(f"{path}: run already finished at step {step}"

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import resource
 import sys
 import time
 from pathlib import Path
@@ -34,7 +35,15 @@ def _load(name: str, path: Path):
     return mod
 
 
+# the harness itself (not only its worker) stays inside a memory bound: a harness bug must fail
+# this run, never push the machine into its OOM killer
+HARNESS_ADDRESS_SPACE = 8 << 30
+
+
 def main(argv=None) -> int:
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY or soft > HARNESS_ADDRESS_SPACE:
+        resource.setrlimit(resource.RLIMIT_AS, (HARNESS_ADDRESS_SPACE, hard))
     fuzzing = _load("fuzzing", ROOT / "tests" / "fuzzing.py")
     weights = _load("_test_fuzz_budget", ROOT / "tests" / "test_fuzz.py").BUDGET
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],

@@ -28,7 +28,7 @@ from ..physics.neighbors import build_pairs, spatial_order
 from ..state import Particles
 
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
-PAIR_HEADROOM = 1.15  # pair list capacity = pairs counted at a build x this (+64)
+PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
 
 
 class EngineError(RuntimeError):
@@ -115,7 +115,7 @@ def _run_steps(nsteps, step0, dt, gx, gy, skin, n, d, pl, bd, fx, fy, tq, cp, wa
     err[ERR_HIST_OVERFLOW] (fatal)."""
     wheel = wg[0].enabled > 0.5
     nlugs = int(wg[0].nlugs)
-    lugdir = np.zeros((max(1, nlugs), 2))
+    lugdir = np.zeros(max(1, nlugs), L.LUG_DIRECTION)
     part = np.zeros(N_CHUNKS)
     if rebuild_now:
         npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.inc_off,
@@ -174,7 +174,9 @@ class DomainStepper:
     contact row), all sized from the bed."""
 
     def __init__(self, particles: Particles, model: Model, wheel_state: np.ndarray | None = None,
-                 reorder: bool = True):
+                 reorder: bool = True, keep_forces: bool = False):
+        """keep_forces: keep each step's contact forces and torques in fx, fy, tq
+        (diagnostics and tests; 24 bytes a disc)."""
         if reorder and len(particles) > 1:
             perm = spatial_order(particles.x, particles.y, len(particles), 2 * model.r_max + model.skin)
             particles.permute_inplace(perm)  # the caller's discs, reordered: no second copy
@@ -189,9 +191,9 @@ class DomainStepper:
         self._grow_pairs(0)
         self.xref = np.zeros(n)
         self.yref = np.zeros(n)
-        self.fx = np.zeros(n)
-        self.fy = np.zeros(n)
-        self.tq = np.zeros(n)
+        nf = n if keep_forces else 0
+        self._forces = (np.zeros(nf), np.zeros(nf), np.zeros(nf))
+        self.keep_forces = keep_forces
         self.bodies = Bodies(np.zeros(N_CHUNKS * 8, L.BODY_ROW), np.zeros(N_CHUNKS, np.int64))
         self.err = np.zeros(N_ERR, np.int64)
         self._built = False
@@ -204,6 +206,15 @@ class DomainStepper:
         self.on = np.zeros(cap, np.uint8)
         self.rows = np.zeros(cap, L.PAIR_ROW)
 
+    def _force(self, k):
+        if not self.keep_forces:
+            raise AttributeError("contact forces are kept only by DomainStepper(..., keep_forces=True)")
+        return self._forces[k]
+
+    fx = property(lambda self: self._force(0), doc="contact force x of the last step (keep_forces)")
+    fy = property(lambda self: self._force(1), doc="contact force y of the last step (keep_forces)")
+    tq = property(lambda self: self._force(2), doc="contact torque of the last step (keep_forces)")
+
     @property
     def pairs(self) -> int:
         """Candidate pairs in the current list (each once)."""
@@ -212,7 +223,7 @@ class DomainStepper:
     def nbytes(self) -> int:
         """Bytes the stepper holds besides the discs."""
         arrs = (self.half_off, self.inc_off, self.pair_b, self.inc_a, self.on, self.rows, self.xref,
-                self.yref, self.fx, self.fy, self.tq, self.bodies.rows)
+                self.yref, *self._forces, self.bodies.rows)
         return sum(a.nbytes for a in arrs)
 
     def advance(self, step0: int, nsteps: int) -> np.ndarray:
@@ -245,7 +256,7 @@ class DomainStepper:
             pl = Pairs(self.half_off, self.pair_b, self.inc_off, self.inc_a, self.xref, self.yref,
                        self.on, self.rows)
             k, rb = _run_steps(nsteps - done, step0 + done, m.dt, m.gx, m.gy, m.skin, self.n, d, pl,
-                               self.bodies, self.fx, self.fy, self.tq, cp, walls, wg, wc, ws,
+                               self.bodies, *self._forces, cp, walls, wg, wc, ws,
                                self.err, recv[done:] if len(rec) else recv, not self._built)
             done += k
             self.rebuilds += rb

@@ -78,7 +78,7 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
 
     d: layout Discs, pl: Pairs (half list + rows), bd: Bodies (per-chunk body rows),
     cp: CONTACT_PARAMS table [type_a, type_b], walls: WALLS, wg: WHEEL_GEOMETRY,
-    ws: WHEEL_STATE (records of shape (1,)); lugdir[k] = (cos, sin) of lug k.
+    ws: WHEEL_STATE (records of shape (1,)); lugdir: LUG_DIRECTION of each lug.
     Sets err[ERR_BODY_CAPACITY] when a chunk's body buffer is full (grow, rerun)."""
     x, y, vx, vy, w, r = d.x, d.y, d.vx, d.vy, d.w, d.r
     mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
@@ -133,8 +133,8 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                 if d2 < (reach + ri) * (reach + ri):
                     meff = mi * wmass / (mi + wmass)
                     for lug in range(nlugs):
-                        ux = lugdir[lug, 0]
-                        uy = lugdir[lug, 1]
+                        ux = lugdir[lug].ux
+                        uy = lugdir[lug].uy
                         sproj = dxw * ux + dyw * uy
                         if sproj < lug_in:
                             sproj = lug_in
@@ -275,7 +275,8 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
     """Phase 2: per disc, sum its rows in ascending partner-id order (module doc),
     rewrite its history from them, then advance it one leapfrog step:
     v_(n+1/2) = v_(n-1/2) + a_n dt, x_(n+1) = x_n + v_(n+1/2) dt.
-    fx/fy/tq get the contact forces and torques of time n. Returns the largest squared
+    fx/fy/tq get the contact forces and torques of time n (unless they have length 0).
+    Returns the largest squared
     displacement since the last neighbour build (a max: order-free); part is scratch
     of N_CHUNKS entries."""
     x, y, vx, vy, w = d.x, d.y, d.vx, d.vy, d.w
@@ -286,6 +287,7 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     cap = hist_id.shape[1]
+    keep = fx.shape[0] >= n
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, n)
         bat = ch * bcap
@@ -332,9 +334,10 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
                     sfy -= row.by
                     stq += row.ta
             hist_n[i] = min(k, cap)
-            fx[i] = sfx
-            fy[i] = sfy
-            tq[i] = stq
+            if keep:
+                fx[i] = sfx
+                fy[i] = sfy
+                tq[i] = stq
             vx[i] += (sfx / mass[i] + gx) * dt
             vy[i] += (sfy / mass[i] + gy) * dt
             w[i] += stq / inertia[i] * dt
@@ -353,11 +356,12 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
 
 @njit(cache=True)
 def lug_directions(theta, nlugs, lugdir):
-    """Unit vectors of the lugs at wheel angle theta (lug k at theta + 2 pi k / n)."""
+    """Unit vectors of the lugs at wheel angle theta (lug k at theta + 2 pi k / n);
+    lugdir: LUG_DIRECTION records."""
     for k in range(nlugs):
         phi = theta + 2.0 * math.pi * k / nlugs
-        lugdir[k, 0] = math.cos(phi)
-        lugdir[k, 1] = math.sin(phi)
+        lugdir[k].ux = math.cos(phi)
+        lugdir[k].uy = math.sin(phi)
 
 
 @njit(cache=True)

@@ -16,6 +16,7 @@ Records:
                       quantity export.py calls ``omega``)
 - ``WHEEL_CONTROLS``  prescribed motion and drawbar
 - ``WHEEL_RECORD``    one row per step of a wheel run
+- ``LUG_DIRECTION``   unit vector of one lug at the current wheel angle
 - ``ERRORS``          kernel error flags
 - ``PAIR_ROW``        one disc-disc contact of a step (phase 1 -> phase 2)
 - ``BODY_ROW``        one disc-wall / disc-wheel-part contact of a step
@@ -79,6 +80,9 @@ REC_COLUMNS = WHEEL_RECORD.names
 (REC_T, REC_X, REC_Y, REC_VX, REC_VY, REC_WZ, REC_THETA, REC_FX, REC_FY, REC_TQ, REC_DB,
  REC_NC) = range(12)
 N_REC = len(REC_COLUMNS)
+
+# unit vector of each lug at the current wheel angle (forces.lug_directions)
+LUG_DIRECTION = _dtype(("ux", "uy"))
 
 # ------------------------------------------------------------------- errors
 ERRORS = _dtype(("hist_overflow", "pair_capacity", "body_capacity"), "<i8")

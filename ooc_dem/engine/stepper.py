@@ -118,8 +118,8 @@ def _run_steps(nsteps, step0, dt, gx, gy, skin, n, d, pl, bd, fx, fy, tq, cp, wa
     lugdir = np.zeros(max(1, nlugs), L.LUG_DIRECTION)
     part = np.zeros(N_CHUNKS)
     if rebuild_now:
-        npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.inc_off,
-                             pl.inc_a, pl.xref, pl.yref)
+        npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
+                             pl.inc_off, pl.inc_k, pl.xref, pl.yref)
         if npairs > pl.pair_b.shape[0]:
             err[ERR_PAIR_CAPACITY] = npairs
             return 0, 0
@@ -159,7 +159,7 @@ def _run_steps(nsteps, step0, dt, gx, gy, skin, n, d, pl, bd, fx, fy, tq, cp, wa
         if disp2 > half2:
             rebuilds += 1
             npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
-                                 pl.inc_off, pl.inc_a, pl.xref, pl.yref)
+                                 pl.pair_a, pl.inc_off, pl.inc_k, pl.xref, pl.yref)
             if npairs > pl.pair_b.shape[0]:
                 err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds
@@ -202,7 +202,8 @@ class DomainStepper:
     def _grow_pairs(self, npairs: int) -> None:
         cap = int(npairs * PAIR_HEADROOM) + 64
         self.pair_b = np.zeros(cap, self._idx)
-        self.inc_a = np.zeros(cap, self._idx)
+        self.pair_a = np.zeros(cap, self._idx)
+        self.inc_k = np.zeros(cap, self._idx)
         self.on = np.zeros(cap, np.uint8)
         self.rows = np.zeros(cap, L.PAIR_ROW)
 
@@ -222,7 +223,7 @@ class DomainStepper:
 
     def nbytes(self) -> int:
         """Bytes the stepper holds besides the discs."""
-        arrs = (self.half_off, self.inc_off, self.pair_b, self.inc_a, self.on, self.rows, self.xref,
+        arrs = (self.half_off, self.inc_off, self.pair_b, self.pair_a, self.inc_k, self.on, self.rows, self.xref,
                 self.yref, *self._forces, self.bodies.rows)
         return sum(a.nbytes for a in arrs)
 
@@ -253,8 +254,8 @@ class DomainStepper:
         ws = record(self.ws, WHEEL_STATE)
         done = 0
         while True:
-            pl = Pairs(self.half_off, self.pair_b, self.inc_off, self.inc_a, self.xref, self.yref,
-                       self.on, self.rows)
+            pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.xref,
+                       self.yref, self.on, self.rows)
             k, rb = _run_steps(nsteps - done, step0 + done, m.dt, m.gx, m.gy, m.skin, self.n, d, pl,
                                self.bodies, *self._forces, cp, walls, wg, wc, ws,
                                self.err, recv[done:] if len(rec) else recv, not self._built)

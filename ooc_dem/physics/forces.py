@@ -15,7 +15,7 @@ without write conflicts):
 2. ``gather_integrate``: one pass per disc sums its rows in ascending partner-id
    order -- its body rows (negative ids: lugs -1000 + k, rim -100, right wall -3,
    left -2, bottom -1), then its incoming pairs (partners with lower ids, through
-   the CSR index ``inc_off/inc_a``), then its own half-list pairs -- with exactly
+   the CSR index ``inc_off/inc_k`` of pair slots), then its own half-list pairs -- with exactly
    the arithmetic of a disc computing its contacts itself (the higher id adds the
    force and ``r_b ft + M``, the lower subtracts the force and adds ``r_a ft - M``),
    rewrites its history (sorted by partner id) from the rows and advances the disc
@@ -282,7 +282,8 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
     x, y, vx, vy, w = d.x, d.y, d.vx, d.vy, d.w
     mass, inertia, gid = d.mass, d.inertia, d.gid
     hist_n, hist_id, hist_ft, hist_mr = d.hist_n, d.hist_id, d.hist_ft, d.hist_mr
-    half_off, pair_b, inc_off, inc_a = pl.half_off, pl.pair_b, pl.inc_off, pl.inc_a
+    half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
+    inc_off, inc_k = pl.inc_off, pl.inc_k
     on, rows, xref, yref = pl.on, pl.rows, pl.xref, pl.yref
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
@@ -311,13 +312,10 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
                 bat += 1
             # partners with lower ids (i is b): the CSR index, ascending partner id
             for e in range(inc_off[i], inc_off[i + 1]):
-                a = np.int64(inc_a[e])
-                q = half_off[a]
-                while pair_b[q] != i:
-                    q += 1
+                q = inc_k[e]
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, gid[a], row.s, row.m):
+                    if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, gid[pair_a[q]], row.s, row.m):
                         over = True
                     k += 1
                     sfx += row.bx

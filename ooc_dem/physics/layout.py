@@ -119,7 +119,8 @@ Discs = namedtuple("Discs", ["x", "y", "vx", "vy", "w", "r", "mass", "inertia", 
                              "hist_n", "hist_id", "hist_ft", "hist_mr"])
 # half pair list + CSR index (neighbors.build_pairs), the build positions, and the
 # pairs' rows of the current step (slot = position in pair_b; on[k] = in contact)
-Pairs = namedtuple("Pairs", ["half_off", "pair_b", "inc_off", "inc_a", "xref", "yref", "on", "rows"])
+Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "xref", "yref", "on",
+                             "rows"])
 # body rows of the current step: N_CHUNKS buffers of equal capacity, count[c] used
 Bodies = namedtuple("Bodies", ["rows", "count"])
 

@@ -2,9 +2,10 @@
 
 The pair list holds every pair of discs within r_i + r_j + skin ONCE, stored with
 its lower global id ``a``: disc a's pairs are ``pair_b[half_off[a]:half_off[a + 1]]``
-sorted by global id (the pair's row slot is its position). The CSR index
-``inc_a[inc_off[b]:inc_off[b + 1]]`` lists, for each disc b, its partners with lower
-ids, sorted by global id (Nishiura & Sakaguchi 2011's per-particle pair table).
+sorted by global id (the pair's row slot is its position; ``pair_a`` the lower disc
+of each slot). The CSR index ``inc_k[inc_off[b]:inc_off[b + 1]]`` lists, for each
+disc b, the slots of its pairs with lower-id partners, sorted by the partner's id
+(Nishiura & Sakaguchi 2011's per-particle pair-index table).
 Both are sized from the bed (counted, then filled), never by a fixed cap.
 
 The list is a superset of the contacts until some disc has moved more than skin/2,
@@ -53,7 +54,7 @@ def _bin(x, y, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of):
 
 @njit(parallel=True, cache=True)
 def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
-          half_off, pair_b, inc_off, inc_a, fill):
+          half_off, pair_b, inc_off, inc, fill):
     """fill False: count each disc's partners with higher / lower ids into
     half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id."""
     for i in prange(n):
@@ -91,7 +92,7 @@ def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
                             nu += 1
                         else:
                             if fill:
-                                inc_a[l0 + nl] = j
+                                inc[l0 + nl] = j
                             nl += 1
         if not fill:
             half_off[i + 1] = nu
@@ -107,20 +108,35 @@ def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
                 b -= 1
             pair_b[b + 1] = v
         for a in range(l0 + 1, l0 + nl):
-            v = inc_a[a]
+            v = inc[a]
             gv = gid[v]
             b = a - 1
-            while b >= l0 and gid[inc_a[b]] > gv:
-                inc_a[b + 1] = inc_a[b]
+            while b >= l0 and gid[inc[b]] > gv:
+                inc[b + 1] = inc[b]
                 b -= 1
-            inc_a[b + 1] = v
+            inc[b + 1] = v
+
+
+@njit(parallel=True, cache=True)
+def _slots(n, half_off, pair_b, pair_a, inc_off, inc_k):
+    """pair_a[k] = the lower disc of slot k; inc_k: each lower partner a of disc b
+    replaced by the slot of the pair (a, b) in a's half list."""
+    for i in prange(n):
+        for q in range(half_off[i], half_off[i + 1]):
+            pair_a[q] = i
+        for e in range(inc_off[i], inc_off[i + 1]):
+            a = inc_k[e]
+            q = half_off[a]
+            while pair_b[q] != i:
+                q += 1
+            inc_k[e] = q
 
 
 @njit(cache=True)
-def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, inc_off, inc_a, xref, yref):
+def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, xref, yref):
     """Rebuild the half pair list and CSR index of discs 0..n-1 and remember the build
     positions. Returns the number of pairs P; when P exceeds the capacity of
-    pair_b / inc_a nothing is filled (grow them to at least P and call again)."""
+    pair_b / pair_a / inc_k nothing is filled (grow them to at least P and call again)."""
     half_off[0] = 0
     inc_off[0] = 0
     if n == 0:
@@ -140,15 +156,16 @@ def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, inc_off, inc_a, xref, y
     cell_of = np.empty(n, np.int32)
     _bin(x, y, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of)
     _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
-          half_off, pair_b, inc_off, inc_a, False)
+          half_off, pair_b, inc_off, inc_k, False)
     for i in range(n):
         half_off[i + 1] += half_off[i]
         inc_off[i + 1] += inc_off[i]
     npairs = half_off[n]
-    if npairs > pair_b.shape[0] or npairs > inc_a.shape[0]:
+    if npairs > pair_b.shape[0] or npairs > inc_k.shape[0]:
         return npairs
     _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
-          half_off, pair_b, inc_off, inc_a, True)
+          half_off, pair_b, inc_off, inc_k, True)
+    _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):
         xref[i] = x[i]
         yref[i] = y[i]

@@ -711,7 +711,7 @@ def test_newton_third_law_random_cluster():
 
 def all_contacts(p: Particles, model: Model):
     """Every contact force of a state, evaluated with the engine's contact_force
-    exactly as compute_forces does (canonical orientation, stored history).
+    exactly as the engine's producers do (canonical orientation, stored history).
 
     Returns a list of (disc index, partner global id (walls < 0), fx, fy) with the
     force on that disc; a disc pair appears twice, once per side.

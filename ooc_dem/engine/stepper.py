@@ -1,5 +1,10 @@
 """THE per-domain step, shared by every execution mode.
 
+A step (``_run_steps``): wheel controls, ``forces.produce`` (one row per contact),
+``forces.gather_integrate`` (each disc sums its rows in ascending partner-id order
+and is advanced), the wheel's reaction summed in ascending disc id, the wheel's
+leapfrog, and a rebuild of the half pair list when some disc has moved half the skin.
+
 ``DomainStepper`` holds one set of discs (the whole bin in monolithic mode; a
 sub-domain plus its halo in DDM and out-of-core) and advances all of them K
 steps in place. Monolithic, DDM and out-of-core only differ in which discs they
@@ -169,9 +174,12 @@ def _run_steps(nsteps, step0, dt, gx, gy, skin, n, d, pl, bd, fx, fy, tq, cp, wa
 class DomainStepper:
     """Advances one set of discs (and optionally the wheel) in place, K steps at a time.
 
-    Besides the discs it holds only what a step needs (per disc: the build positions,
-    the last forces, the CSR offsets; per candidate pair: partner indices and one
-    contact row), all sized from the bed."""
+    Besides the discs it holds only what a step needs, sized from the bed: per disc the
+    neighbour-list build positions and two CSR offsets (8 + 16 bytes); per candidate
+    pair (within r_i + r_j + skin, each pair once, ~2.2 a disc in a settled bed) its two
+    disc indices, its slot in the partner's CSR index, a contact flag and one
+    ``layout.PAIR_ROW`` (61 bytes, 5 % headroom); the wall/wheel rows of one step.
+    Optionally (keep_forces) the last step's forces and torques."""
 
     def __init__(self, particles: Particles, model: Model, wheel_state: np.ndarray | None = None,
                  reorder: bool = True, keep_forces: bool = False):
@@ -223,8 +231,8 @@ class DomainStepper:
 
     def nbytes(self) -> int:
         """Bytes the stepper holds besides the discs."""
-        arrs = (self.half_off, self.inc_off, self.pair_b, self.pair_a, self.inc_k, self.on, self.rows, self.xref,
-                self.yref, *self._forces, self.bodies.rows)
+        arrs = (self.half_off, self.inc_off, self.pair_b, self.pair_a, self.inc_k, self.on,
+                self.rows, self.xref, self.yref, *self._forces, self.bodies.rows)
         return sum(a.nbytes for a in arrs)
 
     def advance(self, step0: int, nsteps: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .physics.forces import WS_SIZE
+from .physics.layout import WS_NAMES, WS_SIZE
 
 HIST_CAP = 12
 FORMAT_VERSION = 1
@@ -38,7 +38,7 @@ HIST_FIELDS: dict[str, np.dtype] = {
     "hist_mr": np.dtype("<f8"),
 }
 ALL_FIELDS = {**SCALAR_FIELDS, **HIST_FIELDS}
-WHEEL_FIELDS = ("x", "y", "vx", "vy", "theta", "wz")
+WHEEL_FIELDS = WS_NAMES   # layout.WHEEL_STATE: the one definition
 BYTES_PER_DISC = sum(d.itemsize for d in SCALAR_FIELDS.values()) + HIST_CAP * sum(
     d.itemsize for d in HIST_FIELDS.values())
 

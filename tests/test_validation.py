@@ -262,7 +262,7 @@ def test_contact_duration_and_peak_overlap_undamped(kind):
         gap = 0.01 * R
         p = make_discs(0.5, R + gap, vy=-v0)
         model = make_model(dt, wall=pair_params(), bottom=True)
-    st = DomainStepper(p, model, reorder=False)
+    st = DomainStepper(p, model, reorder=False, keep_forces=True)
     tr = trajectory(st, int((gap / v0 + 1.3 * tc_th) / dt), forces=True)
     t = np.arange(len(tr["x"])) * dt
     if kind == "pair":
@@ -525,7 +525,7 @@ def test_equal_opposite_spins_head_on_exact():
     gap = 0.01 * R
     p = make_discs([-(R + gap / 2), R + gap / 2], 0.0, vx=np.array([0.5 * v0, -0.5 * v0]),
                    w=np.array([w0, -w0]))
-    st = DomainStepper(p, make_model(dt, disc=pair_params(zn=0.3, zt=0.3, mu=0.5)), reorder=False)
+    st = DomainStepper(p, make_model(dt, disc=pair_params(zn=0.3, zt=0.3, mu=0.5)), reorder=False, keep_forces=True)
     tr = trajectory(st, int((gap / v0 + 1.5 * TC_PAIR) / dt), forces=True)
     assert np.abs(tr["fx"]).max() > 0                       # they did collide
     assert p.vx[0] < 0 < p.vx[1]                            # and rebounded
@@ -617,7 +617,7 @@ def _pair_collision(mu, mur=0.0, steps_per_tc=500):
     tc = math.pi * math.sqrt(meff / KN0)
     dt = tc / steps_per_tc
     prm = pair_params(zn=0.3, zt=0.3, mu=mu, mur=mur, zr=0.3)
-    st = DomainStepper(p, make_model(dt, disc=prm), reorder=False)
+    st = DomainStepper(p, make_model(dt, disc=prm), reorder=False, keep_forces=True)
     tr = trajectory(st, int(3 * tc / dt), forces=True)
     return p, tr, dt
 
@@ -697,7 +697,7 @@ def test_newton_third_law_random_cluster():
     p.vy[:] = rng.normal(0, 0.2, n)
     p.w[:] = rng.normal(0, 20.0, n)
     prm = pair_params(zn=0.2, zt=0.2, mu=0.4, mur=0.1, zr=0.2)
-    st = DomainStepper(p, make_model(1e-5, disc=prm), reorder=False)
+    st = DomainStepper(p, make_model(1e-5, disc=prm), reorder=False, keep_forces=True)
     for s in range(40):
         st.advance(s, 1)
         scale = np.abs(st.fx).sum() + np.abs(st.fy).sum()
@@ -711,7 +711,7 @@ def test_newton_third_law_random_cluster():
 
 def all_contacts(p: Particles, model: Model):
     """Every contact force of a state, evaluated with the engine's contact_force
-    exactly as compute_forces does (canonical orientation, stored history).
+    exactly as the engine's producers do (canonical orientation, stored history).
 
     Returns a list of (disc index, partner global id (walls < 0), fx, fy) with the
     force on that disc; a disc pair appears twice, once per side.
@@ -788,7 +788,7 @@ def test_settled_bed_wall_reaction_equals_weight(settled):
         fx[i] += a
         fy[i] += b
     q = p.take(np.arange(n))
-    st = DomainStepper(q, model, reorder=False)
+    st = DomainStepper(q, model, reorder=False, keep_forces=True)
     st.advance(0, 1)
     scale = np.abs(st.fy).max()
     assert np.allclose(fx, st.fx, rtol=0, atol=1e-12 * scale)

@@ -40,11 +40,15 @@ def one(n: int, steps: int, threads: int, warmup: int) -> dict:
     el = time.perf_counter() - t
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     contacts = float(np.mean(st.p.hist_n))
+    extra = {}
+    if hasattr(st, "nbytes"):   # the stepper's own arrays besides the discs, and its pair list
+        extra = {"stepper_bytes_per_disc": round(st.nbytes() / n, 1),
+                 "candidate_pairs_per_disc": round(st.pairs / n, 3)}
     return {"n": n, "steps": steps, "threads": threads, "warmup_steps": warmup, "seconds": round(el, 4),
             "particle_steps_per_s": n * steps / el, "contacts_per_disc": round(contacts, 3),
             "neighbour_rebuilds": st.rebuilds, "peak_rss_bytes": peak,
             "peak_rss_bytes_per_disc": round(peak / n, 1), "bed_setup_s": round(t_bed, 2),
-            "rss_after_bed_bytes": rss_bed}
+            "rss_after_bed_bytes": rss_bed, **extra}
 
 
 def main():

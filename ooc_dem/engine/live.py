@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from ..state import Particles
-from .stepper import DomainStepper, EngineError, Model
+from .stepper import N_REC, DomainStepper, EngineError, Model
 
 
 @njit(cache=True)
@@ -161,10 +161,10 @@ class LiveDomains:
 
     def advance(self, step0: int, k: int):
         """Every sub-domain K steps in place; returns (wheel records, wheel state or None)."""
-        rec_wheel = np.zeros((0, 12))
+        rec_wheel = np.zeros((0, N_REC))
         ws = None
         for d, st in enumerate(self.steppers):
-            rec = st.advance(step0, k) if st.n else np.zeros((0, 12))
+            rec = st.advance(step0, k) if st.n else np.zeros((0, N_REC))
             if d == self.wslab:
                 rec_wheel = rec
                 ws = st.ws.copy()

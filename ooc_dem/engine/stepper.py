@@ -1,5 +1,10 @@
 """THE per-domain step, shared by every execution mode.
 
+A step (``_run_steps``): wheel controls, ``forces.produce`` (one row per contact),
+``forces.gather_integrate`` (each disc sums its rows in ascending partner-id order
+and is advanced), the wheel's reaction summed in ascending disc id, the wheel's
+leapfrog, and a rebuild of the half pair list when some disc has moved half the skin.
+
 ``DomainStepper`` holds one set of discs (the whole bin in monolithic mode; a
 sub-domain plus its halo in DDM and out-of-core) and advances all of them K
 steps in place. Monolithic, DDM and out-of-core only differ in which discs they
@@ -13,24 +18,22 @@ import numba
 import numpy as np
 from numba import njit
 
-from ..physics.contact import N_FIELDS, KN, KS, ZN, ZT, MU, MUR, ZR
-from ..physics.forces import (ERR_HIST_OVERFLOW, ERR_NBR_OVERFLOW, WG_CAP, WG_ENABLED,
-                              WG_LUG_IN, WG_LUG_OUT, WG_MASS, WG_NLUGS, WG_R, WG_SIZE,
-                              WS_THETA, WS_VX, WS_VY, WS_WZ, WS_X, WS_Y, compute_forces,
-                              lug_directions, make_scratch, wheel_reaction)
-from ..physics.integrate import (N_CHUNKS, WC_DRAWBAR, WC_OMEGA, WC_RAMP, WC_SETTLE, WC_SIZE, WC_SLIP,
-                                 WC_SLIPMODE, apply_wheel_controls, drawbar_force,
-                                 integrate_discs, integrate_wheel)
-from ..physics.neighbors import build_neighbors, spatial_order
+from ..physics import layout as L
+from ..physics.forces import N_CHUNKS, gather_integrate, lug_directions, produce, wheel_reaction
+from ..physics.integrate import apply_wheel_controls, drawbar_force, integrate_wheel
+from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW,  # noqa: F401
+                              ERR_PAIR_CAPACITY, KN, KS, MU, MUR, N_ERR, N_FIELDS, N_REC,
+                              REC_COLUMNS, REC_DB, REC_FX, REC_FY, REC_NC, REC_T, REC_THETA,
+                              REC_TQ, REC_VX, REC_VY, REC_WZ, REC_X, REC_Y, WALLS, WC_DRAWBAR,
+                              WC_OMEGA, WC_RAMP, WC_SETTLE, WC_SIZE, WC_SLIP, WC_SLIPMODE,
+                              WG_CAP, WG_ENABLED, WG_LUG_IN, WG_LUG_OUT, WG_MASS, WG_NLUGS,
+                              WG_R, WG_SIZE, WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD,
+                              WHEEL_STATE, WS_SIZE, ZN, ZR, ZT, Bodies, Pairs, discs_of, record)
+from ..physics.neighbors import build_pairs, spatial_order
 from ..state import Particles
 
-NBR_CAP = 24
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
-
-# per-step wheel record columns
-REC_COLUMNS = ("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar", "contacts")
-REC_T, REC_X, REC_Y, REC_VX, REC_VY, REC_WZ, REC_THETA, REC_FX, REC_FY, REC_TQ, REC_DB, REC_NC = range(12)
-N_REC = len(REC_COLUMNS)
+PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
 
 
 class EngineError(RuntimeError):
@@ -39,72 +42,92 @@ class EngineError(RuntimeError):
 
 @dataclass
 class Model:
-    """Everything the kernels need from a scenario, as flat arrays."""
+    """Everything the kernels need from a scenario: flat float arrays whose layouts are
+    the records of physics.layout (``records()`` gives the record views)."""
     dt: float
     gx: float
     gy: float
     skin: float
-    cp: np.ndarray        # contact parameters [type_a, type_b, field]; types: soil 0, wall 1, wheel 2
-    walls: np.ndarray     # [length, left, right, bottom]
-    wg: np.ndarray        # wheel geometry
-    wc: np.ndarray        # wheel controls
+    cp: np.ndarray        # CONTACT_PARAMS table [type_a, type_b, field]; types T_SOIL, T_WALL, T_WHEEL
+    walls: np.ndarray     # WALLS
+    wg: np.ndarray        # WHEEL_GEOMETRY
+    wc: np.ndarray        # WHEEL_CONTROLS
     wheel_enabled: bool
     r_max: float
 
     @classmethod
     def from_scenario(cls, sc) -> "Model":
-        nt = 3
-        cp = np.zeros((nt, nt, N_FIELDS))
+        cp = np.zeros((L.N_TYPES, L.N_TYPES, N_FIELDS))
+        table = record(cp, CONTACT_PARAMS)
 
         def put(a, b, pair):
-            vals = np.zeros(N_FIELDS)
-            vals[KN], vals[KS] = pair.kn, pair.ks
-            vals[ZN], vals[ZT] = pair.damping_n, pair.damping_t
-            vals[MU], vals[MUR], vals[ZR] = pair.friction, pair.rolling_friction, pair.rolling_damping
-            cp[a, b] = vals
-            cp[b, a] = vals
+            vals = (pair.kn, pair.ks, pair.damping_n, pair.damping_t, pair.friction,
+                    pair.rolling_friction, pair.rolling_damping)
+            table[a, b] = vals
+            table[b, a] = vals
 
-        put(0, 0, sc.contact.soil_soil)
-        put(1, 0, sc.contact.soil_wall)
-        put(2, 0, sc.contact.soil_wheel)
-        walls = np.array([sc.bin.length, 1.0, 1.0, 1.0])
+        put(L.T_SOIL, L.T_SOIL, sc.contact.soil_soil)
+        put(L.T_WALL, L.T_SOIL, sc.contact.soil_wall)
+        put(L.T_WHEEL, L.T_SOIL, sc.contact.soil_wheel)
+        walls = np.zeros(len(WALLS.names))
+        record(walls, WALLS)[0] = (sc.bin.length, 1.0, 1.0, 1.0)
         wg = np.zeros(WG_SIZE)
         wc = np.zeros(WC_SIZE)
         w = sc.wheel
         if w.enabled:
-            wg[WG_ENABLED] = 1.0
-            wg[WG_R] = w.radius
-            wg[WG_CAP] = 0.5 * w.lug_thickness
-            wg[WG_LUG_IN] = w.radius
-            wg[WG_LUG_OUT] = max(w.radius, w.lug_tip_radius - 0.5 * w.lug_thickness)
-            wg[WG_NLUGS] = w.n_lugs
-            wg[WG_MASS] = w.load / sc.physics.gravity
-            wc[WC_SETTLE] = w.settle_time
-            wc[WC_OMEGA] = w.omega
-            wc[WC_SLIPMODE] = 1.0 if w.control == "slip" else 0.0
-            wc[WC_DRAWBAR] = w.drawbar_load
-            wc[WC_RAMP] = w.drawbar_ramp
-            wc[WC_SLIP] = w.slip
+            g = record(wg, WHEEL_GEOMETRY)
+            g["enabled"] = 1.0
+            g["radius"] = w.radius
+            g["cap"] = 0.5 * w.lug_thickness
+            g["lug_in"] = w.radius
+            g["lug_out"] = max(w.radius, w.lug_tip_radius - 0.5 * w.lug_thickness)
+            g["nlugs"] = w.n_lugs
+            g["mass"] = w.load / sc.physics.gravity
+            c = record(wc, WHEEL_CONTROLS)
+            c["settle"] = w.settle_time
+            c["omega"] = w.omega
+            c["slipmode"] = 1.0 if w.control == "slip" else 0.0
+            c["drawbar"] = w.drawbar_load
+            c["ramp"] = w.drawbar_ramp
+            c["slip"] = w.slip
         gx, gy = sc.gravity_vector
         return cls(dt=sc.physics.dt, gx=gx, gy=gy, skin=sc.bed.skin, cp=cp, walls=walls, wg=wg,
                    wc=wc, wheel_enabled=w.enabled, r_max=sc.soil.r_max)
 
+    def records(self):
+        """(cp, walls, wg, wc) as record views (no copies) for the kernels."""
+        return (record(np.ascontiguousarray(self.cp, np.float64), CONTACT_PARAMS),
+                record(np.ascontiguousarray(self.walls, np.float64), WALLS),
+                record(np.ascontiguousarray(self.wg, np.float64), WHEEL_GEOMETRY),
+                record(np.ascontiguousarray(self.wc, np.float64), WHEEL_CONTROLS))
+
     def without_wheel(self) -> "Model":
         wg = self.wg.copy()
-        wg[WG_ENABLED] = 0.0
+        record(wg, WHEEL_GEOMETRY)["enabled"] = 0.0
         return Model(self.dt, self.gx, self.gy, self.skin, self.cp, self.walls, wg, self.wc,
                      False, self.r_max)
 
 
 @njit(cache=True)
-def _run_steps(nsteps, step0, dt, gx, gy, skin, n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
-               nbr, nbr_n, xref, yref, hist_n, hist_id, hist_ft, hist_mr, fx, fy, tq,
-               cp, walls, wg, ws, wc, wfx, wfy, wtq, wcount, sid, sf, err, rec, rebuild_now):
-    wheel = wg[0] > 0.5
-    lugdir = np.zeros((max(1, int(wg[WG_NLUGS])), 2))
+def _run_steps(nsteps, step0, dt, gx, gy, skin, n, d, pl, bd, fx, fy, tq, cp, walls, wg, wc, ws,
+               err, rec, rebuild_now):
+    """Advance discs 0..n-1 (and the wheel when wg.enabled) nsteps from global step step0.
+
+    d: layout.Discs, pl: Pairs, bd: Bodies; cp, walls, wg, wc, ws: records (layout);
+    rec: WHEEL_RECORD rows, one per step (wheel runs). Returns (steps done, rebuilds).
+    Stops early with err[ERR_PAIR_CAPACITY] = pairs needed (grow the pair list, rebuild,
+    continue), err[ERR_BODY_CAPACITY] (grow the body buffers, redo that step) or
+    err[ERR_HIST_OVERFLOW] (fatal)."""
+    wheel = wg[0].enabled > 0.5
+    nlugs = int(wg[0].nlugs)
+    lugdir = np.zeros(max(1, nlugs), L.LUG_DIRECTION)
     part = np.zeros(N_CHUNKS)
     if rebuild_now:
-        build_neighbors(x, y, r, gid, n, skin, nbr, nbr_n, xref, yref, err)
+        npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
+                             pl.inc_off, pl.inc_k, pl.xref, pl.yref)
+        if npairs > pl.pair_b.shape[0]:
+            err[ERR_PAIR_CAPACITY] = npairs
+            return 0, 0
     half2 = 0.25 * skin * skin
     rebuilds = 0
     wfxs = 0.0
@@ -114,43 +137,54 @@ def _run_steps(nsteps, step0, dt, gx, gy, skin, n, x, y, vx, vy, w, r, mass, ine
         t = (step0 + s) * dt
         if wheel:
             apply_wheel_controls(t, ws, wg, wc)
-            lug_directions(ws[WS_THETA], int(wg[WG_NLUGS]), lugdir)
-        compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid, nbr, nbr_n,
-                       hist_n, hist_id, hist_ft, hist_mr, fx, fy, tq, cp, walls, wg, ws,
-                       wfx, wfy, wtq, wcount, lugdir, sid, sf, dt, err)
-        if err[0] != 0 or err[1] != 0:
+            lug_directions(ws[0].theta, nlugs, lugdir)
+        produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err)
+        if err[ERR_BODY_CAPACITY] != 0:
+            return s, rebuilds
+        disp2 = gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err)
+        if err[ERR_HIST_OVERFLOW] != 0:
             return s, rebuilds
         if wheel:
-            wfxs, wfys, wtqs, cnt = wheel_reaction(n, gid, wfx, wfy, wtq, wcount)
-            rec[s, 0] = t
-            rec[s, 1] = ws[0]
-            rec[s, 2] = ws[1]
-            rec[s, 3] = ws[2]
-            rec[s, 4] = ws[3]
-            rec[s, 5] = ws[5]
-            rec[s, 6] = ws[4]
-            rec[s, 7] = wfxs
-            rec[s, 8] = wfys
-            rec[s, 9] = wtqs
-            rec[s, 10] = drawbar_force(t, wc)
-            rec[s, 11] = cnt
-        disp2 = integrate_discs(n, x, y, vx, vy, w, mass, inertia, fx, fy, tq, gx, gy, dt,
-                                xref, yref, part)
-        if wheel:
+            wfxs, wfys, wtqs, cnt = wheel_reaction(d.gid, bd)
+            w0 = ws[0]
+            r0 = rec[s]
+            r0.t = t
+            r0.x = w0.x
+            r0.y = w0.y
+            r0.vx = w0.vx
+            r0.vy = w0.vy
+            r0.wz = w0.wz
+            r0.theta = w0.theta
+            r0.fx = wfxs
+            r0.fy = wfys
+            r0.torque = wtqs
+            r0.drawbar = drawbar_force(t, wc)
+            r0.contacts = cnt
             integrate_wheel(t, ws, wg, wc, wfxs, wfys, gy, dt)
         if disp2 > half2:
-            build_neighbors(x, y, r, gid, n, skin, nbr, nbr_n, xref, yref, err)
             rebuilds += 1
-            if err[1] != 0:
+            npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
+                                 pl.pair_a, pl.inc_off, pl.inc_k, pl.xref, pl.yref)
+            if npairs > pl.pair_b.shape[0]:
+                err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds
     return nsteps, rebuilds
 
 
 class DomainStepper:
-    """Advances one set of discs (and optionally the wheel) in place, K steps at a time."""
+    """Advances one set of discs (and optionally the wheel) in place, K steps at a time.
+
+    Besides the discs it holds only what a step needs, sized from the bed: per disc the
+    neighbour-list build positions and two CSR offsets (8 + 16 bytes); per candidate
+    pair (within r_i + r_j + skin, each pair once, ~2.2 a disc in a settled bed) its two
+    disc indices, its slot in the partner's CSR index, a contact flag and one
+    ``layout.PAIR_ROW`` (61 bytes, 5 % headroom); the wall/wheel rows of one step.
+    Optionally (keep_forces) the last step's forces and torques."""
 
     def __init__(self, particles: Particles, model: Model, wheel_state: np.ndarray | None = None,
-                 reorder: bool = True):
+                 reorder: bool = True, keep_forces: bool = False):
+        """keep_forces: keep each step's contact forces and torques in fx, fy, tq
+        (diagnostics and tests; 24 bytes a disc)."""
         if reorder and len(particles) > 1:
             perm = spatial_order(particles.x, particles.y, len(particles), 2 * model.r_max + model.skin)
             particles.permute_inplace(perm)  # the caller's discs, reordered: no second copy
@@ -158,26 +192,53 @@ class DomainStepper:
         self.model = model
         self.n = len(particles)
         n = self.n
-        self.ws = np.zeros(6) if wheel_state is None else np.array(wheel_state, dtype=np.float64)
-        self.nbr = np.zeros((n, NBR_CAP), np.int32)
-        self.nbr_n = np.zeros(n, np.int32)
+        self.ws = np.zeros(WS_SIZE) if wheel_state is None else np.array(wheel_state, dtype=np.float64)
+        self._idx = np.int32 if n < 2**28 else np.int64
+        self.half_off = np.zeros(n + 1, self._idx)
+        self.inc_off = np.zeros(n + 1, self._idx)
+        self._grow_pairs(0)
         self.xref = np.zeros(n)
         self.yref = np.zeros(n)
-        self.fx = np.zeros(n)
-        self.fy = np.zeros(n)
-        self.tq = np.zeros(n)
-        self.wfx = np.zeros(n)
-        self.wfy = np.zeros(n)
-        self.wtq = np.zeros(n)
-        self.wcount = np.zeros(n, np.int32)
-        self.sid, self.sf = make_scratch(self.p.hist_id.shape[1])
-        self.err = np.zeros(2, np.int64)
+        nf = n if keep_forces else 0
+        self._forces = (np.zeros(nf), np.zeros(nf), np.zeros(nf))
+        self.keep_forces = keep_forces
+        self.bodies = Bodies(np.zeros(N_CHUNKS * 8, L.BODY_ROW), np.zeros(N_CHUNKS, np.int64))
+        self.err = np.zeros(N_ERR, np.int64)
         self._built = False
         self.rebuilds = 0
 
+    def _grow_pairs(self, npairs: int) -> None:
+        cap = int(npairs * PAIR_HEADROOM) + 64
+        self.pair_b = np.zeros(cap, self._idx)
+        self.pair_a = np.zeros(cap, self._idx)
+        self.inc_k = np.zeros(cap, self._idx)
+        self.on = np.zeros(cap, np.uint8)
+        self.rows = np.zeros(cap, L.PAIR_ROW)
+
+    def _force(self, k):
+        if not self.keep_forces:
+            raise AttributeError("contact forces are kept only by DomainStepper(..., keep_forces=True)")
+        return self._forces[k]
+
+    fx = property(lambda self: self._force(0), doc="contact force x of the last step (keep_forces)")
+    fy = property(lambda self: self._force(1), doc="contact force y of the last step (keep_forces)")
+    tq = property(lambda self: self._force(2), doc="contact torque of the last step (keep_forces)")
+
+    @property
+    def pairs(self) -> int:
+        """Candidate pairs in the current list (each once)."""
+        return int(self.half_off[-1])
+
+    def nbytes(self) -> int:
+        """Bytes the stepper holds besides the discs."""
+        arrs = (self.half_off, self.inc_off, self.pair_b, self.pair_a, self.inc_k, self.on,
+                self.rows, self.xref, self.yref, *self._forces, self.bodies.rows)
+        return sum(a.nbytes for a in arrs)
+
     def advance(self, step0: int, nsteps: int) -> np.ndarray:
-        """Advance nsteps from global step step0; returns the per-step wheel records."""
-        m, p = self.model, self.p
+        """Advance nsteps from global step step0; returns the per-step wheel records
+        (nsteps x N_REC, columns REC_COLUMNS)."""
+        m = self.model
         rec = np.zeros((nsteps if m.wheel_enabled else 0, N_REC))
         # small domains run on one thread: a parallel launch costs more than it saves
         # there, and the result is the same whatever the thread count (DESIGN section 3)
@@ -186,31 +247,48 @@ class DomainStepper:
         if serial:
             numba.set_num_threads(1)
         try:
-            done, rb = self._run(nsteps, step0, rec)
+            done = self._run(nsteps, step0, rec)
         finally:
             if serial:
                 numba.set_num_threads(threads)
-        self._built = True
-        self.rebuilds += rb
         self._check(step0 + done, nsteps)
         return rec
 
-    def _run(self, nsteps, step0, rec):
+    def _run(self, nsteps, step0, rec) -> int:
         m, p = self.model, self.p
-        return _run_steps(nsteps, step0, m.dt, m.gx, m.gy, m.skin, self.n, p.x, p.y, p.vx, p.vy,
-                              p.w, p.r, p.mass, p.inertia, p.mat, p.id, self.nbr, self.nbr_n,
-                              self.xref, self.yref, p.hist_n, p.hist_id, p.hist_ft, p.hist_mr,
-                              self.fx, self.fy, self.tq, m.cp, m.walls, m.wg, self.ws, m.wc,
-                              self.wfx, self.wfy, self.wtq, self.wcount, self.sid, self.sf,
-                          self.err, rec, not self._built)
+        d = discs_of(p)
+        recv = record(rec, WHEEL_RECORD) if len(rec) else np.zeros(1, WHEEL_RECORD)  # unused
+        cp, walls, wg, wc = m.records()
+        ws = record(self.ws, WHEEL_STATE)
+        done = 0
+        while True:
+            pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.xref,
+                       self.yref, self.on, self.rows)
+            k, rb = _run_steps(nsteps - done, step0 + done, m.dt, m.gx, m.gy, m.skin, self.n, d, pl,
+                               self.bodies, *self._forces, cp, walls, wg, wc, ws,
+                               self.err, recv[done:] if len(rec) else recv, not self._built)
+            done += k
+            self.rebuilds += rb
+            self._built = True
+            if self.err[ERR_PAIR_CAPACITY]:
+                # the list just counted does not fit: grow it, rebuild before the next step
+                self._grow_pairs(int(self.err[ERR_PAIR_CAPACITY]))
+                self.err[ERR_PAIR_CAPACITY] = 0
+                self._built = False
+            elif self.err[ERR_BODY_CAPACITY]:
+                # a chunk's wall/wheel rows did not fit: grow, redo the step (rows only)
+                cap = 2 * self.bodies.rows.shape[0]
+                self.bodies = Bodies(np.zeros(cap, L.BODY_ROW), self.bodies.count)
+                self.err[ERR_BODY_CAPACITY] = 0
+            else:
+                return done
+            if done >= nsteps:
+                return done   # a rebuild is pending: the next advance starts with it
 
     def _check(self, at, nsteps):
         p = self.p
         if self.err[ERR_HIST_OVERFLOW]:
             raise EngineError(f"contact history overflow at step {at}: a disc has more than "
                               f"{p.hist_id.shape[1]} contacts (overlaps too large: check dt, kn, or the bed)")
-        if self.err[ERR_NBR_OVERFLOW]:
-            raise EngineError(f"neighbour list overflow at step {at}: more than {NBR_CAP} "
-                              f"discs within reach of one disc (bed too dense or exploded)")
         if not np.isfinite(p.x).all():
             raise EngineError(f"non-finite position at step {at}: the run is unstable")

@@ -20,10 +20,10 @@ import numpy as np
 
 from ..checkpoint import particles_to_record, record_to_particles
 from ..decomposition import equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok
-from ..physics.forces import WS_X
+from ..physics.layout import WS_X
 from ..state import Particles
 from .live import LiveDomains
-from .stepper import DomainStepper, EngineError, Model
+from .stepper import N_REC, DomainStepper, EngineError, Model
 
 
 def _block(sim) -> int:
@@ -320,7 +320,7 @@ class SweepEngine:
 
     def _sweep_domains(self, src, step0: int, k: int, wslab: int) -> np.ndarray:
         """Out-of-core: each slab rebuilt from epoch e, advanced, its owned discs written to e+1."""
-        rec_wheel = np.zeros((0, 12))
+        rec_wheel = np.zeros((0, N_REC))
         new_ws = self.ws
         resident = []
         owned_total = 0
@@ -340,7 +340,7 @@ class SweepEngine:
             if len(local):
                 rec = st.advance(step0, k)
             else:
-                rec = np.zeros((0, 12))
+                rec = np.zeros((0, N_REC))
             if d == wslab:
                 rec_wheel = rec
                 new_ws = st.ws.copy()
@@ -362,7 +362,7 @@ class SweepEngine:
         recs = []
         for s in range(step0, step0 + nsteps, self.K):
             recs.append(self.sweep(s, min(self.K, step0 + nsteps - s)))
-        return np.concatenate(recs) if recs else np.zeros((0, 12))
+        return np.concatenate(recs) if recs else np.zeros((0, N_REC))
 
     # ------------------------------------------------------------ interface
     @property

@@ -1,20 +1,64 @@
-"""Contact law (numba, no I/O): linear spring-dashpot normal force without tension,
-tangential spring with history and a Coulomb limit, elastic-plastic rolling
-resistance.
+"""Contact law (numba, no I/O), composed of three parts shared by every contact
+(disc-disc pairs, walls, wheel rim and lugs), as LAMMPS's granular_model composes
+its sub-models:
 
-Every contact is evaluated in its canonical orientation: body ``a`` is the partner
-with the lower id (walls and wheel parts have negative ids, so they are always
-``a``), body ``b`` the higher. Both discs of a pair call this function with the same
-arguments in the same order, so both get the same bits and each applies its own
-sign; this is what makes every execution mode bit-identical (DESIGN section 3).
+- ``normal_force``      linear spring-dashpot (Voigt), no tension;
+- ``tangential_force``  tangential spring with history and a Coulomb limit;
+- ``rolling_moment``    elastic-plastic rolling resistance (limit mu_r r_eff Fn).
+
+Every contact is evaluated once, in its canonical orientation: body ``a`` is the
+partner with the lower id (walls and wheel parts have negative ids, so they are
+always ``a``), body ``b`` the higher. Both partners take the result of that one
+evaluation (b the force, a its exact negation), which is what makes every execution
+mode bit-identical (DESIGN section 3).
+
+The parameters of a material pair are one ``layout.CONTACT_PARAMS`` record
+``c`` (fields kn, ks, zn, zt, mu, mur, zr).
 """
 import math
 
 from numba import njit
 
-# contact-parameter table fields: cp[type_a, type_b, field]
-KN, KS, ZN, ZT, MU, MUR, ZR = 0, 1, 2, 3, 4, 5, 6
-N_FIELDS = 7
+from .layout import CONTACT_PARAMS, KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT  # noqa: F401
+
+
+@njit(inline="always", cache=True)
+def normal_force(delta, vn, meff, kn, zn):
+    """Normal force of overlap delta > 0 at normal approach speed -vn (no tension)."""
+    fn = kn * delta - 2.0 * zn * math.sqrt(meff * kn) * vn
+    if fn < 0.0:
+        fn = 0.0
+    return fn
+
+
+@njit(inline="always", cache=True)
+def tangential_force(vt, fn, s_old, meff, ks, zt, mu, dt):
+    """(ft, s_new): spring s integrated with the tangential slip speed vt, plus
+    damping, clamped to mu fn (the spring then holds the limit)."""
+    s = s_old + ks * vt * dt
+    ft = s + 2.0 * zt * math.sqrt(meff * ks) * vt
+    lim = mu * fn
+    if abs(ft) > lim:
+        ft = math.copysign(lim, ft)
+        s = ft
+    return ft, s
+
+
+@njit(inline="always", cache=True)
+def rolling_moment(wrel, fn, m_old, ieff, reff, ks, mur, zr, dt):
+    """(M, m_new): rolling moment on b from the relative spin wrel = wb - wa
+    (zero when mur = 0)."""
+    moment = 0.0
+    m_new = 0.0
+    if mur > 0.0:
+        kr = ks * reff * reff
+        m_new = m_old - kr * wrel * dt
+        moment = m_new - 2.0 * zr * math.sqrt(ieff * kr) * wrel
+        mlim = mur * reff * fn
+        if abs(moment) > mlim:
+            moment = math.copysign(mlim, moment)
+            m_new = moment
+    return moment, m_new
 
 
 @njit(inline="always", cache=True)
@@ -34,24 +78,14 @@ def contact_force(nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff,
     ty = nx
     vn = vrx * nx + vry * ny
     vt = vrx * tx + vry * ty - (wa * ra + wb * rb)
-    fn = kn * delta - 2.0 * zn * math.sqrt(meff * kn) * vn
-    if fn < 0.0:
-        fn = 0.0
-    s = s_old + ks * vt * dt
-    ft = s + 2.0 * zt * math.sqrt(meff * ks) * vt
-    lim = mu * fn
-    if abs(ft) > lim:
-        ft = math.copysign(lim, ft)
-        s = ft
-    moment = 0.0
-    m_new = 0.0
-    if mur > 0.0:
-        kr = ks * reff * reff
-        wrel = wb - wa
-        m_new = m_old - kr * wrel * dt
-        moment = m_new - 2.0 * zr * math.sqrt(ieff * kr) * wrel
-        mlim = mur * reff * fn
-        if abs(moment) > mlim:
-            moment = math.copysign(mlim, moment)
-            m_new = moment
+    fn = normal_force(delta, vn, meff, kn, zn)
+    ft, s = tangential_force(vt, fn, s_old, meff, ks, zt, mu, dt)
+    moment, m_new = rolling_moment(wb - wa, fn, m_old, ieff, reff, ks, mur, zr, dt)
     return fn, ft, s, moment, m_new
+
+
+@njit(inline="always", cache=True)
+def contact(c, nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff, s_old, m_old, dt):
+    """``contact_force`` with the material pair's parameters as one CONTACT_PARAMS record."""
+    return contact_force(nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff, s_old, m_old,
+                         c.kn, c.ks, c.zn, c.zt, c.mu, c.mur, c.zr, dt)

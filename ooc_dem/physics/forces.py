@@ -1,36 +1,52 @@
-"""Per-particle force gather (numba, no I/O).
+"""Contacts as data: each contact is evaluated once (numba, no I/O).
 
-Each disc computes every one of its contacts itself (no scatter, no atomics) and
-sums them in ascending partner-id order: wheel lugs (ids -1000 + k), wheel rim
-(-100), right wall (-3), left wall (-2), bottom wall (-1), then discs by global
-id. Its contact history (partner id, tangential spring, rolling spring) is kept
-sorted by partner id and rewritten from the contacts that exist now; a pair's
-two copies evolve identically because both are computed in canonical
-orientation (physics.contact).
+A step's forces come in two phases (Nishiura & Sakaguchi 2011, J. Comput. Phys.
+230:1923: a pair list with a per-particle pair-index table, Newton's third law
+without write conflicts):
+
+1. ``produce`` writes one row per contact. Disc-disc pairs come from the HALF
+   neighbour list (``neighbors.build_pairs``: each pair once, stored with its lower
+   global id ``a``), so the law is evaluated once per pair in canonical orientation;
+   the row (``layout.PAIR_ROW``) holds the force on b, both torque terms and the
+   pair's new springs, in the pair's slot of the list. Walls and wheel parts
+   (``layout.BODY_ROW``, one row per disc-body contact) go to per-chunk buffers in
+   disc order. A producer only reads the time-n state and writes rows, so it can be
+   rerun (e.g. after growing a buffer) without changing anything.
+2. ``gather_integrate``: one pass per disc sums its rows in ascending partner-id
+   order -- its body rows (negative ids: lugs -1000 + k, rim -100, right wall -3,
+   left -2, bottom -1), then its incoming pairs (partners with lower ids, through
+   the CSR index ``inc_off/inc_k`` of pair slots), then its own half-list pairs -- with exactly
+   the arithmetic of a disc computing its contacts itself (the higher id adds the
+   force and ``r_b ft + M``, the lower subtracts the force and adds ``r_a ft - M``),
+   rewrites its history (sorted by partner id) from the rows and advances the disc
+   (leapfrog). No atomics, no scatter: every write goes to the disc itself.
+
+``wheel_reaction`` sums the wheel's body rows per disc, then over discs in ascending
+id (DESIGN section 3).
 """
 import math
 
-import numba
 import numpy as np
 from numba import njit, prange
 
-from .contact import KN, KS, MU, MUR, ZN, ZR, ZT, contact_force
+from .contact import contact
+from .layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_NBR_OVERFLOW,  # noqa: F401
+                     ERR_PAIR_CAPACITY, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT,
+                     ID_WALL_RIGHT, T_WALL, T_WHEEL, WG_CAP, WG_ENABLED, WG_LUG_IN,
+                     WG_LUG_OUT, WG_MASS, WG_NLUGS, WG_R, WG_SIZE, WS_SIZE, WS_THETA, WS_VX,
+                     WS_VY, WS_WZ, WS_X, WS_Y)
 
-ID_LUG0 = -1000
-ID_RIM = -100
-ID_WALL_RIGHT = -3
-ID_WALL_LEFT = -2
-ID_WALL_BOTTOM = -1
+# discs are produced and gathered in N_CHUNKS contiguous chunks (body rows are
+# buffered per chunk, in disc order); the chunking never changes a result
+N_CHUNKS = 64
 
-# wheel geometry vector wg[...]
-WG_ENABLED, WG_R, WG_LUG_IN, WG_LUG_OUT, WG_CAP, WG_NLUGS, WG_MASS = range(7)
-WG_SIZE = 7
-# wheel state vector ws[...]
-WS_X, WS_Y, WS_VX, WS_VY, WS_THETA, WS_WZ = range(6)
-WS_SIZE = 6
 
-ERR_HIST_OVERFLOW = 0
-ERR_NBR_OVERFLOW = 1
+@njit(inline="always", cache=True)
+def chunk_range(c, n):
+    size = (n + N_CHUNKS - 1) // N_CHUNKS
+    lo = c * size
+    hi = min(n, lo + size)
+    return lo, max(lo, hi)
 
 
 @njit(inline="always", cache=True)
@@ -43,288 +59,354 @@ def _lookup(hid, hft, hmr, i, hn, p, pid):
     return p, 0.0, 0.0
 
 
-@njit(parallel=True, cache=True)
-def compute_forces(n, x, y, vx, vy, w, r, mass, inertia, mat, gid,
-                   nbr, nbr_n, hist_n, hist_id, hist_ft, hist_mr,
-                   fx, fy, tq, cp, walls, wg, ws,
-                   wfx, wfy, wtq, wcount, lugdir, scratch_id, scratch_f, dt, err):
-    """Forces and torques on discs 0..n-1 at time n; rewrites their history.
+@njit(inline="always", cache=True)
+def _body_row(body, at, i, pid, bx, by, tq, s, m, wt):
+    row = body[at]
+    row.disc = i
+    row.pid = pid
+    row.bx = bx
+    row.by = by
+    row.tq = tq
+    row.s = s
+    row.m = m
+    row.wt = wt
 
-    walls = [length, has_left, has_right, has_bottom]. Wheel reactions of disc i
-    (force and torque on the wheel about its centre) go to wfx/wfy/wtq[i] with
-    wcount[i] the number of wheel contacts, for a canonical sum by the caller.
-    lugdir[k] = (cos, sin) of lug k's direction (see lug_directions).
-    """
-    cap = hist_id.shape[1]
-    t_wall = cp.shape[0] - 2
-    t_wheel = cp.shape[0] - 1
-    length = walls[0]
-    wheel_on = wg[WG_ENABLED] > 0.5
-    R = wg[WG_R]
-    lug_in = wg[WG_LUG_IN]
-    lug_out = wg[WG_LUG_OUT]
-    cap_r = wg[WG_CAP]
-    nlugs = int(wg[WG_NLUGS])
-    wmass = wg[WG_MASS]
-    X = ws[WS_X]
-    Y = ws[WS_Y]
-    VX = ws[WS_VX]
-    VY = ws[WS_VY]
-    theta = ws[WS_THETA]
-    WZ = ws[WS_WZ]
+
+@njit(parallel=True, cache=True)
+def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
+    """Phase 1: one row per contact of discs 0..n-1 at time n (see module doc).
+
+    d: layout Discs, pl: Pairs (half list + rows), bd: Bodies (per-chunk body rows),
+    cp: CONTACT_PARAMS table [type_a, type_b], walls: WALLS, wg: WHEEL_GEOMETRY,
+    ws: WHEEL_STATE (records of shape (1,)); lugdir: LUG_DIRECTION of each lug.
+    Sets err[ERR_BODY_CAPACITY] when a chunk's body buffer is full (grow, rerun)."""
+    x, y, vx, vy, w, r = d.x, d.y, d.vx, d.vy, d.w, d.r
+    mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
+    hist_n, hist_id, hist_ft, hist_mr = d.hist_n, d.hist_id, d.hist_ft, d.hist_mr
+    half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
+    body, bcount = bd.rows, bd.count
+    bcap = body.shape[0] // N_CHUNKS
+    wl = walls[0]
+    length = wl.length
+    has_left = wl.left > 0.5
+    has_right = wl.right > 0.5
+    has_bottom = wl.bottom > 0.5
+    g = wg[0]
+    wheel_on = g.enabled > 0.5
+    R = g.radius
+    lug_in = g.lug_in
+    lug_out = g.lug_out
+    cap_r = g.cap
+    nlugs = int(g.nlugs)
+    wmass = g.mass
+    s0 = ws[0]
+    X = s0.x
+    Y = s0.y
+    VX = s0.vx
+    VY = s0.vy
+    WZ = s0.wz
     reach = lug_out + cap_r
     if R > reach:
         reach = R
-    for i in prange(n):
-        tid = numba.get_thread_id()
-        xi = x[i]
-        yi = y[i]
-        vxi = vx[i]
-        vyi = vy[i]
-        wi = w[i]
-        ri = r[i]
-        mi = mass[i]
-        ii = inertia[i]
-        ti = mat[i]
-        gi = gid[i]
-        hn = hist_n[i]
-        p = 0
-        k = 0
-        sfx = 0.0
-        sfy = 0.0
-        stq = 0.0
-        # ---------------------------------------------------------- wheel
-        wfx_i = 0.0
-        wfy_i = 0.0
-        wtq_i = 0.0
-        wc = 0
-        if wheel_on:
-            dxw = xi - X
-            dyw = yi - Y
-            d2 = dxw * dxw + dyw * dyw
-            if d2 < (reach + ri) * (reach + ri):
-                c = cp[t_wheel, ti]
-                meff = mi * wmass / (mi + wmass)
-                for lug in range(nlugs):
-                    ux = lugdir[lug, 0]
-                    uy = lugdir[lug, 1]
-                    sproj = dxw * ux + dyw * uy
-                    if sproj < lug_in:
-                        sproj = lug_in
-                    elif sproj > lug_out:
-                        sproj = lug_out
-                    px = X + sproj * ux
-                    py = Y + sproj * uy
-                    ddx = xi - px
-                    ddy = yi - py
-                    dd = math.sqrt(ddx * ddx + ddy * ddy)
-                    delta = cap_r + ri - dd
-                    if delta > 0.0 and dd > 0.0:
-                        pid = ID_LUG0 + lug
-                        p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, pid)
-                        nx = ddx / dd
-                        ny = ddy / dd
-                        # velocity of the lug point p: V + Wz x (p - C)
-                        vax = VX - WZ * (py - Y)
-                        vay = VY + WZ * (px - X)
-                        fn, ft, s_new, mom, m_new = contact_force(
-                            nx, ny, delta, vxi - vax, vyi - vay, WZ, wi, cap_r, ri,
-                            meff, ii, ri, s_old, m_old, c[KN], c[KS], c[ZN], c[ZT],
-                            c[MU], c[MUR], c[ZR], dt)
-                        if k >= cap:
-                            err[0] = 1
-                            break
-                        scratch_id[tid, k] = pid
-                        scratch_f[tid, 0, k] = s_new
-                        scratch_f[tid, 1, k] = m_new
-                        k += 1
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        bat = ch * bcap
+        bend = bat + bcap
+        full = False
+        for i in range(lo, hi):
+            xi = x[i]
+            yi = y[i]
+            vxi = vx[i]
+            vyi = vy[i]
+            wi = w[i]
+            ri = r[i]
+            mi = mass[i]
+            ii = inertia[i]
+            ti = mat[i]
+            hn = hist_n[i]
+            p = 0
+            # ------------------------------------------------------ wheel
+            if wheel_on:
+                dxw = xi - X
+                dyw = yi - Y
+                d2 = dxw * dxw + dyw * dyw
+                if d2 < (reach + ri) * (reach + ri):
+                    meff = mi * wmass / (mi + wmass)
+                    for lug in range(nlugs):
+                        ux = lugdir[lug].ux
+                        uy = lugdir[lug].uy
+                        sproj = dxw * ux + dyw * uy
+                        if sproj < lug_in:
+                            sproj = lug_in
+                        elif sproj > lug_out:
+                            sproj = lug_out
+                        px = X + sproj * ux
+                        py = Y + sproj * uy
+                        ddx = xi - px
+                        ddy = yi - py
+                        dd = math.sqrt(ddx * ddx + ddy * ddy)
+                        delta = cap_r + ri - dd
+                        if delta > 0.0 and dd > 0.0:
+                            pid = ID_LUG0 + lug
+                            p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, pid)
+                            nx = ddx / dd
+                            ny = ddy / dd
+                            # velocity of the lug point p: V + Wz x (p - C)
+                            vax = VX - WZ * (py - Y)
+                            vay = VY + WZ * (px - X)
+                            fn, ft, s_new, mom, m_new = contact(
+                                cp[T_WHEEL, ti], nx, ny, delta, vxi - vax, vyi - vay, WZ, wi, cap_r,
+                                ri, meff, ii, ri, s_old, m_old, dt)
+                            bx = fn * nx + ft * ny
+                            by = fn * ny - ft * nx
+                            # reaction on the wheel at q = p + cap_r n, about the centre
+                            qx = px + cap_r * nx - X
+                            qy = py + cap_r * ny - Y
+                            if bat < bend:
+                                _body_row(body, bat, i, pid, bx, by, ri * ft + mom, s_new, m_new,
+                                          qx * (-by) - qy * (-bx) - mom)
+                                bat += 1
+                            else:
+                                full = True
+                    dw = math.sqrt(d2)
+                    delta = R + ri - dw
+                    if delta > 0.0 and dw > 0.0:
+                        p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, ID_RIM)
+                        nx = dxw / dw
+                        ny = dyw / dw
+                        fn, ft, s_new, mom, m_new = contact(
+                            cp[T_WHEEL, ti], nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri,
+                            meff, ii, ri, s_old, m_old, dt)
                         bx = fn * nx + ft * ny
                         by = fn * ny - ft * nx
-                        sfx += bx
-                        sfy += by
-                        stq += ri * ft + mom
-                        # reaction on the wheel at q = p + cap_r n, about the centre
-                        qx = px + cap_r * nx - X
-                        qy = py + cap_r * ny - Y
-                        wfx_i -= bx
-                        wfy_i -= by
-                        wtq_i += qx * (-by) - qy * (-bx) - mom
-                        wc += 1
-                d = math.sqrt(d2)
-                delta = R + ri - d
-                if delta > 0.0 and d > 0.0:
-                    p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, ID_RIM)
-                    nx = dxw / d
-                    ny = dyw / d
-                    fn, ft, s_new, mom, m_new = contact_force(
-                        nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri,
-                        meff, ii, ri, s_old, m_old, c[KN], c[KS], c[ZN], c[ZT],
-                        c[MU], c[MUR], c[ZR], dt)
-                    if k >= cap:
-                        err[0] = 1
-                    else:
-                        scratch_id[tid, k] = ID_RIM
-                        scratch_f[tid, 0, k] = s_new
-                        scratch_f[tid, 1, k] = m_new
-                        k += 1
-                    bx = fn * nx + ft * ny
-                    by = fn * ny - ft * nx
-                    sfx += bx
-                    sfy += by
-                    stq += ri * ft + mom
-                    qx = R * nx
-                    qy = R * ny
-                    wfx_i -= bx
-                    wfy_i -= by
-                    wtq_i += qx * (-by) - qy * (-bx) - mom
-                    wc += 1
-        wfx[i] = wfx_i
-        wfy[i] = wfy_i
-        wtq[i] = wtq_i
-        wcount[i] = wc
-        # ---------------------------------------------------------- walls
-        c = cp[t_wall, ti]
-        for wall in range(3):
-            # ascending ids: right (-3), left (-2), bottom (-1)
-            if wall == 0:
-                if walls[2] < 0.5:
-                    continue
-                delta = ri - (length - xi)
-                nx = -1.0
-                ny = 0.0
-                pid = ID_WALL_RIGHT
-            elif wall == 1:
-                if walls[1] < 0.5:
-                    continue
-                delta = ri - xi
-                nx = 1.0
-                ny = 0.0
-                pid = ID_WALL_LEFT
-            else:
-                if walls[3] < 0.5:
-                    continue
-                delta = ri - yi
-                nx = 0.0
-                ny = 1.0
-                pid = ID_WALL_BOTTOM
-            if delta > 0.0:
-                p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, pid)
-                fn, ft, s_new, mom, m_new = contact_force(
-                    nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri,
-                    mi, ii, ri, s_old, m_old, c[KN], c[KS], c[ZN], c[ZT],
-                    c[MU], c[MUR], c[ZR], dt)
-                if k >= cap:
-                    err[0] = 1
+                        qx = R * nx
+                        qy = R * ny
+                        if bat < bend:
+                            _body_row(body, bat, i, ID_RIM, bx, by, ri * ft + mom, s_new, m_new,
+                                      qx * (-by) - qy * (-bx) - mom)
+                            bat += 1
+                        else:
+                            full = True
+            # ------------------------------------------------------ walls
+            for wall in range(3):
+                # ascending ids: right (-3), left (-2), bottom (-1)
+                if wall == 0:
+                    if not has_right:
+                        continue
+                    delta = ri - (length - xi)
+                    nx = -1.0
+                    ny = 0.0
+                    pid = ID_WALL_RIGHT
+                elif wall == 1:
+                    if not has_left:
+                        continue
+                    delta = ri - xi
+                    nx = 1.0
+                    ny = 0.0
+                    pid = ID_WALL_LEFT
                 else:
-                    scratch_id[tid, k] = pid
-                    scratch_f[tid, 0, k] = s_new
-                    scratch_f[tid, 1, k] = m_new
+                    if not has_bottom:
+                        continue
+                    delta = ri - yi
+                    nx = 0.0
+                    ny = 1.0
+                    pid = ID_WALL_BOTTOM
+                if delta > 0.0:
+                    p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, pid)
+                    fn, ft, s_new, mom, m_new = contact(
+                        cp[T_WALL, ti], nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri,
+                        mi, ii, ri, s_old, m_old, dt)
+                    if bat < bend:
+                        _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx,
+                                  ri * ft + mom, s_new, m_new, 0.0)
+                        bat += 1
+                    else:
+                        full = True
+            # ------------------------------------------------------ pairs (i = a, lower id)
+            for q in range(half_off[i], half_off[i + 1]):
+                b = np.int64(pair_b[q])
+                dx = x[b] - xi
+                dy = y[b] - yi
+                rb = r[b]
+                d2 = dx * dx + dy * dy
+                rs = ri + rb
+                if d2 >= rs * rs:
+                    on[q] = 0
+                    continue
+                dd = math.sqrt(d2)
+                if dd == 0.0:
+                    on[q] = 0
+                    continue
+                delta = rs - dd
+                p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, gid[b])
+                nx = dx / dd
+                ny = dy / dd
+                mb = mass[b]
+                ib = inertia[b]
+                fn, ft, s_new, mom, m_new = contact(
+                    cp[ti, mat[b]], nx, ny, delta, vx[b] - vxi, vy[b] - vyi, wi, w[b], ri, rb,
+                    mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb), s_old, m_old, dt)
+                row = rows[q]
+                row.bx = fn * nx + ft * ny
+                row.by = fn * ny - ft * nx
+                row.ta = ri * ft - mom
+                row.tb = rb * ft + mom
+                row.s = s_new
+                row.m = m_new
+                on[q] = 1
+        bcount[ch] = bat - ch * bcap
+        if full:
+            err[ERR_BODY_CAPACITY] = 1
+
+
+@njit(inline="always", cache=True)
+def _keep(hist_id, hist_ft, hist_mr, i, k, cap, pid, s, m):
+    """Write history entry k of disc i; returns False on overflow."""
+    if k >= cap:
+        return False
+    hist_id[i, k] = pid
+    hist_ft[i, k] = s
+    hist_mr[i, k] = m
+    return True
+
+
+@njit(parallel=True, cache=True)
+def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
+    """Phase 2: per disc, sum its rows in ascending partner-id order (module doc),
+    rewrite its history from them, then advance it one leapfrog step:
+    v_(n+1/2) = v_(n-1/2) + a_n dt, x_(n+1) = x_n + v_(n+1/2) dt.
+    fx/fy/tq get the contact forces and torques of time n (unless they have length 0).
+    Returns the largest squared
+    displacement since the last neighbour build (a max: order-free); part is scratch
+    of N_CHUNKS entries."""
+    x, y, vx, vy, w = d.x, d.y, d.vx, d.vy, d.w
+    mass, inertia, gid = d.mass, d.inertia, d.gid
+    hist_n, hist_id, hist_ft, hist_mr = d.hist_n, d.hist_id, d.hist_ft, d.hist_mr
+    half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
+    inc_off, inc_k = pl.inc_off, pl.inc_k
+    on, rows, xref, yref = pl.on, pl.rows, pl.xref, pl.yref
+    body, bcount = bd.rows, bd.count
+    bcap = body.shape[0] // N_CHUNKS
+    cap = hist_id.shape[1]
+    keep = fx.shape[0] >= n
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        bat = ch * bcap
+        bend = bat + bcount[ch]
+        over = False
+        mx = 0.0
+        for i in range(lo, hi):
+            sfx = 0.0
+            sfy = 0.0
+            stq = 0.0
+            k = 0
+            # walls and wheel parts (negative ids, already in ascending order)
+            while bat < bend and body[bat].disc == i:
+                brow = body[bat]
+                if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, brow.pid, brow.s, brow.m):
+                    over = True
+                k += 1
+                sfx += brow.bx
+                sfy += brow.by
+                stq += brow.tq
+                bat += 1
+            # partners with lower ids (i is b): the CSR index, ascending partner id
+            for e in range(inc_off[i], inc_off[i + 1]):
+                q = inc_k[e]
+                if on[q]:
+                    row = rows[q]
+                    if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, gid[pair_a[q]], row.s, row.m):
+                        over = True
                     k += 1
-                sfx += fn * nx + ft * ny
-                sfy += fn * ny - ft * nx
-                stq += ri * ft + mom
-        # ---------------------------------------------------------- discs
-        for q in range(nbr_n[i]):
-            j = np.int64(nbr[i, q])
-            gj = gid[j]
-            # canonical orientation: a has the lower id
-            # (i is the unsigned prange index; keep a and b both int64)
-            if gi < gj:
-                a = np.int64(i)
-                b = j
-            else:
-                a = j
-                b = np.int64(i)
-            dx = x[b] - x[a]
-            dy = y[b] - y[a]
-            ra = r[a]
-            rb = r[b]
-            d2 = dx * dx + dy * dy
-            rs = ra + rb
-            if d2 >= rs * rs:
-                continue
-            d = math.sqrt(d2)
-            if d == 0.0:
-                continue
-            delta = rs - d
-            p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, gj)
-            nx = dx / d
-            ny = dy / d
-            ta = mat[a]
-            tb = mat[b]
-            ma = mass[a]
-            mb = mass[b]
-            ia = inertia[a]
-            ib = inertia[b]
-            fn, ft, s_new, mom, m_new = contact_force(
-                nx, ny, delta, vx[b] - vx[a], vy[b] - vy[a], w[a], w[b], ra, rb,
-                ma * mb / (ma + mb), ia * ib / (ia + ib), ra * rb / (ra + rb),
-                s_old, m_old, cp[ta, tb, KN], cp[ta, tb, KS], cp[ta, tb, ZN], cp[ta, tb, ZT],
-                cp[ta, tb, MU], cp[ta, tb, MUR], cp[ta, tb, ZR], dt)
-            if k >= cap:
-                err[0] = 1
-                break
-            scratch_id[tid, k] = gj
-            scratch_f[tid, 0, k] = s_new
-            scratch_f[tid, 1, k] = m_new
-            k += 1
-            bx = fn * nx + ft * ny
-            by = fn * ny - ft * nx
-            if gi > gj:
-                sfx += bx
-                sfy += by
-                stq += ri * ft + mom
-            else:
-                sfx -= bx
-                sfy -= by
-                stq += ri * ft - mom
-        fx[i] = sfx
-        fy[i] = sfy
-        tq[i] = stq
-        for q in range(k):
-            hist_id[i, q] = scratch_id[tid, q]
-            hist_ft[i, q] = scratch_f[tid, 0, q]
-            hist_mr[i, q] = scratch_f[tid, 1, q]
-        hist_n[i] = k
+                    sfx += row.bx
+                    sfy += row.by
+                    stq += row.tb
+            # partners with higher ids (i is a): i's own half list, ascending partner id
+            for q in range(half_off[i], half_off[i + 1]):
+                if on[q]:
+                    row = rows[q]
+                    if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, gid[pair_b[q]], row.s, row.m):
+                        over = True
+                    k += 1
+                    sfx -= row.bx
+                    sfy -= row.by
+                    stq += row.ta
+            hist_n[i] = min(k, cap)
+            if keep:
+                fx[i] = sfx
+                fy[i] = sfy
+                tq[i] = stq
+            vx[i] += (sfx / mass[i] + gx) * dt
+            vy[i] += (sfy / mass[i] + gy) * dt
+            w[i] += stq / inertia[i] * dt
+            x[i] += vx[i] * dt
+            y[i] += vy[i] * dt
+            ddx = x[i] - xref[i]
+            ddy = y[i] - yref[i]
+            dd = ddx * ddx + ddy * ddy
+            if dd > mx:
+                mx = dd
+        part[ch] = mx
+        if over:
+            err[ERR_HIST_OVERFLOW] = 1
+    return part.max()
 
 
 @njit(cache=True)
 def lug_directions(theta, nlugs, lugdir):
-    """Unit vectors of the lugs at wheel angle theta (lug k at theta + 2 pi k / n)."""
+    """Unit vectors of the lugs at wheel angle theta (lug k at theta + 2 pi k / n);
+    lugdir: LUG_DIRECTION records."""
     for k in range(nlugs):
         phi = theta + 2.0 * math.pi * k / nlugs
-        lugdir[k, 0] = math.cos(phi)
-        lugdir[k, 1] = math.sin(phi)
+        lugdir[k].ux = math.cos(phi)
+        lugdir[k].uy = math.sin(phi)
 
 
 @njit(cache=True)
-def wheel_reaction(n, gid, wfx, wfy, wtq, wcount):
-    """Soil force and torque on the wheel summed in ascending disc id (canonical)."""
+def wheel_reaction(gid, bd):
+    """Soil force and torque on the wheel: each disc's wheel rows summed in its row
+    order (lugs, then rim), then the discs in ascending id (canonical). Returns
+    (fx, fy, torque, number of discs touching the wheel)."""
+    body, bcount = bd.rows, bd.count
+    bcap = body.shape[0] // N_CHUNKS
+    total = 0
+    for ch in range(N_CHUNKS):
+        total += bcount[ch]
+    keys = np.empty(total, np.int64)
+    sx = np.empty(total)
+    sy = np.empty(total)
+    st = np.empty(total)
     cnt = 0
-    for i in range(n):
-        if wcount[i] > 0:
+    for ch in range(N_CHUNKS):
+        at = ch * bcap
+        end = at + bcount[ch]
+        while at < end:
+            i = body[at].disc
+            if body[at].pid > ID_RIM:   # a wall: no wheel rows for this disc
+                at += 1
+                continue
+            wfx_i = 0.0
+            wfy_i = 0.0
+            wtq_i = 0.0
+            while at < end and body[at].disc == i and body[at].pid <= ID_RIM:
+                wfx_i -= body[at].bx
+                wfy_i -= body[at].by
+                wtq_i += body[at].wt
+                at += 1
+            keys[cnt] = gid[i]
+            sx[cnt] = wfx_i
+            sy[cnt] = wfy_i
+            st[cnt] = wtq_i
             cnt += 1
     if cnt == 0:
         return 0.0, 0.0, 0.0, 0
-    idx = np.empty(cnt, np.int64)
-    c = 0
-    for i in range(n):
-        if wcount[i] > 0:
-            idx[c] = i
-            c += 1
-    keys = gid[idx]
-    order = np.argsort(keys, kind="mergesort")
+    order = np.argsort(keys[:cnt], kind="mergesort")
     fxs = 0.0
     fys = 0.0
     tqs = 0.0
     for o in range(cnt):
-        i = idx[order[o]]
-        fxs += wfx[i]
-        fys += wfy[i]
-        tqs += wtq[i]
+        k = order[o]
+        fxs += sx[k]
+        fys += sy[k]
+        tqs += st[k]
     return fxs, fys, tqs, cnt
-
-
-def make_scratch(cap):
-    nt = numba.config.NUMBA_NUM_THREADS
-    return np.zeros((nt, cap), np.int64), np.zeros((nt, 2, cap), np.float64)

@@ -1,12 +1,17 @@
-"""Cell lists and Verlet neighbour lists (numba, no I/O).
+"""Cell lists and the half Verlet pair list with its per-disc CSR index (numba, no I/O).
 
-A neighbour list holds, for each disc, every disc within r_i + r_j + skin,
-sorted by global id. It is a superset of the contacts until some disc has moved
-more than skin/2, so *when* it is rebuilt never changes a result: forces only see
-real overlaps, summed in partner-id order.
+The pair list holds every pair of discs within r_i + r_j + skin ONCE, stored with
+its lower global id ``a``: disc a's pairs are ``pair_b[half_off[a]:half_off[a + 1]]``
+sorted by global id (the pair's row slot is its position; ``pair_a`` the lower disc
+of each slot). The CSR index ``inc_k[inc_off[b]:inc_off[b + 1]]`` lists, for each
+disc b, the slots of its pairs with lower-id partners, sorted by the partner's id
+(Nishiura & Sakaguchi 2011's per-particle pair-index table).
+Both are sized from the bed (counted, then filled), never by a fixed cap.
+
+The list is a superset of the contacts until some disc has moved more than skin/2,
+so *when* it is rebuilt never changes a result: forces only see real overlaps,
+summed in partner-id order.
 """
-import math
-
 import numpy as np
 from numba import njit, prange
 
@@ -48,16 +53,22 @@ def _bin(x, y, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of):
 
 
 @njit(parallel=True, cache=True)
-def _gather(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin, nbr, nbr_n, err):
-    cap = nbr.shape[1]
+def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+          half_off, pair_b, inc_off, inc, fill):
+    """fill False: count each disc's partners with higher / lower ids into
+    half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id."""
     for i in prange(n):
         c = cell_of[i]
         cx = c % ncx
         cy = c // ncx
-        k = 0
+        nu = 0
+        nl = 0
         xi = x[i]
         yi = y[i]
         ri = r[i]
+        gi = gid[i]
+        u0 = half_off[i] if fill else 0
+        l0 = inc_off[i] if fill else 0
         for oy in range(-1, 2):
             yy = cy + oy
             if yy < 0 or yy >= ncy:
@@ -75,28 +86,61 @@ def _gather(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin, nbr
                     dy = y[j] - yi
                     cut = ri + r[j] + skin
                     if dx * dx + dy * dy < cut * cut:
-                        if k >= cap:
-                            err[1] = 1
-                            break
-                        nbr[i, k] = np.int32(j)
-                        k += 1
+                        if gid[j] > gi:
+                            if fill:
+                                pair_b[u0 + nu] = j
+                            nu += 1
+                        else:
+                            if fill:
+                                inc[l0 + nl] = j
+                            nl += 1
+        if not fill:
+            half_off[i + 1] = nu
+            inc_off[i + 1] = nl
+            continue
         # insertion sort by global id (lists are short)
-        for a in range(1, k):
-            v = nbr[i, a]
+        for a in range(u0 + 1, u0 + nu):
+            v = pair_b[a]
             gv = gid[v]
             b = a - 1
-            while b >= 0 and gid[nbr[i, b]] > gv:
-                nbr[i, b + 1] = nbr[i, b]
+            while b >= u0 and gid[pair_b[b]] > gv:
+                pair_b[b + 1] = pair_b[b]
                 b -= 1
-            nbr[i, b + 1] = v
-        nbr_n[i] = k
+            pair_b[b + 1] = v
+        for a in range(l0 + 1, l0 + nl):
+            v = inc[a]
+            gv = gid[v]
+            b = a - 1
+            while b >= l0 and gid[inc[b]] > gv:
+                inc[b + 1] = inc[b]
+                b -= 1
+            inc[b + 1] = v
+
+
+@njit(parallel=True, cache=True)
+def _slots(n, half_off, pair_b, pair_a, inc_off, inc_k):
+    """pair_a[k] = the lower disc of slot k; inc_k: each lower partner a of disc b
+    replaced by the slot of the pair (a, b) in a's half list."""
+    for i in prange(n):
+        for q in range(half_off[i], half_off[i + 1]):
+            pair_a[q] = i
+        for e in range(inc_off[i], inc_off[i + 1]):
+            a = inc_k[e]
+            q = half_off[a]
+            while pair_b[q] != i:
+                q += 1
+            inc_k[e] = q
 
 
 @njit(cache=True)
-def build_neighbors(x, y, r, gid, n, skin, nbr, nbr_n, xref, yref, err):
-    """Rebuild the Verlet lists of discs 0..n-1 and remember the build positions."""
+def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, xref, yref):
+    """Rebuild the half pair list and CSR index of discs 0..n-1 and remember the build
+    positions. Returns the number of pairs P; when P exceeds the capacity of
+    pair_b / pair_a / inc_k nothing is filled (grow them to at least P and call again)."""
+    half_off[0] = 0
+    inc_off[0] = 0
     if n == 0:
-        return
+        return 0
     rmax = r[:n].max()
     cell = 2.0 * rmax + skin
     x0 = x[:n].min()
@@ -108,13 +152,24 @@ def build_neighbors(x, y, r, gid, n, skin, nbr, nbr_n, xref, yref, err):
     if ncx * ncy > 4 * n + 64:
         ncy = max(1, (4 * n + 64) // ncx)
     cell_start = np.zeros(ncx * ncy + 1, np.int64)
-    cell_list = np.empty(n, np.int64)
-    cell_of = np.empty(n, np.int64)
+    cell_list = np.empty(n, np.int32)
+    cell_of = np.empty(n, np.int32)
     _bin(x, y, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of)
-    _gather(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin, nbr, nbr_n, err)
+    _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+          half_off, pair_b, inc_off, inc_k, False)
+    for i in range(n):
+        half_off[i + 1] += half_off[i]
+        inc_off[i + 1] += inc_off[i]
+    npairs = half_off[n]
+    if npairs > pair_b.shape[0] or npairs > inc_k.shape[0]:
+        return npairs
+    _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+          half_off, pair_b, inc_off, inc_k, True)
+    _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):
         xref[i] = x[i]
         yref[i] = y[i]
+    return npairs
 
 
 @njit(parallel=True, cache=True)

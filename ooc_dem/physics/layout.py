@@ -1,0 +1,131 @@
+"""Named layouts of every kernel-side record (the ONE definition; numba compiles them).
+
+Each packed vector the engine stores or passes around has a structured dtype here;
+kernels read and write it by field name through a record view of the flat float64
+array (``record(flat, DTYPE)``), so the stored form (a flat vector, e.g. the epoch's
+``wheel_state``, or the (steps, 12) wheel records) and the canonical hash never
+change, and no kernel indexes a column by number. The ``*_X``-style integer
+constants are the same layouts as column positions, for code that handles the flat
+arrays outside the kernels (stores, metrics, plots).
+
+Records:
+- ``CONTACT_PARAMS``  contact parameters of one material pair, table cp[type_a, type_b]
+- ``WALLS``           the bin's walls
+- ``WHEEL_GEOMETRY``  rigid wheel with capsule lugs
+- ``WHEEL_STATE``     wheel kinematics (``wz`` is the spin, clockwise negative; the same
+                      quantity export.py calls ``omega``)
+- ``WHEEL_CONTROLS``  prescribed motion and drawbar
+- ``WHEEL_RECORD``    one row per step of a wheel run
+- ``LUG_DIRECTION``   unit vector of one lug at the current wheel angle
+- ``ERRORS``          kernel error flags
+- ``PAIR_ROW``        one disc-disc contact of a step (phase 1 -> phase 2)
+- ``BODY_ROW``        one disc-wall / disc-wheel-part contact of a step
+"""
+from __future__ import annotations
+
+import numpy as np
+
+F8 = "<f8"
+
+
+def _dtype(names, kind=F8):
+    return np.dtype([(n, kind) for n in names])
+
+
+def _index(dt: np.dtype) -> dict[str, int]:
+    return {n: k for k, n in enumerate(dt.names)}
+
+
+def record(flat: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """Record view of a C-contiguous float64 array whose last axis is ``dtype``'s fields
+    (no copy: writes through the view change ``flat``). A vector gives shape (1,)."""
+    a = np.ascontiguousarray(flat)
+    if a is not flat and flat.size:
+        raise ValueError("record(): the flat array must be C-contiguous (a view would be lost)")
+    if a.shape[-1] != len(dtype.names):
+        raise ValueError(f"record(): last axis {a.shape[-1]} != {len(dtype.names)} fields of {dtype}")
+    v = a.view(dtype)
+    return v.reshape(v.shape[:-1]) if a.ndim > 1 else v
+
+
+# ----------------------------------------------------------- contact parameters
+CONTACT_PARAMS = _dtype(("kn", "ks", "zn", "zt", "mu", "mur", "zr"))
+KN, KS, ZN, ZT, MU, MUR, ZR = range(7)
+N_FIELDS = len(CONTACT_PARAMS.names)
+# material types of the contact table: soil discs, walls, wheel
+T_SOIL, T_WALL, T_WHEEL = 0, 1, 2
+N_TYPES = 3
+
+# ------------------------------------------------------------------- walls
+WALLS = _dtype(("length", "left", "right", "bottom"))
+WALL_LENGTH, WALL_LEFT, WALL_RIGHT, WALL_BOTTOM = range(4)
+
+# -------------------------------------------------------------------- wheel
+WHEEL_GEOMETRY = _dtype(("enabled", "radius", "lug_in", "lug_out", "cap", "nlugs", "mass"))
+WG_ENABLED, WG_R, WG_LUG_IN, WG_LUG_OUT, WG_CAP, WG_NLUGS, WG_MASS = range(7)
+WG_SIZE = len(WHEEL_GEOMETRY.names)
+
+WHEEL_STATE = _dtype(("x", "y", "vx", "vy", "theta", "wz"))
+WS_NAMES = WHEEL_STATE.names
+WS_X, WS_Y, WS_VX, WS_VY, WS_THETA, WS_WZ = range(6)
+WS_SIZE = len(WS_NAMES)
+
+WHEEL_CONTROLS = _dtype(("settle", "omega", "slipmode", "drawbar", "ramp", "slip"))
+WC_SETTLE, WC_OMEGA, WC_SLIPMODE, WC_DRAWBAR, WC_RAMP, WC_SLIP = range(6)
+WC_SIZE = len(WHEEL_CONTROLS.names)
+
+WHEEL_RECORD = _dtype(("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar",
+                       "contacts"))
+REC_COLUMNS = WHEEL_RECORD.names
+(REC_T, REC_X, REC_Y, REC_VX, REC_VY, REC_WZ, REC_THETA, REC_FX, REC_FY, REC_TQ, REC_DB,
+ REC_NC) = range(12)
+N_REC = len(REC_COLUMNS)
+
+# unit vector of each lug at the current wheel angle (forces.lug_directions)
+LUG_DIRECTION = _dtype(("ux", "uy"))
+
+# ------------------------------------------------------------------- errors
+ERRORS = _dtype(("hist_overflow", "pair_capacity", "body_capacity"), "<i8")
+ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_BODY_CAPACITY = range(3)
+N_ERR = len(ERRORS.names)
+# kept for importers of the old name (the neighbour list has no fixed cap any more)
+ERR_NBR_OVERFLOW = ERR_PAIR_CAPACITY
+
+# ---------------------------------------------------------------- contact rows
+# partner ids of the bodies (negative, so they sort before every disc)
+ID_LUG0 = -1000        # lug k has id ID_LUG0 + k
+ID_RIM = -100
+ID_WALL_RIGHT = -3
+ID_WALL_LEFT = -2
+ID_WALL_BOTTOM = -1
+
+# one disc-disc pair (a = lower global id, b = higher) evaluated once: the force on b
+# is (bx, by), a gets the exact negation; ta / tb are the torque terms of a / b
+# (r_a ft - M, r_b ft + M); s, m the pair's new tangential and rolling springs
+PAIR_ROW = _dtype(("bx", "by", "ta", "tb", "s", "m"))
+# one disc-body contact (the body is always the lower id): disc row index, body id,
+# force and torque on the disc, new springs, and the torque on the wheel about its
+# centre (wheel parts only; the wheel's force is (-bx, -by))
+BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8"), ("bx", F8), ("by", F8), ("tq", F8),
+                     ("s", F8), ("m", F8), ("wt", F8)])
+
+
+# ------------------------------------------------------- kernel argument records
+# (named tuples of arrays: numba compiles them; every field is a view, never a copy)
+from collections import namedtuple  # noqa: E402
+
+# the discs of one domain (views of a state.Particles)
+Discs = namedtuple("Discs", ["x", "y", "vx", "vy", "w", "r", "mass", "inertia", "mat", "gid",
+                             "hist_n", "hist_id", "hist_ft", "hist_mr"])
+# half pair list + CSR index (neighbors.build_pairs), the build positions, and the
+# pairs' rows of the current step (slot = position in pair_b; on[k] = in contact)
+Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "xref", "yref", "on",
+                             "rows"])
+# body rows of the current step: N_CHUNKS buffers of equal capacity, count[c] used
+Bodies = namedtuple("Bodies", ["rows", "count"])
+
+
+def discs_of(p) -> Discs:
+    """The kernel view of a state.Particles (no copy)."""
+    return Discs(p.x, p.y, p.vx, p.vy, p.w, p.r, p.mass, p.inertia, p.mat, p.id,
+                 p.hist_n, p.hist_id, p.hist_ft, p.hist_mr)

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .physics.forces import WS_SIZE
+from .physics.layout import WS_SIZE
 from .scenario import show
 from .state import HIST_CAP, HIST_FIELDS, SCALAR_FIELDS, Particles, canonical_bytes
 

@@ -8,7 +8,7 @@ id. Overflowing the capacity is an error, never a silent drop.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -19,7 +19,7 @@ from .. import __version__
 from ..atomic import write_replacing
 from ..bed import settled_bed, surface_height
 from ..checkpoint import particles_to_record, record_to_particles
-from ..physics.forces import WS_SIZE, WS_X, WS_Y
+from ..physics.layout import REC_X, WS_SIZE, WS_X, WS_Y
 from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, ScenarioError, big, critical_time_step,
                         scenario_from_toml, show, steps_for_duration)
 from ..metrics import N_SERIES
@@ -484,7 +484,7 @@ class Simulation:
                 self.wall_time = time.time() - t_start
                 post = {}
                 if self.sc.wheel.enabled and len(rec):
-                    post["x"] = f"{rec[-1, 1]:.4f}"
+                    post["x"] = f"{rec[-1, REC_X]:.4f}"
                 bar.update(self.step, n, **post)
                 if self.step % self.checkpoint_every == 0 or self.step == self.steps:
                     self.commit()

@@ -14,7 +14,6 @@ alive between sweeps (``live.LiveDomains``: same bits, no per-sweep rebuilding).
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -393,7 +392,6 @@ class SweepEngine:
 
     @classmethod
     def reopen(cls, sim, reader, arrays, attrs) -> "SweepEngine":
-        sc = sim.sc
         K = int(attrs["engine"]["block"])
         if sim.opts.mode == "ooc":
             bounds = np.array([-np.inf, *attrs["engine"]["bounds"], np.inf])

@@ -16,6 +16,20 @@ import numpy as np
 from numba import njit, prange
 
 
+@njit(inline="always", cache=True)
+def _sort_by_gid(idx, lo, hi, gid):
+    """Insertion sort of idx[lo:hi] by global id (a disc's lists are short): partners in
+    ascending id are the sum order of the determinism contract."""
+    for a in range(lo + 1, hi):
+        v = idx[a]
+        gv = gid[v]
+        b = a - 1
+        while b >= lo and gid[idx[b]] > gv:
+            idx[b + 1] = idx[b]
+            b -= 1
+        idx[b + 1] = v
+
+
 @njit(cache=True)
 def spatial_order(x, y, n, cell):
     """Permutation that sorts discs by (cell column, cell row): keeps neighbours close in memory."""
@@ -98,23 +112,8 @@ def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
             half_off[i + 1] = nu
             inc_off[i + 1] = nl
             continue
-        # insertion sort by global id (lists are short)
-        for a in range(u0 + 1, u0 + nu):
-            v = pair_b[a]
-            gv = gid[v]
-            b = a - 1
-            while b >= u0 and gid[pair_b[b]] > gv:
-                pair_b[b + 1] = pair_b[b]
-                b -= 1
-            pair_b[b + 1] = v
-        for a in range(l0 + 1, l0 + nl):
-            v = inc[a]
-            gv = gid[v]
-            b = a - 1
-            while b >= l0 and gid[inc[b]] > gv:
-                inc[b + 1] = inc[b]
-                b -= 1
-            inc[b + 1] = v
+        _sort_by_gid(pair_b, u0, u0 + nu, gid)
+        _sort_by_gid(inc, l0, l0 + nl, gid)
 
 
 @njit(parallel=True, cache=True)

@@ -1850,40 +1850,6 @@ def _strip(opts, names):
     return out
 
 
-def _pool(dest, cmd, sub) -> list[str]:
-    if dest == "steps":
-        return STEPS_VALUES
-    if dest == "duration":
-        return DURATION_VALUES
-    if dest == "until":
-        return UNTIL_VALUES
-    if dest == "domains":
-        return DOMAIN_VALUES
-    if dest == "block":
-        return BLOCK_VALUES
-    if dest == "epoch":
-        return EPOCH_VALUES
-    if dest == "keep":
-        return KEEP_VALUES
-    if dest == "checkpoint_every":
-        return ["1", "2", "10", "0", "-1", "100000000000", HUGE_DIGITS, "abc"]
-    if dest == "slips":
-        return ["0.1", "0.1,0.2", "abc", "", ",", "nan", "inf", "1", "-0.0", "0.99999999999", "1e-300",
-                "0.1,abc", "-1", "0.5,0.5", HUGE_DIGITS]
-    if dest == "modes":
-        return ["monolithic", "gpu", "", ",", "monolithic,ddm,ooc", "ooc,ooc", "é🦀"]
-    if dest == "bed":
-        return ["run", "out", "victim", "link_zero", "nonexistent", "victim_file", "", "dev_null", "run2"]
-    if dest == "out" and cmd == "checkpoint":
-        return EXPORT_OUTS_OK + list(EXPORT_OUTS_BAD)
-    if dest == "out":
-        return ["out/x", "out/x", "run", "run2", "victim", "victim_file", "link_victim", "link_file",
-                "dev_null", "", "out", "runs/y", "out/é🦀", "out/" + "x" * 300, "run/epochs"]
-    if dest == "format":
-        return ["xdmf", "vtk", "csv"]
-    return ["", "x", "0", "-1", "1e308", "nan", HUGE_DIGITS, "é🦀"]
-
-
 EXPORT_OUTS_OK = ["out/s.csv", "out/s.xdmf", "out/s.vtk", "out/s.vtp", "out/noext", "out/sub/deep/s.csv",
                   "out/s.CSV", "out/.csv", "out/s.h5"]
 EXPORT_OUTS_BAD = {"run/MANIFEST.json": "over the store's MANIFEST.json",
@@ -1895,6 +1861,28 @@ EXPORT_OUTS_BAD = {"run/MANIFEST.json": "over the store's MANIFEST.json",
                    "dev_null": "to a device node", "dev_full": "to a device node",
                    "link_zero": "to a device node", "run": "over the store directory",
                    "out": "over a directory", "run/epochs/x.csv": "inside epochs/"}
+
+# hostile values per option destination of the real parser (anything else: GENERIC_VALUES)
+OPTION_POOLS = {
+    "steps": STEPS_VALUES, "duration": DURATION_VALUES, "until": UNTIL_VALUES,
+    "domains": DOMAIN_VALUES, "block": BLOCK_VALUES, "epoch": EPOCH_VALUES, "keep": KEEP_VALUES,
+    "checkpoint_every": ["1", "2", "10", "0", "-1", "100000000000", HUGE_DIGITS, "abc"],
+    "slips": ["0.1", "0.1,0.2", "abc", "", ",", "nan", "inf", "1", "-0.0", "0.99999999999", "1e-300",
+              "0.1,abc", "-1", "0.5,0.5", HUGE_DIGITS],
+    "modes": ["monolithic", "gpu", "", ",", "monolithic,ddm,ooc", "ooc,ooc", "é🦀"],
+    "bed": ["run", "out", "victim", "link_zero", "nonexistent", "victim_file", "", "dev_null", "run2"],
+    "out": ["out/x", "out/x", "run", "run2", "victim", "victim_file", "link_victim", "link_file",
+            "dev_null", "", "out", "runs/y", "out/é🦀", "out/" + "x" * 300, "run/epochs"],
+    "format": ["xdmf", "vtk", "csv"],
+}
+EXPORT_OUT_POOL = EXPORT_OUTS_OK + list(EXPORT_OUTS_BAD)   # `checkpoint export --out`
+GENERIC_VALUES = ["", "x", "0", "-1", "1e308", "nan", HUGE_DIGITS, "é🦀"]
+
+
+def _pool(dest, cmd, sub) -> list[str]:
+    if dest == "out" and cmd == "checkpoint":
+        return EXPORT_OUT_POOL
+    return OPTION_POOLS.get(dest, GENERIC_VALUES)
 
 
 

@@ -81,6 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     from .scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
     p = _Parser(prog="ooc-dem", description="Out-of-core 2D DEM of soil-wheel interaction "
                 "(serial domain decomposition, bit-identical modes).")
+    from . import __version__
+    p.add_argument("--version", action="version", version=f"ooc-dem {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     def add_scenario_args(q):

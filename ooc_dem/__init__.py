@@ -7,7 +7,7 @@ Python API (the same checks, code paths and bits as the ``ooc-dem`` command line
     res = ooc_dem.run(sc, out="runs/quick-short")          # -> RunResult
     res.summary["slip"]["whole_travel"]["value"]            # summary.json as a dict
     res.series["net_traction"]                              # series.csv, structured array
-    res.state()["x"]                                        # discs of the last epoch, by id
+    res.state()["id"]                                       # discs of the last epoch, by id
     ooc_dem.resume("runs/quick-short", until=1.0)           # continue a killed/finished run
 
 Functions

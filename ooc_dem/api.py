@@ -124,9 +124,9 @@ class RunResult:
     (``open_run(path)``).
     """
 
-    def __init__(self, path, summary: dict | None = None):
+    def __init__(self, path):
         self.path = Path(path)
-        self._summary = summary
+        self._summary = None
         self._series = None
 
     def __repr__(self) -> str:
@@ -288,10 +288,10 @@ def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None
             raise RunError(str(e).replace("--bed ", "bed ", 1)) from None
     try:
         sim.start(prepared, streamed=True)
-        summary = sim.run()
+        sim.run()
     finally:
         sim.close()   # the write lock is released whatever happened
-    return RunResult(out, summary)
+    return RunResult(out)
 
 
 def resume(path, steps: int | None = None, until: float | None = None, progress: bool = False,
@@ -327,10 +327,10 @@ def resume(path, steps: int | None = None, until: float | None = None, progress:
     if sim is None:
         return RunResult(path)
     try:
-        summary = sim.run()
+        sim.run()
     finally:
         sim.close()
-    return RunResult(path, summary)
+    return RunResult(path)
 
 
 def open_run(path) -> RunResult:

@@ -3,7 +3,7 @@
 Every value is checked against a declared type and range; a bad value raises
 ``ScenarioError`` with one line naming the key, the value and what is allowed.
 The time step is checked against the critical step of the stiffest contact
-(reference/validation.md: dt_crit = (2/w)(sqrt(1+z^2) - z)).
+(docs/reference/validation.md: dt_crit = (2/w)(sqrt(1+z^2) - z)).
 """
 from __future__ import annotations
 
@@ -404,7 +404,7 @@ def disc_mass(sc: Scenario, r: float) -> float:
 
 
 def critical_time_step(sc: Scenario) -> float:
-    """Critical explicit step of the stiffest contact (validation.md).
+    """Critical explicit step of the stiffest contact (docs/reference/validation.md).
 
     w = sqrt(n_c * kn / m_min) with n_c contacts per disc, z the damping ratio;
     rolling springs are included through their rotational frequency. Called on

@@ -1,4 +1,4 @@
-"""Serial domain decomposition is bit-identical to the monolithic run (DESIGN sections 3-4)."""
+"""Serial domain decomposition is bit-identical to the monolithic run (docs/design.md §3-4)."""
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings

@@ -1,4 +1,4 @@
-"""DESIGN section 3: the result does not depend on the thread count."""
+"""docs/design.md §3: the result does not depend on the thread count."""
 import numba
 import numpy as np
 

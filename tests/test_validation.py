@@ -1,4 +1,4 @@
-"""Physics validation against analytic results (shared/reference/validation.md).
+"""Physics validation against analytic results (docs/reference/validation.md).
 
 Every test states its formula and its tolerance in its docstring. Units are SI.
 The reference disc: r = 0.01 m, density 2000 kg/m^3, slice thickness 0.1 m
@@ -15,7 +15,7 @@ Conventions of the engine that the tests rely on (ooc_dem/physics):
 The kernels run on one numba thread here (module fixture): the machine has two
 cores that may be busy with a long simulation, and spinning worker threads of
 tiny systems are then very slow. Results do not depend on the thread count
-(DESIGN section 3).
+(docs/design.md §3).
 """
 from __future__ import annotations
 

@@ -284,7 +284,7 @@ def _print_run_result(summary, out):
     print(f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
           f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}")
     print(f"state hash: {summary['state_hash']}")
-    print(f"output: {out}")
+    print(f"output: {out}  (shown by `ooc-dem report {out}`; in Python: ooc_dem.open_run({str(out)!r}))")
 
 
 def cmd_resume(args):

@@ -24,6 +24,7 @@ import numpy as np
 from .atomic import write_replacing
 
 from .fields import displacements, gridded_displacement, layer_index
+from .physics.layout import AX_X, AX_Y
 
 LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
 DPI = 150
@@ -260,10 +261,11 @@ def _has_store(out: Path) -> bool:
 def _read_final(out: Path):
     """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
     from storage import open_store
+    from .checkpoint import open_epoch
     from .engine.run import read_all_particles
     store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
     try:
-        reader = store.read_epoch()
+        reader = open_epoch(store)
         try:
             p = read_all_particles(reader)
             arrays, _ = reader.read_globals()
@@ -272,7 +274,7 @@ def _read_final(out: Path):
             reader.close()
     finally:
         store.close()
-    return p.id.copy(), p.x.copy(), p.y.copy(), p.r.copy(), ws
+    return p.id.copy(), p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.r.copy(), ws
 
 
 def _discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=1, alpha=None):

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .physics.layout import AX_X, WS_SIZE, axes
+from .physics.layout import AX_X, WS_SIZE
 from .scenario import show
 from .state import (DISC_FIELDS, FIELD_DTYPES, HIST_CAP, HIST_FIELDS, V1_ARRAYS, Particles,
                     canonical_bytes, canonical_columns, hash_width, record_fields, stack_v1, upgrade_v1)

@@ -24,7 +24,7 @@ import numpy as np
 from .atomic import write_replacing
 
 from .fields import displacements, gridded_displacement, layer_index
-from .physics.layout import AX_X, AX_Y
+from .physics.layout import AX_X, AX_Y, WS_THETA, WS_X, WS_Y
 
 LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
 DPI = 150
@@ -455,7 +455,7 @@ def _deformation_figure(init, final, sc, series, path: Path):
         x_start, y_start = _placement(sc, ix, iy, ir)
         draw_wheel(a0, x_start, y_start, 0.0, w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
                    fill=False, color="0.35", linestyle="--")
-        draw_wheel(a1, ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
+        draw_wheel(a1, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
     for ax in axes:
         ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=3)
         ax.set_xlim(xa, xb)
@@ -468,7 +468,7 @@ def _deformation_figure(init, final, sc, series, path: Path):
                  fontsize=10)
     title = "final state: each disc keeps its initial layer colour"
     if wheel_on:
-        title += f"; wheel at x = {ws[0]:.3f} m, θ = {math.degrees(ws[4]):.0f}°"
+        title += f"; wheel at x = {ws[WS_X]:.3f} m, θ = {math.degrees(ws[WS_THETA]):.0f}°"
     a1.set_title(title, fontsize=10)
     return _save(fig, path)
 
@@ -505,7 +505,7 @@ def _displacement_figure(init, final, sc, series, path: Path):
     wheel_on = sc is not None and sc.wheel.enabled and ws is not None
     if wheel_on:
         w = sc.wheel
-        draw_wheel(ax, ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
+        draw_wheel(ax, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
                    fill=False, color="0.2", zorder=3)
     ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=1)
     ax.set_xlim(xa, xb)

@@ -200,7 +200,7 @@ def _flip_data_byte(store):
     """Flip one byte inside the x positions of the current HDF5 epoch (valid file, wrong data)."""
     f = store / _manifest(store)["current"]["path"]
     with h5py.File(f, "r", locking=False) as h:
-        off = h["domains/d0000/x"].id.get_offset()
+        off = h["domains/d0000/pos"].id.get_offset()
     with open(f, "r+b") as fh:
         fh.seek(off + 8 * 7 + 3)
         b = fh.read(1)

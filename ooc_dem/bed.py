@@ -116,14 +116,19 @@ def cache_dir() -> Path:
 
 
 def _cached(sc: Scenario, build, progress=None) -> Particles:
-    # format-1 caches (x, y, ...) still load: Particles converts them (state.upgrade_v1)
-    path = cache_dir() / "beds" / f"{sc.bed_hash()}.npz"
-    if path.is_file():
-        try:
-            with np.load(path) as z:
-                return Particles(**{k: z[k] for k in z.files})
-        except Exception:
-            path.unlink(missing_ok=True)
+    # format-2 beds (pos, vel, ...) under their own name, so that an engine of format 1
+    # sharing the cache never sees (and deletes) them; a format-1 cache (x, y, ...) still
+    # loads: Particles converts it (state.upgrade_v1)
+    beds = cache_dir() / "beds"
+    path = beds / f"{sc.bed_hash()}.v2.npz"
+    for f in (path, beds / f"{sc.bed_hash()}.npz"):
+        if f.is_file():
+            try:
+                with np.load(f) as z:
+                    return Particles(**{k: z[k] for k in z.files})
+            except Exception:
+                if f == path:
+                    path.unlink(missing_ok=True)
     p = build(progress)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")

@@ -32,7 +32,7 @@ from xml.sax.saxutils import escape, quoteattr
 import numpy as np
 
 from .atomic import new_temp
-from .checkpoint import check_unique_sorted, validate_globals
+from .checkpoint import StateError, check_unique_sorted, validate_globals
 from .physics.layout import AXIS_NAMES, WS_NAMES, axes, spin_width
 from .state import FIELD_DTYPES
 
@@ -97,11 +97,20 @@ def read_snapshot(reader, source: str = "") -> Snapshot:
         dt = FIELD_DTYPES[k]
         if k in vec:
             width = len(vec[k])
-            a = (np.concatenate([np.asarray(p[k], dt).reshape(-1, width) for p in parts]) if parts
+            for d, p in zip(reader.domains(), parts):
+                if p[k].shape != (len(p["id"]), width):
+                    raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
+                                     f"shape {p[k].shape}, expected ({len(p['id'])}, {width}) "
+                                     f"({dim}D)")
+            a = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
                  else np.zeros((0, width), dt))
             for c, name in enumerate(vec[k]):
                 cols[name] = a[:, c]
         else:
+            for d, p in zip(reader.domains(), parts):
+                if p[k].shape != (len(p["id"]),):
+                    raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
+                                     f"shape {p[k].shape}, expected ({len(p['id'])},)")
             cols[k] = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
                        else np.zeros(0, dt))
     cols = {k: cols[k] for k in snapshot_columns(dim)}

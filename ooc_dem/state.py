@@ -200,6 +200,20 @@ class Particles:
     def nbytes(self) -> int:
         return sum(v.nbytes for v in self.arrays().values())
 
+    def with_hist_cap(self, cap: int) -> "Particles":
+        """A copy with contact-history capacity cap (ValueError if a particle holds more)."""
+        if len(self) and int(self.hist_n.max()) > cap:
+            raise ValueError(f"a particle holds {int(self.hist_n.max())} contacts, more than {cap}")
+        q = Particles.empty(len(self), self.dim, cap)
+        k = min(cap, self.hist_cap)
+        for name in ALL_FIELDS:
+            a, b = getattr(q, name), getattr(self, name)
+            if name in HIST_FIELDS:
+                a[:, :k] = b[:, :k]
+            else:
+                a[...] = b
+        return q
+
 
 @dataclass
 class WheelState:

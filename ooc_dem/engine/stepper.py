@@ -140,6 +140,9 @@ class DomainStepper:
         ``torque`` (N, R) (diagnostics and tests; 24 bytes a disc in 2D)."""
         if particles.dim != model.dim:
             raise EngineError(f"{particles.dim}D particles handed to a {model.dim}D model")
+        if particles.hist_cap != model.hist_cap:
+            raise EngineError(f"particles with a contact-history capacity of {particles.hist_cap} "
+                              f"handed to a model of capacity {model.hist_cap}")
         self.kern = model.kernels()
         if reorder and len(particles) > 1:
             perm = self.kern.spatial_order(particles.pos, len(particles), 2 * model.r_max + model.skin)

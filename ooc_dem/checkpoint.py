@@ -1,8 +1,10 @@
 """State <-> store records, epochs as checkpoints, and the canonical state hash.
 
-A domain's record is a dict of flat arrays: the per-disc scalars plus the
-contact history in CSR form (``hist_n`` counts, then ``hist_id``, ``hist_ft``,
-``hist_mr`` concatenated row after row, each row sorted by partner id).
+A domain's record (store format 2) is a dict of arrays: the per-disc fields ``id`` (n,),
+``pos``/``vel`` (n, D), ``spin`` (n, R), ``r, mass, inertia, mat, hist_n`` (n,), plus the
+contact history in CSR form (``hist_id`` (E,), ``hist_s`` (E, S), ``hist_m`` (E, M), the
+used slots disc after disc, each disc's sorted by partner id; E = sum of hist_n).
+Format-1 epochs (2D components as their own arrays) are read through ``V1Epoch``.
 """
 from __future__ import annotations
 

@@ -7,14 +7,16 @@ simulated time:
 * ``xdmf``: ``NAME.h5`` beside ``NAME.xdmf``. The HDF5 file holds ``/positions``
   (N x 3, z = 0), ``/velocity`` (N x 3, vz = 0), ``/radius``, ``/spin``, ``/id``,
   ``/mass``, ``/material``, ``/connectivity`` (N x 1, the Polyvertex cells) and
-  ``/wheel_state`` (x, y, vx, vy, theta, omega) with ``step``/``time`` attributes.
+  ``/wheel_state`` (x, y, vx, vy, theta, wz: ``layout.WHEEL_STATE``) with ``step``/``time``
+  attributes.
   The XDMF file is one Uniform grid with a Polyvertex topology and node-centred
   attributes; the wheel state, step and time are Grid-centred attributes (field
   data in ParaView's XDMF 3 reader).
 * ``vtk``: legacy ASCII ``.vtk`` PolyData (points + VERTICES, POINT_DATA, dataset
   FIELD data for the wheel), or VTK XML PolyData if the file name ends in ``.vtp``.
 * ``csv``: ``#`` comment lines (epoch, time, wheel state), a header row
-  ``id,x,y,vx,vy,w,r,mass,mat`` and one row per disc.
+  ``id,x,y,vx,vy,w,r,mass,mat`` (2D; the vector columns named from the axes,
+  ``vector_columns(dim)``) and one row per disc.
 
 Floats are written so that they read back to the same bits (``repr``; HDF5 as
 float64). Only the per-disc scalars are read from the store (never the contact

@@ -427,7 +427,8 @@ def _checkpoint_export(store, args) -> int:
     out = Path(args.out)
     try:
         check_targets(output_files(fmt, out), out)   # before reading anything
-        reader = store.read_epoch(args.epoch)
+        from .checkpoint import open_epoch
+        reader = open_epoch(store, args.epoch)
         try:
             snap = read_snapshot(reader, args.store)
         finally:
@@ -447,7 +448,7 @@ def _warn_fallback(store) -> None:
 
 
 def cmd_checkpoint(args):
-    from .checkpoint import hash_epoch, validate_globals
+    from .checkpoint import hash_epoch, open_epoch, validate_globals
     from storage import open_store
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
@@ -461,7 +462,7 @@ def cmd_checkpoint(args):
             return _checkpoint_verify(store, args)
         if args.ckpt_command == "export":
             return _checkpoint_export(store, args)
-        reader = store.read_epoch(args.epoch)
+        reader = open_epoch(store, args.epoch)
         try:
             if args.ckpt_command == "hash":
                 out = hash_epoch(reader)   # streamed: a store larger than RAM hashes too

@@ -182,8 +182,17 @@ class Scenario:
         return self.scenario.name
 
     @property
-    def gravity_vector(self) -> tuple[float, float]:
-        return (0.0, -self.physics.gravity)
+    def dim(self) -> int:
+        """Dimension of the model (2: discs in the x-y plane; every scenario today)."""
+        return 2
+
+    @property
+    def gravity_vector(self) -> tuple[float, ...]:
+        """Gravity as a dim-vector along -y (physics.layout.AX_Y)."""
+        from .physics.layout import AX_Y
+        g = [0.0] * self.dim
+        g[AX_Y] = -self.physics.gravity
+        return tuple(g)
 
     @property
     def wheel_mass(self) -> float:

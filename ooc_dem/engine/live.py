@@ -9,7 +9,7 @@ sub-domain d at rows ``off[d]:off[d + 1]``. A sweep is then:
 
 1. refresh: every halo copy is overwritten with its owner's copy. Only the owner
    advanced a disc with all its partners present, and no sub-domain has advanced
-   yet this sweep, so the halos hold time-n states (Jacobi, DESIGN section 4);
+   yet this sweep, so the halos hold time-n states (Jacobi, docs/design.md §4);
 2. ownership: a disc belongs to the slab holding its x (as in the rebuilding sweep);
 3. every sub-domain advances K steps in place with THE per-domain step.
 
@@ -18,7 +18,7 @@ here is a superset of the one the rebuilding sweep would gather (x within
 halo + ``membership_skin`` of the slab instead of halo), and discs beyond the
 K-hop halo cannot reach an owned disc within K steps; forces are gathered per disc
 in partner-id order and neighbour lists are complete whatever their build time, so
-which extra discs are present, and their order, changes nothing (DESIGN section 3).
+which extra discs are present, and their order, changes nothing (docs/design.md §3).
 The local sets are rebuilt only when some disc has moved more than
 ``membership_skin`` in x since they were built (a disc outside a set could then be
 within the halo), or when the bounds or the wheel's slab change.

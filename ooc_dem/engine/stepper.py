@@ -163,6 +163,7 @@ class DomainStepper:
         self.bodies = Bodies(np.zeros(N_CHUNKS * 8, L.BODY_ROW), np.zeros(N_CHUNKS, np.int64))
         self.err = np.zeros(N_ERR, np.int64)
         self._built = False
+        self._pairs_done = False
         self.rebuilds = 0
 
     def _grow_pairs(self, npairs: int) -> None:
@@ -198,7 +199,7 @@ class DomainStepper:
         m = self.model
         rec = np.zeros((nsteps if m.wheel_enabled else 0, N_REC))
         # small domains run on one thread: a parallel launch costs more than it saves
-        # there, and the result is the same whatever the thread count (DESIGN section 3)
+        # there, and the result is the same whatever the thread count (docs/design.md §3)
         threads = numba.get_num_threads()
         serial = self.n < SERIAL_BELOW and threads > 1
         if serial:
@@ -223,7 +224,9 @@ class DomainStepper:
                        self.on, self.rows)
             k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, self.bodies,
                                         self._forces, ws, self.err,
-                                        recv[done:] if len(rec) else recv, not self._built)
+                                        recv[done:] if len(rec) else recv, not self._built,
+                                        self._pairs_done)
+            self._pairs_done = False
             done += k
             self.rebuilds += rb
             self._built = True
@@ -237,6 +240,8 @@ class DomainStepper:
                 cap = 2 * self.bodies.rows.shape[0]
                 self.bodies = Bodies(np.zeros(cap, L.BODY_ROW), self.bodies.count)
                 self.err[ERR_BODY_CAPACITY] = 0
+                # the step's pair rows are made (and hold its new springs): redo its bodies only
+                self._pairs_done = True
             else:
                 return done
             if done >= nsteps:

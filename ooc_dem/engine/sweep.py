@@ -329,7 +329,7 @@ class SweepEngine:
                       if (q := _read_rows(src, g, lo - self.halo, hi + self.halo,
                                                self.model.hist_cap)) is not None]
             # the pieces are x-sorted strips: already in a cache-friendly order, and memory
-            # order never changes a result (DESIGN section 3), so no spatial re-sort here
+            # order never changes a result (docs/design.md §3), so no spatial re-sort here
             local = Particles.concat(pieces, self.model.dim, self.model.hist_cap)
             resident.append(len(local))
             if d == wslab:

@@ -10,7 +10,7 @@ Every contact is evaluated once, in its canonical orientation: body ``a`` is the
 partner with the lower id (walls and wheel parts have negative ids, so they are
 always ``a``), body ``b`` the higher. Both partners take the result of that one
 evaluation (b the force, a its exact negation), which is what makes every execution
-mode bit-identical (DESIGN section 3).
+mode bit-identical (docs/design.md §3).
 
 The parameters of a material pair are one ``layout.CONTACT_PARAMS`` record
 ``c`` (fields kn, ks, zn, zt, mu, mur, zr).

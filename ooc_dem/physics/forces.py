@@ -22,7 +22,7 @@ without write conflicts):
    (leapfrog). No atomics, no scatter: every write goes to the disc itself.
 
 ``wheel_reaction`` sums the wheel's body rows per disc, then over discs in ascending
-id (DESIGN section 3).
+id (docs/design.md §3).
 """
 import math
 
@@ -73,7 +73,7 @@ def _body_row(body, at, i, pid, bx, by, tq, s, m, wt):
 
 
 @njit(parallel=True, cache=True)
-def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
+def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_done):
     """Phase 1: one row per contact of discs 0..n-1 at time n (see module doc).
 
     d: layout Discs, pl: Pairs (half list + rows), bd: Bodies (per-chunk body rows),
@@ -188,7 +188,11 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                         else:
                             full = True
             # ------------------------------------------------------ walls
-            for wall in range(3):
+            # most discs touch no wall: test all three overlaps first (ri > t is exactly
+            # the walls' own test ri - t > 0, so no contact is skipped or added)
+            near_wall = ((has_right and ri > length - xi) or (has_left and ri > xi)
+                         or (has_bottom and ri > yi))
+            for wall in range(3 if near_wall else 0):
                 # ascending ids: right (-3), left (-2), bottom (-1)
                 if wall == 0:
                     if not has_right:
@@ -223,6 +227,8 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                     else:
                         full = True
             # ------------------------------------------------------ pairs (i = a, lower id)
+            if pairs_done:
+                continue   # a rerun after growing the body buffers: the pair rows are made
             for q in range(half_off[i], half_off[i + 1]):
                 b = np.int64(pair_b[q])
                 dx = pos[b, AX_X] - xi
@@ -230,15 +236,18 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                 rb = r[b]
                 d2 = dx * dx + dy * dy
                 rs = ri + rb
-                if d2 >= rs * rs:
+                row = rows[q]
+                if d2 >= rs * rs or d2 == 0.0:
+                    # no contact: the pair's springs restart from zero
                     on[q] = 0
+                    row.s = 0.0
+                    row.m = 0.0
                     continue
                 dd = math.sqrt(d2)
-                if dd == 0.0:
-                    on[q] = 0
-                    continue
                 delta = rs - dd
-                p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, gid[b])
+                # the pair's springs of the last step (its row is its contact history)
+                s_old = row.s
+                m_old = row.m
                 nx = dx / dd
                 ny = dy / dd
                 mb = mass[b]
@@ -246,7 +255,6 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                 fn, ft, s_new, mom, m_new = contact(
                     cp[ti, mat[b]], nx, ny, delta, vel[b, AX_X] - vxi, vel[b, AX_Y] - vyi, wi, spin[b, SP_Z], ri, rb,
                     mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb), s_old, m_old, dt)
-                row = rows[q]
                 row.bx = fn * nx + ft * ny
                 row.by = fn * ny - ft * nx
                 row.ta = ri * ft - mom
@@ -313,13 +321,12 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
                 sfy += brow.by
                 stq += brow.tq
                 bat += 1
+            kb = k
             # partners with lower ids (i is b): the CSR index, ascending partner id
             for e in range(inc_off[i], inc_off[i + 1]):
                 q = inc_k[e]
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], row.s, row.m):
-                        over = True
                     k += 1
                     sfx += row.bx
                     sfy += row.by
@@ -328,13 +335,15 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
             for q in range(half_off[i], half_off[i + 1]):
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], row.s, row.m):
-                        over = True
                     k += 1
                     sfx -= row.bx
                     sfy -= row.by
                     stq += row.ta
-            hist_n[i] = min(k, cap)
+            # between steps a disc's own history holds its body contacts only: its pairs'
+            # springs stay in the pair rows until sync_history writes them back
+            hist_n[i] = kb
+            if k > cap:
+                over = True
             if keep:
                 force[i, AX_X] = sfx
                 force[i, AX_Y] = sfy
@@ -413,3 +422,66 @@ def wheel_reaction(gid, bd):
         fys += sy[k]
         tqs += st[k]
     return fxs, fys, tqs, cnt
+
+
+@njit(parallel=True, cache=True)
+def sync_history(n, d, pl, err):
+    """Each disc's full contact history, sorted by partner id, from its body entries
+    (kept in place by the gather) and its pairs' springs in the pair rows: partners with
+    lower ids through the CSR index, then its own half list. Run at the end of every
+    advance and before a neighbour rebuild, so the discs always leave a stepper whole."""
+    gid = d.gid
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
+    half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
+    inc_off, inc_k, on, rows = pl.inc_off, pl.inc_k, pl.on, pl.rows
+    cap = hist_id.shape[1]
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        over = False
+        for i in range(lo, hi):
+            k = hist_n[i]
+            for e in range(inc_off[i], inc_off[i + 1]):
+                q = inc_k[e]
+                if on[q]:
+                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], rows[q].s,
+                                 rows[q].m):
+                        over = True
+                    k += 1
+            for q in range(half_off[i], half_off[i + 1]):
+                if on[q]:
+                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], rows[q].s,
+                                 rows[q].m):
+                        over = True
+                    k += 1
+            hist_n[i] = min(k, cap)
+        if over:
+            err[ERR_HIST_OVERFLOW] = 1
+
+
+@njit(parallel=True, cache=True)
+def load_history(n, d, pl):
+    """The pair rows' springs from the lower disc's history: after a neighbour build, and
+    at the start of every advance (the discs' histories may have been set from outside,
+    e.g. a serial-DDM halo refresh or a resumed epoch)."""
+    gid = d.gid
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
+    half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        for i in range(lo, hi):
+            hn = hist_n[i]
+            p = 0
+            for q in range(half_off[i], half_off[i + 1]):
+                pid = gid[pair_b[q]]
+                p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
+                rows[q].s = s_old
+                rows[q].m = m_old
+                # in contact at the last step: a sync before the next step (a rebuild on
+                # the last step of a call) then writes back exactly the history loaded
+                on[q] = 1 if p < hn and hist_id[i, p] == pid else 0
+            # from here to sync_history the disc's own history holds only its body
+            # contacts (negative ids, sorted first); its pairs are in the rows
+            kb = 0
+            while kb < hn and hist_id[i, kb] < 0:
+                kb += 1
+            hist_n[i] = kb

@@ -10,7 +10,8 @@ import numpy as np
 from numba import njit
 
 from .. import layout as L
-from ..forces import N_CHUNKS, gather_integrate, lug_directions, produce, wheel_reaction
+from ..forces import (N_CHUNKS, gather_integrate, load_history, lug_directions, produce,
+                      sync_history, wheel_reaction)
 from ..integrate import apply_wheel_controls, drawbar_force, integrate_wheel
 from ..layout import AX_Y, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY
 from ..neighbors import build_pairs
@@ -20,7 +21,7 @@ DIM = 2
 
 
 @njit(cache=True)
-def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
+def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done):
     """Advance discs 0..len(d.gid)-1 (and the wheel when kp.wg.enabled) nsteps from global
     step step0.
 
@@ -29,7 +30,13 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
     WHEEL_STATE record; rec: WHEEL_RECORD rows, one per step (wheel runs). Returns (steps
     done, rebuilds). Stops early with err[ERR_PAIR_CAPACITY] = pairs needed (grow the pair
     list, rebuild, continue), err[ERR_BODY_CAPACITY] (grow the body buffers, redo that step)
-    or err[ERR_HIST_OVERFLOW] (fatal)."""
+    or err[ERR_HIST_OVERFLOW] (fatal). pairs_done: the first step's pair rows were made by
+    the call that stopped on ERR_BODY_CAPACITY (redo its body rows only).
+
+    A pair's contact history lives in its row of the pair list while the steps run
+    (read and rewritten by ``produce``, no per-disc lookup); ``load_history`` fills the
+    rows from the discs' histories at the start and after each rebuild, ``sync_history``
+    writes them back before each rebuild and at the end."""
     n = d.gid.shape[0]
     dt = kp.dt
     skin = kp.skin
@@ -48,6 +55,8 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
         if npairs > pl.pair_b.shape[0]:
             err[ERR_PAIR_CAPACITY] = npairs
             return 0, 0
+    if not pairs_done:
+        load_history(n, d, pl)
     half2 = 0.25 * skin * skin
     rebuilds = 0
     wfxs = 0.0
@@ -58,7 +67,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
         if wheel:
             apply_wheel_controls(t, ws, wg, wc)
             lug_directions(ws[0].theta, nlugs, lugdir)
-        produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err)
+        produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_done and s == 0)
         if err[ERR_BODY_CAPACITY] != 0:
             return s, rebuilds
         disp2 = gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, dt, part,
@@ -84,9 +93,12 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
             integrate_wheel(t, ws, wg, wc, wfxs, wfys, gy, dt)
         if disp2 > half2:
             rebuilds += 1
+            sync_history(n, d, pl, err)
             npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
                                  pl.pair_a, pl.inc_off, pl.inc_k, pl.ref)
             if npairs > pl.pair_b.shape[0]:
                 err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds
+            load_history(n, d, pl)
+    sync_history(n, d, pl, err)
     return nsteps, rebuilds

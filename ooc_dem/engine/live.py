@@ -25,10 +25,15 @@ within the halo), or when the bounds or the wheel's slab change.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
+from numba.typed import List
 
-from ..physics.layout import AX_X
+from ..physics import layout as L
+from ..physics.forces import ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, sync_history_serial
+from ..physics.layout import AX_X, ERR_BODY_CAPACITY, ERR_PAIR_CAPACITY, WHEEL_RECORD, record
+from ..physics.twins import serial_twin
 from ..state import Particles
 from .stepper import N_REC, DomainStepper, EngineError, Model
 
@@ -90,6 +95,117 @@ def _assign_owners(ids, x, off, bounds, owner_row, owned):
     return count
 
 
+# per-sub-domain flags of the compiled sweeps (one int64 array per sub-domain)
+F_DONE, F_REBUILD, F_PAIRS_DONE, F_REBUILDS = range(4)
+# how run_sweeps stopped
+SWEEPS_DONE, SWEEPS_REBUILD, SWEEPS_WHEEL, SWEEPS_DOMAIN, SWEEPS_OWNERSHIP = range(5)
+
+
+def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, recbuf, norec,
+                ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built, off, ref,
+                disp2, bounds, owned, owned_before, role, n_total, membership_skin, rebuild2,
+                wheel_reach):
+    """Serial DDM, whole sweeps in one compiled call: per sweep, (1) every halo copy from
+    its owner and ownership from x (skipped before the first sweep of a fresh build),
+    (2) every sub-domain K steps with the one-thread step, the sub-domains side by side on
+    the lanes (a lane is one thread; each runs its sub-domains one after another:
+    Jacobi, so the order and the lanes never change a result), (3) the wheel's slab check
+    for the next sweep. Returns (sweeps done, how it stopped).
+
+    doms[j] = (kernel params, Discs, Pairs, Bodies, Forces, wheel state, errors, flags,
+    roles) of sub-domain j (views of the local sets: rows off[j]:off[j + 1]); recbuf: the
+    wheel records of every step (WHEEL_RECORD, nsweeps * K rows), written by sub-domain
+    wslab; wheel_reach: < 0 for no wheel check, else the wheel's reach plus margin (the
+    sweep stops when it leaves its slab, for a re-decomposition).
+
+    Contact histories: between sweeps a pair's springs live in its sub-domain's pair row
+    (forces.load_history / sync_history). role[r] (forces.ROLE_* bits) says which rows
+    are reloaded (a pair of two discs owned through two sweeps keeps its row: both were
+    computed from their true states) and which discs' histories are written back: after
+    each sweep only the owned discs another sub-domain has copies of (ROLE_SHARED: the
+    next refresh copies them), and all owned discs on return."""
+    status = SWEEPS_DONE
+    done = nsweeps
+    for sw in range(nsweeps):
+        if sw > 0 or refresh_first:
+            moved = _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
+                             x_built, off, ref, disp2)
+            if moved > membership_skin:
+                status = SWEEPS_REBUILD
+                done = sw
+                break
+            owned_before[:] = owned
+            if _assign_owners(ids, pos[:, AX_X], off, bounds, owner_row, owned) != n_total:
+                status = SWEEPS_OWNERSHIP
+                done = sw
+                break
+            for r in range(role.shape[0]):
+                role[r] = ((ROLE_OWNED if owned[r] else 0) | (ROLE_OWNED_BEFORE if owned_before[r] else 0)
+                           | (role[r] & ROLE_SHARED))
+            for j in range(len(doms)):
+                if disp2[j] > rebuild2[j]:
+                    # the rebuild reloads every row from the discs: write the rows back first
+                    kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
+                    sync_history_serial(d.gid.shape[0], d, pl, err, roles, ROLE_OWNED_BEFORE)
+                    flags[F_REBUILD] = 1
+        s0 = step0 + sw * K
+        for lane in prange(len(lane_off) - 1):
+            for t in range(lane_off[lane], lane_off[lane + 1]):
+                j = lanes[t]
+                kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
+                n = d.gid.shape[0]
+                if n == 0:
+                    flags[F_DONE] = K
+                    continue
+                rec = recbuf[sw * K:] if j == wslab else norec
+                k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,
+                                         flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0, roles)
+                flags[F_DONE] = k
+                flags[F_REBUILDS] += rb
+                flags[F_REBUILD] = 0
+                flags[F_PAIRS_DONE] = 0
+                if k == K and not err.any():
+                    # the next refresh copies every owned disc that has copies elsewhere
+                    sync_history_serial(n, d, pl, err, roles, ROLE_OWNED | ROLE_SHARED)
+        stop = False
+        for j in range(len(doms)):
+            if doms[j][7][F_DONE] < K or doms[j][6].any():
+                stop = True
+        if stop:
+            status = SWEEPS_DOMAIN
+            done = sw
+            break
+        if wheel_reach >= 0.0:
+            wx = doms[wslab][5][0].x
+            if not (bounds[wslab] <= wx - wheel_reach and wx + wheel_reach < bounds[wslab + 1]):
+                status = SWEEPS_WHEEL
+                done = sw + 1
+                break
+    # every owned disc leaves whole (commits, rebuilds and the one-call step read them);
+    # not a sub-domain whose pair list failed to build (its rows are not made)
+    for j in range(len(doms)):
+        kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
+        if err[ERR_PAIR_CAPACITY] == 0 and d.gid.shape[0]:
+            sync_history_serial(d.gid.shape[0], d, pl, err, roles, ROLE_OWNED)
+    return done, status
+
+
+_SWEEPS = {}
+
+
+def sweeps_kernel(kern):
+    """The compiled sweeps for one dimension's step kernels (None when the kernel module
+    has no one-thread step: the sweep then advances the sub-domains one call each)."""
+    step = getattr(kern, "run_steps_serial", None)
+    if step is None:
+        return None
+    if kern.__name__ not in _SWEEPS:
+        name = "run_sweeps_" + kern.__name__.rsplit(".", 1)[-1]
+        _SWEEPS[kern.__name__] = serial_twin(_run_sweeps, name, parallel=True,
+                                             run_steps_serial=step)
+    return _SWEEPS[kern.__name__]
+
+
 class LiveDomains:
     """All sub-domains of a serial-DDM run with their halos and steppers, kept in RAM."""
 
@@ -117,6 +233,15 @@ class LiveDomains:
         # owner_row[id]: the row holding the disc's authoritative copy; owned[row]
         self.owner_row = np.full(int(self.p.id.max()) + 1 if len(self.p) else 0, -1, np.int64)
         self.owned = np.zeros(len(self.p), np.bool_)
+        self.owned_before = np.zeros(len(self.p), np.bool_)
+        # forces.ROLE_* of each row in the compiled sweeps (set with the ownership)
+        self.role = np.zeros(len(self.p), np.int8)
+        # rows whose disc has a copy in another sub-domain (fixed for these local sets)
+        if len(self.p):
+            _, inverse, counts = np.unique(self.p.id, return_inverse=True, return_counts=True)
+            self.shared = counts[inverse] > 1
+        else:
+            self.shared = np.zeros(0, np.bool_)
         # the steppers' neighbour-list references, one array for all (checked in _refresh)
         self.ref = np.zeros((len(self.p), self.p.dim))
         self.disp2 = np.zeros(self.D)
@@ -142,6 +267,7 @@ class LiveDomains:
         if total != self.n:
             raise EngineError(f"serial DDM owns {total} of {self.n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")
+        self.role[:] = np.where(self.owned, ROLE_OWNED, 0) | np.where(self.shared, ROLE_SHARED, 0)
 
     def owned_rows(self, d: int) -> np.ndarray:
         """Rows of the discs sub-domain d owned at the start of the last sweep."""
@@ -163,6 +289,112 @@ class LiveDomains:
             if self.disp2[d] > 0.25 * st.model.skin ** 2:
                 st._built = False
         return True
+
+    # ------------------------------------------------------- compiled sweeps
+    def _lanes(self):
+        """Sub-domains per lane (thread), largest first onto the least loaded lane."""
+        nl = max(1, min(numba.get_num_threads(), self.D))
+        load = [0] * nl
+        lanes = [[] for _ in range(nl)]
+        for j in sorted(range(self.D), key=lambda j: -int(self.off[j + 1] - self.off[j])):
+            lane = min(range(nl), key=lambda a: load[a])
+            lanes[lane].append(j)
+            load[lane] += int(self.off[j + 1] - self.off[j])
+        flat = np.array([j for ln in lanes for j in ln], np.int64)
+        lane_off = np.cumsum([0] + [len(ln) for ln in lanes]).astype(np.int64)
+        return flat, lane_off
+
+    def _domain_list(self):
+        doms = List()
+        for j, (st, fl) in enumerate(zip(self.steppers, self.flags)):
+            doms.append(st.kernel_args() + (fl, self.role[self.off[j]:self.off[j + 1]]))
+        return doms
+
+    def run_sweeps(self, step0: int, nsweeps: int, K: int, refresh_first: bool, wheel_reach: float):
+        """Up to nsweeps sweeps of K steps in compiled calls (see ``_run_sweeps``); returns
+        (wheel records of the steps done, sweeps done, why it stopped: SWEEPS_*)."""
+        run = sweeps_kernel(self.steppers[0].kern) if self.steppers else None
+        if run is None:
+            raise EngineError("serial DDM: the step kernels have no one-thread twin")
+        recbuf = np.zeros((nsweeps * K, N_REC))
+        norec = np.zeros(1, WHEEL_RECORD)
+        if not hasattr(self, "flags"):
+            self.flags = [np.zeros(4, np.int64) for _ in range(self.D)]
+            self._lane_plan = self._lanes()
+            self._rebuild2 = np.array([0.25 * st.model.skin ** 2 for st in self.steppers])
+        for st, fl in zip(self.steppers, self.flags):
+            fl[F_REBUILD] = 0 if st._built else 1
+            fl[F_PAIRS_DONE] = 1 if st._pairs_done else 0
+            fl[F_REBUILDS] = 0
+        doms = self._domain_list()
+        p = self.p
+        lanes, lane_off = self._lane_plan
+        done = 0
+        status = SWEEPS_DONE
+        wslab = self.wslab if self.wslab >= 0 else 0
+        while done < nsweeps:
+            n_sw, status = run(nsweeps - done, K, step0 + done * K, refresh_first or done > 0, doms,
+                               lanes, lane_off, self.wslab,
+                               record(recbuf[done * K:], WHEEL_RECORD) if self.wslab >= 0 else norec,
+                               norec, p.id, self.owner_row, p.pos, p.vel, p.spin, p.hist_n,
+                               p.hist_id, p.hist_s, p.hist_m, self.x_built, self.off, self.ref,
+                               self.disp2, self.bounds, self.owned, self.owned_before, self.role,
+                               self.n, self.membership_skin,
+                               self._rebuild2, wheel_reach if self.wslab >= 0 else -1.0)
+            done += n_sw
+            if status == SWEEPS_DOMAIN:
+                # a sub-domain stopped (a buffer to grow, or an error): finish its block
+                # with its own stepper, which grows what it must, then go on
+                self._finish_block(step0 + done * K, K, recbuf[done * K:(done + 1) * K])
+                done += 1
+                doms = self._domain_list()
+                if self.wslab >= 0:
+                    wx = self.steppers[self.wslab].ws[L.WS_X]
+                    lo, hi = self.bounds[self.wslab], self.bounds[self.wslab + 1]
+                    if wheel_reach >= 0.0 and not (lo <= wx - wheel_reach and wx + wheel_reach < hi):
+                        status = SWEEPS_WHEEL
+                        break
+                continue
+            if status == SWEEPS_OWNERSHIP:
+                raise EngineError(f"serial DDM lost ownership of discs at step {step0 + done * K} "
+                                  f"(bounds {self.bounds.tolist()}): decomposition error")
+            break
+        for st, fl in zip(self.steppers, self.flags):
+            st._built = fl[F_REBUILD] == 0
+            st._pairs_done = False
+            st.rebuilds += int(fl[F_REBUILDS])
+            if st.n:
+                st._check(step0 + done * K, K)
+        return recbuf[:done * K], done, status
+
+    def _finish_block(self, step0: int, K: int, rec) -> None:
+        """The sub-domains a compiled sweep left short of K steps: each continues from where
+        it stopped with its own stepper (the same bits: the same step, as DomainStepper
+        runs it after growing a buffer)."""
+        for j, (st, fl) in enumerate(zip(self.steppers, self.flags)):
+            k = int(fl[F_DONE])
+            err = st.err
+            st.rebuilds += int(fl[F_REBUILDS])
+            fl[F_REBUILDS] = 0
+            st._built = True
+            if err[ERR_PAIR_CAPACITY]:
+                st._grow_pairs(int(err[ERR_PAIR_CAPACITY]))
+                err[ERR_PAIR_CAPACITY] = 0
+                st._built = False
+            elif err[ERR_BODY_CAPACITY]:
+                st._grow_bodies()
+                err[ERR_BODY_CAPACITY] = 0
+                st._pairs_done = True
+            elif err.any():
+                st._check(step0 + k, K)   # fatal (history overflow): raises
+            if k < K and st.n:
+                r = rec[k:] if j == self.wslab else np.zeros((0, N_REC))
+                st._run(K - k, step0 + k, r)
+                st._check(step0 + K, K)
+            fl[F_DONE] = K
+            fl[F_REBUILD] = 0 if st._built else 1
+            fl[F_PAIRS_DONE] = 1 if st._pairs_done else 0
+            st._pairs_done = False
 
     def advance(self, step0: int, k: int):
         """Every sub-domain K steps in place; returns (wheel records, wheel state or None)."""

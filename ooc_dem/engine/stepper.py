@@ -33,6 +33,8 @@ from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFL
                               Pairs, discs_of, record, spin_width)
 from ..state import HIST_CAP, Particles
 
+# role argument of run_steps: every disc is owned, every pair row reloaded
+EVERY_DISC = np.zeros(0, np.int8)
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
 PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
 
@@ -212,20 +214,26 @@ class DomainStepper:
         self._check(step0 + done, nsteps)
         return rec
 
+    def kernel_args(self) -> tuple:
+        """(kernel params, Discs, Pairs, Bodies, Forces, wheel state record, errors): what
+        the step kernels take of this stepper (views, no copies)."""
+        pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.ref,
+                   self.on, self.rows)
+        return (self.model.kernel_params(), discs_of(self.p), pl, self.bodies, self._forces,
+                record(self.ws, WHEEL_STATE), self.err)
+
+    def _grow_bodies(self) -> None:
+        """A chunk's wall/wheel rows did not fit: twice the room."""
+        self.bodies = Bodies(np.zeros(2 * self.bodies.rows.shape[0], L.BODY_ROW), self.bodies.count)
+
     def _run(self, nsteps, step0, rec) -> int:
-        m, p = self.model, self.p
-        d = discs_of(p)
         recv = record(rec, WHEEL_RECORD) if len(rec) else np.zeros(1, WHEEL_RECORD)  # unused
-        kp = m.kernel_params()
-        ws = record(self.ws, WHEEL_STATE)
         done = 0
         while True:
-            pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.ref,
-                       self.on, self.rows)
-            k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, self.bodies,
-                                        self._forces, ws, self.err,
-                                        recv[done:] if len(rec) else recv, not self._built,
-                                        self._pairs_done)
+            kp, d, pl, bd, forces, ws, err = self.kernel_args()
+            k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, bd, forces, ws,
+                                        err, recv[done:] if len(rec) else recv, not self._built,
+                                        self._pairs_done, EVERY_DISC)
             self._pairs_done = False
             done += k
             self.rebuilds += rb
@@ -236,9 +244,7 @@ class DomainStepper:
                 self.err[ERR_PAIR_CAPACITY] = 0
                 self._built = False
             elif self.err[ERR_BODY_CAPACITY]:
-                # a chunk's wall/wheel rows did not fit: grow, redo the step (rows only)
-                cap = 2 * self.bodies.rows.shape[0]
-                self.bodies = Bodies(np.zeros(cap, L.BODY_ROW), self.bodies.count)
+                self._grow_bodies()
                 self.err[ERR_BODY_CAPACITY] = 0
                 # the step's pair rows are made (and hold its new springs): redo its bodies only
                 self._pairs_done = True

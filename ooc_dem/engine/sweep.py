@@ -22,7 +22,7 @@ from ..decomposition import equal_bounds, owner, wheel_bounds, wheel_slab_index,
 from ..physics.layout import AX_X, WS_X
 from ..state import DISC_FIELDS, HIST_CAP, HIST_FIELDS
 from ..state import Particles
-from .live import LiveDomains
+from .live import SWEEPS_REBUILD, LiveDomains, sweeps_kernel
 from .stepper import N_REC, DomainStepper, EngineError, Model
 
 
@@ -145,7 +145,12 @@ class SweepEngine:
         # rebuild), and whether they hold newer states than self.src
         self._live: LiveDomains | None = None
         self._live_newer = False
+        self._live_stale = False    # the compiled sweeps stopped for a rebuild of the local sets
+        self._step = 0
         self.live_builds = 0
+        # serial DDM runs whole sweeps in compiled calls when the step kernels have a
+        # one-thread twin (live.run_sweeps); else one call per sub-domain and block
+        self.compiled_sweeps = sweeps_kernel(self.model.kernels()) is not None
         # x motion a live local set tolerates before it is rebuilt (one contact hop)
         self.membership_skin = hop
         self.preferred_chunk = max(self.K, (2000 // self.K) * self.K)
@@ -270,12 +275,8 @@ class SweepEngine:
 
     def sweep(self, step0: int, k: int) -> np.ndarray:
         """Advance every slab k <= K steps (the halo is sized for K)."""
-        sc = self.sc
-        if sc.wheel.enabled and sc.decomposition.policy == "wheel" and self.D > 1 and not self.fixed:
-            if not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach, self.margin_required):
-                self.bounds = self.decompose(self._all_x(self._reader()), step0)
-                self._live = None
-        wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if sc.wheel.enabled else -1
+        self._step = step0
+        wslab = self._wheel_check()
         if self.src is not None:
             return self._sweep_live(step0, k, wslab)
         src = self._reader()
@@ -291,19 +292,11 @@ class SweepEngine:
     def _sweep_live(self, step0: int, k: int, wslab: int) -> np.ndarray:
         """Serial DDM: the sweep over persistent in-RAM sub-domains (see live.py)."""
         live = self._live
-        if live is not None and (live.wslab != wslab or not live.refresh()):
+        if live is not None and (live.wslab != wslab or self._live_stale or not live.refresh()):
             live = None  # rebuilt below from the epoch's groups (_reader folds the live states in)
         if live is None:
-            src = self._reader()
-            discs = Particles.concat([src.domain_particles(d) for d in src.domains()])
-            live = LiveDomains(discs, self.bounds, self.halo, self.membership_skin, self.model,
-                               self.model_nowheel, self.ws, wslab)
-            self._live = live
-            self.live_builds += 1
-            # the live sub-domains are now the only copy kept (the groups are made
-            # from them again when a commit or a rebuild needs them)
-            src.current = {}
-            del discs
+            live = self._build_live(wslab)
+        self._live_stale = False
         self._live_newer = True
         rec_wheel, ws = live.advance(step0, k)
         if ws is not None:
@@ -360,9 +353,75 @@ class SweepEngine:
 
     def advance(self, step0: int, nsteps: int) -> np.ndarray:
         recs = []
-        for s in range(step0, step0 + nsteps, self.K):
-            recs.append(self.sweep(s, min(self.K, step0 + nsteps - s)))
+        s = step0
+        end = step0 + nsteps
+        while s < end:
+            whole = (end - s) // self.K
+            if self.src is not None and whole and self.compiled_sweeps:
+                rec, done = self._sweeps_live(s, whole)
+                recs.append(rec)
+                s += done * self.K
+                continue
+            k = min(self.K, end - s)
+            recs.append(self.sweep(s, k))
+            s += k
         return np.concatenate(recs) if recs else np.zeros((0, N_REC))
+
+    def _wheel_check(self):
+        """Before a sweep, as ``sweep`` does: re-decompose when the wheel's reach plus the
+        margin leaves its slab; the wheel's slab (-1 without a wheel)."""
+        sc = self.sc
+        if self._redecomposes():
+            if not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach, self.margin_required):
+                self.bounds = self.decompose(self._all_x(self._reader()), self._step)
+                self._live = None
+        return wheel_slab_index(self.bounds, float(self.ws[WS_X])) if sc.wheel.enabled else -1
+
+    def _redecomposes(self) -> bool:
+        sc = self.sc
+        return sc.wheel.enabled and sc.decomposition.policy == "wheel" and self.D > 1 and not self.fixed
+
+    def _sweeps_live(self, step0: int, nsweeps: int):
+        """Serial DDM: up to nsweeps whole sweeps in compiled calls (live.run_sweeps), until
+        the local sets must be rebuilt or the wheel leaves its slab. Same bits as one
+        ``sweep`` call per block. Returns (wheel records, sweeps done)."""
+        self._step = step0
+        wslab = self._wheel_check()
+        live = self._live
+        fresh = False
+        if live is not None and (live.wslab != wslab or self._live_stale):
+            live = None
+        if live is None:
+            live = self._build_live(wslab)
+            fresh = True
+        self._live_stale = False
+        if not self.sc.wheel.enabled:
+            reach = -1.0
+        elif self._redecomposes():
+            reach = self.reach + self.margin_required
+        else:
+            reach = 0.0
+        rec, done, status = live.run_sweeps(step0, nsweeps, self.K, not fresh, reach)
+        self._live_newer = True
+        if live.wslab >= 0:
+            self.ws = live.steppers[live.wslab].ws.copy()
+        self._note_resident(live.resident())
+        if status == SWEEPS_REBUILD:
+            self._live_stale = True   # a disc moved beyond the membership skin
+        return rec, done
+
+    def _build_live(self, wslab: int) -> LiveDomains:
+        src = self._reader()
+        discs = Particles.concat([src.domain_particles(d) for d in src.domains()],
+                                 self.model.dim, self.model.hist_cap)
+        live = LiveDomains(discs, self.bounds, self.halo, self.membership_skin, self.model,
+                           self.model_nowheel, self.ws, wslab)
+        self._live = live
+        self.live_builds += 1
+        # the live sub-domains are now the only copy kept (the groups are made
+        # from them again when a commit or a rebuild needs them)
+        src.current = {}
+        return live
 
     # ------------------------------------------------------------ interface
     @property

@@ -36,6 +36,11 @@ from .layout import (AX_X, AX_Y, ERR_BODY_CAPACITY, HM_R, HS_T, SP_Z, ERR_HIST_O
                      WG_LUG_OUT, WG_MASS, WG_NLUGS, WG_R, WG_SIZE, WS_SIZE, WS_THETA, WS_VX,
                      WS_VY, WS_WZ, WS_X, WS_Y)
 
+# a disc's role in a serial-DDM sub-domain (bit flags; load_history / sync_history):
+# owned in this sweep, owned in the last sweep too, copied in another sub-domain too
+ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED = 1, 2, 4
+ROLE_STABLE = ROLE_OWNED | ROLE_OWNED_BEFORE
+
 # discs are produced and gathered in N_CHUNKS contiguous chunks (body rows are
 # buffered per chunk, in disc order); the chunking never changes a result
 N_CHUNKS = 64
@@ -425,11 +430,14 @@ def wheel_reaction(gid, bd):
 
 
 @njit(parallel=True, cache=True)
-def sync_history(n, d, pl, err):
+def sync_history(n, d, pl, err, role, need):
     """Each disc's full contact history, sorted by partner id, from its body entries
     (kept in place by the gather) and its pairs' springs in the pair rows: partners with
     lower ids through the CSR index, then its own half list. Run at the end of every
-    advance and before a neighbour rebuild, so the discs always leave a stepper whole."""
+    advance and before a neighbour rebuild, so the discs always leave a stepper whole.
+    role (length n, or 0 = every disc): only discs with all bits of ``need`` in their
+    role are written (serial DDM). Idempotent: a disc's history restarts from its body
+    entries (negative ids, first)."""
     gid = d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
@@ -439,7 +447,12 @@ def sync_history(n, d, pl, err):
         lo, hi = chunk_range(ch, n)
         over = False
         for i in range(lo, hi):
-            k = hist_n[i]
+            if role.shape[0] and (role[i] & need) != need:
+                continue
+            k = 0
+            hn = hist_n[i]
+            while k < hn and hist_id[i, k] < 0:
+                k += 1
             for e in range(inc_off[i], inc_off[i + 1]):
                 q = inc_k[e]
                 if on[q]:
@@ -459,10 +472,12 @@ def sync_history(n, d, pl, err):
 
 
 @njit(parallel=True, cache=True)
-def load_history(n, d, pl):
+def load_history(n, d, pl, role):
     """The pair rows' springs from the lower disc's history: after a neighbour build, and
     at the start of every advance (the discs' histories may have been set from outside,
-    e.g. a serial-DDM halo refresh or a resumed epoch)."""
+    e.g. a serial-DDM halo refresh or a resumed epoch). role (length n, or 0 = reload every
+    row): a pair whose two discs are both ROLE_STABLE keeps its row (serial DDM: both were
+    owned through the last sweep, so the row was made from their true states)."""
     gid = d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
@@ -471,7 +486,10 @@ def load_history(n, d, pl):
         for i in range(lo, hi):
             hn = hist_n[i]
             p = 0
+            stable = role.shape[0] and (role[i] & ROLE_STABLE) == ROLE_STABLE
             for q in range(half_off[i], half_off[i + 1]):
+                if stable and (role[pair_b[q]] & ROLE_STABLE) == ROLE_STABLE:
+                    continue
                 pid = gid[pair_b[q]]
                 p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
                 rows[q].s = s_old
@@ -485,3 +503,12 @@ def load_history(n, d, pl):
             while kb < hn and hist_id[i, kb] < 0:
                 kb += 1
             hist_n[i] = kb
+
+
+# serial twins (physics.twins): one sub-domain's step on one thread
+from .twins import serial_twin  # noqa: E402
+
+produce_serial = serial_twin(produce, "produce_serial")
+gather_integrate_serial = serial_twin(gather_integrate, "gather_integrate_serial")
+sync_history_serial = serial_twin(sync_history, "sync_history_serial")
+load_history_serial = serial_twin(load_history, "load_history_serial")

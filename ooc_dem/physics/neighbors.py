@@ -190,3 +190,12 @@ def max_displacement2(pos, ref, n):
                 m = d
         part[c] = m
     return part.max()
+
+
+# serial twins (physics.twins): the pair-list build of one sub-domain on one thread
+from .twins import serial_twin  # noqa: E402
+
+_scan_serial = serial_twin(_scan, "_scan_serial")
+_slots_serial = serial_twin(_slots, "_slots_serial")
+build_pairs_serial = serial_twin(build_pairs, "build_pairs_serial", _scan=_scan_serial,
+                                 _slots=_slots_serial)

@@ -1,5 +1,6 @@
 """The 2D step kernels (discs in the x-y plane, spin about z): the per-dimension entry
-points the engine calls (``physics.kernels(dim)``), ``run_steps`` and ``spatial_order``.
+points the engine calls (``physics.kernels(dim)``), ``run_steps`` (and its one-thread
+twin ``run_steps_serial``) and ``spatial_order``.
 
 A step (``run_steps``): wheel controls, ``forces.produce`` (one row per contact),
 ``forces.gather_integrate`` (each disc sums its rows in ascending partner-id order
@@ -10,18 +11,20 @@ import numpy as np
 from numba import njit
 
 from .. import layout as L
-from ..forces import (N_CHUNKS, gather_integrate, load_history, lug_directions, produce,
-                      sync_history, wheel_reaction)
+from ..forces import (N_CHUNKS, gather_integrate, gather_integrate_serial, load_history,
+                      load_history_serial, lug_directions, produce, produce_serial,
+                      sync_history, sync_history_serial, wheel_reaction)
 from ..integrate import apply_wheel_controls, drawbar_force, integrate_wheel
+from ..twins import serial_twin
 from ..layout import AX_Y, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY
-from ..neighbors import build_pairs
+from ..neighbors import build_pairs, build_pairs_serial
 from ..neighbors import spatial_order  # noqa: F401  (the entry point: spatial_order(pos, n, cell))
 
 DIM = 2
 
 
 @njit(cache=True)
-def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done):
+def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role):
     """Advance discs 0..len(d.gid)-1 (and the wheel when kp.wg.enabled) nsteps from global
     step step0.
 
@@ -31,7 +34,10 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     done, rebuilds). Stops early with err[ERR_PAIR_CAPACITY] = pairs needed (grow the pair
     list, rebuild, continue), err[ERR_BODY_CAPACITY] (grow the body buffers, redo that step)
     or err[ERR_HIST_OVERFLOW] (fatal). pairs_done: the first step's pair rows were made by
-    the call that stopped on ERR_BODY_CAPACITY (redo its body rows only).
+    the call that stopped on ERR_BODY_CAPACITY (redo its body rows only). role: each
+    disc's forces.ROLE_* bits in a serial-DDM sub-domain, which pair rows are reloaded
+    (length 0: every row, and every disc's history written back at the end; else the
+    caller writes back what it needs with sync_history).
 
     A pair's contact history lives in its row of the pair list while the steps run
     (read and rewritten by ``produce``, no per-disc lookup); ``load_history`` fills the
@@ -47,16 +53,17 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     gy = kp.gravity[AX_Y]
     wheel = wg[0].enabled > 0.5
     nlugs = int(wg[0].nlugs)
-    lugdir = np.zeros(max(1, nlugs), L.LUG_DIRECTION)
-    part = np.zeros(N_CHUNKS)
+    lugdir = np.empty(max(1, nlugs), L.LUG_DIRECTION)   # set by lug_directions before use
+    part = np.empty(N_CHUNKS)                            # scratch of gather_integrate
     if rebuild_now:
         npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
                              pl.inc_off, pl.inc_k, pl.ref)
         if npairs > pl.pair_b.shape[0]:
             err[ERR_PAIR_CAPACITY] = npairs
             return 0, 0
+    every = role[:0]
     if not pairs_done:
-        load_history(n, d, pl)
+        load_history(n, d, pl, every if rebuild_now else role)
     half2 = 0.25 * skin * skin
     rebuilds = 0
     wfxs = 0.0
@@ -93,12 +100,20 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
             integrate_wheel(t, ws, wg, wc, wfxs, wfys, gy, dt)
         if disp2 > half2:
             rebuilds += 1
-            sync_history(n, d, pl, err)
+            sync_history(n, d, pl, err, every, 0)
             npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
                                  pl.pair_a, pl.inc_off, pl.inc_k, pl.ref)
             if npairs > pl.pair_b.shape[0]:
                 err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds
-            load_history(n, d, pl)
-    sync_history(n, d, pl, err)
+            load_history(n, d, pl, every)
+    if role.shape[0] == 0:
+        sync_history(n, d, pl, err, every, 0)
     return nsteps, rebuilds
+
+
+# the same step on one thread (serial DDM runs its sub-domains side by side)
+run_steps_serial = serial_twin(run_steps, "run_steps_serial", produce=produce_serial,
+                               gather_integrate=gather_integrate_serial,
+                               build_pairs=build_pairs_serial, sync_history=sync_history_serial,
+                               load_history=load_history_serial)

@@ -1,0 +1,44 @@
+"""Serial twins of parallel kernels (numba, no I/O).
+
+Serial DDM runs its sub-domains side by side, one per thread, inside one compiled call;
+each sub-domain's step must then run on its own thread, not launch a parallel region of
+its own. ``serial_twin`` compiles the same Python source a second time, without
+``parallel`` (``prange`` becomes ``range``) and with the kernels it calls replaced by
+their own serial twins. The arithmetic is the same source, so the bits are the same.
+"""
+from __future__ import annotations
+
+import types
+import warnings
+
+from numba import njit
+from numba.core.errors import NumbaPerformanceWarning
+
+# the twins ask for the parallel pipeline on purpose without a parallel loop
+warnings.filterwarnings("ignore", message="The keyword argument 'parallel=True' was specified but no "
+                        "transformation", category=NumbaPerformanceWarning)
+
+# numba's parallel pipeline with every transformation off: no parallel region is made
+# (prange is a plain range), yet the loops compile to code several times faster than
+# plain njit's (measured on the history lookup loop: 15 us against 120 us for 1500
+# discs); same source, same arithmetic, same bits
+NO_PARFORS = {"comprehension": False, "prange": False, "numpy": False, "reduction": False,
+              "setitem": False, "stencil": False, "fusion": False}
+
+
+def serial_twin(kernel, name: str, parallel: bool = False, **callees):
+    """njit(cache=True) of ``kernel``'s Python function under ``name``, its global names
+    in ``callees`` (kernel name -> serial twin) rebound. ``kernel`` is a numba dispatcher
+    or a plain function; the twin caches under its own name. ``parallel``: compile the
+    twin itself with prange (a driver whose callees are serial twins)."""
+    py = getattr(kernel, "py_func", kernel)
+    g = dict(py.__globals__)
+    for k in callees:
+        if k not in py.__code__.co_names:
+            raise KeyError(f"serial_twin({py.__name__}): it does not call {k!r}")
+    g.update(callees)
+    f = types.FunctionType(py.__code__, g, name, py.__defaults__, py.__closure__)
+    f.__qualname__ = name
+    f.__module__ = py.__module__
+    f.__doc__ = f"Serial twin of {py.__name__} (physics.twins)."
+    return njit(cache=True, parallel=True if parallel else NO_PARFORS)(f)

@@ -77,15 +77,17 @@ def contact(c, nx, ny, nz, delta, vrx, vry, vrz, wax, way, waz, wbx, wby, wbz, r
     of b's centre relative to a's; wa, wb: spins; ra, rb: lever arms; meff, ieff, reff:
     effective mass, inertia, radius; s, m: stored tangential spring force and rolling
     spring moment (3-vectors). Returns
-    (fn, ftx, fty, ftz, snx, sny, snz, Mx, My, Mz, mnx, mny, mnz): the normal force, the
+    (fn, ftx, fty, ftz, snx, sny, snz, Mx, My, Mz, mnx, mny, mnz): the normal force
+    (negative only without no_tension), the
     tangential force Ft (force on b = fn n - Ft), the new spring, the rolling moment on
     b (a gets -M) and the new rolling spring."""
     fe, cn, kt, ct = law_coefficients(c, delta, meff, reff)
     # ----------------------------------------------------------- normal
     vn = vrx * nx + vry * ny + vrz * nz
     fn = fe - cn * vn
-    if fn < 0.0:
+    if fn < 0.0 and c.no_tension > 0.5:
         fn = 0.0
+    fc = fn if fn > 0.0 else 0.0     # compressive part: friction and rolling limits
     # ------------------------------------------------------- tangential
     # slip velocity of the contact point: vr - (ra wa + rb wb) x n, tangential part
     wx = ra * wax + rb * wbx
@@ -105,7 +107,7 @@ def contact(c, nx, ny, nz, delta, vrx, vry, vrz, wax, way, waz, wbx, wby, wbz, r
     ftx = sx + ct * vtx
     fty = sy + ct * vty
     ftz = sz + ct * vtz
-    lim = c.mu * fn
+    lim = c.mu * fc
     ft2 = ftx * ftx + fty * fty + ftz * ftz
     if ft2 > lim * lim:
         f = lim / math.sqrt(ft2)
@@ -139,7 +141,7 @@ def contact(c, nx, ny, nz, delta, vrx, vry, vrz, wax, way, waz, wbx, wby, wbz, r
         mox = mnx - cr * rx
         moy = mny - cr * ry
         moz = mnz - cr * rz
-        mlim = c.mur * reff * fn
+        mlim = c.mur * reff * fc
         mo2 = mox * mox + moy * moy + moz * moz
         if mo2 > mlim * mlim:
             f = mlim / math.sqrt(mo2)

@@ -43,8 +43,12 @@ def _dtype(names, kind=F8):
 # ----------------------------------------------------------- contact parameters
 LAW_LINEAR = 0
 LAW_HERTZ = 1
+# no_tension = 1: the normal force is clamped at zero (the 2D law); 0: the damping
+# term may pull while the spheres overlap (LAMMPS granular without ``limit_damping``,
+# DEM-Engine), which is what makes the restitution of the Tsuji law exactly the
+# target e (validation-3d.md section 3). Friction and rolling limits use max(Fn, 0).
 CONTACT_PARAMS = _dtype(("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr",
-                         "estar", "gstar", "beta"))
+                         "estar", "gstar", "beta", "no_tension"))
 N_FIELDS = len(CONTACT_PARAMS.names)
 T_SOIL, T_WALL, T_WHEEL = 0, 1, 2
 N_TYPES = 3
@@ -126,16 +130,19 @@ def zeta_of_restitution(e):
     return -beta_of_restitution(e)
 
 
-def linear_params(kn, ks, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0):
-    """One CONTACT_PARAMS tuple of the linear spring-dashpot law (the 2D law's parameters)."""
-    return (LAW_LINEAR, kn, ks, zn, zt, mu, mur, zr, 0.0, 0.0, 0.0)
+def linear_params(kn, ks, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0, no_tension=True):
+    """One CONTACT_PARAMS tuple of the linear spring-dashpot law (the 2D law's parameters;
+    clamped at zero force like the 2D law unless no_tension=False)."""
+    return (LAW_LINEAR, kn, ks, zn, zt, mu, mur, zr, 0.0, 0.0, 0.0, float(no_tension))
 
 
-def hertz_params(E1, nu1, e, mu=0.0, mur=0.0, zr=0.0, E2=math.inf, nu2=0.0):
+def hertz_params(E1, nu1, e, mu=0.0, mur=0.0, zr=0.0, E2=math.inf, nu2=0.0, no_tension=False):
     """One CONTACT_PARAMS tuple of Hertz-Mindlin from Young's moduli, Poisson ratios and
-    restitution e (validation-3d.md section 3); E2 = inf for a rigid wall."""
+    restitution e (validation-3d.md section 3); E2 = inf for a rigid wall. By default
+    the damping may pull while overlapping (restitution = e exactly); no_tension=True
+    clamps the force at zero (the restitution is then higher than e at low e)."""
     return (LAW_HERTZ, 0.0, 0.0, 0.0, 0.0, mu, mur, zr, effective_modulus(E1, nu1, E2, nu2),
-            effective_shear_modulus(E1, nu1, E2, nu2), beta_of_restitution(e))
+            effective_shear_modulus(E1, nu1, E2, nu2), beta_of_restitution(e), float(no_tension))
 
 
 def contact_table(pairs: dict) -> np.ndarray:

@@ -98,7 +98,7 @@ def test_oblique_sticking_trend_and_boundary():
     ratio = []
     for psi in psis:
         vc = psi * 3.5 * MU * (1 + E_N) * vn
-        en, vt2, w2, *_ = oblique(HM, vn, vc, 0.0)
+        en, vt2, _w2, *_ = oblique(HM, vn, vc, 0.0)
         ratio.append((vt2 - vc) / (-MU * (1 + en) * vn))
         if psi <= 0.25:
             assert 5 / 7 < vt2 / vc < 1.0, (psi, vt2 / vc)
@@ -166,7 +166,7 @@ def test_rolling_resistance_deceleration():
     """A sphere rolling without slip on the flat floor (0.5 m/s) under a saturated
     rolling moment M = mu_r R Fn decelerates at (5/7) mu_r g (section 5), within 1 %."""
     g, mur = 9.81, 0.05
-    t, x, w, r = _incline(0.0, 0.5, mur=mur, v0=0.5, steps=40000, g=g)
+    t, x, _w, _r = _incline(0.0, 0.5, mur=mur, v0=0.5, steps=40000, g=g)
     a = _fit_accel(t, x, 0.02)
     ath = -5 / 7 * mur * g
     assert abs(a / ath - 1) < 0.01, (a, ath)

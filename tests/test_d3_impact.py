@@ -8,8 +8,12 @@ from scipy.integrate import solve_ivp
 
 from ooc_dem.physics.d3 import layout as L
 from ooc_dem.physics.d3.sim import EngineError, Sim, make_spheres
-from ooc_dem.physics.d3.timestep import (check_dt, critical_dt, hertz_duration,
-                                         hertz_max_overlap)
+from ooc_dem.physics.d3.timestep import (
+    check_dt,
+    critical_dt,
+    hertz_duration,
+    hertz_max_overlap,
+)
 
 # Chung & Ooi (2011) alumina spheres
 E_AL, NU_AL, RHO_AL, R_AL = 3.8e11, 0.23, 4000.0, 0.010
@@ -145,7 +149,7 @@ def _hertz_ode_restitution(estar, rstar, mstar, beta, v0, clamp=False):
         sn = 2 * estar * a
         f = 2 / 3 * sn * d - (-2 * math.sqrt(5 / 6) * beta * math.sqrt(sn * mstar)) * (-dv)
         return [dv, -(max(f, 0.0) if clamp else f) / mstar]
-    end = lambda t, y: y[0]          # noqa: E731
+    end = lambda t, y: y[0]
     end.terminal, end.direction = True, -1
     tc = hertz_duration(mstar, rstar, estar, v0)
     sol = solve_ivp(rhs, (0, 10 * tc), [1e-300, v0], events=end, rtol=1e-11, atol=1e-20,

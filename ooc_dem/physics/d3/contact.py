@@ -87,7 +87,7 @@ def contact(c, nx, ny, nz, delta, vrx, vry, vrz, wax, way, waz, wbx, wby, wbz, r
     fn = fe - cn * vn
     if fn < 0.0 and c.no_tension > 0.5:
         fn = 0.0
-    fc = fn if fn > 0.0 else 0.0     # compressive part: friction and rolling limits
+    fc = max(0.0, fn)     # compressive part: friction and rolling limits
     # ------------------------------------------------------- tangential
     # slip velocity of the contact point: vr - (ra wa + rb wb) x n, tangential part
     wx = ra * wax + rb * wbx

@@ -21,8 +21,16 @@ import numpy as np
 from numba import njit, prange
 
 from .contact import contact
-from .layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ID_WALL_BACK, ID_WALL_BOTTOM,
-                     ID_WALL_FRONT, ID_WALL_LEFT, ID_WALL_RIGHT, T_WALL)
+from .layout import (
+    ERR_BODY_CAPACITY,
+    ERR_HIST_OVERFLOW,
+    ID_WALL_BACK,
+    ID_WALL_BOTTOM,
+    ID_WALL_FRONT,
+    ID_WALL_LEFT,
+    ID_WALL_RIGHT,
+    T_WALL,
+)
 
 # spheres are produced and gathered in N_CHUNKS contiguous chunks (wall rows are
 # buffered per chunk); the chunking never changes a result
@@ -315,8 +323,7 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
             ddy = pos[i, 1] - pref[i, 1]
             ddz = pos[i, 2] - pref[i, 2]
             dd = ddx * ddx + ddy * ddy + ddz * ddz
-            if dd > mx:
-                mx = dd
+            mx = max(mx, dd)
         part[ch] = mx
         if over:
             err[ERR_HIST_OVERFLOW] = 1

@@ -30,8 +30,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..layout import (WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE,  # noqa: F401
-                      record)
+from ..layout import WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE, record  # noqa: F401
 
 F8 = "<f8"
 

@@ -9,10 +9,26 @@ import numba
 import numpy as np
 
 from .forces import N_CHUNKS
-from .layout import (BODY_ROW, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY,
-                     ERR_WHEEL_UNSUPPORTED, M_WIDTH, N_ERR, PAIR_ROW, S_WIDTH, WHEEL_CONTROLS,
-                     WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE, Bodies, Discs, Forces,
-                     KernelParams, Pairs)
+from .layout import (
+    BODY_ROW,
+    ERR_BODY_CAPACITY,
+    ERR_HIST_OVERFLOW,
+    ERR_PAIR_CAPACITY,
+    ERR_WHEEL_UNSUPPORTED,
+    M_WIDTH,
+    N_ERR,
+    PAIR_ROW,
+    S_WIDTH,
+    WHEEL_CONTROLS,
+    WHEEL_GEOMETRY,
+    WHEEL_RECORD,
+    WHEEL_STATE,
+    Bodies,
+    Discs,
+    Forces,
+    KernelParams,
+    Pairs,
+)
 from .step import run_steps, spatial_order
 
 SERIAL_BELOW = 3000   # spheres; below this the driver runs on one thread (same bits)
@@ -46,11 +62,11 @@ class Spheres:
         return Discs(self.pos, self.vel, self.spin, self.r, self.mass, self.inertia, self.mat,
                      self.id, self.hist_n, self.hist_id, self.hist_s, self.hist_m)
 
-    def take(self, idx) -> "Spheres":
+    def take(self, idx) -> Spheres:
         return Spheres(**{f.name: np.ascontiguousarray(getattr(self, f.name)[idx])
                           for f in fields(self)})
 
-    def sorted_by_id(self) -> "Spheres":
+    def sorted_by_id(self) -> Spheres:
         return self.take(np.argsort(self.id, kind="stable"))
 
     def arrays(self) -> dict:

@@ -14,7 +14,12 @@ import numpy as np
 from numba import njit
 
 from .forces import N_CHUNKS, gather_integrate, produce
-from .layout import ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_WHEEL_UNSUPPORTED
+from .layout import (
+    ERR_BODY_CAPACITY,
+    ERR_HIST_OVERFLOW,
+    ERR_PAIR_CAPACITY,
+    ERR_WHEEL_UNSUPPORTED,
+)
 from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry point)
 
 

@@ -3,14 +3,18 @@
 
 - normal: linear spring-dashpot (kn, zn) or Hertz with Tsuji damping
   (validation-3d.md section 3: a = sqrt(R* delta), Sn = 2 E* a, F = (2/3) Sn delta
-  = (4/3) E* sqrt(R*) delta^(3/2), damping gamma_n = -2 sqrt(5/6) beta sqrt(Sn m*));
-  no tension (clamped at zero).
+  = (4/3) E* sqrt(R*) delta^(3/2), damping gamma_n = -2 sqrt(5/6) beta sqrt(Sn m*)).
+  With the pair's ``no_tension`` set the force is clamped at zero (the 2D law);
+  without it the damping may pull while the bodies overlap (LAMMPS granular without
+  ``limit_damping``, DEM-Engine), which makes the Tsuji restitution exactly e.
+  The friction and rolling limits use the compressive part max(Fn, 0).
 - tangential: the spring is a 3-vector force. Each step it is first projected onto
   the current tangent plane and rescaled to keep its magnitude (LAMMPS
   ``rotate_rescale_vec``, Luding 2008), then incremented by kt vt dt (kt = ks, or
   St = 8 G* a for Hertz-Mindlin with the force as history: LAMMPS ``mindlin_force``);
   Ft = s + ct vt (ct = 2 zt sqrt(m* ks), or -2 sqrt(5/6) beta sqrt(St m*)); when
-  |Ft| > mu Fn it is scaled to mu Fn and the spring reset to it (as in 2D).
+  |Ft| > mu Fn it is scaled to mu Fn and the spring reset to it (as in 2D; LAMMPS
+  resets it to the limit minus the damping part instead).
 - rolling: elastic-plastic 3-vector spring moment on the relative rolling spin
   w_roll = (wb - wa) minus its component along n (twist excluded), projected and
   rescaled like the tangential spring, kr = kt R*^2, damping 2 zr sqrt(I* kr),

@@ -6,7 +6,7 @@
   = (4/3) E* sqrt(R*) delta^(3/2), damping gamma_n = -2 sqrt(5/6) beta sqrt(Sn m*)).
   With the pair's ``no_tension`` set the force is clamped at zero (the 2D law);
   without it the damping may pull while the bodies overlap (LAMMPS granular without
-  ``limit_damping``, DEM-Engine), which makes the Tsuji restitution exactly e.
+  ``limit_damping``), which makes the Tsuji restitution exactly e.
   The friction and rolling limits use the compressive part max(Fn, 0).
 - tangential: the spring is a 3-vector force. Each step it is first projected onto
   the current tangent plane and rescaled to keep its magnitude (LAMMPS

@@ -43,9 +43,10 @@ def _dtype(names, kind=F8):
 LAW_LINEAR = 0
 LAW_HERTZ = 1
 # no_tension = 1: the normal force is clamped at zero (the 2D law); 0: the damping
-# term may pull while the spheres overlap (LAMMPS granular without ``limit_damping``,
-# DEM-Engine), which is what makes the restitution of the Tsuji law exactly the
-# target e (validation-3d.md section 3). Friction and rolling limits use max(Fn, 0).
+# term may pull while the spheres overlap (LAMMPS granular without ``limit_damping``),
+# which is what makes the restitution of the Tsuji law exactly the target e
+# (validation-3d.md section 3; clamped, e = 0.3 gives 0.397). Friction and rolling
+# limits use max(Fn, 0).
 CONTACT_PARAMS = _dtype(("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr",
                          "estar", "gstar", "beta", "no_tension"))
 N_FIELDS = len(CONTACT_PARAMS.names)

@@ -1,2 +1,76 @@
-"""ooc-dem: out-of-core 2D DEM of soil-wheel interaction (Nakashima 2008, serial DDM)."""
+"""ooc-dem: out-of-core 2D DEM of soil-wheel interaction (Nakashima 2008, serial DDM).
+
+Python API (the same checks, code paths and bits as the ``ooc-dem`` command line)::
+
+    import ooc_dem
+    sc = ooc_dem.load_scenario("quick", overrides={"wheel.travel_time": 0.3})
+    res = ooc_dem.run(sc, out="runs/quick-short")          # -> RunResult
+    res.summary["slip"]["whole_travel"]["value"]            # summary.json as a dict
+    res.series["net_traction"]                              # series.csv, structured array
+    res.state()["id"]                                       # discs of the last epoch, by id
+    ooc_dem.resume("runs/quick-short", until=1.0)           # continue a killed/finished run
+
+Functions
+---------
+load_scenario(name_or_path, overrides=None) -> Scenario
+    A built-in scenario or TOML file, validated, with ``--set``-style overrides.
+run(scenario, out=None, mode="monolithic", domains=None, block=None, backend="hdf5",
+    steps=None, duration=None, progress=False, ...) -> RunResult
+    Run to the end, as ``ooc-dem run`` (progress bar off unless ``progress=True``).
+resume(path, steps=None, until=None, progress=False, figures=False) -> RunResult
+    Continue from the last committed epoch, as ``ooc-dem resume``.
+open_run(path) -> RunResult
+    The results of an existing run directory.
+open_store(path) -> storage.Store
+    A run's store, read-only (epochs, verify, read_epoch).
+
+Classes
+-------
+RunResult: ``path``, ``summary``, ``series``, ``series_frame()`` / ``to_pandas()``,
+``epochs()``, ``state(epoch=None)``.
+Scenario: the frozen, validated scenario dataclass.
+
+Exceptions (every message is one line, as the CLI prints it)
+----------
+ScenarioError (a ValueError), RunError, StoreError, StateError (a ValueError), EngineError,
+BedError, RunFileError (a ValueError).
+
+Names are imported on first use, so ``import ooc_dem`` stays cheap. The full reference is
+docs/api.md in the repository (generated from these docstrings by tools/gen_api_docs.py).
+"""
 __version__ = "0.1.0"
+
+# name -> module that defines it (relative to this package; "storage" is the sibling package)
+_LAZY = {
+    "load_scenario": ".api",
+    "run": ".api",
+    "resume": ".api",
+    "open_run": ".api",
+    "open_store": ".api",
+    "RunResult": ".api",
+    "Scenario": ".scenario",
+    "ScenarioError": ".scenario",
+    "RunError": ".engine.run",
+    "EngineError": ".engine.stepper",
+    "StateError": ".checkpoint",
+    "BedError": ".bed",
+    "RunFileError": ".plots",
+    "StoreError": "storage",
+}
+
+__all__ = ["__version__", *_LAZY]
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'ooc_dem' has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(mod, __name__) if mod.startswith(".")
+                    else importlib.import_module(mod), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .engine.stepper import DomainStepper, Model
+from .physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
 from .scenario import MAX_STEPS, Scenario, ScenarioError, scenario_from_dict
 from .state import Particles
 
@@ -44,9 +45,12 @@ def initial_fill(sc: Scenario) -> Particles:
     x0 = 0.5 * (sc.bin.length - (ncol - 1) * pitch)
     x = x0 + col * pitch + rng.uniform(-slack, slack, s.n)
     y = s.r_max + row * pitch + rng.uniform(0, slack, s.n)
-    p = Particles.new(x, y, r, s.density, sc.physics.thickness)
+    pos = np.zeros((s.n, sc.dim))
+    pos[:, AX_X] = x
+    pos[:, AX_Y] = y
+    p = Particles.new(pos, r, s.density, sc.physics.thickness)
     # a little random motion so the fill does not stack as a crystal
-    p.vx[:] = rng.normal(0.0, 0.01, s.n)
+    p.vel[:, AX_X] = rng.normal(0.0, 0.01, s.n)
     return p
 
 
@@ -54,9 +58,9 @@ def surface_height(p: Particles, length: float, r_max: float) -> float:
     """Mean height of the top of the bed (column-wise max of y + r), walls excluded."""
     width = 4 * r_max
     ncol = max(1, int(length / width))
-    col = np.clip((p.x / width).astype(np.int64), 0, ncol - 1)
+    col = np.clip((p.pos[:, AX_X] / width).astype(np.int64), 0, ncol - 1)
     top = np.full(ncol, -np.inf)
-    np.maximum.at(top, col, p.y + p.r)
+    np.maximum.at(top, col, p.pos[:, AX_Y] + p.r)
     inner = top[1:-1] if ncol > 4 else top
     inner = inner[np.isfinite(inner)]
     return float(np.mean(inner)) if len(inner) else 0.0
@@ -77,7 +81,7 @@ def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:
         stepper.advance(step, chunk)
         step += chunk
         q = stepper.p
-        speed = float(np.mean(np.hypot(q.vx, q.vy)))
+        speed = float(np.mean(np.hypot(q.vel[:, AX_X], q.vel[:, AX_Y])))
         if progress is not None:
             progress(step * dt, speed)
         if step >= min_steps and speed < sc.bed.settle_speed:
@@ -90,9 +94,8 @@ def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:
 
 def _zero_motion(p: Particles) -> Particles:
     """A settled bed starts at rest with its contact springs kept (the history is the bed's memory)."""
-    p.vx[:] = 0.0
-    p.vy[:] = 0.0
-    p.w[:] = 0.0
+    p.vel[:] = 0.0
+    p.spin[:] = 0.0
     return p
 
 
@@ -113,13 +116,19 @@ def cache_dir() -> Path:
 
 
 def _cached(sc: Scenario, build, progress=None) -> Particles:
-    path = cache_dir() / "beds" / f"{sc.bed_hash()}.npz"
-    if path.is_file():
-        try:
-            with np.load(path) as z:
-                return Particles(**{k: z[k] for k in z.files})
-        except Exception:
-            path.unlink(missing_ok=True)
+    # format-2 beds (pos, vel, ...) under their own name, so that an engine of format 1
+    # sharing the cache never sees (and deletes) them; a format-1 cache (x, y, ...) still
+    # loads: Particles converts it (state.upgrade_v1)
+    beds = cache_dir() / "beds"
+    path = beds / f"{sc.bed_hash()}.v2.npz"
+    for f in (path, beds / f"{sc.bed_hash()}.npz"):
+        if f.is_file():
+            try:
+                with np.load(f) as z:
+                    return Particles(**{k: z[k] for k in z.files})
+            except Exception:
+                if f == path:
+                    path.unlink(missing_ok=True)
     p = build(progress)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
@@ -132,7 +141,7 @@ def settled_bed(sc: Scenario, progress=None, use_cache: bool = True) -> Particle
     """The settled bed of a scenario (sorted by id), cached on disk by its bed hash."""
     if sc.bed.tile > 0 and sc.soil.n > sc.bed.tile:
         # filled part by part into one allocation (no list of parts plus a concatenated copy)
-        bed = Particles.empty(sc.soil.n)
+        bed = Particles.empty(sc.soil.n, sc.dim)
         at = 0
         for part in tiled_bed_parts(sc, progress=progress, use_cache=use_cache, tiles_per_part=8):
             for k in bed.arrays():
@@ -163,7 +172,7 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
     n_total = sc.soil.n
     ntiles = -(-n_total // n_tile)
     extra = ntiles * n_tile - n_total
-    top_first = np.argsort(-(tile.y + tile.r), kind="stable")
+    top_first = np.argsort(-(tile.pos[:, AX_Y] + tile.r), kind="stable")
     templates: dict = {}
     for start in range(0, ntiles, tiles_per_part):
         parts = []
@@ -175,7 +184,7 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
                 keep[top_first[:drop]] = False
                 templates[key] = _tile_template(tile, keep, *key[1:], tile_len)
             q = templates[key].take(np.arange(len(templates[key])))  # a copy
-            q.x += k * tile_len
+            q.pos[:, AX_X] += k * tile_len
             q.id += k * n_tile
             used = np.arange(q.hist_id.shape[1])[None, :] < q.hist_n[:, None]
             q.hist_id[used & (q.hist_id >= 0)] += k * n_tile
@@ -189,18 +198,19 @@ def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, righ
     from .physics.forces import ID_WALL_LEFT, ID_WALL_RIGHT
     q = tile.take(np.flatnonzero(keep))
     if mirrored:
-        q.x[:] = tile_len - q.x
-        q.vx[:] = -q.vx
-        q.w[:] = -q.w
-    hid, hft, hmr, hn = q.hist_id.copy(), q.hist_ft.copy(), q.hist_mr.copy(), q.hist_n.copy()
+        # a reflection in x: x -> L - x, vx -> -vx, and (2D) the spin about z reverses
+        q.pos[:, AX_X] = tile_len - q.pos[:, AX_X]
+        q.vel[:, AX_X] = -q.vel[:, AX_X]
+        q.spin[:, SP_Z] = -q.spin[:, SP_Z]
+    hid, hs, hm, hn = q.hist_id.copy(), q.hist_s.copy(), q.hist_m.copy(), q.hist_n.copy()
     q.hist_id[:] = 0
-    q.hist_ft[:] = 0.0
-    q.hist_mr[:] = 0.0
+    q.hist_s[:] = 0.0
+    q.hist_m[:] = 0.0
     for i in range(len(q)):
         entries = []
         for s in range(hn[i]):
             pid = int(hid[i, s])
-            ft, mr = hft[i, s], hmr[i, s]
+            ft, mr = hs[i, s, HS_T], hm[i, s, HM_R]
             if mirrored:
                 # a reflection reverses the tangential direction and the sense of rotation
                 ft, mr = -ft, -mr
@@ -215,6 +225,6 @@ def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, righ
             entries.append((pid, ft, mr))
         entries.sort(key=lambda e: e[0])
         for s, (pid, ft, mr) in enumerate(entries):
-            q.hist_id[i, s], q.hist_ft[i, s], q.hist_mr[i, s] = pid, ft, mr
+            q.hist_id[i, s], q.hist_s[i, s, HS_T], q.hist_m[i, s, HM_R] = pid, ft, mr
         q.hist_n[i] = len(entries)
     return q

@@ -81,6 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     from .scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
     p = _Parser(prog="ooc-dem", description="Out-of-core 2D DEM of soil-wheel interaction "
                 "(serial domain decomposition, bit-identical modes).")
+    from . import __version__
+    p.add_argument("--version", action="version", version=f"ooc-dem {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     def add_scenario_args(q):
@@ -282,7 +284,7 @@ def _print_run_result(summary, out):
     print(f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
           f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}")
     print(f"state hash: {summary['state_hash']}")
-    print(f"output: {out}")
+    print(f"output: {out}  (shown by `ooc-dem report {out}`; in Python: ooc_dem.open_run({str(out)!r}))")
 
 
 def cmd_resume(args):
@@ -425,7 +427,8 @@ def _checkpoint_export(store, args) -> int:
     out = Path(args.out)
     try:
         check_targets(output_files(fmt, out), out)   # before reading anything
-        reader = store.read_epoch(args.epoch)
+        from .checkpoint import open_epoch
+        reader = open_epoch(store, args.epoch)
         try:
             snap = read_snapshot(reader, args.store)
         finally:
@@ -445,7 +448,7 @@ def _warn_fallback(store) -> None:
 
 
 def cmd_checkpoint(args):
-    from .checkpoint import hash_epoch, validate_globals
+    from .checkpoint import hash_epoch, open_epoch, validate_globals
     from storage import open_store
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
@@ -459,7 +462,7 @@ def cmd_checkpoint(args):
             return _checkpoint_verify(store, args)
         if args.ckpt_command == "export":
             return _checkpoint_export(store, args)
-        reader = store.read_epoch(args.epoch)
+        reader = open_epoch(store, args.epoch)
         try:
             if args.ckpt_command == "hash":
                 out = hash_epoch(reader)   # streamed: a store larger than RAM hashes too

@@ -7,14 +7,16 @@ simulated time:
 * ``xdmf``: ``NAME.h5`` beside ``NAME.xdmf``. The HDF5 file holds ``/positions``
   (N x 3, z = 0), ``/velocity`` (N x 3, vz = 0), ``/radius``, ``/spin``, ``/id``,
   ``/mass``, ``/material``, ``/connectivity`` (N x 1, the Polyvertex cells) and
-  ``/wheel_state`` (x, y, vx, vy, theta, omega) with ``step``/``time`` attributes.
+  ``/wheel_state`` (x, y, vx, vy, theta, wz: ``layout.WHEEL_STATE``) with ``step``/``time``
+  attributes.
   The XDMF file is one Uniform grid with a Polyvertex topology and node-centred
   attributes; the wheel state, step and time are Grid-centred attributes (field
   data in ParaView's XDMF 3 reader).
 * ``vtk``: legacy ASCII ``.vtk`` PolyData (points + VERTICES, POINT_DATA, dataset
   FIELD data for the wheel), or VTK XML PolyData if the file name ends in ``.vtp``.
 * ``csv``: ``#`` comment lines (epoch, time, wheel state), a header row
-  ``id,x,y,vx,vy,w,r,mass,mat`` and one row per disc.
+  ``id,x,y,vx,vy,w,r,mass,mat`` (2D; the vector columns named from the axes,
+  ``vector_columns(dim)``) and one row per disc.
 
 Floats are written so that they read back to the same bits (``repr``; HDF5 as
 float64). Only the per-disc scalars are read from the store (never the contact
@@ -32,14 +34,30 @@ from xml.sax.saxutils import escape, quoteattr
 import numpy as np
 
 from .atomic import new_temp
-from .checkpoint import check_unique_sorted, validate_globals
-from .state import SCALAR_FIELDS
+from .checkpoint import StateError, check_unique_sorted, validate_globals
+from .physics.layout import AXIS_NAMES, WS_NAMES, axes, spin_width
+from .state import FIELD_DTYPES
 
 STORE_MANIFEST = "MANIFEST.json"   # its presence marks a directory as an ooc-dem store
 
 FORMATS = ("xdmf", "vtk", "csv")
-CSV_COLUMNS = ("id", "x", "y", "vx", "vy", "w", "r", "mass", "mat")
-WHEEL_NAMES = ("x", "y", "vx", "vy", "theta", "omega")   # order of the stored wheel_state
+
+
+def vector_columns(dim: int) -> dict[str, list[str]]:
+    """Output column names of the state's vectors, from the axes (layout.AXIS_NAMES): 2D
+    pos -> x, y; vel -> vx, vy; spin -> w (about z); 3D adds z, vz and spin wx, wy, wz."""
+    names = [AXIS_NAMES[a] for a in axes(dim)]
+    spin = ["w"] if spin_width(dim) == 1 else ["w" + a for a in AXIS_NAMES]
+    return {"pos": names, "vel": ["v" + a for a in names], "spin": spin}
+
+
+def snapshot_columns(dim: int) -> tuple[str, ...]:
+    v = vector_columns(dim)
+    return ("id", *v["pos"], *v["vel"], *v["spin"], "r", "mass", "mat")
+
+
+CSV_COLUMNS = snapshot_columns(2)   # id, x, y, vx, vy, w, r, mass, mat
+WHEEL_NAMES = WS_NAMES               # layout.WHEEL_STATE: x, y, vx, vy, theta, wz
 _SUFFIX_FORMAT = {".xdmf": "xdmf", ".xmf": "xdmf", ".vtk": "vtk", ".vtp": "vtk", ".csv": "csv"}
 _ROWS_PER_WRITE = 65536
 
@@ -66,14 +84,38 @@ def infer_format(out) -> str | None:
 
 
 def read_snapshot(reader, source: str = "") -> Snapshot:
-    """The columns of CSV_COLUMNS of every domain group of an epoch reader, sorted by id."""
-    names = list(CSV_COLUMNS)
+    """The columns (``snapshot_columns(dim)``) of every domain group of an epoch reader
+    (format 2: see checkpoint.open_epoch), sorted by id."""
+    names = ["id", "pos", "vel", "spin", "r", "mass", "mat"]
     parts = [reader.read_domain(d, names) for d in reader.domains()]
+    dim = 2
+    for p in parts:
+        if p["pos"].ndim == 2 and p["pos"].shape[1] in (2, 3):
+            dim = p["pos"].shape[1]
+            break
+    vec = vector_columns(dim)
     cols = {}
     for k in names:
-        dt = SCALAR_FIELDS[k]
-        cols[k] = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
-                   else np.zeros(0, dt))
+        dt = FIELD_DTYPES[k]
+        if k in vec:
+            width = len(vec[k])
+            for d, p in zip(reader.domains(), parts):
+                if p[k].shape != (len(p["id"]), width):
+                    raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
+                                     f"shape {p[k].shape}, expected ({len(p['id'])}, {width}) "
+                                     f"({dim}D)")
+            a = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
+                 else np.zeros((0, width), dt))
+            for c, name in enumerate(vec[k]):
+                cols[name] = a[:, c]
+        else:
+            for d, p in zip(reader.domains(), parts):
+                if p[k].shape != (len(p["id"]),):
+                    raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
+                                     f"shape {p[k].shape}, expected ({len(p['id'])},)")
+            cols[k] = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
+                       else np.zeros(0, dt))
+    cols = {k: cols[k] for k in snapshot_columns(dim)}
     order = np.argsort(cols["id"], kind="stable")
     cols = {k: np.ascontiguousarray(v[order]) for k, v in cols.items()}
     check_unique_sorted(cols["id"], f"{source}: epoch {reader.step}")
@@ -222,11 +264,14 @@ def _xml_comment(text: str) -> str:
     return escape(text).replace("--", "- -")
 
 
-def _xyz(a, b) -> np.ndarray:
-    out = np.zeros((len(a), 3), np.float64)
-    out[:, 0] = a
-    out[:, 1] = b
-    return out
+def _xyz(c: dict, prefix: str = "") -> list[np.ndarray]:
+    """The x, y, z columns of a vector (zeros for an axis the run does not have)."""
+    n = len(c["id"])
+    return [c.get(prefix + a, np.zeros(n)) for a in AXIS_NAMES]
+
+
+def _xyz_array(c: dict, prefix: str = "") -> np.ndarray:
+    return np.stack(_xyz(c, prefix), axis=1).astype(np.float64)
 
 
 # ------------------------------------------------------------------ XDMF + HDF5
@@ -238,8 +283,8 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
         raise ExportError(f"--out {out}: the file name must not contain ':' (XDMF HDF references)")
     c, n = snap.cols, len(snap)
     data = {
-        "positions": _xyz(c["x"], c["y"]),
-        "velocity": _xyz(c["vx"], c["vy"]),
+        "positions": _xyz_array(c),
+        "velocity": _xyz_array(c, "v"),
         "radius": c["r"], "spin": c["w"], "id": c["id"], "mass": c["mass"], "material": c["mat"],
         "connectivity": np.arange(n, dtype=np.int64).reshape(n, 1),
     }
@@ -309,7 +354,6 @@ def _vtk_legacy_type(a: np.ndarray) -> str:
 
 def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
     c, n = snap.cols, len(snap)
-    zeros = np.zeros(n)
     with _Atomic(out) as f:
         f.write("# vtk DataFile Version 4.2\n")
         f.write(_description(snap)[:255] + "\n")
@@ -319,14 +363,14 @@ def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
         for name, kind, text in items:
             f.write(f"{name} 1 1 {'vtktypeint64' if kind == 'i' else 'double'}\n{text}\n")
         f.write(f"POINTS {n} double\n")
-        _write_columns(f, [c["x"], c["y"], zeros], " ")
+        _write_columns(f, _xyz(c), " ")
         f.write(f"VERTICES {n} {2 * n}\n")
         _write_columns(f, [np.ones(n, np.int64), np.arange(n, dtype=np.int64)], " ")
         f.write(f"POINT_DATA {n}\n")
         f.write("SCALARS radius double 1\nLOOKUP_TABLE default\n")
         _write_columns(f, [c["r"]], " ")
         f.write("VECTORS velocity double\n")
-        _write_columns(f, [c["vx"], c["vy"], zeros], " ")
+        _write_columns(f, _xyz(c, "v"), " ")
         # further point arrays as a FIELD block: a legacy reader keeps only the first SCALARS
         # unless told to read them all, but always reads every FIELD array
         more = (("spin", c["w"]), ("id", c["id"]), ("mass", c["mass"]), ("material", c["mat"]))
@@ -350,7 +394,6 @@ def _vtp_array(f, name, a: np.ndarray, ncomp: int = 1, columns=None, indent="   
 
 def _write_vtp(snap: Snapshot, out: Path) -> Path:
     c, n = snap.cols, len(snap)
-    zeros = np.zeros(n)
     with _Atomic(out) as f:
         f.write('<?xml version="1.0"?>\n')
         f.write(f"<!-- {_xml_comment(_description(snap))} -->\n")
@@ -367,9 +410,9 @@ def _write_vtp(snap: Snapshot, out: Path) -> Path:
         for name, a in (("radius", c["r"]), ("spin", c["w"]), ("id", c["id"]), ("mass", c["mass"]),
                         ("material", c["mat"])):
             _vtp_array(f, name, a)
-        _vtp_array(f, "velocity", c["vx"], 3, [c["vx"], c["vy"], zeros])
+        _vtp_array(f, "velocity", c["vx"], 3, _xyz(c, "v"))
         f.write("      </PointData>\n      <Points>\n")
-        _vtp_array(f, "positions", c["x"], 3, [c["x"], c["y"], zeros])
+        _vtp_array(f, "positions", c["x"], 3, _xyz(c))
         f.write("      </Points>\n      <Verts>\n")
         _vtp_array(f, "connectivity", np.arange(n, dtype=np.int64))
         _vtp_array(f, "offsets", np.arange(1, n + 1, dtype=np.int64))
@@ -385,6 +428,6 @@ def _write_csv(snap: Snapshot, out: Path) -> Path:
         f.write(f"# step={snap.step} time={float(snap.time)!r}\n")
         f.write("# wheel_state " + ",".join(f"{k}={float(v)!r}" for k, v in
                                             zip(WHEEL_NAMES, snap.wheel_state)) + "\n")
-        f.write(",".join(CSV_COLUMNS) + "\n")
-        _write_columns(f, [snap.cols[k] for k in CSV_COLUMNS], ",")
+        f.write(",".join(snap.cols) + "\n")
+        _write_columns(f, list(snap.cols.values()), ",")
     return out

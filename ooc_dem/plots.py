@@ -24,6 +24,7 @@ import numpy as np
 from .atomic import write_replacing
 
 from .fields import displacements, gridded_displacement, layer_index
+from .physics.layout import AX_X, AX_Y, WS_THETA, WS_X, WS_Y
 
 LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
 DPI = 150
@@ -260,10 +261,11 @@ def _has_store(out: Path) -> bool:
 def _read_final(out: Path):
     """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
     from storage import open_store
+    from .checkpoint import open_epoch
     from .engine.run import read_all_particles
     store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
     try:
-        reader = store.read_epoch()
+        reader = open_epoch(store)
         try:
             p = read_all_particles(reader)
             arrays, _ = reader.read_globals()
@@ -272,7 +274,7 @@ def _read_final(out: Path):
             reader.close()
     finally:
         store.close()
-    return p.id.copy(), p.x.copy(), p.y.copy(), p.r.copy(), ws
+    return p.id.copy(), p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.r.copy(), ws
 
 
 def _discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=1, alpha=None):
@@ -453,7 +455,7 @@ def _deformation_figure(init, final, sc, series, path: Path):
         x_start, y_start = _placement(sc, ix, iy, ir)
         draw_wheel(a0, x_start, y_start, 0.0, w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
                    fill=False, color="0.35", linestyle="--")
-        draw_wheel(a1, ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
+        draw_wheel(a1, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
     for ax in axes:
         ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=3)
         ax.set_xlim(xa, xb)
@@ -466,7 +468,7 @@ def _deformation_figure(init, final, sc, series, path: Path):
                  fontsize=10)
     title = "final state: each disc keeps its initial layer colour"
     if wheel_on:
-        title += f"; wheel at x = {ws[0]:.3f} m, θ = {math.degrees(ws[4]):.0f}°"
+        title += f"; wheel at x = {ws[WS_X]:.3f} m, θ = {math.degrees(ws[WS_THETA]):.0f}°"
     a1.set_title(title, fontsize=10)
     return _save(fig, path)
 
@@ -503,7 +505,7 @@ def _displacement_figure(init, final, sc, series, path: Path):
     wheel_on = sc is not None and sc.wheel.enabled and ws is not None
     if wheel_on:
         w = sc.wheel
-        draw_wheel(ax, ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
+        draw_wheel(ax, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
                    fill=False, color="0.2", zorder=3)
     ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=1)
     ax.set_xlim(xa, xb)

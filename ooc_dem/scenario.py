@@ -3,7 +3,7 @@
 Every value is checked against a declared type and range; a bad value raises
 ``ScenarioError`` with one line naming the key, the value and what is allowed.
 The time step is checked against the critical step of the stiffest contact
-(reference/validation.md: dt_crit = (2/w)(sqrt(1+z^2) - z)).
+(docs/reference/validation.md: dt_crit = (2/w)(sqrt(1+z^2) - z)).
 """
 from __future__ import annotations
 
@@ -182,8 +182,17 @@ class Scenario:
         return self.scenario.name
 
     @property
-    def gravity_vector(self) -> tuple[float, float]:
-        return (0.0, -self.physics.gravity)
+    def dim(self) -> int:
+        """Dimension of the model (2: discs in the x-y plane; every scenario today)."""
+        return 2
+
+    @property
+    def gravity_vector(self) -> tuple[float, ...]:
+        """Gravity as a dim-vector along -y (physics.layout.AX_Y)."""
+        from .physics.layout import AX_Y
+        g = [0.0] * self.dim
+        g[AX_Y] = -self.physics.gravity
+        return tuple(g)
 
     @property
     def wheel_mass(self) -> float:
@@ -404,7 +413,7 @@ def disc_mass(sc: Scenario, r: float) -> float:
 
 
 def critical_time_step(sc: Scenario) -> float:
-    """Critical explicit step of the stiffest contact (validation.md).
+    """Critical explicit step of the stiffest contact (docs/reference/validation.md).
 
     w = sqrt(n_c * kn / m_min) with n_c contacts per disc, z the damping ratio;
     rolling springs are included through their rotational frequency. Called on

@@ -1,9 +1,11 @@
 """Particle state (structure of arrays) and wheel state: one dtype layout for all modes.
 
-Per disc: global id, position, velocity (at the half step), spin, radius, mass,
-inertia, material, and its contact history: up to ``HIST_CAP`` entries
-(partner id, tangential spring force, rolling spring moment) sorted by partner
-id. Overflowing the capacity is an error, never a silent drop.
+Per particle: global id, position (D,), velocity (D,) at the half step, spin (R,),
+radius, mass, inertia, material, and its contact history: up to C (the model's
+``hist_cap``) entries (partner id, tangential spring (S,), rolling spring (M,)) sorted
+by partner id. Overflowing the capacity is an error, never a silent drop. The shapes
+come from one function, ``fields(dim, cap)``; columns are the named axes of
+physics.layout (AX_X, AX_Y, AX_Z).
 """
 from __future__ import annotations
 
@@ -12,66 +14,162 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .physics.layout import WS_NAMES, WS_SIZE
+from .physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, axes,  # noqa: F401
+                             hist_widths, spin_width)
 
-HIST_CAP = 12
-FORMAT_VERSION = 1
+HIST_CAP = 12          # default contact-history capacity C (the model's ``hist_cap``)
+HASH_HIST_SLOTS = 12   # canonical history width of the state hash (padded; see canonical_bytes)
 
-# name -> dtype of the per-disc scalar arrays, in canonical order
-SCALAR_FIELDS: dict[str, np.dtype] = {
+# name -> dtype of every per-particle array, in canonical order; the shapes are
+# (N,) + field_tails(dim, cap)[name]
+FIELD_DTYPES: dict[str, np.dtype] = {
     "id": np.dtype("<i8"),
-    "x": np.dtype("<f8"),
-    "y": np.dtype("<f8"),
-    "vx": np.dtype("<f8"),
-    "vy": np.dtype("<f8"),
-    "w": np.dtype("<f8"),
+    "pos": np.dtype("<f8"),
+    "vel": np.dtype("<f8"),
+    "spin": np.dtype("<f8"),
     "r": np.dtype("<f8"),
     "mass": np.dtype("<f8"),
     "inertia": np.dtype("<f8"),
     "mat": np.dtype("<i4"),
     "hist_n": np.dtype("<i4"),
-}
-# per-disc history rows (N, HIST_CAP)
-HIST_FIELDS: dict[str, np.dtype] = {
     "hist_id": np.dtype("<i8"),
-    "hist_ft": np.dtype("<f8"),
-    "hist_mr": np.dtype("<f8"),
+    "hist_s": np.dtype("<f8"),
+    "hist_m": np.dtype("<f8"),
 }
-ALL_FIELDS = {**SCALAR_FIELDS, **HIST_FIELDS}
+ALL_FIELDS = tuple(FIELD_DTYPES)
+# the per-disc fields (one row a disc in the store record too) and the history fields
+# (one row a contact in the store record: CSR)
+DISC_FIELDS = ("id", "pos", "vel", "spin", "r", "mass", "inertia", "mat", "hist_n")
+HIST_FIELDS = ("hist_id", "hist_s", "hist_m")
 WHEEL_FIELDS = WS_NAMES   # layout.WHEEL_STATE: the one definition
-BYTES_PER_DISC = sum(d.itemsize for d in SCALAR_FIELDS.values()) + HIST_CAP * sum(
-    d.itemsize for d in HIST_FIELDS.values())
+
+
+def field_tails(dim: int, cap: int) -> dict[str, tuple[int, ...]]:
+    """Per-particle shape (after the leading N) of every field of a dim-dimensional state
+    with history capacity cap: the ONE definition of the state's layout."""
+    D = len(axes(dim))
+    R = spin_width(dim)
+    S, M = hist_widths(dim)
+    if type(cap) is not int or cap < 0:
+        raise ValueError(f"history capacity {cap!r}: must be an integer >= 0")
+    return {"id": (), "pos": (D,), "vel": (D,), "spin": (R,), "r": (), "mass": (), "inertia": (),
+            "mat": (), "hist_n": (), "hist_id": (cap,), "hist_s": (cap, S), "hist_m": (cap, M)}
+
+
+def fields(dim: int, cap: int) -> dict[str, tuple[np.dtype, tuple[int, ...]]]:
+    """name -> (dtype, per-particle shape) of a state (canonical order)."""
+    tails = field_tails(dim, cap)
+    return {k: (FIELD_DTYPES[k], tails[k]) for k in ALL_FIELDS}
+
+
+def record_fields(dim: int) -> dict[str, tuple[np.dtype, tuple[int, ...]]]:
+    """name -> (dtype, per-row shape) of a store record (format 2): the disc fields one row a
+    disc, the history fields one row a contact (CSR, rows of disc after disc)."""
+    tails = field_tails(dim, 0)
+    out = {}
+    for k in ALL_FIELDS:
+        t = tails[k]
+        out[k] = (FIELD_DTYPES[k], t[1:] if k in HIST_FIELDS else t)
+    return out
+
+
+def bytes_per_disc(dim: int = 2, cap: int = HIST_CAP) -> int:
+    """Bytes of one particle's state."""
+    return sum(dt.itemsize * int(np.prod(shape, dtype=np.int64))
+               for dt, shape in fields(dim, cap).values())
+
+
+BYTES_PER_DISC = bytes_per_disc(2, HIST_CAP)
+
+
+# format 1 (2D only) stored each component as its own array: a format-2 array is the
+# stack of these along a new last axis (the ONE conversion table of the old format)
+V1_ARRAYS: dict[str, tuple[str, ...]] = {
+    "pos": ("x", "y"), "vel": ("vx", "vy"), "spin": ("w",), "hist_s": ("hist_ft",),
+    "hist_m": ("hist_mr",)}
+
+
+def is_v1(names) -> bool:
+    """Whether a set of array names is a format-1 state/record (and not format 2)."""
+    names = set(names)
+    return "pos" not in names and "x" in names
+
+
+def upgrade_v1(arrays: dict) -> dict:
+    """Arrays named as in format 1 (x, y, vx, vy, w, hist_ft, hist_mr) -> format-2 arrays
+    (pos, vel, spin, hist_s, hist_m); format-2 arrays pass unchanged. Works for a state's
+    arrays ((N,) -> (N, k); (N, C) -> (N, C, k)) and a store record's ((E,) -> (E, k))."""
+    if not is_v1(arrays):
+        return arrays
+    out = {k: v for k, v in arrays.items() if not any(k in c for c in V1_ARRAYS.values())}
+    for new, comps in V1_ARRAYS.items():
+        if all(c in arrays for c in comps):
+            out[new] = stack_v1(new, [arrays[c] for c in comps])
+    return out
+
+
+def stack_v1(name: str, parts) -> np.ndarray:
+    """The format-2 array ``name`` from its format-1 component arrays (V1_ARRAYS[name])."""
+    parts = [np.asarray(a) for a in parts]
+    if len({(a.shape, a.dtype.str) for a in parts}) != 1:
+        raise ValueError(f"format-1 arrays {', '.join(V1_ARRAYS[name])} differ in shape or dtype")
+    return np.stack(parts, axis=-1)
 
 
 class Particles:
-    """A set of discs as contiguous arrays (any order; ids are global)."""
+    """A set of particles as contiguous arrays (any order; ids are global).
 
-    __slots__ = tuple(ALL_FIELDS)
+    pos, vel (N, D); spin (N, R); hist_id (N, C); hist_s (N, C, S); hist_m (N, C, M)
+    (``fields(dim, cap)``); D and C are read from the arrays given."""
+
+    __slots__ = ALL_FIELDS
 
     def __init__(self, **arrays):
-        for name, dt in ALL_FIELDS.items():
-            a = arrays[name]
-            setattr(self, name, np.ascontiguousarray(a, dtype=dt))
+        arrays = upgrade_v1(arrays)
+        pos = np.asarray(arrays["pos"])
+        hid = np.asarray(arrays["hist_id"])
+        if pos.ndim != 2 or hid.ndim != 2:
+            raise ValueError(f"Particles: pos must be (N, D) and hist_id (N, C), got {pos.shape} "
+                             f"and {hid.shape}")
+        spec = fields(int(pos.shape[1]), int(hid.shape[1]))
+        n = pos.shape[0]
+        for name, (dt, tail) in spec.items():
+            a = np.ascontiguousarray(arrays[name], dtype=dt)
+            if a.shape != (n,) + tail:
+                raise ValueError(f"Particles: {name} has shape {a.shape}, expected {(n,) + tail}")
+            setattr(self, name, a)
 
     @classmethod
-    def empty(cls, n: int) -> "Particles":
-        arrs = {k: np.zeros(n, d) for k, d in SCALAR_FIELDS.items()}
-        arrs.update({k: np.zeros((n, HIST_CAP), d) for k, d in HIST_FIELDS.items()})
-        return cls(**arrs)
+    def empty(cls, n: int, dim: int = 2, hist_cap: int = HIST_CAP) -> "Particles":
+        return cls(**{k: np.zeros((n,) + tail, dt) for k, (dt, tail) in fields(dim, hist_cap).items()})
 
     @classmethod
-    def new(cls, x, y, r, density, thickness, mat=None, ids=None) -> "Particles":
-        n = len(x)
-        p = cls.empty(n)
+    def new(cls, pos, r, density, thickness, mat=None, ids=None, hist_cap: int = HIST_CAP) -> "Particles":
+        """Particles at rest at pos (N, D) with radii r; mass from the density (2D: discs are
+        cylinders of length ``thickness``; 3D: spheres)."""
+        pos = np.asarray(pos, np.float64)
+        n, dim = pos.shape
+        p = cls.empty(n, dim, hist_cap)
         p.id[:] = np.arange(n) if ids is None else ids
-        p.x[:] = x
-        p.y[:] = y
+        p.pos[:] = pos
         p.r[:] = r
-        p.mass[:] = density * np.pi * p.r * p.r * thickness
-        p.inertia[:] = 0.5 * p.mass * p.r * p.r
+        if dim == 2:
+            p.mass[:] = density * np.pi * p.r * p.r * thickness
+            p.inertia[:] = 0.5 * p.mass * p.r * p.r
+        else:
+            p.mass[:] = density * (4.0 / 3.0) * np.pi * p.r ** 3
+            p.inertia[:] = 0.4 * p.mass * p.r * p.r
         if mat is not None:
             p.mat[:] = mat
         return p
+
+    @property
+    def dim(self) -> int:
+        return int(self.pos.shape[1])
+
+    @property
+    def hist_cap(self) -> int:
+        return int(self.hist_id.shape[1])
 
     def __len__(self) -> int:
         return len(self.id)
@@ -93,13 +191,28 @@ class Particles:
         return self.take(np.argsort(self.id, kind="stable"))
 
     @staticmethod
-    def concat(parts: list["Particles"]) -> "Particles":
+    def concat(parts: list["Particles"], dim: int = 2, hist_cap: int = HIST_CAP) -> "Particles":
+        """All parts in one (dim and hist_cap only give the shape of an empty result)."""
         if not parts:
-            return Particles.empty(0)
+            return Particles.empty(0, dim, hist_cap)
         return Particles(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in ALL_FIELDS})
 
     def nbytes(self) -> int:
         return sum(v.nbytes for v in self.arrays().values())
+
+    def with_hist_cap(self, cap: int) -> "Particles":
+        """A copy with contact-history capacity cap (ValueError if a particle holds more)."""
+        if len(self) and int(self.hist_n.max()) > cap:
+            raise ValueError(f"a particle holds {int(self.hist_n.max())} contacts, more than {cap}")
+        q = Particles.empty(len(self), self.dim, cap)
+        k = min(cap, self.hist_cap)
+        for name in ALL_FIELDS:
+            a, b = getattr(q, name), getattr(self, name)
+            if name in HIST_FIELDS:
+                a[:, :k] = b[:, :k]
+            else:
+                a[...] = b
+        return q
 
 
 @dataclass
@@ -122,21 +235,52 @@ class WheelState:
         return cls(*[float(v) for v in a[:WS_SIZE]])
 
 
+def hash_width(max_hist_n: int) -> int:
+    """History slots per particle in the canonical serialisation: HASH_HIST_SLOTS, or more
+    when some particle holds more contacts (content-defined, so the capacity never matters)."""
+    return max(HASH_HIST_SLOTS, int(max_hist_n))
+
+
+def canonical_columns(name: str, a: np.ndarray):
+    """The canonical columns of a field: a per-particle vector (N, k) one column per
+    component; a history (N, W, k) one (N, W) block per component."""
+    if name in HIST_FIELDS and a.ndim == 3:
+        for c in range(a.shape[2]):
+            yield a[:, :, c]
+    elif name not in HIST_FIELDS and a.ndim == 2:
+        for c in range(a.shape[1]):
+            yield a[:, c]
+    else:
+        yield a
+
+
 def canonical_bytes(p: Particles, wheel: np.ndarray | None, step: int):
     """Yield the state serialised in canonical order (sorted by id, fixed dtypes).
 
+    Per-particle fields in FIELD_DTYPES order, each vector component as its own column
+    (2D: id, x, y, vx, vy, w, r, mass, inertia, mat, hist_n), then the history fields,
+    each component as an (N, W) block padded to W = hash_width(max hist_n) slots.
     History slots beyond a disc's count are zeroed so that stale leftovers in
     unused slots never change the hash.
     """
     q = p.sorted_by_id()
     yield np.int64(step).tobytes()
     yield np.int64(len(q)).tobytes()
-    for name, dt in SCALAR_FIELDS.items():
-        yield np.ascontiguousarray(getattr(q, name), dt).tobytes()
-    used = np.arange(HIST_CAP)[None, :] < q.hist_n[:, None]
-    for name, dt in HIST_FIELDS.items():
-        a = np.where(used, getattr(q, name), 0).astype(dt)
-        yield np.ascontiguousarray(a).tobytes()
+    for name in DISC_FIELDS:
+        for col in canonical_columns(name, getattr(q, name)):
+            yield np.ascontiguousarray(col, FIELD_DTYPES[name]).tobytes()
+    cap = q.hist_cap
+    width = hash_width(int(q.hist_n.max(initial=0)))
+    used = np.arange(cap)[None, :] < q.hist_n[:, None]
+    for name in HIST_FIELDS:
+        a = getattr(q, name)
+        m = used.reshape(used.shape + (1,) * (a.ndim - 2))
+        a = np.where(m, a, 0).astype(FIELD_DTYPES[name])
+        pad = np.zeros((len(q), width) + a.shape[2:], a.dtype)
+        k = min(cap, width)
+        pad[:, :k] = a[:, :k]
+        for col in canonical_columns(name, pad):
+            yield np.ascontiguousarray(col).tobytes()
     if wheel is not None:
         yield np.ascontiguousarray(wheel, "<f8").tobytes()
 
@@ -150,7 +294,7 @@ def state_hash(p: Particles, wheel: np.ndarray | None, step: int) -> str:
 
 def clean_history(p: Particles) -> None:
     """Zero unused history slots in place (canonical content)."""
-    used = np.arange(HIST_CAP)[None, :] < p.hist_n[:, None]
+    used = np.arange(p.hist_cap)[None, :] < p.hist_n[:, None]
     for name in HIST_FIELDS:
         a = getattr(p, name)
         a[~used] = 0

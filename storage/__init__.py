@@ -12,7 +12,7 @@ On-disk layout
     STORE/
       .ooc-dem.lock      the write lock: flock(LOCK_EX) by the one process writing the store,
                          which writes its pid into it (for messages); never deleted (see Writers)
-      MANIFEST.json      {"format": "ooc-dem-store", "format_version": 1, "backend": "hdf5"|"zarr",
+      MANIFEST.json      {"format": "ooc-dem-store", "format_version": 2, "backend": "hdf5"|"zarr",
                           "meta": {...}, "created_at": iso time,
                           "current": EPOCH|null, "previous": EPOCH|null}
                           EPOCH = {"step": int,
@@ -20,7 +20,9 @@ On-disk layout
                                    "files": [{"path": rel, "size": int, "sha256": hex}, ...],
                                    "domains": {"0": {"n": rows, "arrays": {name: [shape, dtype]}}, ...},
                                    "globals": {"arrays": {name: [shape, dtype]}} | null,
-                                   "committed_at": iso time}
+                                   "committed_at": iso time,
+                                   "format_version": int}   (the version the epoch was written
+                                                            in; absent: the manifest's)
       epochs/
         e000000001234.h5        HDF5: one file per epoch, written as e000000001234.h5.tmp-<pid>
                                 and renamed when complete; groups /domains/d0000, /domains/d0001 ...
@@ -31,6 +33,11 @@ On-disk layout
                                 directory renamed when complete; one uncompressed chunk per array
                                 (chunks = full shape), no sharding, no consolidated metadata.
 
+* ``format_version``: this code writes 2 and reads 1 and 2. The package never interprets
+  array names; the version (``EpochReader.format_version``: the epoch entry's, else the
+  manifest's) tells the application how to read them (ooc_dem.checkpoint.open_epoch reads
+  a version-1 epoch's 2D component arrays as version 2). A commit into a version-1 store
+  moves the manifest to version 2 and stamps the older entries with their version.
 * Paths in the manifest are relative to STORE and use "/". "files" lists the HDF5
   file, or every file under the zarr directory individually; "sha256" is over the
   file's bytes. The memory backend lists one pseudo-file per array (checksum over

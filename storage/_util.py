@@ -14,7 +14,8 @@ from collections.abc import Mapping
 import numpy as np
 
 FORMAT = "ooc-dem-store"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2                 # written; what the arrays mean is the application's business
+SUPPORTED_VERSIONS = (1, 2)        # read: an epoch records the version it was written in
 MANIFEST = "MANIFEST.json"
 MANIFEST_TMP = "MANIFEST.json.tmp"
 EPOCH_DIR = "epochs"

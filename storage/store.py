@@ -15,7 +15,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from . import _confine, _disk, _lock, _memory
-from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, GLOBALS_GROUP, LOCK_FILE, MANIFEST,
+from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, SUPPORTED_VERSIONS, GLOBALS_GROUP, LOCK_FILE, MANIFEST,
                     MANIFEST_TMP, MAX_JSON_DEPTH, StoreError, array_meta, check_array_name, domain_group,
                     epoch_basename, gather_rows, json_depth, json_roundtrip, normalize_rows,
                     prepare_arrays, remove_path, to_json, write_error)
@@ -154,6 +154,11 @@ def _check_entry(e, role: str, where: str, place, ext: str) -> None:
     what = f"{where}/{MANIFEST}: {role} epoch"
     e = _dict(e, what)
     step = _int(e.get("step"), f"{what} step")
+    if "format_version" in e:
+        v = e["format_version"]
+        if type(v) is not int or v not in SUPPORTED_VERSIONS:
+            raise StoreError(f"{what}: unsupported format_version {_show(v)} (this code reads "
+                             f"{', '.join(map(str, SUPPORTED_VERSIONS))})")
     epoch = _confine.epoch_path(e.get("path"), ext, step, what)
     files = e.get("files")
     if not isinstance(files, list):
@@ -206,9 +211,9 @@ def _validate_manifest(m, where: str, backends, place_for):
         raise StoreError(f"{where}: not an ooc-dem store (MANIFEST.json has no "
                          f"\"format\": \"{FORMAT}\")")
     v = m.get("format_version")
-    if type(v) is not int or v != FORMAT_VERSION:
+    if type(v) is not int or v not in SUPPORTED_VERSIONS:
         raise StoreError(f"{where}: unsupported format_version {_show(v)} (this code reads "
-                         f"{FORMAT_VERSION})")
+                         f"{', '.join(map(str, SUPPORTED_VERSIONS))})")
     backend = m.get("backend")
     if not isinstance(backend, str) or backend not in backends:
         raise StoreError(f"{where}: MANIFEST.json names backend {_show(backend)}, "
@@ -468,15 +473,20 @@ class Store:
     def _commit(self, w: "EpochWriter", durable: bool) -> None:
         rel, files = self._place.publish(w._w, w._basename, durable)
         entry = {"step": w.step, "path": rel, "files": files, "domains": w._domains,
-                 "globals": w._globals, "committed_at": _now()}
+                 "globals": w._globals, "committed_at": _now(), "format_version": FORMAT_VERSION}
         old_cur, old_prev = self._m["current"], self._m["previous"]
+        # an epoch of an older store keeps the version it was written in (named in its entry)
+        # when the manifest moves on to this code's version
+        old_v = self._m.get("format_version", FORMAT_VERSION)
+        old_cur, old_prev = ({**e, "format_version": e.get("format_version", old_v)}
+                             if e is not None else None for e in (old_cur, old_prev))
         if old_cur is None:
             new_prev = None
         elif w.step > old_cur["step"]:
             new_prev = old_cur
         else:                       # rewrite of a step <= current: current is replaced
             new_prev = old_prev
-        new_m = dict(self._m, current=entry, previous=new_prev)
+        new_m = dict(self._m, current=entry, previous=new_prev, format_version=FORMAT_VERSION)
         try:
             self._place.write_manifest(new_m, durable)
         except StoreError:
@@ -753,6 +763,9 @@ class EpochReader:
         self._e = entry
         self.step: int = entry["step"]
         self._where = store._where(entry)
+        # the format the epoch was written in (its entry's, else the manifest's)
+        self.format_version: int = entry.get("format_version",
+                                             store._m.get("format_version", FORMAT_VERSION))
         try:
             self._r = store._place.open_reader(entry)
         except Exception as ex:  # noqa: BLE001

@@ -1634,8 +1634,8 @@ def build_strategies():
     which = st.sampled_from(["current", "current", "previous"])
     arr_kinds = ["nan", "inf", "all_nan", "99", "all_99", "neg", "huge", "zero", "dup", "shorter",
                  "longer", "empty", "2d", "int32", "float32", "bool", "complex", "u8", "delete"]
-    dom_names = ["id", "x", "y", "vx", "vy", "w", "r", "mass", "inertia", "mat", "hist_n", "hist_id",
-                 "hist_ft", "hist_mr"]
+    dom_names = ["id", "pos", "vel", "spin", "r", "mass", "inertia", "mat", "hist_n", "hist_id",
+                 "hist_s", "hist_m"]   # a domain record of store format 2
     glob_names = ["wheel_state", "metrics_iacc", "metrics_wacc", "metrics_rows"]
     attr_values = [None, "garbage", "{}", "[]", "null", '{"step": "x"}', '{"step": 1e308}',
                    '{"time": NaN}', '{"step": -1, "time": -1}', "[" * 100000, '"\u0000"',
@@ -1726,8 +1726,8 @@ def build_strategies():
             "manifest": manifest_case(), "epoch": epoch_case(), "runfiles": runfiles_case()}
 
 
-PER_DISC = ("id", "x", "y", "vx", "vy", "w", "r", "mass", "inertia", "mat", "hist_n")
-FINITE = ("x", "y", "vx", "vy", "w", "r", "mass", "inertia")
+PER_DISC = ("id", "pos", "vel", "spin", "r", "mass", "inertia", "mat", "hist_n")
+FINITE = ("pos", "vel", "spin", "r", "mass", "inertia", "hist_s", "hist_m")
 
 
 def invalid_current(edits) -> bool:
@@ -1990,11 +1990,11 @@ def _known_cases() -> dict:
     ep = []
     for base in BASES:
         ep += [_c("epoch", resume, [A("hist_n", "99")], base), _c("epoch", resume, [A("hist_n", "all_99")], base),
-               _c("epoch", resume, [A("x", "nan")], base), _c("epoch", resume, [A("y", "all_nan")], base),
+               _c("epoch", resume, [A("pos", "nan")], base), _c("epoch", resume, [A("vel", "all_nan")], base),
                _c("epoch", resume, [A("id", "dup")], base), _c("epoch", verify, [A("id", "dup")], base),
                _c("epoch", ["checkpoint", "hash", "run"], [A("hist_n", "all_99")], base),
-               _c("epoch", resume, [A("x", "shorter", update_meta=True)], base),
-               _c("epoch", resume, [A("x", "int32", update_meta=True)], base),
+               _c("epoch", resume, [A("pos", "shorter", update_meta=True)], base),
+               _c("epoch", resume, [A("pos", "int32", update_meta=True)], base),
                _c("epoch", resume, [A("wheel_state", "shorter", group="globals", update_meta=True)], base),
                _c("epoch", resume, [{"op": "attrs", "which": "current", "group": "globals", "dom": 0, "value": None}], base),
                _c("epoch", ["checkpoint", "hash", "run"],

@@ -14,6 +14,8 @@ import h5py
 import numpy as np
 import pytest
 
+from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
+
 from conftest import one_line_error, run_cli
 
 STEPS = 120
@@ -31,6 +33,13 @@ def _run(out, *extra, scenario="bed-1200", steps=STEPS, ckpt=CKPT, **kw):
 
 def _hash(store):
     return run_cli("checkpoint", "hash", store, check=True).stdout.strip()
+
+
+def _column(p, k):
+    """The exported column k of p: the vectors' columns by axis (x, y, vx, vy, w), else the field."""
+    cols = {"x": p.pos[:, AX_X], "y": p.pos[:, AX_Y], "vx": p.vel[:, AX_X], "vy": p.vel[:, AX_Y],
+            "w": p.spin[:, SP_Z]}
+    return cols[k] if k in cols else getattr(p, k)
 
 
 def _epoch_data(store, step=None):
@@ -101,11 +110,11 @@ def test_export_xdmf(pristine, tmp_path):
     with h5py.File(tmp_path / "snap.h5", "r") as f:
         pos, vel = f["positions"][()], f["velocity"][()]
         assert pos.shape == (n, 3) and vel.shape == (n, 3)
-        assert np.array_equal(pos[:, 0], p.x) and np.array_equal(pos[:, 1], p.y)
+        assert np.array_equal(pos[:, 0], p.pos[:, AX_X]) and np.array_equal(pos[:, 1], p.pos[:, AX_Y])
         assert not pos[:, 2].any() and not vel[:, 2].any()
-        assert np.array_equal(vel[:, 0], p.vx) and np.array_equal(vel[:, 1], p.vy)
+        assert np.array_equal(vel[:, 0], p.vel[:, AX_X]) and np.array_equal(vel[:, 1], p.vel[:, AX_Y])
         assert np.array_equal(f["radius"][()], p.r)
-        assert np.array_equal(f["spin"][()], p.w)
+        assert np.array_equal(f["spin"][()], p.spin[:, SP_Z])
         assert np.array_equal(f["id"][()], p.id)
         assert np.array_equal(f["mass"][()], p.mass)
         assert np.array_equal(f["wheel_state"][()], ws)
@@ -128,7 +137,7 @@ def test_export_xdmf(pristine, tmp_path):
     # the wheel state, step and time as field data (Grid-centred attributes)
     field = {k: float(a.find("DataItem").text) for k, a in attrs.items() if a.get("Center") == "Grid"}
     assert field["step"] == step
-    assert [field[f"wheel_{k}"] for k in ("x", "y", "vx", "vy", "theta", "omega")] == list(ws)
+    assert [field[f"wheel_{k}"] for k in ("x", "y", "vx", "vy", "theta", "wz")] == list(ws)
 
 
 def test_export_xdmf_read_by_meshio(pristine, tmp_path):
@@ -147,7 +156,7 @@ def test_export_xdmf_read_by_meshio(pristine, tmp_path):
     plain = tmp_path / "plain.xdmf"
     tree.write(plain)
     m = meshio.read(plain)
-    assert np.array_equal(m.points[:, 0], p.x) and np.array_equal(m.points[:, 1], p.y)
+    assert np.array_equal(m.points[:, 0], p.pos[:, AX_X]) and np.array_equal(m.points[:, 1], p.pos[:, AX_Y])
     assert np.array_equal(m.point_data["radius"], p.r)
     assert np.array_equal(m.point_data["id"], p.id)
     assert m.cells[0].type == "vertex" and len(m.cells[0].data) == len(p)
@@ -164,7 +173,7 @@ def test_export_csv_round_trip(wheel_store, tmp_path):
     rows = [ln for ln in lines if not ln.startswith("#")]
     wheel = next(ln for ln in comments if ln.startswith("# wheel_state "))
     vals = dict(kv.split("=") for kv in wheel[len("# wheel_state "):].split(","))
-    assert [float(vals[k]) for k in ("x", "y", "vx", "vy", "theta", "omega")] == list(ws)
+    assert [float(vals[k]) for k in ("x", "y", "vx", "vy", "theta", "wz")] == list(ws)
     assert any(f"step={step}" in ln for ln in comments)
     header = rows[0].split(",")
     assert header == ["id", "x", "y", "vx", "vy", "w", "r", "mass", "mat"]
@@ -172,7 +181,7 @@ def test_export_csv_round_trip(wheel_store, tmp_path):
     assert len(table) == len(p)
     cols = dict(zip(header, zip(*table)))
     for k in header:
-        want = getattr(p, k)
+        want = _column(p, k)
         conv = int if want.dtype.kind == "i" else float
         got = np.array([conv(v) for v in cols[k]], dtype=want.dtype)
         assert np.array_equal(got, want), k
@@ -193,12 +202,12 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
     run_cli("checkpoint", "export", store, "--format", "vtk", "--out", vtp, "--epoch", step, check=True)
     pts, lines = _vtk_legacy_points(vtk)
     assert lines[0].startswith("# vtk DataFile") and "DATASET POLYDATA" in lines
-    assert np.array_equal(pts[:, 0], p.x) and np.array_equal(pts[:, 1], p.y) and not pts[:, 2].any()
+    assert np.array_equal(pts[:, 0], p.pos[:, AX_X]) and np.array_equal(pts[:, 1], p.pos[:, AX_Y]) and not pts[:, 2].any()
     assert f"VERTICES {len(p)} {2 * len(p)}" in lines
     assert lines[lines.index("wheel_x 1 1 double") + 1] == repr(float(ws[0]))
     piece = ET.parse(vtp).getroot().find("PolyData/Piece")
     xyz = np.array(piece.find("Points/DataArray").text.split(), float).reshape(-1, 3)
-    assert np.array_equal(xyz[:, 0], p.x) and np.array_equal(xyz[:, 1], p.y)
+    assert np.array_equal(xyz[:, 0], p.pos[:, AX_X]) and np.array_equal(xyz[:, 1], p.pos[:, AX_Y])
     radius = next(a for a in piece.find("PointData") if a.get("Name") == "radius")
     assert np.array_equal(np.array(radius.text.split(), float), p.r)
     field = {a.get("Name"): a.text for a in ET.parse(vtp).getroot().find("PolyData/FieldData")}
@@ -213,7 +222,7 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
         reader.SetFileName(str(path))
         reader.Update()
         got = vtk_to_numpy(reader.GetOutput().GetPoints().GetData())
-        assert np.array_equal(got[:, :2], np.c_[p.x, p.y]), path
+        assert np.array_equal(got[:, :2], np.c_[p.pos[:, AX_X], p.pos[:, AX_Y]]), path
 
 
 def test_export_bad_arguments(reference, tmp_path):
@@ -274,8 +283,8 @@ def _flip_byte(path, where=0.5):
 
 
 def _chunk_file(epoch_dir):
-    """The data chunk of the x positions of domain 0 (zarr v3 key c/0)."""
-    p = Path(epoch_dir) / "domains" / "d0000" / "x" / "c" / "0"
+    """The data chunk of the positions of domain 0 (zarr v3 key c/0/0: one chunk of a 2-D array)."""
+    p = Path(epoch_dir) / "domains" / "d0000" / "pos" / "c" / "0" / "0"
     assert p.is_file(), sorted(map(str, Path(epoch_dir).rglob("*")))[:20]
     return p
 

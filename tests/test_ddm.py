@@ -1,4 +1,4 @@
-"""Serial domain decomposition is bit-identical to the monolithic run (DESIGN sections 3-4)."""
+"""Serial domain decomposition is bit-identical to the monolithic run (docs/design.md §3-4)."""
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -11,6 +11,7 @@ from ooc_dem.engine.sweep import sweep_run
 from ooc_dem.physics.forces import ID_WALL_BOTTOM
 from ooc_dem.scenario import load_scenario
 from ooc_dem.state import Particles
+from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
 from conftest import assert_same_state, run_cli
 
@@ -102,18 +103,18 @@ def test_migrating_disc_keeps_its_contact_history():
     sc = load_scenario("bed-1200", ["physics.gravity=9.8"])
     model = Model.from_scenario(sc)
     r = 0.002
-    p = Particles.new(np.array([0.05]), np.array([r - 2e-6]), np.array([r]), 2650.0, 0.1)
-    p.vx[:] = 0.05  # sliding: friction at the Coulomb limit
+    p = Particles.new(np.array([[0.05, r - 2e-6]]), np.array([r]), 2650.0, 0.1)
+    p.vel[:, AX_X][:] = 0.05  # sliding: friction at the Coulomb limit
     boundary = 0.05 + 0.05 * 300 * 1e-5 * 0.5  # crossed about half way through the run
     steps = 300
     ref, _, _ = mono(sc, p, None, steps)
     out, _, _, eng = sweep_run(sc, p, np.zeros(6), steps, bounds=[-np.inf, boundary, np.inf], block=1)
-    assert ref.x[0] > boundary > p.x[0]
+    assert ref.pos[:, AX_X][0] > boundary > p.pos[:, AX_X][0]
     assert_same_state(ref, out)
     q = out
     k = list(q.hist_id[0, : q.hist_n[0]]).index(ID_WALL_BOTTOM)
     mu_fn = 0.5 * q.mass[0] * 9.8
-    assert abs(q.hist_ft[0, k]) > 0.5 * mu_fn, "tangential spring lost across the boundary"
+    assert abs(q.hist_s[:, :, HS_T][0, k]) > 0.5 * mu_fn, "tangential spring lost across the boundary"
 
 
 def test_cli_ddm_and_compare(tmp_path):

@@ -5,6 +5,7 @@ import pytest
 from ooc_dem.bed import settled_bed
 from ooc_dem.engine.run import RunOptions, Simulation, read_all_particles
 from ooc_dem.scenario import load_scenario
+from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 from storage import open_store
 
 from conftest import assert_same_state
@@ -49,7 +50,7 @@ def test_bare_bed_ooc_equals_monolithic(bare, tmp_path, backend, domains, block)
     # resident discs = exactly the sub-domain plus its halo strips (first sweep, from the bed),
     # and never more than the largest of those (+2 % for discs that moved) afterwards
     lo, hi = eng.bounds[:-1], eng.bounds[1:]
-    expected = [int(np.count_nonzero((bed.x >= a - eng.halo) & (bed.x < b + eng.halo)))
+    expected = [int(np.count_nonzero((bed.pos[:, AX_X] >= a - eng.halo) & (bed.pos[:, AX_X] < b + eng.halo)))
                 for a, b in zip(lo, hi)]
     assert eng.resident_first == expected
     assert eng.resident_max <= 1.02 * max(expected) + 10

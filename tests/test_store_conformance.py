@@ -376,7 +376,7 @@ def test_previous_epoch_kept_older_removed(spath, backend):
     if backend != "memory":
         assert [n[:14] for n in epoch_entries(spath)] == ["e000000000002.", "e000000000003."]
         m = json.loads(pathlib.Path(spath, "MANIFEST.json").read_text())
-        assert m["format"] == "ooc-dem-store" and m["format_version"] == 1 and m["backend"] == backend
+        assert m["format"] == "ooc-dem-store" and m["format_version"] == 2 and m["backend"] == backend
         assert m["current"]["step"] == 3 and m["previous"]["step"] == 2
         for f in m["current"]["files"]:
             assert os.path.getsize(os.path.join(spath, f["path"])) == f["size"]

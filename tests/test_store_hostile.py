@@ -200,7 +200,7 @@ def _flip_data_byte(store):
     """Flip one byte inside the x positions of the current HDF5 epoch (valid file, wrong data)."""
     f = store / _manifest(store)["current"]["path"]
     with h5py.File(f, "r", locking=False) as h:
-        off = h["domains/d0000/x"].id.get_offset()
+        off = h["domains/d0000/pos"].id.get_offset()
     with open(f, "r+b") as fh:
         fh.seek(off + 8 * 7 + 3)
         b = fh.read(1)
@@ -236,7 +236,7 @@ def test_a_symlink_inside_a_zarr_epoch_is_a_verification_problem(pristine, tmp_p
     """A chunk replaced by a link to an identical file outside the store passes sizes and
     checksums; it is still not part of the store: verify fails, resume falls back."""
     store, victim = _make(pristine, tmp_path, "zarr")
-    chunk = store / _manifest(store)["current"]["path"] / "domains" / "d0000" / "x" / "c" / "0"
+    chunk = store / _manifest(store)["current"]["path"] / "domains" / "d0000" / "pos" / "c" / "0" / "0"
     shutil.copy(chunk, victim / "chunk")
     chunk.unlink()
     os.symlink(victim / "chunk", chunk)
@@ -353,7 +353,7 @@ def _set_file(field, value):
 
 def _set_array(field, value):
     def f(m):
-        spec = m["current"]["domains"]["0"]["arrays"]["x"]
+        spec = m["current"]["domains"]["0"]["arrays"]["pos"]
         spec[0 if field == "shape" else 1] = value
     return f
 

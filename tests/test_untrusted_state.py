@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from conftest import WHEEL_TEST, one_line_error, run_cli
+from ooc_dem.physics.layout import AX_X
 
 STEPS = 40
 CKPT = 20
@@ -73,9 +74,9 @@ def _dup_ids(f):
 
 
 def _nan_position(f):
-    x = f["domains/d0000/x"][:]
-    x[len(x) // 2] = np.nan
-    f["domains/d0000/x"][:] = x
+    pos = f["domains/d0000/pos"][:]
+    pos[len(pos) // 2, AX_X] = np.nan
+    f["domains/d0000/pos"][:] = pos
 
 
 def _hist_n_99(f):

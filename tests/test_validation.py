@@ -1,4 +1,4 @@
-"""Physics validation against analytic results (shared/reference/validation.md).
+"""Physics validation against analytic results (docs/reference/validation.md).
 
 Every test states its formula and its tolerance in its docstring. Units are SI.
 The reference disc: r = 0.01 m, density 2000 kg/m^3, slice thickness 0.1 m
@@ -15,7 +15,7 @@ Conventions of the engine that the tests rely on (ooc_dem/physics):
 The kernels run on one numba thread here (module fixture): the machine has two
 cores that may be busy with a long simulation, and spinning worker threads of
 tiny systems are then very slow. Results do not depend on the thread count
-(DESIGN section 3).
+(docs/design.md §3).
 """
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ from ooc_dem.physics.contact import KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT, conta
 from ooc_dem.physics.forces import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, WG_SIZE
 from ooc_dem.physics.integrate import WC_SIZE
 from ooc_dem.state import Particles
+from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
 G = 9.81
 R = 0.01
@@ -71,19 +72,25 @@ def make_model(dt, disc=None, wall=None, gx=0.0, gy=0.0, bottom=False, left=Fals
         cp[1, 0] = wall
         cp[0, 1] = wall
     walls = np.array([length, float(left), float(right), float(bottom)])
-    return Model(dt=dt, gx=gx, gy=gy, skin=0.2 * r_max, cp=cp, walls=walls, wg=np.zeros(WG_SIZE),
+    return Model(dt=dt, gravity=np.array([gx, gy]), skin=0.2 * r_max, cp=cp, walls=walls, wg=np.zeros(WG_SIZE),
                  wc=np.zeros(WC_SIZE), wheel_enabled=False, r_max=r_max)
 
 
 def make_discs(x, y, r=R, vx=0.0, vy=0.0, w=0.0) -> Particles:
     x = np.atleast_1d(np.asarray(x, dtype=float))
     n = len(x)
-    p = Particles.new(x, np.broadcast_to(np.asarray(y, float), (n,)),
+    p = Particles.new(np.column_stack([x, np.broadcast_to(np.asarray(y, float), (n,))]),
                       np.broadcast_to(np.asarray(r, float), (n,)), RHO, B)
-    p.vx[:] = vx
-    p.vy[:] = vy
-    p.w[:] = w
+    p.vel[:, AX_X][:] = vx
+    p.vel[:, AX_Y][:] = vy
+    p.spin[:, SP_Z][:] = w
     return p
+
+
+def col(p, k):
+    """The 2D column named k (x, y, vx, vy, w) of p's vectors (a view)."""
+    return {"x": p.pos[:, AX_X], "y": p.pos[:, AX_Y], "vx": p.vel[:, AX_X], "vy": p.vel[:, AX_Y],
+            "w": p.spin[:, SP_Z]}[k]
 
 
 def incline(theta_deg):
@@ -100,7 +107,7 @@ def trajectory(st: DomainStepper, nsteps: int, every: int = 1, forces: bool = Fa
     """
     p = st.p
     keys = ("x", "y", "vx", "vy", "w")
-    out = {k: [getattr(p, k).copy()] for k in keys}
+    out = {k: [col(p, k).copy()] for k in keys}
     if forces:
         for k in ("fx", "fy", "tq"):
             out[k] = [np.zeros(len(p))]
@@ -109,11 +116,11 @@ def trajectory(st: DomainStepper, nsteps: int, every: int = 1, forces: bool = Fa
         st.advance(step, every)
         step += every
         for k in keys:
-            out[k].append(getattr(p, k).copy())
+            out[k].append(col(p, k).copy())
         if forces:
-            out["fx"].append(st.fx.copy())
-            out["fy"].append(st.fy.copy())
-            out["tq"].append(st.tq.copy())
+            out["fx"].append(st.force[:, AX_X].copy())
+            out["fy"].append(st.force[:, AX_Y].copy())
+            out["tq"].append(st.torque[:, SP_Z].copy())
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -131,7 +138,7 @@ def rel_err(measured, expected):
 
 
 def _hist_value(p, i, pid, which="ft"):
-    arr = p.hist_ft if which == "ft" else p.hist_mr
+    arr = p.hist_s[:, :, HS_T] if which == "ft" else p.hist_m[:, :, HM_R]
     for s in range(p.hist_n[i]):
         if p.hist_id[i, s] == pid:
             return arr[i, s]
@@ -148,8 +155,8 @@ def _restitution_wall(zeta, v0=0.5):
     p = make_discs(0.5, R + 0.01 * R, vy=-v0)
     st = DomainStepper(p, make_model(dt, wall=pair_params(zn=zeta), bottom=True), reorder=False)
     st.advance(0, int((0.01 * R / v0 + 2.0 * TC_WALL) / dt))
-    assert p.y[0] > R, "disc still in contact"
-    return p.vy[0] / v0
+    assert p.pos[:, AX_Y][0] > R, "disc still in contact"
+    return p.vel[:, AX_Y][0] / v0
 
 
 def _restitution_pair(zeta, v0=0.5):
@@ -158,8 +165,8 @@ def _restitution_pair(zeta, v0=0.5):
     p = make_discs([-(R + gap / 2), R + gap / 2], 0.0, vx=np.array([0.5 * v0, -0.5 * v0]))
     st = DomainStepper(p, make_model(dt, disc=pair_params(zn=zeta)), reorder=False)
     st.advance(0, int((gap / v0 + 2.0 * TC_PAIR) / dt))
-    assert p.x[1] - p.x[0] > 2 * R, "discs still in contact"
-    return (p.vx[1] - p.vx[0]) / v0
+    assert p.pos[:, AX_X][1] - p.pos[:, AX_X][0] > 2 * R, "discs still in contact"
+    return (p.vel[:, AX_X][1] - p.vel[:, AX_X][0]) / v0
 
 
 @pytest.mark.parametrize("zeta", sorted(CLAMPED_E))
@@ -300,15 +307,15 @@ def _on_incline(theta_deg, wall, t_end, block=False, ramp=0.0, dt=5e-6, every=10
     model = make_model(dt, wall=wall, bottom=True)
     st = DomainStepper(p, model, reorder=False)
     keys = ("x", "y", "vx", "vy", "w")
-    tr = {k: [getattr(p, k).copy()] for k in keys}
+    tr = {k: [col(p, k).copy()] for k in keys}
     nsteps = int(round(t_end / dt))
     for step in range(0, nsteps, every):
         t = step * dt
         a = th if ramp <= 0 else th * min(1.0, t / ramp)
-        model.gx, model.gy = G * math.sin(a), -G * math.cos(a)
+        model.gravity[:] = (G * math.sin(a), -G * math.cos(a))
         st.advance(step, every)
         for k in keys:
-            tr[k].append(getattr(p, k).copy())
+            tr[k].append(col(p, k).copy())
     tr = {k: np.array(v) for k, v in tr.items()}
     t = np.arange(len(tr["x"])) * every * dt - 0.5 * dt   # velocity times
     return th, p, tr, t
@@ -336,7 +343,7 @@ def test_block_rests_on_incline_below_friction_angle():
     f = M * G * math.sin(th)
     assert rel_err(tr["x"][-1, 0], f / KS0) < 0.01, (tr["x"][-1, 0], f / KS0)
     assert abs(tr["vx"][-1, 0]) < 1e-6
-    assert p.w[0] == 0.0
+    assert p.spin[:, SP_Z][0] == 0.0
     s = _hist_value(p, 0, ID_WALL_BOTTOM)
     assert rel_err(abs(s), f) < 0.01, (s, f)
 
@@ -354,7 +361,7 @@ def test_block_slides_on_incline_above_friction_angle(theta_deg, mu):
     a_th = G * (math.sin(th) - mu * math.cos(th))
     a = _slope(t, tr["vx"][:, 0], 0.02, 0.06)
     assert rel_err(a, a_th) < 0.01, (a, a_th)
-    assert p.w[0] == 0.0
+    assert p.spin[:, SP_Z][0] == 0.0
 
 
 # ---------------------------------------------------------- 4. disc on incline
@@ -479,8 +486,8 @@ def _oblique(theta_deg, mu, v=0.5):
     st = DomainStepper(p, make_model(dt, wall=pair_params(ks=KN0 / 3, mu=mu), bottom=True),
                        reorder=False)
     st.advance(0, int((gap / (v * math.cos(th)) + 1.5 * TC_WALL) / dt))
-    assert p.y[0] > R, "still in contact"
-    return th, v, p.vx[0], p.vy[0], p.w[0]
+    assert p.pos[:, AX_Y][0] > R, "still in contact"
+    return th, v, p.vel[:, AX_X][0], p.vel[:, AX_Y][0], p.spin[:, SP_Z][0]
 
 
 def test_oblique_impact_sticking():
@@ -528,7 +535,7 @@ def test_equal_opposite_spins_head_on_exact():
     st = DomainStepper(p, make_model(dt, disc=pair_params(zn=0.3, zt=0.3, mu=0.5)), reorder=False, keep_forces=True)
     tr = trajectory(st, int((gap / v0 + 1.5 * TC_PAIR) / dt), forces=True)
     assert np.abs(tr["fx"]).max() > 0                       # they did collide
-    assert p.vx[0] < 0 < p.vx[1]                            # and rebounded
+    assert p.vel[:, AX_X][0] < 0 < p.vel[:, AX_X][1]                            # and rebounded
     assert np.all(tr["tq"] == 0.0)
     assert np.all(tr["fy"] == 0.0)
     assert np.all(tr["w"][:, 0] == w0) and np.all(tr["w"][:, 1] == -w0)
@@ -567,24 +574,24 @@ def test_energy_conserved_without_damping_and_friction():
     r = rng.uniform(0.7 * R, R, n)
     x = 0.012 + (L - 0.024) * np.arange(n) / (n - 1)
     y = 0.02 + 0.03 * rng.random(n) + (np.arange(n) % 2) * 0.025
-    p = Particles.new(x, y, r, RHO, B)
-    p.vx[:] = rng.normal(0, 0.8, n)
-    p.vy[:] = rng.normal(0, 0.8, n)
-    p.w[:] = rng.normal(0, 10.0, n)
+    p = Particles.new(np.column_stack([x, y]), r, RHO, B)
+    p.vel[:, AX_X][:] = rng.normal(0, 0.8, n)
+    p.vel[:, AX_Y][:] = rng.normal(0, 0.8, n)
+    p.spin[:, SP_Z][:] = rng.normal(0, 10.0, n)
     prm = pair_params(mu=0.0)
     model = make_model(dt, disc=prm, wall=prm, gy=-G, bottom=True, left=True, right=True,
                        length=L, r_max=R)
     st = DomainStepper(p, model, reorder=False)
-    w_start = p.w.copy()
+    w_start = p.spin[:, SP_Z].copy()
     energies, contacts_seen, step = [], 0, 0
     prev = set()
     total = int(1.0 / dt)
     while step < total:
-        x0, y0, vx0, vy0 = p.x.copy(), p.y.copy(), p.vx.copy(), p.vy.copy()
+        x0, y0, vx0, vy0 = p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.vel[:, AX_X].copy(), p.vel[:, AX_Y].copy()
         st.advance(step, 1)
         step += 1
         if step % 1000 == 1:
-            energies.append(_energy(p, x0, y0, 0.5 * (vx0 + p.vx), 0.5 * (vy0 + p.vy), p.w, L, KN0))
+            energies.append(_energy(p, x0, y0, 0.5 * (vx0 + p.vel[:, AX_X]), 0.5 * (vy0 + p.vel[:, AX_Y]), p.spin[:, SP_Z], L, KN0))
         # count contact starts (a contact lasts > 20 steps; sample every 10)
         st.advance(step, 9)
         step += 9
@@ -595,7 +602,7 @@ def test_energy_conserved_without_damping_and_friction():
     drift = np.abs(energies - energies[0]).max() / energies[0]
     assert contacts_seen > 100, contacts_seen
     assert drift < 0.001, drift
-    assert np.array_equal(p.w, w_start)  # no friction: spins never change
+    assert np.array_equal(p.spin[:, SP_Z], w_start)  # no friction: spins never change
 
 
 # ------------------------------------------------------------ 10. momentum
@@ -609,10 +616,10 @@ def _pair_collision(mu, mur=0.0, steps_per_tc=500):
     d0 = ra + rb + gap
     x = np.array([0.003, 0.003 + d0 * math.cos(phi)])
     y = np.array([-0.002, -0.002 + d0 * math.sin(phi)])
-    p = Particles.new(x, y, np.array([ra, rb]), RHO, B)
-    p.vx[:] = [0.35, -0.25]
-    p.vy[:] = [0.05, -0.02]
-    p.w[:] = [20.0, -35.0]
+    p = Particles.new(np.column_stack([x, y]), np.array([ra, rb]), RHO, B)
+    p.vel[:, AX_X][:] = [0.35, -0.25]
+    p.vel[:, AX_Y][:] = [0.05, -0.02]
+    p.spin[:, SP_Z][:] = [20.0, -35.0]
     meff = p.mass[0] * p.mass[1] / p.mass.sum()
     tc = math.pi * math.sqrt(meff / KN0)
     dt = tc / steps_per_tc
@@ -691,19 +698,19 @@ def test_newton_third_law_random_cluster():
     k = np.arange(n)
     x = (k % 6) * 1.85 * R + rng.uniform(-0.05, 0.05, n) * R
     y = (k // 6) * 1.85 * R + rng.uniform(-0.05, 0.05, n) * R
-    p = Particles.new(x, y, rng.uniform(0.9 * R, R, n), RHO, B)
+    p = Particles.new(np.column_stack([x, y]), rng.uniform(0.9 * R, R, n), RHO, B)
     p.id[:] = rng.permutation(1000)[:n]                   # ids unrelated to the order
-    p.vx[:] = rng.normal(0, 0.2, n)
-    p.vy[:] = rng.normal(0, 0.2, n)
-    p.w[:] = rng.normal(0, 20.0, n)
+    p.vel[:, AX_X][:] = rng.normal(0, 0.2, n)
+    p.vel[:, AX_Y][:] = rng.normal(0, 0.2, n)
+    p.spin[:, SP_Z][:] = rng.normal(0, 20.0, n)
     prm = pair_params(zn=0.2, zt=0.2, mu=0.4, mur=0.1, zr=0.2)
     st = DomainStepper(p, make_model(1e-5, disc=prm), reorder=False, keep_forces=True)
     for s in range(40):
         st.advance(s, 1)
-        scale = np.abs(st.fx).sum() + np.abs(st.fy).sum()
+        scale = np.abs(st.force[:, AX_X]).sum() + np.abs(st.force[:, AX_Y]).sum()
         assert scale > 0
-        assert abs(st.fx.sum()) < 1e-13 * scale, (s, st.fx.sum() / scale)
-        assert abs(st.fy.sum()) < 1e-13 * scale, (s, st.fy.sum() / scale)
+        assert abs(st.force[:, AX_X].sum()) < 1e-13 * scale, (s, st.force[:, AX_X].sum() / scale)
+        assert abs(st.force[:, AX_Y].sum()) < 1e-13 * scale, (s, st.force[:, AX_Y].sum() / scale)
 
 
 # ------------------------------------------------------ 11. settled bed statics
@@ -724,33 +731,33 @@ def all_contacts(p: Particles, model: Model):
     def hist(i, pid):
         for s in range(p.hist_n[i]):
             if p.hist_id[i, s] == pid:
-                return p.hist_ft[i, s], p.hist_mr[i, s]
+                return p.hist_s[:, :, HS_T][i, s], p.hist_m[:, :, HM_R][i, s]
         return 0.0, 0.0
 
     for i in range(len(p)):
         c = cp[tw, p.mat[i]]
-        for pid, delta, nx, ny, on in ((ID_WALL_RIGHT, p.r[i] - (length - p.x[i]), -1.0, 0.0, walls[2]),
-                                       (ID_WALL_LEFT, p.r[i] - p.x[i], 1.0, 0.0, walls[1]),
-                                       (ID_WALL_BOTTOM, p.r[i] - p.y[i], 0.0, 1.0, walls[3])):
+        for pid, delta, nx, ny, on in ((ID_WALL_RIGHT, p.r[i] - (length - p.pos[:, AX_X][i]), -1.0, 0.0, walls[2]),
+                                       (ID_WALL_LEFT, p.r[i] - p.pos[:, AX_X][i], 1.0, 0.0, walls[1]),
+                                       (ID_WALL_BOTTOM, p.r[i] - p.pos[:, AX_Y][i], 0.0, 1.0, walls[3])):
             if on > 0.5 and delta > 0:
                 s, mr = hist(i, pid)
                 fn, ft, _, _, _ = contact_force(
-                    nx, ny, delta, p.vx[i], p.vy[i], 0.0, p.w[i], 0.0, p.r[i], p.mass[i],
+                    nx, ny, delta, p.vel[:, AX_X][i], p.vel[:, AX_Y][i], 0.0, p.spin[:, SP_Z][i], 0.0, p.r[i], p.mass[i],
                     p.inertia[i], p.r[i], s, mr, c[KN], c[KS], c[ZN], c[ZT], c[MU], c[MUR], c[ZR], dt)
                 out.append((i, pid, fn * nx + ft * ny, fn * ny - ft * nx))
-    dx = p.x[None, :] - p.x[:, None]
-    dy = p.y[None, :] - p.y[:, None]
+    dx = p.pos[:, AX_X][None, :] - p.pos[:, AX_X][:, None]
+    dy = p.pos[:, AX_Y][None, :] - p.pos[:, AX_Y][:, None]
     rs = p.r[None, :] + p.r[:, None]
     for i, j in zip(*np.nonzero(np.triu(dx * dx + dy * dy < rs * rs, 1))):
         a, b = (i, j) if p.id[i] < p.id[j] else (j, i)
-        ddx, ddy = p.x[b] - p.x[a], p.y[b] - p.y[a]
+        ddx, ddy = p.pos[:, AX_X][b] - p.pos[:, AX_X][a], p.pos[:, AX_Y][b] - p.pos[:, AX_Y][a]
         d = math.sqrt(ddx * ddx + ddy * ddy)
         nx, ny = ddx / d, ddy / d
         s, mr = hist(a, p.id[b])
         c = cp[p.mat[a], p.mat[b]]
         ma, mb, ia, ib, ra, rb = p.mass[a], p.mass[b], p.inertia[a], p.inertia[b], p.r[a], p.r[b]
         fn, ft, _, _, _ = contact_force(
-            nx, ny, ra + rb - d, p.vx[b] - p.vx[a], p.vy[b] - p.vy[a], p.w[a], p.w[b], ra, rb,
+            nx, ny, ra + rb - d, p.vel[:, AX_X][b] - p.vel[:, AX_X][a], p.vel[:, AX_Y][b] - p.vel[:, AX_Y][a], p.spin[:, SP_Z][a], p.spin[:, SP_Z][b], ra, rb,
             ma * mb / (ma + mb), ia * ib / (ia + ib), ra * rb / (ra + rb), s, mr,
             c[KN], c[KS], c[ZN], c[ZT], c[MU], c[MUR], c[ZR], dt)
         bx, by = fn * nx + ft * ny, fn * ny - ft * nx
@@ -790,13 +797,13 @@ def test_settled_bed_wall_reaction_equals_weight(settled):
     q = p.take(np.arange(n))
     st = DomainStepper(q, model, reorder=False, keep_forces=True)
     st.advance(0, 1)
-    scale = np.abs(st.fy).max()
-    assert np.allclose(fx, st.fx, rtol=0, atol=1e-12 * scale)
-    assert np.allclose(fy, st.fy, rtol=0, atol=1e-12 * scale)
-    W = float((p.mass * -model.gy).sum())
+    scale = np.abs(st.force[:, AX_Y]).max()
+    assert np.allclose(fx, st.force[:, AX_X], rtol=0, atol=1e-12 * scale)
+    assert np.allclose(fy, st.force[:, AX_Y], rtol=0, atol=1e-12 * scale)
+    W = float((p.mass * -model.gravity[AX_Y]).sum())
     bottom = sum(c[3] for c in cts if c[1] == ID_WALL_BOTTOM)
     side = sum(c[3] for c in cts if c[1] in (ID_WALL_LEFT, ID_WALL_RIGHT))
-    assert abs(st.fy.sum() - (bottom + side)) < 1e-12 * W
+    assert abs(st.force[:, AX_Y].sum() - (bottom + side)) < 1e-12 * W
     assert rel_err(bottom + side, W) < 0.01, ((bottom + side) / W)
     if wall_mu == 0.0:
         assert side == 0.0
@@ -812,15 +819,15 @@ def test_settled_bed_pressure_grows_with_depth(settled):
     vertical pressure F_cut(h)/length grows strictly with depth.
     """
     _, p, model, cts = settled
-    g = -model.gy
+    g = -model.gravity[AX_Y]
     W = float((p.mass * g).sum())
     length = model.walls[0]
     index_of = {int(gid): k for k, gid in enumerate(p.id)}
-    top = float((p.y + p.r).max())
+    top = float((p.pos[:, AX_Y] + p.r).max())
     pressures = []
     for frac in (0.85, 0.7, 0.55, 0.4, 0.25, 0.1):
         h = frac * top
-        up = p.y >= h
+        up = p.pos[:, AX_Y] >= h
         f_cut = sum(c[3] for c in cts if c[1] >= 0 and up[c[0]] and not up[index_of[c[1]]])
         s_up = sum(c[3] for c in cts if c[1] in (ID_WALL_LEFT, ID_WALL_RIGHT) and up[c[0]])
         w_up = float((p.mass[up] * g).sum())

@@ -28,39 +28,45 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..physics.layout import AX_X
 from ..state import Particles
 from .stepper import N_REC, DomainStepper, EngineError, Model
 
 
 @njit(cache=True)
-def _refresh(ids, owner_row, x, y, vx, vy, w, hist_n, hist_id, hist_ft, hist_mr, x_built,
-             off, xref, yref, disp2):
+def _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built,
+             off, ref, disp2):
     """Copy every halo row from its owner's row (what a sweep changes; id, r, mass,
     inertia and mat are fixed per disc). Returns the largest |x - x_built|; disp2[d]
-    gets sub-domain d's largest squared displacement from its neighbour-list reference."""
+    gets sub-domain d's largest squared displacement from its neighbour-list reference
+    (any dimension: the axes of pos, the components of spin and the springs)."""
     cap = hist_id.shape[1]
+    dim = pos.shape[1]
     moved = 0.0
     for d in range(len(off) - 1):
         m2 = 0.0
         for r in range(off[d], off[d + 1]):
             s = owner_row[ids[r]]
             if s != r:  # owner rows are never written here, so the sources are all time n
-                x[r] = x[s]
-                y[r] = y[s]
-                vx[r] = vx[s]
-                vy[r] = vy[s]
-                w[r] = w[s]
+                for a in range(dim):
+                    pos[r, a] = pos[s, a]
+                    vel[r, a] = vel[s, a]
+                for a in range(spin.shape[1]):
+                    spin[r, a] = spin[s, a]
                 hist_n[r] = hist_n[s]
                 for q in range(cap):
                     hist_id[r, q] = hist_id[s, q]
-                    hist_ft[r, q] = hist_ft[s, q]
-                    hist_mr[r, q] = hist_mr[s, q]
-            dx = abs(x[r] - x_built[r])
+                    for c in range(hist_s.shape[2]):
+                        hist_s[r, q, c] = hist_s[s, q, c]
+                    for c in range(hist_m.shape[2]):
+                        hist_m[r, q, c] = hist_m[s, q, c]
+            dx = abs(pos[r, AX_X] - x_built[r])
             if dx > moved:
                 moved = dx
-            ex = x[r] - xref[r]
-            ey = y[r] - yref[r]
-            e2 = ex * ex + ey * ey
+            e2 = 0.0
+            for a in range(dim):
+                e = pos[r, a] - ref[r, a]
+                e2 += e * e
             if e2 > m2:
                 m2 = e2
         disp2[d] = m2
@@ -94,8 +100,9 @@ class LiveDomains:
         self.n = len(discs)
         self.wslab = wslab
         self.membership_skin = membership_skin
-        order = np.argsort(discs.x, kind="stable")
-        xs = discs.x[order]
+        x = discs.pos[:, AX_X]
+        order = np.argsort(x, kind="stable")
+        xs = x[order]
         reach = halo + membership_skin
         rows, off = [], [0]
         for d in range(self.D):
@@ -106,13 +113,12 @@ class LiveDomains:
         # x-sorted local sets: cache-friendly, and memory order never changes a result
         self.p = discs.take(np.concatenate(rows) if rows else np.zeros(0, np.int64))
         self.off = np.asarray(off, np.int64)
-        self.x_built = self.p.x.copy()
+        self.x_built = self.p.pos[:, AX_X].copy()
         # owner_row[id]: the row holding the disc's authoritative copy; owned[row]
         self.owner_row = np.full(int(self.p.id.max()) + 1 if len(self.p) else 0, -1, np.int64)
         self.owned = np.zeros(len(self.p), np.bool_)
         # the steppers' neighbour-list references, one array for all (checked in _refresh)
-        self.xref = np.zeros(len(self.p))
-        self.yref = np.zeros(len(self.p))
+        self.ref = np.zeros((len(self.p), self.p.dim))
         self.disp2 = np.zeros(self.D)
         self.steppers = []
         arrays = self.p.arrays()
@@ -123,7 +129,7 @@ class LiveDomains:
                 st = DomainStepper(view, model, ws, reorder=False)
             else:
                 st = DomainStepper(view, model_nowheel, None, reorder=False)
-            st.xref, st.yref = self.xref[a:b], self.yref[a:b]
+            st.ref = self.ref[a:b]
             self.steppers.append(st)
         self._own()
 
@@ -132,7 +138,7 @@ class LiveDomains:
 
     def _own(self) -> None:
         p = self.p
-        total = _assign_owners(p.id, p.x, self.off, self.bounds, self.owner_row, self.owned)
+        total = _assign_owners(p.id, p.pos[:, AX_X], self.off, self.bounds, self.owner_row, self.owned)
         if total != self.n:
             raise EngineError(f"serial DDM owns {total} of {self.n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")
@@ -146,9 +152,8 @@ class LiveDomains:
         """Halo copies <- owners' time-n copies, then ownership from x. False when the
         local sets must be rebuilt instead (a disc moved beyond the membership skin)."""
         p = self.p
-        moved = _refresh(p.id, self.owner_row, p.x, p.y, p.vx, p.vy, p.w, p.hist_n, p.hist_id,
-                         p.hist_ft, p.hist_mr, self.x_built, self.off, self.xref, self.yref,
-                         self.disp2)
+        moved = _refresh(p.id, self.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id,
+                         p.hist_s, p.hist_m, self.x_built, self.off, self.ref, self.disp2)
         if moved > self.membership_skin:
             return False
         self._own()

@@ -18,12 +18,14 @@ import numpy as np
 from .. import __version__
 from ..atomic import write_replacing
 from ..bed import settled_bed, surface_height
-from ..checkpoint import particles_to_record, record_to_particles
+from ..checkpoint import (FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, particles_to_record,
+                          record_to_particles)
 from ..physics.layout import REC_X, WS_SIZE, WS_X, WS_Y
 from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, ScenarioError, big, critical_time_step,
                         scenario_from_toml, show, steps_for_duration)
 from ..metrics import N_SERIES
-from ..state import BYTES_PER_DISC, FORMAT_VERSION, Particles
+from ..physics.layout import AX_X, AX_Y
+from ..state import BYTES_PER_DISC, Particles
 from .stepper import DomainStepper, EngineError, Model
 
 MODES = ("monolithic", "ddm", "ooc")
@@ -52,8 +54,9 @@ def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
     """Wheel centre above the bed under x0, lug tips drop_gap above the highest disc."""
     w = sc.wheel
     ws = np.zeros(WS_SIZE)
-    under = np.abs(bed.x - w.x0) < w.lug_tip_radius + sc.soil.r_max
-    top = float((bed.y[under] + bed.r[under]).max()) if under.any() else float((bed.y + bed.r).max())
+    x, y = bed.pos[:, AX_X], bed.pos[:, AX_Y]
+    under = np.abs(x - w.x0) < w.lug_tip_radius + sc.soil.r_max
+    top = float((y[under] + bed.r[under]).max()) if under.any() else float((y + bed.r).max())
     ws[WS_X] = w.x0
     ws[WS_Y] = top + w.lug_tip_radius + w.drop_gap
     return ws
@@ -285,9 +288,10 @@ class MonolithicEngine:
 
     def write_domains(self, writer) -> None:
         p = self.stepper.p
-        order = np.argsort(p.x, kind="stable")
+        order = np.argsort(p.pos[:, AX_X], kind="stable")
         q = p.take(order)
-        attrs = {"xmin": float(q.x[0]) if len(q) else 0.0, "xmax": float(q.x[-1]) if len(q) else 0.0}
+        attrs = {"xmin": float(q.pos[0, AX_X]) if len(q) else 0.0,
+                 "xmax": float(q.pos[-1, AX_X]) if len(q) else 0.0}
         writer.write_domain(0, particles_to_record(q), attrs)
 
     def info(self) -> dict:
@@ -319,10 +323,12 @@ def _stopped_before_first_commit(out: Path) -> bool:
     return all(n in own or store_owns(out, n) for n in os.listdir(out))
 
 
-def read_all_particles(reader) -> Particles:
+def read_all_particles(reader, dim: int = 2, hist_cap: int | None = None) -> Particles:
     """All discs of an epoch (every domain group), sorted by id."""
-    parts = [record_to_particles(reader.read_domain(d)) for d in reader.domains()]
-    return Particles.concat(parts).sorted_by_id()
+    from ..state import HIST_CAP
+    cap = HIST_CAP if hist_cap is None else hist_cap
+    parts = [record_to_particles(reader.read_domain(d), cap) for d in reader.domains()]
+    return Particles.concat(parts, dim, cap).sorted_by_id()
 
 
 def default_checkpoint_every(sc: Scenario, steps: int) -> int:
@@ -357,6 +363,7 @@ class Simulation:
     def _meta(self) -> dict:
         o = self.opts
         return {"engine": "ooc-dem", "engine_version": __version__, "format_version": FORMAT_VERSION,
+                "dim": self.model.dim, "hist_cap": self.model.hist_cap,
                 "scenario_toml": self.sc.to_toml(), "scenario_hash": self.sc.hash(),
                 "scenario_name": self.sc.name,
                 "run": {"mode": o.mode, "backend": o.backend, "domains": o.domains, "block": o.block,
@@ -388,8 +395,9 @@ class Simulation:
             raise RunError(str(e)) from None
         # a memory store lives in this process only; the run's other outputs still go to --out
         self.out.mkdir(parents=True, exist_ok=True)
-        np.savez(self.out / "initial.npz", id=bed.id, x=bed.x, y=bed.y, r=bed.r,
-                 surface=np.float64(self.surface))
+        # initial.npz keeps the 2D users' column names (x, y: layout.AXIS_NAMES)
+        np.savez(self.out / "initial.npz", id=bed.id, x=bed.pos[:, AX_X], y=bed.pos[:, AX_Y],
+                 r=bed.r, surface=np.float64(self.surface))
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:
@@ -403,7 +411,8 @@ class Simulation:
         from ..bed import tiled_bed_parts
         from .sweep import SweepEngine
         parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
-        surf = [surface_height(p, p.x.max() - p.x.min(), self.sc.soil.r_max) for p in parts()]
+        surf = [surface_height(p, p.pos[:, AX_X].max() - p.pos[:, AX_X].min(), self.sc.soil.r_max)
+                for p in parts()]
         self.surface = float(np.mean(surf))
         try:
             self.store = create_store(self.out, self._store_backend(), self._meta())
@@ -549,7 +558,7 @@ class Simulation:
         from ..checkpoint import hash_epoch
         from storage import open_store
         store = open_store(self.out, repair=False)   # read-only: this run holds the write lock
-        reader = store.read_epoch()
+        reader = open_epoch(store)
         h = hash_epoch(reader)   # streamed: never the whole state in RAM
         reader.close()
         store.close()
@@ -637,9 +646,10 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":
         raise RunError(f"{path}: not an ooc-dem run store")
-    if meta.get("format_version") != FORMAT_VERSION:
-        raise RunError(f"{path}: store format version {show(meta.get('format_version'))} is not supported "
-                       f"(this engine reads version {FORMAT_VERSION})")
+    v = meta.get("format_version")
+    if type(v) is not int or v not in SUPPORTED_VERSIONS:
+        raise RunError(f"{path}: store format version {show(v)} is not supported "
+                       f"(this engine reads versions {', '.join(map(str, SUPPORTED_VERSIONS))})")
     toml = meta.get("scenario_toml")
     if not isinstance(toml, str):
         raise RunError(f"{path}: stored scenario missing (store damaged or edited)")
@@ -663,9 +673,13 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
                       steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
                       figures=figures)
     sim = Simulation(sc, path, opts)
+    dim = meta.get("dim", 2)   # format 1 was 2D only
+    if dim != sim.model.dim:
+        raise RunError(f"{path}: store holds a {show(dim)}-dimensional run, the stored scenario is "
+                       f"{sim.model.dim}-dimensional (store damaged or edited)")
     try:
-        reader = store.read_epoch()
-        validate_epoch(reader, str(path))
+        reader = open_epoch(store)
+        validate_epoch(reader, str(path), sim.model.dim, sim.model.hist_cap)
     except (StoreError, StateError) as e:
         raise RunError(str(e)) from None
     arrays, attrs = reader.read_globals()
@@ -689,7 +703,7 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
                 raise RunError(f"{path}: epoch {reader.step}: stored wheel metrics unusable "
                                f"({type(e).__name__}: {' '.join(str(e).split())})") from None
         if sim.opts.mode == "monolithic":
-            particles = read_all_particles(reader)
+            particles = read_all_particles(reader, sim.model.dim, sim.model.hist_cap)
             sim.engine = MonolithicEngine(particles, arrays["wheel_state"], sim.model)
         else:
             from .sweep import SweepEngine

@@ -1,14 +1,16 @@
 """THE per-domain step, shared by every execution mode.
 
-A step (``_run_steps``): wheel controls, ``forces.produce`` (one row per contact),
-``forces.gather_integrate`` (each disc sums its rows in ascending partner-id order
-and is advanced), the wheel's reaction summed in ascending disc id, the wheel's
+The step itself is a per-dimension kernel module (``physics.kernels(model.dim)``: 2D is
+``physics.d2``), entry point ``run_steps``: wheel controls, ``forces.produce`` (one row
+per contact), ``forces.gather_integrate`` (each disc sums its rows in ascending partner-id
+order and is advanced), the wheel's reaction summed in ascending disc id, the wheel's
 leapfrog, and a rebuild of the half pair list when some disc has moved half the skin.
 
 ``DomainStepper`` holds one set of discs (the whole bin in monolithic mode; a
 sub-domain plus its halo in DDM and out-of-core) and advances all of them K
 steps in place. Monolithic, DDM and out-of-core only differ in which discs they
-hand it and where the results go, so they cannot drift apart.
+hand it and where the results go, so they cannot drift apart. It never looks inside
+the kernel module: it hands it the named records of physics.layout.
 """
 from __future__ import annotations
 
@@ -16,11 +18,10 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from numba import njit
 
+from ..physics import kernels
 from ..physics import layout as L
-from ..physics.forces import N_CHUNKS, gather_integrate, lug_directions, produce, wheel_reaction
-from ..physics.integrate import apply_wheel_controls, drawbar_force, integrate_wheel
+from ..physics.forces import N_CHUNKS
 from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW,  # noqa: F401
                               ERR_PAIR_CAPACITY, KN, KS, MU, MUR, N_ERR, N_FIELDS, N_REC,
                               REC_COLUMNS, REC_DB, REC_FX, REC_FY, REC_NC, REC_T, REC_THETA,
@@ -28,9 +29,9 @@ from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFL
                               WC_OMEGA, WC_RAMP, WC_SETTLE, WC_SIZE, WC_SLIP, WC_SLIPMODE,
                               WG_CAP, WG_ENABLED, WG_LUG_IN, WG_LUG_OUT, WG_MASS, WG_NLUGS,
                               WG_R, WG_SIZE, WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD,
-                              WHEEL_STATE, WS_SIZE, ZN, ZR, ZT, Bodies, Pairs, discs_of, record)
-from ..physics.neighbors import build_pairs, spatial_order
-from ..state import Particles
+                              WHEEL_STATE, WS_SIZE, ZN, ZR, ZT, Bodies, Forces, KernelParams,
+                              Pairs, discs_of, record, spin_width)
+from ..state import HIST_CAP, Particles
 
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
 PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
@@ -45,8 +46,7 @@ class Model:
     """Everything the kernels need from a scenario: flat float arrays whose layouts are
     the records of physics.layout (``records()`` gives the record views)."""
     dt: float
-    gx: float
-    gy: float
+    gravity: np.ndarray   # (dim,) acceleration of gravity
     skin: float
     cp: np.ndarray        # CONTACT_PARAMS table [type_a, type_b, field]; types T_SOIL, T_WALL, T_WHEEL
     walls: np.ndarray     # WALLS
@@ -54,6 +54,13 @@ class Model:
     wc: np.ndarray        # WHEEL_CONTROLS
     wheel_enabled: bool
     r_max: float
+    dim: int = 2              # 2 for every current scenario; picks the kernel module
+    hist_cap: int = HIST_CAP  # contact-history capacity C per particle
+
+    def __post_init__(self):
+        self.gravity = np.ascontiguousarray(self.gravity, np.float64)
+        if self.gravity.shape != (self.dim,):
+            raise ValueError(f"Model: gravity {self.gravity.shape} must be a {self.dim}-vector")
 
     @classmethod
     def from_scenario(cls, sc) -> "Model":
@@ -90,9 +97,9 @@ class Model:
             c["drawbar"] = w.drawbar_load
             c["ramp"] = w.drawbar_ramp
             c["slip"] = w.slip
-        gx, gy = sc.gravity_vector
-        return cls(dt=sc.physics.dt, gx=gx, gy=gy, skin=sc.bed.skin, cp=cp, walls=walls, wg=wg,
-                   wc=wc, wheel_enabled=w.enabled, r_max=sc.soil.r_max)
+        return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
+                   skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc, wheel_enabled=w.enabled,
+                   r_max=sc.soil.r_max, dim=sc.dim)
 
     def records(self):
         """(cp, walls, wg, wc) as record views (no copies) for the kernels."""
@@ -101,74 +108,20 @@ class Model:
                 record(np.ascontiguousarray(self.wg, np.float64), WHEEL_GEOMETRY),
                 record(np.ascontiguousarray(self.wc, np.float64), WHEEL_CONTROLS))
 
+    def kernel_params(self) -> KernelParams:
+        """The kernels' parameters (layout.KernelParams; records are views, no copies)."""
+        cp, walls, wg, wc = self.records()
+        return KernelParams(float(self.dt), self.gravity, float(self.skin), cp, walls, wg, wc)
+
+    def kernels(self):
+        """The step-kernel module of this model's dimension (run_steps, spatial_order)."""
+        return kernels(self.dim)
+
     def without_wheel(self) -> "Model":
         wg = self.wg.copy()
         record(wg, WHEEL_GEOMETRY)["enabled"] = 0.0
-        return Model(self.dt, self.gx, self.gy, self.skin, self.cp, self.walls, wg, self.wc,
-                     False, self.r_max)
-
-
-@njit(cache=True)
-def _run_steps(nsteps, step0, dt, gx, gy, skin, n, d, pl, bd, fx, fy, tq, cp, walls, wg, wc, ws,
-               err, rec, rebuild_now):
-    """Advance discs 0..n-1 (and the wheel when wg.enabled) nsteps from global step step0.
-
-    d: layout.Discs, pl: Pairs, bd: Bodies; cp, walls, wg, wc, ws: records (layout);
-    rec: WHEEL_RECORD rows, one per step (wheel runs). Returns (steps done, rebuilds).
-    Stops early with err[ERR_PAIR_CAPACITY] = pairs needed (grow the pair list, rebuild,
-    continue), err[ERR_BODY_CAPACITY] (grow the body buffers, redo that step) or
-    err[ERR_HIST_OVERFLOW] (fatal)."""
-    wheel = wg[0].enabled > 0.5
-    nlugs = int(wg[0].nlugs)
-    lugdir = np.zeros(max(1, nlugs), L.LUG_DIRECTION)
-    part = np.zeros(N_CHUNKS)
-    if rebuild_now:
-        npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
-                             pl.inc_off, pl.inc_k, pl.xref, pl.yref)
-        if npairs > pl.pair_b.shape[0]:
-            err[ERR_PAIR_CAPACITY] = npairs
-            return 0, 0
-    half2 = 0.25 * skin * skin
-    rebuilds = 0
-    wfxs = 0.0
-    wfys = 0.0
-    wtqs = 0.0
-    for s in range(nsteps):
-        t = (step0 + s) * dt
-        if wheel:
-            apply_wheel_controls(t, ws, wg, wc)
-            lug_directions(ws[0].theta, nlugs, lugdir)
-        produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err)
-        if err[ERR_BODY_CAPACITY] != 0:
-            return s, rebuilds
-        disp2 = gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err)
-        if err[ERR_HIST_OVERFLOW] != 0:
-            return s, rebuilds
-        if wheel:
-            wfxs, wfys, wtqs, cnt = wheel_reaction(d.gid, bd)
-            w0 = ws[0]
-            r0 = rec[s]
-            r0.t = t
-            r0.x = w0.x
-            r0.y = w0.y
-            r0.vx = w0.vx
-            r0.vy = w0.vy
-            r0.wz = w0.wz
-            r0.theta = w0.theta
-            r0.fx = wfxs
-            r0.fy = wfys
-            r0.torque = wtqs
-            r0.drawbar = drawbar_force(t, wc)
-            r0.contacts = cnt
-            integrate_wheel(t, ws, wg, wc, wfxs, wfys, gy, dt)
-        if disp2 > half2:
-            rebuilds += 1
-            npairs = build_pairs(d.x, d.y, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
-                                 pl.pair_a, pl.inc_off, pl.inc_k, pl.xref, pl.yref)
-            if npairs > pl.pair_b.shape[0]:
-                err[ERR_PAIR_CAPACITY] = npairs
-                return s + 1, rebuilds
-    return nsteps, rebuilds
+        return Model(self.dt, self.gravity.copy(), self.skin, self.cp, self.walls, wg, self.wc,
+                     False, self.r_max, self.dim, self.hist_cap)
 
 
 class DomainStepper:
@@ -183,10 +136,16 @@ class DomainStepper:
 
     def __init__(self, particles: Particles, model: Model, wheel_state: np.ndarray | None = None,
                  reorder: bool = True, keep_forces: bool = False):
-        """keep_forces: keep each step's contact forces and torques in fx, fy, tq
-        (diagnostics and tests; 24 bytes a disc)."""
+        """keep_forces: keep each step's contact forces and torques in ``force`` (N, D) and
+        ``torque`` (N, R) (diagnostics and tests; 24 bytes a disc in 2D)."""
+        if particles.dim != model.dim:
+            raise EngineError(f"{particles.dim}D particles handed to a {model.dim}D model")
+        if particles.hist_cap != model.hist_cap:
+            raise EngineError(f"particles with a contact-history capacity of {particles.hist_cap} "
+                              f"handed to a model of capacity {model.hist_cap}")
+        self.kern = model.kernels()
         if reorder and len(particles) > 1:
-            perm = spatial_order(particles.x, particles.y, len(particles), 2 * model.r_max + model.skin)
+            perm = self.kern.spatial_order(particles.pos, len(particles), 2 * model.r_max + model.skin)
             particles.permute_inplace(perm)  # the caller's discs, reordered: no second copy
         self.p = particles
         self.model = model
@@ -197,10 +156,9 @@ class DomainStepper:
         self.half_off = np.zeros(n + 1, self._idx)
         self.inc_off = np.zeros(n + 1, self._idx)
         self._grow_pairs(0)
-        self.xref = np.zeros(n)
-        self.yref = np.zeros(n)
+        self.ref = np.zeros((n, model.dim))   # positions at the last neighbour-list build
         nf = n if keep_forces else 0
-        self._forces = (np.zeros(nf), np.zeros(nf), np.zeros(nf))
+        self._forces = Forces(np.zeros((nf, model.dim)), np.zeros((nf, spin_width(model.dim))))
         self.keep_forces = keep_forces
         self.bodies = Bodies(np.zeros(N_CHUNKS * 8, L.BODY_ROW), np.zeros(N_CHUNKS, np.int64))
         self.err = np.zeros(N_ERR, np.int64)
@@ -220,9 +178,8 @@ class DomainStepper:
             raise AttributeError("contact forces are kept only by DomainStepper(..., keep_forces=True)")
         return self._forces[k]
 
-    fx = property(lambda self: self._force(0), doc="contact force x of the last step (keep_forces)")
-    fy = property(lambda self: self._force(1), doc="contact force y of the last step (keep_forces)")
-    tq = property(lambda self: self._force(2), doc="contact torque of the last step (keep_forces)")
+    force = property(lambda self: self._force(0), doc="contact force (N, D) of the last step (keep_forces)")
+    torque = property(lambda self: self._force(1), doc="contact torque (N, R) of the last step (keep_forces)")
 
     @property
     def pairs(self) -> int:
@@ -232,7 +189,7 @@ class DomainStepper:
     def nbytes(self) -> int:
         """Bytes the stepper holds besides the discs."""
         arrs = (self.half_off, self.inc_off, self.pair_b, self.pair_a, self.inc_k, self.on,
-                self.rows, self.xref, self.yref, *self._forces, self.bodies.rows)
+                self.rows, self.ref, *self._forces, self.bodies.rows)
         return sum(a.nbytes for a in arrs)
 
     def advance(self, step0: int, nsteps: int) -> np.ndarray:
@@ -258,15 +215,15 @@ class DomainStepper:
         m, p = self.model, self.p
         d = discs_of(p)
         recv = record(rec, WHEEL_RECORD) if len(rec) else np.zeros(1, WHEEL_RECORD)  # unused
-        cp, walls, wg, wc = m.records()
+        kp = m.kernel_params()
         ws = record(self.ws, WHEEL_STATE)
         done = 0
         while True:
-            pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.xref,
-                       self.yref, self.on, self.rows)
-            k, rb = _run_steps(nsteps - done, step0 + done, m.dt, m.gx, m.gy, m.skin, self.n, d, pl,
-                               self.bodies, *self._forces, cp, walls, wg, wc, ws,
-                               self.err, recv[done:] if len(rec) else recv, not self._built)
+            pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.ref,
+                       self.on, self.rows)
+            k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, self.bodies,
+                                        self._forces, ws, self.err,
+                                        recv[done:] if len(rec) else recv, not self._built)
             done += k
             self.rebuilds += rb
             self._built = True
@@ -290,5 +247,5 @@ class DomainStepper:
         if self.err[ERR_HIST_OVERFLOW]:
             raise EngineError(f"contact history overflow at step {at}: a disc has more than "
                               f"{p.hist_id.shape[1]} contacts (overlaps too large: check dt, kn, or the bed)")
-        if not np.isfinite(p.x).all():
+        if not np.isfinite(p.pos).all():
             raise EngineError(f"non-finite position at step {at}: the run is unstable")

@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checkpoint import particles_to_record, record_to_particles
+from ..checkpoint import open_epoch, particles_to_record, record_to_particles
 from ..decomposition import equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok
-from ..physics.layout import WS_X
+from ..physics.layout import AX_X, WS_X
+from ..state import DISC_FIELDS, HIST_CAP, HIST_FIELDS
 from ..state import Particles
 from .live import LiveDomains
 from .stepper import N_REC, DomainStepper, EngineError, Model
@@ -71,34 +72,33 @@ class RamEpochs:
         self.current[d] = (record_to_particles(arrays), attrs)
 
 
-def _read_rows(src, d, lo: float, hi: float) -> Particles | None:
+def _read_rows(src, d, lo: float, hi: float, hist_cap: int = HIST_CAP) -> Particles | None:
     """Discs of group d with lo <= x < hi (groups are sorted by x: one contiguous slice)."""
     attrs = src.domain_attrs(d)
     n = int(attrs.get("n", 0))
     if n == 0 or attrs["xmax"] < lo or attrs["xmin"] >= hi:
         return None
-    x = src.read_domain(d, ["x"])["x"]
+    x = src.read_domain(d, ["pos"])["pos"][:, AX_X]
     a, b = int(np.searchsorted(x, lo, "left")), int(np.searchsorted(x, hi, "left"))
     if b <= a:
         return None
     if a == 0 and b == n:
-        return record_to_particles(src.read_domain(d))
+        return record_to_particles(src.read_domain(d), hist_cap)
     # scalar arrays by row; the CSR history by the matching entry range
     hn = src.read_domain(d, ["hist_n"])["hist_n"]
     off = np.concatenate([[0], np.cumsum(hn, dtype=np.int64)])
-    scal = [k for k in ("id", "x", "y", "vx", "vy", "w", "r", "mass", "inertia", "mat", "hist_n")]
-    rec = src.read_domain(d, scal, slice(a, b))
-    rec.update(src.read_domain(d, ["hist_id", "hist_ft", "hist_mr"], slice(int(off[a]), int(off[b]))))
-    return record_to_particles(rec)
+    rec = src.read_domain(d, list(DISC_FIELDS), slice(a, b))
+    rec.update(src.read_domain(d, list(HIST_FIELDS), slice(int(off[a]), int(off[b]))))
+    return record_to_particles(rec, hist_cap)
 
 
 def group_of(p: Particles, rows=None) -> tuple[Particles, dict]:
     """A domain group: discs `rows` of p (all if None) sorted by x (strips are then
     contiguous), with its x extent. One gather, whatever `rows` is."""
     rows = np.arange(len(p)) if rows is None else np.asarray(rows)
-    q = p.take(rows[np.argsort(p.x[rows], kind="stable")])
-    attrs = {"n": len(q), "xmin": float(q.x[0]) if len(q) else 0.0,
-             "xmax": float(q.x[-1]) if len(q) else 0.0}
+    q = p.take(rows[np.argsort(p.pos[rows, AX_X], kind="stable")])
+    attrs = {"n": len(q), "xmin": float(q.pos[0, AX_X]) if len(q) else 0.0,
+             "xmax": float(q.pos[-1, AX_X]) if len(q) else 0.0}
     return q, attrs
 
 
@@ -163,12 +163,12 @@ class SweepEngine:
             eng._writer = sim.store.begin_epoch(0)
         if bounds is None:
             eng.D = D
-            eng.bounds = eng.decompose(particles.x, step=0)
+            eng.bounds = eng.decompose(particles.pos[:, AX_X], step=0)
         else:
             eng.bounds = np.asarray(bounds, np.float64)
             eng.D = len(eng.bounds) - 1
             eng.fixed = True
-        groups = owner(eng.bounds, particles.x)
+        groups = owner(eng.bounds, particles.pos[:, AX_X])
         for d in range(eng.D):
             eng._stage(d, *group_of(particles, np.flatnonzero(groups == d)))
         eng._n = len(particles)
@@ -182,7 +182,7 @@ class SweepEngine:
         sc = sim.sc
         eng = cls(sim, np.array([-np.inf, np.inf]), ws, _block(sim), None)
         eng.D = sim.opts.domains or sc.decomposition.domains
-        x = np.concatenate([p.x for p in parts()])
+        x = np.concatenate([p.pos[:, AX_X] for p in parts()])
         eng._n = len(x)
         eng.bounds = eng.decompose(x, step=0)
         del x
@@ -197,8 +197,8 @@ class SweepEngine:
                     written.add(d)
 
         for part in parts():
-            flush(float(part.x.min()))
-            g = owner(eng.bounds, part.x)
+            flush(float(part.pos[:, AX_X].min()))
+            g = owner(eng.bounds, part.pos[:, AX_X])
             for d in np.unique(g):
                 if int(d) in written:
                     raise RuntimeError("bed parts are not in x order")
@@ -261,12 +261,12 @@ class SweepEngine:
         self.committed_step = step
         if self._store_reader is not None:
             self._store_reader.close()
-        self._store_reader = self.sim.store.read_epoch()
+        self._store_reader = open_epoch(self.sim.store)
 
     def _all_x(self, src) -> np.ndarray:
         if isinstance(src, RamEpochs):
-            return np.concatenate([src.domain_particles(d).x for d in src.domains()])
-        return np.concatenate([src.read_domain(d, ["x"])["x"] for d in src.domains()])
+            return np.concatenate([src.domain_particles(d).pos[:, AX_X] for d in src.domains()])
+        return np.concatenate([src.read_domain(d, ["pos"])["pos"][:, AX_X] for d in src.domains()])
 
     def sweep(self, step0: int, k: int) -> np.ndarray:
         """Advance every slab k <= K steps (the halo is sized for K)."""
@@ -326,16 +326,17 @@ class SweepEngine:
         for d in range(self.D):
             lo, hi = self.bounds[d], self.bounds[d + 1]
             pieces = [q for g in src.domains()
-                      if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
+                      if (q := _read_rows(src, g, lo - self.halo, hi + self.halo,
+                                               self.model.hist_cap)) is not None]
             # the pieces are x-sorted strips: already in a cache-friendly order, and memory
             # order never changes a result (DESIGN section 3), so no spatial re-sort here
-            local = Particles.concat(pieces)
+            local = Particles.concat(pieces, self.model.dim, self.model.hist_cap)
             resident.append(len(local))
             if d == wslab:
                 st = DomainStepper(local, self.model, self.ws, reorder=False)
             else:
                 st = DomainStepper(local, self.model_nowheel, None, reorder=False)
-            owned = np.flatnonzero((st.p.x >= lo) & (st.p.x < hi))
+            owned = np.flatnonzero((st.p.pos[:, AX_X] >= lo) & (st.p.pos[:, AX_X] < hi))
             if len(local):
                 rec = st.advance(step0, k)
             else:
@@ -375,8 +376,11 @@ class SweepEngine:
     def particles(self) -> Particles:
         src = self._reader()
         if isinstance(src, RamEpochs):
-            return Particles.concat([src.domain_particles(d) for d in src.domains()])
-        return Particles.concat([record_to_particles(src.read_domain(d)) for d in src.domains()])
+            return Particles.concat([src.domain_particles(d) for d in src.domains()],
+                                    self.model.dim, self.model.hist_cap)
+        m = self.model
+        return Particles.concat([record_to_particles(src.read_domain(d), m.hist_cap)
+                                 for d in src.domains()], m.dim, m.hist_cap)
 
     def write_domains(self, writer) -> None:
         src = self._reader()
@@ -396,7 +400,7 @@ class SweepEngine:
         if sim.opts.mode == "ooc":
             bounds = np.array([-np.inf, *attrs["engine"]["bounds"], np.inf])
             eng = cls(sim, bounds, arrays["wheel_state"], K, None)
-            eng._store_reader = sim.store.read_epoch(reader.step)
+            eng._store_reader = open_epoch(sim.store, reader.step)
             eng.committed_step = int(attrs["step"])
             eng._n = sum(int(reader.domain_attrs(d).get("n", 0)) for d in reader.domains())
             return eng

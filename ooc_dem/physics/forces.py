@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit, prange
 
 from .contact import contact
-from .layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_NBR_OVERFLOW,  # noqa: F401
+from .layout import (AX_X, AX_Y, ERR_BODY_CAPACITY, HM_R, HS_T, SP_Z, ERR_HIST_OVERFLOW, ERR_NBR_OVERFLOW,  # noqa: F401
                      ERR_PAIR_CAPACITY, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT,
                      ID_WALL_RIGHT, T_WALL, T_WHEEL, WG_CAP, WG_ENABLED, WG_LUG_IN,
                      WG_LUG_OUT, WG_MASS, WG_NLUGS, WG_R, WG_SIZE, WS_SIZE, WS_THETA, WS_VX,
@@ -50,12 +50,12 @@ def chunk_range(c, n):
 
 
 @njit(inline="always", cache=True)
-def _lookup(hid, hft, hmr, i, hn, p, pid):
+def _lookup(hid, hs, hm, i, hn, p, pid):
     """Advance the merge pointer p in i's sorted history to partner pid."""
     while p < hn and hid[i, p] < pid:
         p += 1
     if p < hn and hid[i, p] == pid:
-        return p, hft[i, p], hmr[i, p]
+        return p, hs[i, p, HS_T], hm[i, p, HM_R]
     return p, 0.0, 0.0
 
 
@@ -80,9 +80,9 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
     cp: CONTACT_PARAMS table [type_a, type_b], walls: WALLS, wg: WHEEL_GEOMETRY,
     ws: WHEEL_STATE (records of shape (1,)); lugdir: LUG_DIRECTION of each lug.
     Sets err[ERR_BODY_CAPACITY] when a chunk's body buffer is full (grow, rerun)."""
-    x, y, vx, vy, w, r = d.x, d.y, d.vx, d.vy, d.w, d.r
+    pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
     mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
-    hist_n, hist_id, hist_ft, hist_mr = d.hist_n, d.hist_id, d.hist_ft, d.hist_mr
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
@@ -114,11 +114,11 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
         bend = bat + bcap
         full = False
         for i in range(lo, hi):
-            xi = x[i]
-            yi = y[i]
-            vxi = vx[i]
-            vyi = vy[i]
-            wi = w[i]
+            xi = pos[i, AX_X]
+            yi = pos[i, AX_Y]
+            vxi = vel[i, AX_X]
+            vyi = vel[i, AX_Y]
+            wi = spin[i, SP_Z]
             ri = r[i]
             mi = mass[i]
             ii = inertia[i]
@@ -148,7 +148,7 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                         delta = cap_r + ri - dd
                         if delta > 0.0 and dd > 0.0:
                             pid = ID_LUG0 + lug
-                            p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, pid)
+                            p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
                             nx = ddx / dd
                             ny = ddy / dd
                             # velocity of the lug point p: V + Wz x (p - C)
@@ -171,7 +171,7 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                     dw = math.sqrt(d2)
                     delta = R + ri - dw
                     if delta > 0.0 and dw > 0.0:
-                        p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, ID_RIM)
+                        p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, ID_RIM)
                         nx = dxw / dw
                         ny = dyw / dw
                         fn, ft, s_new, mom, m_new = contact(
@@ -212,7 +212,7 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                     ny = 1.0
                     pid = ID_WALL_BOTTOM
                 if delta > 0.0:
-                    p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, pid)
+                    p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
                     fn, ft, s_new, mom, m_new = contact(
                         cp[T_WALL, ti], nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri,
                         mi, ii, ri, s_old, m_old, dt)
@@ -225,8 +225,8 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
             # ------------------------------------------------------ pairs (i = a, lower id)
             for q in range(half_off[i], half_off[i + 1]):
                 b = np.int64(pair_b[q])
-                dx = x[b] - xi
-                dy = y[b] - yi
+                dx = pos[b, AX_X] - xi
+                dy = pos[b, AX_Y] - yi
                 rb = r[b]
                 d2 = dx * dx + dy * dy
                 rs = ri + rb
@@ -238,13 +238,13 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
                     on[q] = 0
                     continue
                 delta = rs - dd
-                p, s_old, m_old = _lookup(hist_id, hist_ft, hist_mr, i, hn, p, gid[b])
+                p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, gid[b])
                 nx = dx / dd
                 ny = dy / dd
                 mb = mass[b]
                 ib = inertia[b]
                 fn, ft, s_new, mom, m_new = contact(
-                    cp[ti, mat[b]], nx, ny, delta, vx[b] - vxi, vy[b] - vyi, wi, w[b], ri, rb,
+                    cp[ti, mat[b]], nx, ny, delta, vel[b, AX_X] - vxi, vel[b, AX_Y] - vyi, wi, spin[b, SP_Z], ri, rb,
                     mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb), s_old, m_old, dt)
                 row = rows[q]
                 row.bx = fn * nx + ft * ny
@@ -260,35 +260,38 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
 
 
 @njit(inline="always", cache=True)
-def _keep(hist_id, hist_ft, hist_mr, i, k, cap, pid, s, m):
+def _keep(hist_id, hist_s, hist_m, i, k, cap, pid, s, m):
     """Write history entry k of disc i; returns False on overflow."""
     if k >= cap:
         return False
     hist_id[i, k] = pid
-    hist_ft[i, k] = s
-    hist_mr[i, k] = m
+    hist_s[i, k, HS_T] = s
+    hist_m[i, k, HM_R] = m
     return True
 
 
 @njit(parallel=True, cache=True)
-def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
+def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
     """Phase 2: per disc, sum its rows in ascending partner-id order (module doc),
     rewrite its history from them, then advance it one leapfrog step:
     v_(n+1/2) = v_(n-1/2) + a_n dt, x_(n+1) = x_n + v_(n+1/2) dt.
-    fx/fy/tq get the contact forces and torques of time n (unless they have length 0).
+    force (N, D) / torque (N, R) get the contact forces and torques of time n (unless they
+    have length 0); gravity: the (D,) acceleration.
     Returns the largest squared
     displacement since the last neighbour build (a max: order-free); part is scratch
     of N_CHUNKS entries."""
-    x, y, vx, vy, w = d.x, d.y, d.vx, d.vy, d.w
+    pos, vel, spin = d.pos, d.vel, d.spin
     mass, inertia, gid = d.mass, d.inertia, d.gid
-    hist_n, hist_id, hist_ft, hist_mr = d.hist_n, d.hist_id, d.hist_ft, d.hist_mr
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
     inc_off, inc_k = pl.inc_off, pl.inc_k
-    on, rows, xref, yref = pl.on, pl.rows, pl.xref, pl.yref
+    on, rows, ref = pl.on, pl.rows, pl.ref
+    gx = gravity[AX_X]
+    gy = gravity[AX_Y]
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     cap = hist_id.shape[1]
-    keep = fx.shape[0] >= n
+    keep = force.shape[0] >= n
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, n)
         bat = ch * bcap
@@ -303,7 +306,7 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
             # walls and wheel parts (negative ids, already in ascending order)
             while bat < bend and body[bat].disc == i:
                 brow = body[bat]
-                if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, brow.pid, brow.s, brow.m):
+                if not _keep(hist_id, hist_s, hist_m, i, k, cap, brow.pid, brow.s, brow.m):
                     over = True
                 k += 1
                 sfx += brow.bx
@@ -315,7 +318,7 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
                 q = inc_k[e]
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, gid[pair_a[q]], row.s, row.m):
+                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], row.s, row.m):
                         over = True
                     k += 1
                     sfx += row.bx
@@ -325,7 +328,7 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
             for q in range(half_off[i], half_off[i + 1]):
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_ft, hist_mr, i, k, cap, gid[pair_b[q]], row.s, row.m):
+                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], row.s, row.m):
                         over = True
                     k += 1
                     sfx -= row.bx
@@ -333,16 +336,16 @@ def gather_integrate(n, d, pl, bd, fx, fy, tq, gx, gy, dt, part, err):
                     stq += row.ta
             hist_n[i] = min(k, cap)
             if keep:
-                fx[i] = sfx
-                fy[i] = sfy
-                tq[i] = stq
-            vx[i] += (sfx / mass[i] + gx) * dt
-            vy[i] += (sfy / mass[i] + gy) * dt
-            w[i] += stq / inertia[i] * dt
-            x[i] += vx[i] * dt
-            y[i] += vy[i] * dt
-            ddx = x[i] - xref[i]
-            ddy = y[i] - yref[i]
+                force[i, AX_X] = sfx
+                force[i, AX_Y] = sfy
+                torque[i, SP_Z] = stq
+            vel[i, AX_X] += (sfx / mass[i] + gx) * dt
+            vel[i, AX_Y] += (sfy / mass[i] + gy) * dt
+            spin[i, SP_Z] += stq / inertia[i] * dt
+            pos[i, AX_X] += vel[i, AX_X] * dt
+            pos[i, AX_Y] += vel[i, AX_Y] * dt
+            ddx = pos[i, AX_X] - ref[i, AX_X]
+            ddy = pos[i, AX_Y] - ref[i, AX_Y]
             dd = ddx * ddx + ddy * ddy
             if dd > mx:
                 mx = dd

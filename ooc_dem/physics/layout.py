@@ -12,8 +12,8 @@ Records:
 - ``CONTACT_PARAMS``  contact parameters of one material pair, table cp[type_a, type_b]
 - ``WALLS``           the bin's walls
 - ``WHEEL_GEOMETRY``  rigid wheel with capsule lugs
-- ``WHEEL_STATE``     wheel kinematics (``wz`` is the spin, clockwise negative; the same
-                      quantity export.py calls ``omega``)
+- ``WHEEL_STATE``     wheel kinematics (``wz`` is the spin about the axle z, clockwise
+                      negative; export.py writes these names)
 - ``WHEEL_CONTROLS``  prescribed motion and drawbar
 - ``WHEEL_RECORD``    one row per step of a wheel run
 - ``LUG_DIRECTION``   unit vector of one lug at the current wheel angle
@@ -26,6 +26,43 @@ from __future__ import annotations
 import numpy as np
 
 F8 = "<f8"
+
+# ------------------------------------------------------------------- axes
+# columns of the per-particle vectors pos / vel (N, D) and of forces (N, D):
+# x = travel (slabs run along x), y = vertical (gravity in -y), z = across the bin (3D)
+AX_X, AX_Y, AX_Z = 0, 1, 2
+AXIS_NAMES = ("x", "y", "z")
+DIMS = (2, 3)
+
+
+def axes(dim: int) -> tuple[int, ...]:
+    """The axes of a dim-dimensional run, in column order."""
+    if dim not in DIMS:
+        raise ValueError(f"dimension {dim!r} not supported (expected one of {DIMS})")
+    return tuple(range(dim))
+
+
+def spin_width(dim: int) -> int:
+    """R: angular velocity components (2D: about z only)."""
+    axes(dim)
+    return 1 if dim == 2 else 3
+
+
+# components of the spin (N, R): 2D has the one about z in column SP_Z; 3D has all three
+SP_Z = 0                      # 2D
+SP_X3, SP_Y3, SP_Z3 = 0, 1, 2  # 3D
+
+
+def hist_widths(dim: int) -> tuple[int, int]:
+    """(S, M): components of a contact's tangential and rolling springs (from the contact
+    law: 2D scalar springs; 3D springs as 3-vectors)."""
+    axes(dim)
+    return (1, 1) if dim == 2 else (3, 3)
+
+
+# the one component of a 2D spring in hist_s / hist_m (N, C, 1)
+HS_T = 0
+HM_R = 0
 
 
 def _dtype(names, kind=F8):
@@ -114,18 +151,24 @@ BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8"), ("bx", F8), ("by", F8), ("
 # (named tuples of arrays: numba compiles them; every field is a view, never a copy)
 from collections import namedtuple  # noqa: E402
 
-# the discs of one domain (views of a state.Particles)
-Discs = namedtuple("Discs", ["x", "y", "vx", "vy", "w", "r", "mass", "inertia", "mat", "gid",
-                             "hist_n", "hist_id", "hist_ft", "hist_mr"])
+# the discs of one domain (views of a state.Particles): pos/vel (N, D), spin (N, R),
+# hist_id (N, C), hist_s (N, C, S), hist_m (N, C, M)
+Discs = namedtuple("Discs", ["pos", "vel", "spin", "r", "mass", "inertia", "mat", "gid",
+                             "hist_n", "hist_id", "hist_s", "hist_m"])
+# the model's kernel parameters: dt, gravity (D,), skin, and the records CONTACT_PARAMS
+# table, WALLS, WHEEL_GEOMETRY, WHEEL_CONTROLS (engine.stepper.Model.kernel_params)
+KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc"])
+# per-particle contact force (N, D) and torque (N, R) of the last step; length 0 when not kept
+Forces = namedtuple("Forces", ["force", "torque"])
 # half pair list + CSR index (neighbors.build_pairs), the build positions, and the
 # pairs' rows of the current step (slot = position in pair_b; on[k] = in contact)
-Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "xref", "yref", "on",
-                             "rows"])
+# (ref: the positions (N, D) at the last build)
+Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "ref", "on", "rows"])
 # body rows of the current step: N_CHUNKS buffers of equal capacity, count[c] used
 Bodies = namedtuple("Bodies", ["rows", "count"])
 
 
 def discs_of(p) -> Discs:
     """The kernel view of a state.Particles (no copy)."""
-    return Discs(p.x, p.y, p.vx, p.vy, p.w, p.r, p.mass, p.inertia, p.mat, p.id,
-                 p.hist_n, p.hist_id, p.hist_ft, p.hist_mr)
+    return Discs(p.pos, p.vel, p.spin, p.r, p.mass, p.inertia, p.mat, p.id,
+                 p.hist_n, p.hist_id, p.hist_s, p.hist_m)

@@ -15,6 +15,8 @@ summed in partner-id order.
 import numpy as np
 from numba import njit, prange
 
+from .layout import AX_X, AX_Y
+
 
 @njit(inline="always", cache=True)
 def _sort_by_gid(idx, lo, hi, gid):
@@ -31,27 +33,28 @@ def _sort_by_gid(idx, lo, hi, gid):
 
 
 @njit(cache=True)
-def spatial_order(x, y, n, cell):
-    """Permutation that sorts discs by (cell column, cell row): keeps neighbours close in memory."""
+def spatial_order(pos, n, cell):
+    """Permutation that sorts discs by (cell column, cell row): keeps neighbours close in memory.
+    pos: (N, 2) positions."""
     if n == 0:
         return np.empty(0, np.int64)
-    xmin = x[:n].min()
-    ymin = y[:n].min()
+    xmin = pos[:n, AX_X].min()
+    ymin = pos[:n, AX_Y].min()
     keys = np.empty(n, np.int64)
     for i in range(n):
-        cx = int((x[i] - xmin) / cell)
-        cy = int((y[i] - ymin) / cell)
+        cx = int((pos[i, AX_X] - xmin) / cell)
+        cy = int((pos[i, AX_Y] - ymin) / cell)
         keys[i] = cx * 1_000_000 + min(cy, 999_999)
     return np.argsort(keys, kind="mergesort")
 
 
 @njit(cache=True)
-def _bin(x, y, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of):
+def _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of):
     counts = cell_start
     counts[:] = 0
     for i in range(n):
-        cx = int((x[i] - x0) / cell)
-        cy = int((y[i] - y0) / cell)
+        cx = int((pos[i, AX_X] - x0) / cell)
+        cy = int((pos[i, AX_Y] - y0) / cell)
         cx = min(max(cx, 0), ncx - 1)
         cy = min(max(cy, 0), ncy - 1)
         c = cy * ncx + cx
@@ -67,7 +70,7 @@ def _bin(x, y, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of):
 
 
 @njit(parallel=True, cache=True)
-def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+def _scan(pos, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
           half_off, pair_b, inc_off, inc, fill):
     """fill False: count each disc's partners with higher / lower ids into
     half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id."""
@@ -77,8 +80,8 @@ def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
         cy = c // ncx
         nu = 0
         nl = 0
-        xi = x[i]
-        yi = y[i]
+        xi = pos[i, AX_X]
+        yi = pos[i, AX_Y]
         ri = r[i]
         gi = gid[i]
         u0 = half_off[i] if fill else 0
@@ -96,8 +99,8 @@ def _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
                     j = cell_list[q]
                     if j == i:
                         continue
-                    dx = x[j] - xi
-                    dy = y[j] - yi
+                    dx = pos[j, AX_X] - xi
+                    dy = pos[j, AX_Y] - yi
                     cut = ri + r[j] + skin
                     if dx * dx + dy * dy < cut * cut:
                         if gid[j] > gi:
@@ -132,9 +135,9 @@ def _slots(n, half_off, pair_b, pair_a, inc_off, inc_k):
 
 
 @njit(cache=True)
-def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, xref, yref):
-    """Rebuild the half pair list and CSR index of discs 0..n-1 and remember the build
-    positions. Returns the number of pairs P; when P exceeds the capacity of
+def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, ref):
+    """Rebuild the half pair list and CSR index of discs 0..n-1 (positions pos (N, 2)) and
+    remember the build positions in ref (N, 2). Returns the number of pairs P; when P exceeds the capacity of
     pair_b / pair_a / inc_k nothing is filled (grow them to at least P and call again)."""
     half_off[0] = 0
     inc_off[0] = 0
@@ -142,10 +145,10 @@ def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k,
         return 0
     rmax = r[:n].max()
     cell = 2.0 * rmax + skin
-    x0 = x[:n].min()
-    y0 = y[:n].min()
-    ncx = int((x[:n].max() - x0) / cell) + 1
-    ncy = int((y[:n].max() - y0) / cell) + 1
+    x0 = pos[:n, AX_X].min()
+    y0 = pos[:n, AX_Y].min()
+    ncx = int((pos[:n, AX_X].max() - x0) / cell) + 1
+    ncy = int((pos[:n, AX_Y].max() - y0) / cell) + 1
     # keep the grid bounded for discs that fly far away: the last row/column
     # collects them, which is still exact (distances are checked)
     if ncx * ncy > 4 * n + 64:
@@ -153,8 +156,8 @@ def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k,
     cell_start = np.zeros(ncx * ncy + 1, np.int64)
     cell_list = np.empty(n, np.int32)
     cell_of = np.empty(n, np.int32)
-    _bin(x, y, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of)
-    _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+    _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of)
+    _scan(pos, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
           half_off, pair_b, inc_off, inc_k, False)
     for i in range(n):
         half_off[i + 1] += half_off[i]
@@ -162,17 +165,17 @@ def build_pairs(x, y, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k,
     npairs = half_off[n]
     if npairs > pair_b.shape[0] or npairs > inc_k.shape[0]:
         return npairs
-    _scan(x, y, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+    _scan(pos, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
           half_off, pair_b, inc_off, inc_k, True)
     _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):
-        xref[i] = x[i]
-        yref[i] = y[i]
+        ref[i, AX_X] = pos[i, AX_X]
+        ref[i, AX_Y] = pos[i, AX_Y]
     return npairs
 
 
 @njit(parallel=True, cache=True)
-def max_displacement2(x, y, xref, yref, n):
+def max_displacement2(pos, ref, n):
     """Largest squared displacement since the last build (max is order-free, so exact)."""
     nch = 64
     part = np.zeros(nch)
@@ -180,8 +183,8 @@ def max_displacement2(x, y, xref, yref, n):
     for c in prange(nch):
         m = 0.0
         for i in range(c * size, min(n, (c + 1) * size)):
-            dx = x[i] - xref[i]
-            dy = y[i] - yref[i]
+            dx = pos[i, AX_X] - ref[i, AX_X]
+            dy = pos[i, AX_Y] - ref[i, AX_Y]
             d = dx * dx + dy * dy
             if d > m:
                 m = d

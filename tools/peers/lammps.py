@@ -158,6 +158,7 @@ def map_law(sc, bed) -> dict:
 
 def write_data(path: Path, sc, bed, conv: str) -> None:
     import numpy as np
+    from ooc_dem.physics.layout import AX_X, AX_Y
     n = len(bed)
     order = np.argsort(bed.id, kind="stable")
     r = bed.r[order]
@@ -167,7 +168,7 @@ def write_data(path: Path, sc, bed, conv: str) -> None:
             f"mass = rho pi r^2 thickness\n\n{n} atoms\n1 atom types\n\n"
             f"0 {sc.bin.length!r} xlo xhi\n0 {sc.bin.height!r} ylo yhi\n{-zh!r} {zh!r} zlo zhi\n\n"
             f"Atoms # sphere\n\n")
-    cols = np.column_stack([np.arange(1, n + 1), np.ones(n), 2.0 * r, dens, bed.x[order], bed.y[order],
+    cols = np.column_stack([np.arange(1, n + 1), np.ones(n), 2.0 * r, dens, bed.pos[order, AX_X], bed.pos[order, AX_Y],
                             np.zeros(n)])
     with open(path, "w") as f:
         f.write(head)
@@ -308,6 +309,7 @@ def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[st
     spec.loader.exec_module(bench)
     import ooc_dem.engine.stepper as E
     import ooc_dem.scenario as S
+    from ooc_dem.physics.layout import AX_X, AX_Y
     orig = S.load_scenario
     S.load_scenario = lambda src, ov=None: orig(src, list(ov or []) + overrides)
     made = []
@@ -323,7 +325,8 @@ def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[st
     used = np.arange(p.hist_id.shape[1])[None, :] < p.hist_n[:, None]
     res["pair_contacts_per_disc"] = round(float(np.sum(used & (p.hist_id >= 0))) / n, 3)
     res["wall_contacts_per_disc"] = round(float(np.sum(used & (p.hist_id < 0))) / n, 4)
-    res["kinetic_energy_end_J"] = float(0.5 * np.sum(p.mass * (p.vx * p.vx + p.vy * p.vy)))
+    vx, vy = p.vel[:, AX_X], p.vel[:, AX_Y]
+    res["kinetic_energy_end_J"] = float(0.5 * np.sum(p.mass * (vx * vx + vy * vy)))
     return res
 
 

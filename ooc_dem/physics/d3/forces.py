@@ -238,7 +238,7 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
     inc_off, inc_k = pl.inc_off, pl.inc_k
-    on, rows, pref = pl.on, pl.rows, pl.pref
+    on, rows, ref = pl.on, pl.rows, pl.ref
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     cap = hist_id.shape[1]
@@ -319,9 +319,9 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
             pos[i, 0] += vel[i, 0] * dt
             pos[i, 1] += vel[i, 1] * dt
             pos[i, 2] += vel[i, 2] * dt
-            ddx = pos[i, 0] - pref[i, 0]
-            ddy = pos[i, 1] - pref[i, 1]
-            ddz = pos[i, 2] - pref[i, 2]
+            ddx = pos[i, 0] - ref[i, 0]
+            ddy = pos[i, 1] - ref[i, 1]
+            ddz = pos[i, 2] - ref[i, 2]
             dd = ddx * ddx + ddy * ddy + ddz * ddz
             mx = max(mx, dd)
         part[ch] = mx

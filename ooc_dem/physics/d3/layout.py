@@ -26,7 +26,6 @@ left (x=0) -2, bottom (y=0) -1 (the 2D ids are kept for the 2D walls).
 from __future__ import annotations
 
 import math
-from collections import namedtuple
 
 import numpy as np
 
@@ -85,20 +84,11 @@ BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8")]
                                          "sx", "sy", "sz", "mx", "my", "mz")])
 
 # ------------------------------------------------------- kernel argument records
-# the spheres of one domain: the spec-generic ``Discs`` fields (views, never copies)
-Discs = namedtuple("Discs", ["pos", "vel", "spin", "r", "mass", "inertia", "mat", "gid",
-                             "hist_n", "hist_id", "hist_s", "hist_m"])
-# half pair list + CSR index (neighbors.build_pairs), the build positions pref (N, 3),
-# the contact flag and the rows of the current step (slot = position in pair_b)
-Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "pref", "on",
-                             "rows"])
-# sphere-wall rows of the current step: N_CHUNKS buffers of equal capacity, count[c] used
-Bodies = namedtuple("Bodies", ["rows", "count"])
-# model parameters of a step: dt, gravity (3,), skin, contact table (CONTACT_PARAMS
-# records [type_a, type_b]), walls (WALLS record (1,)), wheel geometry / controls
-KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc"])
-# per-sphere contact force (N, 3) and torque (N, 3) of the last step; (0, 3) when not kept
-Forces = namedtuple("Forces", ["force", "torque"])
+# the shared named tuples of physics.layout (one definition for every dimension):
+# Discs (pos/vel/spin (N, 3), hist_s/hist_m (N, C, 3)), Pairs (ref: build positions
+# (N, 3)), Bodies (rows: BODY_ROW of this module), KernelParams (cp: CONTACT_PARAMS and
+# walls: WALLS of this module; gravity (3,)), Forces (force, torque (N, 3))
+from ..layout import Bodies, Discs, Forces, KernelParams, Pairs  # noqa: E402,F401
 
 
 # ------------------------------------------------------- parameter helpers

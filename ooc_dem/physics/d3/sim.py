@@ -119,7 +119,7 @@ class Sim:
         self.rec = np.zeros(1, WHEEL_RECORD)
         self.half_off = np.zeros(n + 1, np.int64)
         self.inc_off = np.zeros(n + 1, np.int64)
-        self.pref = np.zeros((n, 3))
+        self.ref = np.zeros((n, 3))
         self._grow_pairs(0)
         nf = n if keep_forces else 0
         self.forces = Forces(np.zeros((nf, 3)), np.zeros((nf, 3)))
@@ -157,7 +157,7 @@ class Sim:
         done = 0
         while True:
             pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k,
-                       self.pref, self.on, self.rows)
+                       self.ref, self.on, self.rows)
             k, rb = run_steps(nsteps - done, self.step, self.kp, d, pl, self.bodies,
                               self.forces, self.ws, self.err, self.rec, not self._built)
             done += k

@@ -24,13 +24,16 @@ from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry poi
 
 
 @njit(cache=True)
-def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
+def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done=False):
     """Advance spheres 0..len(d.r)-1 nsteps from global step step0.
 
     kp: layout.KernelParams, d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies,
     forces: layout.Forces (length 0 when not kept), ws: WHEEL_STATE record (1,),
     err: ERRORS flags (int64 array), rec: WHEEL_RECORD rows (unused until the wheel),
-    rebuild_now: build the pair list first. Returns (steps done, rebuilds)."""
+    rebuild_now: build the pair list first; pairs_done (the 2D signature's trailing
+    argument: this step's pair rows are already made) is accepted and ignored, since
+    ``produce`` only reads the time-n state and remaking the rows gives the same bits.
+    Returns (steps done, rebuilds)."""
     n = d.r.shape[0]
     if kp.wg[0].enabled > 0.5:
         err[ERR_WHEEL_UNSUPPORTED] = 1
@@ -40,7 +43,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
     part = np.zeros(N_CHUNKS)
     if rebuild_now:
         npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
-                             pl.inc_off, pl.inc_k, pl.pref)
+                             pl.inc_off, pl.inc_k, pl.ref)
         if npairs > pl.pair_b.shape[0]:
             err[ERR_PAIR_CAPACITY] = npairs
             return 0, 0
@@ -57,7 +60,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now):
         if disp2 > half2:
             rebuilds += 1
             npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
-                                 pl.pair_a, pl.inc_off, pl.inc_k, pl.pref)
+                                 pl.pair_a, pl.inc_off, pl.inc_k, pl.ref)
             if npairs > pl.pair_b.shape[0]:
                 err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds

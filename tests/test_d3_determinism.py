@@ -1,4 +1,4 @@
-"""DESIGN section 3 for the 3D kernels: a random 3D settle gives bit-identical state
+"""docs/design.md section 3 for the 3D kernels: a random 3D settle gives bit-identical state
 with 1 and 2 numba threads, and whatever the memory order of the spheres (ids fixed)
 -- what makes serial DDM and out-of-core exact later."""
 import os

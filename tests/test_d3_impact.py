@@ -1,4 +1,4 @@
-"""3D normal impacts against closed forms (shared/reference/validation-3d.md sections
+"""3D normal impacts against closed forms (docs/reference/validation-3d.md sections
 1-3) and the time-step check. Zero gravity, frictionless unless stated."""
 import math
 

@@ -530,21 +530,30 @@ def contact_table_3d(sc: "Scenario"):
 
 
 def _critical_step_3d(sc: "Scenario") -> tuple[float, str]:
-    """physics.d3.timestep.critical_dt over soil-soil and soil-wall (either law)."""
+    """physics.d3.timestep.critical_dt over soil-soil and soil-wall (either law); the key
+    named is the stiffness of the pair and mode that sets it."""
+    import warnings
+
     from .physics.d3 import layout as L3
     from .physics.d3.timestep import critical_dt
     s = sc.soil
     cp = contact_table_3d(sc)
-    crit, which = critical_dt(cp, disc_mass(sc, s.r_min), s.r_min, sc.physics.impact_speed,
-                              sc.physics.contacts_per_disc,
-                              types=[(L3.T_SOIL, L3.T_SOIL), (L3.T_WALL, L3.T_SOIL)])
-    names = {f"pair {L3.T_SOIL}-{L3.T_SOIL}": "contact.soil_soil",
-             f"pair {L3.T_SOIL}-{L3.T_WALL}": "contact.soil_wall"}
-    for k, v in names.items():
-        which = which.replace(k, v)
-    if not math.isfinite(crit) and crit != math.inf:
-        crit = 0.0
-    return (crit if crit == crit else 0.0), which
+    worst, which = math.inf, "none"
+    for name, types in (("soil_soil", (L3.T_SOIL, L3.T_SOIL)), ("soil_wall", (L3.T_WALL, L3.T_SOIL))):
+        pair = getattr(sc.contact, name)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # an overflowing stiffness: 0 below
+            crit, mode = critical_dt(cp, disc_mass(sc, s.r_min), s.r_min, sc.physics.impact_speed,
+                                     sc.physics.contacts_per_disc, types=[types])
+        if crit != crit:
+            crit = 0.0
+        if crit < worst:
+            if pair.law == "hertz":
+                key = f"contact.{name}.youngs_modulus (hertz)"
+            else:
+                key = f"contact.{name}.{'ks' if 'tangential' in mode else 'kn'} (linear)"
+            worst, which = crit, f"{key}, {mode.split(', ')[-1]}"
+    return worst, which
 
 
 # --------------------------------------------------------------- loading

@@ -507,7 +507,7 @@ def _critical_step(sc: Scenario) -> tuple[float, str]:
     return worst, which
 
 
-def contact_params_3d(pair: "ContactPair") -> tuple:
+def contact_params_3d(pair: ContactPair) -> tuple:
     """The 3D kernels' CONTACT_PARAMS tuple of a scenario contact section (physics.d3.layout):
     linear with the 2D keys, or Hertz-Mindlin with both surfaces of youngs_modulus and
     poisson_ratio, damping from restitution."""
@@ -520,7 +520,7 @@ def contact_params_3d(pair: "ContactPair") -> tuple:
                             pair.rolling_friction, pair.rolling_damping)
 
 
-def contact_table_3d(sc: "Scenario"):
+def contact_table_3d(sc: Scenario):
     """CONTACT_PARAMS table [type_a, type_b] of a 3D scenario (soil-soil, soil-wall, soil-wheel)."""
     from .physics.d3 import layout as L3
     c = sc.contact
@@ -529,7 +529,7 @@ def contact_table_3d(sc: "Scenario"):
                              (L3.T_WHEEL, L3.T_SOIL): contact_params_3d(c.soil_wheel)})
 
 
-def _critical_step_3d(sc: "Scenario") -> tuple[float, str]:
+def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
     """physics.d3.timestep.critical_dt over soil-soil and soil-wall (either law); the key
     named is the stiffness of the pair and mode that sets it."""
     import warnings
@@ -545,7 +545,7 @@ def _critical_step_3d(sc: "Scenario") -> tuple[float, str]:
             warnings.simplefilter("ignore", RuntimeWarning)   # an overflowing stiffness: 0 below
             crit, mode = critical_dt(cp, disc_mass(sc, s.r_min), s.r_min, sc.physics.impact_speed,
                                      sc.physics.contacts_per_disc, types=[types])
-        if crit != crit:
+        if math.isnan(crit):
             crit = 0.0
         if crit < worst:
             if pair.law == "hertz":

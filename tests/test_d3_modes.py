@@ -21,7 +21,6 @@ import time
 import numba
 import numpy as np
 import pytest
-
 from conftest import assert_same_state, run_cli
 
 import ooc_dem

@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-
 from test_hostile_input import MAX_STEPS, SCENARIO_KEYS, _hostile_values
 
 from ooc_dem import cli

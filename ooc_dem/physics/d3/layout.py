@@ -88,7 +88,7 @@ BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8")]
 # Discs (pos/vel/spin (N, 3), hist_s/hist_m (N, C, 3)), Pairs (ref: build positions
 # (N, 3)), Bodies (rows: BODY_ROW of this module), KernelParams (cp: CONTACT_PARAMS and
 # walls: WALLS of this module; gravity (3,)), Forces (force, torque (N, 3))
-from ..layout import Bodies, Discs, Forces, KernelParams, Pairs  # noqa: E402,F401
+from ..layout import Bodies, Discs, Forces, KernelParams, Pairs  # noqa: F401
 
 
 # ------------------------------------------------------- parameter helpers

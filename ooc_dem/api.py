@@ -208,10 +208,17 @@ class RunResult:
         from .checkpoint import validate_epoch
         from .engine.run import read_all_particles
         with open_store(self.path) as store:
+            meta = store.meta or {}
+            dim = meta.get("dim", 2) if meta.get("dim", 2) in (2, 3) else 2
+            cap = meta.get("hist_cap")
+            cap = cap if type(cap) is int and 0 <= cap <= 1_000_000 else None
             reader = store.read_epoch(epoch)
             try:
-                validate_epoch(reader, str(self.path))
-                particles = read_all_particles(reader)
+                if cap is None:
+                    validate_epoch(reader, str(self.path), dim)
+                else:
+                    validate_epoch(reader, str(self.path), dim, cap)
+                particles = read_all_particles(reader, dim, cap)
             finally:
                 reader.close()
         return dict(particles.arrays())

@@ -5,6 +5,11 @@ and settle under gravity until the mean speed falls below ``bed.settle_speed``.
 Large beds (``bed.tile`` > 0) are made of side-by-side copies of one settled
 tile: every disc of a tile stays clear of the tile's walls, so copies never
 overlap, and a tile can be produced per sub-domain without holding the bed.
+
+3D (``physics.dim = 3``): spheres on a jittered cubic grid of the same pitch filling
+the box (length x width) bottom up; tiled beds repeat the tile along x and
+``bed.tiles_across`` times across the width (z), mirrored in x and in z every other
+tile.
 """
 from __future__ import annotations
 
@@ -26,6 +31,8 @@ class BedError(RuntimeError):
 
 def initial_fill(sc: Scenario) -> Particles:
     """Loose random fill: a jittered square grid of pitch 2.2 r_max, bottom up."""
+    if sc.dim == 3:
+        return initial_fill_3d(sc)
     s = sc.soil
     rng = np.random.default_rng(s.seed)
     pitch = 2.2 * s.r_max
@@ -52,6 +59,49 @@ def initial_fill(sc: Scenario) -> Particles:
     # a little random motion so the fill does not stack as a crystal
     p.vel[:, AX_X] = rng.normal(0.0, 0.01, s.n)
     return p
+
+
+def initial_fill_3d(sc: Scenario) -> Particles:
+    """Loose random fill of the 3D box: a jittered cubic grid of pitch 2.2 r_max, layer by
+    layer bottom up (x fastest, then z), with a little random horizontal motion."""
+    from .physics.layout import AX_Z
+    s = sc.soil
+    rng = np.random.default_rng(s.seed)
+    pitch = 2.2 * s.r_max
+    nx = int((sc.bin.length - 2 * s.r_max) / pitch)
+    nz = int((sc.bin.width - 2 * s.r_max) / pitch)
+    if nx < 1 or nz < 1:
+        raise ScenarioError(f"bin.length = {sc.bin.length}, bin.width = {sc.bin.width}: too small for "
+                            f"one sphere column")
+    per = nx * nz
+    nrow = -(-s.n // per)
+    top = s.r_max + (nrow - 1) * pitch + s.r_max
+    if top > sc.bin.height:
+        raise ScenarioError(
+            f"bin.height = {sc.bin.height}: the loose fill of {s.n} spheres needs {top:.3f} m; raise "
+            f"bin.height")
+    r = rng.uniform(s.r_min, s.r_max, s.n)
+    k = np.arange(s.n)
+    layer, inlayer = k // per, k % per
+    ix, iz = inlayer % nx, inlayer // nx
+    slack = 0.5 * (pitch - 2 * s.r_max)
+    x0 = 0.5 * (sc.bin.length - (nx - 1) * pitch)
+    z0 = 0.5 * (sc.bin.width - (nz - 1) * pitch)
+    pos = np.zeros((s.n, 3))
+    pos[:, AX_X] = x0 + ix * pitch + rng.uniform(-slack, slack, s.n)
+    pos[:, AX_Y] = s.r_max + layer * pitch + rng.uniform(0, slack, s.n)
+    pos[:, AX_Z] = z0 + iz * pitch + rng.uniform(-slack, slack, s.n)
+    p = Particles.new(pos, r, s.density, sc.physics.thickness)
+    p.vel[:, AX_X] = rng.normal(0.0, 0.01, s.n)
+    p.vel[:, AX_Z] = rng.normal(0.0, 0.01, s.n)
+    return p
+
+
+def mean_speed(p: Particles) -> float:
+    """Mean particle speed (2D: hypot of the two components, as ever)."""
+    if p.dim == 2:
+        return float(np.mean(np.hypot(p.vel[:, AX_X], p.vel[:, AX_Y])))
+    return float(np.mean(np.sqrt(np.einsum("ij,ij->i", p.vel, p.vel))))
 
 
 def surface_height(p: Particles, length: float, r_max: float) -> float:
@@ -81,7 +131,7 @@ def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:
         stepper.advance(step, chunk)
         step += chunk
         q = stepper.p
-        speed = float(np.mean(np.hypot(q.vel[:, AX_X], q.vel[:, AX_Y])))
+        speed = mean_speed(q)
         if progress is not None:
             progress(step * dt, speed)
         if step >= min_steps and speed < sc.bed.settle_speed:
@@ -99,11 +149,22 @@ def _zero_motion(p: Particles) -> Particles:
     return p
 
 
+def tile_grid(sc: Scenario) -> tuple[int, int]:
+    """(tiles along x, tiles across z) of a tiled bed (2D: across = 1)."""
+    tiles = -(-sc.soil.n // sc.bed.tile)
+    across = sc.bed.tiles_across if sc.dim == 3 else 1
+    return -(-tiles // across), across
+
+
 def tile_scenario(sc: Scenario) -> Scenario:
     d = sc.to_dict()
-    tile_len = sc.bin.length / (-(-sc.soil.n // sc.bed.tile))
+    nx, nz = tile_grid(sc)
+    tile_len = sc.bin.length / nx
     d["soil"]["n"] = sc.bed.tile
     d["bin"]["length"] = tile_len
+    if sc.dim == 3:
+        d["bin"]["width"] = sc.bin.width / nz
+        d["bed"]["tiles_across"] = 1
     d["bed"]["tile"] = 0
     d["wheel"]["enabled"] = False
     return scenario_from_dict(d)
@@ -165,6 +226,9 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
     make N exact are taken off the top of the tiles (the loosest, least loaded).
     Disc ids are tile * n_tile + the tile's own id.
     """
+    if sc.dim == 3:
+        yield from _tiled_bed_parts_3d(sc, progress, use_cache, tiles_per_part)
+        return
     tsc = tile_scenario(sc)
     tile = settled_bed(tsc, progress, use_cache).sorted_by_id()
     n_tile = len(tile)
@@ -228,3 +292,86 @@ def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, righ
             q.hist_id[i, s], q.hist_s[i, s, HS_T], q.hist_m[i, s, HM_R] = pid, ft, mr
         q.hist_n[i] = len(entries)
     return q
+
+
+def _tiled_bed_parts_3d(sc: Scenario, progress, use_cache: bool, tiles_per_part: int):
+    """tiled_bed_parts in 3D: tile columns along x (each ``bed.tiles_across`` tiles across z),
+    a few columns at a time, in x order. Tile (kx, kz) is number k = kx * nz + kz, mirrored
+    in x when kx is odd and in z when kz is odd; sphere ids are k * n_tile + the tile's id."""
+    from .physics.d3.layout import (ID_WALL_BACK, ID_WALL_FRONT, ID_WALL_LEFT,
+                                    ID_WALL_RIGHT)
+    from .physics.layout import AX_Z
+    tsc = tile_scenario(sc)
+    tile = settled_bed(tsc, progress, use_cache).sorted_by_id()
+    n_tile = len(tile)
+    tl, tw = tsc.bin.length, tsc.bin.width
+    nx, nz = tile_grid(sc)
+    ntiles = nx * nz
+    extra = ntiles * n_tile - sc.soil.n
+    top_first = np.argsort(-(tile.pos[:, AX_Y] + tile.r), kind="stable")
+    swap = {ID_WALL_LEFT: ID_WALL_RIGHT, ID_WALL_RIGHT: ID_WALL_LEFT,
+            ID_WALL_FRONT: ID_WALL_BACK, ID_WALL_BACK: ID_WALL_FRONT}
+    templates: dict = {}
+    for start in range(0, nx, max(1, tiles_per_part // nz)):
+        parts = []
+        for kx in range(start, min(nx, start + max(1, tiles_per_part // nz))):
+            for kz in range(nz):
+                k = kx * nz + kz
+                drop = extra // ntiles + (1 if k < extra % ntiles else 0)
+                key = (drop, kx % 2 == 1, kz % 2 == 1, kx > 0, kx < nx - 1, kz > 0, kz < nz - 1)
+                if key not in templates:
+                    keep = np.ones(n_tile, bool)
+                    keep[top_first[:drop]] = False
+                    mx, mz, inner_l, inner_r, inner_f, inner_b = key[1:]
+                    q = tile.take(np.flatnonzero(keep))
+                    # reflections: a true vector (position, velocity, tangential spring)
+                    # flips the mirrored component, a pseudovector (spin, rolling moment)
+                    # the other two
+                    for on, ax, length in ((mx, AX_X, tl), (mz, AX_Z, tw)):
+                        if not on:
+                            continue
+                        q.pos[:, ax] = length - q.pos[:, ax]
+                        q.vel[:, ax] = -q.vel[:, ax]
+                        q.hist_s[:, :, ax] = -q.hist_s[:, :, ax]
+                        for other in range(3):
+                            if other != ax:
+                                q.spin[:, other] = -q.spin[:, other]
+                                q.hist_m[:, :, other] = -q.hist_m[:, :, other]
+                    drop_walls = set()
+                    for inner, wid in ((inner_l, ID_WALL_LEFT), (inner_r, ID_WALL_RIGHT),
+                                       (inner_f, ID_WALL_FRONT), (inner_b, ID_WALL_BACK)):
+                        if inner:
+                            drop_walls.add(wid)
+                    hid, hs, hm, hn = (q.hist_id.copy(), q.hist_s.copy(), q.hist_m.copy(),
+                                       q.hist_n.copy())
+                    q.hist_id[:] = 0
+                    q.hist_s[:] = 0.0
+                    q.hist_m[:] = 0.0
+                    for i in range(len(q)):
+                        entries = []
+                        for e in range(hn[i]):
+                            pid = int(hid[i, e])
+                            if pid >= 0:
+                                if not keep[pid]:
+                                    continue
+                            else:
+                                if mx and pid in (ID_WALL_LEFT, ID_WALL_RIGHT):
+                                    pid = swap[pid]
+                                if mz and pid in (ID_WALL_FRONT, ID_WALL_BACK):
+                                    pid = swap[pid]
+                                if pid in drop_walls:
+                                    continue
+                            entries.append((pid, hs[i, e], hm[i, e]))
+                        entries.sort(key=lambda t: t[0])
+                        for e, (pid, a, b) in enumerate(entries):
+                            q.hist_id[i, e], q.hist_s[i, e], q.hist_m[i, e] = pid, a, b
+                        q.hist_n[i] = len(entries)
+                    templates[key] = q
+                q = templates[key].take(np.arange(len(templates[key])))  # a copy
+                q.pos[:, AX_X] += kx * tl
+                q.pos[:, AX_Z] += kz * tw
+                q.id += k * n_tile
+                used = np.arange(q.hist_id.shape[1])[None, :] < q.hist_n[:, None]
+                q.hist_id[used & (q.hist_id >= 0)] += k * n_tile
+                parts.append(q)
+        yield Particles.concat(parts, 3, tile.hist_cap)

@@ -193,6 +193,10 @@ def cmd_scenarios(args):
         if name == "bed-N":
             print("bed-N        bare bed of N discs (e.g. bed-7000, bed-100k, bed-1m), tiled from `bed`")
             continue
+        if name == "bed3d-N":
+            print("bed3d-N      bare 3D bed of N spheres (e.g. bed3d-20000, bed3d-1m), tiled from "
+                  "`bed3d` along x and across the width")
+            continue
         sc = load_scenario(name)
         print(f"{name:12s} {sc.scenario.description}")
     return 0

@@ -16,7 +16,12 @@ simulated time:
   FIELD data for the wheel), or VTK XML PolyData if the file name ends in ``.vtp``.
 * ``csv``: ``#`` comment lines (epoch, time, wheel state), a header row
   ``id,x,y,vx,vy,w,r,mass,mat`` (2D; the vector columns named from the axes,
-  ``vector_columns(dim)``) and one row per disc.
+  ``vector_columns(dim)``) and one row per disc; 3D:
+  ``id,x,y,z,vx,vy,vz,wx,wy,wz,r,mass,mat``.
+
+3D runs write the same files with real z positions and velocities and the spin as a
+3-vector (``spin`` N x 3: an XDMF Vector attribute, a 3-component VTK array): one
+point per sphere with its radius (ParaView: Glyph filter, sphere, scale by radius).
 
 Floats are written so that they read back to the same bits (``repr``; HDF5 as
 float64). Only the per-disc scalars are read from the store (never the contact
@@ -274,6 +279,17 @@ def _xyz_array(c: dict, prefix: str = "") -> np.ndarray:
     return np.stack(_xyz(c, prefix), axis=1).astype(np.float64)
 
 
+def _spin(c: dict) -> list[np.ndarray]:
+    """The spin's columns: [w] (2D, about z) or [wx, wy, wz] (3D)."""
+    return [c["w"]] if "w" in c else [c["w" + a] for a in AXIS_NAMES]
+
+
+def _spin_array(c: dict) -> np.ndarray:
+    """The spin as written: (N,) in 2D, (N, 3) in 3D."""
+    cols = _spin(c)
+    return cols[0] if len(cols) == 1 else np.stack(cols, axis=1).astype(np.float64)
+
+
 # ------------------------------------------------------------------ XDMF + HDF5
 
 def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
@@ -285,7 +301,7 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
     data = {
         "positions": _xyz_array(c),
         "velocity": _xyz_array(c, "v"),
-        "radius": c["r"], "spin": c["w"], "id": c["id"], "mass": c["mass"], "material": c["mat"],
+        "radius": c["r"], "spin": _spin_array(c), "id": c["id"], "mass": c["mass"], "material": c["mat"],
         "connectivity": np.arange(n, dtype=np.int64).reshape(n, 1),
     }
     try:
@@ -325,6 +341,8 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
     for name, atype in (("radius", "Scalar"), ("velocity", "Vector"), ("spin", "Scalar"),
                         ("id", "Scalar"), ("mass", "Scalar"), ("material", "Scalar")):
         a = data[name]
+        if a.ndim == 2:
+            atype = "Vector"
         dims = f"{n} 3" if a.ndim == 2 else f"{n}"
         lines += [f'      <Attribute Name="{name}" AttributeType="{atype}" Center="Node">',
                   f"        {item(name, dims, a.dtype.kind, a.dtype.itemsize)}",
@@ -373,11 +391,12 @@ def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
         _write_columns(f, _xyz(c, "v"), " ")
         # further point arrays as a FIELD block: a legacy reader keeps only the first SCALARS
         # unless told to read them all, but always reads every FIELD array
-        more = (("spin", c["w"]), ("id", c["id"]), ("mass", c["mass"]), ("material", c["mat"]))
+        more = (("spin", _spin(c)), ("id", [c["id"]]), ("mass", [c["mass"]]),
+                ("material", [c["mat"]]))
         f.write(f"FIELD point_arrays {len(more)}\n")
-        for name, a in more:
-            f.write(f"{name} 1 {n} {_vtk_legacy_type(a)}\n")
-            _write_columns(f, [a], " ")
+        for name, cols in more:
+            f.write(f"{name} {len(cols)} {n} {_vtk_legacy_type(cols[0])}\n")
+            _write_columns(f, cols, " ")
     return out
 
 
@@ -407,9 +426,11 @@ def _write_vtp(snap: Snapshot, out: Path) -> Path:
         f.write(f'    <Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
                 f'NumberOfStrips="0" NumberOfPolys="0">\n')
         f.write('      <PointData Scalars="radius" Vectors="velocity">\n')
-        for name, a in (("radius", c["r"]), ("spin", c["w"]), ("id", c["id"]), ("mass", c["mass"]),
+        for name, a in (("radius", c["r"]), ("id", c["id"]), ("mass", c["mass"]),
                         ("material", c["mat"])):
             _vtp_array(f, name, a)
+        spin = _spin(c)
+        _vtp_array(f, "spin", spin[0], len(spin), spin)
         _vtp_array(f, "velocity", c["vx"], 3, _xyz(c, "v"))
         f.write("      </PointData>\n      <Points>\n")
         _vtp_array(f, "positions", c["x"], 3, _xyz(c))

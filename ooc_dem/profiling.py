@@ -74,11 +74,15 @@ class RssSampler(threading.Thread):
         self.samples.append((time.perf_counter() - self.t0, rss_bytes()))
 
 
-def _warm_up(mode: str, backend: str, tmp: Path) -> None:
-    """Run a tiny bed through the same code path so every kernel is compiled or loaded."""
+def _warm_up(mode: str, backend: str, tmp: Path, dim: int = 2) -> None:
+    """Run a tiny bed (of the measured run's dimension) through the same code path so every
+    kernel is compiled or loaded."""
     from .engine.run import RunOptions, Simulation
     from .scenario import load_scenario
-    sc = load_scenario("bed-300", ["decomposition.policy=equal"])
+    if dim == 3:
+        sc = load_scenario("bed3d", ["soil.n=300", "bed.tile=0", "decomposition.policy=equal"])
+    else:
+        sc = load_scenario("bed-300", ["decomposition.policy=equal"])
     opts = RunOptions(mode=mode, backend=backend, domains=2, block=2, steps=4, progress=False,
                       figures=False)
     sim = Simulation(sc, tmp / "warmup", opts)
@@ -92,12 +96,12 @@ def child(args) -> dict:
     import tempfile
     from .engine.run import RunOptions, Simulation
     from .scenario import load_scenario
-    from .state import BYTES_PER_DISC
+    from .state import BYTES_PER_DISC, bytes_per_disc
     t_import = rss_bytes()
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    _warm_up(args.mode, args.backend, Path(tempfile.mkdtemp(dir=work)))
     sc = load_scenario(args.scenario, args.set)
+    _warm_up(args.mode, args.backend, Path(tempfile.mkdtemp(dir=work)), sc.dim)
     steps = args.steps
     opts = RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
                       steps=steps, checkpoint_every=max(1, steps), progress=False, figures=False)
@@ -130,7 +134,8 @@ def child(args) -> dict:
         "peak_rss_bytes": peak, "peak_above_baseline_bytes": peak - baseline,
         "peak_rss_lifetime_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
         "peak_reset_ok": reset_ok,
-        "theoretical_state_bytes": n * BYTES_PER_DISC,
+        "theoretical_state_bytes": n * (BYTES_PER_DISC if sc.dim == 2 else bytes_per_disc(3)),
+        "dim": sc.dim,
         "resident_discs_max": eng.get("resident_max"),
         "setup_s": round(t_setup, 3), "run_s": round(elapsed, 3),
         "particle_steps_per_s": n * steps / elapsed if elapsed > 0 else None,

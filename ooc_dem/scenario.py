@@ -85,12 +85,15 @@ class Physics:
     thickness: float = 0.10        # m, discs are cylinders of this length
     dt: float = 1.0e-5             # s
     contacts_per_disc: float = 4.0  # used for the critical-step estimate
+    dim: int = 2                   # 2: discs in the x-y plane; 3: spheres (z across the bin)
+    impact_speed: float = 1.0      # m/s, largest expected impact speed (3D Hertz time-step check)
 
 
 @dataclass(frozen=True)
 class Bin:
     length: float = 0.60           # m
     height: float = 0.40           # m, top of the neighbour grid (open top)
+    width: float = 0.10            # m, across the bin (z; 3D only: side walls at z = 0 and width)
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,7 @@ class Bed:
     max_settle_time: float = 5.0   # s, refuse beds that never settle
     tile: int = 0                  # >0: build the bed by tiling a settled tile of this many discs
     skin: float = 0.0006           # m, Verlet skin of the neighbour lists
+    tiles_across: int = 1          # 3D tiled beds: tiles across the width (z)
 
 
 @dataclass(frozen=True)
@@ -119,6 +123,10 @@ class ContactPair:
     friction: float = 0.5
     rolling_friction: float = 0.0  # limit mu_r * r_eff * Fn
     rolling_damping: float = 0.0   # ratio of critical, rolling
+    law: str = "linear"            # "linear" (kn, ks, damping_*) or "hertz" (3D: Hertz-Mindlin)
+    youngs_modulus: float = 1.0e7  # Pa, hertz: both surfaces of the pair
+    poisson_ratio: float = 0.3     # hertz
+    restitution: float = 0.5       # hertz: coefficient of restitution (sets the damping)
 
 
 @dataclass(frozen=True)
@@ -183,8 +191,8 @@ class Scenario:
 
     @property
     def dim(self) -> int:
-        """Dimension of the model (2: discs in the x-y plane; every scenario today)."""
-        return 2
+        """Dimension of the model (physics.dim: 2, discs in the x-y plane; 3, spheres)."""
+        return self.physics.dim
 
     @property
     def gravity_vector(self) -> tuple[float, ...]:
@@ -204,20 +212,40 @@ class Scenario:
     def to_toml(self) -> str:
         return dict_to_toml(self.to_dict())
 
+    def _hash_dict(self) -> dict:
+        """to_dict() without the keys added for 3D while they hold their defaults (so a 2D
+        scenario keeps the hash and bed cache name it had before they existed)."""
+        d = self.to_dict()
+        for (sec, key), default in _HASH_NEUTRAL.items():
+            if d[sec].get(key) == default:
+                del d[sec][key]
+        for pair in d["contact"].values():
+            for key, default in _PAIR_HASH_NEUTRAL.items():
+                if pair.get(key) == default:
+                    del pair[key]
+        return d
+
     def hash(self) -> str:
         """SHA-256 of the physics-relevant content (output settings excluded)."""
-        d = self.to_dict()
+        d = self._hash_dict()
         d.pop("output", None)
         d["scenario"].pop("description", None)
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
     def bed_hash(self) -> str:
         """Hash of what determines the settled bed (cache key)."""
-        d = self.to_dict()
+        d = self._hash_dict()
         keep = {k: d[k] for k in ("physics", "bin", "soil", "bed")}
         keep["contact"] = d["contact"]
         return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:16]
 
+
+# keys whose default value is left out of the hashes (added with the 3D engine)
+_HASH_NEUTRAL = {("physics", "dim"): 2, ("physics", "impact_speed"): 1.0, ("bin", "width"): 0.10,
+                 ("bed", "tiles_across"): 1}
+_PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3,
+                      "restitution": 0.5}
+LAWS = ("linear", "hertz")
 
 # ------------------------------------------------------------ constraints
 # (section, key) -> (predicate, description of what is allowed)
@@ -244,8 +272,11 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("physics", "thickness"): _LENGTH,
     ("physics", "dt"): _POS,
     ("physics", "contacts_per_disc"): (lambda v: 1 <= v <= 1000, "a number in [1, 1000]"),
+    ("physics", "dim"): (lambda v: v in (2, 3), "2 or 3"),
+    ("physics", "impact_speed"): _within(0.0, 1e4, lo_open=True),
     ("bin", "length"): _LENGTH,
     ("bin", "height"): _LENGTH,
+    ("bin", "width"): _LENGTH,
     ("soil", "n"): (lambda v: 1 <= v <= 2_000_000_000, "an integer in [1, 2e9]"),
     ("soil", "r_min"): _LENGTH,
     ("soil", "r_max"): _LENGTH,
@@ -255,6 +286,7 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("bed", "max_settle_time"): _POS,
     ("bed", "tile"): _COUNT(2_000_000_000),
     ("bed", "skin"): _LENGTH,
+    ("bed", "tiles_across"): (lambda v: 1 <= v <= 100_000, "an integer in [1, 100000]"),
     ("wheel", "radius"): _LENGTH,
     ("wheel", "width"): _LENGTH,
     ("wheel", "load"): _within(0.0, 1e6, lo_open=True),
@@ -287,6 +319,10 @@ _PAIR_CONSTRAINTS = {
     "friction": _within(0.0, 100.0),
     "rolling_friction": _within(0.0, 100.0),
     "rolling_damping": (lambda v: 0 <= v <= 10, "a number in [0, 10]"),
+    "law": (lambda v: v in LAWS, "one of 'linear', 'hertz'"),
+    "youngs_modulus": _within(1.0, 1e13),
+    "poisson_ratio": _within(-0.99, 0.49),
+    "restitution": _within(0.0, 1.0, lo_open=True),
 }
 
 
@@ -358,11 +394,22 @@ def _check_ranges(sc: Scenario) -> None:
             v = getattr(p, key)
             if not pred(v):
                 raise ScenarioError(f"contact.{pair}.{key} = {show(v)}: must be {allowed}")
+    if sc.dim == 2:
+        for pair in ("soil_soil", "soil_wall", "soil_wheel"):
+            if getattr(sc.contact, pair).law != "linear":
+                raise ScenarioError(f"contact.{pair}.law = {show(getattr(sc.contact, pair).law)}: "
+                                    f"the 2D engine has the linear law only (hertz needs physics.dim = 3)")
+    elif sc.wheel.enabled:
+        raise ScenarioError("wheel.enabled = true: the 3D engine (physics.dim = 3) has no wheel yet; "
+                            "set wheel.enabled = false")
     s = sc.soil
     if s.r_max < s.r_min:
         raise ScenarioError(f"soil.r_max = {s.r_max!r}: must be >= soil.r_min ({s.r_min!r})")
     if 2 * s.r_max >= sc.bin.length:
         raise ScenarioError(f"bin.length = {sc.bin.length!r}: must exceed the largest disc diameter")
+    if sc.dim == 3 and 2 * s.r_max >= sc.bin.width:
+        raise ScenarioError(f"bin.width = {sc.bin.width!r}: must exceed the largest sphere diameter "
+                            f"(physics.dim = 3)")
     w = sc.wheel
     if w.enabled:
         if w.lug_tip_radius < w.radius:
@@ -378,6 +425,11 @@ def _check_ranges(sc: Scenario) -> None:
         raise ScenarioError(f"output.steady_end = {o.steady_end!r}: must be >= output.steady_start ({o.steady_start!r})")
     _check_derived(sc)
     dt, (crit, stiffest) = sc.physics.dt, _critical_step(sc)
+    if sc.dim == 3 and dt > crit:
+        raise ScenarioError(
+            f"physics.dt = {dt!r}: above the stability limit {crit:.3e} s of the stiffest contact "
+            f"({stiffest}; physics.dim = 3, lightest sphere of soil.r_min and soil.density, "
+            f"physics.contacts_per_disc contacts, physics.impact_speed for hertz); use dt <= {crit:.3e}")
     if dt > crit:
         raise ScenarioError(
             f"physics.dt = {dt!r}: above the stability limit {crit:.3e} s of the stiffest contact "
@@ -391,6 +443,11 @@ def _check_derived(sc: Scenario) -> None:
     s, ph = sc.soil, sc.physics
     for key, r in (("soil.r_min", s.r_min), ("soil.r_max", s.r_max)):
         m = disc_mass(sc, r)
+        if sc.dim == 3 and not (0.0 < m < math.inf and 0.0 < 0.4 * m * r * r < math.inf):
+            raise ScenarioError(
+                f"{key} = {r!r}: a sphere of this radius has mass soil.density * 4/3 pi r^3 = "
+                f"{m:.3g} kg (moment of inertia {0.4 * m * r * r:.3g}; physics.dim = 3): "
+                f"must be finite and > 0")
         if not (0.0 < m < math.inf and 0.0 < 0.5 * m * r * r < math.inf):
             raise ScenarioError(
                 f"{key} = {r!r}: a disc of this radius has mass soil.density * pi * r^2 * "
@@ -408,7 +465,10 @@ def _check_derived(sc: Scenario) -> None:
 
 
 def disc_mass(sc: Scenario, r: float) -> float:
-    """density * pi * r^2 * thickness, as the engine computes it (products: inf or 0, never an exception)."""
+    """density * pi * r^2 * thickness (3D: density * 4/3 pi r^3), as the engine computes it
+    (products: inf or 0, never an exception)."""
+    if sc.dim == 3:
+        return sc.soil.density * (4.0 / 3.0) * math.pi * r ** 3
     return sc.soil.density * math.pi * r * r * sc.physics.thickness
 
 
@@ -425,6 +485,8 @@ def critical_time_step(sc: Scenario) -> float:
 def _critical_step(sc: Scenario) -> tuple[float, str]:
     """(critical step, the key of the stiffness that sets it)."""
     s = sc.soil
+    if sc.dim == 3:
+        return _critical_step_3d(sc)
     m_min = disc_mass(sc, s.r_min)
     i_min = 0.5 * m_min * s.r_min * s.r_min
     nc = sc.physics.contacts_per_disc
@@ -445,13 +507,62 @@ def _critical_step(sc: Scenario) -> tuple[float, str]:
     return worst, which
 
 
+def contact_params_3d(pair: ContactPair) -> tuple:
+    """The 3D kernels' CONTACT_PARAMS tuple of a scenario contact section (physics.d3.layout):
+    linear with the 2D keys, or Hertz-Mindlin with both surfaces of youngs_modulus and
+    poisson_ratio, damping from restitution."""
+    from .physics.d3 import layout as L3
+    if pair.law == "hertz":
+        return L3.hertz_params(pair.youngs_modulus, pair.poisson_ratio, pair.restitution,
+                               mu=pair.friction, mur=pair.rolling_friction, zr=pair.rolling_damping,
+                               E2=pair.youngs_modulus, nu2=pair.poisson_ratio, no_tension=False)
+    return L3.linear_params(pair.kn, pair.ks, pair.damping_n, pair.damping_t, pair.friction,
+                            pair.rolling_friction, pair.rolling_damping)
+
+
+def contact_table_3d(sc: Scenario):
+    """CONTACT_PARAMS table [type_a, type_b] of a 3D scenario (soil-soil, soil-wall, soil-wheel)."""
+    from .physics.d3 import layout as L3
+    c = sc.contact
+    return L3.contact_table({(L3.T_SOIL, L3.T_SOIL): contact_params_3d(c.soil_soil),
+                             (L3.T_WALL, L3.T_SOIL): contact_params_3d(c.soil_wall),
+                             (L3.T_WHEEL, L3.T_SOIL): contact_params_3d(c.soil_wheel)})
+
+
+def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
+    """physics.d3.timestep.critical_dt over soil-soil and soil-wall (either law); the key
+    named is the stiffness of the pair and mode that sets it."""
+    import warnings
+
+    from .physics.d3 import layout as L3
+    from .physics.d3.timestep import critical_dt
+    s = sc.soil
+    cp = contact_table_3d(sc)
+    worst, which = math.inf, "none"
+    for name, types in (("soil_soil", (L3.T_SOIL, L3.T_SOIL)), ("soil_wall", (L3.T_WALL, L3.T_SOIL))):
+        pair = getattr(sc.contact, name)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # an overflowing stiffness: 0 below
+            crit, mode = critical_dt(cp, disc_mass(sc, s.r_min), s.r_min, sc.physics.impact_speed,
+                                     sc.physics.contacts_per_disc, types=[types])
+        if math.isnan(crit):
+            crit = 0.0
+        if crit < worst:
+            if pair.law == "hertz":
+                key = f"contact.{name}.youngs_modulus (hertz)"
+            else:
+                key = f"contact.{name}.{'ks' if 'tangential' in mode else 'kn'} (linear)"
+            worst, which = crit, f"{key}, {mode.split(', ')[-1]}"
+    return worst, which
+
+
 # --------------------------------------------------------------- loading
 
 
 def builtin_names() -> list[str]:
     files = resources.files("ooc_dem.scenarios")
     names = sorted(p.name[:-5] for p in files.iterdir() if p.name.endswith(".toml"))
-    return names + ["bed-N"]
+    return names + ["bed-N", "bed3d-N"]
 
 
 def _builtin_text(name: str) -> str | None:
@@ -494,6 +605,21 @@ def bed_scenario_dict(n: int) -> dict:
     base["scenario"]["name"] = f"bed-{n}"
     base["soil"]["n"] = n
     base["bin"]["length"] = tiles * tile_len
+    return base
+
+
+def bed3d_scenario_dict(n: int) -> dict:
+    """A bare 3D bed of n spheres with bed3d's soil, built from settled tiles:
+    ``bed.tiles_across`` tiles across the width, the bin growing along x."""
+    base = tomllib.loads(_builtin_text("bed3d"))
+    tile = base["bed"]["tile"]
+    across = base["bed"]["tiles_across"]
+    tile_len = base["bin"]["length"]
+    along = -(-(-(-n // tile)) // across)
+    base["scenario"]["name"] = f"bed3d-{n}"
+    base["soil"]["n"] = n
+    base["bin"]["length"] = along * tile_len
+    base["bin"]["width"] = across * base["bin"]["width"]
     return base
 
 
@@ -550,7 +676,13 @@ def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Sce
     text = None
     data: dict
     src = str(source)
-    if src.startswith("bed-") and _builtin_text(src) is None:
+    if src.startswith("bed3d-") and _builtin_text(src) is None:
+        n = _parse_count(src[6:])
+        if n is None:
+            raise ScenarioError(f"scenario {show(src, 400)}: bed3d-N needs a sphere count N such as "
+                                f"bed3d-20000, bed3d-100k, bed3d-1m")
+        data = bed3d_scenario_dict(n)
+    elif src.startswith("bed-") and _builtin_text(src) is None:
         n = _parse_count(src[4:])
         if n is None:
             raise ScenarioError(f"scenario {show(src, 400)}: bed-N needs a disc count N such as bed-7000, "

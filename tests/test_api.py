@@ -197,7 +197,7 @@ def test_run_result(short_run):
     cur, prev = res.state(), res.state(2000)
     assert np.array_equal(cur["id"], np.arange(1500)) and np.array_equal(prev["id"], cur["id"])
     assert all(len(a) == 1500 for a in cur.values())
-    assert not np.array_equal(cur["vx"], prev["vx"])
+    assert not np.array_equal(cur["vel"], prev["vel"])
     reread = ooc_dem.open_run(res.path)
     assert reread.summary == res.summary
     for c in res.series.dtype.names:

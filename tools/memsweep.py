@@ -7,6 +7,7 @@ store setup count), above the post-warm-up baseline. The slope of peak-above-
 baseline against N (least squares) is the memory cost per disc of each mode.
 
     python tools/memsweep.py --sizes 1e4,1e5,1e6,4e6 --domains 32 --steps 20 --out memsweep
+    python tools/memsweep.py --family bed3d --sizes 1e4,1e5,1e6,4e6 --out memsweep3d   # spheres
 """
 from __future__ import annotations
 
@@ -30,6 +31,8 @@ def main():
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--modes", default="monolithic,ooc")
     ap.add_argument("--out", default="memsweep")
+    ap.add_argument("--family", default="bed", choices=["bed", "bed3d"],
+                    help="bed-N (2D discs) or bed3d-N (3D spheres)")
     a = ap.parse_args()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -38,7 +41,7 @@ def main():
     runs = []
     for n in sizes:
         for m in modes:
-            r = run_child(f"bed-{n}", m, overrides=["decomposition.policy=equal"], backend=a.backend,
+            r = run_child(f"{a.family}-{n}", m, overrides=["decomposition.policy=equal"], backend=a.backend,
                           domains=a.domains if m != "monolithic" else None,
                           block=a.block if m != "monolithic" else None, steps=a.steps, work=out / "work")
             r.pop("rss_series", None)

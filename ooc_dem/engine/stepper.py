@@ -66,6 +66,8 @@ class Model:
 
     @classmethod
     def from_scenario(cls, sc) -> "Model":
+        if sc.dim == 3:
+            return cls._from_scenario_3d(sc)
         cp = np.zeros((L.N_TYPES, L.N_TYPES, N_FIELDS))
         table = record(cp, CONTACT_PARAMS)
 
@@ -103,10 +105,32 @@ class Model:
                    skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc, wheel_enabled=w.enabled,
                    r_max=sc.soil.r_max, dim=sc.dim)
 
+    @classmethod
+    def _from_scenario_3d(cls, sc) -> "Model":
+        """The 3D model (physics.d3.layout records): contact table with the law per material
+        pair, the box of floor, end walls and side walls (z = 0, bin.width); no wheel."""
+        from ..physics.d3 import layout as L3
+        from ..scenario import contact_table_3d
+        table = contact_table_3d(sc)
+        cp = np.ascontiguousarray(table).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES,
+                                                                  L3.N_FIELDS).copy()
+        walls = L3.walls_record(sc.bin.length, sc.bin.width).view(np.float64).copy()
+        return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
+                   skin=sc.bed.skin, cp=cp, walls=walls, wg=np.zeros(WG_SIZE), wc=np.zeros(WC_SIZE),
+                   wheel_enabled=False, r_max=sc.soil.r_max, dim=3)
+
+    def layouts(self):
+        """(CONTACT_PARAMS, WALLS) record dtypes of this model's dimension."""
+        if self.dim == 3:
+            from ..physics.d3 import layout as L3
+            return L3.CONTACT_PARAMS, L3.WALLS
+        return CONTACT_PARAMS, WALLS
+
     def records(self):
         """(cp, walls, wg, wc) as record views (no copies) for the kernels."""
-        return (record(np.ascontiguousarray(self.cp, np.float64), CONTACT_PARAMS),
-                record(np.ascontiguousarray(self.walls, np.float64), WALLS),
+        cpt, wallt = self.layouts()
+        return (record(np.ascontiguousarray(self.cp, np.float64), cpt),
+                record(np.ascontiguousarray(self.walls, np.float64), wallt),
                 record(np.ascontiguousarray(self.wg, np.float64), WHEEL_GEOMETRY),
                 record(np.ascontiguousarray(self.wc, np.float64), WHEEL_CONTROLS))
 
@@ -146,6 +170,9 @@ class DomainStepper:
             raise EngineError(f"particles with a contact-history capacity of {particles.hist_cap} "
                               f"handed to a model of capacity {model.hist_cap}")
         self.kern = model.kernels()
+        # row layouts of this dimension's kernels (physics.d3 names its own; d2 uses layout's)
+        self._pair_row = getattr(self.kern, "PAIR_ROW", L.PAIR_ROW)
+        self._body_row = getattr(self.kern, "BODY_ROW", L.BODY_ROW)
         if reorder and len(particles) > 1:
             perm = self.kern.spatial_order(particles.pos, len(particles), 2 * model.r_max + model.skin)
             particles.permute_inplace(perm)  # the caller's discs, reordered: no second copy
@@ -162,8 +189,9 @@ class DomainStepper:
         nf = n if keep_forces else 0
         self._forces = Forces(np.zeros((nf, model.dim)), np.zeros((nf, spin_width(model.dim))))
         self.keep_forces = keep_forces
-        self.bodies = Bodies(np.zeros(N_CHUNKS * 8, L.BODY_ROW), np.zeros(N_CHUNKS, np.int64))
-        self.err = np.zeros(N_ERR, np.int64)
+        chunks = getattr(self.kern, "N_CHUNKS", N_CHUNKS)
+        self.bodies = Bodies(np.zeros(chunks * 8, self._body_row), np.zeros(chunks, np.int64))
+        self.err = np.zeros(getattr(self.kern, "N_ERR", N_ERR), np.int64)
         self._built = False
         self._pairs_done = False
         self.rebuilds = 0
@@ -174,7 +202,7 @@ class DomainStepper:
         self.pair_a = np.zeros(cap, self._idx)
         self.inc_k = np.zeros(cap, self._idx)
         self.on = np.zeros(cap, np.uint8)
-        self.rows = np.zeros(cap, L.PAIR_ROW)
+        self.rows = np.zeros(cap, self._pair_row)
 
     def _force(self, k):
         if not self.keep_forces:
@@ -224,7 +252,7 @@ class DomainStepper:
 
     def _grow_bodies(self) -> None:
         """A chunk's wall/wheel rows did not fit: twice the room."""
-        self.bodies = Bodies(np.zeros(2 * self.bodies.rows.shape[0], L.BODY_ROW), self.bodies.count)
+        self.bodies = Bodies(np.zeros(2 * self.bodies.rows.shape[0], self._body_row), self.bodies.count)
 
     def _run(self, nsteps, step0, rec) -> int:
         recv = record(rec, WHEEL_RECORD) if len(rec) else np.zeros(1, WHEEL_RECORD)  # unused

@@ -1,0 +1,330 @@
+"""Contacts as data for spheres: each contact is evaluated once (numba, no I/O).
+
+The 3D twin of ``ooc_dem.physics.forces`` (read its module doc). Two phases:
+
+1. ``produce`` writes one row per contact at time n: sphere-sphere pairs from the
+   HALF list (each pair once, canonical orientation: a = lower global id), one
+   ``layout.PAIR_ROW`` in the pair's slot (force on b, both torque terms, the new
+   springs); walls (``layout.BODY_ROW``) go to per-chunk buffers in sphere order,
+   walls in ascending id (-5 .. -1). It only reads the time-n state and writes rows,
+   so it can be rerun after growing a buffer without changing anything.
+2. ``gather_integrate``: one pass per sphere sums its rows in ascending partner-id
+   order -- its wall rows, then its incoming pairs (lower-id partners, CSR index),
+   then its own half-list pairs (the higher id adds the force and tb, the lower
+   subtracts the force and adds ta) -- rewrites its history sorted by partner id and
+   advances it (leapfrog: v(n+1/2) = v(n-1/2) + a_n dt, x(n+1) = x_n + v(n+1/2) dt,
+   spin += torque / inertia dt). Every write goes to the sphere itself: no atomics.
+"""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .contact import contact
+from .layout import (
+    ERR_BODY_CAPACITY,
+    ERR_HIST_OVERFLOW,
+    ID_WALL_BACK,
+    ID_WALL_BOTTOM,
+    ID_WALL_FRONT,
+    ID_WALL_LEFT,
+    ID_WALL_RIGHT,
+    T_WALL,
+)
+
+# spheres are produced and gathered in N_CHUNKS contiguous chunks (wall rows are
+# buffered per chunk); the chunking never changes a result
+N_CHUNKS = 64
+
+
+@njit(inline="always", cache=True)
+def chunk_range(c, n):
+    size = (n + N_CHUNKS - 1) // N_CHUNKS
+    lo = c * size
+    hi = min(n, lo + size)
+    return lo, max(lo, hi)
+
+
+@njit(inline="always", cache=True)
+def _lookup(hid, i, hn, p, pid):
+    """Advance the merge pointer p in i's sorted history to partner pid; returns
+    (p, found)."""
+    while p < hn and hid[i, p] < pid:
+        p += 1
+    return p, (p < hn and hid[i, p] == pid)
+
+
+@njit(cache=True)
+def _wall(wall):
+    """(pid, nx, ny, nz) of wall k = 0..4 in ascending id order (the normal points into
+    the box): back z=width, front z=0, right x=length, left x=0, bottom y=0."""
+    if wall == 0:
+        return ID_WALL_BACK, 0.0, 0.0, -1.0
+    elif wall == 1:
+        return ID_WALL_FRONT, 0.0, 0.0, 1.0
+    elif wall == 2:
+        return ID_WALL_RIGHT, -1.0, 0.0, 0.0
+    elif wall == 3:
+        return ID_WALL_LEFT, 1.0, 0.0, 0.0
+    return ID_WALL_BOTTOM, 0.0, 1.0, 0.0
+
+
+@njit(parallel=True, cache=True)
+def produce(n, d, pl, bd, cp, walls, dt, err):
+    """Phase 1: one row per contact of spheres 0..n-1 at time n (module doc).
+
+    d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies, cp: CONTACT_PARAMS table
+    [type_a, type_b], walls: WALLS record (1,). Sets err[ERR_BODY_CAPACITY] when a
+    chunk's wall buffer is full (grow, rerun)."""
+    pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
+    mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
+    half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
+    body, bcount = bd.rows, bd.count
+    bcap = body.shape[0] // N_CHUNKS
+    wl = walls[0]
+    length = wl.length
+    width = wl.width
+    flags = np.array([wl.back > 0.5, wl.front > 0.5, wl.right > 0.5, wl.left > 0.5,
+                      wl.bottom > 0.5])
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        bat = ch * bcap
+        bend = bat + bcap
+        full = False
+        for i in range(lo, hi):
+            xi = pos[i, 0]
+            yi = pos[i, 1]
+            zi = pos[i, 2]
+            vxi = vel[i, 0]
+            vyi = vel[i, 1]
+            vzi = vel[i, 2]
+            wxi = spin[i, 0]
+            wyi = spin[i, 1]
+            wzi = spin[i, 2]
+            ri = r[i]
+            mi = mass[i]
+            ii = inertia[i]
+            ti = mat[i]
+            hn = hist_n[i]
+            p = 0
+            # ------------------------------------------------------ walls
+            for wall in range(5):
+                if not flags[wall]:
+                    continue
+                pid, nx, ny, nz = _wall(wall)
+                if wall == 0:
+                    delta = ri - (width - zi)
+                elif wall == 1:
+                    delta = ri - zi
+                elif wall == 2:
+                    delta = ri - (length - xi)
+                elif wall == 3:
+                    delta = ri - xi
+                else:
+                    delta = ri - yi
+                if delta <= 0.0:
+                    continue
+                p, found = _lookup(hist_id, i, hn, p, pid)
+                if found:
+                    s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
+                    m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
+                else:
+                    s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
+                    cp[T_WALL, ti], nx, ny, nz, delta, vxi, vyi, vzi, 0.0, 0.0, 0.0,
+                    wxi, wyi, wzi, 0.0, ri, mi, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
+                if bat < bend:
+                    row = body[bat]
+                    row.disc = i
+                    row.pid = pid
+                    row.bx = fn * nx - ftx
+                    row.by = fn * ny - fty
+                    row.bz = fn * nz - ftz
+                    # ri (n x Ft) + M
+                    row.tx = ri * (ny * ftz - nz * fty) + mox
+                    row.ty = ri * (nz * ftx - nx * ftz) + moy
+                    row.tz = ri * (nx * fty - ny * ftx) + moz
+                    row.sx = snx
+                    row.sy = sny
+                    row.sz = snz
+                    row.mx = mnx
+                    row.my = mny
+                    row.mz = mnz
+                    bat += 1
+                else:
+                    full = True
+            # ------------------------------------------------------ pairs (i = a, lower id)
+            for q in range(half_off[i], half_off[i + 1]):
+                b = np.int64(pair_b[q])
+                dx = pos[b, 0] - xi
+                dy = pos[b, 1] - yi
+                dz = pos[b, 2] - zi
+                rb = r[b]
+                d2 = dx * dx + dy * dy + dz * dz
+                rs = ri + rb
+                if d2 >= rs * rs or d2 == 0.0:
+                    on[q] = 0
+                    continue
+                dd = math.sqrt(d2)
+                delta = rs - dd
+                nx = dx / dd
+                ny = dy / dd
+                nz = dz / dd
+                p, found = _lookup(hist_id, i, hn, p, gid[b])
+                if found:
+                    s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
+                    m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
+                else:
+                    s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                mb = mass[b]
+                ib = inertia[b]
+                (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
+                    cp[ti, mat[b]], nx, ny, nz, delta,
+                    vel[b, 0] - vxi, vel[b, 1] - vyi, vel[b, 2] - vzi,
+                    wxi, wyi, wzi, spin[b, 0], spin[b, 1], spin[b, 2], ri, rb,
+                    mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb),
+                    s0x, s0y, s0z, m0x, m0y, m0z, dt)
+                cx = ny * ftz - nz * fty
+                cy = nz * ftx - nx * ftz
+                cz = nx * fty - ny * ftx
+                row = rows[q]
+                row.bx = fn * nx - ftx
+                row.by = fn * ny - fty
+                row.bz = fn * nz - ftz
+                row.tax = ri * cx - mox
+                row.tay = ri * cy - moy
+                row.taz = ri * cz - moz
+                row.tbx = rb * cx + mox
+                row.tby = rb * cy + moy
+                row.tbz = rb * cz + moz
+                row.sx = snx
+                row.sy = sny
+                row.sz = snz
+                row.mx = mnx
+                row.my = mny
+                row.mz = mnz
+                on[q] = 1
+        bcount[ch] = bat - ch * bcap
+        if full:
+            err[ERR_BODY_CAPACITY] = 1
+
+
+@njit(inline="always", cache=True)
+def _keep(hist_id, hist_s, hist_m, i, k, cap, pid, row):
+    """Write history entry k of sphere i from a row; returns False on overflow."""
+    if k >= cap:
+        return False
+    hist_id[i, k] = pid
+    hist_s[i, k, 0] = row.sx
+    hist_s[i, k, 1] = row.sy
+    hist_s[i, k, 2] = row.sz
+    hist_m[i, k, 0] = row.mx
+    hist_m[i, k, 1] = row.my
+    hist_m[i, k, 2] = row.mz
+    return True
+
+
+@njit(parallel=True, cache=True)
+def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
+    """Phase 2: per sphere, sum its rows in ascending partner-id order (module doc),
+    rewrite its history from them (an overflow of the history capacity sets
+    err[ERR_HIST_OVERFLOW]: fatal, never a silent drop), then advance it one leapfrog
+    step. force/torque (N, 3) get the contact force and torque of time n (unless they
+    have length 0). Returns the largest squared displacement since the last neighbour
+    build (a max: order-free); part is scratch of N_CHUNKS entries."""
+    pos, vel, spin = d.pos, d.vel, d.spin
+    mass, inertia, gid = d.mass, d.inertia, d.gid
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
+    half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
+    inc_off, inc_k = pl.inc_off, pl.inc_k
+    on, rows, ref = pl.on, pl.rows, pl.ref
+    body, bcount = bd.rows, bd.count
+    bcap = body.shape[0] // N_CHUNKS
+    cap = hist_id.shape[1]
+    keep = force.shape[0] >= n
+    gx = gravity[0]
+    gy = gravity[1]
+    gz = gravity[2]
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        bat = ch * bcap
+        bend = bat + bcount[ch]
+        over = False
+        mx = 0.0
+        for i in range(lo, hi):
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            tx = 0.0
+            ty = 0.0
+            tz = 0.0
+            k = 0
+            # walls (negative ids, already ascending)
+            while bat < bend and body[bat].disc == i:
+                brow = body[bat]
+                if not _keep(hist_id, hist_s, hist_m, i, k, cap, brow.pid, brow):
+                    over = True
+                k += 1
+                fx += brow.bx
+                fy += brow.by
+                fz += brow.bz
+                tx += brow.tx
+                ty += brow.ty
+                tz += brow.tz
+                bat += 1
+            # partners with lower ids (i is b): the CSR index, ascending partner id
+            for e in range(inc_off[i], inc_off[i + 1]):
+                q = inc_k[e]
+                if on[q]:
+                    row = rows[q]
+                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], row):
+                        over = True
+                    k += 1
+                    fx += row.bx
+                    fy += row.by
+                    fz += row.bz
+                    tx += row.tbx
+                    ty += row.tby
+                    tz += row.tbz
+            # partners with higher ids (i is a): its own half list, ascending partner id
+            for q in range(half_off[i], half_off[i + 1]):
+                if on[q]:
+                    row = rows[q]
+                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], row):
+                        over = True
+                    k += 1
+                    fx -= row.bx
+                    fy -= row.by
+                    fz -= row.bz
+                    tx += row.tax
+                    ty += row.tay
+                    tz += row.taz
+            hist_n[i] = min(k, cap)
+            if keep:
+                force[i, 0] = fx
+                force[i, 1] = fy
+                force[i, 2] = fz
+                torque[i, 0] = tx
+                torque[i, 1] = ty
+                torque[i, 2] = tz
+            m = mass[i]
+            vel[i, 0] += (fx / m + gx) * dt
+            vel[i, 1] += (fy / m + gy) * dt
+            vel[i, 2] += (fz / m + gz) * dt
+            inert = inertia[i]
+            spin[i, 0] += tx / inert * dt
+            spin[i, 1] += ty / inert * dt
+            spin[i, 2] += tz / inert * dt
+            pos[i, 0] += vel[i, 0] * dt
+            pos[i, 1] += vel[i, 1] * dt
+            pos[i, 2] += vel[i, 2] * dt
+            ddx = pos[i, 0] - ref[i, 0]
+            ddy = pos[i, 1] - ref[i, 1]
+            ddz = pos[i, 2] - ref[i, 2]
+            dd = ddx * ddx + ddy * ddy + ddz * ddz
+            mx = max(mx, dd)
+        part[ch] = mx
+        if over:
+            err[ERR_HIST_OVERFLOW] = 1
+    return part.max()

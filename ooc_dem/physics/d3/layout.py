@@ -1,0 +1,151 @@
+"""Named layouts of the 3D kernels' records (spheres; the one definition for d3).
+
+Mirrors ``ooc_dem.physics.layout`` (2D): every packed vector is a structured dtype,
+kernels read and write by field name through record views (``record(flat, DTYPE)``),
+no kernel indexes a column by number.
+
+Records:
+- ``CONTACT_PARAMS``  one material pair, table cp[type_a, type_b]; ``law`` selects
+                      LAW_LINEAR (kn, ks, zn, zt, mu, mur, zr: the 2D law's parameters)
+                      or LAW_HERTZ (Hertz-Mindlin, Tsuji / DEM-Engine
+                      ``FullHertzianForceModel`` / LAMMPS ``hertz/material`` form:
+                      estar, gstar, beta, mu, mur, zr; see ``hertz_params``)
+- ``WALLS``           box walls: floor y=0, end walls x=0 / x=length, side walls
+                      z=0 / z=width, each with an on-flag (frictional, table type T_WALL)
+- ``WHEEL_GEOMETRY`` / ``WHEEL_CONTROLS`` / ``WHEEL_STATE`` / ``WHEEL_RECORD``: the 2D
+                      records (the wheel's axle is along z in both dimensions); the 3D
+                      kernels accept them and refuse an enabled wheel (ERR wheel_unsupported)
+- ``ERRORS``          kernel error flags
+- ``PAIR_ROW``        one sphere-sphere contact of a step (phase 1 -> phase 2)
+- ``BODY_ROW``        one sphere-wall contact of a step
+
+Partner ids of the walls (negative, so they sort before every sphere, ascending =
+the sum order): back (z=width) -5, front (z=0) -4, right (x=length) -3,
+left (x=0) -2, bottom (y=0) -1 (the 2D ids are kept for the 2D walls).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..layout import WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE, record  # noqa: F401
+
+F8 = "<f8"
+
+
+def _dtype(names, kind=F8):
+    return np.dtype([(n, kind) for n in names])
+
+
+# ----------------------------------------------------------- contact parameters
+LAW_LINEAR = 0
+LAW_HERTZ = 1
+# no_tension = 1: the normal force is clamped at zero (the 2D law); 0: the damping
+# term may pull while the spheres overlap (LAMMPS granular without ``limit_damping``),
+# which is what makes the restitution of the Tsuji law exactly the target e
+# (validation-3d.md section 3; clamped, e = 0.3 gives 0.397). Friction and rolling
+# limits use max(Fn, 0).
+CONTACT_PARAMS = _dtype(("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr",
+                         "estar", "gstar", "beta", "no_tension"))
+N_FIELDS = len(CONTACT_PARAMS.names)
+T_SOIL, T_WALL, T_WHEEL = 0, 1, 2
+N_TYPES = 3
+
+# ------------------------------------------------------------------- walls
+WALLS = _dtype(("length", "width", "left", "right", "bottom", "front", "back"))
+
+# ------------------------------------------------------------------- errors
+ERRORS = _dtype(("hist_overflow", "pair_capacity", "body_capacity", "wheel_unsupported"), "<i8")
+ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_BODY_CAPACITY, ERR_WHEEL_UNSUPPORTED = range(4)
+N_ERR = len(ERRORS.names)
+
+# -------------------------------------------------------------- partner ids
+ID_WALL_BACK = -5
+ID_WALL_FRONT = -4
+ID_WALL_RIGHT = -3
+ID_WALL_LEFT = -2
+ID_WALL_BOTTOM = -1
+
+# history widths of the 3D law (tangential spring force, rolling spring moment)
+S_WIDTH = 3
+M_WIDTH = 3
+
+# ---------------------------------------------------------------- contact rows
+# one sphere-sphere pair (a = lower global id, b = higher), evaluated once: force on b
+# (bx, by, bz) (a gets the exact negation), torque terms of a (ta*) and b (tb*),
+# the pair's new tangential spring (s*) and rolling spring (m*)
+PAIR_ROW = _dtype(("bx", "by", "bz", "tax", "tay", "taz", "tbx", "tby", "tbz",
+                   "sx", "sy", "sz", "mx", "my", "mz"))
+# one sphere-wall contact (the wall is always a): sphere row index, wall id, force and
+# torque on the sphere, new springs
+BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8")]
+                    + [(n, F8) for n in ("bx", "by", "bz", "tx", "ty", "tz",
+                                         "sx", "sy", "sz", "mx", "my", "mz")])
+
+# ------------------------------------------------------- kernel argument records
+# the shared named tuples of physics.layout (one definition for every dimension):
+# Discs (pos/vel/spin (N, 3), hist_s/hist_m (N, C, 3)), Pairs (ref: build positions
+# (N, 3)), Bodies (rows: BODY_ROW of this module), KernelParams (cp: CONTACT_PARAMS and
+# walls: WALLS of this module; gravity (3,)), Forces (force, torque (N, 3))
+from ..layout import Bodies, Discs, Forces, KernelParams, Pairs  # noqa: F401
+
+
+# ------------------------------------------------------- parameter helpers
+def effective_modulus(E1, nu1, E2=math.inf, nu2=0.0):
+    """E*: 1/E* = (1 - nu1^2)/E1 + (1 - nu2^2)/E2 (E2 = inf: rigid wall)."""
+    inv = (1.0 - nu1 * nu1) / E1 + (0.0 if math.isinf(E2) else (1.0 - nu2 * nu2) / E2)
+    return 1.0 / inv
+
+
+def effective_shear_modulus(E1, nu1, E2=math.inf, nu2=0.0):
+    """G*: 1/G* = (2 - nu1)/G1 + (2 - nu2)/G2, G = E / (2 (1 + nu)) (E2 = inf: rigid)."""
+    G1 = E1 / (2.0 * (1.0 + nu1))
+    inv = (2.0 - nu1) / G1
+    if not math.isinf(E2):
+        inv += (2.0 - nu2) / (E2 / (2.0 * (1.0 + nu2)))
+    return 1.0 / inv
+
+
+def beta_of_restitution(e):
+    """beta = ln e / sqrt(ln^2 e + pi^2) (<= 0; 0 for e = 1)."""
+    if e >= 1.0:
+        return 0.0
+    le = math.log(e)
+    return le / math.sqrt(le * le + math.pi * math.pi)
+
+
+def zeta_of_restitution(e):
+    """Damping ratio of the linear law giving restitution e (unclamped): -ln e / sqrt(pi^2 + ln^2 e)."""
+    return -beta_of_restitution(e)
+
+
+def linear_params(kn, ks, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0, no_tension=True):
+    """One CONTACT_PARAMS tuple of the linear spring-dashpot law (the 2D law's parameters;
+    clamped at zero force like the 2D law unless no_tension=False)."""
+    return (LAW_LINEAR, kn, ks, zn, zt, mu, mur, zr, 0.0, 0.0, 0.0, float(no_tension))
+
+
+def hertz_params(E1, nu1, e, mu=0.0, mur=0.0, zr=0.0, E2=math.inf, nu2=0.0, no_tension=False):
+    """One CONTACT_PARAMS tuple of Hertz-Mindlin from Young's moduli, Poisson ratios and
+    restitution e (validation-3d.md section 3); E2 = inf for a rigid wall. By default
+    the damping may pull while overlapping (restitution = e exactly); no_tension=True
+    clamps the force at zero (the restitution is then higher than e at low e)."""
+    return (LAW_HERTZ, 0.0, 0.0, 0.0, 0.0, mu, mur, zr, effective_modulus(E1, nu1, E2, nu2),
+            effective_shear_modulus(E1, nu1, E2, nu2), beta_of_restitution(e), float(no_tension))
+
+
+def contact_table(pairs: dict) -> np.ndarray:
+    """CONTACT_PARAMS table [N_TYPES, N_TYPES] from {(type_a, type_b): params tuple}
+    (symmetric)."""
+    cp = np.zeros((N_TYPES, N_TYPES), CONTACT_PARAMS)
+    for (a, b), vals in pairs.items():
+        cp[a, b] = vals
+        cp[b, a] = vals
+    return cp
+
+
+def walls_record(length, width, left=True, right=True, bottom=True, front=True, back=True):
+    w = np.zeros(1, WALLS)
+    w[0] = (length, width, float(left), float(right), float(bottom), float(front), float(back))
+    return w

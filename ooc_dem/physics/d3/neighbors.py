@@ -1,0 +1,190 @@
+"""3D cell lists and the half Verlet pair list with its per-sphere CSR index
+(numba, no I/O); the 3D twin of ``ooc_dem.physics.neighbors``.
+
+The pair list holds every pair of spheres within r_i + r_j + skin ONCE, stored with
+its lower global id ``a``: sphere a's pairs are ``pair_b[half_off[a]:half_off[a + 1]]``
+sorted by global id (a pair's row slot is its position; ``pair_a`` the lower sphere of
+each slot). ``inc_k[inc_off[b]:inc_off[b + 1]]`` lists, for each sphere b, the slots of
+its pairs with lower-id partners, sorted by the partner's id. Both are sized by
+counting (count, prefix sum, fill), never by a fixed cap; the scans run in parallel
+over spheres and each sphere writes only its own range, so the result does not
+depend on the thread count or on the memory order of the spheres (partners are
+sorted by global id, the set of pairs is exact: distances are checked).
+"""
+import numpy as np
+from numba import njit, prange
+
+
+@njit(inline="always", cache=True)
+def _sort_by_gid(idx, lo, hi, gid):
+    """Insertion sort of idx[lo:hi] by global id (a sphere's lists are short)."""
+    for a in range(lo + 1, hi):
+        v = idx[a]
+        gv = gid[v]
+        b = a - 1
+        while b >= lo and gid[idx[b]] > gv:
+            idx[b + 1] = idx[b]
+            b -= 1
+        idx[b + 1] = v
+
+
+@njit(cache=True)
+def spatial_order(pos, n, cell):
+    """Permutation sorting spheres by cell (x column, then y, then z): keeps neighbours
+    close in memory (slabs run along x)."""
+    if n == 0:
+        return np.empty(0, np.int64)
+    x0 = pos[:n, 0].min()
+    y0 = pos[:n, 1].min()
+    z0 = pos[:n, 2].min()
+    keys = np.empty(n, np.int64)
+    for i in range(n):
+        cx = min(int((pos[i, 0] - x0) / cell), 999_999)
+        cy = min(int((pos[i, 1] - y0) / cell), 999_999)
+        cz = min(int((pos[i, 2] - z0) / cell), 999_999)
+        keys[i] = (cx * 1_000_000 + cy) * 1_000_000 + cz
+    return np.argsort(keys, kind="mergesort")
+
+
+@njit(cache=True)
+def _grid(pos, n, cutoff):
+    """Cell size >= cutoff and cell counts, enlarged so the grid has at most ~8 n + 64
+    cells (spheres flying far away; still exact, distances are checked)."""
+    lo = np.empty(3)
+    ext = np.empty(3)
+    for k in range(3):
+        lo[k] = pos[:n, k].min()
+        ext[k] = pos[:n, k].max() - lo[k]
+    cell = cutoff
+    limit = 8 * n + 64
+    while True:
+        ncx = int(ext[0] / cell) + 1
+        ncy = int(ext[1] / cell) + 1
+        ncz = int(ext[2] / cell) + 1
+        if ncx * ncy * ncz <= limit:
+            return lo, cell, ncx, ncy, ncz
+        cell *= 1.25
+
+
+@njit(cache=True)
+def _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, cell_of):
+    counts = cell_start
+    counts[:] = 0
+    for i in range(n):
+        cx = min(max(int((pos[i, 0] - lo[0]) / cell), 0), ncx - 1)
+        cy = min(max(int((pos[i, 1] - lo[1]) / cell), 0), ncy - 1)
+        cz = min(max(int((pos[i, 2] - lo[2]) / cell), 0), ncz - 1)
+        c = (cz * ncy + cy) * ncx + cx
+        cell_of[i] = c
+        counts[c + 1] += 1
+    for c in range(ncx * ncy * ncz):
+        counts[c + 1] += counts[c]
+    fill = counts[:-1].copy()
+    for i in range(n):
+        c = cell_of[i]
+        cell_list[fill[c]] = i
+        fill[c] += 1
+
+
+@njit(parallel=True, cache=True)
+def _scan(pos, r, gid, n, ncx, ncy, ncz, cell_start, cell_list, cell_of, skin,
+          half_off, pair_b, inc_off, inc, fill):
+    """fill False: count each sphere's partners with higher / lower ids into
+    half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id."""
+    for i in prange(n):
+        c = cell_of[i]
+        cx = c % ncx
+        cy = (c // ncx) % ncy
+        cz = c // (ncx * ncy)
+        nu = 0
+        nl = 0
+        xi = pos[i, 0]
+        yi = pos[i, 1]
+        zi = pos[i, 2]
+        ri = r[i]
+        gi = gid[i]
+        u0 = half_off[i] if fill else 0
+        l0 = inc_off[i] if fill else 0
+        for oz in range(-1, 2):
+            zz = cz + oz
+            if zz < 0 or zz >= ncz:
+                continue
+            for oy in range(-1, 2):
+                yy = cy + oy
+                if yy < 0 or yy >= ncy:
+                    continue
+                for ox in range(-1, 2):
+                    xx = cx + ox
+                    if xx < 0 or xx >= ncx:
+                        continue
+                    cc = (zz * ncy + yy) * ncx + xx
+                    for q in range(cell_start[cc], cell_start[cc + 1]):
+                        j = cell_list[q]
+                        if j == i:
+                            continue
+                        dx = pos[j, 0] - xi
+                        dy = pos[j, 1] - yi
+                        dz = pos[j, 2] - zi
+                        cut = ri + r[j] + skin
+                        if dx * dx + dy * dy + dz * dz < cut * cut:
+                            if gid[j] > gi:
+                                if fill:
+                                    pair_b[u0 + nu] = j
+                                nu += 1
+                            else:
+                                if fill:
+                                    inc[l0 + nl] = j
+                                nl += 1
+        if not fill:
+            half_off[i + 1] = nu
+            inc_off[i + 1] = nl
+            continue
+        _sort_by_gid(pair_b, u0, u0 + nu, gid)
+        _sort_by_gid(inc, l0, l0 + nl, gid)
+
+
+@njit(parallel=True, cache=True)
+def _slots(n, half_off, pair_b, pair_a, inc_off, inc_k):
+    """pair_a[k] = the lower sphere of slot k; inc_k: each lower partner a of sphere b
+    replaced by the slot of the pair (a, b) in a's half list."""
+    for i in prange(n):
+        for q in range(half_off[i], half_off[i + 1]):
+            pair_a[q] = i
+        for e in range(inc_off[i], inc_off[i + 1]):
+            a = inc_k[e]
+            q = half_off[a]
+            while pair_b[q] != i:
+                q += 1
+            inc_k[e] = q
+
+
+@njit(cache=True)
+def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, pref):
+    """Rebuild the half pair list and CSR index of spheres 0..n-1 and remember the build
+    positions in pref. Returns the number of pairs P; when P exceeds the capacity of
+    pair_b / pair_a / inc_k nothing is filled (grow them to at least P, call again)."""
+    half_off[0] = 0
+    inc_off[0] = 0
+    if n == 0:
+        return 0
+    lo, cell, ncx, ncy, ncz = _grid(pos, n, 2.0 * r[:n].max() + skin)
+    cell_start = np.zeros(ncx * ncy * ncz + 1, np.int64)
+    cell_list = np.empty(n, np.int64)
+    cell_of = np.empty(n, np.int64)
+    _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, cell_of)
+    _scan(pos, r, gid, n, ncx, ncy, ncz, cell_start, cell_list, cell_of, skin,
+          half_off, pair_b, inc_off, inc_k, False)
+    for i in range(n):
+        half_off[i + 1] += half_off[i]
+        inc_off[i + 1] += inc_off[i]
+    npairs = half_off[n]
+    if npairs > pair_b.shape[0] or npairs > inc_k.shape[0] or npairs > pair_a.shape[0]:
+        return npairs
+    _scan(pos, r, gid, n, ncx, ncy, ncz, cell_start, cell_list, cell_of, skin,
+          half_off, pair_b, inc_off, inc_k, True)
+    _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
+    for i in range(n):
+        pref[i, 0] = pos[i, 0]
+        pref[i, 1] = pos[i, 1]
+        pref[i, 2] = pos[i, 2]
+    return npairs

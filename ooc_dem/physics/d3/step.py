@@ -1,0 +1,70 @@
+"""THE 3D per-domain step (numba): the spec-generic entry points ``run_steps`` and
+``spatial_order`` for D = 3 (runs/spec-generic.md).
+
+A step: ``forces.produce`` (one row per contact), ``forces.gather_integrate`` (each
+sphere sums its rows in ascending partner-id order and is advanced), then a rebuild
+of the half pair list when some sphere has moved half the skin. Error flags and
+capacity growth as the 2D ``engine.stepper._run_steps``: it stops early with
+err.pair_capacity = pairs needed (grow the list, call again with rebuild_now),
+err.body_capacity (grow the wall rows, call again: that step is redone, nothing was
+advanced) or err.hist_overflow (fatal). The wheel is the next issue: an enabled
+wheel geometry sets err.wheel_unsupported and nothing is advanced.
+"""
+import numpy as np
+from numba import njit
+
+from .forces import N_CHUNKS, gather_integrate, produce
+from .layout import (
+    ERR_BODY_CAPACITY,
+    ERR_HIST_OVERFLOW,
+    ERR_PAIR_CAPACITY,
+    ERR_WHEEL_UNSUPPORTED,
+)
+from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry point)
+
+
+@njit(cache=True)
+def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done=False,
+              role=None):
+    """Advance spheres 0..len(d.r)-1 nsteps from global step step0.
+
+    kp: layout.KernelParams, d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies,
+    forces: layout.Forces (length 0 when not kept), ws: WHEEL_STATE record (1,),
+    err: ERRORS flags (int64 array), rec: WHEEL_RECORD rows (unused until the wheel),
+    rebuild_now: build the pair list first; pairs_done (the 2D signature's trailing
+    argument: this step's pair rows are already made) is accepted and ignored, since
+    ``produce`` only reads the time-n state and remaking the rows gives the same bits;
+    role (the 2D signature's serial-DDM disc roles) is accepted and ignored: 3D keeps
+    each disc's history in the disc, so every disc leaves whole.
+    Returns (steps done, rebuilds)."""
+    n = d.r.shape[0]
+    if kp.wg[0].enabled > 0.5:
+        err[ERR_WHEEL_UNSUPPORTED] = 1
+        return 0, 0
+    dt = kp.dt
+    skin = kp.skin
+    part = np.zeros(N_CHUNKS)
+    if rebuild_now:
+        npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
+                             pl.inc_off, pl.inc_k, pl.ref)
+        if npairs > pl.pair_b.shape[0]:
+            err[ERR_PAIR_CAPACITY] = npairs
+            return 0, 0
+    half2 = 0.25 * skin * skin
+    rebuilds = 0
+    for s in range(nsteps):
+        produce(n, d, pl, bd, kp.cp, kp.walls, dt, err)
+        if err[ERR_BODY_CAPACITY] != 0:
+            return s, rebuilds
+        disp2 = gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, dt,
+                                 part, err)
+        if err[ERR_HIST_OVERFLOW] != 0:
+            return s + 1, rebuilds
+        if disp2 > half2:
+            rebuilds += 1
+            npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
+                                 pl.pair_a, pl.inc_off, pl.inc_k, pl.ref)
+            if npairs > pl.pair_b.shape[0]:
+                err[ERR_PAIR_CAPACITY] = npairs
+                return s + 1, rebuilds
+    return nsteps, rebuilds

@@ -57,6 +57,7 @@ def test_readme_example_runs(tmp_path):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["slip"]["whole_travel"]["value"] == pytest.approx(slip, rel=1e-12)
     assert "(1500,)" in out   # every state array has one row per disc
+    assert "9 trajectory frames" in out   # t = 0, 0.05, ..., 0.4 s
     print(f"README example: {wall:.1f} s")
 
 
@@ -197,7 +198,7 @@ def test_run_result(short_run):
     cur, prev = res.state(), res.state(2000)
     assert np.array_equal(cur["id"], np.arange(1500)) and np.array_equal(prev["id"], cur["id"])
     assert all(len(a) == 1500 for a in cur.values())
-    assert not np.array_equal(cur["vx"], prev["vx"])
+    assert not np.array_equal(cur["vel"], prev["vel"])
     reread = ooc_dem.open_run(res.path)
     assert reread.summary == res.summary
     for c in res.series.dtype.names:

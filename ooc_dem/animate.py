@@ -66,7 +66,9 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
         init = run_file(run_dir, "initial.npz")
         surface = read_initial(init)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
         layer = layer_index(y0, surface, _n_layers(surface, r0))
-        colours = np.array(LAYER_COLOURS)[layer % 2]
+        from matplotlib.colors import to_rgba_array
+        palette = to_rgba_array(list(LAYER_COLOURS) + ["#4a7fbf"])   # the layers, then "unknown disc"
+        colour_of = (layer % 2).astype(np.int8)
         ids0 = first["id"]
         # the view: the bin (or the discs) from the floor to above the wheel's highest point
         if sc is not None:
@@ -124,10 +126,10 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
                             coll.remove()
                         at = np.clip(np.searchsorted(ids0, ids), 0, max(len(ids0) - 1, 0))
                         known = (ids0[at] == ids) if len(ids0) else np.zeros(len(ids), bool)
-                        fc = np.where(known, colours[at] if len(ids0) else "#4a7fbf", "#4a7fbf")
+                        fc = palette[np.where(known, colour_of[at] if len(ids0) else 2, 2)]
                         d = 2.0 * r
                         coll = EllipseCollection(d, d, np.zeros_like(d), units="xy", offsets=pos,
-                                                 offset_transform=ax.transData, facecolors=list(fc),
+                                                 offset_transform=ax.transData, facecolors=fc,
                                                  edgecolors="#3a2a1a", linewidths=0.15, zorder=1)
                         ax.add_collection(coll)
                     else:

@@ -25,7 +25,6 @@ sys.path.insert(0, str(ROOT))
 
 def peak_rss(cmd) -> tuple[int, float, int]:
     """(VmHWM bytes, wall s, exit code) of cmd, read from /proc before it is reaped."""
-    import os
     t0 = time.time()
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT)
     hwm = 0
@@ -37,7 +36,6 @@ def peak_rss(cmd) -> tuple[int, float, int]:
         except OSError:
             pass
         time.sleep(0.05)
-    _ = os
     return hwm, time.time() - t0, p.returncode
 
 

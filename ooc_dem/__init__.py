@@ -27,7 +27,7 @@ open_store(path) -> storage.Store
 Classes
 -------
 RunResult: ``path``, ``summary``, ``series``, ``series_frame()`` / ``to_pandas()``,
-``epochs()``, ``state(epoch=None)``.
+``epochs()``, ``state(epoch=None)``, ``trajectory()`` (frames, sorted by id).
 Scenario: the frozen, validated scenario dataclass.
 
 Exceptions (every message is one line, as the CLI prints it)

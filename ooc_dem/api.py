@@ -177,6 +177,28 @@ class RunResult:
 
     to_pandas = series_frame
 
+    def trajectory(self):
+        """The run's trajectory frames (``output.snapshot_interval``), read from
+        ``trajectory.h5`` one at a time.
+
+        Returns
+        -------
+        Trajectory
+            A sequence: ``len(t)`` committed frames, ``t[i]`` (and iteration) gives a dict of
+            NumPy arrays sorted by disc id (``id``, ``pos`` (N, D), ``vel``, ``spin``, ``r``,
+            ``mat``) plus ``step``, ``time`` and ``wheel_state``; ``t.steps``, ``t.times`` and
+            ``t.wheel_states`` are the frame index. Use it as a context manager (or call
+            ``close()``) to release the file.
+
+        Raises
+        ------
+        TrajectoryError
+            The run wrote no trajectory, or the file is unreadable or not ooc-dem's
+            (a ``RunFileError``).
+        """
+        from .trajectory import Trajectory
+        return Trajectory.of_run(self.path)
+
     def epochs(self) -> list[int]:
         """Steps of the committed epochs in the store (oldest first); a run keeps its last two."""
         with open_store(self.path) as store:

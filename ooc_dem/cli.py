@@ -148,6 +148,18 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--out", required=True, metavar="FILE", help="output file")
     c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
 
+    q = sub.add_parser("export-trajectory", help="write a run's trajectory as an XDMF time series "
+                                                 "for ParaView (refers to RUN/trajectory.h5, no copy)")
+    q.add_argument("run", metavar="RUN", help="run directory (with trajectory.h5)")
+    q.add_argument("--out", required=True, metavar="FILE.xdmf", help="XDMF file to write (outside the run)")
+
+    q = sub.add_parser("animate", help="render a run's trajectory as a film (MP4 or GIF)")
+    q.add_argument("run", metavar="RUN", help="run directory (with trajectory.h5)")
+    q.add_argument("--out", metavar="FILE", help="FILE.mp4 (ffmpeg from imageio-ffmpeg) or FILE.gif; "
+                                                 "default RUN.mp4 beside the run directory")
+    q.add_argument("--fps", type=_count(1, 120), default=20, help="frames per second (default 20)")
+    q.add_argument("--no-progress", action="store_true")
+
     sub.add_parser("scenarios", help="list built-in scenarios")
 
     q = sub.add_parser("check", help="validate a scenario and run options as `run` would; print the "
@@ -488,6 +500,32 @@ def cmd_checkpoint(args):
         store.close()
 
 
+def cmd_export_trajectory(args):
+    from .export import ExportError
+    from .plots import _load_scenario
+    from .trajectory import Trajectory, write_xdmf
+    with Trajectory.of_run(args.run) as traj:
+        try:
+            out = write_xdmf(traj, args.out, _load_scenario(Path(args.run)))
+        except ExportError as e:
+            raise CliError(str(e)) from None
+        n, t = len(traj), (float(traj.times[-1]) if len(traj) else 0.0)
+    print(f"exported {n} frames (t = 0 .. {t:.6f} s) of {traj.path} as XDMF: {out} "
+          f"(open it in ParaView; it refers to {traj.path.name}, keep both)")
+    return 0
+
+
+def cmd_animate(args):
+    from .animate import animate
+    from .export import ExportError
+    try:
+        out, n = animate(args.run, args.out, fps=args.fps, progress=not args.no_progress)
+    except ExportError as e:
+        raise CliError(str(e)) from None
+    print(f"animation: {out} ({n} frames at {args.fps} fps)")
+    return 0
+
+
 def cmd_report(args):
     from .plots import make_figures, print_table, read_summary
     out = Path(args.store)
@@ -544,7 +582,7 @@ def cmd_profile(args):
 
 
 COMMANDS = {"check": cmd_check, "profile": cmd_profile, "run": cmd_run, "prepare": cmd_prepare, "resume": cmd_resume, "checkpoint": cmd_checkpoint,
-            "scenarios": cmd_scenarios, "report": cmd_report, "compare": cmd_compare, "sweep": cmd_sweep}
+            "scenarios": cmd_scenarios, "export-trajectory": cmd_export_trajectory, "animate": cmd_animate, "report": cmd_report, "compare": cmd_compare, "sweep": cmd_sweep}
 
 
 def main(argv=None) -> int:

@@ -162,6 +162,7 @@ class Output:
     steady_start: float = 9.6      # s of travel
     steady_end: float = 45.0       # s of travel
     run_steps: int = 0             # bare beds: default step count of `run`
+    snapshot_interval: float = 0.0  # s, trajectory frame interval (trajectory.h5); 0 = none
 
 
 @dataclass(frozen=True)
@@ -306,6 +307,7 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("output", "steady_start"): _NONNEG,
     ("output", "steady_end"): _NONNEG,
     ("output", "run_steps"): _COUNT(MAX_STEPS),
+    ("output", "snapshot_interval"): _NONNEG,
     ("decomposition", "policy"): (lambda v: v in ("wheel", "equal"), "one of 'wheel', 'equal'"),
     ("decomposition", "domains"): (lambda v: 1 <= v <= MAX_DOMAINS, f"an integer in [1, {MAX_DOMAINS}]"),
     ("decomposition", "block"): (lambda v: 1 <= v <= MAX_BLOCK, f"an integer in [1, {MAX_BLOCK}]"),
@@ -462,6 +464,8 @@ def _check_derived(sc: Scenario) -> None:
                            "wheel.settle_time + wheel.travel_time")
     steps_for_duration(sc.bed.max_settle_time, ph.dt, "bed.max_settle_time")
     steps_for_duration(sc.output.series_interval, ph.dt, "output.series_interval")
+    if sc.output.snapshot_interval:
+        steps_for_duration(sc.output.snapshot_interval, ph.dt, "output.snapshot_interval")
 
 
 def disc_mass(sc: Scenario, r: float) -> float:

@@ -1787,9 +1787,13 @@ def _draw_args(draw, st, parser, cmd, sub, set_st) -> list[str]:
             continue
         if not a.option_strings:                         # positional
             if a.dest == "scenario":
-                v = draw(st.sampled_from(["quick", "quick", "quick", "bed-1200", "run/scenario.toml",
-                                          "victim_file", "link_zero", "nonexistent.toml", "", "run",
-                                          "dev_null"] + BED_NAMES[:12]))
+                names = ["quick", "quick", "quick", "bed-1200", "run/scenario.toml", "victim_file",
+                         "link_zero", "nonexistent.toml", "", "run", "dev_null"] + BED_NAMES[:12]
+                if cmd != "check":
+                    # a valid million-disc bed is a real run, not a tiny one (check only plans it);
+                    # substituted in place, so the draws of every other case stay the same
+                    names = [n if n != "bed-1m" else "bed-100000m" for n in names]
+                v = draw(st.sampled_from(names))
             else:
                 v = draw(st.sampled_from(STORE_ARGS))
             argv.append(v)

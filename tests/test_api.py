@@ -57,6 +57,7 @@ def test_readme_example_runs(tmp_path):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["slip"]["whole_travel"]["value"] == pytest.approx(slip, rel=1e-12)
     assert "(1500,)" in out   # every state array has one row per disc
+    assert "9 trajectory frames" in out   # t = 0, 0.05, ..., 0.4 s
     print(f"README example: {wall:.1f} s")
 
 

@@ -358,6 +358,10 @@ class Simulation:
         self.surface = 0.0
         self.wall_time = 0.0
         self.redecompositions: list = []
+        # trajectory frames (trajectory.py): every frame_every steps, 0 = none
+        from ..trajectory import frame_every
+        self.frame_every = frame_every(sc)
+        self.frames = None
 
     # ------------------------------------------------------------------ setup
     def _meta(self) -> dict:
@@ -405,6 +409,7 @@ class Simulation:
             self.metrics = WheelMetrics(self.sc, self.surface, self.steps)
         self.step = 0
         self.commit()
+        self._start_trajectory()
 
     def _start_streamed(self) -> None:
         from storage import StoreError, create_store
@@ -423,6 +428,45 @@ class Simulation:
         self.engine = SweepEngine.create_streamed(self, parts, np.zeros(WS_SIZE))
         self.step = 0
         self.commit()
+        self._start_trajectory()
+
+    # ------------------------------------------------------------ trajectory
+    def _start_trajectory(self, resumed: bool = False) -> None:
+        """Open the trajectory (new, or continued after the resumed step) and write the
+        frame of the current step if one belongs there."""
+        from ..trajectory import TrajectoryWriter
+        if not self.frame_every:
+            return
+        if resumed:
+            self.frames = TrajectoryWriter.reopen(self.out, self.sc, self.model.dim, self.n_discs(), self.step)
+        else:
+            self.frames = TrajectoryWriter.create(self.out, self.sc, self.model.dim, self.n_discs())
+        if self.frames.due(self.step):
+            self._write_frame(parts_written=False)
+
+    def _frame_parts(self):
+        """The discs of the current state, one part at a time (out-of-core: each domain group
+        of the committed epoch from the store; never the whole bed)."""
+        if self.opts.mode != "ooc":
+            yield self.engine.particles()
+            return
+        from ..trajectory import ROW_FIELDS
+        reader = open_epoch(self.store, self.step)
+        try:
+            for d in reader.domains():
+                yield reader.read_domain(d, list(ROW_FIELDS))
+        finally:
+            reader.close()
+
+    def _write_frame(self, parts_written: bool) -> None:
+        """Commit the frame of the current step; out-of-core sweeps wrote its parts already
+        (``parts_written``, the slab loop's hook in sweep.py)."""
+        t = self.step * self.sc.physics.dt
+        ws = np.asarray(self.engine.wheel_state, np.float64)
+        if parts_written:
+            self.frames.end(self.step, t, ws)
+        else:
+            self.frames.write_frame(self.step, t, ws, self._frame_parts())
 
     def _make_engine(self, particles: Particles, ws: np.ndarray):
         if self.opts.mode == "monolithic":
@@ -484,7 +528,11 @@ class Simulation:
         try:
             while self.step < self.steps:
                 next_ckpt = (self.step // self.checkpoint_every + 1) * self.checkpoint_every
-                n = min(self.steps, next_ckpt, self.step + chunk_pref) - self.step
+                # frame steps end an advance too (out-of-core: a sweep), like epochs: where an
+                # advance is cut never changes a bit (docs/design.md section 3)
+                next_frame = ((self.step // self.frame_every + 1) * self.frame_every
+                              if self.frames is not None else self.steps)
+                n = min(self.steps, next_ckpt, next_frame, self.step + chunk_pref) - self.step
                 step0 = self.step
                 rec = self.engine.advance(step0, n)
                 if not getattr(self.engine, "folds_records", False):
@@ -495,6 +543,8 @@ class Simulation:
                 if self.sc.wheel.enabled and len(rec):
                     post["x"] = f"{rec[-1, REC_X]:.4f}"
                 bar.update(self.step, n, **post)
+                if self.frames is not None and self.frames.due(self.step):
+                    self._write_frame(parts_written=self.opts.mode == "ooc")
                 if self.step % self.checkpoint_every == 0 or self.step == self.steps:
                     self.commit()
         except EngineError as e:
@@ -507,6 +557,9 @@ class Simulation:
 
     def close(self) -> None:
         """Release the store (and its write lock); the outputs stay in the run directory."""
+        if self.frames is not None:
+            self.frames.close()
+            self.frames = None
         if self.store is not None:
             self.store.close()
 
@@ -713,7 +766,18 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
         reader.close()
     for w in store.warnings:   # only once the epoch is accepted: a refusal stays one line
         print(f"ooc-dem: warning: {w}", file=sys.stderr)
+    # the trajectory continues from the resumed step: later frames dropped, this one written
+    # if a kill came between the epoch's commit and the frame's
+    if sim.frame_every:
+        from ..trajectory import TrajectoryError
+        try:
+            sim._start_trajectory(resumed=True)
+        except TrajectoryError as e:
+            raise RunError(str(e)) from None
     if step >= total:
+        if sim.frames is not None:
+            sim.frames.close()
+            sim.frames = None
         done = sim.complete_outputs()
         print(f"{path}: run already finished at step {step}"
               + (f" (wrote its missing outputs: {', '.join(done)})" if done else " (nothing to do)"))

@@ -316,6 +316,9 @@ class SweepEngine:
         new_ws = self.ws
         resident = []
         owned_total = 0
+        # trajectory hook: a frame at the sweep's end gets each slab's owned discs as it passes
+        frames = getattr(self.sim, "frames", None)
+        frame_step = step0 + k if frames is not None and frames.due(step0 + k) else None
         for d in range(self.D):
             lo, hi = self.bounds[d], self.bounds[d + 1]
             pieces = [q for g in src.domains()
@@ -338,8 +341,11 @@ class SweepEngine:
                 rec_wheel = rec
                 new_ws = st.ws.copy()
             owned_total += len(owned)
-            self._stage(d, *group_of(st.p, owned))
-            del st, local, pieces
+            q, attrs = group_of(st.p, owned)
+            self._stage(d, q, attrs)
+            if frame_step is not None:
+                frames.write_part(frame_step, q)
+            del st, local, pieces, q
         if self._n is not None and owned_total != self._n:
             raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")

@@ -1,0 +1,189 @@
+"""``ooc-dem animate``: a film of the soil flow from a run's trajectory (trajectory.py).
+
+Each frame draws every disc in the colour of its initial horizontal layer (as the
+deformation figure does: ``fields.layer_index`` over the initial heights), the wheel
+(rim and lugs) at the frame's wheel state, and the time and the wheel's instantaneous
+slip 1 - vx / (R omega) in the top-left corner. Frames are read, drawn and encoded one
+at a time (memory: one frame plus the figure). MP4 (H.264) goes through ``imageio-ffmpeg``
+(the ffmpeg binary ships in its wheel); GIF through Pillow (imageio's streaming GIF writer),
+no ffmpeg needed. The file is written under a temporary name and renamed when complete.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .plots import LAYER_COLOURS, _load_scenario, read_initial, run_file
+from .trajectory import Trajectory, TrajectoryError, wheel_outline
+
+FORMATS = (".mp4", ".gif")
+MAX_FPS = 120
+WIDTH_PX = 1280
+
+
+def default_out(run_dir) -> Path:
+    """RUN.mp4 beside the run directory (never inside the store)."""
+    run_dir = Path(run_dir).resolve()
+    return run_dir.parent / f"{run_dir.name}.mp4"
+
+
+def _slip(ws, radius: float) -> float | None:
+    rolled = -float(ws[5]) * radius      # wz < 0: the wheel turns clockwise, driving +x
+    return 1.0 - float(ws[2]) / rolled if rolled > 1e-12 else None
+
+
+def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[Path, int]:
+    """Render the run's trajectory to ``out`` (.mp4 or .gif; default ``default_out``).
+    Returns (the file, the number of frames)."""
+    from .export import ExportError, check_targets
+    from .fields import layer_index
+    from .plots import _n_layers, _pyplot
+    run_dir = Path(run_dir)
+    out = Path(out) if out is not None else default_out(run_dir)
+    ext = out.suffix.lower()
+    if ext not in FORMATS:
+        raise ExportError(f"--out {out}: give a .mp4 or .gif file name")
+    if not 1 <= fps <= MAX_FPS:
+        raise ExportError(f"--fps {fps}: must be in [1, {MAX_FPS}]")
+    check_targets([out], out)
+    if ext == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            raise ExportError(f"--out {out}: MP4 needs imageio-ffmpeg (pip install imageio-ffmpeg); "
+                              f"a .gif needs no ffmpeg") from None
+    import imageio.v2 as iio
+    traj = Trajectory.of_run(run_dir)
+    try:
+        if len(traj) == 0:
+            raise TrajectoryError(f"{traj.path}: no committed frame")
+        if traj.dim != 2:
+            raise TrajectoryError(f"{traj.path}: {traj.dim}D frames: animate draws 2D runs only")
+        sc = _load_scenario(run_dir)
+        first = traj[0]
+        x0, y0, r0 = first["pos"][:, 0], first["pos"][:, 1], first["r"]
+        init = run_file(run_dir, "initial.npz")
+        surface = read_initial(init)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
+        layer = layer_index(y0, surface, _n_layers(surface, r0))
+        from matplotlib.colors import to_rgba_array
+        palette = to_rgba_array(list(LAYER_COLOURS) + ["#4a7fbf"])   # the layers, then "unknown disc"
+        colour_of = (layer % 2).astype(np.int8)
+        ids0 = first["id"]
+        # the view: the bin (or the discs) from the floor to above the wheel's highest point
+        if sc is not None:
+            xa, xb = 0.0, sc.bin.length
+        else:
+            xa, xb = float(np.min(x0 - r0, initial=0.0)), float(np.max(x0 + r0, initial=1.0))
+        ya = 0.0
+        yb = max(surface, float(np.max(y0 + r0, initial=0.0)))
+        wheel = sc is not None and sc.wheel.enabled
+        if wheel:
+            yb = max(yb, float(np.max(traj.wheel_states[:, 1])) + sc.wheel.lug_tip_radius)
+        yb += 0.03 * (yb - ya)
+        W = WIDTH_PX
+        H = max(16, int(round(W * (yb - ya) / (xb - xa) / 16.0)) * 16)
+        yb = ya + (xb - xa) * H / W            # equal scale in x and y
+        plt = _pyplot()
+        dpi = 100
+        fig = plt.figure(figsize=(W / dpi, H / dpi), dpi=dpi)
+        ax = fig.add_axes([0, 0, 1, 1])
+        ax.set_xlim(xa, xb)
+        ax.set_ylim(ya, yb)
+        ax.set_axis_off()
+        ax.set_facecolor("white")
+        from matplotlib.collections import EllipseCollection
+        from matplotlib.patches import Polygon
+        coll = None
+        wpatch = Polygon(np.zeros((3, 2)), closed=True, facecolor="#b8c4d0", edgecolor="k",
+                         linewidth=0.8, zorder=5, visible=wheel)
+        ax.add_patch(wpatch)
+        label = ax.text(0.01, 0.98, "", transform=ax.transAxes, va="top", ha="left", fontsize=14,
+                        family="monospace", zorder=10,
+                        bbox=dict(facecolor="white", edgecolor="0.5", alpha=0.85))
+        bar = None
+        if progress:
+            import sys
+            from tqdm import tqdm
+            bar = tqdm(total=len(traj), desc=f"animate {out.name}", unit="frame", file=sys.stderr,
+                       dynamic_ncols=True)
+
+        def write(tmp: Path) -> int:
+            nonlocal coll
+            if ext == ".mp4":
+                writer = iio.get_writer(tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264",
+                                        pixelformat="yuv420p", macro_block_size=16,
+                                        output_params=["-f", "mp4"], ffmpeg_log_level="error")
+            else:
+                import imageio.plugins.pillow_legacy  # noqa: F401  (registers GIF-PIL)
+                writer = iio.get_writer(tmp, format="GIF-PIL", mode="I", duration=1.0 / fps, loop=0)
+            n = 0
+            try:
+                for fr in traj:   # one frame at a time
+                    ids, pos, r = fr["id"], fr["pos"], fr["r"]
+                    if coll is None or len(ids) != len(coll.get_offsets()):
+                        if coll is not None:
+                            coll.remove()
+                        at = np.clip(np.searchsorted(ids0, ids), 0, max(len(ids0) - 1, 0))
+                        known = (ids0[at] == ids) if len(ids0) else np.zeros(len(ids), bool)
+                        fc = palette[np.where(known, colour_of[at] if len(ids0) else 2, 2)]
+                        d = 2.0 * r
+                        coll = EllipseCollection(d, d, np.zeros_like(d), units="xy", offsets=pos,
+                                                 offset_transform=ax.transData, facecolors=fc,
+                                                 edgecolors="#3a2a1a", linewidths=0.15, zorder=1)
+                        ax.add_collection(coll)
+                    else:
+                        coll.set_offsets(pos)
+                    ws = fr["wheel_state"]
+                    text = f"t = {fr['time']:7.3f} s"
+                    if wheel:
+                        w = sc.wheel
+                        wpatch.set_xy(wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs,
+                                                    w.lug_tip_radius, w.lug_thickness))
+                        s = _slip(ws, w.radius)
+                        text += "\nslip = " + (f"{s:6.3f}" if s is not None else "   —  ")
+                    label.set_text(text)
+                    fig.canvas.draw()
+                    img = np.asarray(fig.canvas.buffer_rgba())[:, :, :3]
+                    writer.append_data(np.ascontiguousarray(img))
+                    n += 1
+                    if bar is not None:
+                        bar.update(1)
+            finally:
+                writer.close()
+            return n
+
+        try:
+            n_written = _write_replacing_suffixed(out, write)
+        except OSError as e:
+            raise ExportError(f"--out {out}: cannot write ({e.strerror or e})") from None
+        finally:
+            if bar is not None:
+                bar.close()
+            plt.close(fig)
+        return out, n_written
+    finally:
+        traj.close()
+
+
+
+def _write_replacing_suffixed(out: Path, write) -> int:
+    """atomic.write_replacing with a temporary that keeps the suffix (the encoders pick the
+    format from it): created exclusively beside ``out``, renamed over it when complete."""
+    import contextlib
+    import os
+    import tempfile
+    fd, name = tempfile.mkstemp(prefix=f".{out.stem}.tmp-", suffix=out.suffix, dir=out.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        n = write(tmp)
+        os.replace(tmp, out)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return n

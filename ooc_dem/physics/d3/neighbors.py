@@ -13,19 +13,7 @@ sorted by global id, the set of pairs is exact: distances are checked).
 """
 import numpy as np
 from numba import njit, prange
-
-
-@njit(inline="always", cache=True)
-def _sort_by_gid(idx, lo, hi, gid):
-    """Insertion sort of idx[lo:hi] by global id (a sphere's lists are short)."""
-    for a in range(lo + 1, hi):
-        v = idx[a]
-        gv = gid[v]
-        b = a - 1
-        while b >= lo and gid[idx[b]] > gv:
-            idx[b + 1] = idx[b]
-            b -= 1
-        idx[b + 1] = v
+from ..neighbors import _slots, _sort_by_gid  # dimension-free: the same in 2D and 3D
 
 
 @njit(cache=True)
@@ -141,21 +129,6 @@ def _scan(pos, r, gid, n, ncx, ncy, ncz, cell_start, cell_list, cell_of, skin,
             continue
         _sort_by_gid(pair_b, u0, u0 + nu, gid)
         _sort_by_gid(inc, l0, l0 + nl, gid)
-
-
-@njit(parallel=True, cache=True)
-def _slots(n, half_off, pair_b, pair_a, inc_off, inc_k):
-    """pair_a[k] = the lower sphere of slot k; inc_k: each lower partner a of sphere b
-    replaced by the slot of the pair (a, b) in a's half list."""
-    for i in prange(n):
-        for q in range(half_off[i], half_off[i + 1]):
-            pair_a[q] = i
-        for e in range(inc_off[i], inc_off[i + 1]):
-            a = inc_k[e]
-            q = half_off[a]
-            while pair_b[q] != i:
-                q += 1
-            inc_k[e] = q
 
 
 @njit(cache=True)

@@ -179,7 +179,7 @@ class RunResult:
 
     def trajectory(self):
         """The run's trajectory frames (``output.snapshot_interval``), read from
-        ``trajectory.h5`` one at a time.
+        ``trajectory/`` (one HDF5 file a frame) one at a time.
 
         Returns
         -------

@@ -149,12 +149,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
 
     q = sub.add_parser("export-trajectory", help="write a run's trajectory as an XDMF time series "
-                                                 "for ParaView (refers to RUN/trajectory.h5, no copy)")
-    q.add_argument("run", metavar="RUN", help="run directory (with trajectory.h5)")
+                                                 "for ParaView (refers to the frame files in RUN/trajectory/, no copy)")
+    q.add_argument("run", metavar="RUN", help="run directory (with trajectory/)")
     q.add_argument("--out", required=True, metavar="FILE.xdmf", help="XDMF file to write (outside the run)")
 
     q = sub.add_parser("animate", help="render a run's trajectory as a film (MP4 or GIF)")
-    q.add_argument("run", metavar="RUN", help="run directory (with trajectory.h5)")
+    q.add_argument("run", metavar="RUN", help="run directory (with trajectory/)")
     q.add_argument("--out", metavar="FILE", help="FILE.mp4 (ffmpeg from imageio-ffmpeg) or FILE.gif; "
                                                  "default RUN.mp4 beside the run directory")
     q.add_argument("--fps", type=_count(1, 120), default=20, help="frames per second (default 20)")
@@ -511,7 +511,7 @@ def cmd_export_trajectory(args):
             raise CliError(str(e)) from None
         n, t = len(traj), (float(traj.times[-1]) if len(traj) else 0.0)
     print(f"exported {n} frames (t = 0 .. {t:.6f} s) of {traj.path} as XDMF: {out} "
-          f"(open it in ParaView; it refers to {traj.path.name}, keep both)")
+          f"(open it in ParaView; it refers to the files of {traj.path.name}, keep both)")
     return 0
 
 

@@ -162,7 +162,7 @@ class Output:
     steady_start: float = 9.6      # s of travel
     steady_end: float = 45.0       # s of travel
     run_steps: int = 0             # bare beds: default step count of `run`
-    snapshot_interval: float = 0.0  # s, trajectory frame interval (trajectory.h5); 0 = none
+    snapshot_interval: float = 0.0  # s, trajectory frame interval (RUN/trajectory/); 0 = none
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from conftest import one_line_error, run_cli
-from ooc_dem.trajectory import ROW_FIELDS, TRAJECTORY_FILE, Trajectory, TrajectoryWriter, wheel_outline
+from ooc_dem.trajectory import (ROW_FIELDS, TRAJECTORY_DIR, TRAJECTORY_FILE, Trajectory, TrajectoryWriter,
+                                frame_name, wheel_outline)
 
 STEPS = 600
 # 123 steps: a multiple neither of the block K = 10 nor of the epoch interval (250): the frame
@@ -65,9 +66,11 @@ def test_modes_write_the_same_frames(runs):
     assert [f["time"] for f in ref] == [s * 1e-5 for s in FRAME_STEPS]
     for name in ("ddm", "ooc"):
         assert_same_frames(ref, frames_of(runs[name]))
-    with h5py.File(runs["ooc"] / TRAJECTORY_FILE, "r") as f:
-        assert (np.diff(f["id"][1500:3000]) < 0).any()   # slab order, not id order
-    assert not (runs["noframes"] / TRAJECTORY_FILE).exists()
+    folder = runs["ooc"] / TRAJECTORY_DIR
+    assert sorted(p.name for p in folder.iterdir()) == [frame_name(s) for s in FRAME_STEPS]
+    with h5py.File(folder / frame_name(123), "r") as f:
+        assert (np.diff(f["id"][:]) < 0).any()   # slab order, not id order
+    assert not (runs["noframes"] / TRAJECTORY_DIR).exists()
 
 
 def test_frames_change_no_bits(runs):
@@ -79,96 +82,154 @@ def test_frames_change_no_bits(runs):
     assert last["wheel_state"].shape == (6,) and np.isfinite(last["pos"]).all()
 
 
-def _committed_frames(path) -> int:
-    """The committed frame count of a trajectory another process is writing (0 if unreadable now)."""
+def _published(folder) -> tuple[int, bool]:
+    """(published frame files, whether a temporary frame file exists) of a folder another
+    process is writing (names only: no HDF5 file is opened)."""
     try:
-        with h5py.File(path, "r", locking=False) as f:
-            return int(f.attrs["frames"])
-    except (OSError, KeyError, ValueError):
-        return 0
+        names = os.listdir(folder)
+    except FileNotFoundError:
+        return 0, False
+    return (sum(n.startswith("frame-") and n.endswith(".h5") for n in names),
+            any(".h5.tmp-" in n for n in names))
 
 
-def test_sigkill_then_resume_continues_the_same_trajectory(tmp_path):
-    """A run SIGKILLed mid-way (a real subprocess) after frames beyond its last epoch, then
-    resumed, has exactly the frames of an uninterrupted run: no duplicates, no gaps, every
-    array equal (np.array_equal), and the same final state."""
-    args = ["quick", *MODES["monolithic"], "--steps", 3000, "--checkpoint-every", 500,
-            "--no-progress", "--no-figures", *FRAME]
+def test_sigkill_anywhere_then_resume_gives_the_same_frames(tmp_path):
+    """A run SIGKILLed at 5 random moments (a real subprocess, a frame every 3 steps so that
+    kills land while frame files are being written; twice right when a temporary frame
+    file appears), each time resumed, ends with exactly the frames of an uninterrupted run:
+    the same steps, no duplicates, no gaps, every array equal (np.array_equal); no
+    temporary is left and the final state is the same."""
+    steps, every = 1000, 3
+    args = ["--mode", "monolithic", "--steps", steps, "--checkpoint-every", 200, "--no-progress",
+            "--no-figures", "--set", f"output.snapshot_interval={every * 1e-5}"]
     ref_dir = tmp_path / "ref"
-    run_cli("run", *args[:1], "--out", ref_dir, *args[1:], check=True)
+    run_cli("run", "quick", "--out", ref_dir, *args, check=True)
     ref = frames_of(ref_dir)
-    assert [f["step"] for f in ref] == list(range(0, 3001, 123))
+    assert [f["step"] for f in ref] == list(range(0, steps + 1, every))
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "ooc_dem.cli", "run", "quick", "--out", str(out), *map(str, args[1:])]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    # kill once frame 9 (step 1107) is committed: after the epoch at 1000, so the resume
-    # must drop frames 1107.. and write them again
-    deadline = time.time() + 600
-    while time.time() < deadline and proc.poll() is None:
-        if _committed_frames(out / TRAJECTORY_FILE) >= 10:
-            break
-        time.sleep(0.02)
-    proc.send_signal(signal.SIGKILL)
-    rc = proc.wait()
-    assert rc == -signal.SIGKILL, "the run finished before the kill: make it longer"
-    before = _committed_frames(out / TRAJECTORY_FILE)
-    assert before >= 10
+    folder = out / TRAJECTORY_DIR
+    rng = np.random.default_rng(19)
+    n_ref = len(ref)
+    targets = np.sort(rng.choice(np.arange(15, n_ref - 40), 5, replace=False))
+    cmd = [sys.executable, "-m", "ooc_dem.cli", "run", "quick", "--out", str(out), *map(str, args)]
+    seen_temp = []
+    prev = 0
+    for k, target in enumerate(targets):
+        target = max(int(target), prev + 10)   # frames this process wrote (a resume only drops)
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.time() + 600
+        while time.time() < deadline and proc.poll() is None and _published(folder)[0] < target:
+            time.sleep(0.005)
+        if k in (1, 3):     # right inside a frame's write: as soon as its temporary appears
+            while time.time() < deadline and proc.poll() is None and not _published(folder)[1]:
+                time.sleep(0.0005)
+        else:
+            time.sleep(float(rng.uniform(0.0, 0.05)))
+        proc.send_signal(signal.SIGKILL)
+        rc = proc.wait()
+        assert rc == -signal.SIGKILL, f"kill {k}: the run finished first (rc {rc}): make it longer"
+        prev, temp = _published(folder)
+        seen_temp.append(temp)
+        cmd = [sys.executable, "-m", "ooc_dem.cli", "resume", str(out), "--no-progress", "--no-figures"]
+    assert any(seen_temp), "no kill landed inside a frame's write"
     cp = run_cli("resume", out, "--no-progress", "--no-figures")
     assert cp.returncode == 0, cp.stderr[-2000:]
     assert_same_frames(ref, frames_of(out))
+    assert not [n for n in os.listdir(folder) if ".tmp-" in n]
     assert _hash(out) == _hash(ref_dir)
 
 
-def test_writer_commits_only_whole_frames_and_truncates_on_reopen(tmp_path, quick_scenario):
-    """The committed count decides: an unfinished frame's rows are invisible, and reopening
-    at a step drops the later frames and the leftovers, then appends without a gap."""
+def _quick_frames(quick_scenario):
     import dataclasses
-    sc = dataclasses.replace(quick_scenario, output=dataclasses.replace(quick_scenario.output,
-                                                                        snapshot_interval=1e-4))
+    return dataclasses.replace(quick_scenario, output=dataclasses.replace(quick_scenario.output,
+                                                                          snapshot_interval=1e-4))
+
+
+def _part(rng, step, ids):
+    return {"id": ids, "pos": rng.random((len(ids), 2)) + step, "vel": rng.random((len(ids), 2)),
+            "spin": rng.random((len(ids), 1)), "r": rng.random(len(ids)),
+            "mat": np.zeros(len(ids), np.int32)}
+
+
+def test_writer_publishes_only_whole_frames_and_truncates_on_reopen(tmp_path, quick_scenario):
+    """Only published (renamed) frame files count: an unfinished frame's temporary is
+    invisible, and reopening at a step drops the later frames and the leftovers, then
+    writes on without a gap."""
+    sc = _quick_frames(quick_scenario)
     rng = np.random.default_rng(1)
     n = 50
-
-    def part(step, ids):
-        return {"id": ids, "pos": rng.random((len(ids), 2)) + step, "vel": rng.random((len(ids), 2)),
-                "spin": rng.random((len(ids), 1)), "r": rng.random(len(ids)),
-                "mat": np.zeros(len(ids), np.int32)}
-
     w = TrajectoryWriter.create(tmp_path, sc, 2, n)
     assert w.every == 10
     written = {}
     for step in (0, 10, 20, 30):
         ids = rng.permutation(n)
-        parts = [part(step, ids[:20]), part(step, ids[20:])]
+        parts = [_part(rng, step, ids[:20]), _part(rng, step, ids[20:])]
         w.write_frame(step, step * 1e-5, np.full(6, step, float), parts)
         written[step] = parts
-    w.write_part(40, part(40, np.arange(n)))      # a frame killed half-way: never ended
-    w.close()
-    with Trajectory(tmp_path / TRAJECTORY_FILE) as t:
+    w.write_part(40, _part(rng, 40, np.arange(n)))      # a frame half-way: not ended
+    folder = tmp_path / TRAJECTORY_DIR
+    assert [p for p in os.listdir(folder) if p.startswith(frame_name(40) + ".tmp-")]
+    with Trajectory.of_run(tmp_path) as t:
         assert list(t.steps) == [0, 10, 20, 30]
         f = t[2]
         cat = {k: np.concatenate([p[k] for p in written[20]]) for k in ROW_FIELDS}
         order = np.argsort(cat["id"])
         for k in ROW_FIELDS:
             assert np.array_equal(f[k], cat[k][order].astype(f[k].dtype)), k
+        assert np.array_equal(f["wheel_state"], np.full(6, 20.0)) and f["time"] == 20e-5
+    w.close()
+    assert sorted(os.listdir(folder)) == [frame_name(s) for s in (0, 10, 20, 30)]
     w = TrajectoryWriter.reopen(tmp_path, sc, 2, n, step=20)   # resumed from the epoch at 20
     assert w.committed == 3 and not w.due(20) and w.due(30)
-    w.write_frame(30, 30e-5, np.zeros(6), [part(30, np.arange(n))])
+    assert sorted(os.listdir(folder)) == [frame_name(s) for s in (0, 10, 20)]
+    w.write_frame(30, 30e-5, np.zeros(6), [_part(rng, 30, np.arange(n))])
     w.close()
-    with h5py.File(tmp_path / TRAJECTORY_FILE, "r") as f:
-        assert f.attrs["frames"] == 4 and f["id"].shape == (4 * n,)
-    with Trajectory(tmp_path / TRAJECTORY_FILE) as t:
-        assert list(t.steps) == [0, 10, 20, 30]
-    # an unreadable file (a kill inside an HDF5 flush) is set aside, a new trajectory begins
-    (tmp_path / TRAJECTORY_FILE).write_bytes(b"garbage")
+    with Trajectory.of_run(tmp_path) as t:
+        assert list(t.steps) == [0, 10, 20, 30] and t.rows(3) == (0, n)
+    # a frame file that does not belong (garbage: not ours) is set aside on resume, with a gap
+    (folder / frame_name(10)).write_bytes(b"garbage")
     w = TrajectoryWriter.reopen(tmp_path, sc, 2, n, step=40)
-    assert w.committed == 0 and w.due(40)
+    assert w.steps == [0, 20, 30] and w.due(40)
     w.close()
-    assert (tmp_path / f"{TRAJECTORY_FILE}.damaged-40").read_bytes() == b"garbage"
+    assert (folder / f"{frame_name(10)}.damaged").read_bytes() == b"garbage"
+
+
+def test_half_written_temporary_is_ignored_then_removed_on_resume(tmp_path, quick_scenario):
+    """A kill in the middle of a frame's write leaves a torn temporary file (here: half of a
+    frame's bytes) under the temporary name pattern: the reader does not see it, a resume
+    deletes it, and deletes nothing else (a run directory is untrusted: other names stay)."""
+    sc = _quick_frames(quick_scenario)
+    rng = np.random.default_rng(2)
+    n = 40
+    w = TrajectoryWriter.create(tmp_path, sc, 2, n)
+    for step in (0, 10):
+        w.write_frame(step, step * 1e-5, np.zeros(6), [_part(rng, step, np.arange(n))])
+    w.close()
+    folder = tmp_path / TRAJECTORY_DIR
+    whole = (folder / frame_name(10)).read_bytes()
+    torn = folder / f"{frame_name(20)}.tmp-k1ll3d_x"
+    torn.write_bytes(whole[:len(whole) // 2])
+    others = {"notes.txt": b"mine", f"{frame_name(20)}.tmp-": b"x", "frame-20.h5": b"y",
+              f"{frame_name(30)}.h5.bak": b"z"}
+    for name, data in others.items():
+        (folder / name).write_bytes(data)
+    (folder / f"{frame_name(40)}.tmp-dir").mkdir()          # our pattern, but not a file
+    with Trajectory.of_run(tmp_path) as t:
+        assert list(t.steps) == [0, 10] and len(list(t)) == 2
+    w = TrajectoryWriter.reopen(tmp_path, sc, 2, n, step=10)
+    assert w.steps == [0, 10] and w.due(20)
+    w.close()
+    assert not torn.exists()
+    for name, data in others.items():
+        assert (folder / name).read_bytes() == data
+    assert (folder / f"{frame_name(40)}.tmp-dir").is_dir()
+    with Trajectory.of_run(tmp_path) as t:
+        assert list(t.steps) == [0, 10]
 
 
 def test_xdmf_time_series_reads_in_vtk(tmp_path, runs):
     """export-trajectory: an XDMF temporal collection that vtkXdmfReader reads at every time:
-    1500 disc points with their arrays from trajectory.h5, and the wheel outline polygon."""
+    1500 disc points with their arrays from the frame files, and the wheel outline polygon."""
     vtk = pytest.importorskip("vtk")
     from ooc_dem.scenario import load_scenario
     run = runs["ooc"]
@@ -181,9 +242,12 @@ def test_xdmf_time_series_reads_in_vtk(tmp_path, runs):
     r.SetFileName(str(out))
     r.UpdateInformation()
     times = r.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
-    with Trajectory.of_run(run) as t, h5py.File(run / TRAJECTORY_FILE, "r") as raw:
+    assert f'{TRAJECTORY_DIR}/{frame_name(123)}:/pos' in out.read_text()
+    with Trajectory.of_run(run) as t:
         assert np.allclose(times, t.times, rtol=0, atol=1e-15)
         for i, tv in enumerate(times):
+            with h5py.File(t.file(i), "r") as f:
+                raw = {k: f[k][:] for k in ("pos", "r", "id")}
             r.UpdateTimeStep(tv)
             mb = r.GetOutputDataObject(0)
             assert mb.GetNumberOfBlocks() == 2
@@ -236,7 +300,7 @@ def test_bad_input_is_one_line(tmp_path, runs):
     """No trajectory, a garbage or edited trajectory, an output inside the store, a bad
     suffix or key: exit 2 with one line."""
     one_line_error(run_cli("animate", runs["noframes"], "--out", tmp_path / "a.gif"),
-                   "no trajectory.h5", "snapshot_interval")
+                   "no trajectory/", "snapshot_interval")
     one_line_error(run_cli("export-trajectory", tmp_path / "nowhere", "--out", tmp_path / "a.xdmf"),
                    "not a run directory")
     one_line_error(run_cli("export-trajectory", runs["ooc"], "--out", runs["ooc"] / "a.xdmf"),
@@ -246,20 +310,63 @@ def test_bad_input_is_one_line(tmp_path, runs):
     one_line_error(run_cli("check", "quick", "--set", "output.snapshot_interval=-1"),
                    "output.snapshot_interval")
     bad = tmp_path / "bad"
-    bad.mkdir()
-    (bad / TRAJECTORY_FILE).write_bytes(b"\x89HDF\r\n\x1a\n" + os.urandom(2000))
+    (bad / TRAJECTORY_DIR).mkdir(parents=True)
+    target = bad / TRAJECTORY_DIR / frame_name(123)
+    target.write_bytes(b"\x89HDF\r\n\x1a\n" + os.urandom(2000))
     one_line_error(run_cli("animate", bad, "--out", tmp_path / "b.gif"), "not a readable HDF5 file")
-    for edit, needle in ((lambda f: f.attrs.__setitem__("frames", 99), "frames committed"),
+    good = runs["monolithic"] / TRAJECTORY_DIR / frame_name(123)
+    for edit, needle in ((lambda f: f.attrs.__setitem__("step", 99), "its name says 123"),
                          (lambda f: f.attrs.__setitem__("format", "x"), "not an ooc-dem trajectory"),
-                         (lambda f: f["frame_start"].__setitem__(1, 7), "not contiguous"),
                          (lambda f: f["id"].__setitem__(1, f["id"][0]), "disc id twice"),
-                         (lambda f: f.attrs.__setitem__("frames", -3), "is not a count")):
-        (bad / TRAJECTORY_FILE).write_bytes((runs["monolithic"] / TRAJECTORY_FILE).read_bytes())
-        with h5py.File(bad / TRAJECTORY_FILE, "r+") as f:
+                         (lambda f: f.attrs.__setitem__("n_discs", -3), "is not a count"),
+                         (lambda f: f["r"].resize(7, axis=0), "rows"),
+                         (lambda f: f.__setitem__("mat2", f["mat"][:]) or f.__delitem__("mat"),
+                          "no dataset 'mat'"),
+                         (lambda f: f.attrs.__setitem__("dim", 3), "dtype")):
+        target.write_bytes(good.read_bytes())
+        with h5py.File(target, "r+") as f:
             edit(f)
         one_line_error(run_cli("animate", bad, "--out", tmp_path / "c.gif", "--no-progress"), needle)
+    target.unlink()
+    target.symlink_to(good)                            # a frame name that is a symlink
+    one_line_error(run_cli("export-trajectory", bad, "--out", tmp_path / "e.xdmf"), "not a regular file")
     link = tmp_path / "linked"
     link.mkdir()
-    (link / TRAJECTORY_FILE).symlink_to(runs["monolithic"] / TRAJECTORY_FILE)
+    (link / TRAJECTORY_DIR).symlink_to(runs["monolithic"] / TRAJECTORY_DIR)
     one_line_error(run_cli("export-trajectory", link, "--out", tmp_path / "d.xdmf"),
+                   "not a directory")
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / TRAJECTORY_FILE).symlink_to(good)           # version 1 file: the old rule still holds
+    one_line_error(run_cli("export-trajectory", old, "--out", tmp_path / "f.xdmf"),
                    "outside the run directory")
+
+
+def test_version_1_single_file_is_read_and_migrated_on_resume(tmp_path, quick_scenario):
+    """A run directory of an earlier engine (one RUN/trajectory.h5, format version 1) is still
+    read; resumed, its frames up to the resumed step are copied into trajectory/, equal."""
+    sc = _quick_frames(quick_scenario)
+    rng = np.random.default_rng(3)
+    n, steps = 30, [0, 10, 20, 30]
+    parts = [_part(rng, s, rng.permutation(n)) for s in steps]
+    with h5py.File(tmp_path / TRAJECTORY_FILE, "w") as f:
+        for k, v in {"format": "ooc-dem trajectory", "format_version": 1, "dim": 2,
+                     "frame_every_steps": 10, "dt": sc.physics.dt, "scenario_hash": sc.hash(),
+                     "n_discs": n, "frames": len(steps)}.items():
+            f.attrs[k] = v
+        for k in ROW_FIELDS:
+            f[k] = np.concatenate([p[k] for p in parts]).astype(
+                {"id": "<i8", "mat": "<i4"}.get(k, "<f8"))
+        f["frame_step"] = np.array(steps, "<i8")
+        f["frame_time"] = np.array(steps, "<f8") * 1e-5
+        f["frame_start"] = np.arange(len(steps), dtype="<i8") * n
+        f["frame_rows"] = np.full(len(steps), n, "<i8")
+        f["wheel_state"] = np.zeros((len(steps), 6))
+    old = frames_of(tmp_path)
+    assert [f["step"] for f in old] == steps
+    assert np.array_equal(old[1]["pos"], parts[1]["pos"][np.argsort(parts[1]["id"])])
+    w = TrajectoryWriter.reopen(tmp_path, sc, 2, n, step=20)
+    assert w.steps == [0, 10, 20] and w.due(30)
+    w.close()
+    assert sorted(os.listdir(tmp_path / TRAJECTORY_DIR)) == [frame_name(s) for s in steps[:3]]
+    assert_same_frames(old[:3], frames_of(tmp_path))

@@ -3,7 +3,7 @@
 
     python tools/trajectory_memory.py --discs 1000000 --frames 3 --work DIR
 
-Writes DIR/run/trajectory.h5 (frames of N discs on a jittered grid, written in 8 parts each
+Writes DIR/run/trajectory/ (frames of N discs on a jittered grid, written in 8 parts each
 as an out-of-core run would) and DIR/run/scenario.toml (quick's wheel), then runs each
 command in a fresh interpreter and prints its peak RSS (VmHWM) next to one frame's size.
 """

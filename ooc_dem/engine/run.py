@@ -438,9 +438,11 @@ class Simulation:
         if not self.frame_every:
             return
         if resumed:
-            self.frames = TrajectoryWriter.reopen(self.out, self.sc, self.model.dim, self.n_discs(), self.step)
+            self.frames = TrajectoryWriter.reopen(self.out, self.sc, self.model.dim, self.n_discs(), self.step,
+                                                 durable=self.opts.durable)
         else:
-            self.frames = TrajectoryWriter.create(self.out, self.sc, self.model.dim, self.n_discs())
+            self.frames = TrajectoryWriter.create(self.out, self.sc, self.model.dim, self.n_discs(),
+                                                 durable=self.opts.durable)
         if self.frames.due(self.step):
             self._write_frame(parts_written=False)
 

@@ -93,14 +93,16 @@ def _published(folder) -> tuple[int, bool]:
             any(".h5.tmp-" in n for n in names))
 
 
-def test_sigkill_anywhere_then_resume_gives_the_same_frames(tmp_path):
+@pytest.mark.parametrize("mode", ["monolithic", "ooc"])
+def test_sigkill_anywhere_then_resume_gives_the_same_frames(tmp_path, mode):
     """A run SIGKILLed at 5 random moments (a real subprocess, a frame every 3 steps so that
     kills land while frame files are being written; twice right when a temporary frame
-    file appears), each time resumed, ends with exactly the frames of an uninterrupted run:
+    file appears; out-of-core: its slab parts written as the sweep passes), each time
+    resumed, ends with exactly the frames of an uninterrupted run:
     the same steps, no duplicates, no gaps, every array equal (np.array_equal); no
     temporary is left and the final state is the same."""
     steps, every = 1000, 3
-    args = ["--mode", "monolithic", "--steps", steps, "--checkpoint-every", 200, "--no-progress",
+    args = [*MODES[mode], "--steps", steps, "--checkpoint-every", 200, "--no-progress",
             "--no-figures", "--set", f"output.snapshot_interval={every * 1e-5}"]
     ref_dir = tmp_path / "ref"
     run_cli("run", "quick", "--out", ref_dir, *args, check=True)

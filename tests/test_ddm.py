@@ -128,3 +128,30 @@ def test_cli_ddm_and_compare(tmp_path):
     assert ha == hb
     cmp = run_cli("compare", a, b, check=True).stdout
     assert "BIT-IDENTICAL" in cmp
+
+
+def test_compiled_sweeps_on_one_thread_give_the_monolithic_bits():
+    """On one numba thread serial DDM runs whole sweeps in one compiled call
+    (live.run_sweeps): the engine must take that path and keep the bits."""
+    import numba
+    from ooc_dem.bed import settled_bed
+    from ooc_dem.engine.run import place_wheel
+    from ooc_dem.engine.stepper import DomainStepper, Model
+    from ooc_dem.engine.sweep import sweep_run
+    from ooc_dem.scenario import load_scenario
+    from ooc_dem.state import state_hash
+    sc = load_scenario("quick", ["wheel.settle_time=0.0", "wheel.drop_gap=0.0",
+                                 "wheel.omega=5.0", "decomposition.margin=0.001"])
+    bed = settled_bed(sc)
+    ws = place_wheel(sc, bed)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        mono = DomainStepper(bed.take(np.arange(len(bed))), Model.from_scenario(sc), ws)
+        mono.advance(0, 600)
+        p, w, _, eng = sweep_run(sc, bed.take(np.arange(len(bed))), ws, 600, domains=6, block=1)
+    finally:
+        numba.set_num_threads(threads)
+    assert eng.compiled_sweeps
+    assert state_hash(p, w, 600) == state_hash(mono.p, mono.ws, 600)
+    assert np.array_equal(p.sorted_by_id().hist_s, mono.p.sorted_by_id().hist_s)

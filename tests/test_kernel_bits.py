@@ -37,6 +37,9 @@ BED100K_150 = "d336a4b2c1a003284f51bd03a3e5b6b545a522e81604891b85968fbed24953c6"
 CASES = {
     "quick-monolithic": (["quick", *QUICK, "--steps", 6000], {}, QUICK_6000),
     "quick-ddm6": (["quick", *QUICK, "--steps", 6000, "--mode", "ddm", "--domains", 6], {}, QUICK_6000),
+    # one numba thread: serial DDM runs its sweeps in one compiled call (live.run_sweeps)
+    "quick-ddm6-1thread": (["quick", *QUICK, "--steps", 6000, "--mode", "ddm", "--domains", 6],
+                           {"NUMBA_NUM_THREADS": "1"}, QUICK_6000),
     "quick-ooc": (["quick", *QUICK, "--steps", 6000, "--mode", "ooc", "--domains", 2, "--block", 25],
                   {}, QUICK_6000),
     "paper2008-2threads": (["paper2008", *PAPER, "--steps", 7000], {"NUMBA_NUM_THREADS": "2"},

@@ -15,6 +15,7 @@ alive between sweeps (``live.LiveDomains``: same bits, no per-sweep rebuilding).
 from __future__ import annotations
 
 
+import numba
 import numpy as np
 
 from ..checkpoint import open_epoch, particles_to_record, record_to_particles
@@ -148,9 +149,11 @@ class SweepEngine:
         self._live_stale = False    # the compiled sweeps stopped for a rebuild of the local sets
         self._step = 0
         self.live_builds = 0
-        # serial DDM runs whole sweeps in compiled calls when the step kernels have a
-        # one-thread twin (live.run_sweeps); else one call per sub-domain and block
-        self.compiled_sweeps = sweeps_kernel(self.model.kernels()) is not None
+        # serial DDM runs whole sweeps in compiled calls (live.run_sweeps) on one thread;
+        # with more threads, one call per sub-domain and block (the lanes' barrier per
+        # sweep measured ~6x slower than that on 2 threads, paper2008 D = 6, K = 1)
+        self.compiled_sweeps = (sweeps_kernel(self.model.kernels()) is not None
+                                and numba.get_num_threads() == 1)
         # x motion a live local set tolerates before it is rebuilt (one contact hop)
         self.membership_skin = hop
         self.preferred_chunk = max(self.K, (2000 // self.K) * self.K)

@@ -174,18 +174,7 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
     rows = None
     for k in ROW_FIELDS:
         tail = _tails(dim)[k]
-        link = f.get(k, getlink=True)
-        if not isinstance(link, h5py.HardLink):
-            raise TrajectoryError(f"{path}: no dataset {k!r}" if link is None else
-                                  f"{path}: {k!r} is a link (refused)")
-        ds = f[k]
-        if not isinstance(ds, h5py.Dataset):
-            raise TrajectoryError(f"{path}: {k!r} is not a dataset")
-        if ds.is_virtual or ds.external:
-            raise TrajectoryError(f"{path}: dataset {k!r} refers to other files (refused)")
-        if ds.dtype != _DTYPES[k] or ds.shape[1:] != tail:
-            raise TrajectoryError(f"{path}: dataset {k!r} has dtype {ds.dtype.str} shape {ds.shape}, "
-                                  f"expected {_DTYPES[k].str} (rows, {', '.join(map(str, tail))})")
+        ds = _checked_dataset(f, k, tail, path)
         if rows is None:
             rows = ds.shape[0]
         elif ds.shape[0] != rows:
@@ -211,6 +200,25 @@ def _open_frame(path, step: int | None = None):
 
 
 # ------------------------------------------------------------------ writer
+
+def _checked_dataset(f, k: str, tail: tuple, path):
+    """Dataset k of an open trajectory file, refused unless it is a hard-linked, local
+    dataset of our dtype with row shape ``tail`` (one-line TrajectoryError)."""
+    h5py = _h5py()
+    link = f.get(k, getlink=True)
+    if not isinstance(link, h5py.HardLink):
+        raise TrajectoryError(f"{path}: no dataset {k!r}" if link is None else
+                              f"{path}: {k!r} is a link (refused)")
+    ds = f[k]
+    if not isinstance(ds, h5py.Dataset):
+        raise TrajectoryError(f"{path}: {k!r} is not a dataset")
+    if ds.is_virtual or ds.external:
+        raise TrajectoryError(f"{path}: dataset {k!r} refers to other files (refused)")
+    if ds.dtype != _DTYPES[k] or ds.shape[1:] != tail:
+        raise TrajectoryError(f"{path}: dataset {k!r} has dtype {ds.dtype.str} shape {ds.shape}, "
+                              f"expected {_DTYPES[k].str} (rows, {', '.join(map(str, tail))})")
+    return ds
+
 
 class TrajectoryWriter:
     """Write frames to ``RUN/trajectory/``, one file a frame (see the module docstring).
@@ -428,18 +436,7 @@ def _check_legacy_layout(f, path) -> None:
     if not isinstance(dt, (float, np.floating)) or not (0.0 < float(dt) < 1.0):
         raise TrajectoryError(f"{path}: attribute 'dt' = {dt!r} is not a time step")
     for k, tail in _tails(dim).items():
-        link = f.get(k, getlink=True)
-        if not isinstance(link, h5py.HardLink):
-            raise TrajectoryError(f"{path}: no dataset {k!r}" if link is None else
-                                  f"{path}: {k!r} is a link (refused)")
-        ds = f[k]
-        if not isinstance(ds, h5py.Dataset):
-            raise TrajectoryError(f"{path}: {k!r} is not a dataset")
-        if ds.is_virtual or ds.external:
-            raise TrajectoryError(f"{path}: dataset {k!r} refers to other files (refused)")
-        if ds.dtype != _DTYPES[k] or ds.shape[1:] != tail:
-            raise TrajectoryError(f"{path}: dataset {k!r} has dtype {ds.dtype.str} shape {ds.shape}, "
-                                  f"expected {_DTYPES[k].str} (rows, {', '.join(map(str, tail))})")
+        ds = _checked_dataset(f, k, tail, path)
 
 
 def _check_legacy_index(f, path, F: int) -> dict[str, np.ndarray]:

@@ -11,6 +11,7 @@ contacts per particle and the ratios ooc-dem / LAMMPS.
 
     python tools/peers/lammps.py --sizes 7000,100000 --steps 500 --out peers-run
     python tools/peers/lammps.py --lmp /opt/lammps/bin/lmp --ranks 1,2
+    python tools/peers/lammps.py --family bed3d --law hertz --sizes 20000 --steps 300
 
 How the law is mapped (ooc-dem -> LAMMPS), per material pair (soil-soil -> pair_style,
 soil-wall -> fix wall/gran):
@@ -30,6 +31,49 @@ soil-wall -> fix wall/gran):
 - Known differences: LAMMPS starts with zero tangential springs (data files hold no
   history; the warm-up reloads them); at the Coulomb limit LAMMPS keeps the spring at
   (limit - damping), ours at the limit; velocity Verlet vs leapfrog (same forces per step).
+
+3D (``--family bed3d``, or ``--dim 3``): the settled bed of ``bed3d-N`` (spheres in a box:
+floor, end walls x = 0 / length, side walls z = 0 / width, open top) in LAMMPS with
+``dimension 3``, ``atom_style sphere`` (mass and I = 2/5 m r^2 as ours: each atom's density
+is m / (4/3 pi r^3)), ``pair_style granular`` and ``fix wall/gran granular`` on the three
+wall pairs, gravity, dt and skin as ours. ``--law`` picks the law of BOTH the soil-soil
+and the soil-wall contacts (overrides of bed3d, values taken from bed3d itself):
+
+- ``linear``: soil-soil switched to the linear law with bed3d's soil-wall parameters
+  (kn, ks, damping ratios, friction); LAMMPS ``hooke kn e' tangential linear_history ks
+  x_gt mu damping tsuji limit_damping`` (ours clamps the normal force at zero).
+- ``hertz``: soil-wall switched to Hertz-Mindlin with bed3d's soil E, nu, restitution;
+  LAMMPS ``hertz/material E' e' nu tangential mindlin/force 8G* x_gt mu damping tsuji``
+  (``mindlin/force``: the spring is a force incremented by 8 G* a vt dt, as ours; no
+  ``limit_damping``: our Hertz law lets the damping pull, so that the restitution is e).
+
+The coefficients come from the kernel's own CONTACT_PARAMS table (scenario.contact_table_3d),
+so they are what ooc-dem computes with, mapped exactly per contact (no mean mass):
+
+- normal damping: LAMMPS ``tsuji`` damping is alpha(e') sqrt(m_eff Fe/delta) (Fe/delta
+  = kn for hooke, 4/3 E* a for hertz/material), alpha the Tsuji polynomial of the
+  coefficient e' given in place of the damping. Ours is 2 zn sqrt(m_eff kn) (linear) and
+  2 sqrt(5/6) |beta| sqrt(2 E* a m_eff) = sqrt(5) |beta| sqrt(4/3 E* a m_eff) (Hertz), the
+  same form; e' is the root of alpha(e') = 2 zn, resp. sqrt(5) |beta(e)|, found by
+  bisection (alpha is monotone on [0, 1]; its relative error is reported). So e' is NOT
+  the restitution: it is the number that makes LAMMPS's damping coefficient equal ours
+  (``damping coeff_restitution`` of newer LAMMPS is the same law but missing from the 2021
+  Debian build; tsuji exists in both).
+- tangential damping: LAMMPS's is x_gt times the normal damping coefficient; ours is
+  2 zt sqrt(m_eff ks) (linear) and 2 sqrt(5/6) |beta| sqrt(8 G* a m_eff) (Hertz), so
+  x_gt = (zt / zn) sqrt(ks / kn), resp. sqrt(4 G* / E*), exactly, for every contact.
+- stiffness: kn, ks as given (hooke, linear_history); hertz/material gets E' so that
+  LAMMPS's E* equals ours: pairs E* = E'/(2 (1 - nu^2)) (same material), walls as the
+  binary computes it (the probe measures a sphere pressed on a wall: the 2021 build
+  uses E/(2 (1 - nu)), current LAMMPS E/(2 (1 - nu^2))); the Mindlin stiffness is
+  given as the number 8 G*, so LAMMPS's E-nu mixing never enters.
+- rolling resistance off on both sides (LAMMPS ``sds`` has one constant stiffness and
+  damping per type pair; ours scale with R*^2, I* and, for Hertz, a), no twisting on
+  either side, friction mu = ours.
+- Known 3D differences besides the 2D ones: LAMMPS's Coulomb limit is mu |Fn| with the
+  damping included (ours mu max(Fn, 0): the same unless the damping pulls); its torque
+  lever arm is r - delta/2 (ours r); it re-projects the spring onto the tangent plane only
+  when the out-of-plane part exceeds a tolerance (ours every step).
 """
 from __future__ import annotations
 
@@ -224,6 +268,231 @@ print           "OOC_KINETIC_ENERGY ${{kin}}"
 """
 
 
+# ------------------------------------------------------------------ 3D (bed3d-N)
+
+LAWS_3D = ("linear", "hertz")
+
+
+def overrides_3d(law: str) -> list[str]:
+    """Scenario overrides of bed3d that make both contact pairs use ``law`` with bed3d's own
+    values (linear: the soil-wall parameters; hertz: the soil's E, nu, restitution), rolling
+    resistance off on both pairs (module doc)."""
+    from ooc_dem.scenario import load_scenario
+    base = load_scenario("bed3d")
+    ss, sw = base.contact.soil_soil, base.contact.soil_wall
+    ov = [f"contact.{p}.{k}=0" for p in ("soil_soil", "soil_wall")
+          for k in ("rolling_friction", "rolling_damping")]
+    if law == "linear":
+        ov += ['contact.soil_soil.law="linear"'] + [
+            f"contact.soil_soil.{k}={getattr(sw, k)!r}" for k in ("kn", "ks", "damping_n", "damping_t", "friction")]
+    elif law == "hertz":
+        ov += ['contact.soil_wall.law="hertz"'] + [
+            f"contact.soil_wall.{k}={getattr(ss, k)!r}" for k in ("youngs_modulus", "poisson_ratio", "restitution",
+                                                                   "friction")]
+    else:
+        raise SystemExit(f"--law {law}: must be one of {', '.join(LAWS_3D)}")
+    return ov
+
+
+def tsuji_alpha(e: float) -> float:
+    """LAMMPS's Tsuji damping prefactor of the coefficient e (its polynomial, its order)."""
+    return (1.2728 - 4.2783 * e + 11.087 * e ** 2 - 22.348 * e ** 3 + 27.467 * e ** 4
+            - 18.022 * e ** 5 + 4.8218 * e ** 6)
+
+
+def tsuji_coefficient(alpha: float, what: str) -> float:
+    """The e' in [0, 1] with tsuji_alpha(e') = alpha (alpha decreases monotonically on [0, 1])."""
+    hi_a, lo_a = tsuji_alpha(0.0), tsuji_alpha(1.0)
+    if not lo_a <= alpha <= hi_a:
+        raise SystemExit(f"{what}: damping prefactor {alpha:.4g} outside what LAMMPS's tsuji damping "
+                         f"can give ([{lo_a:.4g}, {hi_a:.4g}])")
+    lo, hi = 0.0, 1.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            break
+        if tsuji_alpha(mid) > alpha:
+            lo = mid
+        else:
+            hi = mid
+    return lo if abs(tsuji_alpha(lo) - alpha) <= abs(tsuji_alpha(hi) - alpha) else hi
+
+
+def _probe_data_3d() -> str:
+    # sphere 1 (r 0.1) pressed 1e-4 into the floor, sphere 2 (r 0.1) 1e-4 onto sphere 1
+    return ("probe\n\n2 atoms\n1 atom types\n\n0 1 xlo xhi\n0 1 ylo yhi\n0 1 zlo zhi\n\n"
+            "Atoms # sphere\n\n1 1 0.2 1000 0.5 0.0999 0.5\n2 1 0.2 1000 0.5 0.2998 0.5\n")
+
+
+def probe_3d(lmp: str, workdir: Path) -> dict:
+    """Check that the binary's ``granular`` styles accept every keyword the 3D inputs use
+    (one line each: hooke/linear_history/limit_damping and hertz/material/mindlin/force,
+    tsuji damping, as pair_coeff and as fix wall/gran granular), and measure its wall
+    E* convention: the floor force on sphere 1 of _probe_data_3d with hertz/material
+    E = 1e8, nu = 0.3 (pair force known: 4/3 E/(2(1-nu^2)) sqrt(R*) delta^1.5)."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    E, nu, d = 1.0e8, 0.3, 1.0e-4
+    head = ("units si\ndimension 3\nboundary f f f\natom_style sphere\natom_modify map array\n"
+            "read_data probe.data\ncomm_modify vel yes\npair_style granular\n")
+    lin = "hooke 5e4 0.5 tangential linear_history 1e4 1.0 0.5 damping tsuji limit_damping"
+    hz = f"hertz/material {E!r} 0.5 {nu!r} tangential mindlin/force 4e7 1.0 0.5 damping tsuji"
+    checks = {"pair hooke/linear_history/tsuji/limit_damping": f"pair_coeff * * {lin}\n",
+              "pair hertz/material/mindlin/force/tsuji": f"pair_coeff * * {hz}\n",
+              "wall/gran granular hooke/linear_history/tsuji/limit_damping":
+                  f"pair_coeff * * {lin}\nfix w all wall/gran granular {lin} yplane 0 NULL\n",
+              "wall/gran granular hertz/material/mindlin/force/tsuji":
+                  f"pair_coeff * * {hz}\nfix w all wall/gran granular {hz} yplane 0 NULL\n"}
+    missing = []
+    text = ""
+    for what, body in checks.items():
+        text = _run_lmp_serial(lmp, workdir, head + body + "run 0\nvariable f1 equal fy[1]\n"
+                               "variable f2 equal fy[2]\nprint \"PROBE_F ${f1} ${f2}\"\n", _probe_data_3d())
+        if not re.search(r"PROBE_F \S+ \S+", text):
+            missing.append(f"{what}: {(re.findall(r'ERROR.*', text) or ['no output'])[0]}")
+    if missing:
+        raise SystemExit(f"{lmp}: its granular styles refuse what the 3D input needs:\n  " + "\n  ".join(missing))
+    f = re.findall(r"PROBE_F (\S+) (\S+)", text)[-1]
+    f_pair = float(f[1])                     # the upper sphere: the pair force only
+    f_wall = float(f[0]) + f_pair            # the lower one: the floor minus the pair
+    estar_pair = f_pair / (4.0 / 3.0 * math.sqrt(0.05) * d ** 1.5)
+    estar_wall = f_wall / (4.0 / 3.0 * math.sqrt(0.1) * d ** 1.5)
+    if abs(estar_pair * 2 * (1 - nu * nu) / E - 1) > 1e-6:
+        raise SystemExit(f"{lmp}: pair hertz/material E* = {estar_pair:.6g}, expected E/(2(1-nu^2)) = "
+                         f"{E / (2 * (1 - nu * nu)):.6g}")
+    v = re.search(r"LAMMPS \(([^)]*)\)", text)
+    return {"binary": lmp, "version": v.group(1) if v else None, "mass_convention": "sphere",
+            "wall_limit_damping": True, "granular_keywords": "all accepted",
+            "wall_estar_over_E": estar_wall / E,
+            "wall_estar_convention": ("E/(2(1-nu^2))" if abs(estar_wall * 2 * (1 - nu * nu) / E - 1) < 1e-6 else
+                                      "E/(2(1-nu))" if abs(estar_wall * 2 * (1 - nu) / E - 1) < 1e-6 else
+                                      "other"),
+            "probe_nu": nu}
+
+
+def map_law_3d(sc, info: dict) -> dict:
+    """LAMMPS ``granular`` coefficients of the kernel's soil-soil and soil-wall records
+    (scenario.contact_table_3d), mapped exactly per contact (module doc)."""
+    from ooc_dem.physics.d3 import layout as L3
+    from ooc_dem.scenario import contact_table_3d
+    cp = contact_table_3d(sc)
+    out = {}
+    for name, (ta, tb), pair, where in (
+            ("pair", (L3.T_SOIL, L3.T_SOIL), sc.contact.soil_soil, "pair_style granular"),
+            ("wall", (L3.T_WALL, L3.T_SOIL), sc.contact.soil_wall,
+             "fix wall/gran granular (floor, end walls, side walls)")):
+        c = cp[ta, tb]
+        if c["mur"] != 0.0:
+            raise SystemExit(f"contact.{'soil_soil' if name == 'pair' else 'soil_wall'}.rolling_friction = "
+                             f"{c['mur']}: rolling resistance is not mapped to LAMMPS (set it to 0)")
+        limit = bool(c["no_tension"] > 0.5)
+        if c["law"] == L3.LAW_HERTZ:
+            nu = pair.poisson_ratio
+            estar, gstar = float(c["estar"]), float(c["gstar"])
+            alpha = math.sqrt(5.0) * abs(float(c["beta"]))
+            e_lmp = tsuji_coefficient(alpha, f"{name} restitution {pair.restitution}")
+            if name == "pair":
+                e_pass = estar * 2.0 * (1.0 - nu * nu)
+            elif info["wall_estar_convention"] == "E/(2(1-nu^2))":
+                e_pass = estar * 2.0 * (1.0 - nu * nu)
+            elif info["wall_estar_convention"] == "E/(2(1-nu))":
+                e_pass = estar * 2.0 * (1.0 - nu)
+            else:
+                raise SystemExit(f"{info['binary']}: its wall hertz/material E* is {info['wall_estar_over_E']:.6g} E "
+                                 f"at nu = {info['probe_nu']}, neither E/(2(1-nu^2)) nor E/(2(1-nu)): "
+                                 f"hertz walls cannot be mapped")
+            xgt = math.sqrt(4.0 * gstar / estar)
+            kt = 8.0 * gstar
+            words = (f"hertz/material {e_pass!r} {e_lmp!r} {nu!r} tangential mindlin/force {kt!r} {xgt!r} "
+                     f"{float(c['mu'])!r} damping tsuji")
+            d = {"law": "hertz", "estar": estar, "gstar": gstar, "beta": float(c["beta"]),
+                 "E_given": e_pass, "nu": nu, "kt_8gstar": kt}
+        else:
+            kn, ks, zn, zt = (float(c[k]) for k in ("kn", "ks", "zn", "zt"))
+            alpha = 2.0 * zn
+            if zn == 0.0 and zt != 0.0:
+                raise SystemExit(f"{name}: damping_t > 0 with damping_n = 0 cannot be mapped "
+                                 f"(LAMMPS's tangential damping is a multiple of the normal one)")
+            e_lmp = tsuji_coefficient(alpha, f"{name} damping_n {zn}")
+            xgt = (zt / zn) * math.sqrt(ks / kn) if zn > 0 else 0.0
+            words = (f"hooke {kn!r} {e_lmp!r} tangential linear_history {ks!r} {xgt!r} {float(c['mu'])!r} "
+                     f"damping tsuji")
+            d = {"law": "linear", "kn": kn, "ks": ks, "zeta_n": zn, "zeta_t": zt}
+        if limit:
+            words += " limit_damping"
+        d.update({"where": where, "lammps": words, "tsuji_coefficient": e_lmp, "alpha_target": alpha,
+                  "alpha_rel_error": (tsuji_alpha(e_lmp) / alpha - 1.0) if alpha else 0.0,
+                  "x_gamma_t": xgt, "mu": float(c["mu"]), "limit_damping": limit,
+                  "rolling": "none (both codes)"})
+        out[name] = d
+    out.update({"dt": sc.physics.dt, "skin": sc.bed.skin, "gravity": sc.physics.gravity,
+                "formula": "tsuji alpha(e') = 2 zeta_n (hooke) or sqrt(5)|beta(e)| (hertz); x_gammat = "
+                           "(zeta_t/zeta_n) sqrt(ks/kn) or sqrt(4 G*/E*); LAMMPS density_i = m_i / (4/3 pi r_i^3)"})
+    return out
+
+
+def write_data_3d(path: Path, sc, bed) -> None:
+    import numpy as np
+    from ooc_dem.physics.layout import AX_X, AX_Y, AX_Z
+    n = len(bed)
+    order = np.argsort(bed.id, kind="stable")
+    r = bed.r[order]
+    dens = bed.mass[order] / (4.0 / 3.0 * math.pi * r ** 3)
+    head = (f"ooc-dem settled bed of {sc.name} (tools/peers/lammps.py): {n} spheres\n\n"
+            f"{n} atoms\n1 atom types\n\n"
+            f"0 {sc.bin.length!r} xlo xhi\n0 {sc.bin.height!r} ylo yhi\n0 {sc.bin.width!r} zlo zhi\n\n"
+            f"Atoms # sphere\n\n")
+    cols = np.column_stack([np.arange(1, n + 1), np.ones(n), 2.0 * r, dens, bed.pos[order, AX_X],
+                            bed.pos[order, AX_Y], bed.pos[order, AX_Z]])
+    with open(path, "w") as f:
+        f.write(head)
+        np.savetxt(f, cols, fmt=["%d", "%d", "%.17g", "%.17g", "%.17g", "%.17g", "%.17g"])
+
+
+def input_script_3d(sc, law: dict, data_name: str, warmup: int, steps: int, extra: str = "") -> str:
+    """The LAMMPS input of a 3D bed: ``extra`` goes after the last run (tests dump forces)."""
+    p, w = law["pair"], law["wall"]
+    return f"""# {sc.name}: ooc-dem's 3D bed and contact law in LAMMPS (generated by tools/peers/lammps.py)
+# law {p['law']} (soil-soil) / {w['law']} (soil-wall); rolling resistance off on both sides;
+# damping: tsuji with e' solving alpha(e') = ours (pair {p['alpha_target']!r}, wall {w['alpha_target']!r})
+units           si
+dimension       3
+boundary        f f f
+atom_style      sphere
+atom_modify     map array
+comm_modify     vel yes
+read_data       {data_name}
+
+neighbor        {sc.bed.skin!r} bin
+neigh_modify    delay 0 every 1 check yes
+timestep        {sc.physics.dt!r}
+
+pair_style      granular
+pair_coeff      * * {p['lammps']}
+fix             ends all wall/gran granular {w['lammps']} xplane 0.0 {sc.bin.length!r}
+fix             bottom all wall/gran granular {w['lammps']} yplane 0.0 NULL
+fix             sides all wall/gran granular {w['lammps']} zplane 0.0 {sc.bin.width!r}
+fix             grav all gravity {sc.physics.gravity!r} vector 0 -1 0
+fix             integrate all nve/sphere
+
+compute         cc all contact/atom
+compute         ccsum all reduce sum c_cc
+variable        cpp equal c_ccsum/atoms
+variable        mtot equal mass(all)
+variable        kin equal ke
+thermo_modify   norm no
+thermo_style    custom step atoms ke
+thermo          0
+
+run             {warmup}
+run             {steps}
+thermo_style    custom step atoms ke v_cpp
+run             0 post no
+print           "OOC_CONTACTS_PER_PARTICLE ${{cpp}}"
+print           "OOC_TOTAL_MASS ${{mtot}}"
+print           "OOC_KINETIC_ENERGY ${{kin}}"
+{extra}"""
+
+
 # ------------------------------------------------------------------ running LAMMPS
 
 def _hwm(pid: int) -> int:
@@ -298,9 +567,9 @@ def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: 
 
 # ------------------------------------------------------------------ running ooc-dem
 
-def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[str]) -> dict:
-    """tools/bench.py's measurement (its ``one``) on bed-n with the overrides applied, plus
-    contacts split into disc-disc and wall contacts."""
+def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[str], family: str = "bed") -> dict:
+    """tools/bench.py's measurement (its ``one``) on {family}-n with the overrides applied, plus
+    contacts split into particle-particle and wall contacts."""
     import importlib.util
 
     import numpy as np
@@ -308,10 +577,6 @@ def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[st
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     import ooc_dem.engine.stepper as E
-    import ooc_dem.scenario as S
-    from ooc_dem.physics.layout import AX_X, AX_Y
-    orig = S.load_scenario
-    S.load_scenario = lambda src, ov=None: orig(src, list(ov or []) + overrides)
     made = []
 
     class Recorded(E.DomainStepper):
@@ -320,19 +585,18 @@ def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[st
             made.append(self)
 
     E.DomainStepper = Recorded
-    res = bench.one(n, steps, threads, warmup)
+    res = bench.one(n, steps, threads, warmup, family, overrides)
     p = made[-1].p
     used = np.arange(p.hist_id.shape[1])[None, :] < p.hist_n[:, None]
     res["pair_contacts_per_disc"] = round(float(np.sum(used & (p.hist_id >= 0))) / n, 3)
     res["wall_contacts_per_disc"] = round(float(np.sum(used & (p.hist_id < 0))) / n, 4)
-    vx, vy = p.vel[:, AX_X], p.vel[:, AX_Y]
-    res["kinetic_energy_end_J"] = float(0.5 * np.sum(p.mass * (vx * vx + vy * vy)))
+    res["kinetic_energy_end_J"] = float(0.5 * np.sum(p.mass * np.einsum("ij,ij->i", p.vel, p.vel)))
     return res
 
 
-def run_ours(n: int, steps: int, threads: int, warmup: int, overrides: list[str]) -> dict:
+def run_ours(n: int, steps: int, threads: int, warmup: int, overrides: list[str], family: str = "bed") -> dict:
     cmd = [sys.executable, str(HERE), "--ours", str(n), "--steps", str(steps), "--threads", str(threads),
-           "--warmup", str(warmup)] + [f"--set={o}" for o in overrides]
+           "--warmup", str(warmup), "--family", family] + [f"--set={o}" for o in overrides]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
@@ -343,18 +607,30 @@ def run_ours(n: int, steps: int, threads: int, warmup: int, overrides: list[str]
 
 # ------------------------------------------------------------------ main
 
-def export_bed(n: int, overrides: list[str], info: dict, outdir: Path, warmup: int, steps: int):
+def export_case(sc, bed, info: dict, outdir: Path, warmup: int, steps: int, extra: str = ""):
+    """Write bed.data for this scenario's bed; returns (law record, input script)."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    if sc.dim == 3:
+        law = map_law_3d(sc, info)
+        write_data_3d(outdir / "bed.data", sc, bed)
+        script = input_script_3d(sc, law, "bed.data", warmup, steps, extra)
+    else:
+        law = map_law(sc, bed)
+        write_data(outdir / "bed.data", sc, bed, info["mass_convention"])
+        script = input_script(sc, law, "bed.data", warmup, steps, info["wall_limit_damping"])
+    law["total_mass_ours"] = float(bed.mass.sum())
+    return law, script
+
+
+def export_bed(n: int, overrides: list[str], info: dict, outdir: Path, warmup: int, steps: int,
+               family: str = "bed"):
     from ooc_dem.bed import settled_bed
     from ooc_dem.scenario import load_scenario
-    sc = load_scenario(f"bed-{n}", overrides)
+    sc = load_scenario(f"{family}-{n}", overrides)
     t = time.time()
     bed = settled_bed(sc)
-    law = map_law(sc, bed)
-    outdir.mkdir(parents=True, exist_ok=True)
-    write_data(outdir / "bed.data", sc, bed, info["mass_convention"])
-    script = input_script(sc, law, "bed.data", warmup, steps, info["wall_limit_damping"])
-    log(f"bed-{n}: {len(bed)} discs exported to {outdir} in {time.time() - t:.1f} s")
-    law["total_mass_ours"] = float(bed.mass.sum())
+    law, script = export_case(sc, bed, info, outdir, warmup, steps)
+    log(f"{family}-{n}: {len(bed)} particles exported to {outdir} in {time.time() - t:.1f} s")
     return len(bed), law, script
 
 
@@ -364,99 +640,131 @@ def per_particle(peak: int, base: int, n: int, n0: int):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default="7000,100000,1000000")
+    ap.add_argument("--sizes", default=None, help="particle counts (default 7000,100000,1000000 in 2D, "
+                                                  "20000 in 3D)")
     ap.add_argument("--steps", type=int, default=500, help="timed steps (both codes)")
     ap.add_argument("--warmup", type=int, default=300, help="untimed steps before them (both codes)")
     ap.add_argument("--lmp", default=None, help="LAMMPS binary (default: lmp, lmp_mpi, lmp_serial on PATH)")
     ap.add_argument("--ranks", default="1,2")
     ap.add_argument("--threads", type=int, default=2, help="ooc-dem threads")
+    ap.add_argument("--family", default=None, choices=("bed", "bed3d"),
+                    help="bed: 2D bed-N (discs, default); bed3d: 3D bed3d-N (spheres)")
+    ap.add_argument("--dim", type=int, default=None, choices=(2, 3), help="2 = --family bed, 3 = --family bed3d")
+    ap.add_argument("--law", default="linear,hertz",
+                    help="3D: contact law(s) of both pairs, comma-separated: linear (hooke), hertz (hertz/material)")
     ap.add_argument("--out", default=None, help="keep data files, inputs and logs here")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="extra scenario override (both codes)")
     ap.add_argument("--ours", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.family and a.dim and (a.family == "bed3d") != (a.dim == 3):
+        ap.error(f"--family {a.family} and --dim {a.dim} disagree")
+    family = a.family or ("bed3d" if a.dim == 3 else "bed")
     if a.ours:
-        print(json.dumps(ours_child(a.ours, a.steps, a.threads, a.warmup, a.set)))
+        print(json.dumps(ours_child(a.ours, a.steps, a.threads, a.warmup, a.set, family)))
         return
-    overrides = NO_ROLLING + a.set
-    sizes = [int(float(s)) for s in a.sizes.split(",")]
+    sys.path.insert(0, str(ROOT))
+    from ooc_dem.scenario import load_scenario
+    if family == "bed3d":
+        laws = [w.strip() for w in a.law.split(",") if w.strip()]
+        bad = [w for w in laws if w not in LAWS_3D]
+        if bad or not laws:
+            ap.error(f"--law {a.law}: each must be one of {', '.join(LAWS_3D)}")
+        cases = [(w, overrides_3d(w) + a.set) for w in laws]
+    else:
+        cases = [("linear", NO_ROLLING + a.set)]
+    sizes = [int(float(s)) for s in (a.sizes or ("20000" if family == "bed3d" else "7000,100000,1000000")).split(",")]
     ranks = [int(r) for r in a.ranks.split(",")]
     lmp = find_lmp(a.lmp)
     mpirun = shutil.which("mpirun")
     keep = a.out is not None
     out = Path(a.out) if keep else Path(tempfile.mkdtemp(prefix="peers-lammps-"))
     out.mkdir(parents=True, exist_ok=True)
-    info = probe(lmp, out / "probe")
-    log(f"LAMMPS {info['version']} at {lmp}: 2d mass convention '{info['mass_convention']}', "
-        f"wall limit_damping {'yes' if info['wall_limit_damping'] else 'no'}")
+    if family == "bed3d":
+        info = probe_3d(lmp, out / "probe")
+        log(f"LAMMPS {info['version']} at {lmp}: granular keywords accepted; wall E* = "
+            f"{info['wall_estar_convention']} (compensated)")
+    else:
+        info = probe(lmp, out / "probe")
+        log(f"LAMMPS {info['version']} at {lmp}: 2d mass convention '{info['mass_convention']}', "
+            f"wall limit_damping {'yes' if info['wall_limit_damping'] else 'no'}")
     load0 = os.getloadavg()
-    sys.path.insert(0, str(ROOT))
-    from ooc_dem.scenario import load_scenario
-    n0 = load_scenario("bed-1000", overrides).bed.tile   # one settled tile: the tiny system
 
-    # baseline: the tiny system, same inputs, a few steps
-    n0, _, script0 = export_bed(n0, overrides, info, out / f"bed-{n0}", 10, BASELINE_STEPS)
-    base_l = {}
-    for r in ranks:
-        base_l[r] = run_lammps(lmp, mpirun, r, out / f"bed-{n0}", script0, f"np{r}", 10)
-    base_o = run_ours(n0, BASELINE_STEPS, a.threads, 10, overrides)
-    log(f"baseline ({n0} discs): LAMMPS " + ", ".join(f"{r} rank(s) {v['peak_rss_bytes'] / 2**20:.1f} MiB"
-                                                    for r, v in base_l.items())
-        + f"; ooc-dem {base_o['peak_rss_bytes'] / 2**20:.1f} MiB")
-
-    results = []
-    for n in sizes:
-        d = out / f"bed-{n}"
-        n_real, law, script = export_bed(n, overrides, info, d, a.warmup, a.steps)
-        lam = {}
+    results, baselines = [], {}
+    for law_name, overrides in cases:
+        sc0 = load_scenario(f"{family}-1000", overrides)
+        # one settled tile (3D: one column of tiles across the width): the tiny system
+        n0 = sc0.bed.tile * (sc0.bed.tiles_across if sc0.dim == 3 else 1)
+        tag0 = f"{family}-{n0}" + (f"-{law_name}" if family == "bed3d" else "")
+        n0, _, script0 = export_bed(n0, overrides, info, out / tag0, 10, BASELINE_STEPS, family)
+        base_l = {}
         for r in ranks:
-            log(f"bed-{n}: LAMMPS on {r} rank(s), {a.warmup} + {a.steps} steps")
-            v = run_lammps(lmp, mpirun, r, d, script, f"np{r}", a.warmup)
-            v["peak_rss_bytes_per_particle"] = round(v["peak_rss_bytes"] / n_real, 1)
-            if v["total_mass"]:
-                v["total_mass_over_ours_minus_1"] = float(f"{v['total_mass'] / law['total_mass_ours'] - 1:.3g}")
-            v["peak_rss_bytes_per_particle_above_baseline"] = per_particle(
-                v["peak_rss_bytes"], base_l[r]["peak_rss_bytes"], n_real, n0)
-            lam[str(r)] = v
-            log(f"bed-{n}: LAMMPS {r} rank(s): {v['particle_steps_per_s']:.3g} particle-steps/s")
-        log(f"bed-{n}: ooc-dem (tools/bench.py), {a.threads} threads")
-        o = run_ours(n, a.steps, a.threads, a.warmup, overrides)
-        o["peak_rss_bytes_per_particle_above_baseline"] = per_particle(
-            o["peak_rss_bytes"], base_o["peak_rss_bytes"], n_real, n0)
-        log(f"bed-{n}: ooc-dem: {o['particle_steps_per_s']:.3g} particle-steps/s")
-        ratio = {}
-        for r, v in lam.items():
-            ratio[f"speed_vs_{r}_rank"] = round(o["particle_steps_per_s"] / v["particle_steps_per_s"], 3)
-            a_, b_ = o["peak_rss_bytes_per_particle_above_baseline"], v["peak_rss_bytes_per_particle_above_baseline"]
-            ratio[f"rss_above_baseline_vs_{r}_rank"] = round(a_ / b_, 3) if a_ and b_ else None
-        results.append({
-            "n": n_real, "scenario": f"bed-{n}",
-            "ooc_dem": {"threads": a.threads, "particle_steps_per_s": o["particle_steps_per_s"],
-                        "seconds": o["seconds"], "steps": o["steps"], "neighbour_rebuilds": o["neighbour_rebuilds"],
-                        "peak_rss_bytes": o["peak_rss_bytes"],
-                        "peak_rss_bytes_per_particle": o["peak_rss_bytes_per_disc"],
-                        "peak_rss_bytes_per_particle_above_baseline": o["peak_rss_bytes_per_particle_above_baseline"],
-                        "contacts_per_particle": o["pair_contacts_per_disc"],
-                        "contacts_per_particle_with_walls": o["contacts_per_disc"],
-                        "kinetic_energy_end_J": o["kinetic_energy_end_J"]},
-            "lammps": lam, "ratio_ooc_dem_over_lammps": ratio, "law": law})
+            base_l[r] = run_lammps(lmp, mpirun, r, out / tag0, script0, f"np{r}", 10)
+        base_o = run_ours(n0, BASELINE_STEPS, a.threads, 10, overrides, family)
+        log(f"baseline ({n0} particles, law {law_name}): LAMMPS "
+            + ", ".join(f"{r} rank(s) {v['peak_rss_bytes'] / 2**20:.1f} MiB" for r, v in base_l.items())
+            + f"; ooc-dem {base_o['peak_rss_bytes'] / 2**20:.1f} MiB")
+        baselines[law_name] = {"n": n0, "lammps_peak_rss_bytes": {str(r): v["peak_rss_bytes"]
+                                                                 for r, v in base_l.items()},
+                               "ooc_dem_peak_rss_bytes": base_o["peak_rss_bytes"]}
+
+        for n in sizes:
+            tag = f"{family}-{n}" + (f"-{law_name}" if family == "bed3d" else "")
+            d = out / tag
+            n_real, law, script = export_bed(n, overrides, info, d, a.warmup, a.steps, family)
+            lam = {}
+            for r in ranks:
+                log(f"{tag}: LAMMPS on {r} rank(s), {a.warmup} + {a.steps} steps")
+                v = run_lammps(lmp, mpirun, r, d, script, f"np{r}", a.warmup)
+                v["peak_rss_bytes_per_particle"] = round(v["peak_rss_bytes"] / n_real, 1)
+                if v["total_mass"]:
+                    v["total_mass_over_ours_minus_1"] = float(f"{v['total_mass'] / law['total_mass_ours'] - 1:.3g}")
+                v["peak_rss_bytes_per_particle_above_baseline"] = per_particle(
+                    v["peak_rss_bytes"], base_l[r]["peak_rss_bytes"], n_real, n0)
+                lam[str(r)] = v
+                log(f"{tag}: LAMMPS {r} rank(s): {v['particle_steps_per_s']:.3g} particle-steps/s")
+            log(f"{tag}: ooc-dem (tools/bench.py), {a.threads} threads")
+            o = run_ours(n, a.steps, a.threads, a.warmup, overrides, family)
+            o["peak_rss_bytes_per_particle_above_baseline"] = per_particle(
+                o["peak_rss_bytes"], base_o["peak_rss_bytes"], n_real, n0)
+            log(f"{tag}: ooc-dem: {o['particle_steps_per_s']:.3g} particle-steps/s")
+            ratio = {}
+            for r, v in lam.items():
+                ratio[f"speed_vs_{r}_rank"] = round(o["particle_steps_per_s"] / v["particle_steps_per_s"], 3)
+                a_, b_ = o["peak_rss_bytes_per_particle_above_baseline"], v["peak_rss_bytes_per_particle_above_baseline"]
+                ratio[f"rss_above_baseline_vs_{r}_rank"] = round(a_ / b_, 3) if a_ and b_ else None
+                ratio[f"rss_vs_{r}_rank"] = round(o["peak_rss_bytes_per_disc"] / v["peak_rss_bytes_per_particle"], 3)
+                if v["contacts_per_particle"]:
+                    ratio[f"contacts_vs_{r}_rank_minus_1"] = round(
+                        o["pair_contacts_per_disc"] / v["contacts_per_particle"] - 1, 4)
+            results.append({
+                "n": n_real, "scenario": f"{family}-{n}", "contact_law": law_name,
+                "ooc_dem": {"threads": a.threads, "particle_steps_per_s": o["particle_steps_per_s"],
+                            "seconds": o["seconds"], "steps": o["steps"], "neighbour_rebuilds": o["neighbour_rebuilds"],
+                            "peak_rss_bytes": o["peak_rss_bytes"],
+                            "peak_rss_bytes_per_particle": o["peak_rss_bytes_per_disc"],
+                            "peak_rss_bytes_per_particle_above_baseline": o["peak_rss_bytes_per_particle_above_baseline"],
+                            "contacts_per_particle": o["pair_contacts_per_disc"],
+                            "contacts_per_particle_with_walls": o["contacts_per_disc"],
+                            "kinetic_energy_end_J": o["kinetic_energy_end_J"]},
+                "lammps": lam, "ratio_ooc_dem_over_lammps": ratio, "law": law})
     load1 = os.getloadavg()
     report = {
-        "tool": "tools/peers/lammps.py", "lammps": info, "mpirun": mpirun,
-        "steps": a.steps, "warmup_steps": a.warmup, "overrides": overrides,
+        "tool": "tools/peers/lammps.py", "family": family, "dim": 3 if family == "bed3d" else 2,
+        "lammps": info, "mpirun": mpirun,
+        "steps": a.steps, "warmup_steps": a.warmup, "overrides": {w: ov for w, ov in cases},
         "machine": {"cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in load0],
                     "loadavg_after": [round(x, 2) for x in load1]},
         "notes": [("particle-steps/s of the timed steps only (LAMMPS: Loop time of the timed run; "
                    "ooc-dem: tools/bench.py's timing after its warm-up)"),
-                  ("contacts_per_particle: disc-disc contacts per disc (LAMMPS compute contact/atom; "
-                   "ooc-dem its contact history), walls excluded"),
+                  ("contacts_per_particle: particle-particle contacts per particle (LAMMPS compute "
+                   "contact/atom; ooc-dem its contact history), walls excluded"),
                   ("peak RSS: LAMMPS = sum over ranks of each rank's VmHWM; ooc-dem = ru_maxrss of the "
                    "bench process; above_baseline = (peak - peak of the one-tile bed) / (N - N_tile)"),
                   "LAMMPS starts without tangential history (a data file holds none); the warm-up reloads it",
                   ("kinetic_energy_end_J: translational, after the timed steps (a sanity check of the "
                    "mapped law, not an equality: ooc-dem's are leapfrog half-step velocities)")],
-        "baseline": {"n": n0, "lammps_peak_rss_bytes": {str(r): v["peak_rss_bytes"] for r, v in base_l.items()},
-                     "ooc_dem_peak_rss_bytes": base_o["peak_rss_bytes"]},
+        "baseline": baselines if family == "bed3d" else baselines["linear"],
         "sizes": results,
         "files": str(out) if keep else None,
     }

@@ -579,6 +579,12 @@ class Simulation:
         if self.metrics is not None:
             summary.update(self.metrics.summary())
             write_series_csv(self.out / "series.csv", self.metrics.series())
+        if self.sc.repose.enabled:   # the angle-of-repose test (docs/reference/repose3d.md)
+            from ..repose import heap_outputs
+            # in id order: every mode (and the state read back) gives the same bits; the
+            # figure is written before summary.json, so a summary means both are there
+            p = self.engine.particles().sorted_by_id()
+            summary["repose"] = heap_outputs(self.out, self.sc, p.pos, p.r, p.vel, self.opts.figures)
         summary["state_hash"] = self.state_hash()
         _write_atomic(self.out / "summary.json", json.dumps(summary, indent=2))
         if self.opts.figures and self.metrics is not None:

@@ -237,7 +237,7 @@ def repose_figure(pos, r, m: dict | None, entry: dict, path: Path) -> Path:
     ax2.set_aspect("equal")
     ax2.set_xlabel("x − axis [mm]")
     ax2.set_ylabel("z − axis [mm]")
-    ax2.set_title("top view (sphere tops coloured by height), sectors", fontsize=10)
+    ax2.set_title("top view: sphere tops by height; the sectors", fontsize=10)
     fig.colorbar(sc_, ax=ax2, label="top height [mm]", shrink=0.8)
     fig.tight_layout()
     write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))

@@ -144,3 +144,13 @@ def test_tiny_heap_run_writes_the_angle_and_the_figure(tmp_path):
     assert rp["sector_fits"] == again["sector_fits"]
     # the column stood at the bin's centre and the heap stayed there
     assert np.allclose(rp["axis_m"], [0.06, 0.06], atol=0.005)
+
+
+def test_tiny_heap_measured_alike_in_every_mode(tmp_path):
+    # serial DDM ends in the monolithic run's bits; the heap's measurement (from the state in
+    # id order) is then the same to the bit as well
+    sc = load_scenario("repose3d", TINY)
+    a = ooc_dem.run(sc, out=tmp_path / "mono").summary
+    b = ooc_dem.run(sc, out=tmp_path / "ddm", mode="ddm", domains=2).summary
+    assert a["state_hash"] == b["state_hash"]
+    assert a["repose"] == b["repose"]

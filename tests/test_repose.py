@@ -128,13 +128,19 @@ TINY = ["soil.n=400", "repose.column_radius=0.02", "bin.length=0.12", "bin.width
         "bin.height=0.15", "output.run_steps=4000", "bed.settle_speed=0.02"]
 
 
-def test_tiny_heap_run_writes_the_angle_and_the_figure(tmp_path):
-    sc = load_scenario("repose3d", TINY)
-    res = ooc_dem.run(sc, out=tmp_path / "run", figures=True)
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("repose") / "mono"
+    return load_scenario("repose3d", TINY), ooc_dem.run(load_scenario("repose3d", TINY), out=out,
+                                                         figures=True), out
+
+
+def test_tiny_heap_run_writes_the_angle_and_the_figure(tiny_run):
+    sc, res, out = tiny_run
+    summary = json.loads((out / "summary.json").read_text())
     rp = summary["repose"]
     assert rp["n_spheres"] == 400 and rp["unit"] == "deg" and rp["friction"] == 0.5
-    png = tmp_path / "run" / "figures" / REPOSE_FIGURE
+    png = out / "figures" / REPOSE_FIGURE
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the summary's angle is the measurement of the final committed state, read back
     state = res.state()
@@ -146,11 +152,23 @@ def test_tiny_heap_run_writes_the_angle_and_the_figure(tmp_path):
     assert np.allclose(rp["axis_m"], [0.06, 0.06], atol=0.005)
 
 
-def test_tiny_heap_measured_alike_in_every_mode(tmp_path):
+def test_tiny_heap_measured_alike_in_every_mode(tiny_run, tmp_path):
     # serial DDM ends in the monolithic run's bits; the heap's measurement (from the state in
     # id order) is then the same to the bit as well
-    sc = load_scenario("repose3d", TINY)
-    a = ooc_dem.run(sc, out=tmp_path / "mono").summary
+    sc, res, _ = tiny_run
+    a = res.summary
     b = ooc_dem.run(sc, out=tmp_path / "ddm", mode="ddm", domains=2).summary
     assert a["state_hash"] == b["state_hash"]
     assert a["repose"] == b["repose"]
+
+
+def test_resume_writes_a_missing_repose_figure(tiny_run, capsys):
+    # a kill between the last commit and the outputs: resume writes them from the state
+    from ooc_dem import cli
+    _, res, out = tiny_run
+    before = json.loads((out / "summary.json").read_text())
+    (out / "figures" / REPOSE_FIGURE).unlink()
+    assert cli.main(["resume", str(out), "--no-progress"]) == 0
+    assert "figures" in capsys.readouterr().out
+    assert (out / "figures" / REPOSE_FIGURE).read_bytes()[:4] == b"\x89PNG"
+    assert json.loads((out / "summary.json").read_text())["repose"] == before["repose"]

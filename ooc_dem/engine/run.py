@@ -595,15 +595,18 @@ class Simulation:
     def complete_outputs(self) -> list[str]:
         """After the last commit: write whichever outputs a kill left unwritten; return their names."""
         from ..plots import FIGURE_NAMES, make_figures
+        from ..repose import REPOSE_FIGURE
         try:
             summary = json.loads((self.out / "summary.json").read_text())
             complete = isinstance(summary, dict) and summary.get("steps") == self.step
         except (OSError, ValueError):
             complete = False
-        if not complete:
+        drawn = self.metrics is not None or self.sc.repose.enabled   # runs with figures
+        if not complete or (self.opts.figures and self.sc.repose.enabled
+                            and not (self.out / "figures" / REPOSE_FIGURE).is_file()):
             self.finish()
             return ["summary.json"] + (["series.csv"] if self.metrics is not None else []) + (
-                ["figures"] if self.opts.figures and self.metrics is not None else [])
+                ["figures"] if self.opts.figures and drawn else [])
         if self.opts.figures and self.metrics is not None and not all(
                 (self.out / "figures" / f).is_file() for f in FIGURE_NAMES):
             make_figures(self.out)

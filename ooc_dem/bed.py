@@ -10,6 +10,11 @@ overlap, and a tile can be produced per sub-domain without holding the bed.
 the box (length x width) bottom up; tiled beds repeat the tile along x and
 ``bed.tiles_across`` times across the width (z), mirrored in x and in z every other
 tile.
+
+The angle-of-repose test (``repose.enabled``, docs/reference/repose3d.md) starts from a
+column: a square box of side 2 ``repose.column_radius`` filled and settled like any bed,
+cut to the cylinder of that radius, its ``soil.n`` lowest spheres kept and set down at
+the centre of the bin's floor (``settled_column``).
 """
 from __future__ import annotations
 
@@ -142,6 +147,64 @@ def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:
     return stepper.p, step
 
 
+def column_scenario(sc: Scenario) -> Scenario:
+    """The scenario the repose column is settled in: the square box of side 2 column_radius
+    around the column, filled with scenario.repose_fill's count of spheres."""
+    from .scenario import repose_fill
+    d = sc.to_dict()
+    side = 2.0 * sc.repose.column_radius
+    d["bin"]["length"] = d["bin"]["width"] = side
+    d["soil"]["n"] = repose_fill(sc)[0]
+    d["repose"]["enabled"] = False
+    return scenario_from_dict(d)
+
+
+def settled_column(sc: Scenario, progress=None) -> Particles:
+    """The repose test's column at rest on the floor of sc's bin, centred (module doc).
+
+    Settled in ``column_scenario``'s box, the spheres whose centres lie within
+    column_radius - r_max of the box's axis are kept (the cylinder holds them whole), of
+    those the soil.n lowest, ids renumbered 0..n-1 in their old order (so every history
+    stays sorted by partner id). Contacts with the box's four side walls are dropped (those
+    walls are gone), as are contacts with cut spheres; the floor's are kept (it stays)."""
+    from .physics.d3.layout import ID_WALL_BOTTOM
+    from .physics.layout import AX_Z
+    csc = column_scenario(sc)
+    col, _ = settle(csc, initial_fill(csc), progress)
+    col = _zero_motion(col).sorted_by_id()
+    R = sc.repose.column_radius
+    radial = np.hypot(col.pos[:, AX_X] - R, col.pos[:, AX_Z] - R)
+    inside = np.flatnonzero(radial <= R - sc.soil.r_max)
+    if len(inside) < sc.soil.n:
+        raise BedError(f"soil.n = {sc.soil.n}: the settled repose column holds only {len(inside)} spheres "
+                       f"inside repose.column_radius = {R!r}; lower soil.n or widen the column")
+    lowest = inside[np.argsort(col.pos[inside, AX_Y], kind="stable")[:sc.soil.n]]
+    q = col.take(np.sort(lowest))
+    new_id = np.full(len(col), -1, np.int64)
+    new_id[q.id] = np.arange(len(q))   # sorted_by_id: col.id is 0..n_fill-1
+    hid, hs, hm, hn = q.hist_id.copy(), q.hist_s.copy(), q.hist_m.copy(), q.hist_n.copy()
+    q.hist_id[:] = 0
+    q.hist_s[:] = 0.0
+    q.hist_m[:] = 0.0
+    for i in range(len(q)):
+        k = 0
+        for e in range(hn[i]):
+            pid = int(hid[i, e])
+            if pid >= 0:
+                pid = int(new_id[pid])
+                if pid < 0:
+                    continue
+            elif pid != ID_WALL_BOTTOM:
+                continue
+            q.hist_id[i, k], q.hist_s[i, k], q.hist_m[i, k] = pid, hs[i, e], hm[i, e]
+            k += 1
+        q.hist_n[i] = k
+    q.id[:] = np.arange(len(q))
+    q.pos[:, AX_X] += 0.5 * sc.bin.length - R
+    q.pos[:, AX_Z] += 0.5 * sc.bin.width - R
+    return q
+
+
 def _zero_motion(p: Particles) -> Particles:
     """A settled bed starts at rest with its contact springs kept (the history is the bed's memory)."""
     p.vel[:] = 0.0
@@ -211,6 +274,8 @@ def settled_bed(sc: Scenario, progress=None, use_cache: bool = True) -> Particle
         return bed
 
     def build(progress):
+        if sc.repose.enabled:
+            return settled_column(sc, progress)
         bed, _ = settle(sc, initial_fill(sc), progress)
         return _zero_motion(bed).sorted_by_id()
 

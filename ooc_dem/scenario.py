@@ -174,6 +174,19 @@ class Decomposition:
 
 
 @dataclass(frozen=True)
+class Repose:
+    """Angle-of-repose test (3D, docs/reference/repose3d.md): the settled column of
+    ``soil.n`` spheres, a cylinder of ``column_radius`` standing on the floor at the bin's
+    centre, is released at step 0; its heap's flank angle is measured at the end."""
+    enabled: bool = False
+    column_radius: float = 0.02    # m, radius of the released column
+    fit_low: float = 0.2           # flank fit from this fraction of the heap height ...
+    fit_high: float = 0.8          # ... to this one
+    sectors: int = 8               # azimuthal sectors, one profile and one fit each
+    bin_width: float = 0.005       # m, radial bins of the surface profile
+
+
+@dataclass(frozen=True)
 class Scenario:
     scenario: Meta = Meta()
     physics: Physics = Physics()
@@ -184,6 +197,7 @@ class Scenario:
     wheel: Wheel = Wheel()
     output: Output = Output()
     decomposition: Decomposition = Decomposition()
+    repose: Repose = Repose()
 
     # ---- derived values
     @property
@@ -224,6 +238,8 @@ class Scenario:
             for key, default in _PAIR_HASH_NEUTRAL.items():
                 if pair.get(key) == default:
                     del pair[key]
+        if d["repose"] == dataclasses.asdict(Repose()):   # added with repose3d
+            del d["repose"]
         return d
 
     def hash(self) -> str:
@@ -231,6 +247,12 @@ class Scenario:
         d = self._hash_dict()
         d.pop("output", None)
         d["scenario"].pop("description", None)
+        # how the heap is measured is not what it does: only the other [repose] keys count,
+        # and only when one of them is not at its default
+        physical = lambda rp: {k: v for k, v in rp.items() if k not in REPOSE_MEASUREMENT_KEYS}
+        rp = physical(d.pop("repose", {}))
+        if rp and rp != physical(dataclasses.asdict(Repose())):
+            d["repose"] = rp
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
     def bed_hash(self) -> str:
@@ -238,6 +260,8 @@ class Scenario:
         d = self._hash_dict()
         keep = {k: d[k] for k in ("physics", "bin", "soil", "bed")}
         keep["contact"] = d["contact"]
+        if self.repose.enabled:   # the settled column is cut to this radius
+            keep["repose"] = {"column_radius": self.repose.column_radius}
         return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -247,6 +271,7 @@ _HASH_NEUTRAL = {("physics", "dim"): 2, ("physics", "impact_speed"): 1.0, ("bin"
 _PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3,
                       "restitution": 0.5}
 LAWS = ("linear", "hertz")
+REPOSE_MEASUREMENT_KEYS = ("fit_low", "fit_high", "sectors", "bin_width")
 
 # ------------------------------------------------------------ constraints
 # (section, key) -> (predicate, description of what is allowed)
@@ -312,6 +337,11 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("decomposition", "domains"): (lambda v: 1 <= v <= MAX_DOMAINS, f"an integer in [1, {MAX_DOMAINS}]"),
     ("decomposition", "block"): (lambda v: 1 <= v <= MAX_BLOCK, f"an integer in [1, {MAX_BLOCK}]"),
     ("decomposition", "margin"): _GAP,
+    ("repose", "column_radius"): _LENGTH,
+    ("repose", "fit_low"): _RATIO,
+    ("repose", "fit_high"): _RATIO,
+    ("repose", "sectors"): (lambda v: 1 <= v <= 360, "an integer in [1, 360]"),
+    ("repose", "bin_width"): _LENGTH,
 }
 _PAIR_CONSTRAINTS = {
     "kn": _POS,
@@ -422,6 +452,7 @@ def _check_ranges(sc: Scenario) -> None:
                 f"({w.lug_tip_radius}, {sc.bin.length - w.lug_tip_radius})")
         if sc.physics.gravity <= 0:
             raise ScenarioError("physics.gravity = 0: a wheel needs gravity > 0 (its mass is load / g)")
+    _check_repose(sc)
     o = sc.output
     if o.steady_end < o.steady_start:
         raise ScenarioError(f"output.steady_end = {o.steady_end!r}: must be >= output.steady_start ({o.steady_start!r})")
@@ -437,6 +468,56 @@ def _check_ranges(sc: Scenario) -> None:
             f"physics.dt = {dt!r}: above the stability limit {crit:.3e} s of the stiffest contact "
             f"({stiffest} on the lightest disc (soil.r_min, soil.density, physics.thickness) with "
             f"physics.contacts_per_disc contacts: dt_crit = (2/w)(sqrt(1+z^2)-z)); use dt <= {crit:.3e}")
+
+
+def _check_repose(sc: Scenario) -> None:
+    """The angle-of-repose test's keys against each other and against the bin and the soil."""
+    rp, s = sc.repose, sc.soil
+    if not rp.fit_low < rp.fit_high:
+        raise ScenarioError(f"repose.fit_low = {rp.fit_low!r}, repose.fit_high = {rp.fit_high!r}: the "
+                            f"flank is fitted from fit_low to fit_high of the heap height (fit_low < fit_high)")
+    if not rp.enabled:
+        return
+    if sc.dim != 3:
+        raise ScenarioError("repose.enabled = true: the angle-of-repose test is 3D (set physics.dim = 3)")
+    if sc.bed.tile:
+        raise ScenarioError(f"bed.tile = {sc.bed.tile}: the repose column is settled whole (bed.tile = 0 "
+                            f"with repose.enabled = true)")
+    if rp.column_radius < 2 * s.r_max:
+        raise ScenarioError(f"repose.column_radius = {rp.column_radius!r}: must be at least two sphere "
+                            f"diameters (2 soil.r_max = {2 * s.r_max!r}) so that the column holds spheres")
+    for key, size in (("bin.length", sc.bin.length), ("bin.width", sc.bin.width)):
+        if size < 4 * rp.column_radius:
+            raise ScenarioError(f"{key} = {size!r}: the heap spreads beyond the column; the bin must be at "
+                                f"least 4 repose.column_radius = {4 * rp.column_radius!r} across")
+    n_fill, top = repose_fill(sc)
+    if top > sc.bin.height:
+        raise ScenarioError(f"bin.height = {sc.bin.height!r}: the loose fill of the repose column ({n_fill} "
+                            f"spheres in a {2 * rp.column_radius:g} m square, cut to soil.n = {s.n}) needs "
+                            f"{top:.3f} m; raise bin.height or repose.column_radius")
+    if rp.bin_width < s.r_min or rp.bin_width > rp.column_radius:
+        raise ScenarioError(f"repose.bin_width = {rp.bin_width!r}: the profile's radial bins must be "
+                            f"between soil.r_min = {s.r_min!r} and repose.column_radius = "
+                            f"{rp.column_radius!r} wide")
+
+
+# spheres filled into the column's square box per sphere kept inside the cylinder: the
+# square's area over the cylinder's (of the sphere centres, radius R - r_max), and 15 % more
+# because the walls of the box pack looser than its middle
+REPOSE_FILL_MARGIN = 1.15
+
+
+def repose_fill(sc: Scenario) -> tuple[int, float]:
+    """(spheres filled into the repose column's square box of side 2 column_radius, height of
+    that loose fill (initial_fill_3d's grid of pitch 2.2 r_max)); the settled fill is cut to the
+    cylinder and its soil.n lowest spheres kept (bed.settled_column)."""
+    s, R = sc.soil, sc.repose.column_radius
+    inner = max(R - s.r_max, 0.5 * s.r_max)
+    n_fill = int(math.ceil(REPOSE_FILL_MARGIN * s.n * (2 * R / inner) ** 2 / math.pi))
+    pitch = 2.2 * s.r_max
+    across = max(1, int((2 * R - 2 * s.r_max) / pitch))
+    rows = -(-n_fill // (across * across))
+    return n_fill, 2 * s.r_max + (rows - 1) * pitch
 
 
 def _check_derived(sc: Scenario) -> None:

@@ -579,6 +579,12 @@ class Simulation:
         if self.metrics is not None:
             summary.update(self.metrics.summary())
             write_series_csv(self.out / "series.csv", self.metrics.series())
+        if self.sc.repose.enabled:   # the angle-of-repose test (docs/reference/repose3d.md)
+            from ..repose import heap_outputs
+            # in id order: every mode (and the state read back) gives the same bits; the
+            # figure is written before summary.json, so a summary means both are there
+            p = self.engine.particles().sorted_by_id()
+            summary["repose"] = heap_outputs(self.out, self.sc, p.pos, p.r, p.vel, self.opts.figures)
         summary["state_hash"] = self.state_hash()
         _write_atomic(self.out / "summary.json", json.dumps(summary, indent=2))
         if self.opts.figures and self.metrics is not None:
@@ -589,15 +595,18 @@ class Simulation:
     def complete_outputs(self) -> list[str]:
         """After the last commit: write whichever outputs a kill left unwritten; return their names."""
         from ..plots import FIGURE_NAMES, make_figures
+        from ..repose import REPOSE_FIGURE
         try:
             summary = json.loads((self.out / "summary.json").read_text())
             complete = isinstance(summary, dict) and summary.get("steps") == self.step
         except (OSError, ValueError):
             complete = False
-        if not complete:
+        drawn = self.metrics is not None or self.sc.repose.enabled   # runs with figures
+        if not complete or (self.opts.figures and self.sc.repose.enabled
+                            and not (self.out / "figures" / REPOSE_FIGURE).is_file()):
             self.finish()
             return ["summary.json"] + (["series.csv"] if self.metrics is not None else []) + (
-                ["figures"] if self.opts.figures and self.metrics is not None else [])
+                ["figures"] if self.opts.figures and drawn else [])
         if self.opts.figures and self.metrics is not None and not all(
                 (self.out / "figures" / f).is_file() for f in FIGURE_NAMES):
             make_figures(self.out)

@@ -35,7 +35,7 @@ def _check(*args) -> dict:
     return json.loads(cp.stdout)
 
 
-@pytest.mark.parametrize("scenario,memory", [("bed-200000", "300MB"), ("bed3d-30000", "260MB")])
+@pytest.mark.parametrize("scenario,memory", [("bed-100000", "270MB"), ("bed3d-30000", "260MB")])
 def test_budget_chooses_slabs_whose_measured_peak_is_the_estimate(tmp_path, scenario, memory):
     """2D discs and 3D spheres: `--memory` picks D and K, the run says so, and a real run's
     peak RSS is the planner's estimate within TOLERANCE and within the budget."""

@@ -25,10 +25,12 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+EPOCH_BYTES_PER_DISC = 160   # a committed 2D epoch on disk, hdf5 (156.3 measured at 2e5 discs)
 sys.path.insert(0, str(ROOT))
 
 
@@ -76,6 +78,15 @@ def child(a) -> dict:
         for name in ("write_domain", "commit"):
             if hasattr(cls, name):
                 _timed(cls, name, now, "write")
+    if a.keep_epochs == 1:
+        # disk economy: once an epoch is committed the previous one goes (a kill can then
+        # only resume from the current epoch; it never leaves less than one whole epoch)
+        commit = sim.commit
+
+        def commit_and_prune():
+            commit()
+            sim.store.prune(1)
+        sim.commit = commit_and_prune
     t = time.perf_counter()
     sim.start(streamed=True)
     setup = time.perf_counter() - t
@@ -112,6 +123,27 @@ def _limited(cmd, limit, env):
     return res, d
 
 
+class _DiskSampler(threading.Thread):
+    """The store directory's size, sampled every second (its peak: epochs coexisting)."""
+
+    def __init__(self, out: Path):
+        super().__init__(daemon=True)
+        self.out, self.peak, self._halt = out, 0, threading.Event()
+
+    def run(self):
+        while not self._halt.is_set():
+            try:
+                size = sum(p.stat().st_size for p in self.out.rglob("*") if p.is_file())
+            except OSError:   # a file renamed or deleted while we looked
+                size = 0
+            self.peak = max(self.peak, size)
+            self._halt.wait(1.0)
+
+    def stop(self):
+        self._halt.set()
+        self.join()
+
+
 def _epoch_bytes(out: Path) -> tuple[int, int]:
     """(bytes of the current epoch's files, bytes of the whole store directory)."""
     man = json.loads((out / "MANIFEST.json").read_text())
@@ -129,6 +161,10 @@ def main():
     ap.add_argument("--memory", help="the run's memory budget (ooc-dem run --memory), e.g. 1.5GB")
     ap.add_argument("--memory-limit", help="hard limit for every child (a memory cgroup), e.g. 2GB")
     ap.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr"])
+    ap.add_argument("--keep-epochs", type=int, choices=[1, 2], default=2,
+                    help="committed epochs kept on disk (2: the store's default, current and previous; "
+                         "1: the previous is deleted after each commit, so a sweep needs 2 epochs of "
+                         "disk instead of 3)")
     ap.add_argument("--out", required=True, help="the run directory (must not exist)")
     ap.add_argument("--keep", action="store_true", help="keep the store afterwards")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -154,23 +190,33 @@ def main():
     if cp.returncode != 0:
         print(cp.stderr.strip(), file=sys.stderr)
         return 2
-    from ooc_dem.state import BYTES_PER_DISC
     out.parent.mkdir(parents=True, exist_ok=True)
     free = shutil.disk_usage(out.parent).free
-    need_disk = int(2.2 * a.discs * BYTES_PER_DISC)   # two epochs (~0.8-1x the state each) + slack
+    # an epoch is ~160 B/disc on disk (hdf5, 2D, measured); during a sweep the kept epochs
+    # and the one being written coexist
+    need_disk = int((a.keep_epochs + 1) * a.discs * EPOCH_BYTES_PER_DISC * 1.05)
     if need_disk > free:
-        print(f"bigrun: error: about {need_disk / 1e9:.1f} GB of disk needed (two epochs), "
+        print(f"bigrun: error: about {need_disk / 1e9:.1f} GB of disk needed ({a.keep_epochs + 1} epochs), "
               f"{free / 1e9:.1f} GB free under {out.parent}", file=sys.stderr)
         return 2
     doc = {"discs": a.discs, "sweeps": a.sweeps, "block": a.block, "backend": a.backend,
-           "memory": a.memory, "memory_limit_bytes": limit, "disk_free_before_bytes": free}
+           "memory": a.memory, "memory_limit_bytes": limit, "keep_epochs": a.keep_epochs,
+           "disk_free_before_bytes": free, "disk_needed_estimate_bytes": need_disk,
+           "plan": json.loads(cp.stdout)}
     cmd = [sys.executable, __file__, "--child", "--discs", str(a.discs), "--sweeps", str(a.sweeps),
-           "--block", str(a.block), "--backend", a.backend, "--out", str(out)]
+           "--block", str(a.block), "--backend", a.backend, "--out", str(out),
+           "--keep-epochs", str(a.keep_epochs)]
     cmd += ["--domains", str(a.domains)] if a.domains else []
     cmd += ["--memory", a.memory] if a.memory else []
     t = time.perf_counter()
-    res, doc["run"] = _limited(cmd, limit, env)
+    disk = _DiskSampler(out)
+    disk.start()
+    try:
+        res, doc["run"] = _limited(cmd, limit, env)
+    finally:
+        disk.stop()
     doc["run"]["wall_s"] = round(time.perf_counter() - t, 3)
+    doc["run"]["store_peak_bytes_sampled"] = disk.peak
     if res.returncode == 0:
         doc["run"].update(json.loads(res.stdout.strip().splitlines()[-1]))
         cur, total = _epoch_bytes(out)

@@ -614,7 +614,8 @@ def cmd_profile(args):
         lim = r.get("memory_limit")
         if lim:
             print(f"{r['mode']}: under the {lim['memory_limit_bytes'] / 1e6:.1f} MB limit (cgroup v"
-                  f"{lim['cgroup_version']}): peak RSS {lim['peak_rss_bytes'] / 1e6:.1f} MB, cgroup peak "
+                  f"{lim['cgroup_version']}): peak RSS {lim['peak_rss_bytes'] / 1e6:.1f} MB (anonymous "
+                  f"{lim['sampled_peak_anon_bytes'] / 1e6:.1f} MB), cgroup peak "
                   f"{lim['cgroup_peak_bytes'] / 1e6:.1f} MB, {lim['rss_samples']} RSS samples over "
                   f"{lim['wall_s']:.1f} s")
     print(f"report: {out / 'memory.json'}  {out / 'memory.md'}  figure: {out / 'memory.png'}")

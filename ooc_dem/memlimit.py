@@ -11,11 +11,13 @@ nothing outside its subtree is touched: cgroup v1
 (``<memory mount>/<own path>/<name>/memory.limit_in_bytes``, also ``memory.memsw.*``
 when swap accounting exists, so swap is no way around it) or cgroup v2 (``memory.max``,
 ``memory.swap.max``). The child joins it before it executes anything (it writes its own
-pid into ``cgroup.procs`` from a shell that then execs it), so every byte it ever maps
+pid into ``cgroup.procs`` from a shell that then execs it), so every byte it allocates
 counts. The peak RSS is the child's own (``wait4``'s ``ru_maxrss``); the cgroup's peak
 (``memory.max_usage_in_bytes`` / ``memory.peak``) also counts its page cache and kernel
-memory. RSS (``/proc/PID/status`` VmRSS) and the cgroup's usage are sampled over the
-whole run.
+memory, but not shared-library pages already in the page cache, charged to whoever read
+them first: RSS can exceed the limit by those (~90 MB for numba's LLVM and numpy here)
+while the child's anonymous memory (RssAnon) cannot. RSS, RssAnon (``/proc/PID/status``)
+and the cgroup's usage are sampled over the whole run.
 """
 from __future__ import annotations
 
@@ -165,19 +167,18 @@ class MemoryCgroup:
         raise MemoryLimitError(f"cannot remove the memory cgroup {self.path}")
 
 
-def _rss_of(pid: int) -> tuple[int, int]:
-    """(VmRSS, VmHWM) of a process in bytes (-1 when gone)."""
-    rss = hwm = -1
+def _rss_of(pid: int) -> tuple[int, int, int]:
+    """(VmRSS, VmHWM, RssAnon) of a process in bytes (-1 when gone)."""
+    got = {"VmRSS:": -1, "VmHWM:": -1, "RssAnon:": -1}
     try:
         with open(f"/proc/{pid}/status") as f:
             for line in f:
-                if line.startswith("VmRSS:"):
-                    rss = int(line.split()[1]) * 1024
-                elif line.startswith("VmHWM:"):
-                    hwm = int(line.split()[1]) * 1024
+                key = line.split(None, 1)[0] if line.strip() else ""
+                if key in got:
+                    got[key] = int(line.split()[1]) * 1024
     except OSError:
         pass
-    return rss, hwm
+    return got["VmRSS:"], got["VmHWM:"], got["RssAnon:"]
 
 
 @dataclass
@@ -193,15 +194,22 @@ class LimitedRun:
     cgroup_version: int | None = None
     cgroup_peak_bytes: int | None = None   # RSS + page cache + kernel memory charged to the cgroup
     oom_killed: bool = False
-    samples: list = field(default_factory=list)   # [t s, child VmRSS B, cgroup usage B or -1]
+    # [t s, child VmRSS B, cgroup usage B or -1, child RssAnon B]
+    samples: list = field(default_factory=list)
 
     @property
     def sampled_peak_rss_bytes(self) -> int:
         return max((s[1] for s in self.samples), default=-1)
 
+    @property
+    def sampled_peak_anon_bytes(self) -> int:
+        """The child's own (anonymous) memory at its sampled peak: what the limit charges in full."""
+        return max((s[3] for s in self.samples), default=-1)
+
     def as_dict(self) -> dict:
         return {"returncode": self.returncode, "wall_s": round(self.wall_s, 3),
                 "peak_rss_bytes": self.peak_rss_bytes, "sampled_peak_rss_bytes": self.sampled_peak_rss_bytes,
+                "sampled_peak_anon_bytes": self.sampled_peak_anon_bytes,
                 "memory_limit_bytes": self.limit_bytes, "cgroup_version": self.cgroup_version,
                 "cgroup_peak_bytes": self.cgroup_peak_bytes, "oom_killed": self.oom_killed,
                 "rss_samples": len(self.samples)}
@@ -239,8 +247,8 @@ def run_limited(cmd, limit_bytes: int | None = None, *, env=None, cwd=None, inte
                 pid, status, ru = os.wait4(proc.pid, os.WNOHANG)
                 if pid:
                     break
-                rss, hwm = _rss_of(proc.pid)
-                samples.append([round(time.perf_counter() - t0, 3), rss, cg.usage() if cg else -1])
+                rss, hwm, anon = _rss_of(proc.pid)
+                samples.append([round(time.perf_counter() - t0, 3), rss, cg.usage() if cg else -1, anon])
                 peak_hwm = max(peak_hwm, hwm)
                 time.sleep(interval)
             wall = time.perf_counter() - t0

@@ -117,6 +117,7 @@ def test_profile_under_a_memory_limit_well_above_the_need(tmp_path):
     lim = run["memory_limit"]
     assert lim["memory_limit_bytes"] == 10**9 and lim["oom_killed"] is False
     assert 0 < lim["peak_rss_bytes"] <= 10**9 and 0 < lim["cgroup_peak_bytes"] <= 10**9
+    assert 0 < lim["sampled_peak_anon_bytes"] <= lim["cgroup_peak_bytes"]
     assert lim["rss_samples"] >= 2
     assert lim["peak_rss_bytes"] >= run["peak_rss_bytes"]     # outside the run's own window too
     assert "under the 1000.0 MB limit" in stdout

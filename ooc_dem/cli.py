@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 EXIT_USAGE = 2
+EXIT_OOM = 137      # a profiled run killed by its --memory-limit (128 + SIGKILL, as a shell reports it)
 
 
 class CliError(Exception):
@@ -67,6 +68,15 @@ def _count(lo: int, hi: int):
     return parse
 
 
+def _size(text):
+    """A memory size: 2GB, 1.5G, 512MiB, 300MB or bytes."""
+    from .memlimit import parse_size
+    try:
+        return parse_size(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def _positive_float(text):
     try:
         v = float(text)
@@ -103,6 +113,10 @@ def build_parser() -> argparse.ArgumentParser:
         g.add_argument("--duration", type=_positive_float, help="total simulated time to run, s")
         q.add_argument("--checkpoint-every", type=_count(1, MAX_STEPS), metavar="STEPS",
                        help="commit an epoch every STEPS steps")
+        q.add_argument("--memory", type=_size, metavar="SIZE",
+                       help="memory budget, e.g. 2GB: out-of-core chooses the sub-domains D and "
+                            "block K whose slab, halo and I/O buffers fit; other modes are checked "
+                            "against it")
 
     q = sub.add_parser("run", help="run a scenario")
     add_scenario_args(q)
@@ -182,6 +196,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--block", type=_count(1, MAX_BLOCK))
     q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr"])
     q.add_argument("--steps", type=_count(1, MAX_STEPS), default=200, help="steps measured per mode")
+    q.add_argument("--memory-limit", type=_size, metavar="SIZE",
+                   help="run each mode under this hard memory limit (a memory cgroup made for it, "
+                        "removed after; needs root or a delegated cgroup); a mode that exceeds it is "
+                        f"reported as killed by the limit, exit code {EXIT_OOM}")
 
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)
@@ -268,6 +286,7 @@ def _run_options(args):
     return RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
                       steps=args.steps, duration=args.duration, checkpoint_every=args.checkpoint_every,
                       durable=getattr(args, "durable", False),
+                      memory=getattr(args, "memory", None),
                       progress=not getattr(args, "no_progress", True),
                       figures=not getattr(args, "no_figures", True))
 
@@ -277,6 +296,12 @@ def cmd_run(args):
     sc = _load(args)
     out = args.out or os.path.join("runs", sc.name)
     sim = Simulation(sc, out, _run_options(args))   # plans and checks everything (ooc-dem check)
+    if sim.opts.memory is not None:
+        from .engine.budget import fmt_bytes
+        p = sim.plan
+        print(f"ooc-dem: memory budget {fmt_bytes(p.memory_budget_bytes)}: {p.mode} with D = {p.domains} "
+              f"sub-domain{'s' if p.domains > 1 else ''}, K = {p.block} step{'s' if p.block > 1 else ''} per "
+              f"sweep; expected peak {fmt_bytes(p.memory_bytes)}", file=sys.stderr, flush=True)
     bed = _load_bed(args.bed, sc) if args.bed else None
     sim.start(bed, streamed=True)   # a tiled bare bed goes into an out-of-core store tile by tile
     summary = sim.run()
@@ -568,15 +593,31 @@ def cmd_profile(args):
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise CliError(f"--out {out}: directory exists and is not empty")
+    from .memlimit import MemoryLimitError
+    from .profiling import OomKilled
     try:
         doc = profile(args.scenario, modes, out, overrides=args.set, backend=args.backend,
-                      domains=args.domains, block=args.block, steps=args.steps)
+                      domains=args.domains, block=args.block, steps=args.steps,
+                      memory_limit=args.memory_limit)
+    except OomKilled as e:
+        print(f"ooc-dem: error: {e}", file=sys.stderr)
+        return EXIT_OOM
+    except MemoryLimitError as e:
+        raise CliError(f"--memory-limit: {e}") from None
     except RuntimeError as e:
         raise CliError(str(e)) from None
     print((out / "memory.md").read_text())
     for r in doc["runs"]:
         if r.get("above_baseline_ratio_to_monolithic") is not None and r["mode"] != "monolithic":
             print(f"{r['mode']}: peak above baseline = {r['above_baseline_ratio_to_monolithic']:.3f} x monolithic")
+    for r in doc["runs"]:
+        lim = r.get("memory_limit")
+        if lim:
+            print(f"{r['mode']}: under the {lim['memory_limit_bytes'] / 1e6:.1f} MB limit (cgroup v"
+                  f"{lim['cgroup_version']}): peak RSS {lim['peak_rss_bytes'] / 1e6:.1f} MB (anonymous "
+                  f"{lim['sampled_peak_anon_bytes'] / 1e6:.1f} MB), cgroup peak "
+                  f"{lim['cgroup_peak_bytes'] / 1e6:.1f} MB, {lim['rss_samples']} RSS samples over "
+                  f"{lim['wall_s']:.1f} s")
     print(f"report: {out / 'memory.json'}  {out / 'memory.md'}  figure: {out / 'memory.png'}")
     return 0
 

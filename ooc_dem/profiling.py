@@ -147,8 +147,19 @@ def child(args) -> dict:
     return res
 
 
+class OomKilled(RuntimeError):
+    """A profiled mode was killed by its hard memory limit (message is one line)."""
+
+    def __init__(self, message: str, result: dict):
+        super().__init__(message)
+        self.result = result
+
+
 def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains=None, block=None,
-              steps=20, work: Path, interval=0.05, keep=False, threads=None) -> dict:
+              steps=20, work: Path, interval=0.05, keep=False, threads=None,
+              memory_limit: int | None = None) -> dict:
+    """One mode in a fresh subprocess; with ``memory_limit`` (bytes) under a hard limit (a memory
+    cgroup made for it, memlimit.py), its RSS and the cgroup's usage sampled over the whole run."""
     cmd = [sys.executable, "-m", "ooc_dem.profiling", "--child", scenario, "--mode", mode,
            "--backend", backend, "--steps", str(steps), "--work", str(work), "--interval", str(interval)]
     for s in overrides:
@@ -162,11 +173,24 @@ def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains
     env = dict(os.environ)
     if threads:
         env["NUMBA_NUM_THREADS"] = str(threads)
-    cp = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    if cp.returncode != 0:
-        last = (cp.stderr.strip().splitlines() or ["(no output)"])[-1]
-        raise RuntimeError(f"profiling child for mode {mode} failed: {last}")
-    return json.loads(cp.stdout.strip().splitlines()[-1])
+    if memory_limit is None:
+        cp = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        if cp.returncode != 0:
+            last = (cp.stderr.strip().splitlines() or ["(no output)"])[-1]
+            raise RuntimeError(f"profiling child for mode {mode} failed: {last}")
+        return json.loads(cp.stdout.strip().splitlines()[-1])
+    from .memlimit import run_limited
+    lim = run_limited(cmd, memory_limit, env=env, interval=min(interval, 0.1))
+    limited = {**lim.as_dict(), "limit_rss_series": lim.samples}
+    if lim.oom_killed:
+        raise OomKilled(lim.oom_message(f"mode {mode}"), {"mode": mode, **limited})
+    if lim.returncode != 0:
+        last = (lim.stderr.strip().splitlines() or ["(no output)"])[-1]
+        raise RuntimeError(f"profiling child for mode {mode} failed (exit {lim.returncode}): {last}")
+    res = json.loads(lim.stdout.strip().splitlines()[-1])
+    # the whole process's peak, seen from outside (imports and warm-up included)
+    res["memory_limit"] = {k: v for k, v in limited.items() if k != "returncode"}
+    return res
 
 
 def report(results: list[dict], out: Path) -> dict:
@@ -214,14 +238,27 @@ def report(results: list[dict], out: Path) -> dict:
 
 
 def profile(scenario: str, modes, out: Path, overrides=(), backend="hdf5", domains=None, block=None,
-            steps=20) -> dict:
+            steps=20, memory_limit: int | None = None) -> dict:
+    """Each mode in a fresh subprocess (under ``memory_limit`` bytes, a hard cgroup limit, if
+    given). A mode killed by the limit raises OomKilled after memory.json records it."""
     results = []
     for m in modes:
-        results.append(run_child(scenario, m, overrides=overrides, backend=backend, domains=domains,
-                                 block=block, steps=steps, work=out / "work"))
+        try:
+            results.append(run_child(scenario, m, overrides=overrides, backend=backend, domains=domains,
+                                     block=block, steps=steps, work=out / "work", memory_limit=memory_limit))
+        except OomKilled as e:
+            import shutil
+            shutil.rmtree(out / "work", ignore_errors=True)
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "memory.json").write_text(json.dumps({"runs": results, "oom_killed": e.result}, indent=2))
+            raise
         r = results[-1]
+        lim = r.get("memory_limit")
         print(f"{m}: peak {r['peak_rss_bytes'] / 2**20:.1f} MiB, above baseline "
-              f"{r['peak_above_baseline_bytes'] / 2**20:.1f} MiB, resident max {r['resident_discs_max']}",
+              f"{r['peak_above_baseline_bytes'] / 2**20:.1f} MiB, resident max {r['resident_discs_max']}"
+              + (f"; under a {lim['memory_limit_bytes'] / 2**20:.0f} MiB limit: whole-process peak RSS "
+                 f"{lim['peak_rss_bytes'] / 2**20:.1f} MiB, cgroup peak {lim['cgroup_peak_bytes'] / 2**20:.1f} MiB"
+                 if lim else ""),
               file=sys.stderr, flush=True)
     import shutil
     shutil.rmtree(out / "work", ignore_errors=True)

@@ -474,7 +474,7 @@ def test_F_memory_backend_run_writes_its_outputs(tmp_path):
 
 CHECK_KEYS = {"scenario", "scenario_hash", "mode", "backend", "n_discs", "steps", "simulated_time_s",
               "dt_s", "dt_critical_s", "checkpoint_every", "domains", "block", "streamed_bed",
-              "memory_bytes", "memory_available_bytes"}
+              "memory_bytes", "memory_available_bytes", "memory_budget_bytes"}
 
 
 def test_G_check_prints_the_plan_and_writes_nothing(tmp_path):

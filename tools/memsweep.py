@@ -7,6 +7,7 @@ store setup count), above the post-warm-up baseline. The slope of peak-above-
 baseline against N (least squares) is the memory cost per disc of each mode.
 
     python tools/memsweep.py --sizes 1e4,1e5,1e6,4e6 --domains 32 --steps 20 --out memsweep
+    python tools/memsweep.py --sizes 1e5,4e5,2e6 --slab-discs 12500 --out memsweep-slab   # fixed slab
     python tools/memsweep.py --family bed3d --sizes 1e4,1e5,1e6,4e6 --out memsweep3d   # spheres
 """
 from __future__ import annotations
@@ -26,6 +27,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="1e4,1e5,1e6,4e6")
     ap.add_argument("--domains", type=int, default=32)
+    ap.add_argument("--slab-discs", type=int,
+                    help="fixed slab size instead of a fixed D: out-of-core D = ceil(N / this)")
     ap.add_argument("--block", type=int, help="K for out-of-core (default: chosen from the geometry)")
     ap.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr"])
     ap.add_argument("--steps", type=int, default=20)
@@ -42,7 +45,8 @@ def main():
     for n in sizes:
         for m in modes:
             r = run_child(f"{a.family}-{n}", m, overrides=["decomposition.policy=equal"], backend=a.backend,
-                          domains=a.domains if m != "monolithic" else None,
+                          domains=(-(-n // a.slab_discs) if a.slab_discs else a.domains)
+                          if m != "monolithic" else None,
                           block=a.block if m != "monolithic" else None, steps=a.steps, work=out / "work")
             r.pop("rss_series", None)
             runs.append(r)
@@ -59,7 +63,7 @@ def main():
             fits[m] = {"bytes_per_disc": float(slope), "intercept_bytes": float(icpt)}
     if "monolithic" in fits and "ooc" in fits:
         fits["ooc_over_monolithic_slope"] = fits["ooc"]["bytes_per_disc"] / fits["monolithic"]["bytes_per_disc"]
-    doc = {"domains": a.domains, "backend": a.backend, "steps": a.steps, "runs": runs, "fits": fits}
+    doc = {"domains": a.domains, "slab_discs": a.slab_discs, "backend": a.backend, "steps": a.steps, "runs": runs, "fits": fits}
     (out / "memsweep.json").write_text(json.dumps(doc, indent=2))
     import matplotlib
     matplotlib.use("Agg")
@@ -74,7 +78,8 @@ def main():
     ax.set_yscale("log")
     ax.set_xlabel("discs N")
     ax.set_ylabel("peak RSS above baseline [MiB]")
-    ax.set_title(f"peak memory against N (out-of-core: D = {a.domains})")
+    ax.set_title(f"peak memory against N (out-of-core: "
+                 f"{f'slabs of {a.slab_discs} discs' if a.slab_discs else f'D = {a.domains}'})")
     ax.grid(alpha=0.3, which="both")
     ax.legend()
     fig.tight_layout()

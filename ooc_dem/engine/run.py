@@ -25,7 +25,8 @@ from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, ScenarioError, big, cr
                         scenario_from_toml, show, steps_for_duration)
 from ..metrics import N_SERIES
 from ..physics.layout import AX_X, AX_Y
-from ..state import BYTES_PER_DISC, Particles
+from ..state import Particles
+from . import budget
 from .stepper import DomainStepper, EngineError, Model
 
 MODES = ("monolithic", "ddm", "ooc")
@@ -48,6 +49,7 @@ class RunOptions:
     durable: bool = False
     progress: bool = True
     figures: bool = True
+    memory: int | None = None           # bytes the run may hold at its peak (--memory): chooses D, K
 
 
 def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
@@ -75,14 +77,8 @@ def total_steps(sc: Scenario, opts: RunOptions) -> int:
     return int(sc.output.run_steps)
 
 
-# ---- memory plan: bytes a run holds per disc, measured (peak RSS above the interpreter's
-# baseline, bed-200000, `tools/memsweep.py`-style) and rounded up
-STATE_BYTES_PER_DISC = BYTES_PER_DISC   # one copy of a disc's state (368 B)
-MONOLITHIC_BYTES_PER_DISC = 1100    # state + neighbour lists + forces + set-up copies (measured ~1070)
-RESIDENT_BYTES_PER_DISC = 1100      # a disc resident in a sub-domain (the same per-domain step)
-OOC_SETUP_BYTES_PER_DISC = 400      # out-of-core set-up from a bed held in RAM (measured ~370)
-STREAMED_SETUP_BYTES_PER_DISC = 16  # out-of-core set-up of a streamed bed: x of every disc, twice
-BASELINE_BYTES = 250 << 20          # interpreter, numpy, numba, compiled kernels
+# ---- memory plan: the measured bytes per particle of each mode and dimension, and the
+# budget that chooses D and K, live in engine/budget.py
 SERIES_ROW_BYTES = N_SERIES * 8    # one series.csv row (float64 columns)
 MIN_DISCS_PER_DOMAIN = 20           # a sub-domain of fewer discs is all halo and overhead
 
@@ -105,21 +101,14 @@ class RunPlan:
     streamed_bed: bool
     memory_bytes: int
     memory_available_bytes: int
+    memory_budget_bytes: int | None = None
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
 
 
-def _fmt_bytes(n: float) -> str:
-    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
-        if n >= size:
-            return f"{n / size:.1f} {unit}"
-    return f"{n / 1e3:.1f} kB"
-
-
-def _hop(sc: Scenario) -> float:
-    """One contact hop: the farthest a contact reaches (2 r_max) plus the Verlet skin."""
-    return 2.0 * sc.soil.r_max + sc.bed.skin
+_fmt_bytes = budget.fmt_bytes
+_hop = budget.hop
 
 
 def max_domains(sc: Scenario) -> int:
@@ -133,7 +122,6 @@ def max_domains(sc: Scenario) -> int:
 def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
     if opts.mode == "monolithic":
         return 1, 1
-    from .sweep import _block
     D = opts.domains or sc.decomposition.domains
     if opts.domains is not None and not 1 <= opts.domains <= MAX_DOMAINS:
         raise RunError(f"--domains {show(opts.domains)}: must be in [1, {MAX_DOMAINS}]")
@@ -143,9 +131,13 @@ def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
         raise RunError(f"{what}: at most {limit} sub-domain{'s' if limit > 1 else ''} for this bed ({sc.soil.n} discs, "
                        f"bin.length {sc.bin.length:g} m: each slab needs >= {MIN_DISCS_PER_DOMAIN} discs "
                        f"and >= one contact hop {_hop(sc):.3g} m)")
-    # K exactly as the sweep will choose it (its own rule, not a copy)
-    K = _block(SimpleNamespace(sc=sc, opts=SimpleNamespace(mode=opts.mode, domains=D, block=opts.block)))
-    return D, K
+    return D, _block_for(sc, opts, D)
+
+
+def _block_for(sc: Scenario, opts: RunOptions, domains: int) -> int:
+    """K exactly as the sweep will choose it for D sub-domains (its own rule, not a copy)."""
+    from .sweep import _block
+    return _block(SimpleNamespace(sc=sc, opts=SimpleNamespace(mode=opts.mode, domains=domains, block=opts.block)))
 
 
 def streamable(sc: Scenario, opts: RunOptions) -> bool:
@@ -153,30 +145,36 @@ def streamable(sc: Scenario, opts: RunOptions) -> bool:
     return opts.mode == "ooc" and not sc.wheel.enabled and 0 < sc.bed.tile < sc.soil.n
 
 
+def _series_bytes(sc: Scenario, steps: int) -> float:
+    """A wheel run's series: the grown buffer (up to twice the rows) plus the copy each commit writes."""
+    if not sc.wheel.enabled:
+        return 0.0
+    per_row = max(1, int(round(sc.output.series_interval / sc.physics.dt)))
+    return 3.0 * (steps // per_row + 1) * SERIES_ROW_BYTES
+
+
 def estimate_memory(sc: Scenario, opts: RunOptions, steps: int, domains: int, block: int,
                     streamed: bool) -> int:
-    """Bytes the run needs at its peak (rough: the constants above, measured)."""
-    n = sc.soil.n
-    if opts.mode == "monolithic":
-        state = n * MONOLITHIC_BYTES_PER_DISC
-    else:
-        # resident: a slab plus halo strips K + 1 hops wide on both sides
-        halo = 2.0 * (block + 1) * _hop(sc) / sc.bin.length
-        if opts.mode == "ddm":
-            # every slab is resident with its halo, plus the epoch's groups for commits
-            state = n * (RESIDENT_BYTES_PER_DISC * (1.0 + domains * halo) + STATE_BYTES_PER_DISC)
-        else:
-            slab = n * RESIDENT_BYTES_PER_DISC * min(1.0, 1.0 / domains + halo)
-            setup = n * (STREAMED_SETUP_BYTES_PER_DISC if streamed else OOC_SETUP_BYTES_PER_DISC)
-            state = max(slab, setup)
-    if opts.backend == "memory":
-        state += 3 * n * STATE_BYTES_PER_DISC   # the in-process store: current, previous, being written
-    series = 0.0
-    if sc.wheel.enabled:
-        per_row = max(1, int(round(sc.output.series_interval / sc.physics.dt)))
-        # the grown buffer (up to twice the rows) plus the copy each commit writes
-        series = 3.0 * (steps // per_row + 1) * SERIES_ROW_BYTES
-    return int(BASELINE_BYTES + state + series)
+    """Bytes the run needs at its peak (engine/budget.py: measured bytes per particle)."""
+    return budget.estimate_peak(sc, opts.mode, opts.backend, domains, block, streamed,
+                                _series_bytes(sc, steps))
+
+
+def _budgeted(sc: Scenario, opts: RunOptions, steps: int, streamed: bool) -> tuple[int, int]:
+    """--memory: out-of-core takes the fewest sub-domains (the largest slab) whose slab, halo
+    and I/O buffers fit, and K as the sweep chooses it for them; a --domains or --block given
+    too is kept. Other modes only check the budget."""
+    if opts.memory is not None and not opts.memory >= 1:
+        raise RunError(f"--memory {show(opts.memory)}: must be a positive size such as 2GB")
+    if opts.mode != "ooc" or opts.domains is not None:
+        return _domains_and_block(sc, opts)
+    block_of = lambda D: _block_for(sc, opts, D)
+    got = budget.choose_decomposition(sc, opts.memory, block_of, max_domains(sc), opts.backend, streamed,
+                                      _series_bytes(sc, steps))
+    if got is None:
+        raise RunError(budget.smallest_fit_message(sc, opts.memory, block_of, max_domains(sc), opts.backend,
+                                                   streamed, _series_bytes(sc, steps)))
+    return got[0], got[1]
 
 
 def machine_memory() -> int:
@@ -195,24 +193,30 @@ def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> Ru
     if opts.checkpoint_every is not None and not 1 <= opts.checkpoint_every <= MAX_STEPS:
         raise RunError(f"--checkpoint-every {show(opts.checkpoint_every)}: must be in [1, {big(MAX_STEPS)}] steps")
     every = opts.checkpoint_every or default_checkpoint_every(sc, steps)
-    D, K = _domains_and_block(sc, opts)
     streamed = streamable(sc, opts) if streamed is None else streamed
+    D, K = _domains_and_block(sc, opts) if opts.memory is None else _budgeted(sc, opts, steps, streamed)
     need = estimate_memory(sc, opts, steps, D, K, streamed)
     have = machine_memory()
     if need > have:
         raise RunError(_memory_message(sc, opts, steps, need, have, streamed))
+    if opts.memory is not None and need > opts.memory:
+        raise RunError(f"--memory {_fmt_bytes(opts.memory)}: the {opts.mode} run needs about "
+                       f"{_fmt_bytes(need)} (D = {D}, K = {K})"
+                       + ("" if opts.mode == "ooc" else "; --mode ooc chooses sub-domains that fit"))
     return RunPlan(scenario=sc.name, mode=opts.mode, backend=opts.backend, n_discs=sc.soil.n, steps=steps,
                    simulated_time_s=steps * sc.physics.dt, dt_s=sc.physics.dt,
                    dt_critical_s=critical_time_step(sc), checkpoint_every=every, domains=D, block=K,
-                   streamed_bed=streamed, memory_bytes=need, memory_available_bytes=have)
+                   streamed_bed=streamed, memory_bytes=need, memory_available_bytes=have,
+                   memory_budget_bytes=opts.memory)
 
 
 def check_bed_memory(sc: Scenario) -> int:
     """`ooc-dem prepare`: the whole settled bed is held (an untiled bed is settled as one domain).
     Returns the estimated bytes; refuses what cannot fit, naming soil.n."""
+    m = budget.byte_model(sc.dim)
     tiled = 0 < sc.bed.tile < sc.soil.n
-    per_disc = 2 * STATE_BYTES_PER_DISC if tiled else MONOLITHIC_BYTES_PER_DISC
-    need = BASELINE_BYTES + sc.soil.n * per_disc
+    per_disc = 2 * m.state if tiled else m.monolithic
+    need = m.baseline + sc.soil.n * per_disc
     have = machine_memory()
     if need > have:
         raise RunError(f"soil.n = {sc.soil.n}: preparing the bed needs about {_fmt_bytes(need)} of memory, "
@@ -223,7 +227,7 @@ def check_bed_memory(sc: Scenario) -> int:
 
 def _memory_message(sc, opts, steps, need, have, streamed) -> str:
     series_rows = steps // max(1, int(round(sc.output.series_interval / sc.physics.dt))) + 1
-    series = 3 * series_rows * SERIES_ROW_BYTES if sc.wheel.enabled else 0
+    series = _series_bytes(sc, steps)
     if series > need / 2:
         what = (f"output.series_interval = {sc.output.series_interval!r}: {steps} steps keep "
                 f"{series_rows} series rows")
@@ -348,6 +352,9 @@ class Simulation:
         self.opts = opts or RunOptions()
         # everything checked and sized before a byte is allocated or a file written
         self.plan = plan_run(sc, self.opts)
+        if self.opts.memory is not None and self.opts.mode != "monolithic":
+            # the budget's D and K become the run's own (stored with it: a resume keeps them)
+            self.opts = dataclasses.replace(self.opts, domains=self.plan.domains, block=self.plan.block)
         self.model = Model.from_scenario(sc)
         self.steps = self.plan.steps
         self.checkpoint_every = self.plan.checkpoint_every

@@ -60,7 +60,7 @@ def initial_fill(sc: Scenario) -> Particles:
     pos = np.zeros((s.n, sc.dim))
     pos[:, AX_X] = x
     pos[:, AX_Y] = y
-    p = Particles.new(pos, r, s.density, sc.physics.thickness)
+    p = Particles.new(pos, r, s.density, sc.physics.thickness, hist_cap=sc.hist_cap)
     # a little random motion so the fill does not stack as a crystal
     p.vel[:, AX_X] = rng.normal(0.0, 0.01, s.n)
     return p
@@ -96,7 +96,7 @@ def initial_fill_3d(sc: Scenario) -> Particles:
     pos[:, AX_X] = x0 + ix * pitch + rng.uniform(-slack, slack, s.n)
     pos[:, AX_Y] = s.r_max + layer * pitch + rng.uniform(0, slack, s.n)
     pos[:, AX_Z] = z0 + iz * pitch + rng.uniform(-slack, slack, s.n)
-    p = Particles.new(pos, r, s.density, sc.physics.thickness)
+    p = Particles.new(pos, r, s.density, sc.physics.thickness, hist_cap=sc.hist_cap)
     p.vel[:, AX_X] = rng.normal(0.0, 0.01, s.n)
     p.vel[:, AX_Z] = rng.normal(0.0, 0.01, s.n)
     return p
@@ -249,7 +249,10 @@ def _cached(sc: Scenario, build, progress=None) -> Particles:
         if f.is_file():
             try:
                 with np.load(f) as z:
-                    return Particles(**{k: z[k] for k in z.files})
+                    p = Particles(**{k: z[k] for k in z.files})
+                # the capacity is no part of the bed's bits (nor of its hash): a bed cached
+                # at another capacity is refitted to this scenario's
+                return p if p.hist_cap == sc.hist_cap else p.with_hist_cap(sc.hist_cap)
             except Exception:
                 if f == path:
                     path.unlink(missing_ok=True)
@@ -265,7 +268,7 @@ def settled_bed(sc: Scenario, progress=None, use_cache: bool = True) -> Particle
     """The settled bed of a scenario (sorted by id), cached on disk by its bed hash."""
     if sc.bed.tile > 0 and sc.soil.n > sc.bed.tile:
         # filled part by part into one allocation (no list of parts plus a concatenated copy)
-        bed = Particles.empty(sc.soil.n, sc.dim)
+        bed = Particles.empty(sc.soil.n, sc.dim, sc.hist_cap)
         at = 0
         for part in tiled_bed_parts(sc, progress=progress, use_cache=use_cache, tiles_per_part=8):
             for k in bed.arrays():

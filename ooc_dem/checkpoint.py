@@ -15,7 +15,7 @@ import numpy as np
 
 from .physics.layout import AX_X, WS_SIZE
 from .scenario import show
-from .state import (DISC_FIELDS, FIELD_DTYPES, HIST_CAP, HIST_FIELDS, V1_ARRAYS, Particles,
+from .state import (DISC_FIELDS, FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, Particles, default_hist_cap,
                     canonical_bytes, canonical_columns, hash_width, record_fields, stack_v1, upgrade_v1)
 
 # the run format (run meta ``format_version``, = the store format): 2 = per-particle vectors
@@ -39,7 +39,7 @@ _FINITE_FIELDS = ("pos", "vel", "spin", "r", "mass", "inertia", "hist_s", "hist_
 _POSITIVE_FIELDS = ("r", "mass", "inertia")
 
 
-def validate_record(rec: dict, where: str, dim: int = 2, hist_cap: int = HIST_CAP) -> None:
+def validate_record(rec: dict, where: str, dim: int = 2, hist_cap: int | None = None) -> None:
     """Refuse a domain record that this engine could not have written (StateError).
 
     Checks names, dtypes and shapes of every field (``state.record_fields(dim)``: pos must
@@ -72,6 +72,7 @@ def validate_record(rec: dict, where: str, dim: int = 2, hist_cap: int = HIST_CA
             raise StateError(f"{where}: array {name!r} holds negative values")
     check_unique_sorted(np.sort(rec["id"]), where)
     hist_n = rec["hist_n"]
+    hist_cap = default_hist_cap(dim) if hist_cap is None else hist_cap
     if n and (hist_n.min() < 0 or hist_n.max() > hist_cap):
         raise StateError(f"{where}: hist_n outside [0, {hist_cap}] (contact history capacity)")
     total = int(hist_n.sum(dtype=np.int64))
@@ -120,13 +121,14 @@ def particles_to_record(p: Particles) -> dict[str, np.ndarray]:
     return rec
 
 
-def record_to_particles(rec: dict[str, np.ndarray], hist_cap: int = HIST_CAP) -> Particles:
+def record_to_particles(rec: dict[str, np.ndarray], hist_cap: int | None = None) -> Particles:
     """A state from a store record (format 2; a format-1 record is converted first)."""
     rec = upgrade_v1(rec)
     pos = rec.get("pos")
     if pos is None or pos.ndim != 2 or pos.shape[1] not in (2, 3):
         raise StateError(f"pos: shape {None if pos is None else pos.shape}, expected (n, 2) or (n, 3)")
     n, dim = pos.shape
+    hist_cap = default_hist_cap(dim) if hist_cap is None else hist_cap
     p = Particles.empty(n, dim, hist_cap)
     for k in DISC_FIELDS:
         getattr(p, k)[:] = rec[k]
@@ -214,7 +216,7 @@ def hash_particles(p: Particles, wheel, step: int) -> str:
     return h.hexdigest()
 
 
-def validate_epoch(reader, where: str, dim: int = 2, hist_cap: int = HIST_CAP) -> None:
+def validate_epoch(reader, where: str, dim: int = 2, hist_cap: int | None = None) -> None:
     """Refuse an epoch that this engine could not have written (StateError), domain by domain.
 
     Every domain record passes ``validate_record`` and its stored attrs agree with it;

@@ -30,6 +30,9 @@ MAX_STEPS = 10**10
 # bounds of decomposition.domains / --domains and decomposition.block / --block
 MAX_DOMAINS = 4096
 MAX_BLOCK = 10000
+# bound of physics.history_capacity (and of a stored run's capacity read on resume): a
+# particle's history is this many slots in RAM, so a typo must not allocate gigabytes
+MAX_HIST_CAP = 64
 # scenario.name becomes the default output directory runs/<name>: one safe path component
 NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,99}")
 NAME_ALLOWED = "1-100 letters, digits and _ . + - (not starting with . + or -; it names runs/<name>)"
@@ -87,6 +90,7 @@ class Physics:
     contacts_per_disc: float = 4.0  # used for the critical-step estimate
     dim: int = 2                   # 2: discs in the x-y plane; 3: spheres (z across the bin)
     impact_speed: float = 1.0      # m/s, largest expected impact speed (3D Hertz time-step check)
+    history_capacity: int = 0      # contacts a particle may hold (0: 8 in 2D, 12 in 3D; never a result bit)
 
 
 @dataclass(frozen=True)
@@ -210,6 +214,13 @@ class Scenario:
         return self.physics.dim
 
     @property
+    def hist_cap(self) -> int:
+        """Contact-history capacity per particle (physics.history_capacity, else the
+        dimension's default: state.HIST_CAP_BY_DIM)."""
+        from .state import default_hist_cap
+        return self.physics.history_capacity or default_hist_cap(self.dim)
+
+    @property
     def gravity_vector(self) -> tuple[float, ...]:
         """Gravity as a dim-vector along -y (physics.layout.AX_Y)."""
         from .physics.layout import AX_Y
@@ -267,7 +278,7 @@ class Scenario:
 
 # keys whose default value is left out of the hashes (added with the 3D engine)
 _HASH_NEUTRAL = {("physics", "dim"): 2, ("physics", "impact_speed"): 1.0, ("bin", "width"): 0.10,
-                 ("bed", "tiles_across"): 1}
+                 ("bed", "tiles_across"): 1, ("physics", "history_capacity"): 0}
 _PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3,
                       "restitution": 0.5}
 LAWS = ("linear", "hertz")
@@ -299,6 +310,8 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("physics", "dt"): _POS,
     ("physics", "contacts_per_disc"): (lambda v: 1 <= v <= 1000, "a number in [1, 1000]"),
     ("physics", "dim"): (lambda v: v in (2, 3), "2 or 3"),
+    ("physics", "history_capacity"): (lambda v: v == 0 or 4 <= v <= MAX_HIST_CAP,
+                                      f"0 (the dimension's default) or an integer in [4, {MAX_HIST_CAP}]"),
     ("physics", "impact_speed"): _within(0.0, 1e4, lo_open=True),
     ("bin", "length"): _LENGTH,
     ("bin", "height"): _LENGTH,

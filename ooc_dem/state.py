@@ -17,7 +17,14 @@ import numpy as np
 from .physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, axes,  # noqa: F401
                              hist_widths, spin_width)
 
-HIST_CAP = 12          # default contact-history capacity C (the model's ``hist_cap``)
+# default contact-history capacity C per dimension (the model's ``hist_cap``; scenario key
+# physics.history_capacity overrides it). A 2D disc in a settled polydisperse bed touches at
+# most 6 others (hexagonal packing; the largest count seen in paper2008 with the wheel is 6),
+# so 8 leaves room without paying for 12 (24 B a slot); a sphere touches up to 12 in a
+# monodisperse packing. Overflow is an error (EngineError), never a silent drop, and the
+# capacity never enters a result bit or the state hash.
+HIST_CAP_BY_DIM = {2: 8, 3: 12}
+HIST_CAP = HIST_CAP_BY_DIM[2]   # the 2D default
 HASH_HIST_SLOTS = 12   # canonical history width of the state hash (padded; see canonical_bytes)
 
 # name -> dtype of every per-particle array, in canonical order; the shapes are
@@ -73,8 +80,17 @@ def record_fields(dim: int) -> dict[str, tuple[np.dtype, tuple[int, ...]]]:
     return out
 
 
-def bytes_per_disc(dim: int = 2, cap: int = HIST_CAP) -> int:
-    """Bytes of one particle's state."""
+def default_hist_cap(dim: int) -> int:
+    """The contact-history capacity of a dim-dimensional state unless a scenario sets one."""
+    try:
+        return HIST_CAP_BY_DIM[dim]
+    except KeyError:
+        raise ValueError(f"dimension {dim!r}: must be 2 or 3") from None
+
+
+def bytes_per_disc(dim: int = 2, cap: int | None = None) -> int:
+    """Bytes of one particle's state (capacity cap, else the dimension's default)."""
+    cap = default_hist_cap(dim) if cap is None else cap
     return sum(dt.itemsize * int(np.prod(shape, dtype=np.int64))
                for dt, shape in fields(dim, cap).values())
 
@@ -140,11 +156,12 @@ class Particles:
             setattr(self, name, a)
 
     @classmethod
-    def empty(cls, n: int, dim: int = 2, hist_cap: int = HIST_CAP) -> "Particles":
+    def empty(cls, n: int, dim: int = 2, hist_cap: int | None = None) -> "Particles":
+        hist_cap = default_hist_cap(dim) if hist_cap is None else hist_cap
         return cls(**{k: np.zeros((n,) + tail, dt) for k, (dt, tail) in fields(dim, hist_cap).items()})
 
     @classmethod
-    def new(cls, pos, r, density, thickness, mat=None, ids=None, hist_cap: int = HIST_CAP) -> "Particles":
+    def new(cls, pos, r, density, thickness, mat=None, ids=None, hist_cap: int | None = None) -> "Particles":
         """Particles at rest at pos (N, D) with radii r; mass from the density (2D: discs are
         cylinders of length ``thickness``; 3D: spheres)."""
         pos = np.asarray(pos, np.float64)
@@ -191,7 +208,7 @@ class Particles:
         return self.take(np.argsort(self.id, kind="stable"))
 
     @staticmethod
-    def concat(parts: list["Particles"], dim: int = 2, hist_cap: int = HIST_CAP) -> "Particles":
+    def concat(parts: list["Particles"], dim: int = 2, hist_cap: int | None = None) -> "Particles":
         """All parts in one (dim and hist_cap only give the shape of an empty result)."""
         if not parts:
             return Particles.empty(0, dim, hist_cap)

@@ -21,8 +21,8 @@ from ..bed import settled_bed, surface_height
 from ..checkpoint import (FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, particles_to_record,
                           record_to_particles)
 from ..physics.layout import REC_X, WS_SIZE, WS_X, WS_Y
-from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, ScenarioError, big, critical_time_step,
-                        scenario_from_toml, show, steps_for_duration)
+from ..scenario import (MAX_DOMAINS, MAX_HIST_CAP, MAX_STEPS, Scenario, ScenarioError, big,
+                        critical_time_step, scenario_from_toml, show, steps_for_duration)
 from ..metrics import N_SERIES
 from ..physics.layout import AX_X, AX_Y
 from ..state import Particles
@@ -329,10 +329,8 @@ def _stopped_before_first_commit(out: Path) -> bool:
 
 def read_all_particles(reader, dim: int = 2, hist_cap: int | None = None) -> Particles:
     """All discs of an epoch (every domain group), sorted by id."""
-    from ..state import HIST_CAP
-    cap = HIST_CAP if hist_cap is None else hist_cap
-    parts = [record_to_particles(reader.read_domain(d), cap) for d in reader.domains()]
-    return Particles.concat(parts, dim, cap).sorted_by_id()
+    parts = [record_to_particles(reader.read_domain(d), hist_cap) for d in reader.domains()]
+    return Particles.concat(parts, dim, hist_cap).sorted_by_id()
 
 
 def default_checkpoint_every(sc: Scenario, steps: int) -> int:
@@ -744,6 +742,12 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
                       steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
                       figures=figures)
     sim = Simulation(sc, path, opts)
+    # a run keeps the capacity it was written with when that is larger (runs written when
+    # 2D's default was 12 may hold discs with more than today's 8 contacts); bounded,
+    # because the value comes from the store
+    cap = meta.get("hist_cap")
+    if type(cap) is int and sim.model.hist_cap < cap <= MAX_HIST_CAP:
+        sim.model.hist_cap = cap
     dim = meta.get("dim", 2)   # format 1 was 2D only
     if dim != sim.model.dim:
         raise RunError(f"{path}: store holds a {show(dim)}-dimensional run, the stored scenario is "

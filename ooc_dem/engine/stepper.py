@@ -31,7 +31,7 @@ from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFL
                               WG_R, WG_SIZE, WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD,
                               WHEEL_STATE, WS_SIZE, ZN, ZR, ZT, Bodies, Forces, KernelParams,
                               Pairs, discs_of, record, spin_width)
-from ..state import HIST_CAP, Particles
+from ..state import Particles, default_hist_cap
 
 # role argument of run_steps: every disc is owned, every pair row reloaded
 EVERY_DISC = np.zeros(0, np.int8)
@@ -57,9 +57,11 @@ class Model:
     wheel_enabled: bool
     r_max: float
     dim: int = 2              # 2 for every current scenario; picks the kernel module
-    hist_cap: int = HIST_CAP  # contact-history capacity C per particle
+    hist_cap: int = 0         # contact-history capacity C per particle (0: the dimension's default)
 
     def __post_init__(self):
+        if not self.hist_cap:
+            self.hist_cap = default_hist_cap(self.dim)
         self.gravity = np.ascontiguousarray(self.gravity, np.float64)
         if self.gravity.shape != (self.dim,):
             raise ValueError(f"Model: gravity {self.gravity.shape} must be a {self.dim}-vector")
@@ -103,7 +105,7 @@ class Model:
             c["slip"] = w.slip
         return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
                    skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc, wheel_enabled=w.enabled,
-                   r_max=sc.soil.r_max, dim=sc.dim)
+                   r_max=sc.soil.r_max, dim=sc.dim, hist_cap=sc.hist_cap)
 
     @classmethod
     def _from_scenario_3d(cls, sc) -> "Model":
@@ -117,7 +119,7 @@ class Model:
         walls = L3.walls_record(sc.bin.length, sc.bin.width).view(np.float64).copy()
         return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
                    skin=sc.bed.skin, cp=cp, walls=walls, wg=np.zeros(WG_SIZE), wc=np.zeros(WC_SIZE),
-                   wheel_enabled=False, r_max=sc.soil.r_max, dim=3)
+                   wheel_enabled=False, r_max=sc.soil.r_max, dim=3, hist_cap=sc.hist_cap)
 
     def layouts(self):
         """(CONTACT_PARAMS, WALLS) record dtypes of this model's dimension."""

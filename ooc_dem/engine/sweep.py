@@ -21,7 +21,7 @@ import numpy as np
 from ..checkpoint import open_epoch, particles_to_record, record_to_particles
 from ..decomposition import equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok
 from ..physics.layout import AX_X, WS_X
-from ..state import DISC_FIELDS, HIST_CAP, HIST_FIELDS
+from ..state import DISC_FIELDS, HIST_FIELDS
 from ..state import Particles
 from .live import SWEEPS_REBUILD, LiveDomains, sweeps_kernel
 from .stepper import N_REC, DomainStepper, EngineError, Model
@@ -73,7 +73,7 @@ class RamEpochs:
         self.current[d] = (record_to_particles(arrays), attrs)
 
 
-def _read_rows(src, d, lo: float, hi: float, hist_cap: int = HIST_CAP) -> Particles | None:
+def _read_rows(src, d, lo: float, hi: float, hist_cap: int | None = None) -> Particles | None:
     """Discs of group d with lo <= x < hi (groups are sorted by x: one contiguous slice)."""
     attrs = src.domain_attrs(d)
     n = int(attrs.get("n", 0))

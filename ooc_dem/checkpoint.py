@@ -8,15 +8,16 @@ Format-1 epochs (2D components as their own arrays) are read through ``V1Epoch``
 """
 from __future__ import annotations
 
-import hashlib
 import math
 
 import numpy as np
 
 from .physics.layout import AX_X, WS_SIZE
+from . import statehash
+from .decomposition import x_summary
 from .scenario import show
 from .state import (DISC_FIELDS, FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, Particles, default_hist_cap,
-                    canonical_bytes, canonical_columns, hash_width, record_fields, stack_v1, upgrade_v1)
+                    record_fields, stack_v1, upgrade_v1)
 
 # the run format (run meta ``format_version``, = the store format): 2 = per-particle vectors
 # (pos, vel (n, D), spin (n, R), hist_s (E, S), hist_m (E, M)); 1 = the 2D components as
@@ -210,22 +211,20 @@ def open_epoch(store, step: int | None = None, verify: bool = True):
 
 
 def hash_particles(p: Particles, wheel, step: int) -> str:
-    h = hashlib.sha256()
-    for chunk in canonical_bytes(p, wheel, step):
-        h.update(chunk)
-    return h.hexdigest()
+    """The canonical state hash (``statehash``) of a state in RAM: equal to ``hash_epoch``
+    of any store epoch holding the same discs, wheel state and step."""
+    return statehash.hash_records([particles_to_record(p)], wheel, step)
 
 
 def validate_epoch(reader, where: str, dim: int = 2, hist_cap: int | None = None) -> None:
     """Refuse an epoch that this engine could not have written (StateError), domain by domain.
 
     Every domain record passes ``validate_record`` and its stored attrs agree with it;
-    ids are unique across domains; the globals pass ``validate_globals``. Held in RAM:
-    one domain at a time plus the sorted ids (8 bytes a disc, as the hash holds).
+    ids are unique across domains (``check_unique_ids``); the globals pass
+    ``validate_globals``. Held in RAM: one domain at a time (and the bounded id check).
     """
     arrays, attrs = reader.read_globals()
     validate_globals(arrays, attrs, f"{where}: epoch {reader.step}")
-    ids = []
     for d in reader.domains():
         at = f"{where}: epoch {reader.step} domain {d}"
         rec = reader.read_domain(d)
@@ -246,11 +245,14 @@ def validate_epoch(reader, where: str, dim: int = 2, hist_cap: int | None = None
         if len(x) and (x.min() < dattrs.get("xmin", -math.inf)
                        or x.max() > dattrs.get("xmax", math.inf)):
             raise StateError(f"{at}: discs outside the domain's stored x range")
-        ids.append(rec["id"])
+        summary = dattrs.get("x_summary")   # absent in stores written before issue 17
+        if summary is not None:
+            length = summary.get("length") if isinstance(summary, dict) else None
+            if (type(length) is not float or not math.isfinite(length) or length <= 0
+                    or summary != x_summary(x, length)):
+                raise StateError(f"{at}: attribute 'x_summary' does not match the domain's discs")
         del rec
-    all_ids = np.sort(np.concatenate(ids)) if ids else np.empty(0, np.int64)
-    del ids
-    check_unique_sorted(all_ids, f"{where}: epoch {reader.step}")
+    check_unique_ids(reader, f"{where}: epoch {reader.step}")
 
 
 def check_unique_sorted(sorted_ids: np.ndarray, where: str) -> None:
@@ -259,93 +261,87 @@ def check_unique_sorted(sorted_ids: np.ndarray, where: str) -> None:
         raise StateError(f"{where}: disc id {int(sorted_ids[dup[0]])} appears more than once")
 
 
-def hash_epoch(reader, chunk: int = 1 << 18) -> str:
-    """The canonical state hash of an epoch, streamed: equal to ``hash_particles`` of all its
-    discs, without ever holding them. Kept in RAM: the discs' ids while they are sorted (then
-    only their id order, 4 bytes a disc) and one chunk of one field, so a store larger than RAM
-    hashes too and hashing never sets an out-of-core run's memory peak."""
-    doms = list(reader.domains())
-    ids = [reader.read_domain(d, ["id"])["id"] for d in doms]
-    off = np.concatenate([[0], np.cumsum([len(a) for a in ids], dtype=np.int64)])
-    all_ids = np.concatenate(ids) if ids else np.empty(0, np.int64)
-    del ids
-    order = np.argsort(all_ids, kind="stable")
-    check_unique_sorted(all_ids[order], f"epoch {reader.step}")
-    del all_ids
-    if len(order) < 2**31:
-        order = order.astype(np.int32)   # 4 bytes a disc kept while the fields stream by
-    n = len(order)
+# ids held at once by check_unique_ids beyond the largest group's (2**22: 32 MB), whatever N is
+ID_CHECK_CAP = 1 << 22
+
+
+def _group_ids(reader, d, where: str) -> np.ndarray:
+    ids = np.asarray(reader.read_domain(d, ["id"])["id"])
+    if ids.ndim != 1 or ids.dtype.kind not in "iu":
+        raise StateError(f"{where} domain {d}: array 'id' is {ids.dtype} with shape {ids.shape}, "
+                         f"expected (rows,) integers")
+    return ids
+
+
+def check_unique_ids(reader, where: str, cap: int | None = None) -> None:
+    """Refuse an epoch whose disc ids repeat (within a group or across groups), without
+    holding one id per disc of the whole bed.
+
+    Pass 1 reads each group's ids (one group at a time), checks them unique within the
+    group and keeps its id range. Then the id axis is cut into ranges expected to hold at
+    most ``cap`` ids (default max(ID_CHECK_CAP, 2 x the largest group)); for each range the
+    ids of the groups whose id range meets it are gathered (one group read at a time),
+    sorted and checked. A range found to hold more than ``cap`` ids is halved and retried,
+    so memory stays bounded by cap plus one group whatever the ids are (a range of one id
+    holding two is a duplicate at once). Groups holding contiguous runs of ids (tiled beds:
+    ids follow x) are read about twice; ids scattered across every group cost a read of
+    every group per range (N / cap ranges).
+    """
+    ranges = []   # (group, lowest id, highest id, count)
+    for d in reader.domains():
+        ids = np.sort(_group_ids(reader, d, where))
+        if len(ids):
+            check_unique_sorted(ids, f"{where} domain {d}")
+            ranges.append((d, int(ids[0]), int(ids[-1]), len(ids)))
+        del ids
+    if len(ranges) < 2:
+        return
+    largest = max(r[3] for r in ranges)
+    cap = max(ID_CHECK_CAP if cap is None else cap, 2 * largest)
+    total = sum(r[3] for r in ranges)
+    lo, hi = min(r[1] for r in ranges), max(r[2] for r in ranges) + 1
+    parts = -(-total // cap)
+    width = -(-(hi - lo) // parts)
+    todo = [(a, min(hi, a + width)) for a in range(lo, hi, width)][::-1]
+    while todo:
+        a, b = todo.pop()
+        groups = [d for d, g_lo, g_hi, _ in ranges if g_lo < b and g_hi >= a]
+        if len(groups) < 2:
+            continue   # within one group: checked in pass 1
+        held, count, halve = [], 0, False
+        for d in groups:
+            ids = _group_ids(reader, d, where)
+            sel = ids[(ids >= a) & (ids < b)]
+            del ids
+            count += len(sel)
+            if b - a == 1 and count > 1:
+                raise StateError(f"{where}: disc id {a} appears more than once")
+            if count > cap:
+                halve = True
+                break
+            held.append(sel)
+        if halve:
+            mid = a + (b - a) // 2
+            todo += [(mid, b), (a, mid)]
+            continue
+        check_unique_sorted(np.sort(np.concatenate(held)), where)
+        del held
+
+
+def hash_epoch(reader) -> str:
+    """The canonical state hash of an epoch (``statehash``), streamed group by group: one
+    group's record in RAM at a time, read sequentially, the groups' lane sums added; disc
+    ids are checked unique across groups in bounded memory (``check_unique_ids``)."""
     arrays, attrs = reader.read_globals()
     validate_globals(arrays, attrs, f"epoch {reader.step}")
-    # the canonical history width: content-defined (state.hash_width), one pass over hist_n
-    max_hn = 0
-    for k, d in enumerate(doms):
-        hn = reader.read_domain(d, ["hist_n"])["hist_n"]
-        entries = reader.domain_arrays(d).get("hist_id", ((0,), None))[0]
-        if len(hn) and hn.min() < 0 or int(hn.sum(dtype=np.int64)) != (entries[0] if entries else 0):
-            raise StateError(f"epoch {reader.step} domain {d}: hist_n outside [0, capacity] or "
-                             f"not adding up to the {entries[0] if entries else 0} history entries")
-        max_hn = max(max_hn, int(hn.max(initial=0)))
-        del hn
-    width = hash_width(max_hn)
-    h = hashlib.sha256()
-    h.update(np.int64(int(attrs["step"])).tobytes())
-    h.update(np.int64(n).tobytes())
-
-    def split(pos):
-        """(domain index k, positions in the chunk, rows within domain k) for each domain hit."""
-        k_of = np.searchsorted(off, pos, "right") - 1
-        for k in np.unique(k_of):
-            sel = np.flatnonzero(k_of == k)
-            yield int(k), sel, pos[sel] - off[k]
-
-    def columns(name, a):
-        return list(canonical_columns(name, a)) if a.ndim > 1 else [a]
-
-    for name in DISC_FIELDS:
-        dt = FIELD_DTYPES[name]
-        ncols = None
-        c = 0
-        while ncols is None or c < ncols:   # one column (vector component) at a time
-            for c0 in range(0, n, chunk):
-                pos = order[c0:c0 + chunk]
-                out = np.empty(len(pos), dt)
-                for k, sel, rows in split(pos):
-                    cols = columns(name, reader.read_domain(doms[k], [name], rows=rows)[name])
-                    ncols = len(cols)
-                    out[sel] = cols[c]
-                h.update(out.tobytes())
-            if ncols is None:   # no discs: the vector width does not matter
-                break
-            c += 1
-    hist_off = {}
-    for name in HIST_FIELDS:
-        dt = FIELD_DTYPES[name]
-        ncols = None
-        c = 0
-        while ncols is None or c < ncols:
-            for c0 in range(0, n, chunk):
-                pos = order[c0:c0 + chunk]
-                out = np.zeros((len(pos), width), dt)
-                for k, sel, rows in split(pos):
-                    if k not in hist_off:   # CSR offsets of one domain at a time
-                        hist_off.clear()
-                        hn = reader.read_domain(doms[k], ["hist_n"])["hist_n"].astype(np.int64)
-                        hist_off[k] = (hn, np.concatenate([[0], np.cumsum(hn)]))
-                    hn, hoff = hist_off[k]
-                    cnt = hn[rows]
-                    used = np.arange(width)[None, :] < cnt[:, None]
-                    entries = (hoff[rows][:, None] + np.arange(width)[None, :])[used]
-                    vals = reader.read_domain(doms[k], [name], rows=entries)[name]
-                    ncols = 1 if vals.ndim == 1 else vals.shape[1]
-                    block = np.zeros((len(rows), width), dt)
-                    block[used] = vals if vals.ndim == 1 else vals[:, c]
-                    out[sel] = block
-                h.update(out.tobytes())
-            if ncols is None:
-                break
-            c += 1
-    wheel = arrays.get("wheel_state")
-    if wheel is not None:
-        h.update(np.ascontiguousarray(wheel, "<f8").tobytes())
-    return h.hexdigest()
+    sums, n = statehash.zero(), 0
+    for d in reader.domains():
+        rec = reader.read_domain(d)
+        try:
+            sums = statehash.combine(sums, statehash.lane_sums(rec))
+        except (KeyError, ValueError) as e:
+            raise StateError(f"epoch {reader.step} domain {d}: {e}") from None
+        n += len(rec["id"])
+        del rec
+    check_unique_ids(reader, f"epoch {reader.step}")
+    return statehash.finish(sums, n, int(attrs["step"]), arrays.get("wheel_state"))

@@ -9,7 +9,6 @@ physics.layout (AX_X, AX_Y, AX_Z).
 """
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +24,6 @@ from .physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, ax
 # capacity never enters a result bit or the state hash.
 HIST_CAP_BY_DIM = {2: 8, 3: 12}
 HIST_CAP = HIST_CAP_BY_DIM[2]   # the 2D default
-HASH_HIST_SLOTS = 12   # canonical history width of the state hash (padded; see canonical_bytes)
 
 # name -> dtype of every per-particle array, in canonical order; the shapes are
 # (N,) + field_tails(dim, cap)[name]
@@ -252,61 +250,13 @@ class WheelState:
         return cls(*[float(v) for v in a[:WS_SIZE]])
 
 
-def hash_width(max_hist_n: int) -> int:
-    """History slots per particle in the canonical serialisation: HASH_HIST_SLOTS, or more
-    when some particle holds more contacts (content-defined, so the capacity never matters)."""
-    return max(HASH_HIST_SLOTS, int(max_hist_n))
-
-
-def canonical_columns(name: str, a: np.ndarray):
-    """The canonical columns of a field: a per-particle vector (N, k) one column per
-    component; a history (N, W, k) one (N, W) block per component."""
-    if name in HIST_FIELDS and a.ndim == 3:
-        for c in range(a.shape[2]):
-            yield a[:, :, c]
-    elif name not in HIST_FIELDS and a.ndim == 2:
-        for c in range(a.shape[1]):
-            yield a[:, c]
-    else:
-        yield a
-
-
-def canonical_bytes(p: Particles, wheel: np.ndarray | None, step: int):
-    """Yield the state serialised in canonical order (sorted by id, fixed dtypes).
-
-    Per-particle fields in FIELD_DTYPES order, each vector component as its own column
-    (2D: id, x, y, vx, vy, w, r, mass, inertia, mat, hist_n), then the history fields,
-    each component as an (N, W) block padded to W = hash_width(max hist_n) slots.
-    History slots beyond a disc's count are zeroed so that stale leftovers in
-    unused slots never change the hash.
-    """
-    q = p.sorted_by_id()
-    yield np.int64(step).tobytes()
-    yield np.int64(len(q)).tobytes()
-    for name in DISC_FIELDS:
-        for col in canonical_columns(name, getattr(q, name)):
-            yield np.ascontiguousarray(col, FIELD_DTYPES[name]).tobytes()
-    cap = q.hist_cap
-    width = hash_width(int(q.hist_n.max(initial=0)))
-    used = np.arange(cap)[None, :] < q.hist_n[:, None]
-    for name in HIST_FIELDS:
-        a = getattr(q, name)
-        m = used.reshape(used.shape + (1,) * (a.ndim - 2))
-        a = np.where(m, a, 0).astype(FIELD_DTYPES[name])
-        pad = np.zeros((len(q), width) + a.shape[2:], a.dtype)
-        k = min(cap, width)
-        pad[:, :k] = a[:, :k]
-        for col in canonical_columns(name, pad):
-            yield np.ascontiguousarray(col).tobytes()
-    if wheel is not None:
-        yield np.ascontiguousarray(wheel, "<f8").tobytes()
-
-
 def state_hash(p: Particles, wheel: np.ndarray | None, step: int) -> str:
-    h = hashlib.sha256()
-    for chunk in canonical_bytes(p, wheel, step):
-        h.update(chunk)
-    return h.hexdigest()
+    """The canonical state hash (``ooc_dem.statehash``: a multiset hash of per-disc digests)."""
+    from .statehash import hash_records
+    used = np.arange(p.hist_cap)[None, :] < p.hist_n[:, None]
+    rec = {k: getattr(p, k) for k in DISC_FIELDS}
+    rec.update({k: getattr(p, k)[used] for k in HIST_FIELDS})
+    return hash_records([rec], wheel, step)
 
 
 def clean_history(p: Particles) -> None:

@@ -2,6 +2,13 @@
 BEFORE the kernel layer was rebuilt (pair rows + per-disc CSR gather). A change of the
 kernels that keeps the bits keeps these hashes; a change that alters them must say why.
 
+Issue 17 changed the hash, not the states: version 2 (``mset-v2:``, ooc_dem/statehash.py,
+a multiset hash that streams) replaced version 1 (SHA-256 of the state sorted by id). The
+version-2 values below are the new hash of the SAME states: each case's run was repeated
+with the code of 2a1c594 (version 1), its summary and `checkpoint hash` gave the version-1
+values (kept below for the record), then `checkpoint hash` of those very stores with the
+version-2 code gave the new values.
+
 Every case is a real `ooc-dem run` in a fresh interpreter; the hash is the run's
 ``state_hash`` (summary.json, = `ooc-dem checkpoint hash STORE`). The recording
 commands are those below with `PYTHONPATH=/work/main` (main's code), e.g.
@@ -30,9 +37,14 @@ QUICK = ["wheel.control=slip", "wheel.slip=0.2", "wheel.omega=5.0", "wheel.settl
          "wheel.drop_gap=0.0", "wheel.lug_tip_radius=0.104", "decomposition.margin=0.001"]
 PAPER = ["wheel.settle_time=0.035", "wheel.drop_gap=0.0"]
 
-QUICK_6000 = "8567c40dcfacd4544f00f5771b6bb7ebede381f80690d65467a4c05dfb404a88"
-PAPER2008_7000 = "9f35eead0fde6961bf107dfbe88ccfa7afe92fa4f0e9f964246049e8ec6502ce"
-BED100K_150 = "d336a4b2c1a003284f51bd03a3e5b6b545a522e81604891b85968fbed24953c6"
+# version 1 (before issue 17): the same states
+QUICK_6000_V1 = "8567c40dcfacd4544f00f5771b6bb7ebede381f80690d65467a4c05dfb404a88"
+PAPER2008_7000_V1 = "9f35eead0fde6961bf107dfbe88ccfa7afe92fa4f0e9f964246049e8ec6502ce"
+BED100K_150_V1 = "d336a4b2c1a003284f51bd03a3e5b6b545a522e81604891b85968fbed24953c6"
+
+QUICK_6000 = "mset-v2:8d035f96a334b194dd624440d9f8680d01e4f76707314e512140928c0af2c0ee"
+PAPER2008_7000 = "mset-v2:b2bf3778513e76d392dde7a28e417b6b6a34ca4e052f9cf9fd7cf10006c3b6ae"
+BED100K_150 = "mset-v2:b096e188c791f1f69f34f4bf81b22e51097b0d59d438960e0efe64cf965b25e0"
 
 CASES = {
     "quick-monolithic": (["quick", *QUICK, "--steps", 6000], {}, QUICK_6000),

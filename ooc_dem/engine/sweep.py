@@ -19,7 +19,8 @@ import numba
 import numpy as np
 
 from ..checkpoint import open_epoch, particles_to_record, record_to_particles
-from ..decomposition import equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok
+from ..decomposition import (XHistogram, equal_bounds, owner, summary_ok, wheel_bounds, wheel_slab_index,
+                             wheel_slab_ok, x_summary)
 from ..physics.layout import AX_X, WS_X
 from ..state import DISC_FIELDS, HIST_FIELDS
 from ..state import Particles
@@ -91,6 +92,24 @@ def _read_rows(src, d, lo: float, hi: float, hist_cap: int | None = None) -> Par
     rec = src.read_domain(d, list(DISC_FIELDS), slice(a, b))
     rec.update(src.read_domain(d, list(HIST_FIELDS), slice(int(off[a]), int(off[b]))))
     return record_to_particles(rec, hist_cap)
+
+
+def x_histogram(src, length: float) -> XHistogram:
+    """The discs' x histogram of an epoch (a store reader or RamEpochs) from its groups'
+    stored x summaries; a group without a valid one (a store written before issue 17, DDM's
+    groups in RAM) is counted from its x, one group at a time. Never one value per disc of
+    the whole bed, and the same counts (so bounds) whichever way the discs are grouped."""
+    hist = XHistogram(length)
+    for d in src.domains():
+        attrs = src.domain_attrs(d)
+        s = attrs.get("x_summary")
+        if summary_ok(s, length, attrs.get("n")):
+            hist.add_summary(s)
+        elif isinstance(src, RamEpochs):
+            hist.add_x(src.domain_particles(d).pos[:, AX_X])
+        else:
+            hist.add_x(src.read_domain(d, ["pos"])["pos"][:, AX_X])
+    return hist
 
 
 def group_of(p: Particles, rows=None) -> tuple[Particles, dict]:
@@ -171,7 +190,7 @@ class SweepEngine:
             eng._writer = sim.store.begin_epoch(0)
         if bounds is None:
             eng.D = D
-            eng.bounds = eng.decompose(particles.pos[:, AX_X], step=0)
+            eng.bounds = eng.decompose(XHistogram.of(particles.pos[:, AX_X], sc.bin.length), step=0)
         else:
             eng.bounds = np.asarray(bounds, np.float64)
             eng.D = len(eng.bounds) - 1
@@ -185,15 +204,16 @@ class SweepEngine:
     @classmethod
     def create_streamed(cls, sim, parts, ws: np.ndarray) -> "SweepEngine":
         """Out-of-core start from a bed produced in x-ordered parts (``parts()`` yields them),
-        never holding the whole bed: pass 1 keeps only x (for the bounds), pass 2 writes
-        each sub-domain's group as soon as no later part can add to it."""
+        never holding the whole bed: pass 1 counts the discs in x bins (for the bounds),
+        pass 2 writes each sub-domain's group as soon as no later part can add to it."""
         sc = sim.sc
         eng = cls(sim, np.array([-np.inf, np.inf]), ws, _block(sim), None)
         eng.D = sim.opts.domains or sc.decomposition.domains
-        x = np.concatenate([p.pos[:, AX_X] for p in parts()])
-        eng._n = len(x)
-        eng.bounds = eng.decompose(x, step=0)
-        del x
+        hist = XHistogram(sc.bin.length)
+        for part in parts():
+            hist.add_x(part.pos[:, AX_X])
+        eng._n = hist.n
+        eng.bounds = eng.decompose(hist, step=0)
         eng._writer = sim.store.begin_epoch(0)
         pending: dict[int, list] = {d: [] for d in range(eng.D)}
         written = set()
@@ -215,6 +235,8 @@ class SweepEngine:
         return eng
 
     def _stage(self, d, q: Particles, attrs):
+        # the group's x summary, so that a re-decomposition reads no disc (see x_histogram)
+        attrs = {**attrs, "x_summary": x_summary(q.pos[:, AX_X], self.sc.bin.length)}
         if self.src is not None:
             self.src.write_particles(d, q, attrs)
         else:
@@ -222,13 +244,13 @@ class SweepEngine:
                 raise RuntimeError("out-of-core sweep without an open epoch writer")
             self._writer.write_domain(d, particles_to_record(q), attrs)
 
-    def decompose(self, x: np.ndarray, step: int) -> np.ndarray:
+    def decompose(self, hist: XHistogram, step: int) -> np.ndarray:
         sc = self.sc
         if sc.wheel.enabled and sc.decomposition.policy == "wheel":
             half = self.reach + self.margin_required + sc.decomposition.margin
-            b = wheel_bounds(x, self.D, float(self.ws[WS_X]), half)
+            b = wheel_bounds(hist, self.D, float(self.ws[WS_X]), half)
         else:
-            b = equal_bounds(x, self.D)
+            b = equal_bounds(hist, self.D)
         self.sim.redecompositions.append({"step": int(step), "bounds": [float(v) for v in b[1:-1]]})
         return b
 
@@ -270,11 +292,6 @@ class SweepEngine:
         if self._store_reader is not None:
             self._store_reader.close()
         self._store_reader = open_epoch(self.sim.store)
-
-    def _all_x(self, src) -> np.ndarray:
-        if isinstance(src, RamEpochs):
-            return np.concatenate([src.domain_particles(d).pos[:, AX_X] for d in src.domains()])
-        return np.concatenate([src.read_domain(d, ["pos"])["pos"][:, AX_X] for d in src.domains()])
 
     def sweep(self, step0: int, k: int) -> np.ndarray:
         """Advance every slab k <= K steps (the halo is sized for K)."""
@@ -382,7 +399,7 @@ class SweepEngine:
         sc = self.sc
         if self._redecomposes():
             if not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach, self.margin_required):
-                self.bounds = self.decompose(self._all_x(self._reader()), self._step)
+                self.bounds = self.decompose(x_histogram(self._reader(), self.sc.bin.length), self._step)
                 self._live = None
         return wheel_slab_index(self.bounds, float(self.ws[WS_X])) if sc.wheel.enabled else -1
 

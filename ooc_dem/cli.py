@@ -142,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("checkpoint", help="list, verify, inspect, prune and export the epochs of a store")
     csub = q.add_subparsers(dest="ckpt_command", required=True, parser_class=_Parser)
-    for name, hlp in (("hash", "SHA-256 of the latest state in canonical order"),
+    for name, hlp in (("hash", "the canonical state hash (mset-v2) of the latest state"),
                       ("list", "list committed epochs"),
                       ("verify", "verify checksums and structure (exit 2 if a problem is found)"),
                       ("inspect", "show one epoch")):

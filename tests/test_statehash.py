@@ -22,7 +22,7 @@ from conftest import one_line_error, run_cli
 from ooc_dem import checkpoint, statehash
 from ooc_dem.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record, validate_epoch
 from ooc_dem.decomposition import XHistogram, equal_bounds, x_summary
-from ooc_dem.engine.sweep import group_of, x_histogram
+from ooc_dem.engine.sweep import RamEpochs, group_of, x_histogram
 from ooc_dem.physics.layout import AX_X
 from ooc_dem.state import Particles, state_hash
 from storage import create_store, open_store
@@ -52,14 +52,15 @@ def _state(n, seed, dim=2, first_id=0, cap=12):
     p.inertia[:] = rng.random(n) + 0.1
     p.mat[:] = rng.integers(0, 3, n)
     p.hist_n[:] = rng.integers(0, 5, n)
-    candidates = np.arange(-3, first_id + n)
-    for i in range(n):
-        k = int(p.hist_n[i])
-        others = candidates[candidates != p.id[i]]
-        partners = np.sort(rng.choice(others, k, replace=False))
-        p.hist_id[i, :k] = partners
-        p.hist_s[i, :k] = rng.standard_normal(p.hist_s[i, :k].shape)
-        p.hist_m[i, :k] = rng.standard_normal(p.hist_m[i, :k].shape)
+    # partners strictly ascending, never the disc itself: a wall (-2) for every third disc,
+    # then discs above its own id
+    slot = np.arange(cap)[None, :]
+    partner = p.id[:, None] + 1 + 3 * slot
+    partner[:, 0] = np.where(np.arange(n) % 3 == 0, -2, partner[:, 0])
+    used = slot < p.hist_n[:, None]
+    p.hist_id[used] = partner[used]
+    p.hist_s[used] = rng.standard_normal(p.hist_s[used].shape)
+    p.hist_m[used] = rng.standard_normal(p.hist_m[used].shape)
     return p
 
 
@@ -179,6 +180,11 @@ def test_bounds_from_summaries_and_from_an_older_store_agree(tmp_path):
             assert counting.rows == (0 if name == "new" else len(p)), name
             validate_epoch(reader, name)   # an older store (no summaries) still verifies
         store.close()
+    # serial DDM's groups in RAM, grouped otherwise (3 groups of scattered rows): same counts
+    ram = RamEpochs()
+    for d, rows in enumerate(np.array_split(np.random.default_rng(4).permutation(len(p)), 3)):
+        ram.write_particles(d, *group_of(p, rows))
+    hists["ram"] = x_histogram(ram, LENGTH)
     whole = XHistogram.of(p.pos[:, AX_X], LENGTH)
     for h in hists.values():
         assert np.array_equal(h.counts, whole.counts)

@@ -80,7 +80,7 @@ def test_bed_run_and_hash_reproducible(tmp_path):
     run_cli("run", "bed-1200", "--out", b, "--steps", "200", "--no-progress", check=True)
     ha = run_cli("checkpoint", "hash", a, check=True).stdout.strip()
     hb = run_cli("checkpoint", "hash", b, check=True).stdout.strip()
-    assert len(ha) == 64 and ha == hb
+    assert ha.startswith("mset-v2:") and len(ha) == 8 + 64 and ha == hb
     summary = json.loads((a / "summary.json").read_text())
     assert summary["steps"] == 200 and summary["n_discs"] == 1200 and summary["state_hash"] == ha
     lst = run_cli("checkpoint", "list", a, check=True).stdout

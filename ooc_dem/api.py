@@ -227,8 +227,7 @@ class RunResult:
         StateError
             The epoch's checksums pass but it holds a state this engine could not have written.
         """
-        from .checkpoint import validate_epoch
-        from .engine.run import read_all_particles
+        from .checkpoint import read_all_particles, validate_epoch
         with open_store(self.path) as store:
             meta = store.meta or {}
             dim = meta.get("dim", 2) if meta.get("dim", 2) in (2, 3) else 2

@@ -210,6 +210,12 @@ def open_epoch(store, step: int | None = None, verify: bool = True):
     return V1Epoch(reader) if v == 1 else reader
 
 
+def read_all_particles(reader, dim: int = 2, hist_cap: int | None = None) -> Particles:
+    """All discs of an epoch (every domain group), sorted by id."""
+    parts = [record_to_particles(reader.read_domain(d), hist_cap) for d in reader.domains()]
+    return Particles.concat(parts, dim, hist_cap).sorted_by_id()
+
+
 def hash_particles(p: Particles, wheel, step: int) -> str:
     """The canonical state hash (``statehash``) of a state in RAM: equal to ``hash_epoch``
     of any store epoch holding the same discs, wheel state and step."""

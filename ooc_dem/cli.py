@@ -393,11 +393,11 @@ def _checkpoint_verify(store, args) -> int:
     if problems:
         # a run writing the store may have replaced an epoch while it was being checked
         named = {e["step"] for e in (m["current"], m["previous"]) if e}
-        gone = {s for s in (_problem_step(p) for p in problems) if s is not None and s not in named}
+        gone = {p.step for p in problems if p.step is not None and p.step not in named}
         for s in sorted(gone):
             print(f"note: epoch {s} was superseded by a newer commit while being verified "
                   f"(a run is writing this store)")
-        problems = [p for p in problems if _problem_step(p) not in gone]
+        problems = [p for p in problems if p.step not in gone]
     for x in _store_leftovers(store, m):
         if x.running:
             print(f"note: {x.path}: epoch being written by running process {x.pid}")
@@ -407,7 +407,7 @@ def _checkpoint_verify(store, args) -> int:
     if problems:
         for pr in problems:
             print(f"FAIL {_one_line(pr)}")
-        bad = {_problem_step(p) for p in problems}
+        bad = {p.step for p in problems}
         cur, prev = m["current"], m["previous"]
         hint = ""
         if args.epoch is None and cur and cur["step"] in bad:
@@ -417,11 +417,6 @@ def _checkpoint_verify(store, args) -> int:
     which = store.epochs() if args.epoch is None else [args.epoch]
     print(f"OK: {args.store} epochs {which} verified")
     return 0
-
-
-def _problem_step(problem: str) -> int | None:
-    head = problem.split(":", 1)[0]
-    return int(head[6:]) if head.startswith("epoch ") and head[6:].isdigit() else None
 
 
 def _checkpoint_prune(args) -> int:
@@ -484,7 +479,7 @@ def _checkpoint_export(store, args) -> int:
 
 
 def _warn_fallback(store) -> None:
-    for w in getattr(store, "warnings", []):
+    for w in store.warnings:
         print(f"ooc-dem: warning: {_one_line(w)}", file=sys.stderr)
 
 

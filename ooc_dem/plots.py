@@ -261,8 +261,7 @@ def _has_store(out: Path) -> bool:
 def _read_final(out: Path):
     """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
     from storage import open_store
-    from .checkpoint import open_epoch
-    from .engine.run import read_all_particles
+    from .checkpoint import open_epoch, read_all_particles
     store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
     try:
         reader = open_epoch(store)

@@ -126,7 +126,8 @@ returned silently.
 Queries for tools
 -----------------
 ``Store.list_epochs()`` (EpochInfo: role, step, path, size, domains, size problems; no
-data read), ``Store.leftovers()`` (Leftover: path, writer pid, whether it runs),
+data read), ``Store.verify(step=None)`` (a list of Problem: the one-line message as a str,
+``.step`` the epoch it is in), ``Store.leftovers()`` (Leftover: path, writer pid, whether it runs),
 ``Store.live_writers()`` (pids of the lock holder and of running temporaries' writers)
 and ``Store.manifest(fresh=False)`` (a copy of the validated manifest; fresh=True reads
 the store's current one again) are what ``ooc-dem checkpoint`` uses; nothing outside
@@ -156,8 +157,8 @@ nearby rows (at most 1 MiB wide), never the whole array.
 """
 
 from ._util import StoreError, drop_page_cache
-from .store import (BACKENDS, EpochInfo, EpochReader, EpochWriter, Leftover, Store, create_store,
-                    drop_memory_store, open_store, store_owns)
+from .store import (BACKENDS, EpochInfo, EpochReader, EpochWriter, Leftover, Problem, Store,
+                    create_store, drop_memory_store, open_store, store_owns)
 
 __all__ = [
     "BACKENDS",
@@ -165,6 +166,7 @@ __all__ = [
     "EpochReader",
     "EpochWriter",
     "Leftover",
+    "Problem",
     "Store",
     "StoreError",
     "create_store",

@@ -302,6 +302,19 @@ def drop_memory_store(path) -> bool:
 # ============================================================================ Store
 
 @dataclasses.dataclass(frozen=True)
+class Problem(str):
+    """One problem ``Store.verify`` found: the one-line message (the string itself) and
+    ``step``, the epoch it belongs to (None for a problem of no one epoch, such as a step
+    the manifest does not name). Callers decide by ``step``, never by parsing the text."""
+
+    step: int | None
+
+    def __new__(cls, message: str, step: int | None = None):
+        problem = super().__new__(cls, message)
+        problem.step = step
+        return problem
+
+
 class EpochInfo:
     """One committed epoch of a manifest, as `Store.list_epochs` reports it (no data read)."""
     role: str                   # "previous" or "current"
@@ -553,8 +566,9 @@ class Store:
             return f"{self.path}/{e['path']}"
         return os.path.join(self.path, e["path"])
 
-    def verify(self, step: int | None = None) -> list[str]:
-        """Problems found (empty list = OK) in epoch `step`, or in every epoch of the manifest."""
+    def verify(self, step: int | None = None) -> list[Problem]:
+        """Problems found (empty list = OK) in epoch `step`, or in every epoch of the manifest;
+        each names its epoch (``Problem.step``)."""
         self._check_open()
         if step is None:
             entries = self._entries()
@@ -562,11 +576,11 @@ class Store:
             try:
                 entries = [self._entry(operator.index(step))]
             except StoreError as ex:
-                return [str(ex)]
+                return [Problem(str(ex))]
         out = []
         for e in entries:
             p = self._problems(e)
-            out += [f"epoch {e['step']}: {x}" for x in p]
+            out += [Problem(f"epoch {e['step']}: {x}", e["step"]) for x in p]
             if not p:
                 self._verified.add(e["path"])
         return out

@@ -63,7 +63,7 @@ def test_wheel_run_ddm_equals_monolithic(wheel_case, domains, block):
     assert np.array_equal(ref_rec, rec)
     if domains > 1:
         # the initial decomposition plus at least two redefinitions as the wheel travelled
-        assert len(eng.sim.redecompositions) >= 3, eng.sim.redecompositions
+        assert len(eng.redecompositions) >= 3, eng.redecompositions
 
 
 @pytest.mark.parametrize("membership_skin,rebuilds", [(1e-7, "often"), (1.0, "never")])
@@ -81,7 +81,7 @@ def test_persistent_subdomains_any_membership_skin(wheel_case, membership_skin, 
     if rebuilds == "often":
         assert builds > steps // 2 // 4, builds
     else:
-        assert builds == len(eng.sim.redecompositions), builds
+        assert builds == len(eng.redecompositions), builds
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -5,14 +5,17 @@ with ast, so a new upward import fails here before it makes a circle."""
 from __future__ import annotations
 
 import ast
+import inspect
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 ORDER = ["physics", "state", "engine", "application"]
 STATE = {"ooc_dem.state", "ooc_dem.statehash", "ooc_dem.checkpoint", "ooc_dem.scenario", "ooc_dem.decomposition",
          "ooc_dem.fields", "ooc_dem.atomic"}
 ENGINE = {"ooc_dem.engine", "ooc_dem.engine.stepper", "ooc_dem.engine.live", "ooc_dem.engine.sweep",
-          "ooc_dem.bed"}
+          "ooc_dem.engine.interface", "ooc_dem.engine.monolithic", "ooc_dem.bed"}
 
 
 def layer(module: str) -> str:
@@ -69,3 +72,149 @@ def test_no_import_goes_up_a_layer():
         elif lm == "physics" and ld == "storage":
             bad.append(f"{mod} -> {dep} (physics knows nothing of storage)")
     assert not bad, "imports against the module map:\n" + "\n".join(bad)
+
+
+def _module_files(*dirs):
+    """(dotted name, path) of every .py file under the given top-level directories."""
+    for top in dirs:
+        for f in sorted(ROOT.joinpath(top).rglob("*.py")):
+            parts = f.relative_to(ROOT).with_suffix("").parts
+            yield ".".join(parts[:-1] if parts[-1] == "__init__" else parts), f
+
+
+def _import_nodes(name, f):
+    """(node, absolute module, imported names) for every import in file f of module name."""
+    pkg = name if f.name == "__init__.py" else name.rsplit(".", 1)[0]
+    for node in ast.walk(ast.parse(f.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")[:len(pkg.split(".")) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            yield node, mod, [a.name for a in node.names]
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                yield node, a.name, []
+
+
+def import_graph() -> dict[str, set[str]]:
+    """ooc_dem module -> the ooc_dem modules it imports, at module level or inside a
+    function alike (a lazy import is still an import: it only hides a circle)."""
+    modules = dict(_module_files("ooc_dem"))
+    graph = {m: set() for m in modules}
+    for name, f in modules.items():
+        for _, mod, names in _import_nodes(name, f):
+            for target in [f"{mod}.{n}" for n in names] + [mod]:
+                if target in modules and target != name:
+                    graph[name].add(target)
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import circle (a list of modules, the first repeated at the end), or None."""
+    state, stack = {}, []
+
+    def visit(m):
+        state[m] = "open"
+        stack.append(m)
+        for n in sorted(graph[m]):
+            if state.get(n) == "open":
+                return stack[stack.index(n):] + [n]
+            if n not in state and (c := visit(n)):
+                return c
+        stack.pop()
+        state[m] = "done"
+        return None
+
+    for m in sorted(graph):
+        if m not in state and (c := visit(m)):
+            return c
+    return None
+
+
+def test_cycle_finder_finds_a_circle():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
+
+
+def test_no_import_cycle():
+    graph = import_graph()
+    assert graph["ooc_dem.engine.run"] and graph["ooc_dem.plots"], "import graph not read"
+    cycle = find_cycle(graph)
+    assert cycle is None, "import circle: " + " -> ".join(cycle)
+
+
+def test_no_private_storage_names_outside_storage():
+    """The package and the tools use storage's public API only (storage/__init__.py's
+    names): no storage._module and no _name imported or reached from storage. (tests/
+    is left out: the store conformance tests check storage's internals on purpose.)"""
+    bad = []
+    for name, f in _module_files("ooc_dem", "tools"):
+        for node, mod, names in _import_nodes(name, f):
+            if mod.split(".")[0] != "storage":
+                continue
+            private = [p for p in mod.split(".")[1:] + names if p.startswith("_")]
+            if private:
+                bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: {mod} {', '.join(private)}")
+        for node in ast.walk(ast.parse(f.read_text())):
+            if (isinstance(node, ast.Attribute) and node.attr.startswith("_")
+                    and isinstance(node.value, ast.Name) and node.value.id == "storage"):
+                bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: storage.{node.attr}")
+    assert not bad, "private storage names used outside storage/:\n" + "\n".join(bad)
+
+
+def test_the_engines_and_the_run_loop_dispatch_on_no_attribute():
+    """The run loop asks an engine nothing but the Engine protocol: no hasattr / getattr."""
+    bad = []
+    for rel in ("ooc_dem/engine/run.py", "ooc_dem/engine/sweep.py", "ooc_dem/engine/monolithic.py",
+                "ooc_dem/engine/interface.py"):
+        for node in ast.walk(ast.parse(ROOT.joinpath(rel).read_text())):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                    and node.func.id in ("hasattr", "getattr")):
+                bad.append(f"{rel}:{node.lineno}: {node.func.id}")
+    assert not bad, "\n".join(bad)
+
+
+@pytest.fixture(scope="module")
+def tiny_runs(tmp_path_factory):
+    """A four-step run of a 300-disc bed in each mode; (mode, engine, simulation)."""
+    from ooc_dem.engine.run import RunOptions, Simulation
+    from ooc_dem.scenario import load_scenario
+    sc = load_scenario("bed-300", ["decomposition.policy=equal"])
+    runs = []
+    for mode in ("monolithic", "ddm", "ooc"):
+        opts = RunOptions(mode=mode, backend="hdf5", domains=2, block=2, steps=4, progress=False,
+                          figures=False)
+        sim = Simulation(sc, tmp_path_factory.mktemp(mode) / "run", opts)
+        sim.start()
+        engine = sim.engine
+        summary = sim.run()
+        runs.append((mode, engine, sim, summary))
+    return runs
+
+
+def test_every_engine_satisfies_the_protocol(tiny_runs):
+    from ooc_dem.engine.interface import Engine
+    from ooc_dem.engine.monolithic import MonolithicEngine
+    from ooc_dem.engine.run import Simulation
+    from ooc_dem.engine.sweep import DdmEngine, OocEngine
+    classes = {"monolithic": MonolithicEngine, "ddm": DdmEngine, "ooc": OocEngine}
+    # the protocol's members: its methods and properties, and its annotated attributes
+    members = sorted({m for m in [*vars(Engine), *Engine.__annotations__] if not m.startswith("_")})
+    assert {"advance", "commit", "info", "wheel_state", "folds_records"} <= set(members)
+    hashes = set()
+    for mode, engine, sim, summary in tiny_runs:
+        assert type(engine) is classes[mode] and engine.name == mode
+        assert isinstance(engine, Engine), mode
+        # the protocol's methods with the protocol's parameters
+        for m in members:
+            want = inspect.getattr_static(Engine, m, None)
+            if inspect.isfunction(want):
+                got = inspect.signature(getattr(type(engine), m))
+                assert list(got.parameters) == list(inspect.signature(want).parameters), (mode, m)
+        # an engine holds what it was given, never the simulation that made it
+        assert not any(isinstance(v, Simulation) for v in vars(engine).values()), mode
+        assert summary["n_discs"] == 300 and summary["steps"] == 4
+        hashes.add(summary["state_hash"])
+    assert len(hashes) == 1, "the three engines must give the same bits"

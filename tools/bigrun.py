@@ -62,7 +62,7 @@ def child(a) -> dict:
     _timed(stepper.DomainStepper, "__init__", now, "compute")   # its neighbour lists
     _timed(stepper.DomainStepper, "advance", now, "compute")
     sweeps = []
-    begin = sweep.SweepEngine.sweep
+    begin = sweep.OocEngine.sweep
 
     def timed_sweep(self, step0, k):
         for key in now:
@@ -76,12 +76,11 @@ def child(a) -> dict:
                        # discs by x, converting between records and particles
                        "other_s": round(wall - sum(now.values()), 3)})
         return rec
-    sweep.SweepEngine.sweep = timed_sweep
-    # the epoch writers of every backend: writing the groups and the commit
-    for cls in _writer_classes(storage):
-        for name in ("write_domain", "commit"):
-            if hasattr(cls, name):
-                _timed(cls, name, now, "write")
+    sweep.OocEngine.sweep = timed_sweep
+    # the epoch writer (storage's public one, in front of every backend): writing the
+    # groups and the commit
+    for name in ("write_domain", "commit"):
+        _timed(storage.EpochWriter, name, now, "write")
     if a.keep_epochs == 1:
         # disk economy: once an epoch is committed the previous one goes (a kill can then
         # only resume from the current epoch; it never leaves less than one whole epoch)
@@ -99,21 +98,6 @@ def child(a) -> dict:
     return {"plan": sim.plan.as_dict(), "setup_s": round(setup, 3), "run_s": round(time.perf_counter() - t, 3),
             "sweeps": sweeps, "state_hash_in_run": summary["state_hash"], "engine": {
                 k: summary["engine"].get(k) for k in ("domains", "block", "resident_max")}}
-
-
-def _writer_classes(storage_pkg):
-    """The storage backends' epoch-writer classes (whatever module defines them)."""
-    import importlib
-    import inspect
-    import pkgutil
-    seen = []
-    for mod in pkgutil.iter_modules(storage_pkg.__path__):
-        m = importlib.import_module(f"storage.{mod.name}")
-        for _, cls in inspect.getmembers(m, inspect.isclass):
-            if cls.__module__ == m.__name__ and hasattr(cls, "write_domain") and hasattr(cls, "commit") \
-                    and cls not in seen:
-                seen.append(cls)
-    return seen
 
 
 def _limited(cmd, limit, env):

@@ -4,30 +4,29 @@ time series, summary and figures written into its output directory (a store).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from .. import __version__
-from ..atomic import write_replacing
 from ..bed import settled_bed, surface_height
-from ..checkpoint import (FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, particles_to_record,
-                          record_to_particles)
+from ..checkpoint import FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, read_all_particles
 from ..physics.layout import REC_X, WS_SIZE, WS_X, WS_Y
 from ..scenario import (MAX_DOMAINS, MAX_HIST_CAP, MAX_STEPS, Scenario, ScenarioError, big,
                         critical_time_step, scenario_from_toml, show, steps_for_duration)
 from ..metrics import N_SERIES
+from ..outputs import complete_outputs, run_summary, write_outputs
 from ..physics.layout import AX_X, AX_Y
 from ..state import Particles
 from . import budget
-from .stepper import DomainStepper, EngineError, Model
+from .interface import Engine
+from .monolithic import MonolithicEngine
+from .stepper import EngineError, Model
 
 MODES = ("monolithic", "ddm", "ooc")
 BACKENDS = ("hdf5", "zarr", "memory")
@@ -136,8 +135,9 @@ def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
 
 def _block_for(sc: Scenario, opts: RunOptions, domains: int) -> int:
     """K exactly as the sweep will choose it for D sub-domains (its own rule, not a copy)."""
-    from .sweep import _block
-    return _block(SimpleNamespace(sc=sc, opts=SimpleNamespace(mode=opts.mode, domains=domains, block=opts.block)))
+    from .sweep import DdmEngine, OocEngine
+    engine = OocEngine if opts.mode == "ooc" else DdmEngine
+    return opts.block or engine.default_block(sc, domains)
 
 
 def streamable(sc: Scenario, opts: RunOptions) -> bool:
@@ -270,38 +270,6 @@ class Progress:
             self.bar.close()
 
 
-class MonolithicEngine:
-    """The whole bin as one domain, advanced in place (the fair memory baseline)."""
-
-    name = "monolithic"
-
-    def __init__(self, particles: Particles, wheel_state: np.ndarray, model: Model):
-        self.model = model
-        self.stepper = DomainStepper(particles, model, wheel_state)
-        self.resident_max = len(particles)
-
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
-        return self.stepper.advance(step0, nsteps)
-
-    @property
-    def wheel_state(self) -> np.ndarray:
-        return self.stepper.ws
-
-    def particles(self) -> Particles:
-        return self.stepper.p
-
-    def write_domains(self, writer) -> None:
-        p = self.stepper.p
-        order = np.argsort(p.pos[:, AX_X], kind="stable")
-        q = p.take(order)
-        attrs = {"xmin": float(q.pos[0, AX_X]) if len(q) else 0.0,
-                 "xmax": float(q.pos[-1, AX_X]) if len(q) else 0.0}
-        writer.write_domain(0, particles_to_record(q), attrs)
-
-    def info(self) -> dict:
-        return {"resident_max": self.resident_max, "neighbour_rebuilds": self.stepper.rebuilds}
-
-
 # what `run` puts into its output directory before the first commit
 _RUN_SETUP_FILES = ("initial.npz", "scenario.toml")
 
@@ -325,12 +293,6 @@ def _stopped_before_first_commit(out: Path) -> bool:
         store.close()
     own = set(_RUN_SETUP_FILES) | {n + ".tmp" for n in _RUN_SETUP_FILES}
     return all(n in own or store_owns(out, n) for n in os.listdir(out))
-
-
-def read_all_particles(reader, dim: int = 2, hist_cap: int | None = None) -> Particles:
-    """All discs of an epoch (every domain group), sorted by id."""
-    parts = [record_to_particles(reader.read_domain(d), hist_cap) for d in reader.domains()]
-    return Particles.concat(parts, dim, hist_cap).sorted_by_id()
 
 
 def default_checkpoint_every(sc: Scenario, steps: int) -> int:
@@ -357,16 +319,20 @@ class Simulation:
         self.steps = self.plan.steps
         self.checkpoint_every = self.plan.checkpoint_every
         self.store = None
-        self.engine = None
+        self.engine: Engine | None = None
         self.metrics = None
         self.step = 0
         self.surface = 0.0
         self.wall_time = 0.0
-        self.redecompositions: list = []
         # trajectory frames (trajectory.py): every frame_every steps, 0 = none
         from ..trajectory import frame_every
         self.frame_every = frame_every(sc)
         self.frames = None
+
+    @property
+    def redecompositions(self) -> list:
+        """Every decomposition the engine has chosen ({"step", "bounds"}), stored with each epoch."""
+        return self.engine.redecompositions if self.engine is not None else []
 
     # ------------------------------------------------------------------ setup
     def _meta(self) -> dict:
@@ -419,7 +385,7 @@ class Simulation:
     def _start_streamed(self) -> None:
         from storage import StoreError, create_store
         from ..bed import tiled_bed_parts
-        from .sweep import SweepEngine
+        from .sweep import OocEngine
         parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
         surf = [surface_height(p, p.pos[:, AX_X].max() - p.pos[:, AX_X].min(), self.sc.soil.r_max)
                 for p in parts()]
@@ -430,7 +396,10 @@ class Simulation:
             raise RunError(str(e)) from None
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
-        self.engine = SweepEngine.create_streamed(self, parts, np.zeros(WS_SIZE))
+        self.engine = OocEngine.create_streamed(self.sc, self.model, parts, np.zeros(WS_SIZE),
+                                                domains=self.plan.domains, block=self.plan.block,
+                                                store=self.store, commit_sweep=self._commit_sweep,
+                                                part_sink=self._frame_part_writer)
         self.step = 0
         self.commit()
         self._start_trajectory()
@@ -451,35 +420,52 @@ class Simulation:
         if self.frames.due(self.step):
             self._write_frame(parts_written=False)
 
-    def _frame_parts(self):
-        """The discs of the current state, one part at a time (out-of-core: each domain group
-        of the committed epoch from the store; never the whole bed)."""
-        if self.opts.mode != "ooc":
-            yield self.engine.particles()
-            return
-        from ..trajectory import ROW_FIELDS
-        reader = open_epoch(self.store, self.step)
-        try:
-            for d in reader.domains():
-                yield reader.read_domain(d, list(ROW_FIELDS))
-        finally:
-            reader.close()
+    def _frame_part_writer(self, step: int):
+        """The function that writes one part of the frame due at ``step`` (None: no frame is
+        due then); out-of-core sweeps hand it each slab's owned discs as they pass."""
+        frames = self.frames
+        if frames is None or not frames.due(step):
+            return None
+        return lambda part: frames.write_part(step, part)
 
     def _write_frame(self, parts_written: bool) -> None:
-        """Commit the frame of the current step; out-of-core sweeps wrote its parts already
-        (``parts_written``, the slab loop's hook in sweep.py)."""
+        """Commit the frame of the current step; ``parts_written``: the engine wrote its parts
+        already (out-of-core, through ``_frame_part_writer``)."""
+        from ..trajectory import ROW_FIELDS
         t = self.step * self.sc.physics.dt
         ws = np.asarray(self.engine.wheel_state, np.float64)
         if parts_written:
             self.frames.end(self.step, t, ws)
         else:
-            self.frames.write_frame(self.step, t, ws, self._frame_parts())
+            # one part at a time (out-of-core: each group of the committed epoch; never the whole bed)
+            self.frames.write_frame(self.step, t, ws, self.engine.state_parts(ROW_FIELDS))
 
-    def _make_engine(self, particles: Particles, ws: np.ndarray):
+    def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
         if self.opts.mode == "monolithic":
-            return MonolithicEngine(particles, ws, self.model)
-        from .sweep import SweepEngine
-        return SweepEngine.create(self, particles, ws)
+            return MonolithicEngine(particles, ws, self.model, store=self.store)
+        from .sweep import DdmEngine, OocEngine
+        if self.opts.mode == "ddm":
+            return DdmEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
+                                    block=self.plan.block, store=self.store)
+        return OocEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
+                                block=self.plan.block, store=self.store,
+                                commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer)
+
+    def _reopen_engine(self, reader, arrays: dict, attrs: dict) -> Engine:
+        """The engine continuing from the committed epoch ``reader`` reads (checked)."""
+        ws = arrays["wheel_state"]
+        redecompositions = list(attrs.get("redecompositions", []))
+        if self.opts.mode == "monolithic":
+            particles = read_all_particles(reader, self.model.dim, self.model.hist_cap)
+            return MonolithicEngine(particles, ws, self.model, store=self.store,
+                                    redecompositions=redecompositions)
+        from .sweep import DdmEngine, OocEngine
+        if self.opts.mode == "ddm":
+            return DdmEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
+                                    redecompositions=redecompositions)
+        return OocEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
+                                commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer,
+                                redecompositions=redecompositions)
 
     def _bed_progress(self):
         if not self.opts.progress:
@@ -505,17 +491,7 @@ class Simulation:
         if self.metrics is not None:
             arrays.update(self.metrics.state_arrays())
         try:
-            if hasattr(self.engine, "commit_epoch"):
-                self.engine.commit_epoch(self.step, arrays, attrs, self.opts.durable)
-                return
-            writer = self.store.begin_epoch(self.step)
-            try:
-                self.engine.write_domains(writer)
-                writer.write_globals(arrays, attrs)
-                writer.commit(durable=self.opts.durable)
-            except BaseException:
-                writer.abort()
-                raise
+            self.engine.commit(self.step, arrays, attrs, self.opts.durable)
         except StoreError as e:
             raise RunError(str(e)) from None
 
@@ -524,13 +500,19 @@ class Simulation:
         if self.metrics is not None:
             self.metrics.add(rec, step0)
 
+    def _commit_sweep(self, rec, step0: int, k: int) -> None:
+        """An out-of-core sweep has written epoch step0 + k: fold its records, commit it."""
+        self.fold(rec, step0)
+        self.step = step0 + k
+        self.commit()
+
     # ------------------------------------------------------------------- run
     def run(self) -> dict:
         if self.engine is None:
             self.start()
         dt = self.sc.physics.dt
         bar = Progress(self.opts.progress, self.steps - self.step, dt, f"{self.sc.name} [{self.opts.mode}]")
-        chunk_pref = getattr(self.engine, "preferred_chunk", 2000)
+        chunk_pref = self.engine.preferred_chunk
         t_start = time.time() - self.wall_time
         try:
             while self.step < self.steps:
@@ -542,7 +524,7 @@ class Simulation:
                 n = min(self.steps, next_ckpt, next_frame, self.step + chunk_pref) - self.step
                 step0 = self.step
                 rec = self.engine.advance(step0, n)
-                if not getattr(self.engine, "folds_records", False):
+                if not self.engine.folds_records:
                     self.fold(rec, step0)
                 self.step = step0 + n
                 self.wall_time = time.time() - t_start
@@ -551,7 +533,7 @@ class Simulation:
                     post["x"] = f"{rec[-1, REC_X]:.4f}"
                 bar.update(self.step, n, **post)
                 if self.frames is not None and self.frames.due(self.step):
-                    self._write_frame(parts_written=self.opts.mode == "ooc")
+                    self._write_frame(parts_written=self.engine.writes_frame_parts)
                 if self.step % self.checkpoint_every == 0 or self.step == self.steps:
                     self.commit()
         except EngineError as e:
@@ -571,57 +553,33 @@ class Simulation:
             self.store.close()
 
     def finish(self) -> dict:
-        """Write series.csv, summary.json and the figures from the committed final state.
-
-        Each file is written under a temporary name and renamed, so a kill leaves each
-        either absent or complete; `complete_outputs` (run by resume) finishes the rest.
-        """
-        summary = {"scenario": self.sc.name, "scenario_hash": self.sc.hash(), "mode": self.opts.mode,
-                   "backend": self.opts.backend, "steps": self.step,
-                   "simulated_time_s": self.step * self.sc.physics.dt,
-                   "wall_time_s": round(self.wall_time, 3), "n_discs": self.n_discs(),
-                   "engine": self.engine.info()}
-        if self.metrics is not None:
-            summary.update(self.metrics.summary())
-            write_series_csv(self.out / "series.csv", self.metrics.series())
+        """Write series.csv, summary.json and the figures from the committed final state
+        (``outputs.py``: each under a temporary name, renamed when complete)."""
+        results = dict(self.metrics.summary()) if self.metrics is not None else {}
         if self.sc.repose.enabled:   # the angle-of-repose test (docs/reference/repose3d.md)
             from ..repose import heap_outputs
             # in id order: every mode (and the state read back) gives the same bits; the
             # figure is written before summary.json, so a summary means both are there
             p = self.engine.particles().sorted_by_id()
-            summary["repose"] = heap_outputs(self.out, self.sc, p.pos, p.r, p.vel, self.opts.figures)
-        summary["state_hash"] = self.state_hash()
-        _write_atomic(self.out / "summary.json", json.dumps(summary, indent=2))
-        if self.opts.figures and self.metrics is not None:
-            from ..plots import make_figures
-            make_figures(self.out)
+            results["repose"] = heap_outputs(self.out, self.sc, p.pos, p.r, p.vel, self.opts.figures)
+        summary = run_summary(scenario=self.sc.name, scenario_hash=self.sc.hash(), mode=self.opts.mode,
+                              backend=self.opts.backend, steps=self.step, dt=self.sc.physics.dt,
+                              wall_time=self.wall_time, n_discs=self.n_discs(), engine=self.engine.info(),
+                              results=results, state_hash=self.state_hash())
+        write_outputs(self.out, summary, self.metrics.series() if self.metrics is not None else None,
+                      figures=self.opts.figures and self.metrics is not None)
         return summary
 
     def complete_outputs(self) -> list[str]:
         """After the last commit: write whichever outputs a kill left unwritten; return their names."""
-        from ..plots import FIGURE_NAMES, make_figures
         from ..repose import REPOSE_FIGURE
-        try:
-            summary = json.loads((self.out / "summary.json").read_text())
-            complete = isinstance(summary, dict) and summary.get("steps") == self.step
-        except (OSError, ValueError):
-            complete = False
-        drawn = self.metrics is not None or self.sc.repose.enabled   # runs with figures
-        if not complete or (self.opts.figures and self.sc.repose.enabled
-                            and not (self.out / "figures" / REPOSE_FIGURE).is_file()):
-            self.finish()
-            return ["summary.json"] + (["series.csv"] if self.metrics is not None else []) + (
-                ["figures"] if self.opts.figures and drawn else [])
-        if self.opts.figures and self.metrics is not None and not all(
-                (self.out / "figures" / f).is_file() for f in FIGURE_NAMES):
-            make_figures(self.out)
-            return ["figures"]
-        return []
+        repose = (REPOSE_FIGURE,) if self.opts.figures and self.sc.repose.enabled else ()
+        return complete_outputs(self.out, self.step, self.finish, series=self.metrics is not None,
+                                figures=self.opts.figures and self.metrics is not None,
+                                summary_figures=repose)
 
     def n_discs(self) -> int:
-        if hasattr(self.engine, "n_discs"):
-            return self.engine.n_discs()
-        return len(self.engine.particles())
+        return self.engine.n_discs()
 
     def state_hash(self) -> str:
         from ..checkpoint import hash_epoch
@@ -632,17 +590,6 @@ class Simulation:
         reader.close()
         store.close()
         return h
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    write_replacing(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-
-
-def write_series_csv(path: Path, rows: np.ndarray) -> None:
-    from ..metrics import SERIES_COLUMNS, SERIES_UNITS
-    header = ",".join(f"{c} [{u}]" for c, u in zip(SERIES_COLUMNS, SERIES_UNITS))
-    write_replacing(path, lambda tmp: np.savetxt(tmp, rows, delimiter=",", header=header, comments="",
-                                                 fmt="%.10g"))
 
 
 # the run options a store's meta must hold, with the types a resume accepts
@@ -767,7 +714,6 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
     sim.step = step
     sim.surface = float(attrs.get("surface", 0.0))
     sim.wall_time = float(attrs.get("wall_time", 0.0))
-    sim.redecompositions = list(attrs.get("redecompositions", []))
     try:
         if sc.wheel.enabled:
             from ..metrics import WheelMetrics
@@ -777,13 +723,9 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
             except (KeyError, ValueError) as e:   # missing or mis-shaped accumulators
                 raise RunError(f"{path}: epoch {reader.step}: stored wheel metrics unusable "
                                f"({type(e).__name__}: {' '.join(str(e).split())})") from None
-        if sim.opts.mode == "monolithic":
-            particles = read_all_particles(reader, sim.model.dim, sim.model.hist_cap)
-            sim.engine = MonolithicEngine(particles, arrays["wheel_state"], sim.model)
-        else:
-            from .sweep import SweepEngine
+        if sim.opts.mode != "monolithic":
             _check_engine_attrs(attrs.get("engine"), len(reader.domains()), f"{path}: epoch {reader.step}")
-            sim.engine = SweepEngine.reopen(sim, reader, arrays, attrs)
+        sim.engine = sim._reopen_engine(reader, arrays, attrs)
     finally:
         reader.close()
     for w in store.warnings:   # only once the epoch is accepted: a refusal stays one line

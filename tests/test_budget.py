@@ -59,9 +59,9 @@ def test_budget_chooses_slabs_whose_measured_peak_is_the_estimate(tmp_path, scen
 
 
 def test_fixed_slab_memory_is_independent_of_n():
-    """The same budget on beds 4x apart: the slab (so the estimated peak) stays, D grows with N.
-    (Today's final state hash holds every id: beyond ~5M discs it, not the slab, sets the
-    out-of-core peak - budget.BYTE_MODELS' final_hash - until the hash streams.)"""
+    """The same budget on beds 4x apart: the slab (so the estimated peak) stays, D grows with N
+    (the set-up's bounds and the state hash stream: budget.BYTE_MODELS' terms of the whole
+    bed are 0)."""
     small, big = load_scenario("bed-1000000"), load_scenario("bed-4000000")
     got = [plan_run(sc, RunOptions(mode="ooc", memory=parse_size("1GB"), block=20, steps=20))
            for sc in (small, big)]

@@ -12,12 +12,11 @@ where an out-of-core slab holds N (1/D + 2 K hop / length) particles (its owned 
 plus a halo K contact hops wide on both sides) and ``resident`` covers a resident
 particle with its neighbour list, forces and the I/O copies of a sweep (the pieces
 read, their concatenation, the record written). With a fixed slab size the sweep's
-part is independent of N. Two terms of today's out-of-core path are not, and the plan
-names them when they are the larger: the streamed set-up keeps x of every disc for the
-slab bounds (``streamed_setup``), and the state hash at the run's end holds every id
-and its sort order while it reads the fields in id order (``final_hash``). Both go to
-~0 B per particle when the set-up bounds and the hash stream (issue 17): then set them
-to 0 here.
+part is independent of N. The streamed set-up counts x in a fixed histogram for the
+slab bounds and the state hash streams group by group (statehash.py), so their terms
+(``streamed_setup``, ``final_hash``, ``hash_chunk``) are 0: what they hold is one group
+(at most a slab's owned particles), below the slab's own peak. They stay named so a
+path that ever holds per-particle data of the whole bed again is modelled, not hidden.
 """
 from __future__ import annotations
 
@@ -62,10 +61,10 @@ MIB = 1 << 20
 #       3D hash: not separated (below the sweeps' peak at 3e4); 1.5x the 2D figures
 BYTE_MODELS = {
     2: ByteModel(dim=2, state=bytes_per_disc(2), monolithic=1100, resident=1400, ooc_setup=400,
-                 streamed_setup=16, final_hash=130, hash_chunk=230, ooc_fixed=8 * MIB,
+                 streamed_setup=0, final_hash=0, hash_chunk=0, ooc_fixed=8 * MIB,
                  baseline=200 * MIB),
     3: ByteModel(dim=3, state=bytes_per_disc(3), monolithic=2500, resident=3000, ooc_setup=900,
-                 streamed_setup=16, final_hash=200, hash_chunk=350, ooc_fixed=8 * MIB,
+                 streamed_setup=0, final_hash=0, hash_chunk=0, ooc_fixed=8 * MIB,
                  baseline=200 * MIB),
 }
 HASH_CHUNK = 1 << 18    # rows a field is hashed in at a time (checkpoint.hash_epoch's chunk)

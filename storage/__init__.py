@@ -156,11 +156,12 @@ nearby rows (at most 1 MiB wide), never the whole array.
 """
 
 from ._util import StoreError, drop_page_cache
-from .store import (BACKENDS, EpochInfo, EpochReader, EpochWriter, Leftover, Store, create_store,
+from .store import (BACKENDS, COMPRESSIONS, EpochInfo, EpochReader, EpochWriter, Leftover, Store, create_store,
                     drop_memory_store, open_store, store_owns)
 
 __all__ = [
     "BACKENDS",
+    "COMPRESSIONS",
     "EpochInfo",
     "EpochReader",
     "EpochWriter",

@@ -512,8 +512,9 @@ class Store:
     def check_room(self, step: int, expected_bytes: int | None = None) -> None:
         """Refuse to start epoch `step` when it cannot fit: StoreError "disk full" if the free
         space of the file system (or the process's file-size limit, for a one-file epoch) is
-        below `expected_bytes` (default: the current epoch's size plus room for growth: 1/16
-        and 64 KiB), so that a sweep is never computed for an epoch that cannot be stored.
+        below `expected_bytes` (default: the current epoch's size plus room for growth: 1/64
+        and 4 KiB; states grow slowly, and a refusal should not come before it must),
+        so that a sweep is never computed for an epoch that cannot be stored.
 
         The writers still turn ENOSPC/EFBIG during the write into the same error (and remove
         the partial epoch): this check cannot see other processes filling the disk."""
@@ -524,7 +525,7 @@ class Store:
             if cur is None:
                 return
             size = sum(f["size"] for f in cur["files"])
-            expected_bytes = size + size // 16 + (64 << 10)
+            expected_bytes = size + size // 64 + (4 << 10)
         need = int(expected_bytes)
         where = self._place.tmp_name(epoch_basename(step, _EXT[self.backend]))
         try:

@@ -101,13 +101,13 @@ def sweep(args, counter) -> list[dict]:
     return res
 
 
-def _bed_groups(n, domains):
+def _bed_groups(name, domains):
     import numpy as np
     from ooc_dem.bed import settled_bed
     from ooc_dem.checkpoint import particles_to_record
     from ooc_dem.physics.layout import AX_X
     from ooc_dem.scenario import load_scenario
-    bed = settled_bed(load_scenario(f"bed-{n}"))
+    bed = settled_bed(load_scenario(name))
     order = np.argsort(bed.pos[:, AX_X], kind="stable")
     parts = np.array_split(order, domains)
     return [particles_to_record(bed.take(rows)) for rows in parts]
@@ -116,7 +116,8 @@ def _bed_groups(n, domains):
 def epoch(args) -> list[dict]:
     import numpy as np
     from storage import create_store
-    groups = _bed_groups(args.n, args.domains)
+    groups = _bed_groups(args.bed or f"bed-{args.n}", args.domains)
+    args.n = sum(len(g["id"]) for g in groups)
     raw = sum(a.nbytes for g in groups for a in g.values())
     res = []
     with tempfile.TemporaryDirectory(dir=args.tmp) as tmp:
@@ -168,7 +169,10 @@ def main():
     ap.add_argument("--steps", default="10,40", help="S1,S2 of the sweep measurement")
     ap.add_argument("--sweep-compression", action="store_true",
                     help="the sweep measurement for every compression too (default: none only)")
-    ap.add_argument("--n", type=int, default=100000)
+    ap.add_argument("--n", type=int, default=100000, help="epoch: the bed-N scenario's N")
+    ap.add_argument("--bed", help="epoch: a scenario whose settled bed to store instead of bed-N "
+                                  "(bed-N is tiled from copies of one tile, which flatters "
+                                  "compression; e.g. quick or paper2008 are settled whole)")
     ap.add_argument("--domains", type=int, default=8)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--tmp", default=None, help="directory for the stores (default: the system's)")

@@ -38,6 +38,11 @@ IS_DIR = False
 CHUNK_BYTES = 1 << 20
 # a zarr metadata document of ours is a few hundred bytes; bigger ones are not read
 _MAX_DOC_BYTES = 1 << 20
+# a group whose entries span at most this many bytes is read in one pread when first used
+# (its documents, zip headers and chunks then cost one read, not ~50 small ones: reads after
+# the page cache was dropped are latency-bound); at most _SPAN_CACHE bytes are kept
+_SPAN_BYTES = 1 << 20
+_SPAN_CACHE = 8 << 20
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)      # fixed: the same state gives the same bytes
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 _LOCAL_HEADER = struct.Struct("<4s2B4HL2L2H")   # zip local file header, 30 bytes
@@ -297,6 +302,7 @@ class Reader:
             try:
                 with zipfile.ZipFile(os.fdopen(os.dup(self._fd), "rb")) as zf:
                     infos = zf.infolist()
+                    central = int(zf.start_dir)
             except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError) as e:
                 raise ValueError(f"{path}: not a readable zip archive ({e})") from None
             self._entries: dict[str, zipfile.ZipInfo] = {}
@@ -305,6 +311,11 @@ class Reader:
                     raise ValueError(f"{path}: key {zi.filename[:80]!r} stored twice")
                 self._entries[zi.filename] = zi
             self._offsets: dict[str, int] = {}
+            # where each entry ends (the next entry's header, or the central directory)
+            starts = sorted({zi.header_offset for zi in infos} | {central})
+            nxt = {a: b for a, b in zip(starts, starts[1:])}
+            self._ends = {zi.filename: nxt.get(zi.header_offset, central) for zi in infos}
+            self._spans: dict[str, tuple[int, np.ndarray]] = {}
             # group -> names of its members (keys "<group>/<name>/zarr.json"), built once
             self._children: dict[str, list[str]] = {}
             for key in self._entries:
@@ -334,7 +345,7 @@ class Reader:
                 raise ValueError(f"{self.path}: {key}: zip entry is compressed by the archive "
                                  f"(not what ooc-dem or zarr write)")
             head = bytearray(_LOCAL_HEADER.size)
-            pread_into(self._fd, np.frombuffer(head, np.uint8), zi.header_offset, self.path)
+            self._pread(np.frombuffer(head, np.uint8), zi.header_offset, self.path)
             fields = _LOCAL_HEADER.unpack(bytes(head))
             if fields[0] != b"PK\x03\x04":
                 raise ValueError(f"{self.path}: {key}: bad local header")
@@ -349,8 +360,33 @@ class Reader:
         if size > limit:
             raise ValueError(f"{self.path}: {key}: {size} bytes, more than the {limit} allowed")
         buf = np.empty(size, np.uint8)
-        pread_into(self._fd, buf, off, f"{self.path}: {key}")
+        self._pread(buf, off, f"{self.path}: {key}")
         return buf.tobytes()
+
+    def _pread(self, out: np.ndarray, offset: int, what: str) -> None:
+        """Bytes at `offset` into `out`: from a group span read before if it holds them."""
+        n = out.nbytes
+        for lo, buf in self._spans.values():
+            if lo <= offset and offset + n <= lo + len(buf):
+                out.reshape(-1).view(np.uint8)[:] = buf[offset - lo:offset - lo + n]
+                return
+        pread_into(self._fd, out, offset, what)
+
+    def _load_span(self, group: str) -> None:
+        """Read a small group's entries (documents, headers, chunks) in one pread."""
+        prefix = f"{group}/"
+        keys = [k for k in self._entries if k.startswith(prefix)]
+        if not keys or group in self._spans:
+            return
+        lo = min(self._entries[k].header_offset for k in keys)
+        hi = min(max(self._ends[k] for k in keys), self._size)
+        if not 0 < hi - lo <= _SPAN_BYTES:
+            return
+        while self._spans and sum(len(b) for _, b in self._spans.values()) + (hi - lo) > _SPAN_CACHE:
+            self._spans.pop(next(iter(self._spans)))
+        buf = np.empty(hi - lo, np.uint8)
+        pread_into(self._fd, buf, lo, f"{self.path}: {group}")
+        self._spans[group] = (lo, buf)
 
     def _doc(self, key: str):
         if key not in self._entries:
@@ -367,6 +403,8 @@ class Reader:
     def _group_meta(self, group: str):
         """(group attributes, name -> _Member), read once; None if no such group."""
         if group not in self._groups:
+            if f"{group}/zarr.json" in self._entries:
+                self._load_span(group)
             meta = self._doc(f"{group}/zarr.json")
             if meta is None or meta.get("node_type") != "group":
                 self._groups[group] = None
@@ -425,7 +463,7 @@ class Reader:
             if size != full:
                 raise ValueError(f"{self.path}: {key}: {size} bytes, expected {full}")
             row = full // max(1, a.shape[0]) if ndim else full
-            pread_into(self._fd, out, off + start * row, f"{self.path}: {key}")
+            self._pread(out, off + start * row, f"{self.path}: {key}")
             return
         dec = self._decoders.get(a.codec)
         if dec is None:
@@ -483,6 +521,7 @@ class Reader:
 
     def close(self) -> None:
         self._groups.clear()
+        self._spans.clear()
         self._zroot = None
         fd, self._fd = self._fd, None
         if fd is not None:

@@ -263,7 +263,9 @@ def test_zarr_partial_read_only_touches_requested_bytes(tmp_path, monkeypatch, c
     or the chunks holding them (compressed), never the whole array."""
     p = str(tmp_path / "s")
     s = create_store(p, "zarr", {}, compression=compression)
-    x = np.arange(1_000_000, dtype=np.float64)      # 8 MB: 8 chunks of 1 MiB when compressed
+    # 8 MB of random floats (barely compressible: the group is far beyond the 1 MiB a reader
+    # reads in one go), 8 chunks of 1 MiB when compressed
+    x = np.random.default_rng(5).random(1_000_000)
     w = s.begin_epoch(1)
     w.write_domain(0, {"x": x})
     w.commit()
@@ -743,3 +745,53 @@ def test_disk_full_gives_store_error_and_keeps_committed_epoch(tmp_path, backend
     assert r.domain_attrs(0) == {"ok": True}
     write_epoch(s, 2)                                    # the store is still usable
     assert s.epochs() == [1, 2]
+
+
+# ----------------------------------------------------------------------------- the real readers
+
+@pytest.mark.parametrize("backend,compression", [("zarr", None), ("zarr", "zstd"), ("zarr", "blosc"),
+                                                 ("hdf5", None), ("hdf5", "gzip"), ("hdf5", "lzf")])
+def test_epochs_are_read_by_zarr_python_and_h5py_and_reopen_compressed(tmp_path, backend, compression):
+    """What the store writes (every compression) is what zarr-python (ZipStore) and h5py read,
+    bit for bit; the compression is kept when the store is opened again; a compressed epoch is
+    smaller than the raw record when the data compresses."""
+    import h5py
+    import zarr
+    from zarr.storage import ZipStore
+    p = str(tmp_path / "s")
+    rng = np.random.default_rng(3)
+    arrays = {"id": np.arange(300_001, dtype=np.int64), "pos": rng.random((300_001, 2)),
+              "flag": rng.random(300_001) < 0.5, "mat": np.zeros(300_001, np.int32),
+              "z": np.array([1 + 2j, 3 - 4j]), "empty": np.zeros((0, 3))}
+    glob = {"scalar": np.float64(2.5), "ws": np.arange(6.0)}
+    s = create_store(p, backend, {}, compression=compression)
+    w = s.begin_epoch(7)
+    w.write_domain(0, arrays, {"n": 300_001})
+    w.write_globals(glob, {"t": 1.0})
+    w.commit()
+    s.close()
+    s = open_store(p)
+    assert s.compression == compression
+    write_epoch(s, 8)                                    # written again with the same compression
+    assert s.manifest()["current"].get("compression") == compression
+    r = s.read_epoch(7)
+    back = r.read_domain(0)
+    assert all(np.array_equal(back[k], arrays[k]) and back[k].dtype == arrays[k].dtype for k in arrays)
+    assert np.array_equal(r.read_domain(0, ["pos"], slice(123_456, 250_001))["pos"], arrays["pos"][123_456:250_001])
+    g, _ = r.read_globals()
+    assert g["scalar"] == 2.5 and np.array_equal(g["ws"], glob["ws"])
+    r.close()
+    path = pathlib.Path(p, s.manifest()["previous"]["path"])
+    size = path.stat().st_size
+    s.close()
+    if backend == "zarr":
+        z = zarr.open_group(store=ZipStore(str(path), mode="r"), mode="r")
+        read = {k: z[f"domains/d0000/{k}"][...] for k in arrays}
+        assert z["globals/scalar"][()] == 2.5
+    else:
+        with h5py.File(path, "r", locking=False) as f:
+            read = {k: f[f"domains/d0000/{k}"][()] for k in arrays}
+    assert all(np.array_equal(read[k], arrays[k]) for k in arrays)
+    raw = sum(a.nbytes for a in arrays.values())
+    if compression is not None:        # ids, zeros and booleans compress; the random floats not
+        assert size < 0.9 * raw, (size, raw)

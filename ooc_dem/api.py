@@ -252,7 +252,7 @@ def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None
         block: int | None = None, backend: str = "hdf5", steps: int | None = None,
         duration: float | None = None, progress: bool = False, *, overrides=None,
         checkpoint_every: int | None = None, durable: bool = False, figures: bool = False,
-        bed=None) -> RunResult:
+        bed=None, compression: str | None = None) -> RunResult:
     """Run a scenario to the end, as ``ooc-dem run`` does, and return its ``RunResult``.
 
     Parameters
@@ -285,6 +285,9 @@ def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None
         Draw ``figures/*.png`` at the end (off by default; ``ooc-dem report`` draws them).
     bed : path, optional
         A prepared bed directory from ``ooc-dem prepare`` (``--bed``).
+    compression : str, optional
+        Compress the store's arrays (``--compression``): ``"zstd"`` or ``"blosc"`` (zarr),
+        ``"gzip"`` or ``"lzf"`` (hdf5); default none. Kept by ``resume``.
 
     Returns
     -------
@@ -304,7 +307,7 @@ def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None
     out = Path(out) if out is not None else Path("runs") / sc.name
     opts = RunOptions(mode=mode, backend=backend, domains=domains, block=block, steps=steps,
                       duration=duration, checkpoint_every=checkpoint_every, durable=durable,
-                      progress=progress, figures=figures)
+                      progress=progress, figures=figures, compression=compression)
     sim = Simulation(sc, out, opts)   # plans and checks everything before a file is written
     prepared = None
     if bed is not None:

@@ -106,6 +106,9 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"],
                        help="memory: the store lives only in this process (no resume); summary, "
                             "series and figures are still written to --out")
+        q.add_argument("--compression", default="none", choices=["none", "zstd", "blosc", "gzip", "lzf"],
+                       help="compress the store's arrays: zarr zstd|blosc, hdf5 gzip|lzf (default "
+                            "none: see the README's Disk economy)")
         q.add_argument("--domains", type=_count(1, MAX_DOMAINS), help="number of sub-domains D (ddm, ooc)")
         q.add_argument("--block", type=_count(1, MAX_BLOCK), help="steps per epoch K (temporal blocking)")
         g = q.add_mutually_exclusive_group()
@@ -288,7 +291,8 @@ def _run_options(args):
                       durable=getattr(args, "durable", False),
                       memory=getattr(args, "memory", None),
                       progress=not getattr(args, "no_progress", True),
-                      figures=not getattr(args, "no_figures", True))
+                      figures=not getattr(args, "no_figures", True),
+                      compression=None if getattr(args, "compression", "none") == "none" else args.compression)
 
 
 def cmd_run(args):

@@ -28,11 +28,20 @@ On-disk layout
                                 and renamed when complete; groups /domains/d0000, /domains/d0001 ...
                                 (one per sub-domain, arrays as contiguous datasets, attrs as the JSON
                                 string attribute "ooc_dem_attrs"), /globals (same form).
-        e000000001234.zarr/     zarr v3 LocalStore: groups domains/d0000 ..., globals (attrs as the
-                                JSON string attribute "ooc_dem_attrs"); written as a .tmp-<pid>
-                                directory renamed when complete; one uncompressed chunk per array
-                                (chunks = full shape), no sharding, no consolidated metadata.
+        e000000001234.zip       zarr v3: the epoch's hierarchy (the keys of a LocalStore:
+                                zarr.json, domains/d0000/zarr.json, domains/d0000/pos/zarr.json,
+                                domains/d0000/pos/c/0/0 ...) in one zip archive (zarr's ZipStore),
+                                every entry stored; written as a .tmp-<pid> file renamed when
+                                complete; one uncompressed chunk per array, or with compression
+                                (zstd / blosc codecs) chunks of ~1 MiB of rows. Attrs as the JSON
+                                string attribute "ooc_dem_attrs". One file, not ~20 files and
+                                directories per group: creating and deleting them dominated sweeps.
+        e000000001234.zarr/     the zarr layout of earlier versions (a LocalStore directory, one
+                                uncompressed chunk per array): still read, no longer written.
 
+* ``compression`` (manifest key, absent = none): ``COMPRESSIONS[backend]``, chosen at
+  create_store and used for every epoch written; each epoch entry names its own. The
+  bytes-fit-in-files check allows a compressed epoch at most 64x its files' bytes.
 * ``format_version``: this code writes 2 and reads 1 and 2. The package never interprets
   array names; the version (``EpochReader.format_version``: the epoch entry's, else the
   manifest's) tells the application how to read them (ooc_dem.checkpoint.open_epoch reads
@@ -151,17 +160,26 @@ drops clean ones), and files are dropped after each ``read_domain`` /
 Partial reads
 -------------
 ``read_domain(d, rows=...)`` reads only the requested rows: HDF5 datasets are
-contiguous (hyperslab reads); zarr chunks are uncompressed, so rows are read with
-``pread`` at their offset in the chunk file. Index arrays are read in windows of
+contiguous (hyperslab reads; compressed: the chunks touched); uncompressed zarr chunks are
+read with ``pread`` at the rows' offset in the archive, compressed ones chunk by chunk (a
+group spanning at most 1 MiB is read in one pread when first used).
+
+Disk space
+----------
+``begin_epoch`` first calls ``Store.check_room``: the free space of the store's file
+system, and the file-size limit for a one-file epoch, must hold about the current
+epoch's size (+1/64 + 4 KiB), else "disk full or file too large" before anything is
+written (and before a sweep is computed). Index arrays are read in windows of
 nearby rows (at most 1 MiB wide), never the whole array.
 """
 
 from ._util import StoreError, drop_page_cache
-from .store import (BACKENDS, EpochInfo, EpochReader, EpochWriter, Leftover, Problem, Store,
-                    create_store, drop_memory_store, open_store, store_owns)
+from .store import (BACKENDS, COMPRESSIONS, EpochInfo, EpochReader, EpochWriter, Leftover, Problem,
+                    Store, create_store, drop_memory_store, open_store, store_owns)
 
 __all__ = [
     "BACKENDS",
+    "COMPRESSIONS",
     "EpochInfo",
     "EpochReader",
     "EpochWriter",

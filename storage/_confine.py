@@ -62,14 +62,16 @@ def rel_parts(value, what: str) -> list[str]:
     return parts
 
 
-def epoch_path(value, ext: str, step: int, what: str) -> str:
-    """Check an epoch path: exactly "epochs/<name>", <name> an epoch name of `ext` for `step`."""
+def epoch_path(value, exts, step: int, what: str) -> str:
+    """Check an epoch path: exactly "epochs/<name>", <name> an epoch name with one of the
+    extensions `exts` (a str or a tuple of them) for `step`."""
+    exts = (exts,) if isinstance(exts, str) else tuple(exts)
     parts = rel_parts(value, what)
     name = parts[-1]
     m = _EPOCH_NAME_RE.match(name)
-    if len(parts) != 2 or parts[0] != EPOCH_DIR or m is None or m.group(3) != ext:
+    if len(parts) != 2 or parts[0] != EPOCH_DIR or m is None or m.group(3) not in exts:
         raise StoreError(f"{what}: path {_short(value)} is not an epoch path "
-                         f"({EPOCH_DIR}/e<step, 12+ digits>[.r<n>].{ext})")
+                         f"({EPOCH_DIR}/e<step, 12+ digits>[.r<n>].{'|'.join(exts)})")
     if int(m.group(1)) != step:
         raise StoreError(f"{what}: path {_short(value)} names step {int(m.group(1))}, the entry says {step}")
     return value

@@ -9,13 +9,17 @@ from __future__ import annotations
 import os
 import stat
 
-from . import _hdf5, _zarr
+from . import _hdf5, _zarr, _zarr_zip
 from ._confine import Resolver, read_regular, sha256_regular
 from ._util import (EPOCH_DIR, EPOCH_NAME_RE, FORMAT, LOCK_FILE, MANIFEST, MANIFEST_TMP,
                     MAX_MANIFEST_BYTES, TMP_NAME_RE, StoreError, drop_page_cache, fsync_path,
                     parse_json, remove_path, to_json, write_error)
 
-FORMATS = {"hdf5": _hdf5, "zarr": _zarr}
+# what each backend writes, and every epoch format it reads (by the epoch name's extension):
+# zarr epochs were directories before (``_zarr``, ~20 files and directories per group),
+# one zip archive per epoch since (``_zarr_zip``); both are read
+FORMATS = {"hdf5": _hdf5, "zarr": _zarr_zip}
+READ_FORMATS = {"hdf5": {_hdf5.EXT: _hdf5}, "zarr": {_zarr_zip.EXT: _zarr_zip, _zarr.EXT: _zarr}}
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 
 
@@ -116,6 +120,7 @@ class Place:
         self.root = root
         self.backend = backend
         self.fmt = FORMATS[backend]
+        self._read_fmts = READ_FORMATS[backend]
         self.edir = os.path.join(root, EPOCH_DIR)
         self.mpath = os.path.join(root, MANIFEST)
         self.resolver = Resolver(root)
@@ -150,11 +155,15 @@ class Place:
     def tmp_name(self, basename: str) -> str:
         return os.path.join(self.edir, f"{basename}.tmp-{os.getpid()}")
 
-    def new_writer(self, step: int, basename: str):
+    def fmt_of(self, path: str):
+        """The format module of an epoch (by its name's extension; the writer's if unknown)."""
+        return self._read_fmts.get(path.rpartition(".")[2], self.fmt)
+
+    def new_writer(self, step: int, basename: str, compression=None):
         tmp = self.tmp_name(basename)
         remove_path(tmp)                         # leftover of an earlier process with our pid
         os.makedirs(self.edir, exist_ok=True)
-        return self.fmt.Writer(tmp, step)
+        return self.fmt.Writer(tmp, step, compression)
 
     def publish(self, writer, basename: str, durable: bool) -> tuple[str, list[dict]]:
         """Finish the temporary epoch, rename it into place; return (rel path, file list)."""
@@ -201,7 +210,7 @@ class Place:
             return f"{base}: unreadable ({e.strerror or e})"
         if stat.S_ISLNK(st.st_mode):
             return f"{base}: is a symbolic link (not allowed)"
-        want_dir = self.fmt.IS_DIR
+        want_dir = self.fmt_of(base).IS_DIR
         if want_dir and not stat.S_ISDIR(st.st_mode):
             return f"{base}: not a directory"
         if not want_dir and not stat.S_ISREG(st.st_mode):
@@ -213,7 +222,7 @@ class Place:
         bad = self._check_epoch_kind(base)
         if bad:
             raise StoreError(bad)
-        return self.fmt.Reader(base)
+        return self.fmt_of(base).Reader(base)
 
     def size_problems(self, entry) -> list[str]:
         """Missing, special or wrong-sized files of an epoch (metadata only, no data read)."""
@@ -257,7 +266,7 @@ class Place:
                 continue
             if sha != f["sha256"]:
                 problems.append(f"{p}: sha256 mismatch (content changed)")
-        if self.fmt.IS_DIR:
+        if self.fmt_of(base).IS_DIR:
             found, odd = _walk_epoch(base)
             problems += odd
             listed = {f["path"][len(entry["path"]) + 1:] for f in entry["files"]}

@@ -9,6 +9,12 @@ from ._util import ATTRS_KEY, FORMAT, drop_page_cache, fsync_path, remove_path, 
 EXT = "h5"
 IS_DIR = False
 _RDCC_NBYTES = 1 << 20
+# compressed datasets are chunked in about this many bytes of rows (a row range decompresses
+# only the chunks it touches; the chunk cache above holds one)
+CHUNK_BYTES = 1 << 20
+# name -> h5py create_dataset keywords (built-in filters only: every h5py reads them)
+FILTERS = {"gzip": {"compression": "gzip", "compression_opts": 4, "shuffle": True},
+           "lzf": {"compression": "lzf", "shuffle": True}}
 
 
 def _h5py():
@@ -24,8 +30,11 @@ def _open(path, mode):
 class Writer:
     """Writes one epoch into the file `path` (a temporary name, renamed by the caller)."""
 
-    def __init__(self, path: str, step: int):
+    def __init__(self, path: str, step: int, compression: str | None = None):
+        if compression is not None and compression not in FILTERS:
+            raise ValueError(f"unknown HDF5 compression {compression!r}")
         self.path = path
+        self.filters = FILTERS.get(compression)
         self.f = None
         self.f = _open(path, "w-")
         self.f.attrs["ooc_dem_format"] = FORMAT
@@ -58,7 +67,12 @@ class Writer:
         g = self.f.create_group(group)
         g.attrs[ATTRS_KEY] = attrs_json
         for name, a in arrays.items():
-            g.create_dataset(name, data=a)   # contiguous layout: row ranges are read in place
+            if self.filters is None or a.ndim == 0 or a.size == 0:
+                g.create_dataset(name, data=a)   # contiguous layout: row ranges are read in place
+                continue
+            row = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
+            rows = int(min(a.shape[0], max(1, CHUNK_BYTES // max(1, row))))
+            g.create_dataset(name, data=a, chunks=(rows,) + a.shape[1:], **self.filters)
         self.f.flush()
         drop_page_cache(self.path)           # starts write-back, drops clean pages
 

@@ -90,6 +90,7 @@ class Place:
     """Manifest + epochs of one memory store."""
 
     is_memory = True
+    backend = "memory"
 
     def __init__(self, key: str, backing: Backing):
         self.key = key
@@ -106,7 +107,7 @@ class Place:
     def used_on_disk(self, basename: str) -> bool:
         return f"{EPOCH_DIR}/{basename}" in self.b.epochs
 
-    def new_writer(self, step: int, basename: str) -> Writer:
+    def new_writer(self, step: int, basename: str, compression=None) -> Writer:
         return Writer()
 
     def tmp_name(self, basename: str) -> str:

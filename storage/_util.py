@@ -31,9 +31,9 @@ MAX_MANIFEST_BYTES = 64 << 20
 MAX_JSON_DEPTH = 100
 
 # e000000001234.h5, e000000001234.r1.zarr (".rN" = rewrite of a step still named by the manifest)
-EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(\.r\d+)?\.(h5|zarr)$")
+EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(\.r\d+)?\.(h5|zarr|zip)$")
 # the temporary an epoch is written under by process <pid>: e000000001234.h5.tmp-<pid>
-TMP_NAME_RE = re.compile(r"^(e\d{12,}(?:\.r\d+)?\.(?:h5|zarr))\.tmp-(\d{1,10})$")
+TMP_NAME_RE = re.compile(r"^(e\d{12,}(?:\.r\d+)?\.(?:h5|zarr|zip))\.tmp-(\d{1,10})$")
 ARRAY_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}$")
 _RESERVED_NAMES = {"zarr.json"}
 

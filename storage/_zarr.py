@@ -1,5 +1,7 @@
-"""zarr v3 epoch format: one LocalStore directory per epoch, one group per sub-domain,
-one uncompressed chunk per array (chunks = full shape), no sharding, no consolidated metadata."""
+"""zarr v3 epoch format of earlier versions, still read: one LocalStore directory per epoch,
+one group per sub-domain, one uncompressed chunk per array (chunks = full shape), no
+sharding, no consolidated metadata. Epochs are written as one zip archive each now
+(``_zarr_zip``); the directory ``Writer`` stays for tests of stores written before."""
 
 from __future__ import annotations
 
@@ -75,7 +77,9 @@ def _write_file(path: str, data: bytes, hashed: dict, rel: str) -> None:
 class Writer:
     """Writes one epoch into the directory `path` (a temporary name, renamed by the caller)."""
 
-    def __init__(self, path: str, step: int):
+    def __init__(self, path: str, step: int, compression: str | None = None):
+        if compression is not None:
+            raise ValueError("the zarr directory layout is written uncompressed only")
         self.path = path
         self._hashed: dict[str, tuple[int, int, str]] = {}   # rel -> (size, mtime_ns, sha)
         self._zgroups = None                                  # zarr handles, only for fallbacks

@@ -9,6 +9,7 @@ import json
 import operator
 import os
 import re
+import resource
 import weakref
 from collections.abc import Mapping
 
@@ -21,7 +22,17 @@ from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, SUPPORTED_VERSIONS, GLOBA
                     prepare_arrays, remove_path, to_json, write_error)
 
 BACKENDS = ("hdf5", "zarr", "memory")
-_EXT = {"hdf5": "h5", "zarr": "zarr", "memory": "mem"}
+# the extension of the epochs a backend writes, and of those it reads (zarr: one zip archive
+# per epoch; directories, written before, are still read)
+_EXT = {"hdf5": "h5", "zarr": "zip", "memory": "mem"}
+_READ_EXTS = {"hdf5": ("h5",), "zarr": ("zip", "zarr"), "memory": ("mem",)}
+# optional compression of a store's arrays, per backend: zarr codecs (zstd; blosc = lz4 with
+# byte shuffle) or HDF5 filters (gzip = deflate level 4 with shuffle; lzf with shuffle);
+# measured by tools/iobench.py (off by default: see the README's "Disk economy")
+COMPRESSIONS = {"hdf5": ("gzip", "lzf"), "zarr": ("zstd", "blosc"), "memory": ()}
+# a compressed epoch's arrays may hold at most this many times the bytes of its files (a
+# bound on what a manifest can make a reader allocate; real states compress ~1.1-2x)
+_MAX_RATIO = 64
 _IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
 
 # the limits of what a manifest may say (beyond them it is not ours): steps, sizes and array
@@ -32,6 +43,10 @@ _MAX_DOMAIN_ID = 10**9 - 1
 _MAX_NAME_CHARS = 200          # ARRAY_NAME_RE's limit, checked first to keep messages short
 _SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
 _DOMAIN_KEY_RE = re.compile(r"^(0|[1-9][0-9]{0,8})$")   # str(d) of a domain id d >= 0
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:.1f} MB"
 
 
 def _now() -> str:
@@ -53,21 +68,29 @@ def _show(v) -> str:
 
 # ============================================================================ open / create
 
-def create_store(path, backend: str, meta: dict) -> "Store":
+def create_store(path, backend: str, meta: dict, compression: str | None = None) -> "Store":
     """Create a new, empty store at `path` and hold its write lock until closed.
 
     An existing ooc-dem store at `path` is replaced (its manifest and epochs are
     deleted; other files in the directory are left alone) unless another process is
     writing it. An existing non-empty path that is not an ooc-dem store is refused.
+    `compression` (None, or one of ``COMPRESSIONS[backend]``) applies to every epoch the
+    store is written with, also after it is opened again.
     """
     key = _key(path)
     if backend not in BACKENDS:
         raise StoreError(f"{key}: unknown backend {backend!r} (expected one of {', '.join(BACKENDS)})")
     if not isinstance(meta, Mapping):
         raise StoreError(f"{key}: meta must be a dict")
+    if compression is not None and compression not in COMPRESSIONS[backend]:
+        have = ", ".join(COMPRESSIONS[backend]) or "none"
+        raise StoreError(f"{key}: compression {compression!r} is not one of the {backend} "
+                         f"backend's ({have})")
     manifest = {"format": FORMAT, "format_version": FORMAT_VERSION, "backend": backend,
                 "meta": json_roundtrip(dict(meta), f"{key}: meta"),
                 "created_at": _now(), "current": None, "previous": None}
+    if compression is not None:
+        manifest["compression"] = compression
     if json_depth(manifest) > MAX_JSON_DEPTH:    # it could not be opened again
         raise StoreError(f"{key}: meta nested deeper than {MAX_JSON_DEPTH - 1} levels")
     if backend == "memory":
@@ -149,7 +172,7 @@ def _check_arrays(arrays, what: str, min_ndim: int) -> int:
     return nbytes
 
 
-def _check_entry(e, role: str, where: str, place, ext: str) -> None:
+def _check_entry(e, role: str, where: str, place, ext) -> None:
     """Check one epoch entry of a manifest, confining its paths (see _confine)."""
     what = f"{where}/{MANIFEST}: {role} epoch"
     e = _dict(e, what)
@@ -163,7 +186,10 @@ def _check_entry(e, role: str, where: str, place, ext: str) -> None:
     files = e.get("files")
     if not isinstance(files, list):
         raise StoreError(f"{what}: malformed \"files\" (must be a list of file entries)")
-    inside = place.is_memory or place.fmt.IS_DIR
+    comp = e.get("compression")
+    if comp is not None and (not isinstance(comp, str) or comp not in COMPRESSIONS[place.backend]):
+        raise StoreError(f"{what}: unknown compression {_show(comp)}")
+    inside = place.is_memory or place.fmt_of(epoch).IS_DIR
     seen, stored = set(), 0
     for f in files:
         f = _dict(f, f"{what} file entry")
@@ -191,8 +217,10 @@ def _check_entry(e, role: str, where: str, place, ext: str) -> None:
     g = e.get("globals")
     if g is not None:
         needed += _check_arrays(_dict(g, f"{what} globals").get("arrays"), f"{what} globals arrays", 0)
-    if needed > stored:     # our arrays are stored uncompressed: their bytes are in the files
-        raise StoreError(f"{what}: arrays need {needed} bytes but its files hold only {stored}")
+    # uncompressed arrays' bytes are all in the files; compressed ones at most _MAX_RATIO x
+    if needed > stored * (1 if comp is None else _MAX_RATIO):
+        raise StoreError(f"{what}: arrays need {needed} bytes but its files hold only {stored}"
+                         + ("" if comp is None else f" ({comp}, at most {_MAX_RATIO}x)"))
     if not isinstance(e.get("committed_at", ""), str):
         raise StoreError(f"{what}: malformed committed_at {_show(e.get('committed_at'))}")
     if not place.is_memory:
@@ -226,8 +254,12 @@ def _validate_manifest(m, where: str, backends, place_for):
                          f"an object)")
     if not isinstance(m.get("created_at", ""), str):
         raise StoreError(f"{where}: MANIFEST.json missing or unreadable (malformed: created_at)")
+    comp = m.get("compression")
+    if comp is not None and (not isinstance(comp, str) or comp not in COMPRESSIONS[backend]):
+        raise StoreError(f"{where}: MANIFEST.json names compression {_show(comp)}, expected one "
+                         f"of the {backend} backend's ({', '.join(COMPRESSIONS[backend]) or 'none'})")
     cur, prev = m.get("current"), m.get("previous")
-    ext = _EXT[backend]
+    ext = _READ_EXTS[backend]
     for role, e in (("current", cur), ("previous", prev)):
         if e is not None:
             _check_entry(e, role, where, place, ext)
@@ -454,12 +486,13 @@ class Store:
         return sorted(pids)
 
     # ------------------------------------------------------------------ writing
-    def begin_epoch(self, step: int) -> "EpochWriter":
+    def begin_epoch(self, step: int, expected_bytes: int | None = None) -> "EpochWriter":
         """Start writing epoch `step`. Nothing is visible until commit().
 
         `step` must be newer than the previous epoch. Normally it is newer than the
         current one too; a step <= current (e.g. resuming after a fallback to the
-        previous epoch) replaces the current epoch when committed.
+        previous epoch) replaces the current epoch when committed. The disk space is
+        checked first (``check_room``, `expected_bytes`).
         """
         self._check_writable()
         try:
@@ -480,13 +513,56 @@ class Store:
         rev = 0
         while epoch_basename(step, _EXT[self.backend], rev) in named:
             rev += 1
+        self.check_room(step, expected_bytes)
         self._writer = EpochWriter(self, step, epoch_basename(step, _EXT[self.backend], rev))
         return self._writer
+
+    @property
+    def compression(self) -> str | None:
+        """The compression epochs are written with (None: uncompressed)."""
+        return self._m.get("compression")
+
+    def check_room(self, step: int, expected_bytes: int | None = None) -> None:
+        """Refuse to start epoch `step` when it cannot fit: StoreError "disk full" if the free
+        space of the file system (or the process's file-size limit, for a one-file epoch) is
+        below `expected_bytes` (default: the current epoch's size plus room for growth: 1/64
+        and 4 KiB; states grow slowly, and a refusal should not come before it must),
+        so that a sweep is never computed for an epoch that cannot be stored.
+
+        The writers still turn ENOSPC/EFBIG during the write into the same error (and remove
+        the partial epoch): this check cannot see other processes filling the disk."""
+        if self._place.is_memory:
+            return
+        if expected_bytes is None:
+            cur = self._m["current"]
+            if cur is None:
+                return
+            size = sum(f["size"] for f in cur["files"])
+            expected_bytes = size + size // 64 + (4 << 10)
+        need = int(expected_bytes)
+        where = self._place.tmp_name(epoch_basename(step, _EXT[self.backend]))
+        try:
+            st = os.statvfs(self._place.edir)
+        except OSError as e:
+            raise write_error(self._place.edir, e) from e
+        free = st.f_bavail * st.f_frsize
+        if free < need:
+            raise StoreError(f"{where}: disk full or file too large (epoch {step} needs about "
+                             f"{_mb(need)}, {_mb(free)} free on the store's file system; "
+                             f"committed epochs are untouched)")
+        if not self._place.fmt.IS_DIR:
+            soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+            if soft != resource.RLIM_INFINITY and soft < need:
+                raise StoreError(f"{where}: disk full or file too large (epoch {step} needs about "
+                                 f"{_mb(need)}, the file-size limit is {_mb(soft)}; committed "
+                                 f"epochs are untouched)")
 
     def _commit(self, w: "EpochWriter", durable: bool) -> None:
         rel, files = self._place.publish(w._w, w._basename, durable)
         entry = {"step": w.step, "path": rel, "files": files, "domains": w._domains,
                  "globals": w._globals, "committed_at": _now(), "format_version": FORMAT_VERSION}
+        if self.compression is not None:
+            entry["compression"] = self.compression
         old_cur, old_prev = self._m["current"], self._m["previous"]
         # an epoch of an older store keeps the version it was written in (named in its entry)
         # when the manifest moves on to this code's version
@@ -674,7 +750,7 @@ class EpochWriter:
         self._state = "open"
         self._tmp = store._place.tmp_name(basename)
         try:
-            self._w = store._place.new_writer(step, basename)
+            self._w = store._place.new_writer(step, basename, store.compression)
         except (OSError, RuntimeError) as e:
             self._state = "aborted"
             if not store._place.is_memory:

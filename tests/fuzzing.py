@@ -53,6 +53,7 @@ only into R, devices only through symlinks), so a buggy delete or write can only
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import json
@@ -845,6 +846,26 @@ def _semantic(arr, kind, rows):
     return a
 
 
+@contextlib.contextmanager
+def _zarr_tree(path):
+    """A zarr epoch as a directory to edit: the epoch itself (directory layout of earlier
+    versions), or its zip archive unpacked into a scratch directory and packed again (stored
+    entries, the edited tree's files) when the edit is done."""
+    import zipfile
+    path = Path(path)
+    if path.is_dir():
+        yield path
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        base = Path(tmp) / "epoch"
+        with zipfile.ZipFile(path) as zf:
+            zf.extractall(base)
+        yield base
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+            for f in sorted(p for p in base.rglob("*") if p.is_file()):
+                zf.write(f, f.relative_to(base).as_posix())
+
+
 def _edit_array(world: World, ed: dict):
     import numpy as np
     m = world.manifest()
@@ -869,35 +890,35 @@ def _edit_array(world: World, ed: dict):
         if ed.get("update_meta"):
             _sync_meta_hdf5(world, ed["which"])
     else:
-        base = world.run / e["path"]
-        doms = sorted((base / "domains").glob("d*"))
-        gdir = base / "globals" if group == "globals" else doms[ed["dom"] % len(doms)]
-        names = sorted(x.name for x in gdir.iterdir() if x.is_dir())
-        name = ed["name"] if ed["name"] in names else names[ed.get("name_i", 0) % len(names)]
-        adir = gdir / name
-        meta = json.loads((adir / "zarr.json").read_text())
-        dt = np.dtype({"float64": "<f8", "int64": "<i8", "int32": "<i4", "float32": "<f4",
-                       "bool": "|b1", "uint8": "|u1"}.get(meta["data_type"], "<f8"))
-        chunk = adir / "c" / "/".join(["0"] * max(1, len(meta["shape"])))
-        if ed["kind"] == "delete":
-            shutil.rmtree(adir)
-        else:
-            old = np.frombuffer(chunk.read_bytes(), dtype=dt).reshape(meta["shape"]) if chunk.exists() \
-                else np.zeros(meta["shape"], dt)
-            new = _semantic(old, ed["kind"], ed.get("rows", [0.0]))
-            if new.ndim != old.ndim:
-                shutil.rmtree(adir / "c", ignore_errors=True)
-                chunk = adir / "c" / "/".join(["0"] * max(1, new.ndim))
-            chunk.parent.mkdir(parents=True, exist_ok=True)
-            chunk.write_bytes(np.ascontiguousarray(new).astype(new.dtype.newbyteorder("<")).tobytes())
-            if ed.get("update_meta") or new.shape != old.shape or new.dtype != old.dtype:
-                names_ = {"<f8": "float64", "<i8": "int64", "<i4": "int32", "<f4": "float32", "|b1": "bool",
-                          "|u1": "uint8", "<c16": "complex128"}
-                if ed.get("update_meta", True):
-                    meta["shape"] = list(new.shape)
-                    meta["chunk_grid"]["configuration"]["chunk_shape"] = list(new.shape)
-                    meta["data_type"] = names_.get(new.dtype.newbyteorder("<").str, meta["data_type"])
-                    (adir / "zarr.json").write_text(json.dumps(meta, indent=2))
+        with _zarr_tree(world.run / e["path"]) as base:
+            doms = sorted((base / "domains").glob("d*"))
+            gdir = base / "globals" if group == "globals" else doms[ed["dom"] % len(doms)]
+            names = sorted(x.name for x in gdir.iterdir() if x.is_dir())
+            name = ed["name"] if ed["name"] in names else names[ed.get("name_i", 0) % len(names)]
+            adir = gdir / name
+            meta = json.loads((adir / "zarr.json").read_text())
+            dt = np.dtype({"float64": "<f8", "int64": "<i8", "int32": "<i4", "float32": "<f4",
+                           "bool": "|b1", "uint8": "|u1"}.get(meta["data_type"], "<f8"))
+            chunk = adir / "c" / "/".join(["0"] * max(1, len(meta["shape"])))
+            if ed["kind"] == "delete":
+                shutil.rmtree(adir)
+            else:
+                old = np.frombuffer(chunk.read_bytes(), dtype=dt).reshape(meta["shape"]) if chunk.exists() \
+                    else np.zeros(meta["shape"], dt)
+                new = _semantic(old, ed["kind"], ed.get("rows", [0.0]))
+                if new.ndim != old.ndim:
+                    shutil.rmtree(adir / "c", ignore_errors=True)
+                    chunk = adir / "c" / "/".join(["0"] * max(1, new.ndim))
+                chunk.parent.mkdir(parents=True, exist_ok=True)
+                chunk.write_bytes(np.ascontiguousarray(new).astype(new.dtype.newbyteorder("<")).tobytes())
+                if ed.get("update_meta") or new.shape != old.shape or new.dtype != old.dtype:
+                    names_ = {"<f8": "float64", "<i8": "int64", "<i4": "int32", "<f4": "float32", "|b1": "bool",
+                              "|u1": "uint8", "<c16": "complex128"}
+                    if ed.get("update_meta", True):
+                        meta["shape"] = list(new.shape)
+                        meta["chunk_grid"]["configuration"]["chunk_shape"] = list(new.shape)
+                        meta["data_type"] = names_.get(new.dtype.newbyteorder("<").str, meta["data_type"])
+                        (adir / "zarr.json").write_text(json.dumps(meta, indent=2))
         if ed.get("update_meta"):
             _sync_meta_zarr(world, ed["which"])
     _fix_all_checksums(world, ed["which"])
@@ -938,21 +959,21 @@ def _sync_meta_hdf5(world, which):
 def _sync_meta_zarr(world, which):
     m = world.manifest()
     e = _epoch_entry(m, which)
-    base = world.run / e["path"]
-    strs = {"float64": "<f8", "int64": "<i8", "int32": "<i4", "float32": "<f4", "bool": "|b1",
-            "uint8": "|u1", "complex128": "<c16"}
+    with _zarr_tree(world.run / e["path"]) as base:
+        strs = {"float64": "<f8", "int64": "<i8", "int32": "<i4", "float32": "<f4", "bool": "|b1",
+                "uint8": "|u1", "complex128": "<c16"}
 
-    def arrays(gdir):
-        out = {}
-        for a in sorted(x for x in gdir.iterdir() if x.is_dir()):
-            meta = json.loads((a / "zarr.json").read_text())
-            out[a.name] = [meta["shape"], strs.get(meta["data_type"], meta["data_type"])]
-        return out
-    for dname in sorted((base / "domains").glob("d*")):
-        arr = arrays(dname)
-        first = next(iter(arr.values()), None)
-        e["domains"][str(int(dname.name[1:]))] = {"n": first[0][0] if first and first[0] else 0, "arrays": arr}
-    e["globals"] = {"arrays": arrays(base / "globals")}
+        def arrays(gdir):
+            out = {}
+            for a in sorted(x for x in gdir.iterdir() if x.is_dir()):
+                meta = json.loads((a / "zarr.json").read_text())
+                out[a.name] = [meta["shape"], strs.get(meta["data_type"], meta["data_type"])]
+            return out
+        for dname in sorted((base / "domains").glob("d*")):
+            arr = arrays(dname)
+            first = next(iter(arr.values()), None)
+            e["domains"][str(int(dname.name[1:]))] = {"n": first[0][0] if first and first[0] else 0, "arrays": arr}
+        e["globals"] = {"arrays": arrays(base / "globals")}
     world.write_manifest(m)
 
 
@@ -972,15 +993,15 @@ def _edit_attrs(world: World, ed: dict):
             else:
                 g.attrs["ooc_dem_attrs"] = value
     else:
-        base = world.run / e["path"]
-        doms = sorted((base / "domains").glob("d*"))
-        gdir = base / "globals" if ed["group"] == "globals" else doms[ed["dom"] % len(doms)]
-        meta = json.loads((gdir / "zarr.json").read_text())
-        if value is None:
-            meta.get("attributes", {}).pop("ooc_dem_attrs", None)
-        else:
-            meta.setdefault("attributes", {})["ooc_dem_attrs"] = value
-        (gdir / "zarr.json").write_text(json.dumps(meta, indent=2))
+        with _zarr_tree(world.run / e["path"]) as base:
+            doms = sorted((base / "domains").glob("d*"))
+            gdir = base / "globals" if ed["group"] == "globals" else doms[ed["dom"] % len(doms)]
+            meta = json.loads((gdir / "zarr.json").read_text())
+            if value is None:
+                meta.get("attributes", {}).pop("ooc_dem_attrs", None)
+            else:
+                meta.setdefault("attributes", {})["ooc_dem_attrs"] = value
+            (gdir / "zarr.json").write_text(json.dumps(meta, indent=2))
     _fix_all_checksums(world, ed["which"])
 
 

@@ -16,7 +16,7 @@ import pytest
 
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
-from conftest import one_line_error, run_cli
+from conftest import one_line_error, run_cli, zip_without
 
 STEPS = 120
 CKPT = 30
@@ -283,7 +283,10 @@ def _flip_byte(path, where=0.5):
 
 
 def _chunk_file(epoch_dir):
-    """The data chunk of the positions of domain 0 (zarr v3 key c/0/0: one chunk of a 2-D array)."""
+    """The file holding the positions of domain 0: a zarr epoch's archive (one file), or in
+    the directory layout the chunk (zarr v3 key c/0/0: one chunk of a 2-D array)."""
+    if Path(epoch_dir).is_file():
+        return Path(epoch_dir)
     p = Path(epoch_dir) / "domains" / "d0000" / "pos" / "c" / "0" / "0"
     assert p.is_file(), sorted(map(str, Path(epoch_dir).rglob("*")))[:20]
     return p
@@ -318,6 +321,8 @@ def corrupt(store, backend, kind):
         if backend == "hdf5":
             with h5py.File(cur, "r+", locking=False) as f:
                 del f["domains/d0001"]
+        elif cur.is_file():
+            zip_without(cur, "domains/d0001/")
         else:
             shutil.rmtree(cur / "domains" / "d0001")
     elif kind == "delete_manifest":

@@ -19,7 +19,7 @@ from pathlib import Path
 import h5py
 import pytest
 
-from conftest import one_line_error, run_cli
+from conftest import one_line_error, run_cli, zarr_epochs_as_directories
 
 STEPS, CKPT = 20, 10                 # current epoch 20, previous epoch 10
 RESUME_MORE = ["--steps", "40", "--no-progress", "--no-figures"]   # commits 30 and 40
@@ -234,8 +234,10 @@ def test_zarr_epoch_files_must_be_exactly_the_listed_ones(pristine, tmp_path):
 
 def test_a_symlink_inside_a_zarr_epoch_is_a_verification_problem(pristine, tmp_path):
     """A chunk replaced by a link to an identical file outside the store passes sizes and
-    checksums; it is still not part of the store: verify fails, resume falls back."""
+    checksums; it is still not part of the store: verify fails, resume falls back. (Epochs
+    in the directory layout of earlier versions: today's are one zip archive each.)"""
     store, victim = _make(pristine, tmp_path, "zarr")
+    zarr_epochs_as_directories(store)
     chunk = store / _manifest(store)["current"]["path"] / "domains" / "d0000" / "pos" / "c" / "0" / "0"
     shutil.copy(chunk, victim / "chunk")
     chunk.unlink()

@@ -49,6 +49,7 @@ class RunOptions:
     progress: bool = True
     figures: bool = True
     memory: int | None = None           # bytes the run may hold at its peak (--memory): chooses D, K
+    compression: str | None = None      # the store's (storage.COMPRESSIONS[backend]); None: off
 
 
 def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
@@ -182,6 +183,14 @@ def machine_memory() -> int:
     return int(psutil.virtual_memory().total)
 
 
+def _check_compression(opts: RunOptions) -> None:
+    from storage import COMPRESSIONS
+    have = COMPRESSIONS.get(opts.backend, ())
+    if opts.compression is not None and opts.compression not in have:
+        raise RunError(f"--compression {show(opts.compression)}: the {opts.backend} backend has "
+                       f"{', '.join(have) or 'no compression'}")
+
+
 def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> RunPlan:
     """Resolve and check a run's options against its scenario and this machine (no allocation,
     no file, no bed): the shared planning of `run`, `check` and `resume`."""
@@ -189,6 +198,7 @@ def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> Ru
         raise RunError(f"--mode {show(opts.mode)}: must be one of {', '.join(MODES)}")
     if opts.backend not in BACKENDS:
         raise RunError(f"--backend {show(opts.backend)}: must be one of {', '.join(BACKENDS)}")
+    _check_compression(opts)
     steps = total_steps(sc, opts)
     if opts.checkpoint_every is not None and not 1 <= opts.checkpoint_every <= MAX_STEPS:
         raise RunError(f"--checkpoint-every {show(opts.checkpoint_every)}: must be in [1, {big(MAX_STEPS)}] steps")
@@ -365,7 +375,8 @@ class Simulation:
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
         self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max)
         try:
-            self.store = create_store(self.out, self._store_backend(), self._meta())
+            self.store = create_store(self.out, self._store_backend(), self._meta(),
+                                      compression=self.opts.compression)
         except StoreError as e:
             raise RunError(str(e)) from None
         # a memory store lives in this process only; the run's other outputs still go to --out
@@ -391,7 +402,8 @@ class Simulation:
                 for p in parts()]
         self.surface = float(np.mean(surf))
         try:
-            self.store = create_store(self.out, self._store_backend(), self._meta())
+            self.store = create_store(self.out, self._store_backend(), self._meta(),
+                                      compression=self.opts.compression)
         except StoreError as e:
             raise RunError(str(e)) from None
         self.out.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,8 @@ The 3D twin of ``ooc_dem.physics.forces`` (read its module doc). Two phases:
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.extending import overload
 
 from .contact import contact
 from .layout import (
@@ -35,6 +36,56 @@ from .layout import (
 # spheres are produced and gathered in N_CHUNKS contiguous chunks (wall rows are
 # buffered per chunk); the chunking never changes a result
 N_CHUNKS = 64
+
+
+# ---------------------------------------------------------- the row's rolling parts
+# PAIR_ROW_ROLLING carries the rolling moment and spring, PAIR_ROW_SLIDING does not (its
+# contact table has no rolling resistance, so both are exactly zero): these helpers are
+# resolved at compile time from the row's record type, so one kernel source serves both
+# layouts and the sliding one neither stores nor loads the zeros.
+def has_rolling(row):
+    """True when the pair-row record (or array of them) carries the rolling parts (compile-time)."""
+
+
+def put_rolling(row, mox, moy, moz, mnx, mny, mnz):
+    """Store the rolling moment and new rolling spring in the row (if it has them)."""
+
+
+def rolling_of(row):
+    """(mox, moy, moz, mx, my, mz) of the row: zeros when it has no rolling parts."""
+
+
+def _rolling_type(row):
+    """Whether a pair-row record type (or an array of them) has the rolling fields."""
+    rec = row.dtype if isinstance(row, types.Array) else row
+    return any(name == "mox" for name, _ in rec.members)
+
+
+@overload(has_rolling, inline="always")
+def _has_rolling(row):
+    flag = _rolling_type(row)
+    return lambda row: flag
+
+
+@overload(put_rolling, inline="always")
+def _put_rolling(row, mox, moy, moz, mnx, mny, mnz):
+    if _rolling_type(row):
+        def impl(row, mox, moy, moz, mnx, mny, mnz):
+            row.mox = mox
+            row.moy = moy
+            row.moz = moz
+            row.mx = mnx
+            row.my = mny
+            row.mz = mnz
+        return impl
+    return lambda row, mox, moy, moz, mnx, mny, mnz: None
+
+
+@overload(rolling_of, inline="always")
+def _rolling_of(row):
+    if _rolling_type(row):
+        return lambda row: (row.mox, row.moy, row.moz, row.mx, row.my, row.mz)
+    return lambda row: (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @njit(inline="always", cache=True)
@@ -82,6 +133,7 @@ def produce(n, d, pl, bd, cp, walls, dt, err):
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
+    rolling = has_rolling(rows)
     wl = walls[0]
     length = wl.length
     width = wl.width
@@ -172,11 +224,11 @@ def produce(n, d, pl, bd, cp, walls, dt, err):
                 ny = dy / dd
                 nz = dz / dd
                 p, found = _lookup(hist_id, i, hn, p, gid[b])
+                s0x = s0y = s0z = m0x = m0y = m0z = 0.0
                 if found:
                     s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
-                    m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
-                else:
-                    s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                    if rolling:   # else unused: no pair has rolling resistance
+                        m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
                 mb = mass[b]
                 ib = inertia[b]
                 (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
@@ -185,29 +237,37 @@ def produce(n, d, pl, bd, cp, walls, dt, err):
                     wxi, wyi, wzi, spin[b, 0], spin[b, 1], spin[b, 2], ri, rb,
                     mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb),
                     s0x, s0y, s0z, m0x, m0y, m0z, dt)
-                cx = ny * ftz - nz * fty
-                cy = nz * ftx - nx * ftz
-                cz = nx * fty - ny * ftx
                 row = rows[q]
                 row.bx = fn * nx - ftx
                 row.by = fn * ny - fty
                 row.bz = fn * nz - ftz
-                row.tax = ri * cx - mox
-                row.tay = ri * cy - moy
-                row.taz = ri * cz - moz
-                row.tbx = rb * cx + mox
-                row.tby = rb * cy + moy
-                row.tbz = rb * cz + moz
+                row.cx = ny * ftz - nz * fty
+                row.cy = nz * ftx - nx * ftz
+                row.cz = nx * fty - ny * ftx
                 row.sx = snx
                 row.sy = sny
                 row.sz = snz
-                row.mx = mnx
-                row.my = mny
-                row.mz = mnz
+                put_rolling(row, mox, moy, moz, mnx, mny, mnz)
                 on[q] = 1
         bcount[ch] = bat - ch * bcap
         if full:
             err[ERR_BODY_CAPACITY] = 1
+
+
+@njit(inline="always", cache=True)
+def _keep_pair(hist_id, hist_s, hist_m, i, k, cap, pid, row):
+    """Write history entry k of sphere i from a pair row; returns False on overflow."""
+    if k >= cap:
+        return False
+    hist_id[i, k] = pid
+    hist_s[i, k, 0] = row.sx
+    hist_s[i, k, 1] = row.sy
+    hist_s[i, k, 2] = row.sz
+    _, _, _, mx, my, mz = rolling_of(row)
+    hist_m[i, k, 0] = mx
+    hist_m[i, k, 1] = my
+    hist_m[i, k, 2] = mz
+    return True
 
 
 @njit(inline="always", cache=True)
@@ -233,7 +293,7 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
     step. force/torque (N, 3) get the contact force and torque of time n (unless they
     have length 0). Returns the largest squared displacement since the last neighbour
     build (a max: order-free); part is scratch of N_CHUNKS entries."""
-    pos, vel, spin = d.pos, d.vel, d.spin
+    pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
     mass, inertia, gid = d.mass, d.inertia, d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
@@ -253,6 +313,7 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
         over = False
         mx = 0.0
         for i in range(lo, hi):
+            ri = r[i]   # this sphere's lever arm: a's r_a c - M, b's r_b c + M
             fx = 0.0
             fy = 0.0
             fz = 0.0
@@ -278,28 +339,30 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
                 q = inc_k[e]
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], row):
+                    if not _keep_pair(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], row):
                         over = True
                     k += 1
                     fx += row.bx
                     fy += row.by
                     fz += row.bz
-                    tx += row.tbx
-                    ty += row.tby
-                    tz += row.tbz
+                    mox, moy, moz, _, _, _ = rolling_of(row)
+                    tx += ri * row.cx + mox
+                    ty += ri * row.cy + moy
+                    tz += ri * row.cz + moz
             # partners with higher ids (i is a): its own half list, ascending partner id
             for q in range(half_off[i], half_off[i + 1]):
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], row):
+                    if not _keep_pair(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], row):
                         over = True
                     k += 1
                     fx -= row.bx
                     fy -= row.by
                     fz -= row.bz
-                    tx += row.tax
-                    ty += row.tay
-                    tz += row.taz
+                    mox, moy, moz, _, _, _ = rolling_of(row)
+                    tx += ri * row.cx - mox
+                    ty += ri * row.cy - moy
+                    tz += ri * row.cz - moz
             hist_n[i] = min(k, cap)
             if keep:
                 force[i, 0] = fx

@@ -173,7 +173,10 @@ class DomainStepper:
                               f"handed to a model of capacity {model.hist_cap}")
         self.kern = model.kernels()
         # row layouts of this dimension's kernels (physics.d3 names its own; d2 uses layout's)
-        self._pair_row = getattr(self.kern, "PAIR_ROW", L.PAIR_ROW)
+        # (a kernel module with pair_row_layout picks its row from the contact table)
+        row_of = getattr(self.kern, "pair_row_layout", None)
+        self._pair_row = (row_of(model.records()[0]) if row_of is not None
+                          else getattr(self.kern, "PAIR_ROW", L.PAIR_ROW))
         self._body_row = getattr(self.kern, "BODY_ROW", L.BODY_ROW)
         if reorder and len(particles) > 1:
             perm = self.kern.spatial_order(particles.pos, len(particles), 2 * model.r_max + model.skin)

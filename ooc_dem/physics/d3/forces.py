@@ -4,21 +4,24 @@ The 3D twin of ``ooc_dem.physics.forces`` (read its module doc). Two phases:
 
 1. ``produce`` writes one row per contact at time n: sphere-sphere pairs from the
    HALF list (each pair once, canonical orientation: a = lower global id), one
-   ``layout.PAIR_ROW`` in the pair's slot (force on b, both torque terms, the new
-   springs); walls (``layout.BODY_ROW``) go to per-chunk buffers in sphere order,
-   walls in ascending id (-5 .. -1). It only reads the time-n state and writes rows,
-   so it can be rerun after growing a buffer without changing anything.
+   pair row in the pair's slot (``layout.pair_row_layout``: force on b, n x Ft, the
+   rolling moment and the new springs); walls (``layout.BODY_ROW``) go to per-chunk buffers in sphere order,
+   walls in ascending id (-5 .. -1). The wall rows are made first; when a buffer is
+   full no pair row is made, so the step can be rerun after growing it.
 2. ``gather_integrate``: one pass per sphere sums its rows in ascending partner-id
    order -- its wall rows, then its incoming pairs (lower-id partners, CSR index),
    then its own half-list pairs (the higher id adds the force and tb, the lower
-   subtracts the force and adds ta) -- rewrites its history sorted by partner id and
-   advances it (leapfrog: v(n+1/2) = v(n-1/2) + a_n dt, x(n+1) = x_n + v(n+1/2) dt,
-   spin += torque / inertia dt). Every write goes to the sphere itself: no atomics.
+   subtracts the force and adds ta) -- rewrites its history sorted by partner id (or,
+   while the pairs' springs are held in the rows, as in 2D, only its wall entries:
+   ``load_history`` / ``sync_history`` move the springs between the spheres' histories
+   and the rows around a run and a neighbour rebuild) and advances it (leapfrog:
+   v(n+1/2) = v(n-1/2) + a_n dt, x(n+1) = x_n + v(n+1/2) dt, spin += torque / inertia dt). Every write goes to the sphere itself: no atomics.
 """
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.extending import overload
 
 from .contact import contact
 from .layout import (
@@ -35,6 +38,56 @@ from .layout import (
 # spheres are produced and gathered in N_CHUNKS contiguous chunks (wall rows are
 # buffered per chunk); the chunking never changes a result
 N_CHUNKS = 64
+
+
+# ---------------------------------------------------------- the row's rolling parts
+# PAIR_ROW_ROLLING carries the rolling moment and spring, PAIR_ROW_SLIDING does not (its
+# contact table has no rolling resistance, so both are exactly zero): these helpers are
+# resolved at compile time from the row's record type, so one kernel source serves both
+# layouts and the sliding one neither stores nor loads the zeros.
+def has_rolling(row):
+    """True when the pair-row record (or array of them) carries the rolling parts (compile-time)."""
+
+
+def put_rolling(row, mox, moy, moz, mnx, mny, mnz):
+    """Store the rolling moment and new rolling spring in the row (if it has them)."""
+
+
+def rolling_of(row):
+    """(mox, moy, moz, mx, my, mz) of the row: zeros when it has no rolling parts."""
+
+
+def _rolling_type(row):
+    """Whether a pair-row record type (or an array of them) has the rolling fields."""
+    rec = row.dtype if isinstance(row, types.Array) else row
+    return any(name == "mox" for name, _ in rec.members)
+
+
+@overload(has_rolling, inline="always")
+def _has_rolling(row):
+    flag = _rolling_type(row)
+    return lambda row: flag
+
+
+@overload(put_rolling, inline="always")
+def _put_rolling(row, mox, moy, moz, mnx, mny, mnz):
+    if _rolling_type(row):
+        def impl(row, mox, moy, moz, mnx, mny, mnz):
+            row.mox = mox
+            row.moy = moy
+            row.moz = moz
+            row.mx = mnx
+            row.my = mny
+            row.mz = mnz
+        return impl
+    return lambda row, mox, moy, moz, mnx, mny, mnz: None
+
+
+@overload(rolling_of, inline="always")
+def _rolling_of(row):
+    if _rolling_type(row):
+        return lambda row: (row.mox, row.moy, row.moz, row.mx, row.my, row.mz)
+    return lambda row: (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @njit(inline="always", cache=True)
@@ -70,21 +123,27 @@ def _wall(wall):
 
 
 @njit(parallel=True, cache=True)
-def produce(n, d, pl, bd, cp, walls, dt, err):
+def produce(n, d, pl, bd, cp, walls, dt, err, held=False):
     """Phase 1: one row per contact of spheres 0..n-1 at time n (module doc).
 
     d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies, cp: CONTACT_PARAMS table
     [type_a, type_b], walls: WALLS record (1,). Sets err[ERR_BODY_CAPACITY] when a
-    chunk's wall buffer is full (grow, rerun)."""
+    chunk's wall buffer is full (grow, rerun): the wall rows are made first, in a pass of
+    their own, and then no pair row is made, so a rerun gives the same rows. held: the
+    pairs' springs are held in the pair rows (``load_history``: a pair was in contact at
+    the last step iff on[q], its springs are the row's; each row is read and rewritten
+    in place); not held: they are looked up in the lower sphere's history."""
     pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
     mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
+    rolling = has_rolling(rows)
     wl = walls[0]
     length = wl.length
     width = wl.width
+    any_full = np.zeros(1, np.bool_)
     flags = np.array([wl.back > 0.5, wl.front > 0.5, wl.right > 0.5, wl.left > 0.5,
                       wl.bottom > 0.5])
     for ch in prange(N_CHUNKS):
@@ -154,7 +213,31 @@ def produce(n, d, pl, bd, cp, walls, dt, err):
                     bat += 1
                 else:
                     full = True
-            # ------------------------------------------------------ pairs (i = a, lower id)
+        bcount[ch] = bat - ch * bcap
+        if full:
+            err[ERR_BODY_CAPACITY] = 1
+            any_full[0] = True
+    if any_full[0]:
+        return   # no pair row made: rerunnable after growing the wall rows, even when held
+    # ---------------------------------------------------------- pairs (i = a, lower id)
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        for i in range(lo, hi):
+            xi = pos[i, 0]
+            yi = pos[i, 1]
+            zi = pos[i, 2]
+            vxi = vel[i, 0]
+            vyi = vel[i, 1]
+            vzi = vel[i, 2]
+            wxi = spin[i, 0]
+            wyi = spin[i, 1]
+            wzi = spin[i, 2]
+            ri = r[i]
+            mi = mass[i]
+            ii = inertia[i]
+            ti = mat[i]
+            hn = hist_n[i]
+            p = 0
             for q in range(half_off[i], half_off[i + 1]):
                 b = np.int64(pair_b[q])
                 dx = pos[b, 0] - xi
@@ -171,12 +254,18 @@ def produce(n, d, pl, bd, cp, walls, dt, err):
                 nx = dx / dd
                 ny = dy / dd
                 nz = dz / dd
-                p, found = _lookup(hist_id, i, hn, p, gid[b])
-                if found:
-                    s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
-                    m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
+                s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                if held:
+                    if on[q]:
+                        row = rows[q]
+                        s0x, s0y, s0z = row.sx, row.sy, row.sz
+                        _, _, _, m0x, m0y, m0z = rolling_of(row)
                 else:
-                    s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                    p, found = _lookup(hist_id, i, hn, p, gid[b])
+                    if found:
+                        s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
+                        if rolling:   # else unused: no pair has rolling resistance
+                            m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
                 mb = mass[b]
                 ib = inertia[b]
                 (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
@@ -185,29 +274,34 @@ def produce(n, d, pl, bd, cp, walls, dt, err):
                     wxi, wyi, wzi, spin[b, 0], spin[b, 1], spin[b, 2], ri, rb,
                     mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb),
                     s0x, s0y, s0z, m0x, m0y, m0z, dt)
-                cx = ny * ftz - nz * fty
-                cy = nz * ftx - nx * ftz
-                cz = nx * fty - ny * ftx
                 row = rows[q]
                 row.bx = fn * nx - ftx
                 row.by = fn * ny - fty
                 row.bz = fn * nz - ftz
-                row.tax = ri * cx - mox
-                row.tay = ri * cy - moy
-                row.taz = ri * cz - moz
-                row.tbx = rb * cx + mox
-                row.tby = rb * cy + moy
-                row.tbz = rb * cz + moz
+                row.cx = ny * ftz - nz * fty
+                row.cy = nz * ftx - nx * ftz
+                row.cz = nx * fty - ny * ftx
                 row.sx = snx
                 row.sy = sny
                 row.sz = snz
-                row.mx = mnx
-                row.my = mny
-                row.mz = mnz
+                put_rolling(row, mox, moy, moz, mnx, mny, mnz)
                 on[q] = 1
-        bcount[ch] = bat - ch * bcap
-        if full:
-            err[ERR_BODY_CAPACITY] = 1
+
+
+@njit(inline="always", cache=True)
+def _keep_pair(hist_id, hist_s, hist_m, i, k, cap, pid, row):
+    """Write history entry k of sphere i from a pair row; returns False on overflow."""
+    if k >= cap:
+        return False
+    hist_id[i, k] = pid
+    hist_s[i, k, 0] = row.sx
+    hist_s[i, k, 1] = row.sy
+    hist_s[i, k, 2] = row.sz
+    _, _, _, mx, my, mz = rolling_of(row)
+    hist_m[i, k, 0] = mx
+    hist_m[i, k, 1] = my
+    hist_m[i, k, 2] = mz
+    return True
 
 
 @njit(inline="always", cache=True)
@@ -226,14 +320,17 @@ def _keep(hist_id, hist_s, hist_m, i, k, cap, pid, row):
 
 
 @njit(parallel=True, cache=True)
-def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
+def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err, held=False):
     """Phase 2: per sphere, sum its rows in ascending partner-id order (module doc),
     rewrite its history from them (an overflow of the history capacity sets
     err[ERR_HIST_OVERFLOW]: fatal, never a silent drop), then advance it one leapfrog
     step. force/torque (N, 3) get the contact force and torque of time n (unless they
     have length 0). Returns the largest squared displacement since the last neighbour
-    build (a max: order-free); part is scratch of N_CHUNKS entries."""
-    pos, vel, spin = d.pos, d.vel, d.spin
+    build (a max: order-free); part is scratch of N_CHUNKS entries. held (the pairs'
+    springs are held in the rows, ``produce``): only the wall entries are written to the
+    history (the pairs' are written back by ``sync_history``); the capacity is checked
+    on the sphere's full contact count either way."""
+    pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
     mass, inertia, gid = d.mass, d.inertia, d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
@@ -253,6 +350,7 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
         over = False
         mx = 0.0
         for i in range(lo, hi):
+            ri = r[i]   # this sphere's lever arm: a's r_a c - M, b's r_b c + M
             fx = 0.0
             fy = 0.0
             fz = 0.0
@@ -273,34 +371,41 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
                 ty += brow.ty
                 tz += brow.tz
                 bat += 1
+            kw = k   # wall entries
             # partners with lower ids (i is b): the CSR index, ascending partner id
             for e in range(inc_off[i], inc_off[i + 1]):
                 q = inc_k[e]
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], row):
+                    if not held and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
+                                                   gid[pair_a[q]], row):
                         over = True
                     k += 1
                     fx += row.bx
                     fy += row.by
                     fz += row.bz
-                    tx += row.tbx
-                    ty += row.tby
-                    tz += row.tbz
+                    mox, moy, moz, _, _, _ = rolling_of(row)
+                    tx += ri * row.cx + mox
+                    ty += ri * row.cy + moy
+                    tz += ri * row.cz + moz
             # partners with higher ids (i is a): its own half list, ascending partner id
             for q in range(half_off[i], half_off[i + 1]):
                 if on[q]:
                     row = rows[q]
-                    if not _keep(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], row):
+                    if not held and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
+                                                   gid[pair_b[q]], row):
                         over = True
                     k += 1
                     fx -= row.bx
                     fy -= row.by
                     fz -= row.bz
-                    tx += row.tax
-                    ty += row.tay
-                    tz += row.taz
-            hist_n[i] = min(k, cap)
+                    mox, moy, moz, _, _, _ = rolling_of(row)
+                    tx += ri * row.cx - mox
+                    ty += ri * row.cy - moy
+                    tz += ri * row.cz - moz
+            if k > cap:
+                over = True
+            hist_n[i] = min(kw if held else k, cap)
             if keep:
                 force[i, 0] = fx
                 force[i, 1] = fy
@@ -328,3 +433,69 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
         if over:
             err[ERR_HIST_OVERFLOW] = 1
     return part.max()
+
+
+@njit(parallel=True, cache=True)
+def load_history(n, d, pl):
+    """The pair rows' springs from the lower sphere's history (after a neighbour build and
+    at the start of every held run: the histories may have been set from outside, e.g. a
+    restart): on[q] = in contact at the last step. From here to ``sync_history`` a
+    sphere's own history holds only its wall entries (negative ids, sorted first)."""
+    gid = d.gid
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
+    half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        for i in range(lo, hi):
+            hn = hist_n[i]
+            p = 0
+            for q in range(half_off[i], half_off[i + 1]):
+                p, found = _lookup(hist_id, i, hn, p, gid[pair_b[q]])
+                row = rows[q]
+                if found:
+                    row.sx = hist_s[i, p, 0]
+                    row.sy = hist_s[i, p, 1]
+                    row.sz = hist_s[i, p, 2]
+                    put_rolling(row, 0.0, 0.0, 0.0, hist_m[i, p, 0], hist_m[i, p, 1],
+                                hist_m[i, p, 2])
+                on[q] = 1 if found else 0
+            kw = 0
+            while kw < hn and hist_id[i, kw] < 0:
+                kw += 1
+            hist_n[i] = kw
+
+
+@njit(parallel=True, cache=True)
+def sync_history(n, d, pl, err):
+    """Each sphere's full history, sorted by partner id, from its wall entries (kept by
+    the gather) and its pairs' springs in the rows: lower-id partners through the CSR
+    index, then its own half list -- what the gather writes when not held. Run before a
+    neighbour rebuild and at the end of every held run, so the spheres always leave the
+    step whole. Idempotent."""
+    gid = d.gid
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
+    half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
+    inc_off, inc_k, on, rows = pl.inc_off, pl.inc_k, pl.on, pl.rows
+    cap = hist_id.shape[1]
+    for ch in prange(N_CHUNKS):
+        lo, hi = chunk_range(ch, n)
+        over = False
+        for i in range(lo, hi):
+            k = 0
+            hn = hist_n[i]
+            while k < hn and hist_id[i, k] < 0:
+                k += 1
+            for e in range(inc_off[i], inc_off[i + 1]):
+                q = inc_k[e]
+                if on[q]:
+                    if not _keep_pair(hist_id, hist_s, hist_m, i, k, cap, gid[pair_a[q]], rows[q]):
+                        over = True
+                    k += 1
+            for q in range(half_off[i], half_off[i + 1]):
+                if on[q]:
+                    if not _keep_pair(hist_id, hist_s, hist_m, i, k, cap, gid[pair_b[q]], rows[q]):
+                        over = True
+                    k += 1
+            hist_n[i] = min(k, cap)
+        if over:
+            err[ERR_HIST_OVERFLOW] = 1

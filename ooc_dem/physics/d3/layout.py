@@ -16,7 +16,9 @@ Records:
                       records (the wheel's axle is along z in both dimensions); the 3D
                       kernels accept them and refuse an enabled wheel (ERR wheel_unsupported)
 - ``ERRORS``          kernel error flags
-- ``PAIR_ROW``        one sphere-sphere contact of a step (phase 1 -> phase 2)
+- ``PAIR_ROW_ROLLING`` / ``PAIR_ROW_SLIDING``  one sphere-sphere contact of a step
+                      (phase 1 -> phase 2), with / without the rolling parts
+                      (``pair_row_layout(cp)`` picks one from the contact table)
 - ``BODY_ROW``        one sphere-wall contact of a step
 
 Partner ids of the walls (negative, so they sort before every sphere, ascending =
@@ -73,10 +75,25 @@ M_WIDTH = 3
 
 # ---------------------------------------------------------------- contact rows
 # one sphere-sphere pair (a = lower global id, b = higher), evaluated once: force on b
-# (bx, by, bz) (a gets the exact negation), torque terms of a (ta*) and b (tb*),
-# the pair's new tangential spring (s*) and rolling spring (m*)
-PAIR_ROW = _dtype(("bx", "by", "bz", "tax", "tay", "taz", "tbx", "tby", "tbz",
-                   "sx", "sy", "sz", "mx", "my", "mz"))
+# (bx, by, bz) (a gets the exact negation), the lever-free torque n x Ft (cx, cy, cz:
+# phase 2 makes a's torque r_a c - M and b's r_b c + M from its own radius, the same
+# arithmetic as in phase 1, so the bits do not depend on where it is done), the
+# rolling moment on b (mox, moy, moz) and the pair's new tangential spring (s*) and
+# rolling spring (m*). Without rolling resistance in the contact table (every mur = 0)
+# the moment and rolling spring are exactly zero: the row then leaves them out
+# (PAIR_ROW_SLIDING, 72 bytes against 120), the kernels read them as zeros.
+PAIR_ROW_ROLLING = _dtype(("bx", "by", "bz", "cx", "cy", "cz", "mox", "moy", "moz",
+                           "sx", "sy", "sz", "mx", "my", "mz"))
+PAIR_ROW_SLIDING = _dtype(("bx", "by", "bz", "cx", "cy", "cz", "sx", "sy", "sz"))
+PAIR_ROW = PAIR_ROW_ROLLING   # the general layout (any contact table)
+
+
+def pair_row_layout(cp) -> np.dtype:
+    """The pair-row layout of contact table cp (CONTACT_PARAMS records [type_a, type_b]):
+    PAIR_ROW_SLIDING when no material pair has rolling resistance, else PAIR_ROW_ROLLING."""
+    return PAIR_ROW_ROLLING if bool(np.any(np.asarray(cp["mur"]) > 0.0)) else PAIR_ROW_SLIDING
+
+
 # one sphere-wall contact (the wall is always a): sphere row index, wall id, force and
 # torque on the sphere, new springs
 BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8")]

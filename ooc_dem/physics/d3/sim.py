@@ -17,7 +17,7 @@ from .layout import (
     ERR_WHEEL_UNSUPPORTED,
     M_WIDTH,
     N_ERR,
-    PAIR_ROW,
+    pair_row_layout,
     S_WIDTH,
     WHEEL_CONTROLS,
     WHEEL_GEOMETRY,
@@ -134,7 +134,7 @@ class Sim:
         self.pair_a = np.zeros(cap, np.int64)
         self.inc_k = np.zeros(cap, np.int64)
         self.on = np.zeros(cap, np.uint8)
-        self.rows = np.zeros(cap, PAIR_ROW)
+        self.rows = np.zeros(cap, pair_row_layout(self.kp.cp))
 
     def advance(self, nsteps: int) -> None:
         threads = numba.get_num_threads()

@@ -13,7 +13,7 @@ wheel geometry sets err.wheel_unsupported and nothing is advanced.
 import numpy as np
 from numba import njit
 
-from .forces import N_CHUNKS, gather_integrate, produce
+from .forces import N_CHUNKS, gather_integrate, load_history, produce, sync_history
 from .layout import (
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
@@ -31,11 +31,13 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     kp: layout.KernelParams, d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies,
     forces: layout.Forces (length 0 when not kept), ws: WHEEL_STATE record (1,),
     err: ERRORS flags (int64 array), rec: WHEEL_RECORD rows (unused until the wheel),
-    rebuild_now: build the pair list first; pairs_done (the 2D signature's trailing
-    argument: this step's pair rows are already made) is accepted and ignored, since
-    ``produce`` only reads the time-n state and remaking the rows gives the same bits;
-    role (the 2D signature's serial-DDM disc roles) is accepted and ignored: 3D keeps
-    each disc's history in the disc, so every disc leaves whole.
+    rebuild_now: build the pair list first; pairs_done (the 2D signature's: this step's
+    pair rows are already made) is accepted and ignored: ``produce`` makes no pair row
+    when a wall buffer is full, so remaking the step gives the same bits;
+    role: the 2D signature's serial-DDM disc roles: empty or None (every sphere is
+    stepped) holds the pairs' springs in the rows during the call (forces.load_history /
+    sync_history, the spheres leave whole), non-empty rewrites every sphere's history at
+    every step (no role-dependent sync: every sphere leaves whole after each step).
     Returns (steps done, rebuilds)."""
     n = d.r.shape[0]
     if kp.wg[0].enabled > 0.5:
@@ -44,27 +46,45 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     dt = kp.dt
     skin = kp.skin
     part = np.zeros(N_CHUNKS)
+    # every sphere stepped (no serial-DDM roles): the pairs' springs are held in the pair
+    # rows while the steps run (load_history .. sync_history), not rewritten into every
+    # sphere's history each step; with roles, each step rewrites the histories in full
+    held = True
+    if role is not None:
+        held = role.shape[0] == 0
     if rebuild_now:
         npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
                              pl.inc_off, pl.inc_k, pl.ref)
         if npairs > pl.pair_b.shape[0]:
             err[ERR_PAIR_CAPACITY] = npairs
             return 0, 0
+    if held:
+        load_history(n, d, pl)
     half2 = 0.25 * skin * skin
     rebuilds = 0
     for s in range(nsteps):
-        produce(n, d, pl, bd, kp.cp, kp.walls, dt, err)
+        produce(n, d, pl, bd, kp.cp, kp.walls, dt, err, held)
         if err[ERR_BODY_CAPACITY] != 0:
+            # no pair row of this step was made (produce): the rows still hold the springs
+            # of the last step, so the sync leaves the spheres whole; nothing was advanced
+            if held:
+                sync_history(n, d, pl, err)
             return s, rebuilds
         disp2 = gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, dt,
-                                 part, err)
+                                 part, err, held)
         if err[ERR_HIST_OVERFLOW] != 0:
             return s + 1, rebuilds
         if disp2 > half2:
             rebuilds += 1
+            if held:
+                sync_history(n, d, pl, err)
             npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
                                  pl.pair_a, pl.inc_off, pl.inc_k, pl.ref)
             if npairs > pl.pair_b.shape[0]:
                 err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds
+            if held:
+                load_history(n, d, pl)
+    if held:
+        sync_history(n, d, pl, err)
     return nsteps, rebuilds

@@ -44,6 +44,12 @@ def test_budget_chooses_slabs_whose_measured_peak_is_the_estimate(tmp_path, scen
     assert plan["memory_budget_bytes"] == limit
     assert plan["memory_bytes"] <= limit and plan["domains"] > 1
     steps = plan["block"]     # one whole sweep
+    # numba's cache warm first (the byte model's baseline is a warm one: a first run after an
+    # edit compiles, ~100 MB more in 3D): the same kernels on the scenario family's small bed
+    warm = run_limited(_cli("run", "bed3d" if scenario.startswith("bed3d") else "bed", "--mode", "ooc",
+                            "--domains", 2, "--steps", 2, "--out", tmp_path / "warm", "--no-progress",
+                            "--no-figures"), env=ENV)
+    assert warm.returncode == 0, warm.stderr
     res = run_limited(_cli("run", scenario, "--mode", "ooc", "--memory", memory, "--steps", steps,
                            "--out", tmp_path / "run", "--no-progress", "--no-figures"), env=ENV)
     assert res.returncode == 0, res.stderr
@@ -75,7 +81,7 @@ def test_fixed_slab_memory_is_independent_of_n():
 
 def test_budget_too_small_names_the_parts():
     with pytest.raises(RunError, match=r"--memory 100.0 MB: out-of-core needs at least about .* "
-                                       r"\(interpreter and kernels .* \+ the final state hash .*"):
+                                       r"\(interpreter and kernels .* \+ a slab of D = \d+ with its halo .*"):
         plan_run(load_scenario("bed-100000"), RunOptions(mode="ooc", memory=100_000_000, steps=1))
     with pytest.raises(RunError, match=r"the monolithic run needs about .*; --mode ooc chooses"):
         plan_run(load_scenario("bed-1000000"), RunOptions(mode="monolithic", memory=parse_size("500MB"),
@@ -93,7 +99,7 @@ def test_byte_models_per_dimension():
     """3D spheres cost more than 2D discs in every term (state, neighbours, history)."""
     m2, m3 = budget.byte_model(2), budget.byte_model(3)
     assert m3.state > m2.state and m3.monolithic > m2.monolithic and m3.resident > m2.resident
-    assert m2.state == 368    # state.bytes_per_disc(2)
+    assert m2.state == 272    # state.bytes_per_disc(2) at the 2D history capacity 8
 
 
 def _cgroups_of(pid: int) -> list[Path]:

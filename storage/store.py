@@ -333,7 +333,6 @@ def drop_memory_store(path) -> bool:
 
 # ============================================================================ Store
 
-@dataclasses.dataclass(frozen=True)
 class Problem(str):
     """One problem ``Store.verify`` found: the one-line message (the string itself) and
     ``step``, the epoch it belongs to (None for a problem of no one epoch, such as a step
@@ -347,6 +346,7 @@ class Problem(str):
         return problem
 
 
+@dataclasses.dataclass(frozen=True)
 class EpochInfo:
     """One committed epoch of a manifest, as `Store.list_epochs` reports it (no data read)."""
     role: str                   # "previous" or "current"

@@ -102,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_plan_args(q):
         """The options `run` and `check` share (check validates them exactly as run would)."""
-        q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc"])
+        q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc", "mpi"])
         q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"],
                        help="memory: the store lives only in this process (no resume); summary, "
                             "series and figures are still written to --out")
@@ -639,6 +639,14 @@ def main(argv=None) -> int:
         known = known + (StoreError,)
     except ImportError:
         pass
+    if args.command in ("run", "resume"):
+        from .engine.mpi import launched, run_ranks
+        if launched()[0] > 1:   # under mpiexec: rank 0 runs the command, the others serve it
+            return run_ranks(lambda: _dispatch(args, known))
+    return _dispatch(args, known)
+
+
+def _dispatch(args, known) -> int:
     try:
         return COMMANDS[args.command](args)
     except known as e:

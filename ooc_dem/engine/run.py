@@ -28,7 +28,7 @@ from .interface import Engine
 from .monolithic import MonolithicEngine
 from .stepper import EngineError, Model
 
-MODES = ("monolithic", "ddm", "ooc")
+MODES = ("monolithic", "ddm", "ooc", "mpi")
 BACKENDS = ("hdf5", "zarr", "memory")
 
 
@@ -455,6 +455,10 @@ class Simulation:
     def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
         if self.opts.mode == "monolithic":
             return MonolithicEngine(particles, ws, self.model, store=self.store)
+        if self.opts.mode == "mpi":   # ranks own slab ranges (engine/mpi.py)
+            from .mpi import MpiEngine
+            return MpiEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
+                                    block=self.plan.block, store=self.store)
         from .sweep import DdmEngine, OocEngine
         if self.opts.mode == "ddm":
             return DdmEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
@@ -470,6 +474,10 @@ class Simulation:
         if self.opts.mode == "monolithic":
             particles = read_all_particles(reader, self.model.dim, self.model.hist_cap)
             return MonolithicEngine(particles, ws, self.model, store=self.store,
+                                    redecompositions=redecompositions)
+        if self.opts.mode == "mpi":
+            from .mpi import MpiEngine
+            return MpiEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
         from .sweep import DdmEngine, OocEngine
         if self.opts.mode == "ddm":

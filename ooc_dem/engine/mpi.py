@@ -41,7 +41,9 @@ serially. A failure on any rank aborts the whole job (``MPI_Abort``), never a ha
 from __future__ import annotations
 
 import os
+import pickle
 import sys
+import time
 
 import numpy as np
 
@@ -188,7 +190,7 @@ class MpiEngine:
     def _call(self, name: str, args: tuple, **local):
         """Rank 0: every rank runs op `name` with `args` (broadcast; `local` stays here)."""
         if self.R > 1:
-            self.comm.bcast((name, args), root=0)
+            send_command(self.comm, (name, args))
         if name == "init":
             return None
         return getattr(self, "_op_" + name)(*args, **local)
@@ -479,12 +481,35 @@ class MpiEngine:
         return True
 
 
+def send_command(comm, command) -> None:
+    """Rank 0 -> every rank: its length (a non-blocking broadcast, which the others poll
+    with sleeps), then the pickled command."""
+    from mpi4py import MPI
+    data = bytearray(pickle.dumps(command))
+    comm.Ibcast(np.array([len(data)], np.int64), root=0).Wait()
+    comm.Bcast([data, MPI.BYTE], root=0)
+
+
+def receive_command(comm):
+    """The other ranks: wait for rank 0's next command without spinning. Between
+    commands rank 0 alone works (commits, outputs); a busy-waiting MPI would take the
+    cores from it when ranks share them."""
+    from mpi4py import MPI
+    n = np.zeros(1, np.int64)
+    req = comm.Ibcast(n, root=0)
+    while not req.Test():
+        time.sleep(0.002)
+    data = bytearray(int(n[0]))
+    comm.Bcast([data, MPI.BYTE], root=0)
+    return pickle.loads(data)
+
+
 def worker_loop(comm) -> None:
     """Ranks other than 0: run rank 0's commands until it says stop."""
     from ..scenario import scenario_from_toml
     eng = None
     while True:
-        name, args = comm.bcast(None, root=0)
+        name, args = receive_command(comm)
         if name == "stop":
             return
         if name == "init":
@@ -523,5 +548,5 @@ def run_ranks(command) -> int:
     sys.stderr.flush()
     if rc:
         comm.Abort(int(rc))
-    comm.bcast(("stop", ()), root=0)
+    send_command(comm, ("stop", ()))
     return rc

@@ -232,7 +232,9 @@ class MpiEngine:
                 "bounds": [float(v) for v in self.bounds[1:-1]],
                 "redecompositions": len(self.redecompositions),
                 "ranks": self.R, "rank_starts": [int(s) for s in self.starts],
-                "local_set_builds": self.builds}
+                "local_set_builds": self.builds,
+                # rank 0's share of the exchange (a first measure of the halo traffic)
+                "rank0_halo_rows_sent": self.halo_rows_sent, "rank0_messages": self.messages}
 
     # ------------------------------------------------------ collective operations
     def _op_start(self, bounds, step: int, ws, mine: Particles | None = None) -> None:

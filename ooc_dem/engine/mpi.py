@@ -149,6 +149,7 @@ class MpiEngine:
         self.starts = np.zeros(self.R + 1, np.int64)
         self.live: LiveDomains | None = None
         self.ghost_row = np.zeros(0, np.int64)
+        self._pairs = None   # the exchange's (dest, source) pairs for the current ranges
         self.wslab = -1
         self.n = 0
         self.redecompositions = list(redecompositions or ())
@@ -418,6 +419,7 @@ class MpiEngine:
         self.wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if self.sc.wheel.enabled else -1
         s, e = int(self.starts[self.rank]), int(self.starts[self.rank + 1])
         self.live = None
+        self._pairs = None
         if e > s:
             lb = np.concatenate([[-np.inf], self.bounds[s:e + 1], [np.inf]])
             wl = self.wslab - s + 1 if s <= self.wslab < e else -1
@@ -444,7 +446,9 @@ class MpiEngine:
         received = []
         owned_rows = self._owned_real() if live is not None else np.zeros(0, np.int64)
         x = live.p.pos[owned_rows, AX_X] if live is not None else np.zeros(0)
-        for dest, source in self._partners(self.window):
+        if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
+            self._pairs = self._partners(self.window)
+        for dest, source in self._pairs:
             rng = self._range(dest) if dest >= 0 else None
             rows = (owned_rows[(x >= rng[0] - self.window) & (x < rng[1] + self.window)]
                     if rng is not None else np.zeros(0, np.int64))

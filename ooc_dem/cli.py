@@ -140,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = q.add_mutually_exclusive_group()
     g.add_argument("--steps", type=_count(0, MAX_STEPS), help="new total step count")
     g.add_argument("--until", type=_positive_float, help="new total simulated time, s")
+    q.add_argument("--mode", choices=["ddm", "mpi"],
+                   help="continue a ddm run on MPI ranks, or an mpi run serially (the same epochs)")
     q.add_argument("--no-progress", action="store_true")
     q.add_argument("--no-figures", action="store_true")
 
@@ -335,7 +337,7 @@ def _print_run_result(summary, out):
 def cmd_resume(args):
     from .engine.run import resume_simulation
     sim = resume_simulation(args.store, steps=args.steps, until=args.until,
-                            progress=not args.no_progress, figures=not args.no_figures)
+                            progress=not args.no_progress, figures=not args.no_figures, mode=args.mode)
     if sim is None:
         return 0
     summary = sim.run()

@@ -13,7 +13,7 @@ import numpy as np
 import psutil
 import pytest
 
-from conftest import one_line_error, run_cli
+from conftest import run_cli
 
 # bed-600: 4 equal slabs; the wheel run: a fast slip-controlled wheel set down on the
 # quick bed, so that its slab is redefined within 600 steps (test_ddm's wheel case)
@@ -96,30 +96,27 @@ def test_wheel_run_ranks_give_the_serial_bits(serial, tmp_path, ranks):
 
 @pytest.mark.parametrize("first,then", [(2, 3), (3, 1)])
 def test_resume_with_another_rank_count(serial, tmp_path, first, then):
-    """An epoch written by R ranks resumes on R' ranks (1: a plain process, no mpiexec)."""
+    """An epoch written by R ranks resumes on R' ranks (1: a plain process, no mpiexec,
+    as serial DDM: `resume --mode ddm`)."""
     out = tmp_path / "mpi"
     run_mpi(first, "run", *BED, "--mode", "mpi", "--steps", BED_STEPS // 2, "--out", out, *QUIET)
     if then == 1:
-        run_cli("resume", out, "--steps", BED_STEPS, *QUIET, check=True, env=ENV)
+        run_cli("resume", out, "--mode", "ddm", "--steps", BED_STEPS, *QUIET, check=True, env=ENV)
+        assert summary(out)["mode"] == "ddm"
     else:
         run_mpi(then, "resume", out, "--steps", BED_STEPS, *QUIET)
-    assert summary(out)["engine"]["ranks"] == then
+        assert summary(out)["engine"]["ranks"] == then
     assert_same_run(serial / "bed", out)
 
 
-@pytest.mark.parametrize("first", ["ddm", "mpi"])
-def test_resume_switches_between_serial_and_mpi(serial, tmp_path, first):
-    """`resume --mode`: a serial DDM run continues on 2 ranks, an MPI run in one process as
-    serial DDM; the same bits either way. Other modes keep their own (one-line refusal)."""
-    out = tmp_path / first
-    if first == "ddm":
-        run_cli("run", *BED, "--mode", "ddm", "--steps", BED_STEPS // 2, "--out", out, *QUIET, check=True, env=ENV)
-        run_mpi(2, "resume", out, "--mode", "mpi", "--steps", BED_STEPS, *QUIET)
-        assert summary(out)["mode"] == "mpi" and summary(out)["engine"]["ranks"] == 2
-    else:
-        run_mpi(2, "run", *BED, "--mode", "mpi", "--steps", BED_STEPS // 2, "--out", out, *QUIET)
-        run_cli("resume", out, "--mode", "ddm", "--steps", BED_STEPS, *QUIET, check=True, env=ENV)
-        assert summary(out)["mode"] == "ddm"
+def test_resume_a_serial_run_on_ranks(serial, tmp_path):
+    """`resume --mode mpi`: a serial DDM run continues on 2 ranks to the same bits (the
+    other way round: test_resume_with_another_rank_count[3-1]). Other modes keep their
+    own (one-line refusal)."""
+    out = tmp_path / "ddm"
+    run_cli("run", *BED, "--mode", "ddm", "--steps", BED_STEPS // 2, "--out", out, *QUIET, check=True, env=ENV)
+    run_mpi(2, "resume", out, "--mode", "mpi", "--steps", BED_STEPS, *QUIET)
+    assert summary(out)["mode"] == "mpi" and summary(out)["engine"]["ranks"] == 2
     assert_same_run(serial / "bed", out)
     mono = tmp_path / "mono"
     run_cli("run", *BED, "--steps", 5, "--out", mono, *QUIET, check=True, env=ENV)

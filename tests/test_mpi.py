@@ -13,7 +13,7 @@ import numpy as np
 import psutil
 import pytest
 
-from conftest import run_cli
+from conftest import one_line_error, run_cli
 
 # bed-600: 4 equal slabs; the wheel run: a fast slip-controlled wheel set down on the
 # quick bed, so that its slab is redefined within 600 steps (test_ddm's wheel case)

@@ -102,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_plan_args(q):
         """The options `run` and `check` share (check validates them exactly as run would)."""
-        q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc"])
+        q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc", "mpi"])
         q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"],
                        help="memory: the store lives only in this process (no resume); summary, "
                             "series and figures are still written to --out")
@@ -140,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = q.add_mutually_exclusive_group()
     g.add_argument("--steps", type=_count(0, MAX_STEPS), help="new total step count")
     g.add_argument("--until", type=_positive_float, help="new total simulated time, s")
+    q.add_argument("--mode", choices=["ddm", "mpi"],
+                   help="continue a ddm run on MPI ranks, or an mpi run serially (the same epochs)")
     q.add_argument("--no-progress", action="store_true")
     q.add_argument("--no-figures", action="store_true")
 
@@ -335,7 +337,7 @@ def _print_run_result(summary, out):
 def cmd_resume(args):
     from .engine.run import resume_simulation
     sim = resume_simulation(args.store, steps=args.steps, until=args.until,
-                            progress=not args.no_progress, figures=not args.no_figures)
+                            progress=not args.no_progress, figures=not args.no_figures, mode=args.mode)
     if sim is None:
         return 0
     summary = sim.run()
@@ -639,6 +641,14 @@ def main(argv=None) -> int:
         known = known + (StoreError,)
     except ImportError:
         pass
+    if args.command in ("run", "resume"):
+        from .engine.mpi import launched, run_ranks
+        if launched()[0] > 1:   # under mpiexec: rank 0 runs the command, the others serve it
+            return run_ranks(lambda: _dispatch(args, known))
+    return _dispatch(args, known)
+
+
+def _dispatch(args, known) -> int:
     try:
         return COMMANDS[args.command](args)
     except known as e:

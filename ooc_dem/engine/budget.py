@@ -93,7 +93,7 @@ def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: 
     parts = {"baseline": m.baseline}
     if mode == "monolithic":
         parts["state"] = n * m.monolithic
-    elif mode == "ddm":
+    elif mode in ("ddm", "mpi"):   # mpi: rank 0 holds the bed at the start (first cut)
         halo = slab_fraction(sc, mode, domains, block) - 1.0 / domains
         parts["state"] = n * (m.resident * (1.0 + domains * halo) + m.state)
     else:

@@ -28,7 +28,7 @@ from .interface import Engine
 from .monolithic import MonolithicEngine
 from .stepper import EngineError, Model
 
-MODES = ("monolithic", "ddm", "ooc")
+MODES = ("monolithic", "ddm", "ooc", "mpi")
 BACKENDS = ("hdf5", "zarr", "memory")
 
 
@@ -455,6 +455,10 @@ class Simulation:
     def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
         if self.opts.mode == "monolithic":
             return MonolithicEngine(particles, ws, self.model, store=self.store)
+        if self.opts.mode == "mpi":   # ranks own slab ranges (engine/mpi.py)
+            from .mpi import MpiEngine
+            return MpiEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
+                                    block=self.plan.block, store=self.store)
         from .sweep import DdmEngine, OocEngine
         if self.opts.mode == "ddm":
             return DdmEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
@@ -470,6 +474,10 @@ class Simulation:
         if self.opts.mode == "monolithic":
             particles = read_all_particles(reader, self.model.dim, self.model.hist_cap)
             return MonolithicEngine(particles, ws, self.model, store=self.store,
+                                    redecompositions=redecompositions)
+        if self.opts.mode == "mpi":
+            from .mpi import MpiEngine
+            return MpiEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
         from .sweep import DdmEngine, OocEngine
         if self.opts.mode == "ddm":
@@ -644,7 +652,8 @@ def _check_engine_attrs(engine, n_domains: int, where: str) -> None:
 
 
 def resume_simulation(path, steps: int | None = None, until: float | None = None,
-                      progress: bool = True, figures: bool = True) -> "Simulation | None":
+                      progress: bool = True, figures: bool = True,
+                      mode: str | None = None) -> "Simulation | None":
     """Reopen a run's store at its last intact epoch and return a Simulation ready to run.
 
     Returns None (after a message) when the run is already finished; if its outputs
@@ -658,7 +667,7 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     except StoreError as e:
         raise RunError(str(e)) from None
     try:
-        sim = _reopen(store, path, steps, until, progress, figures)
+        sim = _reopen(store, path, steps, until, progress, figures, mode)
     except BaseException:
         store.close()           # releases the write lock: a refused resume leaves the store free
         raise
@@ -667,7 +676,12 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     return sim
 
 
-def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "Simulation | None":
+# modes whose epochs are one another's (serial DDM's groups and bounds): a resume may switch
+SWITCHABLE_MODES = ("ddm", "mpi")
+
+
+def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
+            mode: str | None = None) -> "Simulation | None":
     """resume_simulation's work on an open store (None: the run was already finished)."""
     from storage import StoreError
     from ..checkpoint import StateError, validate_epoch
@@ -697,6 +711,11 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool) -> "
         total = steps_for_duration(until, sc.physics.dt, f"--until {show(until)}")
     elif steps is not None:
         total = total_steps(sc, RunOptions(steps=steps))
+    if mode is not None and mode != run["mode"]:
+        if mode not in SWITCHABLE_MODES or run["mode"] not in SWITCHABLE_MODES:
+            raise RunError(f"--mode {show(mode)}: a {run['mode']} run resumes in its own mode "
+                           f"(only {' and '.join(SWITCHABLE_MODES)} runs switch between those two)")
+        run["mode"] = mode
     opts = RunOptions(mode=run["mode"], backend=run["backend"], domains=run["domains"], block=run["block"],
                       steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
                       figures=figures)

@@ -1,0 +1,558 @@
+"""MPI mode: ranks own contiguous ranges of serial DDM's sub-domains (slabs along x).
+
+Serial DDM (live.py) keeps every sub-domain with its halo in RAM; a sweep is (1) every
+halo copy refreshed from its owner's time-n copy, (2) ownership from x, (3) every
+sub-domain K steps with THE per-domain step. Here rank r holds the ``LiveDomains`` of
+its sub-domains d in [starts[r], starts[r + 1]) only, plus two *ghost* sub-domains: all
+of x left and right of its range. A ghost is never advanced; its rows are the copies
+of the discs the other ranks own within a strip (halo + membership skin) of this
+rank's range, and they are what halo rows of the rank's own sub-domains are refreshed
+from. So the refresh of copies whose owner is on another rank becomes, once per block,
+an exchange with the ranks within that strip (the left and right neighbours, unless a
+range is narrower than the strip): ``Sendrecv`` of the counts, then of one NumPy
+buffer of whole disc rows (``row_dtype``), written into the ghost rows. A disc that
+crosses into another rank's range is in that rank's ghost already (it was within the
+strip), so migration needs nothing more: after the refresh the new owner has its
+time-n state and ownership from x hands it over, contact history included.
+
+Why the bits equal serial DDM's (and so the monolithic run's): each sub-domain's local
+set is exactly the one serial DDM builds (every disc within halo + membership skin of
+its slab), every halo row holds its owner's time-n state before the step, and the step
+is the same; memory order and extra discs never change a result (docs/design.md §3).
+Everything that decides the schedule - re-decompositions (the wheel leaving its slab),
+the wheel's slab, rebuilds of the local sets (a disc moved beyond the membership skin
+anywhere: an ``allreduce`` of the largest move) - is computed identically on every
+rank from data every rank has (the bounds, the broadcast wheel state), so the ranks
+never disagree about what comes next.
+
+The wheel lives on the rank whose range holds its slab; after each block that rank
+broadcasts the wheel state and the block's wheel records. Re-decompositions use the
+serial rule on the x histogram of every disc (``decomposition.XHistogram``, an
+``Allreduce`` of its integer counts) and re-cut the ranks' ranges by disc count. A rebuild sends every rank the discs within
+its strip (``alltoall`` of pickled parts: first cut, only neighbours get non-empty ones).
+
+Driving: rank 0 runs the ordinary ``Simulation`` (store, metrics, trajectory, outputs)
+with an ``MpiEngine``; every engine call broadcasts a command that the other ranks'
+``worker_loop`` runs collectively. Checkpoints: rank 0 gathers the owned discs of each
+sub-domain (one epoch in rank 0's RAM: first cut) and commits the epoch through the
+store exactly as serial DDM does, so any epoch resumes with any number of ranks, or
+serially. A failure on any rank aborts the whole job (``MPI_Abort``), never a hang.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import sys
+import time
+
+import numpy as np
+
+from ..checkpoint import particles_to_record, record_to_particles
+from ..decomposition import (XHistogram, equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok,
+                             x_summary)
+from ..physics.layout import AX_X, WS_SIZE, WS_X
+from ..state import Particles, fields
+from .interface import write_epoch
+from .live import LiveDomains, _refresh
+from .stepper import N_REC, EngineError, Model
+
+# the environment a launcher gives each process: (world size, rank) variable names
+_LAUNCHER_ENV = (("PMI_SIZE", "PMI_RANK"),                                # MPICH hydra, Intel MPI
+                 ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),        # Open MPI
+                 ("MV2_COMM_WORLD_SIZE", "MV2_COMM_WORLD_RANK"))          # MVAPICH
+# the state fields a refresh copies (id, r, mass, inertia and mat are fixed per disc)
+_MOVING = ("pos", "vel", "spin", "hist_n", "hist_id", "hist_s", "hist_m")
+
+
+def launched() -> tuple[int, int]:
+    """(world size, rank) as the MPI launcher set them, without initialising MPI;
+    (1, 0) for a process not started by mpiexec."""
+    for size, rank in _LAUNCHER_ENV:
+        if size in os.environ:
+            try:
+                return int(os.environ[size]), int(os.environ.get(rank, "0"))
+            except ValueError:
+                break
+    return 1, 0
+
+
+def world():
+    """MPI.COMM_WORLD (mpi4py initialises MPI on first import; a lone process is a
+    one-rank world)."""
+    try:
+        from mpi4py import MPI
+    except ImportError:
+        raise EngineError("--mode mpi needs mpi4py and an MPI: pip install 'ooc-dem[mpi]'") from None
+    return MPI.COMM_WORLD
+
+
+def row_dtype(dim: int, cap: int) -> np.dtype:
+    """One disc's whole state as one record: the exchange buffers' element type."""
+    return np.dtype([(k, dt, tail) for k, (dt, tail) in fields(dim, cap).items()])
+
+
+def pack(p: Particles, rows, dtype: np.dtype) -> np.ndarray:
+    buf = np.empty(len(rows), dtype)
+    for k in dtype.names:
+        buf[k] = getattr(p, k)[rows]
+    return buf
+
+
+def rank_starts(counts: np.ndarray, ranks: int) -> np.ndarray:
+    """starts[r]: the first sub-domain of rank r (contiguous ranges, R + 1 entries),
+    cut so that each rank owns about as many discs; every rank gets a sub-domain
+    while there are enough of them."""
+    D = len(counts)
+    before = np.concatenate([[0], np.cumsum(counts)])
+    total = before[-1]
+    starts = [0]
+    for r in range(1, ranks):
+        s = int(np.searchsorted(before, r * total / ranks, "left"))
+        lo, hi = starts[-1] + 1, D - (ranks - r)
+        s = min(lo, D) if hi < lo else min(max(s, lo), hi)
+        starts.append(s)
+    starts.append(D)
+    return np.array(starts, np.int64)
+
+
+class MpiEngine:
+    """The sub-domains of this rank (``LiveDomains`` with two ghosts) and the collective
+    block step; on rank 0 also the engine interface ``Simulation`` drives."""
+
+    name = "mpi"
+    folds_records = False
+    writes_frame_parts = False
+
+    def __init__(self, sc, model: Model, block: int, domains: int, comm, redecompositions=None):
+        self.sc = sc
+        self.model = model
+        self.model_nowheel = model.without_wheel()
+        self.K = int(block)
+        self.D = int(domains)
+        self.comm = comm
+        self.rank, self.R = comm.Get_rank(), comm.Get_size()
+        # the same geometry as the serial sweep (sweep.SweepEngine)
+        hop = 2.0 * sc.soil.r_max + sc.bed.skin
+        self.halo = self.K * hop
+        w = sc.wheel
+        self.reach = max(w.radius, w.lug_tip_radius) + sc.soil.r_max if w.enabled else 0.0
+        self.margin_required = self.halo + 2.0 * sc.soil.r_max + self.K * sc.physics.dt * 1.0
+        self.membership_skin = hop
+        # a rank is sent the discs within `strip` of its range when its sub-domains are
+        # built (what their local sets need), and at each block those within `window`
+        # (the strip plus the motion a built set tolerates)
+        self.strip = self.halo + self.membership_skin
+        self.window = self.strip + self.membership_skin
+        self.dtype = row_dtype(model.dim, model.hist_cap)
+        self.ws = np.zeros(WS_SIZE)
+        self.bounds = np.array([-np.inf, np.inf])
+        self.starts = np.zeros(self.R + 1, np.int64)
+        self.live: LiveDomains | None = None
+        self.ghost_row = np.zeros(0, np.int64)
+        self._pairs = None   # the exchange's (dest, source) pairs for the current ranges
+        self.wslab = -1
+        self.n = 0
+        self.redecompositions = list(redecompositions or ())
+        self.store = None   # rank 0: where `commit` writes
+        self.preferred_chunk = max(self.K, (2000 // self.K) * self.K)
+        self.builds = 0
+        self.blocks = 0
+        self.halo_rows_sent = 0
+        self.messages = 0
+
+    # ------------------------------------------------------------ rank 0: set-up
+    @classmethod
+    def _open(cls, sc, model: Model, block: int, domains: int, store, redecompositions=()) -> "MpiEngine":
+        comm = world()
+        eng = cls(sc, model, block, domains, comm, redecompositions)
+        eng.store = store
+        eng._call("init", (sc.to_toml(), model.hist_cap, block, domains))
+        return eng
+
+    @classmethod
+    def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *, domains: int,
+               block: int, store=None) -> "MpiEngine":
+        """Rank 0 holds the bed; the scenario's policy splits it (as serial DDM at step 0)."""
+        eng = cls._open(sc, model, block, domains, store)
+        eng._call("start", (None, 0, np.asarray(wheel_state, np.float64)), mine=particles)
+        return eng
+
+    @classmethod
+    def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *, store,
+               redecompositions=()) -> "MpiEngine":
+        """From a committed epoch (any mode's, any rank count): its bounds and K are kept."""
+        bounds = np.array([-np.inf, *engine_attrs["bounds"], np.inf])
+        eng = cls._open(sc, model, int(engine_attrs["block"]), len(bounds) - 1, store, redecompositions)
+        parts = [record_to_particles(reader.read_domain(d), model.hist_cap) for d in reader.domains()]
+        eng._call("start", (bounds, int(reader.step), np.asarray(wheel_state, np.float64)),
+                  mine=Particles.concat(parts, model.dim, model.hist_cap))
+        return eng
+
+    def _call(self, name: str, args: tuple, **local):
+        """Rank 0: every rank runs op `name` with `args` (broadcast; `local` stays here)."""
+        if self.R > 1:
+            send_command(self.comm, (name, args))
+        if name == "init":
+            return None
+        return getattr(self, "_op_" + name)(*args, **local)
+
+    # -------------------------------------------------- rank 0: engine interface
+    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+        return self._call("advance", (int(step0), int(nsteps)))
+
+    @property
+    def wheel_state(self) -> np.ndarray:
+        return self.ws
+
+    def n_discs(self) -> int:
+        return self.n
+
+    def particles(self) -> Particles:
+        groups = self._call("gather", ())
+        m = self.model
+        return Particles.concat([q for q in groups if len(q)], m.dim, m.hist_cap)
+
+    def state_parts(self, names=()):
+        yield self.particles()
+
+    def write_domains(self, writer) -> None:
+        from .sweep import group_of
+        for d, q in enumerate(self._call("gather", ())):
+            g, attrs = group_of(q)   # sorted by x, as serial DDM's groups
+            attrs["x_summary"] = x_summary(g.pos[:, AX_X], self.sc.bin.length)
+            writer.write_domain(d, particles_to_record(g), attrs)
+
+    def commit(self, step: int, arrays: dict, attrs: dict, durable: bool = False) -> None:
+        """Rank 0 gathers each sub-domain's owned discs and commits them as serial DDM's epoch."""
+        if self.store is None:
+            raise RuntimeError("MPI run without a store to commit to")
+        write_epoch(self.store, step, self.write_domains, arrays, attrs, durable)
+
+    def info(self) -> dict:
+        return {"domains": self.D, "block": self.K, "halo_m": self.halo,
+                "bounds": [float(v) for v in self.bounds[1:-1]],
+                "redecompositions": len(self.redecompositions),
+                "ranks": self.R, "rank_starts": [int(s) for s in self.starts],
+                "local_set_builds": self.builds,
+                # rank 0's share of the exchange (a first measure of the halo traffic)
+                "rank0_halo_rows_sent": self.halo_rows_sent, "rank0_messages": self.messages}
+
+    # ------------------------------------------------------ collective operations
+    def _op_start(self, bounds, step: int, ws, mine: Particles | None = None) -> None:
+        m = self.model
+        mine = Particles.empty(0, m.dim, m.hist_cap) if mine is None else mine
+        self.ws = np.array(ws, np.float64)
+        self.n = int(self.comm.allreduce(len(mine)))
+        self.bounds = (self._decompose(self._histogram(mine), step) if bounds is None
+                       else np.asarray(bounds, np.float64))
+        if len(self.bounds) - 1 != self.D:
+            raise EngineError(f"MPI: {len(self.bounds) - 1} slab bounds for {self.D} sub-domains")
+        self._distribute(mine, recut=True)
+
+    def _op_advance(self, step0: int, nsteps: int) -> np.ndarray:
+        recs = []
+        s, end = step0, step0 + nsteps
+        while s < end:
+            k = min(self.K, end - s)
+            recs.append(self._block(s, k))
+            s += k
+        return np.concatenate(recs) if recs else np.zeros((0, N_REC))
+
+    def _op_gather(self) -> list[Particles]:
+        """Rank 0 gets each sub-domain's owned discs (ownership at the start of the last
+        sweep, as serial DDM's epoch groups); the others None."""
+        mine = {}
+        if self.live is not None:
+            live = self.live
+            for j in range(1, live.D - 1):
+                mine[int(self.starts[self.rank]) + j - 1] = live.p.take(live.owned_rows(j))
+        got = self.comm.gather(mine, root=0)
+        if self.rank != 0:
+            return None
+        m = self.model
+        groups = [Particles.empty(0, m.dim, m.hist_cap) for _ in range(self.D)]
+        for part in got:
+            for d, q in part.items():
+                groups[d] = q
+        total = sum(len(q) for q in groups)
+        if total != self.n:
+            raise EngineError(f"MPI gather found {total} of {self.n} discs: decomposition error")
+        return groups
+
+    # ----------------------------------------------------------------- the block
+    def _redecomposes(self) -> bool:
+        sc = self.sc
+        return sc.wheel.enabled and sc.decomposition.policy == "wheel" and self.D > 1
+
+    def _decompose(self, hist: XHistogram, step: int) -> np.ndarray:
+        """The serial rule (sweep.SweepEngine.decompose) on the histogram of every disc's x."""
+        sc = self.sc
+        if sc.wheel.enabled and sc.decomposition.policy == "wheel":
+            half = self.reach + self.margin_required + sc.decomposition.margin
+            b = wheel_bounds(hist, self.D, float(self.ws[WS_X]), half)
+        else:
+            b = equal_bounds(hist, self.D)
+        if self.rank == 0:
+            self.redecompositions.append({"step": int(step), "bounds": [float(v) for v in b[1:-1]]})
+        return b
+
+    def _block(self, step0: int, k: int) -> np.ndarray:
+        """One sweep of k <= K steps over every rank's sub-domains (serial DDM's
+        ``_sweep_live``, with the refresh across ranks an exchange)."""
+        self.blocks += 1
+        wheel = self.sc.wheel.enabled
+        if self._redecomposes() and not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach,
+                                                      self.margin_required):
+            mine = self._mine()
+            self.bounds = self._decompose(self._histogram(mine), step0)
+            self._distribute(mine, recut=True)
+        elif wheel and wheel_slab_index(self.bounds, float(self.ws[WS_X])) != self.wslab:
+            self._distribute(self._mine())
+        elif not self._refresh():
+            self._distribute(self._mine())
+        rec = np.zeros((0, N_REC))
+        live = self.live
+        if live is not None:
+            for j in range(1, live.D - 1):
+                st = live.steppers[j]
+                r = st.advance(step0, k) if st.n else np.zeros((0, N_REC))
+                if j == live.wslab:
+                    rec = r
+                    self.ws = st.ws.copy()
+        if wheel:
+            rec = self._share_wheel(rec, k)
+        return rec
+
+    def _share_wheel(self, rec: np.ndarray, k: int) -> np.ndarray:
+        """The wheel's rank broadcasts its state and this block's wheel records."""
+        root = int(np.searchsorted(self.starts, self.wslab, "right") - 1)
+        buf = np.zeros(WS_SIZE + 1 + k * N_REC)
+        if self.rank == root:
+            buf[:WS_SIZE] = self.ws
+            buf[WS_SIZE] = len(rec)
+            buf[WS_SIZE + 1:WS_SIZE + 1 + rec.size] = rec.ravel()
+        if self.R > 1:
+            self.comm.Bcast(buf, root=root)
+            self.messages += 1
+        self.ws = buf[:WS_SIZE].copy()
+        rows = int(buf[WS_SIZE])
+        return buf[WS_SIZE + 1:WS_SIZE + 1 + rows * N_REC].reshape(rows, N_REC).copy()
+
+    # ------------------------------------------------------ ownership and exchange
+    def _range(self, r: int) -> tuple[float, float] | None:
+        s, e = int(self.starts[r]), int(self.starts[r + 1])
+        return None if e == s else (float(self.bounds[s]), float(self.bounds[e]))
+
+    def _partners(self, width: float) -> list[tuple[int, int]]:
+        """(dest, source) pairs of the exchange, in an order every rank walks alike: at
+        offset o, send to rank + o and receive from rank - o, then the mirror; a pair
+        exchanges when both have sub-domains and their ranges are within `width`."""
+        from mpi4py import MPI
+        near = lambda a, b: (0 <= a < self.R and 0 <= b < self.R and (ra := self._range(a)) is not None
+                             and (rb := self._range(b)) is not None
+                             and max(rb[0] - ra[1], ra[0] - rb[1]) < width)
+        far = max([abs(a - b) for a in range(self.R) for b in range(self.R) if a != b and near(a, b)],
+                  default=0)
+        out = []
+        for o in range(1, far + 1):
+            for sgn in (1, -1):
+                dest, src = self.rank + sgn * o, self.rank - sgn * o
+                out.append((dest if near(self.rank, dest) else MPI.PROC_NULL,
+                            src if near(src, self.rank) else MPI.PROC_NULL))
+        return out
+
+    def _sendrecv(self, send: np.ndarray, dest: int, source: int) -> np.ndarray:
+        """Counts first, then the rows (one buffer of whole disc records)."""
+        from mpi4py import MPI
+        n_out = np.array([len(send)], np.int64)
+        n_in = np.zeros(1, np.int64)
+        self.comm.Sendrecv(n_out, dest=dest, sendtag=11, recvbuf=n_in, source=source, recvtag=11)
+        recv = np.empty(int(n_in[0]), self.dtype)
+        self.comm.Sendrecv([send.view(np.uint8), MPI.BYTE], dest=dest, sendtag=12,
+                           recvbuf=[recv.view(np.uint8), MPI.BYTE], source=source, recvtag=12)
+        if dest != MPI.PROC_NULL:
+            self.messages += 2
+            self.halo_rows_sent += len(send)
+        return recv
+
+    def _owned_real(self) -> np.ndarray:
+        """Rows of this rank's own sub-domains owned at the start of the last sweep."""
+        live = self.live
+        return np.concatenate([live.owned_rows(j) for j in range(1, live.D - 1)] or [np.zeros(0, np.int64)])
+
+    def _mine(self) -> Particles:
+        m = self.model
+        if self.live is None:
+            return Particles.empty(0, m.dim, m.hist_cap)
+        return self.live.p.take(self._owned_real())
+
+    def _sum(self, counts: np.ndarray) -> np.ndarray:
+        """Element-wise sum of an int64 array over the ranks (exact: any order)."""
+        from mpi4py import MPI
+        out = np.zeros_like(counts)
+        self.comm.Allreduce(np.ascontiguousarray(counts), out, op=MPI.SUM)
+        return out
+
+    def _histogram(self, mine: Particles) -> XHistogram:
+        """The x histogram of every rank's discs (the serial policies' input; integer
+        counts, so the sum is the serial one whatever the split)."""
+        h = XHistogram.of(mine.pos[:, AX_X], self.sc.bin.length)
+        h.counts = self._sum(h.counts)
+        return h
+
+    def _distribute(self, mine: Particles, recut: bool = False) -> None:
+        """(Re)build every rank's sub-domains from the discs the ranks own now; `recut`:
+        the ranks' ranges are cut again by disc count first."""
+        m = self.model
+        x = mine.pos[:, AX_X]
+        if recut:
+            counts = self._sum(np.bincount(owner(self.bounds, x), minlength=self.D).astype(np.int64))
+            self.starts = rank_starts(counts, self.R)
+        sends = []
+        for q in range(self.R):
+            rng = self._range(q)
+            sel = (np.zeros(0, np.int64) if rng is None else
+                   np.flatnonzero((x >= rng[0] - self.strip) & (x < rng[1] + self.strip)))
+            sends.append(mine.take(sel))
+        got = self.comm.alltoall(sends) if self.R > 1 else sends
+        local = Particles.concat([g for g in got if len(g)], m.dim, m.hist_cap)
+        self.wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if self.sc.wheel.enabled else -1
+        s, e = int(self.starts[self.rank]), int(self.starts[self.rank + 1])
+        self.live = None
+        self._pairs = None
+        if e > s:
+            lb = np.concatenate([[-np.inf], self.bounds[s:e + 1], [np.inf]])
+            wl = self.wslab - s + 1 if s <= self.wslab < e else -1
+            self.live = LiveDomains(local, lb, self.halo, self.membership_skin, self.model,
+                                    self.model_nowheel, self.ws, wl)
+            live = self.live
+            ghosts = np.concatenate([np.arange(live.off[0], live.off[1]),
+                                     np.arange(live.off[-2], live.off[-1])])
+            self.ghost_rows = ghosts
+            self.ghost_row = np.full(len(live.owner_row), -1, np.int64)
+            self.ghost_row[live.p.id[ghosts]] = ghosts
+        owned = len(self._owned_real()) if self.live is not None else 0
+        total = int(self.comm.allreduce(owned))
+        if total != self.n:
+            raise EngineError(f"MPI ranks own {total} of {self.n} discs (bounds {self.bounds.tolist()}): "
+                              f"decomposition error")
+        self.builds += 1
+
+    def _refresh(self) -> bool:
+        """Ghost rows <- the owners' time-n rows (exchange), then every halo row <- its
+        owner's row and ownership from x (live.LiveDomains.refresh, with the rebuild
+        decision taken over all ranks). False: the local sets must be rebuilt."""
+        live = self.live
+        received = []
+        owned_rows = self._owned_real() if live is not None else np.zeros(0, np.int64)
+        x = live.p.pos[owned_rows, AX_X] if live is not None else np.zeros(0)
+        if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
+            self._pairs = self._partners(self.window)
+        for dest, source in self._pairs:
+            rng = self._range(dest) if dest >= 0 else None
+            rows = (owned_rows[(x >= rng[0] - self.window) & (x < rng[1] + self.window)]
+                    if rng is not None else np.zeros(0, np.int64))
+            send = pack(live.p, rows, self.dtype) if live is not None else np.empty(0, self.dtype)
+            recv = self._sendrecv(send, dest, source)
+            if live is not None and len(recv):
+                ids = recv["id"]
+                ok = ids < len(self.ghost_row)
+                ok[ok] = self.ghost_row[ids[ok]] >= 0
+                rows_in = self.ghost_row[ids[ok]]
+                for name in _MOVING:
+                    getattr(live.p, name)[rows_in] = recv[name][ok]
+                live.owner_row[ids[ok]] = rows_in
+                received.append(ids[ok])
+        moved = 0.0
+        if live is not None:
+            p = live.p
+            moved = _refresh(p.id, live.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s,
+                             p.hist_m, live.x_built, live.off, live.ref, live.disp2)
+        from mpi4py import MPI
+        if self.comm.allreduce(moved, op=MPI.MAX) > self.membership_skin:
+            return False
+        if live is None:
+            return True
+        # every disc a ghost owned must have come from its owner (else a halo row is stale)
+        ghost_owned = self.ghost_rows[live.owned[self.ghost_rows]]
+        got = np.concatenate(received) if received else np.zeros(0, np.int64)
+        missing = ~np.isin(live.p.id[ghost_owned], got)
+        if missing.any():
+            raise EngineError(f"MPI rank {self.rank}: {int(missing.sum())} halo discs were not sent by "
+                              f"their owners (bounds {self.bounds.tolist()}): exchange error")
+        live._own()
+        for j, st in enumerate(live.steppers):
+            if live.disp2[j] > 0.25 * st.model.skin ** 2:
+                st._built = False
+        return True
+
+
+def send_command(comm, command) -> None:
+    """Rank 0 -> every rank: its length (a non-blocking broadcast, which the others poll
+    with sleeps), then the pickled command."""
+    from mpi4py import MPI
+    data = bytearray(pickle.dumps(command))
+    comm.Ibcast(np.array([len(data)], np.int64), root=0).Wait()
+    comm.Bcast([data, MPI.BYTE], root=0)
+
+
+def receive_command(comm):
+    """The other ranks: wait for rank 0's next command without spinning. Between
+    commands rank 0 alone works (commits, outputs); a busy-waiting MPI would take the
+    cores from it when ranks share them."""
+    from mpi4py import MPI
+    n = np.zeros(1, np.int64)
+    req = comm.Ibcast(n, root=0)
+    while not req.Test():
+        time.sleep(0.002)
+    data = bytearray(int(n[0]))
+    comm.Bcast([data, MPI.BYTE], root=0)
+    return pickle.loads(data)
+
+
+def worker_loop(comm) -> None:
+    """Ranks other than 0: run rank 0's commands until it says stop."""
+    from ..scenario import scenario_from_toml
+    eng = None
+    while True:
+        name, args = receive_command(comm)
+        if name == "stop":
+            return
+        if name == "init":
+            toml, hist_cap, block, domains = args
+            sc = scenario_from_toml(toml)
+            model = Model.from_scenario(sc)
+            model.hist_cap = hist_cap
+            eng = MpiEngine(sc, model, block, domains, comm)
+            continue
+        getattr(eng, "_op_" + name)(*args)
+
+
+def run_ranks(command) -> int:
+    """A `run` or `resume` under mpiexec with python -m mpi4py semantics: rank 0 runs
+    `command()` (the ordinary command, which drives the engine), the others serve it;
+    an error anywhere, or a non-zero exit of rank 0, aborts every rank."""
+    comm = world()
+    if comm.Get_rank() != 0:
+        try:
+            worker_loop(comm)
+        except BaseException:
+            import traceback
+            traceback.print_exc()
+            sys.stderr.flush()
+            comm.Abort(1)
+        return 0
+    try:
+        rc = command()
+    except BaseException:
+        import traceback
+        traceback.print_exc()
+        sys.stderr.flush()
+        comm.Abort(1)
+        raise
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if rc:
+        comm.Abort(int(rc))
+    send_command(comm, ("stop", ()))
+    return rc

@@ -1,0 +1,164 @@
+"""MPI mode (engine/mpi.py) with real `mpiexec` processes (the mpich wheel of the test
+extra): R ranks give serial DDM's bits, resume across rank counts, and a rank killed
+with SIGKILL takes the job down."""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import psutil
+import pytest
+
+from conftest import one_line_error, run_cli
+
+# bed-600: 4 equal slabs; the wheel run: a fast slip-controlled wheel set down on the
+# quick bed, so that its slab is redefined within 600 steps (test_ddm's wheel case)
+BED = ["bed-600"]
+BED_STEPS = 60
+WHEEL = ["quick", "--set", "wheel.omega=4.0", "--set", "wheel.control=slip", "--set", "wheel.slip=0.2",
+         "--set", "wheel.settle_time=0.0", "--set", "wheel.drop_gap=0.0", "--set", "decomposition.margin=0.001"]
+WHEEL_STEPS = 600
+QUIET = ["--no-progress", "--no-figures"]
+# one numba thread a rank: ranks are the parallelism (and 3 ranks share 2 cores here)
+ENV = {"NUMBA_NUM_THREADS": "1"}
+
+
+def mpiexec() -> str:
+    """The mpiexec of this interpreter's environment (the mpich wheel puts it beside python)."""
+    here = os.path.join(os.path.dirname(sys.executable), "mpiexec")
+    found = here if os.path.exists(here) else shutil.which("mpiexec")
+    assert found, "no mpiexec: install the test extra (pip install '.[test]' brings the mpich wheel)"
+    return found
+
+
+def run_mpi(ranks: int, *args, timeout=240, check=True):
+    env = {**os.environ, **ENV}
+    cp = subprocess.run([mpiexec(), "-n", str(ranks), sys.executable, "-m", "ooc_dem.cli", *map(str, args)],
+                        capture_output=True, text=True, timeout=timeout, env=env)
+    if check and cp.returncode != 0:
+        raise AssertionError(f"mpiexec -n {ranks} ooc-dem {' '.join(map(str, args))} failed "
+                             f"({cp.returncode}):\n{cp.stdout[-2000:]}\n{cp.stderr[-3000:]}")
+    return cp
+
+
+def summary(run) -> dict:
+    return json.loads((run / "summary.json").read_text())
+
+
+def final_state(run) -> dict:
+    import ooc_dem
+    return ooc_dem.open_run(run).state()
+
+
+def assert_same_run(a, b):
+    sa, sb = final_state(a), final_state(b)
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        assert np.array_equal(sa[k], sb[k]), f"state array {k!r} differs"
+    assert summary(a)["state_hash"] == summary(b)["state_hash"]
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    """Serial DDM references: the bare bed and the wheel run."""
+    root = tmp_path_factory.mktemp("serial")
+    run_cli("run", *BED, "--mode", "ddm", "--steps", BED_STEPS, "--out", root / "bed", *QUIET, check=True, env=ENV)
+    run_cli("run", *WHEEL, "--mode", "ddm", "--steps", WHEEL_STEPS, "--out", root / "wheel", *QUIET, check=True,
+            env=ENV)
+    return root
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_bare_bed_ranks_give_the_serial_bits(serial, tmp_path, ranks):
+    out = tmp_path / "mpi"
+    run_mpi(ranks, "run", *BED, "--mode", "mpi", "--steps", BED_STEPS, "--out", out, *QUIET)
+    assert_same_run(serial / "bed", out)
+    eng = summary(out)["engine"]
+    assert eng["ranks"] == ranks and len(eng["rank_starts"]) == ranks + 1
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_wheel_run_ranks_give_the_serial_bits(serial, tmp_path, ranks):
+    """With re-decompositions (the wheel leaves its slab): the ranks' ranges are re-cut."""
+    out = tmp_path / "mpi"
+    run_mpi(ranks, "run", *WHEEL, "--mode", "mpi", "--steps", WHEEL_STEPS, "--out", out, *QUIET)
+    assert_same_run(serial / "wheel", out)
+    s, ref = summary(out), summary(serial / "wheel")
+    assert s["engine"]["redecompositions"] >= 2, s["engine"]   # the initial one and >= 1 on the way
+    assert s["engine"]["redecompositions"] == ref["engine"]["redecompositions"]
+    assert s["engine"]["bounds"] == ref["engine"]["bounds"]
+    assert s["slip"] == ref["slip"] and s["net_traction"] == ref["net_traction"]
+
+
+@pytest.mark.parametrize("first,then", [(2, 3), (3, 1)])
+def test_resume_with_another_rank_count(serial, tmp_path, first, then):
+    """An epoch written by R ranks resumes on R' ranks (1: a plain process, no mpiexec,
+    as serial DDM: `resume --mode ddm`)."""
+    out = tmp_path / "mpi"
+    run_mpi(first, "run", *BED, "--mode", "mpi", "--steps", BED_STEPS // 2, "--out", out, *QUIET)
+    if then == 1:
+        run_cli("resume", out, "--mode", "ddm", "--steps", BED_STEPS, *QUIET, check=True, env=ENV)
+        assert summary(out)["mode"] == "ddm"
+    else:
+        run_mpi(then, "resume", out, "--steps", BED_STEPS, *QUIET)
+        assert summary(out)["engine"]["ranks"] == then
+    assert_same_run(serial / "bed", out)
+
+
+def test_resume_a_serial_run_on_ranks(serial, tmp_path):
+    """`resume --mode mpi`: a serial DDM run continues on 2 ranks to the same bits (the
+    other way round: test_resume_with_another_rank_count[3-1]). Other modes keep their
+    own (one-line refusal)."""
+    out = tmp_path / "ddm"
+    run_cli("run", *BED, "--mode", "ddm", "--steps", BED_STEPS // 2, "--out", out, *QUIET, check=True, env=ENV)
+    run_mpi(2, "resume", out, "--mode", "mpi", "--steps", BED_STEPS, *QUIET)
+    assert summary(out)["mode"] == "mpi" and summary(out)["engine"]["ranks"] == 2
+    assert_same_run(serial / "bed", out)
+    mono = tmp_path / "mono"
+    run_cli("run", *BED, "--steps", 5, "--out", mono, *QUIET, check=True, env=ENV)
+    one_line_error(run_cli("resume", mono, "--mode", "mpi", "--steps", 10, *QUIET), "--mode 'mpi'", "monolithic")
+
+
+def _current_step(store) -> int:
+    try:
+        m = json.loads((store / "MANIFEST.json").read_text())
+    except (OSError, ValueError):
+        return -1
+    return m["current"]["step"] if m.get("current") else -1
+
+
+def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path):
+    out = tmp_path / "mpi"
+    env = {**os.environ, **ENV}
+    job = subprocess.Popen([mpiexec(), "-n", "2", sys.executable, "-m", "ooc_dem.cli", "run", *BED, "--mode", "mpi",
+                            "--steps", "1000000", "--checkpoint-every", "10", "--out", str(out), *QUIET],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.time() + 180
+        while _current_step(out) < 10:
+            assert job.poll() is None, job.communicate()
+            assert time.time() < deadline, "the job committed no epoch beyond step 0 in 180 s"
+            time.sleep(0.2)
+        ranks = [c for c in psutil.Process(job.pid).children(recursive=True)
+                 if c.environ().get("PMI_RANK") is not None and "ooc_dem.cli" in " ".join(c.cmdline())]
+        worker = [c for c in ranks if c.environ()["PMI_RANK"] == "1"]
+        assert len(worker) == 1, [(c.pid, c.cmdline()) for c in ranks]
+        worker[0].send_signal(signal.SIGKILL)
+        t0 = time.time()
+        rc = job.wait(timeout=30)
+        assert rc != 0
+        assert time.time() - t0 < 30
+    finally:
+        if job.poll() is None:
+            job.kill()
+            job.wait()
+    # the last committed epoch resumes (here on one rank) to the serial bits of that step
+    stop = _current_step(out) + 20
+    run_cli("resume", out, "--steps", stop, *QUIET, check=True, env=ENV)
+    ref = tmp_path / "serial"
+    run_cli("run", *BED, "--mode", "ddm", "--steps", stop, "--out", ref, *QUIET, check=True, env=ENV)
+    assert_same_run(ref, out)

@@ -48,13 +48,13 @@ import time
 import numpy as np
 
 from ..checkpoint import particles_to_record, record_to_particles
-from ..decomposition import (XHistogram, equal_bounds, owner, wheel_bounds, wheel_slab_index, wheel_slab_ok,
-                             x_summary)
+from ..decomposition import XHistogram, owner, wheel_slab_index, wheel_slab_ok, x_summary
 from ..physics.layout import AX_X, WS_SIZE, WS_X
 from ..state import Particles, fields
 from .interface import write_epoch
 from .live import LiveDomains, _refresh
 from .stepper import N_REC, EngineError, Model
+from .sweep import slab_bounds
 
 # the environment a launcher gives each process: (world size, rank) variable names
 _LAUNCHER_ENV = (("PMI_SIZE", "PMI_RANK"),                                # MPICH hydra, Intel MPI
@@ -285,13 +285,8 @@ class MpiEngine:
         return sc.wheel.enabled and sc.decomposition.policy == "wheel" and self.D > 1
 
     def _decompose(self, hist: XHistogram, step: int) -> np.ndarray:
-        """The serial rule (sweep.SweepEngine.decompose) on the histogram of every disc's x."""
-        sc = self.sc
-        if sc.wheel.enabled and sc.decomposition.policy == "wheel":
-            half = self.reach + self.margin_required + sc.decomposition.margin
-            b = wheel_bounds(hist, self.D, float(self.ws[WS_X]), half)
-        else:
-            b = equal_bounds(hist, self.D)
+        """The serial rule (sweep.slab_bounds) on the histogram of every disc's x."""
+        b = slab_bounds(self.sc, hist, self.D, float(self.ws[WS_X]), self.reach, self.margin_required)
         if self.rank == 0:
             self.redecompositions.append({"step": int(step), "bounds": [float(v) for v in b[1:-1]]})
         return b

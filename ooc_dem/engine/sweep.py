@@ -107,6 +107,17 @@ def x_histogram(src, length: float) -> XHistogram:
     return hist
 
 
+def slab_bounds(sc, hist: XHistogram, domains: int, wheel_x: float, reach: float,
+                margin_required: float) -> np.ndarray:
+    """The D + 1 slab bounds of the scenario's policy from the discs' x histogram: around
+    the wheel (its reach plus the margins inside one slab) or equal counts. Every engine
+    that decomposes (serial DDM, out-of-core, MPI) takes its bounds from here."""
+    if sc.wheel.enabled and sc.decomposition.policy == "wheel":
+        half = reach + margin_required + sc.decomposition.margin
+        return wheel_bounds(hist, domains, wheel_x, half)
+    return equal_bounds(hist, domains)
+
+
 def group_of(p: Particles, rows=None) -> tuple[Particles, dict]:
     """A domain group: discs `rows` of p (all if None) sorted by x (strips are then
     contiguous), with its x extent. One gather, whatever `rows` is."""
@@ -197,12 +208,7 @@ class SlabSweep:
         """Called when a re-decomposition has moved the bounds."""
 
     def decompose(self, hist: XHistogram, step: int) -> np.ndarray:
-        sc = self.sc
-        if sc.wheel.enabled and sc.decomposition.policy == "wheel":
-            half = self.reach + self.margin_required + sc.decomposition.margin
-            b = wheel_bounds(hist, self.D, float(self.ws[WS_X]), half)
-        else:
-            b = equal_bounds(hist, self.D)
+        b = slab_bounds(self.sc, hist, self.D, float(self.ws[WS_X]), self.reach, self.margin_required)
         self.redecompositions.append({"step": int(step), "bounds": [float(v) for v in b[1:-1]]})
         return b
 

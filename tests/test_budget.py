@@ -44,10 +44,10 @@ def test_budget_chooses_slabs_whose_measured_peak_is_the_estimate(tmp_path, scen
     assert plan["memory_budget_bytes"] == limit
     assert plan["memory_bytes"] <= limit and plan["domains"] > 1
     steps = plan["block"]     # one whole sweep
-    # the same run of one step first: numba's cache and the bed cache warm (the byte model's
-    # baseline is a warm one; on a fresh machine the first run compiles, ~100 MB more, and
-    # settles the bed's tile)
-    warm = run_limited(_cli("run", scenario, "--mode", "ooc", "--memory", memory, "--steps", 1,
+    # the same run first: numba's cache and the bed cache warm (the byte model's baseline is
+    # a warm one; on a fresh machine the first run compiles, ~100 MB more, and settles the
+    # bed's tile)
+    warm = run_limited(_cli("run", scenario, "--mode", "ooc", "--memory", memory, "--steps", steps,
                             "--out", tmp_path / "warm", "--no-progress", "--no-figures"), env=ENV)
     assert warm.returncode == 0, warm.stderr
     res = run_limited(_cli("run", scenario, "--mode", "ooc", "--memory", memory, "--steps", steps,

@@ -99,6 +99,17 @@ NO_ROLLING = ["contact.soil_soil.rolling_friction=0", "contact.soil_soil.rolling
 LMP_NAMES = ("lmp", "lmp_mpi", "lmp_openmpi", "lmp_serial")
 BASELINE_STEPS = 50
 
+# what both input scripts (2d and 3d) measure: contacts per atom, total mass, kinetic energy
+OBSERVABLES = """compute         cc all contact/atom
+compute         ccsum all reduce sum c_cc
+variable        cpp equal c_ccsum/atoms
+variable        mtot equal mass(all)
+variable        kin equal ke
+thermo_modify   norm no
+thermo_style    custom step atoms ke
+thermo          0
+"""
+
 
 def log(msg: str) -> None:
     print(f"[peers/lammps {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
@@ -249,15 +260,7 @@ fix             grav all gravity {sc.physics.gravity!r} vector 0 -1 0
 fix             integrate all nve/sphere disc
 fix             plane all enforce2d
 
-compute         cc all contact/atom
-compute         ccsum all reduce sum c_cc
-variable        cpp equal c_ccsum/atoms
-variable        mtot equal mass(all)
-variable        kin equal ke
-thermo_modify   norm no
-thermo_style    custom step atoms ke
-thermo          0
-
+{OBSERVABLES}
 run             {warmup}
 run             {steps}
 thermo_style    custom step atoms ke v_cpp
@@ -498,15 +501,7 @@ fix             sides all wall/gran granular {w['lammps']} zplane 0.0 {sc.bin.wi
 fix             grav all gravity {sc.physics.gravity!r} vector 0 -1 0
 fix             integrate all nve/sphere
 
-compute         cc all contact/atom
-compute         ccsum all reduce sum c_cc
-variable        cpp equal c_ccsum/atoms
-variable        mtot equal mass(all)
-variable        kin equal ke
-thermo_modify   norm no
-thermo_style    custom step atoms ke
-thermo          0
-
+{OBSERVABLES}
 {run}
 thermo_style    custom step atoms ke v_cpp
 run             0 post no

@@ -11,8 +11,15 @@ nothing outside its subtree is touched: cgroup v1
 (``<memory mount>/<own path>/<name>/memory.limit_in_bytes``, also ``memory.memsw.*``
 when swap accounting exists, so swap is no way around it) or cgroup v2 (``memory.max``,
 ``memory.swap.max``). The child joins it before it executes anything (it writes its own
-pid into ``cgroup.procs`` from a shell that then execs it), so every byte it allocates
-counts. The peak RSS is the child's own (``wait4``'s ``ru_maxrss``); the cgroup's peak
+pid into ``cgroup.procs`` between fork and exec), so every byte it allocates counts.
+
+The peak RSS is the child's own: ``wait4``'s ``ru_maxrss`` and its ``VmHWM``. Linux
+records, at ``exec``, the high-water RSS of the address space being replaced into the
+process's ``maxrss``; a child spawned by ``subprocess`` (``vfork``) replaces *our* address
+space, so its ``ru_maxrss`` starts at our lifetime peak (a test suite that grew to 300 MB
+made every child "peak" at 300 MB). So the command runs as the grandchild of a small
+launcher (``_LAUNCHER``: a bare interpreter that forks and execs it and reports its pid,
+wait status and ``ru_maxrss``), whose few MB are all the grandchild can inherit. The cgroup's peak
 (``memory.max_usage_in_bytes`` / ``memory.peak``) also counts its page cache and kernel
 memory, but not shared-library pages already in the page cache, charged to whoever read
 them first: RSS can exceed the limit by those (~90 MB for numba's LLVM and numpy here)
@@ -24,6 +31,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -167,6 +175,12 @@ class MemoryCgroup:
         raise MemoryLimitError(f"cannot remove the memory cgroup {self.path}")
 
 
+def own_peak_rss_bytes() -> int:
+    """This process's peak RSS (VmHWM). Not ``getrusage``'s ``ru_maxrss``: a process spawned by
+    ``vfork`` (``subprocess``) starts that at its parent's peak (see the module's doc)."""
+    return _rss_of(os.getpid())[1]
+
+
 def _rss_of(pid: int) -> tuple[int, int, int]:
     """(VmRSS, VmHWM, RssAnon) of a process in bytes (-1 when gone)."""
     got = {"VmRSS:": -1, "VmHWM:": -1, "RssAnon:": -1}
@@ -224,6 +238,34 @@ class LimitedRun:
                   f"--domains or a smaller --memory budget)")
 
 
+# The launcher (run as ``python -I -S -c``, so it loads nothing but the interpreter): fork, the
+# child joins the cgroup (argv[2], '' for none) and execs argv[3:]; the pid and then the wait
+# status and ru_maxrss (KiB) of the child are written to the pipe fd argv[1].
+_LAUNCHER = """
+import os, sys
+fd, procs, argv = int(sys.argv[1]), sys.argv[2], sys.argv[3:]
+pid = os.fork()
+if pid == 0:
+    os.close(fd)
+    try:
+        if procs:
+            with open(procs, "w") as f:
+                f.write(str(os.getpid()))
+        os.execvp(argv[0], argv)
+    except OSError as e:
+        os.write(2, f"ooc-dem: error: cannot run {argv[0]}: {e.strerror}\\n".encode())
+    os._exit(127)
+os.write(fd, f"{pid}\\n".encode())
+while True:
+    try:
+        _, status, ru = os.wait4(pid, 0)
+        break
+    except InterruptedError:
+        continue
+os.write(fd, f"{status} {ru.ru_maxrss}\\n".encode())
+"""
+
+
 def run_limited(cmd, limit_bytes: int | None = None, *, env=None, cwd=None, interval: float = 0.1,
                 stdout_path=None) -> LimitedRun:
     """Run ``cmd`` to its end under ``limit_bytes`` (None: no limit, still measured).
@@ -235,29 +277,38 @@ def run_limited(cmd, limit_bytes: int | None = None, *, env=None, cwd=None, inte
         with tempfile.TemporaryFile("w+") as err, \
                 (open(stdout_path, "w+") if stdout_path else tempfile.TemporaryFile("w+")) as out:
             t0 = time.perf_counter()
-            # a shell joins the cgroup and execs the command in its place: the command is in
-            # the cgroup before it runs (and its ru_maxrss is its own, not a fork of ours)
             argv = list(map(str, cmd))
-            if cg is not None:
-                argv = ["/bin/sh", "-c", 'echo $$ > "$0" && exec "$@"', str(cg.path / "cgroup.procs"), *argv]
-            proc = subprocess.Popen(argv, stdout=out, stderr=err, env=env, cwd=cwd)
-            samples = []
-            peak_hwm = -1
-            while True:
-                pid, status, ru = os.wait4(proc.pid, os.WNOHANG)
-                if pid:
-                    break
-                rss, hwm, anon = _rss_of(proc.pid)
-                samples.append([round(time.perf_counter() - t0, 3), rss, cg.usage() if cg else -1, anon])
-                peak_hwm = max(peak_hwm, hwm)
-                time.sleep(interval)
+            rfd, wfd = os.pipe()
+            try:
+                launcher = subprocess.Popen(
+                    [sys.executable, "-I", "-S", "-c", _LAUNCHER, str(wfd),
+                     str(cg.path / "cgroup.procs") if cg is not None else "", *argv],
+                    stdout=out, stderr=err, env=env, cwd=cwd, pass_fds=(wfd,))
+            finally:
+                os.close(wfd)
+            with os.fdopen(rfd, "r") as report:
+                line = report.readline()
+                pid = int(line) if line.strip() else None
+                samples = []
+                peak_hwm = -1
+                while pid is not None and launcher.poll() is None:
+                    rss, hwm, anon = _rss_of(pid)
+                    if rss >= 0:
+                        samples.append([round(time.perf_counter() - t0, 3), rss, cg.usage() if cg else -1, anon])
+                        peak_hwm = max(peak_hwm, hwm)
+                    time.sleep(interval)
+                launcher.wait()
+                done = report.readline().split()
             wall = time.perf_counter() - t0
-            proc.returncode = os.waitstatus_to_exitcode(status)
+            if len(done) != 2:
+                raise MemoryLimitError(f"the launcher of {argv[0]} ended without reporting its child "
+                                       f"(exit {launcher.returncode})")
+            status, maxrss_kib = map(int, done)
             out.seek(0)
             err.seek(0)
-            res = LimitedRun(cmd=list(map(str, cmd)), returncode=proc.returncode, stdout=out.read(),
+            res = LimitedRun(cmd=argv, returncode=os.waitstatus_to_exitcode(status), stdout=out.read(),
                              stderr=err.read(), wall_s=wall,
-                             peak_rss_bytes=max(ru.ru_maxrss * 1024, peak_hwm),
+                             peak_rss_bytes=max(maxrss_kib * 1024, peak_hwm),
                              limit_bytes=limit_bytes, samples=samples)
         if cg is not None:
             res.cgroup_version = cg.version

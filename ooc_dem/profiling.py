@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import subprocess
 import sys
 import threading
@@ -113,6 +112,8 @@ def child(args) -> dict:
     import gc
     gc.collect()
     baseline = rss_bytes()
+    # VmHWM, not ru_maxrss: a process spawned by vfork starts its ru_maxrss at its parent's peak
+    warm_peak = hwm_bytes()
     reset_ok = reset_peak()
     sampler = RssSampler(args.interval)
     sampler.start()
@@ -132,7 +133,7 @@ def child(args) -> dict:
         "domains": eng.get("domains"), "block": eng.get("block"),
         "rss_after_imports_bytes": t_import, "baseline_rss_bytes": baseline,
         "peak_rss_bytes": peak, "peak_above_baseline_bytes": peak - baseline,
-        "peak_rss_lifetime_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        "peak_rss_lifetime_bytes": max(warm_peak, hwm_bytes()),
         "peak_reset_ok": reset_ok,
         "theoretical_state_bytes": n * (BYTES_PER_DISC if sc.dim == 2 else bytes_per_disc(3)),
         "dim": sc.dim,

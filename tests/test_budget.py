@@ -2,7 +2,7 @@
 under a hard memory limit (a memory cgroup made by ooc_dem.memlimit).
 
 Every measurement is a real ``ooc-dem`` subprocess; its peak RSS is the kernel's (wait4's
-ru_maxrss and /proc VmHWM, memlimit.run_limited)."""
+ru_maxrss and /proc VmHWM of the command itself, memlimit.run_limited)."""
 from __future__ import annotations
 
 import json
@@ -158,3 +158,22 @@ def test_parse_size(text, value):
 def test_parse_size_refuses(text):
     with pytest.raises(ValueError):
         parse_size(text)
+
+
+def test_run_limited_measures_the_child_not_the_parents_peak():
+    """A parent that once held 400 MB spawns a small child: the child's peak is its own (a
+    vfork'ed child's ru_maxrss starts at its parent's peak; run_limited's launcher forks it from
+    a bare interpreter instead)."""
+    import numpy as np
+    big = np.ones(50_000_000)
+    big[::512] = 2
+    del big
+    res = run_limited([sys.executable, "-c", "pass"])
+    assert res.returncode == 0
+    assert res.peak_rss_bytes < 60 * 10**6, res.peak_rss_bytes
+
+
+def test_run_limited_reports_exit_codes_and_a_missing_command():
+    assert run_limited([sys.executable, "-c", "import sys; sys.exit(3)"]).returncode == 3
+    res = run_limited(["/nonexistent/ooc-dem-no-such-command"])
+    assert res.returncode == 127 and "cannot run /nonexistent/ooc-dem-no-such-command" in res.stderr

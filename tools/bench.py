@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import time
@@ -31,13 +30,14 @@ def one(n: int, steps: int, threads: int, warmup: int, family: str = "bed",
     numba.set_num_threads(threads)
     import numpy as np
     from ooc_dem.bed import settled_bed
+    from ooc_dem.memlimit import own_peak_rss_bytes
     from ooc_dem.engine.stepper import DomainStepper, Model
     from ooc_dem.scenario import load_scenario
     t0 = time.time()
     sc = load_scenario(f"{family}-{n}", overrides)
     bed = settled_bed(sc)
     t_bed = time.time() - t0
-    rss_bed = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    rss_bed = own_peak_rss_bytes()
     st = DomainStepper(bed, Model.from_scenario(sc))
     del bed
     # warm-up: JIT (cached), first neighbour build, and the tiled bed's seams
@@ -46,7 +46,7 @@ def one(n: int, steps: int, threads: int, warmup: int, family: str = "bed",
     t = time.perf_counter()
     st.advance(warmup, steps)
     el = time.perf_counter() - t
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    peak = own_peak_rss_bytes()
     contacts = float(np.mean(st.p.hist_n))
     extra = {}
     if hasattr(st, "nbytes"):   # the stepper's own arrays besides the discs, and its pair list

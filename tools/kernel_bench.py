@@ -16,7 +16,6 @@ import argparse
 import hashlib
 import json
 import os
-import resource
 import subprocess
 import sys
 import time
@@ -39,11 +38,12 @@ def law_overrides(family: str, law: str) -> list[str]:
 def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     import numpy as np
     from ooc_dem.bed import settled_bed
+    from ooc_dem.memlimit import own_peak_rss_bytes
     from ooc_dem.engine.stepper import DomainStepper, Model
     from ooc_dem.scenario import load_scenario
     sc = load_scenario(f"{family}-{n}", law_overrides(family, law))
     bed = settled_bed(sc)
-    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    rss0 = own_peak_rss_bytes()
     st = DomainStepper(bed, Model.from_scenario(sc))
     del bed
     st.advance(0, warmup)
@@ -77,7 +77,7 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     w0, c0 = time.perf_counter(), time.process_time()
     st.advance(warmup + steps + 1, steps)
     ws_, cs_ = time.perf_counter() - w0, time.process_time() - c0
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    peak = own_peak_rss_bytes()
     # the state's bits after the same steps (trees must agree unless the arithmetic changed)
     h = hashlib.sha256()
     p = st.p

@@ -789,7 +789,7 @@ def main(argv=None):
                    "ooc-dem: tools/bench.py's timing after its warm-up)"),
                   ("contacts_per_particle: particle-particle contacts per particle (LAMMPS compute "
                    "contact/atom; ooc-dem its contact history), walls excluded"),
-                  ("peak RSS: LAMMPS = sum over ranks of each rank's VmHWM; ooc-dem = ru_maxrss of the "
+                  ("peak RSS: LAMMPS = sum over ranks of each rank's VmHWM; ooc-dem = VmHWM of the "
                    "bench process; above_baseline = (peak - peak of the one-tile bed) / (N - N_tile)"),
                   "LAMMPS starts without tangential history (a data file holds none); the warm-up reloads it",
                   ("kinetic_energy_end_J: translational, after the timed steps (a sanity check of the "

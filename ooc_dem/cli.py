@@ -580,7 +580,8 @@ def cmd_sweep(args):
         raise CliError(f"--slips {args.slips!r}: must be comma-separated numbers") from None
     if not slips or any(not (0.0 <= s < 1.0) for s in slips):
         raise CliError(f"--slips {args.slips!r}: each slip must be in [0, 1)")
-    run_slip_sweep(args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress)
+    run_slip_sweep(args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress,
+                   comm=getattr(args, "comm", None))
     return 0
 
 
@@ -645,15 +646,22 @@ def main(argv=None) -> int:
         from .engine.mpi import launched, run_ranks
         if launched()[0] > 1:   # under mpiexec: rank 0 runs the command, the others serve it
             return run_ranks(lambda: _dispatch(args, known))
+    if args.command == "sweep":
+        from .engine.mpi import launched, run_everywhere, world
+        if launched()[0] > 1:   # under mpiexec: the slips' runs fan out over the ranks
+            args.comm = world()
+            # the same plan on every rank fails alike: rank 0 alone says so
+            return run_everywhere(args.comm, lambda: _dispatch(args, known, quiet=args.comm.Get_rank() != 0))
     return _dispatch(args, known)
 
 
-def _dispatch(args, known) -> int:
+def _dispatch(args, known, quiet: bool = False) -> int:
     try:
         return COMMANDS[args.command](args)
     except known as e:
         msg = _one_line(e) or type(e).__name__
-        print(f"ooc-dem: error: {msg}", file=sys.stderr)
+        if not quiet:
+            print(f"ooc-dem: error: {msg}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("ooc-dem: interrupted (the last committed epoch is kept; `ooc-dem resume` continues)",

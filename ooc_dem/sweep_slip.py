@@ -26,9 +26,19 @@ def steady_window_problem(sc) -> str | None:
 
 
 def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out: Path,
-                   progress: bool = True) -> list[dict]:
-    if out.exists() and any(out.iterdir()):
-        raise RunError(f"--out {out}: directory exists and is not empty")
+                   progress: bool = True, comm=None) -> list[dict] | None:
+    """The curve, one run per slip. With ``comm`` (an MPI communicator: ``mpiexec -n R
+    ooc-dem sweep``) the runs fan out over the ranks (run i on rank i mod R, each the same
+    monolithic run as in one process, so the same bits); rank 0 gathers the rows and
+    writes the curve, the others return None."""
+    rank, ranks = (comm.Get_rank(), comm.Get_size()) if comm is not None else (0, 1)
+    problem = None
+    if rank == 0 and out.exists() and any(out.iterdir()):
+        problem = f"--out {out}: directory exists and is not empty"
+    if comm is not None:
+        problem = comm.bcast(problem, root=0)
+    if problem:
+        raise RunError(problem)
     dirs = [out / f"slip_{s:.3f}" for s in slips]
     if len(set(dirs)) != len(dirs):
         raise RunError("--slips: two slips share the directory name slip_<s to 3 decimals>; give distinct slips")
@@ -38,18 +48,37 @@ def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out:
     problem = steady_window_problem(scs[0])
     if problem:
         raise RunError(problem)
-    # every run planned (and checked) before the first one starts
-    sims = [Simulation(sc, d, RunOptions(progress=progress, figures=False)) for sc, d in zip(scs, dirs)]
-    out.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for s, sim in zip(slips, sims):
-        summary = sim.run()
+    # every run planned (and checked) before the first one starts (on every rank alike)
+    sims = [Simulation(sc, d, RunOptions(progress=progress and ranks == 1, figures=False))
+            for sc, d in zip(scs, dirs)]
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    if comm is not None:
+        comm.Barrier()
+    mine, failure = {}, None
+    for i in range(rank, len(slips), ranks):
+        try:
+            summary = sims[i].run()
+        except Exception as e:   # noqa: BLE001 - reported by rank 0 as the sweep's one-line error
+            failure = f"slip {slips[i]:g}{f' (rank {rank})' if ranks > 1 else ''}: {e}"
+            if comm is None:
+                raise
+            break
         st = lambda k: summary[k]["steady"]["value"]
-        rows.append({"slip": s, "drawbar_pull": st("net_traction"), "gross_traction": st("gross_traction"),
-                     "sinkage": st("sinkage"), "vertical_force": st("vertical_force")})
-        print(f"slip {s:.3f}: drawbar pull {rows[-1]['drawbar_pull']:.3f} N, "
-              f"gross traction {rows[-1]['gross_traction']:.3f} N, sinkage {1e3 * rows[-1]['sinkage']:.1f} mm",
-              flush=True)
+        mine[i] = {"slip": slips[i], "drawbar_pull": st("net_traction"), "gross_traction": st("gross_traction"),
+                   "sinkage": st("sinkage"), "vertical_force": st("vertical_force")}
+        r = mine[i]
+        print(f"slip {r['slip']:.3f}: drawbar pull {r['drawbar_pull']:.3f} N, "
+              f"gross traction {r['gross_traction']:.3f} N, sinkage {1e3 * r['sinkage']:.1f} mm"
+              + (f" (rank {rank})" if ranks > 1 else ""), flush=True)
+    parts = comm.gather((mine, failure), root=0) if comm is not None else [(mine, failure)]
+    if rank != 0:
+        return None
+    failures = [f for _, f in parts if f]
+    if failures:
+        raise RunError(failures[0])
+    got = {i: r for m, _ in parts for i, r in m.items()}
+    rows = [got[i] for i in range(len(slips))]
     csv = out / CSV_NAME
     with open(csv, "w") as f:
         f.write("slip,drawbar_pull,gross_traction,sinkage,vertical_force\n")
@@ -59,6 +88,7 @@ def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out:
     from .plots import sweep_plot
     sweep_plot(csv, out / "drawbar_pull_slip.png")
     (out / "sweep.json").write_text(json.dumps({"scenario": scenario, "overrides": overrides,
-                                                "window": scs[0].output.steady_start, "rows": rows}, indent=2))
+                                                "window": scs[0].output.steady_start, "rows": rows,
+                                                "ranks": ranks}, indent=2))
     print(f"curve: {csv}  figure: {out / 'drawbar_pull_slip.png'}")
     return rows

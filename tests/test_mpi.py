@@ -162,3 +162,33 @@ def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path):
     ref = tmp_path / "serial"
     run_cli("run", *BED, "--mode", "ddm", "--steps", stop, "--out", ref, *QUIET, check=True, env=ENV)
     assert_same_run(ref, out)
+
+
+# a short slip sweep of the quick wheel (set down without a drop, 5000 steps of travel)
+SWEEP = ["quick", "--set", "wheel.settle_time=0.0", "--set", "wheel.drop_gap=0.0",
+         "--set", "wheel.travel_time=0.05", "--set", "wheel.drawbar_ramp=0.01",
+         "--set", "output.steady_start=0.02", "--set", "output.steady_end=0.05"]
+
+
+def test_sweep_fans_its_runs_out_over_the_ranks(tmp_path):
+    """`mpiexec -n 2 ooc-dem sweep`: the three runs are shared by two ranks (run i on rank
+    i mod 2) and give the curve of the sweep in one process, byte for byte, and each run's
+    final state."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    slips = "0.1,0.4,0.7"
+    run_cli("sweep", *SWEEP, "--slips", slips, "--out", one, "--no-progress", check=True, env=ENV)
+    cp = run_mpi(2, "sweep", *SWEEP, "--slips", slips, "--out", two, "--no-progress")
+    assert "(rank 1)" in cp.stdout and "(rank 0)" in cp.stdout
+    assert (two / "drawbar_pull_slip.csv").read_bytes() == (one / "drawbar_pull_slip.csv").read_bytes()
+    assert json.loads((two / "sweep.json").read_text())["ranks"] == 2
+    for s in slips.split(","):
+        assert_same_run(one / f"slip_{float(s):.3f}", two / f"slip_{float(s):.3f}")
+
+
+def test_sweep_on_ranks_refuses_bad_input_in_one_line(tmp_path):
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "x").write_text("")
+    cp = run_mpi(2, "sweep", *SWEEP, "--slips", "0.1,0.4", "--out", tmp_path / "taken", "--no-progress",
+                 check=False)
+    assert cp.returncode == 2
+    one_line_error(cp, "directory exists and is not empty")

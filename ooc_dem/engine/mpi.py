@@ -523,6 +523,22 @@ def worker_loop(comm) -> None:
         getattr(eng, "_op_" + name)(*args)
 
 
+def run_everywhere(comm, command) -> int:
+    """Every rank runs ``command()`` (its share of a job such as the sweep's runs); an
+    uncaught exception anywhere aborts every rank instead of leaving the others waiting."""
+    try:
+        rc = command()
+    except BaseException:
+        import traceback
+        traceback.print_exc()
+        sys.stderr.flush()
+        comm.Abort(1)
+        raise
+    sys.stdout.flush()
+    sys.stderr.flush()
+    return rc
+
+
 def run_ranks(command) -> int:
     """A `run` or `resume` under mpiexec with python -m mpi4py semantics: rank 0 runs
     `command()` (the ordinary command, which drives the engine), the others serve it;

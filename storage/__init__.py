@@ -175,7 +175,7 @@ nearby rows (at most 1 MiB wide), never the whole array.
 
 from ._util import StoreError, drop_page_cache
 from .store import (BACKENDS, COMPRESSIONS, EpochInfo, EpochReader, EpochWriter, Leftover, Problem,
-                    Store, create_store, drop_memory_store, open_store, store_owns)
+                    Store, create_store, drop_memory_store, open_store, store_owns, write_part)
 
 __all__ = [
     "BACKENDS",
@@ -192,4 +192,5 @@ __all__ = [
     "drop_page_cache",
     "open_store",
     "store_owns",
+    "write_part",
 ]

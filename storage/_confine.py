@@ -31,8 +31,9 @@ from ._util import EPOCH_DIR, StoreError
 # the characters of every name the store itself writes (epoch names, groups, array names,
 # zarr keys, the memory backend's ".attrs" pseudo-files)
 _PART_RE = re.compile(r"^[A-Za-z0-9_.+\-]+$")
-# e000000001234.h5, e000000001234.r1.zarr, e000000001234.mem: step, revision, extension
-_EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(?:\.r(\d+))?\.([a-z0-9]+)$")
+# e000000001234.h5, e000000001234.r1.zarr, e000000001234.p2.h5, e000000001234.mem: step,
+# revision, part, extension
+_EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(?:\.r(\d+))?(?:\.p(\d+))?\.([a-z0-9]+)$")
 # O_NONBLOCK: opening a FIFO for reading must not wait for a writer (it is refused after fstat)
 _OPEN_FLAGS = (os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
                | getattr(os, "O_CLOEXEC", 0))
@@ -62,18 +63,23 @@ def rel_parts(value, what: str) -> list[str]:
     return parts
 
 
-def epoch_path(value, exts, step: int, what: str) -> str:
+def epoch_path(value, exts, step: int, what: str, part: int | None = None) -> str:
     """Check an epoch path: exactly "epochs/<name>", <name> an epoch name with one of the
-    extensions `exts` (a str or a tuple of them) for `step`."""
+    extensions `exts` (a str or a tuple of them) for `step`; of part `part` of an epoch
+    (its ".p<part>"), or of an epoch's main file (no part) when `part` is None."""
     exts = (exts,) if isinstance(exts, str) else tuple(exts)
     parts = rel_parts(value, what)
     name = parts[-1]
     m = _EPOCH_NAME_RE.match(name)
-    if len(parts) != 2 or parts[0] != EPOCH_DIR or m is None or m.group(3) not in exts:
+    if len(parts) != 2 or parts[0] != EPOCH_DIR or m is None or m.group(4) not in exts:
         raise StoreError(f"{what}: path {_short(value)} is not an epoch path "
-                         f"({EPOCH_DIR}/e<step, 12+ digits>[.r<n>].{'|'.join(exts)})")
+                         f"({EPOCH_DIR}/e<step, 12+ digits>[.r<n>][.p<k>].{'|'.join(exts)})")
     if int(m.group(1)) != step:
         raise StoreError(f"{what}: path {_short(value)} names step {int(m.group(1))}, the entry says {step}")
+    got = None if m.group(3) is None else int(m.group(3))
+    if got != part:
+        raise StoreError(f"{what}: path {_short(value)} is "
+                         + (f"not part {part} of its epoch" if part is not None else "a part, not an epoch"))
     return value
 
 

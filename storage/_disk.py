@@ -188,6 +188,19 @@ class Place:
                  for r, size, sha in inner]
         return rel, files
 
+    def publish_part(self, tmp: str, basename: str, durable: bool) -> None:
+        """Rename a part another process finished (``store.write_part``) into place."""
+        final = os.path.join(self.edir, basename)
+        try:
+            self.resolver.check_epoch_dir()
+            remove_path(final)
+            os.rename(tmp, final)
+            if durable:
+                fsync_path(self.edir)
+        except OSError as e:
+            remove_path(tmp)
+            raise write_error(final, e) from e
+
     def _epoch(self, entry) -> str:
         return self.resolver.path(entry["path"], f"{self.root}: epoch {entry['step']}")
 
@@ -285,7 +298,8 @@ class Place:
             out.append((tmp, None))
         if not _is_real_dir(self.edir):
             return out
-        named = {e["path"].rpartition("/")[2] for e in (m.get("current"), m.get("previous")) if e}
+        named = {x["path"].rpartition("/")[2] for e in (m.get("current"), m.get("previous")) if e
+                 for x in [e, *e.get("parts", ())]}
         for n in sorted(os.listdir(self.edir)):
             t = TMP_NAME_RE.match(n)
             if t:

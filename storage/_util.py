@@ -30,10 +30,13 @@ MAX_MANIFEST_BYTES = 64 << 20
 # interpreter's recursion in json, copy or h5py/zarr code reading it later)
 MAX_JSON_DEPTH = 100
 
-# e000000001234.h5, e000000001234.r1.zarr (".rN" = rewrite of a step still named by the manifest)
-EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(\.r\d+)?\.(h5|zarr|zip)$")
-# the temporary an epoch is written under by process <pid>: e000000001234.h5.tmp-<pid>
-TMP_NAME_RE = re.compile(r"^(e\d{12,}(?:\.r\d+)?\.(?:h5|zarr|zip))\.tmp-(\d{1,10})$")
+# e000000001234.h5, e000000001234.r1.zarr (".rN" = rewrite of a step still named by the manifest),
+# e000000001234.p2.h5 (".pK" = part K of an epoch whose groups several processes wrote, e.g. MPI ranks)
+EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(\.r\d+)?(\.p\d+)?\.(h5|zarr|zip)$")
+# the temporary an epoch (or a part) is written under by process <pid>: e000000001234.h5.tmp-<pid>
+TMP_NAME_RE = re.compile(r"^(e\d{12,}(?:\.r\d+)?(?:\.p\d+)?\.(?:h5|zarr|zip))\.tmp-(\d{1,10})$")
+# the most parts an epoch may have (one per MPI rank that owns sub-domains)
+MAX_PARTS = 1 << 16
 ARRAY_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}$")
 _RESERVED_NAMES = {"zarr.json"}
 
@@ -49,6 +52,12 @@ class StoreError(Exception):
 
 def epoch_basename(step: int, ext: str, rev: int = 0) -> str:
     return f"e{step:012d}" + (f".r{rev}" if rev else "") + f".{ext}"
+
+
+def part_basename(basename: str, part: int) -> str:
+    """The name of part `part` (>= 1) of the epoch named `basename`: e...[.rN].pK.<ext>."""
+    stem, _, ext = basename.rpartition(".")
+    return f"{stem}.p{part}.{ext}"
 
 
 def domain_group(d: int) -> str:

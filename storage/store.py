@@ -17,9 +17,10 @@ import numpy as np
 
 from . import _confine, _disk, _lock, _memory
 from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, SUPPORTED_VERSIONS, GLOBALS_GROUP, LOCK_FILE, MANIFEST,
-                    MANIFEST_TMP, MAX_JSON_DEPTH, StoreError, array_meta, check_array_name, domain_group,
-                    epoch_basename, gather_rows, json_depth, json_roundtrip, normalize_rows,
-                    prepare_arrays, remove_path, to_json, write_error)
+                    MANIFEST_TMP, MAX_JSON_DEPTH, MAX_PARTS, StoreError, array_meta, check_array_name,
+                    domain_group, epoch_basename, gather_rows, json_depth, json_roundtrip, normalize_rows,
+                    part_basename, prepare_arrays, remove_path, to_json, write_error)
+from ._util import TMP_NAME_RE as _TMP_RE
 
 BACKENDS = ("hdf5", "zarr", "memory")
 # the extension of the epochs a backend writes, and of those it reads (zarr: one zip archive
@@ -189,22 +190,47 @@ def _check_entry(e, role: str, where: str, place, ext) -> None:
     comp = e.get("compression")
     if comp is not None and (not isinstance(comp, str) or comp not in COMPRESSIONS[place.backend]):
         raise StoreError(f"{what}: unknown compression {_show(comp)}")
-    inside = place.is_memory or place.fmt_of(epoch).IS_DIR
     seen, stored = set(), 0
-    for f in files:
-        f = _dict(f, f"{what} file entry")
-        p = _confine.file_path(f.get("path"), epoch, inside, what)
-        if p in seen:
-            raise StoreError(f"{what}: file {p!r} listed twice")
-        seen.add(p)
-        stored += _int(f.get("size"), f"{what} file {p!r} size")
-        sha = f.get("sha256")
-        if not (isinstance(sha, str) and _SHA256_RE.match(sha)):
-            raise StoreError(f"{what}: file {p!r} sha256 {_show(sha)} is not 64 lowercase hex digits")
-    # the checksums must cover the epoch's own files, always (see check_files for zarr: the
-    # files found must be exactly the listed ones)
-    if not place.is_memory and not seen:
-        raise StoreError(f"{what}: lists no files (its data would go unchecked)")
+
+    def check_files(epoch, files, what):
+        nonlocal stored
+        inside = place.is_memory or place.fmt_of(epoch).IS_DIR
+        listed = 0
+        for f in files:
+            f = _dict(f, f"{what} file entry")
+            p = _confine.file_path(f.get("path"), epoch, inside, what)
+            if p in seen:
+                raise StoreError(f"{what}: file {p!r} listed twice")
+            seen.add(p)
+            listed += 1
+            stored += _int(f.get("size"), f"{what} file {p!r} size")
+            sha = f.get("sha256")
+            if not (isinstance(sha, str) and _SHA256_RE.match(sha)):
+                raise StoreError(f"{what}: file {p!r} sha256 {_show(sha)} is not 64 lowercase hex digits")
+        # the checksums must cover the epoch's own files, always (see check_files for zarr:
+        # the files found must be exactly the listed ones)
+        if not place.is_memory and not listed:
+            raise StoreError(f"{what}: lists no files (its data would go unchecked)")
+
+    check_files(epoch, files, what)
+    # parts: files of the same epoch that other processes wrote (write_part), each holding
+    # some of its domain groups; part k is "epochs/<the epoch's name>.p<k>"
+    parts = e.get("parts", [])
+    if not isinstance(parts, list) or len(parts) > MAX_PARTS or (parts and place.is_memory):
+        raise StoreError(f"{what}: malformed \"parts\" (must be a list of at most {MAX_PARTS} part "
+                         f"entries, on disk)")
+    for k, part in enumerate(parts, start=1):
+        pw = f"{what} part {k}"
+        part = _dict(part, pw)
+        ppath = _confine.epoch_path(part.get("path"), ext, step, pw, part=k)
+        if ppath != f"{EPOCH_DIR}/{part_basename(epoch.rpartition('/')[2], k)}":
+            raise StoreError(f"{pw}: path {_show(ppath)} is not part {k} of epoch {epoch}")
+        pfiles = part.get("files")
+        if not isinstance(pfiles, list):
+            raise StoreError(f"{pw}: malformed \"files\" (must be a list of file entries)")
+        check_files(ppath, pfiles, pw)
+        if not place.is_memory:
+            place.resolver.path(ppath, pw)
     domains = _dict(e.get("domains"), f"{what} domains")
     needed = 0
     for d, info in domains.items():
@@ -213,6 +239,8 @@ def _check_entry(e, role: str, where: str, place, ext) -> None:
                              f"(0 to {_MAX_DOMAIN_ID}, written without sign or leading zeros)")
         info = _dict(info, f"{what} domain {d}")
         _int(info.get("n"), f"{what} domain {d} n")
+        if "part" in info:
+            _int(info["part"], f"{what} domain {d} part", 1, len(parts))
         needed += _check_arrays(info.get("arrays"), f"{what} domain {d} arrays", 1)
     g = e.get("globals")
     if g is not None:
@@ -425,6 +453,12 @@ class Store:
         """previous, current (those present in the manifest), oldest first."""
         return [e for e in (self._m["previous"], self._m["current"]) if e is not None]
 
+    @staticmethod
+    def _files_of(e: dict) -> list[dict]:
+        """The epoch's main file(s) and every part's, each as an entry of its own (the
+        Place's checks, sizes and deletion work on one path with its files)."""
+        return [e] + [{"step": e["step"], "path": p["path"], "files": p["files"]} for p in e.get("parts", ())]
+
     def _entry(self, step: int) -> dict:
         for e in self._entries():
             if e["step"] == step:
@@ -458,9 +492,10 @@ class Store:
         out = []
         for role, e in (("previous", self._m["previous"]), ("current", self._m["current"])):
             if e is not None:
+                subs = self._files_of(e)
                 out.append(EpochInfo(role, e["step"], e["path"], self._where(e),
-                                     sum(f["size"] for f in e["files"]), len(e["domains"]),
-                                     tuple(self._place.size_problems(e))))
+                                     sum(f["size"] for x in subs for f in x["files"]), len(e["domains"]),
+                                     tuple(p for x in subs for p in self._place.size_problems(x))))
         return out
 
     def leftovers(self, manifest: dict | None = None) -> list[Leftover]:
@@ -537,7 +572,7 @@ class Store:
             cur = self._m["current"]
             if cur is None:
                 return
-            size = sum(f["size"] for f in cur["files"])
+            size = sum(f["size"] for x in self._files_of(cur) for f in x["files"])
             expected_bytes = size + size // 64 + (4 << 10)
         need = int(expected_bytes)
         where = self._place.tmp_name(epoch_basename(step, _EXT[self.backend]))
@@ -558,9 +593,24 @@ class Store:
                                  f"epochs are untouched)")
 
     def _commit(self, w: "EpochWriter", durable: bool) -> None:
+        if sorted(w._parts) != list(range(1, len(w._parts) + 1)):
+            raise StoreError(f"{self.path}: epoch {w.step} has parts {sorted(w._parts)}, not 1 to {len(w._parts)}")
         rel, files = self._place.publish(w._w, w._basename, durable)
         entry = {"step": w.step, "path": rel, "files": files, "domains": w._domains,
                  "globals": w._globals, "committed_at": _now(), "format_version": FORMAT_VERSION}
+        if w._parts:
+            # phase 2 of the parts' commit: every part is complete (its writer finished it and
+            # reported its checksums); they take their names, then the manifest names them all
+            entry["parts"] = []
+            try:
+                for k in sorted(w._parts):
+                    part = w._parts[k]
+                    self._place.publish_part(part["tmp"], part["path"].rpartition("/")[2], durable)
+                    entry["parts"].append({"path": part["path"], "files": part["files"]})
+            except StoreError:
+                for x in self._files_of(entry):
+                    self._place.remove_epoch(x)
+                raise
         if self.compression is not None:
             entry["compression"] = self.compression
         old_cur, old_prev = self._m["current"], self._m["previous"]
@@ -579,7 +629,8 @@ class Store:
         try:
             self._place.write_manifest(new_m, durable)
         except StoreError:
-            self._place.remove_epoch(entry)
+            for x in self._files_of(entry):
+                self._place.remove_epoch(x)
             raise
         self._m = new_m
         self._verified.add(rel)
@@ -588,7 +639,8 @@ class Store:
             if e is not None and e["path"] not in keep:
                 self._verified.discard(e["path"])
                 try:
-                    self._place.remove_epoch(e)
+                    for x in self._files_of(e):
+                        self._place.remove_epoch(x)
                 except (OSError, StoreError) as ex:
                     self.warnings.append(f"{self.path}: could not delete old epoch {e['path']}: {ex}")
 
@@ -599,17 +651,26 @@ class Store:
         With structure_if_damaged=False, files that failed their checksums are not
         opened (a damaged HDF5 file is not handed to the HDF5 library on the read path).
         """
-        problems = self._place.check_files(e)
+        subs = self._files_of(e)
+        problems = [p for x in subs for p in self._place.check_files(x)]
         if problems and not structure_if_damaged:
             return problems
+        for k, x in enumerate(subs):
+            groups = [(domain_group(int(d)), info["arrays"]) for d, info in e["domains"].items()
+                      if info.get("part", 0) == k]
+            if k == 0 and e.get("globals") is not None:
+                groups.append((GLOBALS_GROUP, e["globals"]["arrays"]))
+            problems += self._group_problems(x, groups)
+        return problems
+
+    def _group_problems(self, e: dict, groups) -> list[str]:
+        """Groups, arrays (shape, dtype) and attrs of one epoch file as the manifest names them."""
+        problems = []
         try:
             r = self._place.open_reader(e)
         except Exception as ex:  # noqa: BLE001 - any failure to open is a problem to report
-            return problems + [f"{self._where(e)}: cannot open ({type(ex).__name__}: {ex})"]
+            return [f"{self._where(e)}: cannot open ({type(ex).__name__}: {ex})"]
         try:
-            groups = [(domain_group(int(d)), info["arrays"]) for d, info in e["domains"].items()]
-            if e.get("globals") is not None:
-                groups.append((GLOBALS_GROUP, e["globals"]["arrays"]))
             for g, arrays in groups:
                 try:
                     if not r.has_group(g):
@@ -720,7 +781,8 @@ class Store:
         self._place.write_manifest(new_m, durable=False)   # first forget it, then delete it
         self._m = new_m
         self._verified.discard(prev["path"])
-        self._place.remove_epoch(prev)
+        for x in self._files_of(prev):
+            self._place.remove_epoch(x)
         return [prev["step"]]
 
     def close(self) -> None:
@@ -747,6 +809,7 @@ class EpochWriter:
         self._basename = basename
         self._domains: dict[str, dict] = {}
         self._globals: dict | None = None
+        self._parts: dict[int, dict] = {}
         self._state = "open"
         self._tmp = store._place.tmp_name(basename)
         try:
@@ -803,6 +866,36 @@ class EpochWriter:
         self._domains[str(d)] = {"n": 0 if first is None else int(first.shape[0]),
                                  "arrays": array_meta(arrs)}
 
+    @property
+    def basename(self) -> str:
+        """The epoch's file name: the processes that write its parts name them after it
+        (``write_part(..., writer.basename, k, ...)``)."""
+        return self._basename
+
+    def add_part(self, part: dict) -> None:
+        """Phase 1 of a parts' commit: part ``part["part"]`` (what ``write_part`` returned in
+        another process, complete on disk under its temporary name) is in this epoch. It is
+        published with the epoch by commit(), and removed if the epoch is aborted."""
+        self._check_open()
+        where = f"{self._store.path}: epoch {self.step}"
+        if self._store._place.is_memory:
+            raise StoreError(f"{where}: a memory store keeps no parts (one process holds it)")
+        k = part.get("part")
+        if type(k) is not int or not 1 <= k <= MAX_PARTS or k in self._parts:
+            raise StoreError(f"{where}: part {_show(k)} is not a new part number (1 to {MAX_PARTS})")
+        name = part_basename(self._basename, k)
+        tmp = part.get("tmp", "")
+        m = _TMP_RE.match(os.path.basename(tmp)) if isinstance(tmp, str) else None
+        if part.get("path") != f"{EPOCH_DIR}/{name}" or m is None or m.group(1) != name \
+                or os.path.dirname(tmp) != self._store._place.edir:
+            raise StoreError(f"{where}: part {k} was not written as part {k} of this epoch ({name})")
+        self._parts[k] = part   # its tmp is ours to remove from now on (abort)
+        for d, info in part["domains"].items():
+            if d in self._domains:
+                self.abort()
+                raise StoreError(f"{where} domain {d}: written twice (part {k} and another)")
+            self._domains[d] = {**info, "part": k}
+
     def write_globals(self, arrays: dict, attrs: dict | None = None) -> None:
         """Write the global state (once): arrays of any shape, including 0-d."""
         self._check_open()
@@ -829,11 +922,13 @@ class EpochWriter:
                 self._w.abort()
             except Exception:  # noqa: BLE001
                 pass
+            for part in self._parts.values():
+                remove_path(part["tmp"])
             raise
         self._state = "committed"
 
     def abort(self) -> None:
-        """Discard everything written (idempotent)."""
+        """Discard everything written, parts included (idempotent)."""
         if self._state in ("aborted", "committed"):
             return
         self._state = "aborted"
@@ -841,6 +936,8 @@ class EpochWriter:
             self._w.abort()
         except Exception:  # noqa: BLE001
             pass
+        for part in self._parts.values():
+            remove_path(part["tmp"])
 
 
 # ============================================================================ reader
@@ -861,6 +958,7 @@ class EpochReader:
         except Exception as ex:  # noqa: BLE001
             raise StoreError(f"{self._where}: cannot open epoch {self.step} "
                              f"({type(ex).__name__}: {ex})") from ex
+        self._part_readers: dict[int, object] = {}
         store._readers.add(self)
 
     def __repr__(self):
@@ -884,6 +982,23 @@ class EpochReader:
         if self._r is None:
             raise StoreError(f"{self._where}: reader is closed")
 
+    def _reader(self, d=None):
+        """The reader of the file that holds domain d (None: the globals' file)."""
+        self._check()
+        k = 0 if d is None else self._dom(d).get("part", 0)
+        if k == 0:
+            return self._r
+        r = self._part_readers.get(k)
+        if r is None:
+            sub = Store._files_of(self._e)[k]
+            try:
+                r = self._store._place.open_reader(sub)
+            except Exception as ex:  # noqa: BLE001
+                raise StoreError(f"{self._store._where(sub)}: cannot open part {k} of epoch {self.step} "
+                                 f"({type(ex).__name__}: {ex})") from ex
+            self._part_readers[k] = r
+        return r
+
     def domains(self) -> list[int]:
         return sorted(int(k) for k in self._e["domains"])
 
@@ -894,20 +1009,21 @@ class EpochReader:
         """name -> (shape, dtype) of the arrays of domain d (from the manifest, no I/O)."""
         return {n: (tuple(s), np.dtype(t)) for n, (s, t) in self._dom(d)["arrays"].items()}
 
-    def _attrs(self, g: str) -> dict:
+    def _attrs(self, g: str, r=None) -> dict:
         self._check()
+        r = self._r if r is None else r
         try:
-            a = self._r.attrs_json(g)
+            a = r.attrs_json(g)
             return json.loads(a) if a is not None else {}
         except Exception as ex:  # noqa: BLE001
             raise StoreError(f"{self._where}: attrs of /{g} unreadable ({type(ex).__name__}: {ex})") from ex
 
     def domain_attrs(self, d: int) -> dict:
-        self._dom(d)
-        return self._attrs(domain_group(operator.index(d)))
+        return self._attrs(domain_group(operator.index(d)), self._reader(d))
 
-    def _read(self, g: str, arrays: dict, names, rows) -> dict[str, np.ndarray]:
+    def _read(self, g: str, arrays: dict, names, rows, r=None) -> dict[str, np.ndarray]:
         self._check()
+        reader = self._r if r is None else r
         if names is None:
             names = list(arrays)
         elif isinstance(names, str):
@@ -920,16 +1036,16 @@ class EpochReader:
                                      f"(has {list(arrays)})")
                 shape, dtype = tuple(arrays[n][0]), np.dtype(arrays[n][1])
                 if rows is None:
-                    out[n] = self._r.read_full(g, n, shape, dtype)
+                    out[n] = reader.read_full(g, n, shape, dtype)
                     continue
                 if not shape:
                     raise StoreError(f"{self._where}: /{g}/{n} is 0-d; rows do not apply")
                 sel = normalize_rows(rows, shape[0], f"{self._where}: /{g}/{n}")
                 if isinstance(sel, tuple):
                     a = np.empty((sel[1] - sel[0],) + shape[1:], dtype=dtype)
-                    self._r.read_range(g, n, sel[0], sel[1], a)
+                    reader.read_range(g, n, sel[0], sel[1], a)
                 else:
-                    a = gather_rows(lambda s, e, o: self._r.read_range(g, n, s, e, o),
+                    a = gather_rows(lambda s, e, o: reader.read_range(g, n, s, e, o),
                                     sel, shape, dtype)
                 out[n] = a
         except StoreError:
@@ -938,14 +1054,14 @@ class EpochReader:
             raise StoreError(f"{self._where}: epoch {self.step} /{g}: read failed "
                              f"({type(ex).__name__}: {ex})") from ex
         finally:
-            self._r.after_read()
+            reader.after_read()
         return out
 
     def read_domain(self, d: int, names: list[str] | None = None,
                     rows: slice | np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Arrays of domain d (all, or `names`); `rows` reads only those rows (first axis)."""
         info = self._dom(d)
-        return self._read(domain_group(operator.index(d)), info["arrays"], names, rows)
+        return self._read(domain_group(operator.index(d)), info["arrays"], names, rows, self._reader(d))
 
     def read_globals(self) -> tuple[dict[str, np.ndarray], dict]:
         g = self._e.get("globals")
@@ -955,11 +1071,68 @@ class EpochReader:
 
     def close(self) -> None:
         r, self._r = self._r, None
-        if r is not None:
+        parts, self._part_readers = list(getattr(self, "_part_readers", {}).values()), {}
+        for x in ([r] if r is not None else []) + parts:
             try:
-                r.close()
+                x.close()
             except Exception:  # noqa: BLE001
                 pass
+
+
+def write_part(path, step: int, basename: str, part: int, domains, durable: bool = False) -> dict:
+    """Phase 1 of an epoch written by several processes (e.g. MPI ranks): this process
+    writes part ``part`` (>= 1) of epoch ``basename`` (``EpochWriter.basename`` of the writer
+    the store's owner holds) under a temporary name in the store's epochs/ directory, from
+    ``domains`` (an iterable of (d, arrays, attrs)), finished (``durable``: flushed to disk)
+    and checksummed. It returns what the owner passes to ``EpochWriter.add_part``; nothing
+    of it is visible until the owner commits (phase 2), and an abort removes it.
+
+    The store is opened read-only (its manifest validated, no lock: the owner holds it);
+    on any failure the temporary is removed and StoreError says why."""
+    store = open_store(path, repair=False)
+    try:
+        place = store._place
+        if place.is_memory:
+            raise StoreError(f"{store.path}: a memory store keeps no parts (one process holds it)")
+        if not (type(part) is int and 1 <= part <= MAX_PARTS):
+            raise StoreError(f"{store.path}: part {_show(part)} is not a part number (1 to {MAX_PARTS})")
+        name = part_basename(basename, part)
+        _confine.epoch_path(f"{EPOCH_DIR}/{name}", _EXT[store.backend], step, f"{store.path}: epoch {step}",
+                            part=part)
+        place.resolver.check_epoch_dir()
+        tmp = place.tmp_name(name)
+        remove_path(tmp)
+        try:
+            w = place.fmt.Writer(tmp, step, store.compression)
+        except (OSError, RuntimeError) as e:
+            remove_path(tmp)
+            raise write_error(tmp, e) from e
+        metas = {}
+        try:
+            for d, arrays, attrs in domains:
+                d = operator.index(d)
+                where = f"{store.path}: epoch {step} domain {d}"
+                if d < 0 or str(d) in metas:
+                    raise StoreError(f"{where}: not a new domain id >= 0")
+                arrs = prepare_arrays(arrays, where, min_ndim=1)
+                w.write_group(domain_group(d), arrs, to_json(dict(attrs or {}), f"{where} attrs"))
+                first = next(iter(arrs.values()), None)
+                metas[str(d)] = {"n": 0 if first is None else int(first.shape[0]), "arrays": array_meta(arrs)}
+            inner = w.finish(durable)
+        except BaseException as e:
+            try:
+                w.abort()
+            except Exception:  # noqa: BLE001
+                pass
+            remove_path(tmp)
+            if isinstance(e, (OSError, RuntimeError)) and not isinstance(e, StoreError):
+                raise write_error(tmp, e) from e
+            raise
+        rel = f"{EPOCH_DIR}/{name}"
+        files = [{"path": rel if r == "" else f"{rel}/{r}", "size": size, "sha256": sha} for r, size, sha in inner]
+        return {"part": part, "path": rel, "tmp": tmp, "files": files, "domains": metas}
+    finally:
+        store.close()
 
 
 def store_owns(root, name: str) -> bool:

@@ -215,18 +215,44 @@ class MpiEngine:
     def state_parts(self, names=()):
         yield self.particles()
 
-    def write_domains(self, writer) -> None:
+    def _group(self, q: Particles) -> tuple[dict, dict]:
+        """One sub-domain's epoch group: its owned discs sorted by x (as serial DDM's groups)."""
         from .sweep import group_of
+        g, attrs = group_of(q)
+        attrs["x_summary"] = x_summary(g.pos[:, AX_X], self.sc.bin.length)
+        return particles_to_record(g), attrs
+
+    def write_domains(self, writer) -> None:
         for d, q in enumerate(self._call("gather", ())):
-            g, attrs = group_of(q)   # sorted by x, as serial DDM's groups
-            attrs["x_summary"] = x_summary(g.pos[:, AX_X], self.sc.bin.length)
-            writer.write_domain(d, particles_to_record(g), attrs)
+            writer.write_domain(d, *self._group(q))
 
     def commit(self, step: int, arrays: dict, attrs: dict, durable: bool = False) -> None:
-        """Rank 0 gathers each sub-domain's owned discs and commits them as serial DDM's epoch."""
+        """One epoch, as serial DDM's. On disk with several ranks, a two-phase commit: every
+        rank writes its own sub-domains' groups into its own part of the epoch (phase 1,
+        ``storage.write_part``), rank 0 gathers their checksums and commits the manifest
+        that names them all (phase 2); an epoch with a missing part never becomes current.
+        A memory store (one process's) gets the groups gathered to rank 0."""
         if self.store is None:
             raise RuntimeError("MPI run without a store to commit to")
-        write_epoch(self.store, step, self.write_domains, arrays, attrs, durable)
+        if self.R == 1 or self.store.backend == "memory":
+            write_epoch(self.store, step, self.write_domains, arrays, attrs, durable)
+            return
+        writer = self.store.begin_epoch(step)
+        try:
+            parts = self._call("write_parts", (str(self.store.path), int(step), writer.basename, bool(durable)),
+                               writer=writer)
+            failed = [x for x in parts if isinstance(x, str)]
+            for part in parts:
+                if not isinstance(part, str):
+                    writer.add_part(part)   # from here on, an abort removes it too
+            if failed:
+                from storage import StoreError
+                raise StoreError(failed[0])
+            writer.write_globals(arrays, attrs)
+            writer.commit(durable=durable)
+        except BaseException:
+            writer.abort()
+            raise
 
     def info(self) -> dict:
         return {"domains": self.D, "block": self.K, "halo_m": self.halo,
@@ -257,6 +283,37 @@ class MpiEngine:
             recs.append(self._block(s, k))
             s += k
         return np.concatenate(recs) if recs else np.zeros((0, N_REC))
+
+    def _part_number(self) -> int:
+        """This rank's part of an epoch: 1 + the ranks before it (rank 0 aside, whose groups
+        are in the epoch's main file) that own sub-domains; 0 for rank 0 or no sub-domain."""
+        owns = lambda r: self.starts[r + 1] > self.starts[r]
+        if self.rank == 0 or not owns(self.rank):
+            return 0
+        return 1 + sum(1 for r in range(1, self.rank) if owns(r))
+
+    def _op_write_parts(self, path: str, step: int, basename: str, durable: bool, writer=None):
+        """Phase 1: this rank's sub-domains (their owned discs) into its part of the epoch
+        (rank 0: into ``writer``, the epoch's main file). Rank 0 gets every other rank's
+        part (what ``write_part`` returned, or the one-line error it met)."""
+        groups = []
+        if self.live is not None:
+            live = self.live
+            for j in range(1, live.D - 1):
+                d = int(self.starts[self.rank]) + j - 1
+                groups.append((d, *self._group(live.p.take(live.owned_rows(j)))))
+        part = None
+        if self.rank == 0:
+            for d, rec, attrs in groups:
+                writer.write_domain(d, rec, attrs)
+        elif groups:
+            from storage import StoreError, write_part
+            try:
+                part = write_part(path, step, basename, self._part_number(), groups, durable)
+            except StoreError as e:
+                part = f"rank {self.rank}: {e}"
+        got = self.comm.gather(part, root=0)
+        return None if self.rank != 0 else [x for x in got[1:] if x is not None]
 
     def _op_gather(self) -> list[Particles]:
         """Rank 0 gets each sub-domain's owned discs (ownership at the start of the last

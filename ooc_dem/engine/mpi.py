@@ -183,9 +183,17 @@ class MpiEngine:
         """From a committed epoch (any mode's, any rank count): its bounds and K are kept."""
         bounds = np.array([-np.inf, *engine_attrs["bounds"], np.inf])
         eng = cls._open(sc, model, int(engine_attrs["block"]), len(bounds) - 1, store, redecompositions)
-        parts = [record_to_particles(reader.read_domain(d), model.hist_cap) for d in reader.domains()]
-        eng._call("start", (bounds, int(reader.step), np.asarray(wheel_state, np.float64)),
-                  mine=Particles.concat(parts, model.dim, model.hist_cap))
+        ws = np.asarray(wheel_state, np.float64)
+        doms = reader.domains()
+        if eng.R == 1 or store.backend == "memory":   # one process holds the store
+            parts = [record_to_particles(reader.read_domain(d), model.hist_cap) for d in doms]
+            eng._call("start", (bounds, int(reader.step), ws), mine=Particles.concat(parts, model.dim, model.hist_cap))
+            return eng
+        # every rank reads its share of the groups itself (contiguous, by the manifest's
+        # counts; rank 0 has verified the epoch's checksums): no rank holds the whole bed
+        split = rank_starts(np.array([reader.domain_len(d) for d in doms], np.int64), eng.R)
+        shares = [doms[split[r]:split[r + 1]] for r in range(eng.R)]
+        eng._call("start_from_store", (bounds, int(reader.step), ws, str(store.path), shares), reader=reader)
         return eng
 
     def _call(self, name: str, args: tuple, **local):
@@ -274,6 +282,25 @@ class MpiEngine:
         if len(self.bounds) - 1 != self.D:
             raise EngineError(f"MPI: {len(self.bounds) - 1} slab bounds for {self.D} sub-domains")
         self._distribute(mine, recut=True)
+
+    def _op_start_from_store(self, bounds, step: int, ws, path: str, shares, reader=None) -> None:
+        """Start from epoch `step` of the store at `path`: this rank reads the groups of
+        ``shares[rank]`` (rank 0 through its own `reader`, the others open the store
+        read-only), then the discs go where they belong (``_op_start``)."""
+        m = self.model
+        mine = shares[self.rank]
+        store = None
+        try:
+            if reader is None and mine:
+                from storage import open_store
+                from ..checkpoint import open_epoch
+                store = open_store(path, repair=False)
+                reader = open_epoch(store, step, verify=False)
+            parts = [record_to_particles(reader.read_domain(d), m.hist_cap) for d in mine]
+        finally:
+            if store is not None:
+                store.close()
+        self._op_start(bounds, step, ws, mine=Particles.concat(parts, m.dim, m.hist_cap))
 
     def _op_advance(self, step0: int, nsteps: int) -> np.ndarray:
         recs = []

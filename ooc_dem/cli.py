@@ -102,7 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_plan_args(q):
         """The options `run` and `check` share (check validates them exactly as run would)."""
-        q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc", "mpi"])
+        q.add_argument("--mode", default="monolithic", choices=["monolithic", "ddm", "ooc", "mpi", "mpi-ooc"],
+                       help="mpi, mpi-ooc: under mpiexec, serial DDM / out-of-core spread over the ranks")
         q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"],
                        help="memory: the store lives only in this process (no resume); summary, "
                             "series and figures are still written to --out")
@@ -140,8 +141,9 @@ def build_parser() -> argparse.ArgumentParser:
     g = q.add_mutually_exclusive_group()
     g.add_argument("--steps", type=_count(0, MAX_STEPS), help="new total step count")
     g.add_argument("--until", type=_positive_float, help="new total simulated time, s")
-    q.add_argument("--mode", choices=["ddm", "mpi"],
-                   help="continue a ddm run on MPI ranks, or an mpi run serially (the same epochs)")
+    q.add_argument("--mode", choices=["ddm", "mpi", "ooc", "mpi-ooc"],
+                   help="continue a ddm (ooc) run on MPI ranks as mpi (mpi-ooc), or the other way round "
+                        "(the same epochs)")
     q.add_argument("--no-progress", action="store_true")
     q.add_argument("--no-figures", action="store_true")
 

@@ -22,6 +22,9 @@ BED_STEPS = 60
 WHEEL = ["quick", "--set", "wheel.omega=4.0", "--set", "wheel.control=slip", "--set", "wheel.slip=0.2",
          "--set", "wheel.settle_time=0.0", "--set", "wheel.drop_gap=0.0", "--set", "decomposition.margin=0.001"]
 WHEEL_STEPS = 600
+# out-of-core commits an epoch per sweep: sweeps of 10 steps (the bits do not depend on K)
+OOC_WHEEL = [*WHEEL, "--block", "10"]
+OOC_WHEEL_STEPS = 600
 QUIET = ["--no-progress", "--no-figures"]
 # one numba thread a rank: ranks are the parallelism (and 3 ranks share 2 cores here)
 ENV = {"NUMBA_NUM_THREADS": "1"}
@@ -60,6 +63,16 @@ def assert_same_run(a, b):
     for k in sa:
         assert np.array_equal(sa[k], sb[k]), f"state array {k!r} differs"
     assert summary(a)["state_hash"] == summary(b)["state_hash"]
+
+
+@pytest.fixture(scope="module")
+def serial_ooc(tmp_path_factory):
+    """Serial out-of-core references (mpi-ooc's epochs and bits are out-of-core's)."""
+    root = tmp_path_factory.mktemp("serial-ooc")
+    run_cli("run", *BED, "--mode", "ooc", "--steps", BED_STEPS, "--out", root / "bed", *QUIET, check=True, env=ENV)
+    run_cli("run", *OOC_WHEEL, "--mode", "ooc", "--steps", OOC_WHEEL_STEPS, "--out", root / "wheel", *QUIET, check=True,
+            env=ENV)
+    return root
 
 
 @pytest.fixture(scope="module")
@@ -131,10 +144,11 @@ def _current_step(store) -> int:
     return m["current"]["step"] if m.get("current") else -1
 
 
-def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path):
+@pytest.mark.parametrize("mode,serial_mode", [("mpi", "ddm"), ("mpi-ooc", "ooc")])
+def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path, mode, serial_mode):
     out = tmp_path / "mpi"
     env = {**os.environ, **ENV}
-    job = subprocess.Popen([mpiexec(), "-n", "2", sys.executable, "-m", "ooc_dem.cli", "run", *BED, "--mode", "mpi",
+    job = subprocess.Popen([mpiexec(), "-n", "2", sys.executable, "-m", "ooc_dem.cli", "run", *BED, "--mode", mode,
                             "--steps", "1000000", "--checkpoint-every", "10", "--out", str(out), *QUIET],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
@@ -160,7 +174,7 @@ def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path):
     stop = _current_step(out) + 20
     run_cli("resume", out, "--steps", stop, *QUIET, check=True, env=ENV)
     ref = tmp_path / "serial"
-    run_cli("run", *BED, "--mode", "ddm", "--steps", stop, "--out", ref, *QUIET, check=True, env=ENV)
+    run_cli("run", *BED, "--mode", serial_mode, "--steps", stop, "--out", ref, *QUIET, check=True, env=ENV)
     assert_same_run(ref, out)
 
 
@@ -222,3 +236,35 @@ def test_each_rank_writes_its_own_part_of_every_epoch(serial, tmp_path, backend)
         d = starts[1]
         with h5py.File(out / m["current"]["parts"][0]["path"], "r") as f:
             assert f"d{d:04d}" in f["domains"]
+
+
+@pytest.mark.parametrize("ranks,backend", [(2, "hdf5"), (3, "zarr")])
+def test_out_of_core_ranks_give_the_serial_out_of_core_bits(serial_ooc, tmp_path, ranks, backend):
+    """`--mode mpi-ooc`: each rank streams its own slabs from the shared store and writes
+    its part of every epoch; the bare bed and the wheel run (re-decomposed on the way) end
+    on serial out-of-core's bits."""
+    for case, args, steps in (("bed", BED, BED_STEPS), ("wheel", OOC_WHEEL, OOC_WHEEL_STEPS)):
+        out = tmp_path / case
+        run_mpi(ranks, "run", *args, "--mode", "mpi-ooc", "--backend", backend, "--steps", steps, "--out", out,
+                *QUIET)
+        assert_same_run(serial_ooc / case, out)
+        s, ref = summary(out), summary(serial_ooc / case)
+        assert s["mode"] == "mpi-ooc" and s["engine"]["ranks"] == ranks
+        assert s["engine"]["redecompositions"] == ref["engine"]["redecompositions"]
+        m = json.loads((out / "MANIFEST.json").read_text())
+        assert len(m["current"].get("parts", [])) >= 1     # written by the ranks, not gathered
+    assert summary(tmp_path / "wheel")["engine"]["redecompositions"] >= 2
+    assert summary(tmp_path / "wheel")["slip"] == summary(serial_ooc / "wheel")["slip"]
+
+
+def test_out_of_core_switches_between_one_process_and_ranks(serial_ooc, tmp_path):
+    """ooc -> mpi-ooc on 2 ranks -> ooc again: the same epochs, the same bits."""
+    out = tmp_path / "run"
+    run_cli("run", *BED, "--mode", "ooc", "--steps", BED_STEPS // 3, "--out", out, *QUIET, check=True, env=ENV)
+    run_mpi(2, "resume", out, "--mode", "mpi-ooc", "--steps", 2 * BED_STEPS // 3, *QUIET)
+    assert summary(out)["mode"] == "mpi-ooc"
+    run_cli("resume", out, "--mode", "ooc", "--steps", BED_STEPS, *QUIET, check=True, env=ENV)
+    assert summary(out)["mode"] == "ooc"
+    assert_same_run(serial_ooc / "bed", out)
+    one_line_error(run_cli("resume", out, "--mode", "ddm", "--steps", BED_STEPS + 10, *QUIET), "--mode 'ddm'",
+                   "ooc")

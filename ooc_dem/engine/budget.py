@@ -90,7 +90,9 @@ def slab_fraction(sc, mode: str, domains: int, block: int) -> float:
 
 
 def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: bool) -> dict:
-    """The parts of a run's peak (bytes) that scale with its particles, by name."""
+    """The parts of a run's peak (bytes) that scale with its particles, by name (mpi-ooc: of
+    rank 0, which sets up the first epoch alone and streams its slabs as out-of-core does)."""
+    mode = "ooc" if mode == "mpi-ooc" else mode
     m = byte_model(sc.dim)
     n = sc.soil.n
     parts = {"baseline": m.baseline}

@@ -28,7 +28,9 @@ from .interface import Engine
 from .monolithic import MonolithicEngine
 from .stepper import EngineError, Model
 
-MODES = ("monolithic", "ddm", "ooc", "mpi")
+MODES = ("monolithic", "ddm", "ooc", "mpi", "mpi-ooc")
+# the out-of-core modes: one slab and its halo resident (mpi-ooc: on each rank)
+OOC_MODES = ("ooc", "mpi-ooc")
 BACKENDS = ("hdf5", "zarr", "memory")
 
 
@@ -137,13 +139,13 @@ def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
 def _block_for(sc: Scenario, opts: RunOptions, domains: int) -> int:
     """K exactly as the sweep will choose it for D sub-domains (its own rule, not a copy)."""
     from .sweep import DdmEngine, OocEngine
-    engine = OocEngine if opts.mode == "ooc" else DdmEngine
+    engine = OocEngine if opts.mode in OOC_MODES else DdmEngine
     return opts.block or engine.default_block(sc, domains)
 
 
 def streamable(sc: Scenario, opts: RunOptions) -> bool:
     """An out-of-core run of a tiled bare bed writes its bed into the store tile by tile."""
-    return opts.mode == "ooc" and not sc.wheel.enabled and 0 < sc.bed.tile < sc.soil.n
+    return opts.mode in OOC_MODES and not sc.wheel.enabled and 0 < sc.bed.tile < sc.soil.n
 
 
 def _series_bytes(sc: Scenario, steps: int) -> float:
@@ -167,7 +169,7 @@ def _budgeted(sc: Scenario, opts: RunOptions, steps: int, streamed: bool) -> tup
     too is kept. Other modes only check the budget."""
     if opts.memory is not None and not opts.memory >= 1:
         raise RunError(f"--memory {show(opts.memory)}: must be a positive size such as 2GB")
-    if opts.mode != "ooc" or opts.domains is not None:
+    if opts.mode not in OOC_MODES or opts.domains is not None:
         return _domains_and_block(sc, opts)
     block_of = lambda D: _block_for(sc, opts, D)
     got = budget.choose_decomposition(sc, opts.memory, block_of, max_domains(sc), opts.backend, streamed,
@@ -212,7 +214,7 @@ def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> Ru
     if opts.memory is not None and need > opts.memory:
         raise RunError(f"--memory {_fmt_bytes(opts.memory)}: the {opts.mode} run needs about "
                        f"{_fmt_bytes(need)} (D = {D}, K = {K})"
-                       + ("" if opts.mode == "ooc" else "; --mode ooc chooses sub-domains that fit"))
+                       + ("" if opts.mode in OOC_MODES else "; --mode ooc chooses sub-domains that fit"))
     return RunPlan(scenario=sc.name, mode=opts.mode, backend=opts.backend, n_discs=sc.soil.n, steps=steps,
                    simulated_time_s=steps * sc.physics.dt, dt_s=sc.physics.dt,
                    dt_critical_s=critical_time_step(sc), checkpoint_every=every, domains=D, block=K,
@@ -245,13 +247,13 @@ def _memory_message(sc, opts, steps, need, have, streamed) -> str:
         what = f"soil.n = {sc.soil.n}"
     msg = (f"{what}: the run needs about {_fmt_bytes(need)} of memory ({opts.mode}), this machine "
            f"has {_fmt_bytes(have)}")
-    if opts.mode != "ooc" and series <= need / 2:
+    if opts.mode not in OOC_MODES and series <= need / 2:
         ooc = RunOptions(**{**dataclasses.asdict(opts), "mode": "ooc", "domains": None, "block": None})
         D = max_domains(sc)
         alt = estimate_memory(sc, ooc, steps, D, 1, streamable(sc, ooc))
         if alt <= have:
             msg += f"; --mode ooc --domains {D} would need about {_fmt_bytes(alt)}"
-    elif opts.mode == "ooc" and series <= need / 2 and not streamed and not sc.wheel.enabled:
+    elif opts.mode in OOC_MODES and series <= need / 2 and not streamed and not sc.wheel.enabled:
         msg += " (out-of-core set-up holds the bed unless it is tiled: bed.tile)"
     return msg
 
@@ -396,7 +398,6 @@ class Simulation:
     def _start_streamed(self) -> None:
         from storage import StoreError, create_store
         from ..bed import tiled_bed_parts
-        from .sweep import OocEngine
         parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
         surf = [surface_height(p, p.pos[:, AX_X].max() - p.pos[:, AX_X].min(), self.sc.soil.r_max)
                 for p in parts()]
@@ -408,7 +409,7 @@ class Simulation:
             raise RunError(str(e)) from None
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
-        self.engine = OocEngine.create_streamed(self.sc, self.model, parts, np.zeros(WS_SIZE),
+        self.engine = self._ooc_engine_class().create_streamed(self.sc, self.model, parts, np.zeros(WS_SIZE),
                                                 domains=self.plan.domains, block=self.plan.block,
                                                 store=self.store, commit_sweep=self._commit_sweep,
                                                 part_sink=self._frame_part_writer)
@@ -452,6 +453,14 @@ class Simulation:
             # one part at a time (out-of-core: each group of the committed epoch; never the whole bed)
             self.frames.write_frame(self.step, t, ws, self.engine.state_parts(ROW_FIELDS))
 
+    def _ooc_engine_class(self):
+        """Out-of-core in one process, or on MPI ranks (each streaming its own slabs)."""
+        if self.opts.mode == "mpi-ooc":
+            from .mpi import MpiOocEngine
+            return MpiOocEngine
+        from .sweep import OocEngine
+        return OocEngine
+
     def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
         if self.opts.mode == "monolithic":
             return MonolithicEngine(particles, ws, self.model, store=self.store)
@@ -459,11 +468,11 @@ class Simulation:
             from .mpi import MpiEngine
             return MpiEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
                                     block=self.plan.block, store=self.store)
-        from .sweep import DdmEngine, OocEngine
+        from .sweep import DdmEngine
         if self.opts.mode == "ddm":
             return DdmEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
                                     block=self.plan.block, store=self.store)
-        return OocEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
+        return self._ooc_engine_class().create(self.sc, self.model, particles, ws, domains=self.plan.domains,
                                 block=self.plan.block, store=self.store,
                                 commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer)
 
@@ -479,11 +488,11 @@ class Simulation:
             from .mpi import MpiEngine
             return MpiEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
-        from .sweep import DdmEngine, OocEngine
+        from .sweep import DdmEngine
         if self.opts.mode == "ddm":
             return DdmEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
-        return OocEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
+        return self._ooc_engine_class().reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                 commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer,
                                 redecompositions=redecompositions)
 
@@ -676,8 +685,9 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     return sim
 
 
-# modes whose epochs are one another's (serial DDM's groups and bounds): a resume may switch
-SWITCHABLE_MODES = ("ddm", "mpi")
+# modes whose epochs are one another's (serial DDM's groups and bounds; out-of-core's): a
+# resume may switch within a family
+SWITCHABLE_MODES = (("ddm", "mpi"), ("ooc", "mpi-ooc"))
 
 
 def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
@@ -712,9 +722,10 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
     elif steps is not None:
         total = total_steps(sc, RunOptions(steps=steps))
     if mode is not None and mode != run["mode"]:
-        if mode not in SWITCHABLE_MODES or run["mode"] not in SWITCHABLE_MODES:
+        if not any(mode in f and run["mode"] in f for f in SWITCHABLE_MODES):
             raise RunError(f"--mode {show(mode)}: a {run['mode']} run resumes in its own mode "
-                           f"(only {' and '.join(SWITCHABLE_MODES)} runs switch between those two)")
+                           f"(only {' and '.join(f'{a} and {b}' for a, b in SWITCHABLE_MODES)} runs "
+                           f"switch between each other)")
         run["mode"] = mode
     opts = RunOptions(mode=run["mode"], backend=run["backend"], domains=run["domains"], block=run["block"],
                       steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,

@@ -556,6 +556,26 @@ class OocEngine(SlabSweep):
                 self._writer = None
             raise
 
+    def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int):
+        """Slab d of the sweep: its discs and halo read from epoch ``src``, advanced k steps;
+        (its owned discs as a group and the group's attrs, the wheel records, the wheel
+        state after (the slab of the wheel only, else None), the resident count)."""
+        lo, hi = self.bounds[d], self.bounds[d + 1]
+        pieces = [q for g in src.domains()
+                  if (q := _read_rows(src, g, lo - self.halo, hi + self.halo,
+                                      self.model.hist_cap)) is not None]
+        # the pieces are x-sorted strips: already in a cache-friendly order, and memory
+        # order never changes a result (docs/design.md §3), so no spatial re-sort here
+        local = Particles.concat(pieces, self.model.dim, self.model.hist_cap)
+        if d == wslab:
+            st = DomainStepper(local, self.model, self.ws, reorder=False)
+        else:
+            st = DomainStepper(local, self.model_nowheel, None, reorder=False)
+        owned = np.flatnonzero((st.p.pos[:, AX_X] >= lo) & (st.p.pos[:, AX_X] < hi))
+        rec = st.advance(step0, k) if len(local) else np.zeros((0, N_REC))
+        q, attrs = group_of(st.p, owned)
+        return q, attrs, rec, (st.ws.copy() if d == wslab else None), len(local)
+
     def _sweep_domains(self, src, step0: int, k: int, wslab: int) -> np.ndarray:
         rec_wheel = np.zeros((0, N_REC))
         new_ws = self.ws
@@ -564,32 +584,15 @@ class OocEngine(SlabSweep):
         # trajectory: a frame at the sweep's end gets each slab's owned discs as it passes
         write_part = self.part_sink(step0 + k) if self.part_sink is not None else None
         for d in range(self.D):
-            lo, hi = self.bounds[d], self.bounds[d + 1]
-            pieces = [q for g in src.domains()
-                      if (q := _read_rows(src, g, lo - self.halo, hi + self.halo,
-                                               self.model.hist_cap)) is not None]
-            # the pieces are x-sorted strips: already in a cache-friendly order, and memory
-            # order never changes a result (docs/design.md §3), so no spatial re-sort here
-            local = Particles.concat(pieces, self.model.dim, self.model.hist_cap)
-            resident.append(len(local))
+            q, attrs, rec, ws, n_local = self._advance_slab(src, d, step0, k, wslab)
+            resident.append(n_local)
             if d == wslab:
-                st = DomainStepper(local, self.model, self.ws, reorder=False)
-            else:
-                st = DomainStepper(local, self.model_nowheel, None, reorder=False)
-            owned = np.flatnonzero((st.p.pos[:, AX_X] >= lo) & (st.p.pos[:, AX_X] < hi))
-            if len(local):
-                rec = st.advance(step0, k)
-            else:
-                rec = np.zeros((0, N_REC))
-            if d == wslab:
-                rec_wheel = rec
-                new_ws = st.ws.copy()
-            owned_total += len(owned)
-            q, attrs = group_of(st.p, owned)
+                rec_wheel, new_ws = rec, ws
+            owned_total += len(q)
             self._stage(d, q, attrs)
             if write_part is not None:
                 write_part(q)
-            del st, local, pieces, q
+            del q
         if self._n is not None and owned_total != self._n:
             raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")

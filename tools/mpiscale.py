@@ -109,7 +109,8 @@ def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ran
     the Python work around it (packing rows, the refresh, the ownership update, the
     rebuild decision's allreduce). That cost is measured, not assumed: the 2-rank run's
     time minus half the 1-rank run's, per block, is what one neighbour exchange costs
-    (rank 0 of 2 has one neighbour; with more ranks each has two, so twice that), plus
+    (rank 0 of 2 has one neighbour; with more ranks each has two, so twice that; the larger
+    rank's share of the discs is taken off first, so imbalance is not counted), plus
     2 log2(R) latencies for the collectives. The wire part alone (the ping-pong's latency
     and bandwidth for the rows and messages actually sent) is given beside it."""
     import math
@@ -121,8 +122,12 @@ def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ran
     msgs_neighbour = eng2["rank0_messages"] / blocks
     lat, bw = pp["latency_s"], pp["bandwidth_bytes_per_s"]
     wire = msgs_neighbour * lat + rows_strip * dtype_bytes / bw
-    per_neighbour = max((two["wall_time_s"] - one["wall_time_s"] / 2) / blocks, wire)
-    out = {"t_particle_step_s": t_ps, "halo_rows_per_neighbour_per_block": rows_strip,
+    # the 2-rank run's slower rank holds this share of the discs (its compute: that share of
+    # the 1-rank run's); the rest of its time is the per-block cost
+    share = max(eng2.get("rank_discs") or [one["n"] / 2]) / one["n"]
+    per_neighbour = max((two["wall_time_s"] - one["wall_time_s"] * share) / blocks, wire)
+    out = {"t_particle_step_s": t_ps, "largest_rank_share_of_2": share,
+           "halo_rows_per_neighbour_per_block": rows_strip,
            "messages_per_neighbour_per_block": msgs_neighbour, "row_bytes": dtype_bytes,
            "wire_s_per_neighbour_per_block": wire,
            "measured_s_per_neighbour_per_block": per_neighbour,

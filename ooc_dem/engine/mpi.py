@@ -108,7 +108,12 @@ def rank_starts(counts: np.ndarray, ranks: int) -> np.ndarray:
     total = before[-1]
     starts = [0]
     for r in range(1, ranks):
-        s = int(np.searchsorted(before, r * total / ranks, "left"))
+        # the boundary nearest the ideal cut (the first one past it could leave almost a
+        # whole sub-domain too many on the ranks before: bed-1m, D = 8, R = 2 cut 5 | 3)
+        target = r * total / ranks
+        s = int(np.searchsorted(before, target, "left"))
+        if 0 < s <= D and target - before[s - 1] <= before[s] - target:
+            s -= 1
         lo, hi = starts[-1] + 1, D - (ranks - r)
         s = min(lo, D) if hi < lo else min(max(s, lo), hi)
         starts.append(s)
@@ -268,6 +273,8 @@ class MpiEngine:
                 "bounds": [float(v) for v in self.bounds[1:-1]],
                 "redecompositions": len(self.redecompositions),
                 "ranks": self.R, "rank_starts": [int(s) for s in self.starts],
+                # each rank's owned discs at the last re-cut (the load balance)
+                "rank_discs": list(getattr(self, "rank_discs", [])),
                 "local_set_builds": self.builds,
                 # rank 0's share of the exchange (a first measure of the halo traffic)
                 "rank0_halo_rows_sent": self.halo_rows_sent, "rank0_messages": self.messages}
@@ -387,9 +394,9 @@ class MpiEngine:
             self.bounds = self._decompose(self._histogram(mine), step0)
             self._distribute(mine, recut=True)
         elif wheel and wheel_slab_index(self.bounds, float(self.ws[WS_X])) != self.wslab:
-            self._distribute(self._mine())
+            self._distribute(self._mine(), recut=True)   # every rebuild re-balances the ranks
         elif not self._refresh():
-            self._distribute(self._mine())
+            self._distribute(self._mine(), recut=True)   # every rebuild re-balances the ranks
         rec = np.zeros((0, N_REC))
         live = self.live
         if live is not None:
@@ -488,6 +495,7 @@ class MpiEngine:
         if recut:
             counts = self._sum(np.bincount(owner(self.bounds, x), minlength=self.D).astype(np.int64))
             self.starts = rank_starts(counts, self.R)
+            self.rank_discs = [int(counts[a:b].sum()) for a, b in zip(self.starts[:-1], self.starts[1:])]
         sends = []
         for q in range(self.R):
             rng = self._range(q)

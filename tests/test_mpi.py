@@ -65,24 +65,25 @@ def assert_same_run(a, b):
     assert summary(a)["state_hash"] == summary(b)["state_hash"]
 
 
+def _references(tmp_path_factory, mode: str, wheel: list, wheel_steps: int):
+    """Serial runs of `mode` to compare with: the bare bed and the wheel run."""
+    root = tmp_path_factory.mktemp(f"serial-{mode}")
+    run_cli("run", *BED, "--mode", mode, "--steps", BED_STEPS, "--out", root / "bed", *QUIET, check=True, env=ENV)
+    run_cli("run", *wheel, "--mode", mode, "--steps", wheel_steps, "--out", root / "wheel", *QUIET, check=True,
+            env=ENV)
+    return root
+
+
 @pytest.fixture(scope="module")
 def serial_ooc(tmp_path_factory):
     """Serial out-of-core references (mpi-ooc's epochs and bits are out-of-core's)."""
-    root = tmp_path_factory.mktemp("serial-ooc")
-    run_cli("run", *BED, "--mode", "ooc", "--steps", BED_STEPS, "--out", root / "bed", *QUIET, check=True, env=ENV)
-    run_cli("run", *OOC_WHEEL, "--mode", "ooc", "--steps", OOC_WHEEL_STEPS, "--out", root / "wheel", *QUIET, check=True,
-            env=ENV)
-    return root
+    return _references(tmp_path_factory, "ooc", OOC_WHEEL, OOC_WHEEL_STEPS)
 
 
 @pytest.fixture(scope="module")
 def serial(tmp_path_factory):
-    """Serial DDM references: the bare bed and the wheel run."""
-    root = tmp_path_factory.mktemp("serial")
-    run_cli("run", *BED, "--mode", "ddm", "--steps", BED_STEPS, "--out", root / "bed", *QUIET, check=True, env=ENV)
-    run_cli("run", *WHEEL, "--mode", "ddm", "--steps", WHEEL_STEPS, "--out", root / "wheel", *QUIET, check=True,
-            env=ENV)
-    return root
+    """Serial DDM references (mpi's bits are serial DDM's)."""
+    return _references(tmp_path_factory, "ddm", WHEEL, WHEEL_STEPS)
 
 
 @pytest.mark.parametrize("ranks", [2, 3])

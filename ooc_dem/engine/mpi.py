@@ -413,17 +413,10 @@ class MpiEngine:
     def _share_wheel(self, rec: np.ndarray, k: int) -> np.ndarray:
         """The wheel's rank broadcasts its state and this block's wheel records."""
         root = int(np.searchsorted(self.starts, self.wslab, "right") - 1)
-        buf = np.zeros(WS_SIZE + 1 + k * N_REC)
-        if self.rank == root:
-            buf[:WS_SIZE] = self.ws
-            buf[WS_SIZE] = len(rec)
-            buf[WS_SIZE + 1:WS_SIZE + 1 + rec.size] = rec.ravel()
+        self.ws, rec = broadcast_wheel(self.comm, root, self.ws, rec, k)
         if self.R > 1:
-            self.comm.Bcast(buf, root=root)
             self.messages += 1
-        self.ws = buf[:WS_SIZE].copy()
-        rows = int(buf[WS_SIZE])
-        return buf[WS_SIZE + 1:WS_SIZE + 1 + rows * N_REC].reshape(rows, N_REC).copy()
+        return rec
 
     # ------------------------------------------------------ ownership and exchange
     def _range(self, r: int) -> tuple[float, float] | None:
@@ -575,6 +568,20 @@ class MpiEngine:
         return True
 
 
+def broadcast_wheel(comm, root: int, ws: np.ndarray, rec: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rank `root`'s wheel state and its (at most k) wheel records, on every rank: one
+    ``Bcast`` of one buffer."""
+    buf = np.zeros(WS_SIZE + 1 + k * N_REC)
+    if comm.Get_rank() == root:
+        buf[:WS_SIZE] = ws
+        buf[WS_SIZE] = len(rec)
+        buf[WS_SIZE + 1:WS_SIZE + 1 + rec.size] = rec.ravel()
+    if comm.Get_size() > 1:
+        comm.Bcast(buf, root=root)
+    rows = int(buf[WS_SIZE])
+    return buf[:WS_SIZE].copy(), buf[WS_SIZE + 1:WS_SIZE + 1 + rows * N_REC].reshape(rows, N_REC).copy()
+
+
 def send_command(comm, command) -> None:
     """Rank 0 -> every rank: its length (a non-blocking broadcast, which the others poll
     with sleeps), then the pickled command."""
@@ -646,24 +653,9 @@ def run_ranks(command) -> int:
     an error anywhere, or a non-zero exit of rank 0, aborts every rank."""
     comm = world()
     if comm.Get_rank() != 0:
-        try:
-            worker_loop(comm)
-        except BaseException:
-            import traceback
-            traceback.print_exc()
-            sys.stderr.flush()
-            comm.Abort(1)
+        run_everywhere(comm, lambda: worker_loop(comm))
         return 0
-    try:
-        rc = command()
-    except BaseException:
-        import traceback
-        traceback.print_exc()
-        sys.stderr.flush()
-        comm.Abort(1)
-        raise
-    sys.stdout.flush()
-    sys.stderr.flush()
+    rc = run_everywhere(comm, command)
     if rc:
         comm.Abort(int(rc))
     send_command(comm, ("stop", ()))
@@ -818,17 +810,9 @@ class MpiOocEngine(OocEngine):
         if wslab < 0:
             return np.zeros((0, N_REC))
         root = int(np.searchsorted(self.starts, wslab, "right") - 1)
-        buf = np.zeros(WS_SIZE + 1 + k * N_REC)
-        if self.rank == root:
-            rec = done["rec"]
-            buf[:WS_SIZE] = done["ws"]
-            buf[WS_SIZE] = len(rec)
-            buf[WS_SIZE + 1:WS_SIZE + 1 + rec.size] = rec.ravel()
-        if self.R > 1:
-            self.comm.Bcast(buf, root=root)
-        self.ws = buf[:WS_SIZE].copy()
-        rows = int(buf[WS_SIZE])
-        return buf[WS_SIZE + 1:WS_SIZE + 1 + rows * N_REC].reshape(rows, N_REC).copy()
+        ws = done["ws"] if self.rank == root else self.ws
+        self.ws, rec = broadcast_wheel(self.comm, root, ws, done["rec"], k)
+        return rec
 
     def info(self) -> dict:
         return {**super().info(), "ranks": self.R, "rank_starts": [int(s) for s in self.starts]}

@@ -23,7 +23,7 @@ WHEEL = ["quick", "--set", "wheel.omega=4.0", "--set", "wheel.control=slip", "--
          "--set", "wheel.settle_time=0.0", "--set", "wheel.drop_gap=0.0", "--set", "decomposition.margin=0.001"]
 WHEEL_STEPS = 600
 # out-of-core commits an epoch per sweep: sweeps of 10 steps (the bits do not depend on K)
-OOC_WHEEL = [*WHEEL, "--block", "10"]
+OOC_WHEEL = [*WHEEL, "--block", "10", "--set", "output.snapshot_interval=0.002"]   # + frames every 200 steps
 OOC_WHEEL_STEPS = 600
 QUIET = ["--no-progress", "--no-figures"]
 # one numba thread a rank: ranks are the parallelism (and 3 ranks share 2 cores here)
@@ -256,6 +256,17 @@ def test_out_of_core_ranks_give_the_serial_out_of_core_bits(serial_ooc, tmp_path
         assert len(m["current"].get("parts", [])) >= 1     # written by the ranks, not gathered
     assert summary(tmp_path / "wheel")["engine"]["redecompositions"] >= 2
     assert summary(tmp_path / "wheel")["slip"] == summary(serial_ooc / "wheel")["slip"]
+    # the trajectory: rank 0 streams each frame from the committed epoch, the same frames
+    import h5py
+    frames = sorted(p.name for p in (serial_ooc / "wheel" / "trajectory").iterdir())
+    assert frames == sorted(p.name for p in (tmp_path / "wheel" / "trajectory").iterdir())
+    assert len(frames) == OOC_WHEEL_STEPS // 200 + 1
+    for name in frames:
+        with h5py.File(serial_ooc / "wheel" / "trajectory" / name) as a, \
+                h5py.File(tmp_path / "wheel" / "trajectory" / name) as b:
+            ia, ib = np.argsort(a["id"][()]), np.argsort(b["id"][()])
+            for k in ("id", "pos", "vel", "spin", "r", "mat"):
+                assert np.array_equal(a[k][()][ia], b[k][()][ib]), (name, k)
 
 
 def test_out_of_core_switches_between_one_process_and_ranks(serial_ooc, tmp_path):
@@ -269,3 +280,12 @@ def test_out_of_core_switches_between_one_process_and_ranks(serial_ooc, tmp_path
     assert_same_run(serial_ooc / "bed", out)
     one_line_error(run_cli("resume", out, "--mode", "ddm", "--steps", BED_STEPS + 10, *QUIET), "--mode 'ddm'",
                    "ooc")
+
+
+@pytest.mark.parametrize("mode", ["mpi", "mpi-ooc"])
+def test_bad_input_on_ranks_is_one_line_and_exit_2(tmp_path, mode):
+    """The bad-input rule holds under mpiexec too: rank 0's one-line error and exit code 2,
+    no abort notice of the MPI beside it."""
+    cp = run_mpi(2, "run", *BED, "--mode", mode, "--set", "output.no_such_key=1", "--out", tmp_path / "run", *QUIET,
+                 check=False)
+    one_line_error(cp, "output.no_such_key: unknown key")

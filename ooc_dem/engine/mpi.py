@@ -657,6 +657,11 @@ def run_ranks(command) -> int:
         return 0
     rc = run_everywhere(comm, command)
     if rc:
+        # the error is said (one line, flushed); MPI's own abort notice would be a second
+        sys.stdout.flush()
+        sys.stderr.flush()
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 2)
         comm.Abort(int(rc))
     send_command(comm, ("stop", ()))
     return rc

@@ -110,6 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--compression", default="none", choices=["none", "zstd", "blosc", "gzip", "lzf"],
                        help="compress the store's arrays: zarr zstd|blosc, hdf5 gzip|lzf (default "
                             "none: see the README's Disk economy)")
+        q.add_argument("--io-overlap", action="store_true",
+                       help="out-of-core: read the next slab and write the last one in threads while a "
+                            "slab computes (same bits; up to three slabs resident)")
         q.add_argument("--domains", type=_count(1, MAX_DOMAINS), help="number of sub-domains D (ddm, ooc)")
         q.add_argument("--block", type=_count(1, MAX_BLOCK), help="steps per epoch K (temporal blocking)")
         g = q.add_mutually_exclusive_group()
@@ -296,7 +299,8 @@ def _run_options(args):
                       memory=getattr(args, "memory", None),
                       progress=not getattr(args, "no_progress", True),
                       figures=not getattr(args, "no_figures", True),
-                      compression=None if getattr(args, "compression", "none") == "none" else args.compression)
+                      compression=None if getattr(args, "compression", "none") == "none" else args.compression,
+                      io_overlap=getattr(args, "io_overlap", False))
 
 
 def cmd_run(args):

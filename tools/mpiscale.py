@@ -72,16 +72,19 @@ def pingpong(mpiexec: str) -> dict:
 
 
 def run_once(scenario: str, mode: str, ranks: int, threads: int, steps: int, domains: int, block: int,
-             overrides: list[str], work: Path, mpiexec: str) -> dict:
+             overrides: list[str], work: Path, mpiexec: str | None = None, extra=()) -> dict:
+    """One `ooc-dem run` (under ``mpiexec -n ranks`` for the MPI modes), measured by its
+    summary.json; ``extra``: more command-line flags."""
     out = work / f"{scenario}-{mode}-{ranks}r-{threads}t"
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "ooc_dem.cli", "run", scenario, "--mode", mode, "--steps", str(steps),
            "--checkpoint-every", str(steps), "--out", str(out), "--no-progress", "--no-figures"]
     if mode != "monolithic":
-        cmd += ["--domains", str(domains), "--block", str(block)]
+        cmd += ["--domains", str(domains)] + (["--block", str(block)] if block else [])   # 0: the mode's own K
     for s in overrides:
         cmd += ["--set", s]
-    if mode == "mpi":
+    cmd += list(extra)
+    if mode in ("mpi", "mpi-ooc"):
         cmd = [mpiexec, "-n", str(ranks), *cmd]
     env = {**os.environ, "NUMBA_NUM_THREADS": str(threads), "PYTHONPATH": str(ROOT)}
     t = time.perf_counter()
@@ -92,7 +95,7 @@ def run_once(scenario: str, mode: str, ranks: int, threads: int, steps: int, dom
     s = json.loads((out / "summary.json").read_text())
     eng = s.get("engine") or {}
     shutil.rmtree(out, ignore_errors=True)
-    return {"scenario": scenario, "mode": mode, "ranks": ranks, "threads_per_rank": threads,
+    return {"scenario": scenario, "mode": mode, "flags": list(extra), "ranks": ranks, "threads_per_rank": threads,
             "steps": steps, "domains": eng.get("domains"), "block": eng.get("block"),
             "n": s["n_discs"], "wall_time_s": s["wall_time_s"], "process_s": round(total, 3),
             "particle_steps_per_s": s["n_discs"] * steps / s["wall_time_s"],

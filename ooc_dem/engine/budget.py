@@ -89,9 +89,11 @@ def slab_fraction(sc, mode: str, domains: int, block: int) -> float:
     return min(1.0, 1.0 / domains + 2.0 * hops * hop(sc) / sc.bin.length)
 
 
-def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: bool) -> dict:
+def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: bool, slabs: int = 1) -> dict:
     """The parts of a run's peak (bytes) that scale with its particles, by name (mpi-ooc: of
-    rank 0, which sets up the first epoch alone and streams its slabs as out-of-core does)."""
+    rank 0, which sets up the first epoch alone and streams its slabs as out-of-core does).
+    ``slabs``: out-of-core slabs resident at once (3 with --io-overlap: one read ahead, one
+    computing, one being written)."""
     mode = "ooc" if mode == "mpi-ooc" else mode
     m = byte_model(sc.dim)
     n = sc.soil.n
@@ -103,7 +105,7 @@ def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: 
         parts["state"] = n * (m.resident * (1.0 + domains * halo) + m.state)
     else:
         # the sweeps, the set-up and the final hash come one after another: the largest counts
-        phases = {"slab": m.ooc_fixed + n * m.resident * slab_fraction(sc, mode, domains, block),
+        phases = {"slab": m.ooc_fixed + slabs * n * m.resident * slab_fraction(sc, mode, domains, block),
                   "setup": n * (m.streamed_setup if streamed else m.ooc_setup),
                   "hash": n * m.final_hash + min(n, HASH_CHUNK) * m.hash_chunk}
         top = max(phases, key=phases.get)
@@ -114,12 +116,12 @@ def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: 
 
 
 def estimate_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: bool,
-                  series_bytes: float = 0.0) -> int:
-    return int(sum(state_peak(sc, mode, backend, domains, block, streamed).values()) + series_bytes)
+                  series_bytes: float = 0.0, slabs: int = 1) -> int:
+    return int(sum(state_peak(sc, mode, backend, domains, block, streamed, slabs).values()) + series_bytes)
 
 
 def choose_decomposition(sc, budget: int, block_of, max_domains: int, backend: str, streamed: bool,
-                         series_bytes: float = 0.0) -> tuple[int, int, int] | None:
+                         series_bytes: float = 0.0, slabs: int = 1) -> tuple[int, int, int] | None:
     """The fewest out-of-core sub-domains D (and their K = ``block_of(D)``) whose peak fits
     ``budget`` bytes: (D, K, peak), or None when even ``max_domains`` does not fit.
 
@@ -127,7 +129,7 @@ def choose_decomposition(sc, budget: int, block_of, max_domains: int, backend: s
     ~10 % of it), so the first D that fits is the largest slab that fits."""
     for D in range(1, max_domains + 1):
         K = block_of(D)
-        peak = estimate_peak(sc, "ooc", backend, D, K, streamed, series_bytes)
+        peak = estimate_peak(sc, "ooc", backend, D, K, streamed, series_bytes, slabs)
         if peak <= budget:
             return D, K, peak
     return None
@@ -147,10 +149,10 @@ def parse_memory(text: str) -> int:
 
 
 def smallest_fit_message(sc, budget: int, block_of, max_domains: int, backend: str, streamed: bool,
-                         series_bytes: float = 0.0) -> str:
+                         series_bytes: float = 0.0, slabs: int = 1) -> str:
     """Why a budget cannot be met: the parts of the smallest out-of-core peak (at the most
     sub-domains the bed allows)."""
-    parts = state_peak(sc, "ooc", backend, max_domains, block_of(max_domains), streamed)
+    parts = state_peak(sc, "ooc", backend, max_domains, block_of(max_domains), streamed, slabs)
     if series_bytes:
         parts["series"] = series_bytes
     names = {"baseline": "interpreter and kernels",

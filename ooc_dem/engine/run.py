@@ -52,6 +52,7 @@ class RunOptions:
     figures: bool = True
     memory: int | None = None           # bytes the run may hold at its peak (--memory): chooses D, K
     compression: str | None = None      # the store's (storage.COMPRESSIONS[backend]); None: off
+    io_overlap: bool = False            # out-of-core: read ahead, write behind in threads (--io-overlap)
 
 
 def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
@@ -156,11 +157,16 @@ def _series_bytes(sc: Scenario, steps: int) -> float:
     return 3.0 * (steps // per_row + 1) * SERIES_ROW_BYTES
 
 
+def _slabs(opts: RunOptions) -> int:
+    """Out-of-core slabs resident at once: one, or three with --io-overlap."""
+    return 3 if opts.io_overlap and opts.mode in OOC_MODES else 1
+
+
 def estimate_memory(sc: Scenario, opts: RunOptions, steps: int, domains: int, block: int,
                     streamed: bool) -> int:
     """Bytes the run needs at its peak (engine/budget.py: measured bytes per particle)."""
     return budget.estimate_peak(sc, opts.mode, opts.backend, domains, block, streamed,
-                                _series_bytes(sc, steps))
+                                _series_bytes(sc, steps), _slabs(opts))
 
 
 def _budgeted(sc: Scenario, opts: RunOptions, steps: int, streamed: bool) -> tuple[int, int]:
@@ -173,10 +179,10 @@ def _budgeted(sc: Scenario, opts: RunOptions, steps: int, streamed: bool) -> tup
         return _domains_and_block(sc, opts)
     block_of = lambda D: _block_for(sc, opts, D)
     got = budget.choose_decomposition(sc, opts.memory, block_of, max_domains(sc), opts.backend, streamed,
-                                      _series_bytes(sc, steps))
+                                      _series_bytes(sc, steps), _slabs(opts))
     if got is None:
         raise RunError(budget.smallest_fit_message(sc, opts.memory, block_of, max_domains(sc), opts.backend,
-                                                   streamed, _series_bytes(sc, steps)))
+                                                   streamed, _series_bytes(sc, steps), _slabs(opts)))
     return got[0], got[1]
 
 
@@ -354,7 +360,8 @@ class Simulation:
                 "scenario_toml": self.sc.to_toml(), "scenario_hash": self.sc.hash(),
                 "scenario_name": self.sc.name,
                 "run": {"mode": o.mode, "backend": o.backend, "domains": o.domains, "block": o.block,
-                        "steps": self.steps, "checkpoint_every": self.checkpoint_every}}
+                        "steps": self.steps, "checkpoint_every": self.checkpoint_every,
+                        "io_overlap": o.io_overlap}}
 
     def _store_backend(self) -> str:
         # monolithic and DDM checkpoint to a file store too; the backend is the user's choice
@@ -409,10 +416,9 @@ class Simulation:
             raise RunError(str(e)) from None
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
-        self.engine = self._ooc_engine_class().create_streamed(self.sc, self.model, parts, np.zeros(WS_SIZE),
-                                                domains=self.plan.domains, block=self.plan.block,
-                                                store=self.store, commit_sweep=self._commit_sweep,
-                                                part_sink=self._frame_part_writer)
+        self.engine = self._with_io_options(self._ooc_engine_class().create_streamed(
+            self.sc, self.model, parts, np.zeros(WS_SIZE), domains=self.plan.domains, block=self.plan.block,
+            store=self.store, commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer))
         self.step = 0
         self.commit()
         self._start_trajectory()
@@ -461,6 +467,11 @@ class Simulation:
         from .sweep import OocEngine
         return OocEngine
 
+    def _with_io_options(self, engine):
+        """An out-of-core engine with the run's I/O options."""
+        engine.io_overlap = self.opts.io_overlap
+        return engine
+
     def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
         if self.opts.mode == "monolithic":
             return MonolithicEngine(particles, ws, self.model, store=self.store)
@@ -472,9 +483,9 @@ class Simulation:
         if self.opts.mode == "ddm":
             return DdmEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
                                     block=self.plan.block, store=self.store)
-        return self._ooc_engine_class().create(self.sc, self.model, particles, ws, domains=self.plan.domains,
-                                block=self.plan.block, store=self.store,
-                                commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer)
+        return self._with_io_options(self._ooc_engine_class().create(
+            self.sc, self.model, particles, ws, domains=self.plan.domains, block=self.plan.block, store=self.store,
+            commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer))
 
     def _reopen_engine(self, reader, arrays: dict, attrs: dict) -> Engine:
         """The engine continuing from the committed epoch ``reader`` reads (checked)."""
@@ -492,9 +503,9 @@ class Simulation:
         if self.opts.mode == "ddm":
             return DdmEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
-        return self._ooc_engine_class().reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
-                                commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer,
-                                redecompositions=redecompositions)
+        return self._with_io_options(self._ooc_engine_class().reopen(
+            self.sc, self.model, reader, ws, attrs["engine"], store=self.store, commit_sweep=self._commit_sweep,
+            part_sink=self._frame_part_writer, redecompositions=redecompositions))
 
     def _bed_progress(self):
         if not self.opts.progress:
@@ -623,7 +634,8 @@ class Simulation:
 
 # the run options a store's meta must hold, with the types a resume accepts
 _RUN_OPTION_TYPES = {"mode": (str,), "backend": (str,), "domains": (int, type(None)),
-                     "block": (int, type(None)), "steps": (int,), "checkpoint_every": (int,)}
+                     "block": (int, type(None)), "steps": (int,), "checkpoint_every": (int,),
+                     "io_overlap": (bool, type(None))}   # None: a store written before it existed
 
 
 def _stored_run_options(meta: dict, path) -> dict:
@@ -729,7 +741,7 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
         run["mode"] = mode
     opts = RunOptions(mode=run["mode"], backend=run["backend"], domains=run["domains"], block=run["block"],
                       steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
-                      figures=figures)
+                      figures=figures, io_overlap=bool(run["io_overlap"]))
     sim = Simulation(sc, path, opts)
     # a run keeps the capacity it was written with when that is larger (runs written when
     # 2D's default was 12 may hold discs with more than today's 8 contacts); bounded,

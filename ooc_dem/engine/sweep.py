@@ -442,6 +442,7 @@ class OocEngine(SlabSweep):
         self._writer = None         # the epoch being written
         self._store_reader = None   # the current committed epoch
         self.committed_step = None
+        self.io_overlap = False     # read ahead and write behind in threads (``_slabs``)
 
     @classmethod
     def default_block(cls, sc, domains: int) -> int:
@@ -556,17 +557,24 @@ class OocEngine(SlabSweep):
                 self._writer = None
             raise
 
-    def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int):
-        """Slab d of the sweep: its discs and halo read from epoch ``src``, advanced k steps;
-        (its owned discs as a group and the group's attrs, the wheel records, the wheel
-        state after (the slab of the wheel only, else None), the resident count)."""
+    def _slab_pieces(self, src, d: int) -> list[Particles]:
+        """Slab d's discs and its halo from epoch ``src``: x-sorted strips of its groups."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
-        pieces = [q for g in src.domains()
-                  if (q := _read_rows(src, g, lo - self.halo, hi + self.halo,
-                                      self.model.hist_cap)) is not None]
+        return [q for g in src.domains()
+                if (q := _read_rows(src, g, lo - self.halo, hi + self.halo, self.model.hist_cap)) is not None]
+
+    def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int, pieces=None):
+        """Slab d of the sweep: its discs and halo (``pieces``, else read from epoch ``src``),
+        advanced k steps; (its owned discs as a group and the group's attrs, the wheel
+        records, the wheel state after (the slab of the wheel only, else None), the
+        resident count)."""
+        lo, hi = self.bounds[d], self.bounds[d + 1]
+        if pieces is None:
+            pieces = self._slab_pieces(src, d)
         # the pieces are x-sorted strips: already in a cache-friendly order, and memory
         # order never changes a result (docs/design.md §3), so no spatial re-sort here
         local = Particles.concat(pieces, self.model.dim, self.model.hist_cap)
+        del pieces
         if d == wslab:
             st = DomainStepper(local, self.model, self.ws, reorder=False)
         else:
@@ -576,6 +584,36 @@ class OocEngine(SlabSweep):
         q, attrs = group_of(st.p, owned)
         return q, attrs, rec, (st.ws.copy() if d == wslab else None), len(local)
 
+    def _slabs(self, src, step0: int, k: int, wslab: int, stage):
+        """Every slab in turn (``_advance_slab``), each result passed to ``stage(d, q, attrs)``;
+        yields (d, owned count, rec, ws, resident). With ``io_overlap`` the reads of slab d + 1 and the
+        writes of slab d - 1 run in two threads while slab d computes (the kernel releases
+        the GIL): the same slabs, read and written in the same order, so the same bits;
+        up to three slabs are resident instead of one."""
+        if not self.io_overlap:
+            for d in range(self.D):
+                q, attrs, rec, ws, n_local = self._advance_slab(src, d, step0, k, wslab)
+                stage(d, q, attrs)
+                yield d, len(q), rec, ws, n_local
+            return
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(1, "ooc-read") as reads, ThreadPoolExecutor(1, "ooc-write") as writes:
+            ahead = reads.submit(self._slab_pieces, src, 0)
+            written = None
+            for d in range(self.D):
+                pieces = ahead.result()
+                if d + 1 < self.D:
+                    ahead = reads.submit(self._slab_pieces, src, d + 1)
+                q, attrs, rec, ws, n_local = self._advance_slab(src, d, step0, k, wslab, pieces)
+                del pieces
+                if written is not None:
+                    written.result()       # one write in flight: memory stays three slabs
+                written = writes.submit(stage, d, q, attrs)
+                yield d, len(q), rec, ws, n_local
+                del q
+            if written is not None:
+                written.result()
+
     def _sweep_domains(self, src, step0: int, k: int, wslab: int) -> np.ndarray:
         rec_wheel = np.zeros((0, N_REC))
         new_ws = self.ws
@@ -583,16 +621,17 @@ class OocEngine(SlabSweep):
         owned_total = 0
         # trajectory: a frame at the sweep's end gets each slab's owned discs as it passes
         write_part = self.part_sink(step0 + k) if self.part_sink is not None else None
-        for d in range(self.D):
-            q, attrs, rec, ws, n_local = self._advance_slab(src, d, step0, k, wslab)
-            resident.append(n_local)
-            if d == wslab:
-                rec_wheel, new_ws = rec, ws
-            owned_total += len(q)
+
+        def stage(d, q, attrs):
             self._stage(d, q, attrs)
             if write_part is not None:
                 write_part(q)
-            del q
+
+        for d, n_owned, rec, ws, n_local in self._slabs(src, step0, k, wslab, stage):
+            resident.append(n_local)
+            if d == wslab:
+                rec_wheel, new_ws = rec, ws
+            owned_total += n_owned
         if self._n is not None and owned_total != self._n:
             raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")

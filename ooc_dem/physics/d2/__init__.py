@@ -23,7 +23,8 @@ from ..neighbors import spatial_order  # noqa: F401  (the entry point: spatial_o
 DIM = 2
 
 
-@njit(cache=True)
+# nogil: an out-of-core sweep reads and writes slabs in other threads while this runs
+@njit(cache=True, nogil=True)
 def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role):
     """Advance discs 0..len(d.gid)-1 (and the wheel when kp.wg.enabled) nsteps from global
     step step0.

@@ -23,7 +23,8 @@ from .layout import (
 from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry point)
 
 
-@njit(cache=True)
+# nogil: an out-of-core sweep reads and writes slabs in other threads while this runs
+@njit(cache=True, nogil=True)
 def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done=False,
               role=None):
     """Advance spheres 0..len(d.r)-1 nsteps from global step step0.

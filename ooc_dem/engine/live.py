@@ -95,6 +95,19 @@ def _assign_owners(ids, x, off, bounds, owner_row, owned):
     return count
 
 
+@njit(cache=True)
+def _own_rows(ids, x, off, bounds, owner_row, owned, owned_before, shared, role):
+    """``_assign_owners`` after keeping the last ownership in owned_before, and each row's
+    forces.ROLE_* bits from the two and ``shared``; returns how many rows are owned."""
+    for r in range(owned.shape[0]):
+        owned_before[r] = owned[r]
+    count = _assign_owners(ids, x, off, bounds, owner_row, owned)
+    for r in range(owned.shape[0]):
+        role[r] = ((ROLE_OWNED if owned[r] else 0) | (ROLE_OWNED_BEFORE if owned_before[r] else 0)
+                   | (ROLE_SHARED if shared[r] else 0))
+    return count
+
+
 # per-sub-domain flags of the compiled sweeps (one int64 array per sub-domain)
 F_DONE, F_REBUILD, F_PAIRS_DONE, F_REBUILDS = range(4)
 # how run_sweeps stopped
@@ -104,7 +117,7 @@ SWEEPS_DONE, SWEEPS_REBUILD, SWEEPS_WHEEL, SWEEPS_DOMAIN, SWEEPS_OWNERSHIP = ran
 def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, recbuf, norec,
                 ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built, off, ref,
                 disp2, bounds, owned, owned_before, role, n_total, membership_skin, rebuild2,
-                wheel_reach):
+                wheel_reach, active):
     """Serial DDM, whole sweeps in one compiled call: per sweep, (1) every halo copy from
     its owner and ownership from x (skipped before the first sweep of a fresh build),
     (2) every sub-domain K steps with the one-thread step, the sub-domains side by side on
@@ -116,7 +129,10 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     roles) of sub-domain j (views of the local sets: rows off[j]:off[j + 1]); recbuf: the
     wheel records of every step (WHEEL_RECORD, nsweeps * K rows), written by sub-domain
     wslab; wheel_reach: < 0 for no wheel check, else the wheel's reach plus margin (the
-    sweep stops when it leaves its slab, for a re-decomposition).
+    sweep stops when it leaves its slab, for a re-decomposition); active[j]: sub-domain j
+    is advanced (an MPI rank's ghost sub-domains are not: they only hold copies; the
+    lanes never list them, and their discs' histories are never written from their
+    steppers' empty pair lists).
 
     Contact histories: between sweeps a pair's springs live in its sub-domain's pair row
     (forces.load_history / sync_history). role[r] (forces.ROLE_* bits) says which rows
@@ -143,7 +159,7 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                 role[r] = ((ROLE_OWNED if owned[r] else 0) | (ROLE_OWNED_BEFORE if owned_before[r] else 0)
                            | (role[r] & ROLE_SHARED))
             for j in range(len(doms)):
-                if disp2[j] > rebuild2[j]:
+                if active[j] and disp2[j] > rebuild2[j]:
                     # the rebuild reloads every row from the discs: write the rows back first
                     kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
                     sync_history_serial(d.gid.shape[0], d, pl, err, roles, ROLE_OWNED_BEFORE)
@@ -169,7 +185,7 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                     sync_history_serial(n, d, pl, err, roles, ROLE_OWNED | ROLE_SHARED)
         stop = False
         for j in range(len(doms)):
-            if doms[j][7][F_DONE] < K or doms[j][6].any():
+            if active[j] and (doms[j][7][F_DONE] < K or doms[j][6].any()):
                 stop = True
         if stop:
             status = SWEEPS_DOMAIN
@@ -185,9 +201,24 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     # not a sub-domain whose pair list failed to build (its rows are not made)
     for j in range(len(doms)):
         kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
-        if err[ERR_PAIR_CAPACITY] == 0 and d.gid.shape[0]:
+        if active[j] and err[ERR_PAIR_CAPACITY] == 0 and d.gid.shape[0]:
             sync_history_serial(d.gid.shape[0], d, pl, err, roles, ROLE_OWNED)
     return done, status
+
+
+@njit(cache=True)
+def _list_of(item):
+    """A typed List holding item. Built in compiled code so that the list's methods are
+    compiled with this function and cached with it: made from Python, numba compiles
+    them afresh in every process (~3 s, more than a short run's physics)."""
+    out = List()
+    out.append(item)
+    return out
+
+
+@njit(cache=True)
+def _append(items, item):
+    items.append(item)
 
 
 _SWEEPS = {}
@@ -210,11 +241,16 @@ class LiveDomains:
     """All sub-domains of a serial-DDM run with their halos and steppers, kept in RAM."""
 
     def __init__(self, discs: Particles, bounds: np.ndarray, halo: float, membership_skin: float,
-                 model: Model, model_nowheel: Model, ws: np.ndarray, wslab: int):
+                 model: Model, model_nowheel: Model, ws: np.ndarray, wslab: int,
+                 active: np.ndarray | None = None):
+        """active: which sub-domains are advanced (default all; an MPI rank's two ghost
+        sub-domains, which only hold the neighbour ranks' copies, are not)."""
         self.bounds = np.asarray(bounds, np.float64)
         self.D = len(self.bounds) - 1
         self.n = len(discs)
         self.wslab = wslab
+        self.active = (np.ones(self.D, np.bool_) if active is None
+                       else np.asarray(active, np.bool_).copy())
         self.membership_skin = membership_skin
         x = discs.pos[:, AX_X]
         order = np.argsort(x, kind="stable")
@@ -262,12 +298,24 @@ class LiveDomains:
         return [int(self.off[d + 1] - self.off[d]) for d in range(self.D)]
 
     def _own(self) -> None:
+        """Ownership from x. A row owned before and now keeps ROLE_OWNED_BEFORE, so a pair
+        of two such rows keeps its pair row in the compiled sweeps (forces.load_history:
+        both were computed from their true states; nothing outside the sub-domain writes an
+        owned row)."""
         p = self.p
-        total = _assign_owners(p.id, p.pos[:, AX_X], self.off, self.bounds, self.owner_row, self.owned)
+        total = _own_rows(p.id, p.pos[:, AX_X], self.off, self.bounds, self.owner_row, self.owned,
+                          self.owned_before, self.shared, self.role)
         if total != self.n:
             raise EngineError(f"serial DDM owns {total} of {self.n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")
-        self.role[:] = np.where(self.owned, ROLE_OWNED, 0) | np.where(self.shared, ROLE_SHARED, 0)
+
+    def owned_active_rows(self) -> np.ndarray:
+        """Rows owned at the start of the last sweep by the advanced sub-domains."""
+        if not hasattr(self, "_active_rows"):
+            self._active_rows = np.concatenate(
+                [np.arange(self.off[j], self.off[j + 1]) for j in range(self.D) if self.active[j]]
+                or [np.zeros(0, np.int64)])
+        return self._active_rows[self.owned[self._active_rows]]
 
     def owned_rows(self, d: int) -> np.ndarray:
         """Rows of the discs sub-domain d owned at the start of the last sweep."""
@@ -293,10 +341,11 @@ class LiveDomains:
     # ------------------------------------------------------- compiled sweeps
     def _lanes(self):
         """Sub-domains per lane (thread), largest first onto the least loaded lane."""
-        nl = max(1, min(numba.get_num_threads(), self.D))
+        runs = [j for j in range(self.D) if self.active[j]]
+        nl = max(1, min(numba.get_num_threads(), len(runs)))
         load = [0] * nl
         lanes = [[] for _ in range(nl)]
-        for j in sorted(range(self.D), key=lambda j: -int(self.off[j + 1] - self.off[j])):
+        for j in sorted(runs, key=lambda j: -int(self.off[j + 1] - self.off[j])):
             lane = min(range(nl), key=lambda a: load[a])
             lanes[lane].append(j)
             load[lane] += int(self.off[j + 1] - self.off[j])
@@ -305,9 +354,19 @@ class LiveDomains:
         return flat, lane_off
 
     def _domain_list(self):
-        doms = List()
+        """The compiled sweeps' typed list of sub-domains: built again only when a stepper's
+        buffers were replaced (grown), since making it costs more than a short sweep."""
+        key = tuple((id(st.rows), id(st.bodies.rows), id(st.half_off)) for st in self.steppers)
+        if getattr(self, "_doms_key", None) == key:
+            return self._doms
+        doms = None
         for j, (st, fl) in enumerate(zip(self.steppers, self.flags)):
-            doms.append(st.kernel_args() + (fl, self.role[self.off[j]:self.off[j + 1]]))
+            item = st.kernel_args() + (fl, self.role[self.off[j]:self.off[j + 1]])
+            if doms is None:
+                doms = _list_of(item)
+            else:
+                _append(doms, item)
+        self._doms, self._doms_key = doms, key
         return doms
 
     def run_sweeps(self, step0: int, nsweeps: int, K: int, refresh_first: bool, wheel_reach: float):
@@ -340,7 +399,8 @@ class LiveDomains:
                                p.hist_id, p.hist_s, p.hist_m, self.x_built, self.off, self.ref,
                                self.disp2, self.bounds, self.owned, self.owned_before, self.role,
                                self.n, self.membership_skin,
-                               self._rebuild2, wheel_reach if self.wslab >= 0 else -1.0)
+                               self._rebuild2, wheel_reach if self.wslab >= 0 else -1.0,
+                               self.active)
             done += n_sw
             if status == SWEEPS_DOMAIN:
                 # a sub-domain stopped (a buffer to grow, or an error): finish its block
@@ -363,8 +423,11 @@ class LiveDomains:
             st._built = fl[F_REBUILD] == 0
             st._pairs_done = False
             st.rebuilds += int(fl[F_REBUILDS])
-            if st.n:
-                st._check(step0 + done * K, K)
+        # the steppers' checks (one look at every position first: this runs every sweep)
+        if any(st.err.any() for st in self.steppers) or not np.isfinite(p.pos).all():
+            for st in self.steppers:
+                if st.n:
+                    st._check(step0 + done * K, K)
         return recbuf[:done * K], done, status
 
     def _finish_block(self, step0: int, K: int, rec) -> None:

@@ -400,12 +400,11 @@ class MpiEngine:
         rec = np.zeros((0, N_REC))
         live = self.live
         if live is not None:
-            for j in range(1, live.D - 1):
-                st = live.steppers[j]
-                r = st.advance(step0, k) if st.n else np.zeros((0, N_REC))
-                if j == live.wslab:
-                    rec = r
-                    self.ws = st.ws.copy()
+            # this rank's sub-domains in one compiled sweep (not its two ghosts)
+            r, _, _ = live.run_sweeps(step0, 1, k, False, -1.0)
+            if live.wslab >= 0:
+                rec = r
+                self.ws = live.steppers[live.wslab].ws.copy()
         if wheel:
             rec = self._share_wheel(rec, k)
         return rec
@@ -458,7 +457,7 @@ class MpiEngine:
     def _owned_real(self) -> np.ndarray:
         """Rows of this rank's own sub-domains owned at the start of the last sweep."""
         live = self.live
-        return np.concatenate([live.owned_rows(j) for j in range(1, live.D - 1)] or [np.zeros(0, np.int64)])
+        return live.owned_active_rows()
 
     def _mine(self) -> Particles:
         m = self.model
@@ -504,8 +503,10 @@ class MpiEngine:
         if e > s:
             lb = np.concatenate([[-np.inf], self.bounds[s:e + 1], [np.inf]])
             wl = self.wslab - s + 1 if s <= self.wslab < e else -1
+            real = np.ones(len(lb) - 1, np.bool_)
+            real[[0, -1]] = False   # the ghosts: copies of the neighbour ranks' discs
             self.live = LiveDomains(local, lb, self.halo, self.membership_skin, self.model,
-                                    self.model_nowheel, self.ws, wl)
+                                    self.model_nowheel, self.ws, wl, active=real)
             live = self.live
             ghosts = np.concatenate([np.arange(live.off[0], live.off[1]),
                                      np.arange(live.off[-2], live.off[-1])])

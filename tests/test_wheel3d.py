@@ -5,8 +5,9 @@ Two levels:
   rim's curved surface, an end face, a lug plate, a sphere beside the wheel (no contact),
   the reaction on the wheel equal and opposite to the spheres' forces, the torque sign;
 - whole runs on a small 3D bin (``WHEEL3D``): the wheel sinks into the bed while settling
-  with omega = 0, then rolls; monolithic, serial DDM D = 6 (with re-decompositions),
-  out-of-core HDF5 and zarr, and a resumed run all give the same bits.
+  with omega = 0, then rolls; monolithic, serial DDM D = 6 and out-of-core HDF5 and zarr
+  (D = 6, K = 4), each with re-decompositions of the wheel-following slabs, and a run
+  resumed from a mid-run epoch all give the same bits.
 """
 from __future__ import annotations
 
@@ -116,24 +117,94 @@ def test_lug_plate_contact_at_every_z_of_the_width(sc):
     assert fy[0] == fy[1] == fy[2]          # the plate is the same across the width
 
 
-def test_spinning_wheel_drags_the_sphere_and_feels_a_resisting_torque(sc):
-    # clockwise spin (wz < 0): the rim's bottom moves in +x and drags the sphere along
-    st, rec = _one_step(sc, [[0.15, 0.2 - R - 0.0045, Z0]], {WS_WZ: -1.0})
+def test_spinning_wheel_pushes_the_soil_back_and_feels_a_resisting_torque():
+    # travel phase at t = 0 (no settling): clockwise spin, the rim's bottom moves in -x,
+    # pushes the sphere back and the wheel forward (traction); the torque resists the drive
+    sc = load_scenario("quick-3d", ["wheel.settle_time=0"])
+    st, rec = _one_step(sc, [[0.15, 0.2 - R - 0.0045, Z0]])
     f = st.force[0]
-    assert f[0] > 0 and rec[REC_FX] < 0
-    assert rec[REC_TQ] > 0                  # counter-clockwise: resists the drive
+    assert f[0] < 0 and rec[REC_FX] == -f[0]
+    assert rec[REC_TQ] > 0 and math.isclose(rec[REC_TQ], R * rec[REC_FX], rel_tol=1e-12)
+
+
+# a small 3D bin: the quick-3d rig with a narrower wheel on a tiled bed of two 750-sphere
+# tiles (fast to settle on a fresh machine), 0.4 m long so that the wheel's slab is one of
+# several. BASE: 0.04 s of settling with omega = 0, then 0.1 s of rolling under a drawbar.
+BASE = ["soil.n=1500", "bed.tile=750", "bin.length=0.4", "bin.width=0.07", "wheel.width=0.035",
+        "wheel.x0=0.2", "wheel.settle_time=0.04", "wheel.drawbar_ramp=0.02", "wheel.drawbar_load=2.0",
+        "wheel.travel_time=0.1", "wheel.omega=2.0", "output.steady_start=0.03",
+        "output.steady_end=0.1", "output.series_interval=0.002"]
+# the modes' segment: the wheel placed on the bed (no gap), 100 steps of settling, then 300
+# steps rolling at a prescribed slip fast enough to redefine its slab (margin 1 mm) twice
+WHEEL3D = BASE + ["wheel.drop_gap=0", "wheel.settle_time=0.002", "wheel.travel_time=0.006",
+                  "wheel.control=slip", "wheel.slip=0.2", "wheel.omega=10.0",
+                  "output.steady_start=0.002", "output.steady_end=0.006",
+                  "output.series_interval=0.0005", "decomposition.margin=0.001"]
+WHEEL3D_STEPS = 400
 
 
 @pytest.fixture(scope="module")
-def quick3d_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("w3d") / "q"
-    res = ooc_dem.run("quick-3d", out, overrides=WHEEL3D, steps=WHEEL3D_STEPS)
-    return out, res
+def runs(tmp_path_factory):
+    work = tmp_path_factory.mktemp("wheel3d")
+    out = {"_work": work}
+    kw = dict(overrides=WHEEL3D, steps=WHEEL3D_STEPS)
+    out["monolithic"] = ooc_dem.run("quick-3d", work / "mono", **kw)
+    out["ddm-6"] = ooc_dem.run("quick-3d", work / "ddm6", mode="ddm", domains=6, **kw)
+    for backend in ("hdf5", "zarr"):
+        out[f"ooc-{backend}"] = ooc_dem.run("quick-3d", work / f"ooc-{backend}", mode="ooc",
+                                            backend=backend, domains=6, block=4,
+                                            checkpoint_every=100, **kw)
+    return out
 
 
-# a small 3D bin: the quick-3d rig with a narrower wheel in a shorter, narrower bin
-WHEEL3D = ["soil.n=900", "bin.length=0.3", "bin.width=0.07", "wheel.width=0.035",
-           "wheel.x0=0.13", "wheel.settle_time=0.04", "wheel.drawbar_ramp=0.02",
-           "wheel.travel_time=0.2", "wheel.omega=2.0", "output.steady_start=0.05",
-           "output.steady_end=0.2", "decomposition.margin=0.002"]
-WHEEL3D_STEPS = 4000
+def test_the_wheel_settles_into_the_bed_then_rolls(tmp_path):
+    res = ooc_dem.run("quick-3d", tmp_path / "base", overrides=BASE)
+    s = res.summary
+    assert s["n_discs"] == 1500
+    ser = np.loadtxt(tmp_path / "base" / "series.csv", delimiter=",", skiprows=1)
+    settling = ser[ser[:, 1] < 0]                            # t_travel < 0: omega = 0, x held
+    assert np.all(settling[:, 2] == 0.2) and np.all(settling[:, 5] == 0.0)
+    # placed 2 mm above the bed, it sank into it (no drop shock: it came to rest)
+    assert settling[0, 3] - settling[-1, 3] > 0.003
+    assert ser[-1, 3] > 0.1 - 0.05      # rolling, it digs in, but stays on the 5 cm bed
+    assert s["travel_distance"]["whole_travel"]["value"] > 0.002
+    assert 0.0 < s["slip"]["steady"]["value"] < 1.0
+    assert s["gross_traction"]["steady"]["value"] > 0.0
+
+
+def test_every_mode_with_the_wheel_gives_the_same_bits(runs):
+    ref = runs["monolithic"]
+    h = ref.summary["state_hash"]
+    s0 = ref.state()
+    assert s0["pos"].shape == (1500, 3)
+    for name in ("ddm-6", "ooc-hdf5"):
+        eng = runs[name].summary["engine"]
+        assert eng["redecompositions"] >= 1 and eng["domains"] == 6, (name, eng)
+    for name, res in runs.items():
+        if name.startswith("_") or name == "monolithic":
+            continue
+        assert res.summary["state_hash"] == h, name
+        s = res.state()
+        for k in s0:
+            assert np.array_equal(s0[k], s[k]), (name, k)
+        for k in ("slip", "net_traction", "gross_traction", "sinkage"):
+            assert res.summary[k] == ref.summary[k], (name, k)
+    a = np.loadtxt(runs["_work"] / "mono" / "series.csv", delimiter=",", skiprows=1)
+    b = np.loadtxt(runs["_work"] / "ddm6" / "series.csv", delimiter=",", skiprows=1)
+    assert len(a) >= 10 and np.array_equal(a, b, equal_nan=True)   # slip is nan while omega = 0
+    assert a[-1, 2] - a[0, 2] > 0.003        # the wheel rolled (x column)
+
+
+def test_resume_from_a_mid_run_epoch_gives_the_same_bits(runs, tmp_path):
+    """An out-of-core run ended at step 2000 (the wheel rolling) and resumed from its last
+    epoch to step 4000 ends with the uninterrupted run's bits."""
+    ref = runs["ooc-hdf5"].summary["state_hash"]
+    out = tmp_path / "resumed"
+    cp = run_cli("run", "quick-3d", *sum((["--set", o] for o in WHEEL3D), []), "--mode", "ooc",
+                 "--domains", "6", "--block", "4", "--checkpoint-every", "100", "--steps", str(WHEEL3D_STEPS // 2), "--out", out,
+                 "--no-progress", "--no-figures", check=True)
+    assert cp.returncode == 0
+    cp = run_cli("resume", out, "--steps", str(WHEEL3D_STEPS), "--no-progress", "--no-figures")
+    if cp.returncode != 0:
+        pytest.fail(cp.stderr[-2000:])
+    assert f"state hash: {ref}" in cp.stdout

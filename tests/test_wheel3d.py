@@ -158,7 +158,7 @@ def runs(tmp_path_factory):
 
 
 def test_the_wheel_settles_into_the_bed_then_rolls(tmp_path):
-    res = ooc_dem.run("quick-3d", tmp_path / "base", overrides=BASE)
+    res = ooc_dem.run("quick-3d", tmp_path / "base", overrides=BASE, figures=True)
     s = res.summary
     assert s["n_discs"] == 1500
     ser = np.loadtxt(tmp_path / "base" / "series.csv", delimiter=",", skiprows=1)
@@ -170,6 +170,19 @@ def test_the_wheel_settles_into_the_bed_then_rolls(tmp_path):
     assert s["travel_distance"]["whole_travel"]["value"] > 0.002
     assert 0.0 < s["slip"]["steady"]["value"] < 1.0
     assert s["gross_traction"]["steady"]["value"] > 0.0
+    # the 3D views and the wheel's surface mesh for ParaView
+    figs = tmp_path / "base" / "figures"
+    for name in ("series.png", "deformation.png", "deformation_midwidth.png", "rut.png",
+                 "lateral_flow.png"):
+        assert (figs / name).stat().st_size > 10_000, name
+    vtk = (tmp_path / "base" / "wheel.vtk").read_text().splitlines()
+    sc = load_scenario("quick-3d", BASE)
+    npts = 2 * 72 + 8 * sc.wheel.n_lugs
+    assert vtk[3] == "DATASET POLYDATA" and vtk[4] == f"POINTS {npts} double"
+    pts = np.array([list(map(float, ln.split())) for ln in vtk[5:5 + npts]])
+    assert np.isclose(pts[:, 2].min(), 0.035 - 0.0175) and np.isclose(pts[:, 2].max(), 0.035 + 0.0175)
+    rad = np.hypot(pts[:, 0] - pts[:72, 0].mean(), pts[:, 1] - pts[:72, 1].mean())
+    assert np.allclose(rad[:144], 0.1) and rad.max() <= 0.11 * (1 + 1e-9) + 0.002
 
 
 def test_every_mode_with_the_wheel_gives_the_same_bits(runs):

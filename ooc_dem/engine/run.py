@@ -395,8 +395,9 @@ class Simulation:
         # a memory store lives in this process only; the run's other outputs still go to --out
         self.out.mkdir(parents=True, exist_ok=True)
         # initial.npz keeps the 2D users' column names (x, y: layout.AXIS_NAMES)
+        extra = {"z": bed.pos[:, AX_Z]} if bed.dim == 3 else {}   # 3D: the slice and rut views
         np.savez(self.out / "initial.npz", id=bed.id, x=bed.pos[:, AX_X], y=bed.pos[:, AX_Y],
-                 r=bed.r, surface=np.float64(self.surface))
+                 r=bed.r, surface=np.float64(self.surface), **extra)
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:

@@ -260,6 +260,12 @@ def _has_store(out: Path) -> bool:
 
 def _read_final(out: Path):
     """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
+    p, ws = _read_final_particles(out)
+    return p.id.copy(), p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.r.copy(), ws
+
+
+def _read_final_particles(out: Path):
+    """(Particles, wheel_state) of the last committed epoch of the run's store."""
     from storage import open_store
     from .checkpoint import open_epoch, read_all_particles
     store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
@@ -273,7 +279,7 @@ def _read_final(out: Path):
             reader.close()
     finally:
         store.close()
-    return p.id.copy(), p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.r.copy(), ws
+    return p, ws
 
 
 def _discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=1, alpha=None):
@@ -568,7 +574,24 @@ def make_figures(out_dir, final=None) -> list[Path]:
                  np.asarray(fr, np.float64), None if ws is None else np.asarray(ws, np.float64))
         written.append(_deformation_figure(init, final, sc, series, fig_dir / DEFORMATION_FIGURE))
         written.append(_displacement_figure(init, final, sc, series, fig_dir / DISPLACEMENT_FIGURE))
+        init_z = _initial_z(initial_file, len(init[0]))
+        if sc is not None and sc.dim == 3 and sc.wheel.enabled and init_z is not None:
+            # the 3D wheel's own views: mid-width slice, rut, lateral flow, wheel mesh
+            from .views3d import make_views
+            p, ws = _read_final_particles(out)
+            written += make_views(out, sc, (init, init_z), p, ws, series)
     return written
+
+
+def _initial_z(path, n: int):
+    """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
+    with np.load(path, allow_pickle=False) as z:
+        if "z" not in z.files:
+            return None
+        a = z["z"]
+    if a.ndim != 1 or len(a) != n or a.dtype.kind not in "iuf" or not np.isfinite(a).all():
+        raise RunFileError(f"{path}: 'z' must be a 1-D finite numeric array of {n} entries")
+    return a.astype(np.float64)
 
 
 # ------------------------------------------------------------------ tables

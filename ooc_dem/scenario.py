@@ -158,6 +158,7 @@ class Wheel:
     slip: float = 0.0              # prescribed slip when control = "slip"
     settle_time: float = 1.0       # s, omega = 0, x held
     travel_time: float = 45.0      # s
+    z0: float = 0.0                # m, 3D: lateral centre of the wheel (0: the bin's mid-width)
 
 
 @dataclass(frozen=True)
@@ -278,7 +279,8 @@ class Scenario:
 
 # keys whose default value is left out of the hashes (added with the 3D engine)
 _HASH_NEUTRAL = {("physics", "dim"): 2, ("physics", "impact_speed"): 1.0, ("bin", "width"): 0.10,
-                 ("bed", "tiles_across"): 1, ("physics", "history_capacity"): 0}
+                 ("bed", "tiles_across"): 1, ("physics", "history_capacity"): 0,
+                 ("wheel", "z0"): 0.0}
 _PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3,
                       "restitution": 0.5}
 LAWS = ("linear", "hertz")
@@ -341,6 +343,7 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("wheel", "slip"): (lambda v: -1 <= v < 1, "a number in [-1, 1)"),
     ("wheel", "settle_time"): _NONNEG,
     ("wheel", "travel_time"): _NONNEG,
+    ("wheel", "z0"): _GAP,
     ("output", "series_interval"): _POS,
     ("output", "steady_start"): _NONNEG,
     ("output", "steady_end"): _NONNEG,
@@ -445,8 +448,13 @@ def _check_ranges(sc: Scenario) -> None:
                 raise ScenarioError(f"contact.{pair}.law = {show(getattr(sc.contact, pair).law)}: "
                                     f"the 2D engine has the linear law only (hertz needs physics.dim = 3)")
     elif sc.wheel.enabled:
-        raise ScenarioError("wheel.enabled = true: the 3D engine (physics.dim = 3) has no wheel yet; "
-                            "set wheel.enabled = false")
+        w = sc.wheel
+        z0 = w.z0 if w.z0 > 0.0 else 0.5 * sc.bin.width
+        if not (0.5 * w.width <= z0 <= sc.bin.width - 0.5 * w.width):
+            raise ScenarioError(f"wheel.z0 = {w.z0!r}: the wheel (wheel.width = {w.width!r}) must fit "
+                                f"across the bin (bin.width = {sc.bin.width!r}): z0 in "
+                                f"[{0.5 * w.width!r}, {sc.bin.width - 0.5 * w.width!r}], or 0 for "
+                                f"the mid-width (physics.dim = 3)")
     s = sc.soil
     if s.r_max < s.r_min:
         raise ScenarioError(f"soil.r_max = {s.r_max!r}: must be >= soil.r_min ({s.r_min!r})")
@@ -628,7 +636,8 @@ def contact_table_3d(sc: Scenario):
 
 
 def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
-    """physics.d3.timestep.critical_dt over soil-soil and soil-wall (either law); the key
+    """physics.d3.timestep.critical_dt over soil-soil, soil-wall and (with a wheel)
+    soil-wheel (either law); the key
     named is the stiffness of the pair and mode that sets it."""
     import warnings
 
@@ -637,7 +646,10 @@ def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
     s = sc.soil
     cp = contact_table_3d(sc)
     worst, which = math.inf, "none"
-    for name, types in (("soil_soil", (L3.T_SOIL, L3.T_SOIL)), ("soil_wall", (L3.T_WALL, L3.T_SOIL))):
+    pairs = [("soil_soil", (L3.T_SOIL, L3.T_SOIL)), ("soil_wall", (L3.T_WALL, L3.T_SOIL))]
+    if sc.wheel.enabled:
+        pairs.append(("soil_wheel", (L3.T_WHEEL, L3.T_SOIL)))
+    for name, types in pairs:
         pair = getattr(sc.contact, name)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)   # an overflowing stiffness: 0 below

@@ -47,12 +47,3 @@ def test_half_list_and_csr_match_brute_force(far):
     assert np.array_equal(pref, pos)
     perm = spatial_order(pos, n, 0.012)
     assert np.array_equal(np.sort(perm), np.arange(n))
-
-
-def test_wheel_is_refused():
-    """The wheel is the next issue: an enabled wheel geometry is an error, never ignored."""
-    cp = L.contact_table({(0, 0): L.linear_params(1e4, 1e3)})
-    sim = Sim(make_spheres([[0.5, 0.5, 0.5]], 0.01, density=1000.0), cp, L.walls_record(1, 1), 1e-5)
-    sim.kp.wg[0]["enabled"] = 1.0
-    with pytest.raises(EngineError, match="no wheel"):
-        sim.advance(1)

@@ -37,7 +37,7 @@ def test_every_key_of_a_3d_scenario_at_extreme_values(key, default, capsys):
     (["physics.dim=4"], "physics.dim"),
     (["contact.soil_soil.law=\"hertz\"", "physics.dim=2", "wheel.enabled=false"], "contact.soil_soil.law"),
     (["contact.soil_wall.law=\"coulomb\""], "contact.soil_wall.law"),
-    (["wheel.enabled=true"], "wheel.enabled"),
+    (["wheel.enabled=true"], "wheel.z0"),          # a 0.1 m wheel across a 0.05 m bin
     (["bin.width=0.004"], "bin.width"),
     (["contact.soil_soil.poisson_ratio=0.5"], "contact.soil_soil.poisson_ratio"),
     (["contact.soil_soil.restitution=0"], "contact.soil_soil.restitution"),

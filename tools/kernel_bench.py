@@ -56,10 +56,12 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     if held:
         forces_mod.load_history(n, d, pl)
     extra = (True,) if held else ()
+    from ooc_dem.physics.layout import LUG_DIRECTION
+    lugdir = np.zeros(max(1, int(kp.wg[0].nlugs)), LUG_DIRECTION)   # a bare bed: no wheel
     tp = tg = cp_ = cg = 0.0
     for _ in range(steps):   # the phases alone (no rebuild: a few steps of a settled bed)
         w0, c0 = time.perf_counter(), time.process_time()
-        forces_mod.produce(n, d, pl, bd, kp.cp, kp.walls, kp.dt, err, *extra)
+        forces_mod.produce(n, d, pl, bd, kp.cp, kp.walls, kp.wg, ws, lugdir, kp.dt, err, *extra)
         w1, c1 = time.perf_counter(), time.process_time()
         forces_mod.gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, kp.dt,
                                     part, err, *extra)

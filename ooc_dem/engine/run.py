@@ -21,7 +21,7 @@ from ..scenario import (MAX_DOMAINS, MAX_HIST_CAP, MAX_STEPS, Scenario, Scenario
                         critical_time_step, scenario_from_toml, show, steps_for_duration)
 from ..metrics import N_SERIES
 from ..outputs import complete_outputs, run_summary, write_outputs
-from ..physics.layout import AX_X, AX_Y
+from ..physics.layout import AX_X, AX_Y, AX_Z
 from ..state import Particles
 from . import budget
 from .interface import Engine
@@ -56,11 +56,15 @@ class RunOptions:
 
 
 def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
-    """Wheel centre above the bed under x0, lug tips drop_gap above the highest disc."""
+    """Wheel centre above the bed under x0, lug tips drop_gap above the highest disc (3D:
+    the highest sphere under the wheel's footprint, across its width too)."""
     w = sc.wheel
     ws = np.zeros(WS_SIZE)
     x, y = bed.pos[:, AX_X], bed.pos[:, AX_Y]
     under = np.abs(x - w.x0) < w.lug_tip_radius + sc.soil.r_max
+    if sc.dim == 3:
+        from .stepper import wheel_z0
+        under &= np.abs(bed.pos[:, AX_Z] - wheel_z0(sc)) < 0.5 * w.width + sc.soil.r_max
     top = float((y[under] + bed.r[under]).max()) if under.any() else float((y + bed.r).max())
     ws[WS_X] = w.x0
     ws[WS_Y] = top + w.lug_tip_radius + w.drop_gap
@@ -391,8 +395,9 @@ class Simulation:
         # a memory store lives in this process only; the run's other outputs still go to --out
         self.out.mkdir(parents=True, exist_ok=True)
         # initial.npz keeps the 2D users' column names (x, y: layout.AXIS_NAMES)
+        extra = {"z": bed.pos[:, AX_Z]} if bed.dim == 3 else {}   # 3D: the slice and rut views
         np.savez(self.out / "initial.npz", id=bed.id, x=bed.pos[:, AX_X], y=bed.pos[:, AX_Y],
-                 r=bed.r, surface=np.float64(self.surface))
+                 r=bed.r, surface=np.float64(self.surface), **extra)
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:

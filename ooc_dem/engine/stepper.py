@@ -84,25 +84,8 @@ class Model:
         put(L.T_WHEEL, L.T_SOIL, sc.contact.soil_wheel)
         walls = np.zeros(len(WALLS.names))
         record(walls, WALLS)[0] = (sc.bin.length, 1.0, 1.0, 1.0)
-        wg = np.zeros(WG_SIZE)
-        wc = np.zeros(WC_SIZE)
+        wg, wc = wheel_records(sc)
         w = sc.wheel
-        if w.enabled:
-            g = record(wg, WHEEL_GEOMETRY)
-            g["enabled"] = 1.0
-            g["radius"] = w.radius
-            g["cap"] = 0.5 * w.lug_thickness
-            g["lug_in"] = w.radius
-            g["lug_out"] = max(w.radius, w.lug_tip_radius - 0.5 * w.lug_thickness)
-            g["nlugs"] = w.n_lugs
-            g["mass"] = w.load / sc.physics.gravity
-            c = record(wc, WHEEL_CONTROLS)
-            c["settle"] = w.settle_time
-            c["omega"] = w.omega
-            c["slipmode"] = 1.0 if w.control == "slip" else 0.0
-            c["drawbar"] = w.drawbar_load
-            c["ramp"] = w.drawbar_ramp
-            c["slip"] = w.slip
         return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
                    skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc, wheel_enabled=w.enabled,
                    r_max=sc.soil.r_max, dim=sc.dim, hist_cap=sc.hist_cap)
@@ -110,16 +93,18 @@ class Model:
     @classmethod
     def _from_scenario_3d(cls, sc) -> "Model":
         """The 3D model (physics.d3.layout records): contact table with the law per material
-        pair, the box of floor, end walls and side walls (z = 0, bin.width); no wheel."""
+        pair, the box of floor, end walls and side walls (z = 0, bin.width), and the wheel
+        (the 2D records; its width and lateral centre z0 span the rim and the lugs)."""
         from ..physics.d3 import layout as L3
         from ..scenario import contact_table_3d
         table = contact_table_3d(sc)
         cp = np.ascontiguousarray(table).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES,
                                                                   L3.N_FIELDS).copy()
         walls = L3.walls_record(sc.bin.length, sc.bin.width).view(np.float64).copy()
+        wg, wc = wheel_records(sc)
         return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
-                   skin=sc.bed.skin, cp=cp, walls=walls, wg=np.zeros(WG_SIZE), wc=np.zeros(WC_SIZE),
-                   wheel_enabled=False, r_max=sc.soil.r_max, dim=3, hist_cap=sc.hist_cap)
+                   skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc,
+                   wheel_enabled=sc.wheel.enabled, r_max=sc.soil.r_max, dim=3, hist_cap=sc.hist_cap)
 
     def layouts(self):
         """(CONTACT_PARAMS, WALLS) record dtypes of this model's dimension."""
@@ -150,6 +135,38 @@ class Model:
         record(wg, WHEEL_GEOMETRY)["enabled"] = 0.0
         return Model(self.dt, self.gravity.copy(), self.skin, self.cp, self.walls, wg, self.wc,
                      False, self.r_max, self.dim, self.hist_cap)
+
+
+def wheel_records(sc) -> tuple[np.ndarray, np.ndarray]:
+    """(WHEEL_GEOMETRY, WHEEL_CONTROLS) flat vectors of a scenario's wheel (zeros without
+    one); the same in 2D and 3D (3D reads width and z0 too)."""
+    wg = np.zeros(WG_SIZE)
+    wc = np.zeros(WC_SIZE)
+    w = sc.wheel
+    if w.enabled:
+        g = record(wg, WHEEL_GEOMETRY)
+        g["enabled"] = 1.0
+        g["radius"] = w.radius
+        g["cap"] = 0.5 * w.lug_thickness
+        g["lug_in"] = w.radius
+        g["lug_out"] = max(w.radius, w.lug_tip_radius - 0.5 * w.lug_thickness)
+        g["nlugs"] = w.n_lugs
+        g["mass"] = w.load / sc.physics.gravity
+        g["width"] = w.width
+        g["z0"] = wheel_z0(sc)
+        c = record(wc, WHEEL_CONTROLS)
+        c["settle"] = w.settle_time
+        c["omega"] = w.omega
+        c["slipmode"] = 1.0 if w.control == "slip" else 0.0
+        c["drawbar"] = w.drawbar_load
+        c["ramp"] = w.drawbar_ramp
+        c["slip"] = w.slip
+    return wg, wc
+
+
+def wheel_z0(sc) -> float:
+    """The wheel's lateral centre (3D): wheel.z0, or the bin's mid-width when it is 0."""
+    return sc.wheel.z0 if sc.wheel.z0 > 0.0 else 0.5 * sc.bin.width
 
 
 class DomainStepper:

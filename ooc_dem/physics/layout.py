@@ -98,8 +98,10 @@ WALLS = _dtype(("length", "left", "right", "bottom"))
 WALL_LENGTH, WALL_LEFT, WALL_RIGHT, WALL_BOTTOM = range(4)
 
 # -------------------------------------------------------------------- wheel
-WHEEL_GEOMETRY = _dtype(("enabled", "radius", "lug_in", "lug_out", "cap", "nlugs", "mass"))
-WG_ENABLED, WG_R, WG_LUG_IN, WG_LUG_OUT, WG_CAP, WG_NLUGS, WG_MASS = range(7)
+# width, z0: the wheel's extent across the bin, centred on z = z0 (3D only; 2D ignores them)
+WHEEL_GEOMETRY = _dtype(("enabled", "radius", "lug_in", "lug_out", "cap", "nlugs", "mass",
+                         "width", "z0"))
+WG_ENABLED, WG_R, WG_LUG_IN, WG_LUG_OUT, WG_CAP, WG_NLUGS, WG_MASS, WG_WIDTH, WG_Z0 = range(9)
 WG_SIZE = len(WHEEL_GEOMETRY.names)
 
 WHEEL_STATE = _dtype(("x", "y", "vx", "vy", "theta", "wz"))

@@ -32,7 +32,10 @@ from .layout import (
     ID_WALL_FRONT,
     ID_WALL_LEFT,
     ID_WALL_RIGHT,
+    ID_LUG0,
+    ID_RIM,
     T_WALL,
+    T_WHEEL,
 )
 
 # spheres are produced and gathered in N_CHUNKS contiguous chunks (wall rows are
@@ -122,12 +125,46 @@ def _wall(wall):
     return ID_WALL_BOTTOM, 0.0, 1.0, 0.0
 
 
+@njit(inline="always", cache=True)
+def _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
+               mnz, nx, ny, nz, ri, qx, qy):
+    """Body row of a sphere-wheel-part contact: force and torque on the sphere, new springs,
+    and the torque on the wheel about its axle from the reaction at q (relative to the
+    axle point (X, Y)) minus the rolling moment's z part."""
+    row = body[bat]
+    row.disc = i
+    row.pid = pid
+    bx = fn * nx - ftx
+    by = fn * ny - fty
+    row.bx = bx
+    row.by = by
+    row.bz = fn * nz - ftz
+    row.tx = ri * (ny * ftz - nz * fty) + mox
+    row.ty = ri * (nz * ftx - nx * ftz) + moy
+    row.tz = ri * (nx * fty - ny * ftx) + moz
+    row.sx = snx
+    row.sy = sny
+    row.sz = snz
+    row.mx = mnx
+    row.my = mny
+    row.mz = mnz
+    row.wt = qx * (-by) - qy * (-bx) - moz
+
+
 @njit(parallel=True, cache=True)
-def produce(n, d, pl, bd, cp, walls, dt, err, held=False):
+def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
     """Phase 1: one row per contact of spheres 0..n-1 at time n (module doc).
 
     d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies, cp: CONTACT_PARAMS table
-    [type_a, type_b], walls: WALLS record (1,). Sets err[ERR_BODY_CAPACITY] when a
+    [type_a, type_b], walls: WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE
+    records (1,), lugdir: LUG_DIRECTION of each lug at the wheel's angle. The wheel (when
+    wg.enabled): a rim cylinder of radius wg.radius about the axle (X, Y) along z, spanning
+    z0 -+ width/2 (its end faces included: the closest point on the solid cylinder), and
+    nlugs plates: the points within wg.cap of the rectangle X + s u (s in lug_in..lug_out)
+    times that z span; each sphere's wheel rows (lugs ascending, then the rim) come before
+    its wall rows (ascending ids). The wheel's contact point q moves with V + W x (q - C),
+    W = (0, 0, wz); the law sees the wheel as body a with lever arm 0 and spin W.
+    Sets err[ERR_BODY_CAPACITY] when a
     chunk's wall buffer is full (grow, rerun): the wall rows are made first, in a pass of
     their own, and then no pair row is made, so a rerun gives the same rows. held: the
     pairs' springs are held in the pair rows (``load_history``: a pair was in contact at
@@ -146,6 +183,25 @@ def produce(n, d, pl, bd, cp, walls, dt, err, held=False):
     any_full = np.zeros(1, np.bool_)
     flags = np.array([wl.back > 0.5, wl.front > 0.5, wl.right > 0.5, wl.left > 0.5,
                       wl.bottom > 0.5])
+    g = wg[0]
+    wheel_on = g.enabled > 0.5
+    R = g.radius
+    lug_in = g.lug_in
+    lug_out = g.lug_out
+    cap_r = g.cap
+    nlugs = int(g.nlugs)
+    wmass = g.mass
+    zlo = g.z0 - 0.5 * g.width
+    zhi = g.z0 + 0.5 * g.width
+    w0 = ws[0]
+    X = w0.x
+    Y = w0.y
+    VX = w0.vx
+    VY = w0.vy
+    WZ = w0.wz
+    reach = lug_out + cap_r
+    if R > reach:
+        reach = R
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, n)
         bat = ch * bcap
@@ -167,6 +223,99 @@ def produce(n, d, pl, bd, cp, walls, dt, err, held=False):
             ti = mat[i]
             hn = hist_n[i]
             p = 0
+            # ------------------------------------------------------ wheel
+            if wheel_on:
+                dxw = xi - X
+                dyw = yi - Y
+                d2 = dxw * dxw + dyw * dyw
+                zm = cap_r + ri
+                if (d2 < (reach + ri) * (reach + ri) and zi > zlo - zm and zi < zhi + zm):
+                    meff = mi * wmass / (mi + wmass)
+                    zc = min(max(zi, zlo), zhi)
+                    for lug in range(nlugs):
+                        ux = lugdir[lug].ux
+                        uy = lugdir[lug].uy
+                        sproj = dxw * ux + dyw * uy
+                        if sproj < lug_in:
+                            sproj = lug_in
+                        elif sproj > lug_out:
+                            sproj = lug_out
+                        px = sproj * ux        # the lug's closest axis point, relative to C
+                        py = sproj * uy
+                        ddx = dxw - px
+                        ddy = dyw - py
+                        ddz = zi - zc
+                        dd = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz)
+                        delta = cap_r + ri - dd
+                        if delta > 0.0 and dd > 0.0:
+                            pid = ID_LUG0 + lug
+                            p, found = _lookup(hist_id, i, hn, p, pid)
+                            if found:
+                                s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
+                                m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
+                            else:
+                                s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                            nx = ddx / dd
+                            ny = ddy / dd
+                            nz = ddz / dd
+                            qx = px + cap_r * nx
+                            qy = py + cap_r * ny
+                            (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
+                             mnz) = contact(
+                                cp[T_WHEEL, ti], nx, ny, nz, delta, vxi - (VX - WZ * qy),
+                                vyi - (VY + WZ * qx), vzi, 0.0, 0.0, WZ, wxi, wyi, wzi, 0.0, ri,
+                                meff, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
+                            if bat < bend:
+                                _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz,
+                                           mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri, qx, qy)
+                                bat += 1
+                            else:
+                                full = True
+                    # the rim: the closest point of the solid cylinder
+                    rho = math.sqrt(d2)
+                    delta = -1.0
+                    nx = ny = nz = qx = qy = 0.0
+                    if zi >= zlo and zi <= zhi:
+                        if rho > 0.0:         # the curved surface (radial normal)
+                            nx = dxw / rho
+                            ny = dyw / rho
+                            delta = R + ri - rho
+                            qx = R * nx
+                            qy = R * ny
+                    elif rho <= R:            # an end face
+                        nz = 1.0 if zi > zhi else -1.0
+                        delta = ri - abs(zi - zc)
+                        qx = dxw
+                        qy = dyw
+                    else:                     # an end face's edge circle
+                        qx = R * dxw / rho
+                        qy = R * dyw / rho
+                        ex = dxw - qx
+                        ey = dyw - qy
+                        ez = zi - zc
+                        de = math.sqrt(ex * ex + ey * ey + ez * ez)
+                        if de > 0.0:
+                            nx = ex / de
+                            ny = ey / de
+                            nz = ez / de
+                            delta = ri - de
+                    if delta > 0.0:
+                        p, found = _lookup(hist_id, i, hn, p, ID_RIM)
+                        if found:
+                            s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
+                            m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
+                        else:
+                            s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                        (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
+                            cp[T_WHEEL, ti], nx, ny, nz, delta, vxi - (VX - WZ * qy),
+                            vyi - (VY + WZ * qx), vzi, 0.0, 0.0, WZ, wxi, wyi, wzi, 0.0, ri,
+                            meff, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
+                        if bat < bend:
+                            _wheel_row(body, bat, i, ID_RIM, fn, ftx, fty, ftz, snx, sny, snz,
+                                       mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri, qx, qy)
+                            bat += 1
+                        else:
+                            full = True
             # ------------------------------------------------------ walls
             for wall in range(5):
                 if not flags[wall]:
@@ -210,6 +359,7 @@ def produce(n, d, pl, bd, cp, walls, dt, err, held=False):
                     row.mx = mnx
                     row.my = mny
                     row.mz = mnz
+                    row.wt = 0.0
                     bat += 1
                 else:
                     full = True

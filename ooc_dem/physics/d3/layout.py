@@ -13,17 +13,19 @@ Records:
 - ``WALLS``           box walls: floor y=0, end walls x=0 / x=length, side walls
                       z=0 / z=width, each with an on-flag (frictional, table type T_WALL)
 - ``WHEEL_GEOMETRY`` / ``WHEEL_CONTROLS`` / ``WHEEL_STATE`` / ``WHEEL_RECORD``: the 2D
-                      records (the wheel's axle is along z in both dimensions); the 3D
-                      kernels accept them and refuse an enabled wheel (ERR wheel_unsupported)
+                      records (the wheel's axle is along z in both dimensions; 3D reads
+                      the geometry's width and z0: rim cylinder and lug plates span
+                      z0 - width/2 .. z0 + width/2)
 - ``ERRORS``          kernel error flags
 - ``PAIR_ROW_ROLLING`` / ``PAIR_ROW_SLIDING``  one sphere-sphere contact of a step
                       (phase 1 -> phase 2), with / without the rolling parts
                       (``pair_row_layout(cp)`` picks one from the contact table)
-- ``BODY_ROW``        one sphere-wall contact of a step
+- ``BODY_ROW``        one sphere-wall / sphere-wheel-part contact of a step
 
 Partner ids of the walls (negative, so they sort before every sphere, ascending =
 the sum order): back (z=width) -5, front (z=0) -4, right (x=length) -3,
-left (x=0) -2, bottom (y=0) -1 (the 2D ids are kept for the 2D walls).
+left (x=0) -2, bottom (y=0) -1 (the 2D ids are kept for the 2D walls); the wheel's
+parts have the 2D ids (lug k: ID_LUG0 + k = -1000 + k, rim ID_RIM = -100), below every wall.
 """
 from __future__ import annotations
 
@@ -68,6 +70,7 @@ ID_WALL_FRONT = -4
 ID_WALL_RIGHT = -3
 ID_WALL_LEFT = -2
 ID_WALL_BOTTOM = -1
+from ..layout import ID_LUG0, ID_RIM  # noqa: E402,F401  (the wheel's parts, as in 2D)
 
 # history widths of the 3D law (tangential spring force, rolling spring moment)
 S_WIDTH = 3
@@ -94,11 +97,13 @@ def pair_row_layout(cp) -> np.dtype:
     return PAIR_ROW_ROLLING if bool(np.any(np.asarray(cp["mur"]) > 0.0)) else PAIR_ROW_SLIDING
 
 
-# one sphere-wall contact (the wall is always a): sphere row index, wall id, force and
-# torque on the sphere, new springs
+# one sphere-wall or sphere-wheel-part contact (the body is always a): sphere row index,
+# body id, force and torque on the sphere, new springs, and (wheel parts only) the torque
+# on the wheel about its axle z (the wheel's force is (-bx, -by); its z force goes to the
+# axle)
 BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8")]
                     + [(n, F8) for n in ("bx", "by", "bz", "tx", "ty", "tz",
-                                         "sx", "sy", "sz", "mx", "my", "mz")])
+                                         "sx", "sy", "sz", "mx", "my", "mz", "wt")])
 
 # ------------------------------------------------------- kernel argument records
 # the shared named tuples of physics.layout (one definition for every dimension):

@@ -7,18 +7,24 @@ of the half pair list when some sphere has moved half the skin. Error flags and
 capacity growth as the 2D ``engine.stepper._run_steps``: it stops early with
 err.pair_capacity = pairs needed (grow the list, call again with rebuild_now),
 err.body_capacity (grow the wall rows, call again: that step is redone, nothing was
-advanced) or err.hist_overflow (fatal). The wheel is the next issue: an enabled
-wheel geometry sets err.wheel_unsupported and nothing is advanced.
+advanced) or err.hist_overflow (fatal). With the wheel (kp.wg.enabled) a step is the
+2D one's: the wheel's controls and lug directions first, its rows made by ``produce``
+(rim cylinder and lug plates spanning its width, ``forces.produce``), its reaction summed
+in ascending sphere id after the gather (the 2D ``wheel_reaction``: x, y and the torque
+about the axle; the lateral force goes to the axle), its record and its leapfrog in x and
+y (``physics.integrate``, the same controller as in 2D).
 """
 import numpy as np
 from numba import njit
 
+from .. import layout as L2
+from ..forces import lug_directions, wheel_reaction
+from ..integrate import apply_wheel_controls, drawbar_force, integrate_wheel
 from .forces import N_CHUNKS, gather_integrate, load_history, produce, sync_history
 from .layout import (
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
     ERR_PAIR_CAPACITY,
-    ERR_WHEEL_UNSUPPORTED,
 )
 from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry point)
 
@@ -31,7 +37,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
 
     kp: layout.KernelParams, d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies,
     forces: layout.Forces (length 0 when not kept), ws: WHEEL_STATE record (1,),
-    err: ERRORS flags (int64 array), rec: WHEEL_RECORD rows (unused until the wheel),
+    err: ERRORS flags (int64 array), rec: WHEEL_RECORD rows, one per step (wheel runs),
     rebuild_now: build the pair list first; pairs_done (the 2D signature's: this step's
     pair rows are already made) is accepted and ignored: ``produce`` makes no pair row
     when a wall buffer is full, so remaking the step gives the same bits;
@@ -41,9 +47,12 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     every step (no role-dependent sync: every sphere leaves whole after each step).
     Returns (steps done, rebuilds)."""
     n = d.r.shape[0]
-    if kp.wg[0].enabled > 0.5:
-        err[ERR_WHEEL_UNSUPPORTED] = 1
-        return 0, 0
+    wg = kp.wg
+    wc = kp.wc
+    wheel = wg[0].enabled > 0.5
+    nlugs = int(wg[0].nlugs)
+    lugdir = np.empty(max(1, nlugs), L2.LUG_DIRECTION)   # set by lug_directions before use
+    gy = kp.gravity[1]
     dt = kp.dt
     skin = kp.skin
     part = np.zeros(N_CHUNKS)
@@ -64,7 +73,11 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     half2 = 0.25 * skin * skin
     rebuilds = 0
     for s in range(nsteps):
-        produce(n, d, pl, bd, kp.cp, kp.walls, dt, err, held)
+        t = (step0 + s) * dt
+        if wheel:
+            apply_wheel_controls(t, ws, wg, wc)
+            lug_directions(ws[0].theta, nlugs, lugdir)
+        produce(n, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err, held)
         if err[ERR_BODY_CAPACITY] != 0:
             # no pair row of this step was made (produce): the rows still hold the springs
             # of the last step, so the sync leaves the spheres whole; nothing was advanced
@@ -75,6 +88,23 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
                                  part, err, held)
         if err[ERR_HIST_OVERFLOW] != 0:
             return s + 1, rebuilds
+        if wheel:
+            wfx, wfy, wtq, cnt = wheel_reaction(d.gid, bd)
+            w0 = ws[0]
+            r0 = rec[s]
+            r0.t = t
+            r0.x = w0.x
+            r0.y = w0.y
+            r0.vx = w0.vx
+            r0.vy = w0.vy
+            r0.wz = w0.wz
+            r0.theta = w0.theta
+            r0.fx = wfx
+            r0.fy = wfy
+            r0.torque = wtq
+            r0.drawbar = drawbar_force(t, wc)
+            r0.contacts = cnt
+            integrate_wheel(t, ws, wg, wc, wfx, wfy, gy, dt)
         if disp2 > half2:
             rebuilds += 1
             if held:

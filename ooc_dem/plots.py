@@ -24,7 +24,7 @@ import numpy as np
 from .atomic import write_replacing
 
 from .fields import displacements, gridded_displacement, layer_index
-from .physics.layout import AX_X, AX_Y, WS_THETA, WS_X, WS_Y
+from .physics.layout import AX_X, AX_Y, AX_Z, WS_THETA, WS_X, WS_Y
 
 LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
 DPI = 150
@@ -577,9 +577,59 @@ def make_figures(out_dir, final=None) -> list[Path]:
         init_z = _initial_z(initial_file, len(init[0]))
         if sc is not None and sc.dim == 3 and sc.wheel.enabled and init_z is not None:
             # the 3D wheel's own views: mid-width slice, rut, lateral flow, wheel mesh
-            from .views3d import make_views
             p, ws = _read_final_particles(out)
-            written += make_views(out, sc, (init, init_z), p, ws, series)
+            written += _views_3d(out, sc, (init, init_z), p, ws, series)
+    return written
+
+
+def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
+    """The 3D views of a run (module doc). init: (id, x, y, r, surface) and z of the
+    initial bed; final_p: the final Particles."""
+    from .engine.stepper import wheel_z0
+    from .views3d import (LATERAL_FIGURE, MIDWIDTH_FIGURE, RUT_FIGURE, WHEEL_MESH, _grid, _match,
+                          lateral_map, surface_map, write_wheel_vtk)
+    out = Path(out)
+    fig_dir = out / "figures"
+    (iid, ix, iy, ir, surface), iz = init
+    fid, fpos, fr = final_p.id, final_p.pos, final_p.r
+    fx, fy, fz = fpos[:, AX_X], fpos[:, AX_Y], fpos[:, AX_Z]
+    z0 = wheel_z0(sc)
+    band = 2.0 * sc.soil.r_max
+    written = []
+    # mid-width slice: the spheres whose final centres lie within the band; the initial
+    # panel shows those and the ones that started in it (each keeps its layer colour)
+    mf = np.abs(fz - z0) < band
+    mi = np.abs(iz - z0) < band
+    mi[_match(iid, fid[mf])] = True
+    written.append(_deformation_figure((iid[mi], ix[mi], iy[mi], ir[mi], surface),
+                                             (fid[mf], fx[mf], fy[mf], fr[mf], ws), sc, series,
+                                             fig_dir / MIDWIDTH_FIGURE))
+    plt = _pyplot()
+    cell, nx, nz = _grid(sc)
+    extent = (0.0, nx * cell, 0.0, nz * cell)
+    w = sc.wheel
+    rut = surface_map(sc, fx, fy, fz, fr) - surface_map(sc, ix, iy, iz, ir)
+    k = _match(iid, fid)
+    lat = lateral_map(sc, ix[k], iz[k], fz - iz[k])
+    for name, data, label, cmap in (
+            (RUT_FIGURE, 1e3 * rut, "surface change (final − initial) [mm]", "RdBu"),
+            (LATERAL_FIGURE, 1e3 * lat, "mean lateral displacement dz [mm] (by initial cell)", "PuOr")):
+        lim = float(np.nanmax(np.abs(data))) if np.isfinite(data).any() else 1.0
+        fig, ax = plt.subplots(figsize=(10, 10 * sc.bin.width / sc.bin.length + 1.2),
+                               constrained_layout=True)
+        im = ax.imshow(data.T, origin="lower", extent=extent, cmap=cmap, vmin=-lim, vmax=lim,
+                       aspect="equal", interpolation="nearest")
+        for zb in (z0 - 0.5 * w.width, z0 + 0.5 * w.width):
+            ax.axhline(zb, color="k", lw=0.8, ls="--")
+        ax.axvline(w.x0, color="0.3", lw=0.6, ls=":")
+        ax.axvline(float(ws[WS_X]), color="k", lw=0.8)
+        ax.set_xlabel("x [m] (travel)")
+        ax.set_ylabel("z [m] (across)")
+        ax.set_title(f"{sc.name}: {label}; dashed: wheel width, dotted/solid: start/final "
+                     f"axle x", fontsize=9)
+        fig.colorbar(im, ax=ax, shrink=0.8)
+        written.append(_save(fig, fig_dir / name))
+    written.append(write_wheel_vtk(out / WHEEL_MESH, sc, ws))
     return written
 
 

@@ -126,11 +126,10 @@ def _wall(wall):
 
 
 @njit(inline="always", cache=True)
-def _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
-               mnz, nx, ny, nz, ri, qx, qy):
-    """Body row of a sphere-wheel-part contact: force and torque on the sphere, new springs,
-    and the torque on the wheel about its axle from the reaction at q (relative to the
-    axle point (X, Y)) minus the rolling moment's z part."""
+def _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
+              mnz, nx, ny, nz, ri):
+    """Body row of a sphere's wall or wheel contact: force and torque on the sphere, its
+    new springs, no wheel torque."""
     row = body[bat]
     row.disc = i
     row.pid = pid
@@ -148,7 +147,19 @@ def _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, mo
     row.mx = mnx
     row.my = mny
     row.mz = mnz
-    row.wt = qx * (-by) - qy * (-bx) - moz
+    row.wt = 0.0
+
+
+@njit(inline="always", cache=True)
+def _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
+               mnz, nx, ny, nz, ri, qx, qy):
+    """Body row of a sphere-wheel-part contact (``_body_row``) with the torque on the wheel
+    about its axle from the reaction at q (relative to the axle point (X, Y)) minus the
+    rolling moment's z part."""
+    _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
+              mnz, nx, ny, nz, ri)
+    row = body[bat]
+    row.wt = qx * (-row.by) - qy * (-row.bx) - moz
 
 
 @njit(parallel=True, cache=True)
@@ -343,23 +354,8 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
                     cp[T_WALL, ti], nx, ny, nz, delta, vxi, vyi, vzi, 0.0, 0.0, 0.0,
                     wxi, wyi, wzi, 0.0, ri, mi, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
                 if bat < bend:
-                    row = body[bat]
-                    row.disc = i
-                    row.pid = pid
-                    row.bx = fn * nx - ftx
-                    row.by = fn * ny - fty
-                    row.bz = fn * nz - ftz
-                    # ri (n x Ft) + M
-                    row.tx = ri * (ny * ftz - nz * fty) + mox
-                    row.ty = ri * (nz * ftx - nx * ftz) + moy
-                    row.tz = ri * (nx * fty - ny * ftx) + moz
-                    row.sx = snx
-                    row.sy = sny
-                    row.sz = snz
-                    row.mx = mnx
-                    row.my = mny
-                    row.mz = mnz
-                    row.wt = 0.0
+                    _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz,
+                              mnx, mny, mnz, nx, ny, nz, ri)
                     bat += 1
                 else:
                     full = True

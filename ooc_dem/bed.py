@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .engine.stepper import DomainStepper, Model
-from .physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
+from .physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
 from .scenario import MAX_STEPS, Scenario, ScenarioError, scenario_from_dict
 from .state import Particles
 
@@ -109,16 +109,41 @@ def mean_speed(p: Particles) -> float:
     return float(np.mean(np.sqrt(np.einsum("ij,ij->i", p.vel, p.vel))))
 
 
-def surface_height(p: Particles, length: float, r_max: float) -> float:
-    """Mean height of the top of the bed (column-wise max of y + r), walls excluded."""
-    width = 4 * r_max
-    ncol = max(1, int(length / width))
-    col = np.clip((p.pos[:, AX_X] / width).astype(np.int64), 0, ncol - 1)
-    top = np.full(ncol, -np.inf)
-    np.maximum.at(top, col, p.pos[:, AX_Y] + p.r)
+def surface_height(p: Particles, length: float, r_max: float, x_origin: float = 0.0,
+                   across: tuple[float, float] | None = None) -> float:
+    """Mean height of the top of the bed: the max of y + r in cells of 4 r_max along x
+    (from x_origin over length), the end cells (walls) excluded. ``across`` = (z_lo, z_hi),
+    3D: only the spheres in that band (the wheel's footprint), split into cells of about
+    4 r_max across it too, so the surface is the mean of the local tops under the wheel,
+    not the highest sphere anywhere across the bin's width."""
+    cell = 4 * r_max
+    ncol = max(1, int(length / cell))
+    x = p.pos[:, AX_X]
+    y_top = p.pos[:, AX_Y] + p.r
+    col = np.clip(((x - x_origin) / cell).astype(np.int64), 0, ncol - 1)
+    nrow, row = 1, np.zeros(len(p), np.int64)
+    if across is not None:
+        lo, hi = across
+        z = p.pos[:, AX_Z]
+        inside = (z >= lo) & (z < hi)
+        col, y_top, z = col[inside], y_top[inside], z[inside]
+        nrow = max(1, int((hi - lo) / cell))
+        row = np.clip(((z - lo) * (nrow / (hi - lo))).astype(np.int64), 0, nrow - 1)
+    top = np.full((ncol, nrow), -np.inf)
+    np.maximum.at(top, (col, row), y_top)
     inner = top[1:-1] if ncol > 4 else top
     inner = inner[np.isfinite(inner)]
     return float(np.mean(inner)) if len(inner) else 0.0
+
+
+def wheel_footprint(sc: Scenario) -> tuple[float, float] | None:
+    """The band across the bin (z) the 3D wheel rolls over, for ``surface_height``; None
+    in 2D or without a wheel (the whole bed is under the wheel's width)."""
+    if sc.dim != 3 or not sc.wheel.enabled:
+        return None
+    from .engine.stepper import wheel_z0
+    z0, half = wheel_z0(sc), 0.5 * sc.wheel.width
+    return (z0 - half, z0 + half)
 
 
 def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:

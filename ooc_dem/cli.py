@@ -244,7 +244,7 @@ def cmd_scenarios(args):
 
 def cmd_prepare(args):
     import numpy as np
-    from .bed import settled_bed, surface_height
+    from .bed import settled_bed, surface_height, wheel_footprint
     from .engine.run import check_bed_memory
     sc = _load(args)
     check_bed_memory(sc)   # before the bed is allocated
@@ -255,7 +255,7 @@ def cmd_prepare(args):
     out.mkdir(parents=True, exist_ok=True)
     np.savez(out / "bed.npz", **bed.arrays())
     (out / "scenario.toml").write_text(sc.to_toml(), encoding="utf-8")
-    surf = surface_height(bed, sc.bin.length, sc.soil.r_max)
+    surf = surface_height(bed, sc.bin.length, sc.soil.r_max, across=wheel_footprint(sc))
     info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf,
             "bed_hash": sc.bed_hash()}
     (out / "bed.json").write_text(json.dumps(info, indent=2))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -40,13 +40,13 @@ def write_outputs(out: Path, summary: dict, series: np.ndarray | None, figures: 
 
 
 def complete_outputs(out: Path, step: int, write_all: Callable[[], None], *, series: bool,
-                     figures: bool, summary_figures=()) -> list[str]:
+                     figures: Sequence[str] = (), summary_figures=()) -> list[str]:
     """After the last commit at ``step``: write whichever outputs a kill left unwritten
     (``write_all`` writes them all); return their names. ``series``: the run has a
-    series.csv; ``figures``: the run has the wheel figures (``make_figures``);
-    ``summary_figures``: figures written with the summary, before it (a missing one
-    means writing them all again)."""
-    from .plots import FIGURE_NAMES, make_figures
+    series.csv; ``figures``: the files ``make_figures`` writes for the run, relative to
+    ``out`` (``plots.figure_files``; empty: none); ``summary_figures``: figures written
+    with the summary, before it (a missing one means writing them all again)."""
+    from .plots import make_figures
     out = Path(out)
     try:
         summary = json.loads((out / "summary.json").read_text())
@@ -57,7 +57,7 @@ def complete_outputs(out: Path, step: int, write_all: Callable[[], None], *, ser
         write_all()
         return ["summary.json"] + (["series.csv"] if series else []) + (
             ["figures"] if figures or summary_figures else [])
-    if figures and not all((out / "figures" / f).is_file() for f in FIGURE_NAMES):
+    if figures and not all((out / f).is_file() for f in figures):
         make_figures(out)
         return ["figures"]
     return []

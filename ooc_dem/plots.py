@@ -541,6 +541,17 @@ SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE = "series.png", "deformat
 FIGURE_NAMES = (SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE)
 
 
+def figure_files(sc) -> tuple[str, ...]:
+    """The files ``make_figures`` writes for a wheel run of scenario sc, relative to its
+    directory (3D adds the mid-width slice, rut and lateral-flow views and the wheel mesh)."""
+    names = FIGURE_NAMES
+    if sc.dim == 3:
+        from .views3d import LATERAL_FIGURE, MIDWIDTH_FIGURE, RUT_FIGURE, WHEEL_MESH
+        names += (MIDWIDTH_FIGURE, RUT_FIGURE, LATERAL_FIGURE)
+        return tuple(f"figures/{n}" for n in names) + (WHEEL_MESH,)
+    return tuple(f"figures/{n}" for n in names)
+
+
 def make_figures(out_dir, final=None) -> list[Path]:
     """Write the run's figures into ``OUT/figures/``; return their paths.
 

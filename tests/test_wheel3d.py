@@ -221,3 +221,90 @@ def test_resume_from_a_mid_run_epoch_gives_the_same_bits(runs, tmp_path):
     a, b = res.state(), ref.state()
     for k in a:
         assert np.array_equal(a[k], b[k]), k
+
+
+def _layer(xs, zs, top, r=0.005):
+    """A square lattice of spheres at the given x and z whose tops lie at ``top``."""
+    gx, gz = np.meshgrid(xs, zs, indexing="ij")
+    pos = np.c_[gx.ravel(), np.full(gx.size, top - r), gz.ravel()]
+    p = Particles.empty(len(pos), dim=3, hist_cap=4)
+    p.pos[:] = pos
+    p.r[:] = r
+    return p
+
+
+def test_sinkage_surface_is_the_bed_top_under_the_wheel_not_the_highest_sphere_across():
+    """The 3D surface (sinkage's zero) is the mean of the local tops in the wheel's band:
+    a ridge outside the band (soil heaped at a side wall) does not raise it, and a bed
+    part that starts away from x = 0 (streamed beds) gets its own columns."""
+    from ooc_dem.bed import surface_height, wheel_footprint
+    sc = load_scenario("paper2008-3d")
+    lo, hi = wheel_footprint(sc)
+    assert np.allclose((lo, hi), (0.05, 0.15), rtol=0, atol=1e-15)
+    xs = np.arange(0.005, 0.6, 0.01)
+    bed = _layer(xs, np.arange(0.005, 0.2, 0.01), 0.07)
+    ridge = _layer(xs, [0.195], 0.09)                        # against the far side wall
+    p = Particles.concat([bed, ridge], dim=3, hist_cap=4)
+    r_max = sc.soil.r_max
+    assert math.isclose(surface_height(p, 0.6, r_max, across=(lo, hi)), 0.07, rel_tol=1e-12)
+    assert math.isclose(surface_height(p, 0.6, r_max), 0.09, rel_tol=1e-12)   # the max across
+    # a part of the bed from x = 0.3 to 0.6: its own columns, not all clipped into the last
+    half = _layer(np.arange(0.305, 0.6, 0.01), np.arange(0.055, 0.15, 0.01), 0.05)
+    half.pos[half.pos[:, 0] > 0.45, 1] -= 0.02                # the far half 2 cm lower
+    s = surface_height(half, 0.3, r_max, x_origin=0.3, across=(lo, hi))
+    assert 0.035 < s < 0.045, s
+    assert wheel_footprint(load_scenario("paper2008")) is None
+
+
+def _committed_step(out) -> int:
+    """The step of the run's committed epoch (read from the manifest, not the store)."""
+    try:
+        cur = json.loads((out / "MANIFEST.json").read_text()).get("current")
+    except (OSError, ValueError, AttributeError):
+        return 0
+    return cur["step"] if isinstance(cur, dict) and isinstance(cur.get("step"), int) else 0
+
+
+def test_a_run_with_the_wheel_sigkilled_mid_roll_resumes_to_the_same_bits(runs, tmp_path):
+    """`ooc-dem run` (out-of-core, D = 6, the wheel rolling over re-decompositions) killed
+    with SIGKILL as soon as an epoch past the start is committed; `ooc-dem resume` ends
+    with the uninterrupted run's bits and writes the 3D figures and the wheel's mesh; a
+    resume after those were lost writes them again."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    from ooc_dem.plots import figure_files
+    out = tmp_path / "killed"
+    sets = [a for kv in WHEEL3D for a in ("--set", kv)]
+    proc = subprocess.Popen([sys.executable, "-m", "ooc_dem.cli", "run", "quick-3d", *sets,
+                             "--mode", "ooc", "--domains", "6", "--block", "4",
+                             "--checkpoint-every", "20", "--steps", str(WHEEL3D_STEPS),
+                             "--out", str(out), "--no-progress"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 600
+    while time.time() < deadline and proc.poll() is None and _committed_step(out) == 0:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.read()
+    killed_at = _committed_step(out)
+    assert 0 < killed_at < WHEEL3D_STEPS, killed_at
+    cp = run_cli("resume", out, "--no-progress")
+    assert cp.returncode == 0, cp.stderr
+    ref = runs["ooc-hdf5"].summary
+    got = json.loads((out / "summary.json").read_text())
+    assert got["state_hash"] == ref["state_hash"] and f"state hash: {ref['state_hash']}" in cp.stdout
+    for k in ("slip", "net_traction", "gross_traction", "sinkage"):
+        assert got[k] == ref[k], k
+    files = figure_files(load_scenario("quick-3d", WHEEL3D))
+    assert "wheel.vtk" in files and "figures/rut.png" in files
+    for f in files:
+        assert (out / f).stat().st_size > 1000, f
+    (out / "figures" / "rut.png").unlink()
+    (out / "wheel.vtk").unlink()
+    cp = run_cli("resume", out, "--no-progress")
+    assert cp.returncode == 0 and "missing outputs: figures" in cp.stdout, cp.stdout + cp.stderr
+    for f in files:
+        assert (out / f).is_file(), f
+    run_cli("checkpoint", "verify", out, check=True)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..bed import settled_bed, surface_height
+from ..bed import settled_bed, surface_height, wheel_footprint
 from ..checkpoint import FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, read_all_particles
 from ..physics.layout import REC_X, WS_SIZE, WS_X, WS_Y
 from ..scenario import (MAX_DOMAINS, MAX_HIST_CAP, MAX_STEPS, Scenario, ScenarioError, big,
@@ -386,7 +386,8 @@ class Simulation:
         if bed is None:
             bed = settled_bed(self.sc, progress=self._bed_progress())
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
-        self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max)
+        self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max,
+                                      across=wheel_footprint(self.sc))
         try:
             self.store = create_store(self.out, self._store_backend(), self._meta(),
                                       compression=self.opts.compression)
@@ -411,8 +412,9 @@ class Simulation:
         from storage import StoreError, create_store
         from ..bed import tiled_bed_parts
         parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
-        surf = [surface_height(p, p.pos[:, AX_X].max() - p.pos[:, AX_X].min(), self.sc.soil.r_max)
-                for p in parts()]
+        band = wheel_footprint(self.sc)
+        surf = [surface_height(p, p.pos[:, AX_X].max() - p.pos[:, AX_X].min(), self.sc.soil.r_max,
+                               x_origin=p.pos[:, AX_X].min(), across=band) for p in parts()]
         self.surface = float(np.mean(surf))
         try:
             self.store = create_store(self.out, self._store_backend(), self._meta(),
@@ -619,9 +621,10 @@ class Simulation:
         """After the last commit: write whichever outputs a kill left unwritten; return their names."""
         from ..repose import REPOSE_FIGURE
         repose = (REPOSE_FIGURE,) if self.opts.figures and self.sc.repose.enabled else ()
+        from ..plots import figure_files
+        figures = figure_files(self.sc) if self.opts.figures and self.metrics is not None else ()
         return complete_outputs(self.out, self.step, self.finish, series=self.metrics is not None,
-                                figures=self.opts.figures and self.metrics is not None,
-                                summary_figures=repose)
+                                figures=figures, summary_figures=repose)
 
     def n_discs(self) -> int:
         return self.engine.n_discs()

@@ -4,7 +4,7 @@ per-dimension entry points the engine calls (``physics.kernels(3)``), ``run_step
 or ``pair_row_layout(cp)``, ``BODY_ROW``, ``N_ERR``, ``N_CHUNKS``). Modules: layout, contact law, neighbours,
 forces, step, time step, and a thin test driver (sim)."""
 from .forces import N_CHUNKS  # noqa: F401
-from .layout import (BODY_ROW, CONTACT_PARAMS, ERR_WHEEL_UNSUPPORTED, N_ERR, PAIR_ROW,  # noqa: F401
+from .layout import (BODY_ROW, CONTACT_PARAMS, N_ERR, PAIR_ROW,  # noqa: F401
                      WALLS, pair_row_layout)
 from .step import run_steps, spatial_order  # noqa: F401
 

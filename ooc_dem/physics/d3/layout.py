@@ -60,8 +60,8 @@ N_TYPES = 3
 WALLS = _dtype(("length", "width", "left", "right", "bottom", "front", "back"))
 
 # ------------------------------------------------------------------- errors
-ERRORS = _dtype(("hist_overflow", "pair_capacity", "body_capacity", "wheel_unsupported"), "<i8")
-ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_BODY_CAPACITY, ERR_WHEEL_UNSUPPORTED = range(4)
+ERRORS = _dtype(("hist_overflow", "pair_capacity", "body_capacity"), "<i8")
+ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_BODY_CAPACITY = range(3)
 N_ERR = len(ERRORS.names)
 
 # -------------------------------------------------------------- partner ids

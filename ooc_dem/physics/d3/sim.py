@@ -14,7 +14,6 @@ from .layout import (
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
     ERR_PAIR_CAPACITY,
-    ERR_WHEEL_UNSUPPORTED,
     M_WIDTH,
     N_ERR,
     pair_row_layout,
@@ -164,8 +163,6 @@ class Sim:
             self.step += k
             self.rebuilds += rb
             self._built = True
-            if self.err[ERR_WHEEL_UNSUPPORTED]:
-                raise EngineError("the 3D kernels have no wheel yet")
             if self.err[ERR_HIST_OVERFLOW]:
                 return
             if self.err[ERR_PAIR_CAPACITY]:

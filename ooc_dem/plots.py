@@ -544,12 +544,11 @@ FIGURE_NAMES = (SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE)
 def figure_files(sc) -> tuple[str, ...]:
     """The files ``make_figures`` writes for a wheel run of scenario sc, relative to its
     directory (3D adds the mid-width slice, rut and lateral-flow views and the wheel mesh)."""
-    names = FIGURE_NAMES
+    names, beside = FIGURE_NAMES, ()
     if sc.dim == 3:
         from .views3d import LATERAL_FIGURE, MIDWIDTH_FIGURE, RUT_FIGURE, WHEEL_MESH
-        names += (MIDWIDTH_FIGURE, RUT_FIGURE, LATERAL_FIGURE)
-        return tuple(f"figures/{n}" for n in names) + (WHEEL_MESH,)
-    return tuple(f"figures/{n}" for n in names)
+        names, beside = names + (MIDWIDTH_FIGURE, RUT_FIGURE, LATERAL_FIGURE), (WHEEL_MESH,)
+    return tuple(f"figures/{n}" for n in names) + beside
 
 
 def make_figures(out_dir, final=None) -> list[Path]:

@@ -62,6 +62,19 @@ def assert_same_state(a, b):
         assert np.array_equal(sa[k], sb[k]), f"state array {k!r} differs"
 
 
+def committed_step(store) -> int:
+    """The step of a store's committed epoch, read from its manifest (not by opening the
+    store, so it can be polled while a run writes); -1 before the first commit."""
+    import json
+    import pathlib
+    try:
+        m = json.loads((pathlib.Path(store) / "MANIFEST.json").read_text())
+    except (OSError, ValueError):
+        return -1
+    cur = m.get("current") if isinstance(m, dict) else None
+    return cur["step"] if isinstance(cur, dict) and isinstance(cur.get("step"), int) else -1
+
+
 def zarr_epochs_as_directories(store) -> None:
     """Turn every zarr epoch of a store (one zip archive each) into the directory layout of
     earlier versions, manifest included (a store written before; still read): the archive's

@@ -21,7 +21,7 @@ import time
 import numba
 import numpy as np
 import pytest
-from conftest import assert_same_state, run_cli
+from conftest import assert_same_state, committed_step, run_cli
 
 import ooc_dem
 from ooc_dem.bed import initial_fill
@@ -149,7 +149,7 @@ def test_sigkill_then_resume_gives_the_same_bits(runs, tmp_path):
     deadline = time.time() + 300
     killed = False
     while time.time() < deadline and proc.poll() is None:
-        if _has_epoch(out):
+        if committed_step(out) > 0:
             time.sleep(0.3)
             proc.send_signal(signal.SIGKILL)
             killed = True
@@ -165,14 +165,3 @@ def test_sigkill_then_resume_gives_the_same_bits(runs, tmp_path):
     a, b = ooc_dem.open_run(out).state(), runs["ooc-hdf5-10"].state()
     for k in a:
         assert np.array_equal(a[k], b[k]), k
-
-
-def _has_epoch(out) -> bool:
-    """A committed epoch past step 0 (the manifest names it; read without opening the store)."""
-    import json
-    try:
-        m = json.loads((out / "MANIFEST.json").read_text())
-    except (OSError, ValueError):
-        return False
-    cur = m.get("current") if isinstance(m, dict) else None
-    return isinstance(cur, dict) and isinstance(cur.get("step"), int) and cur["step"] > 0

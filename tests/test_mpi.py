@@ -13,7 +13,7 @@ import numpy as np
 import psutil
 import pytest
 
-from conftest import one_line_error, run_cli
+from conftest import committed_step, one_line_error, run_cli
 
 # bed-600: 4 equal slabs; the wheel run: a fast slip-controlled wheel set down on the
 # quick bed, so that its slab is redefined within 600 steps (test_ddm's wheel case)
@@ -137,14 +137,6 @@ def test_resume_a_serial_run_on_ranks(serial, tmp_path):
     one_line_error(run_cli("resume", mono, "--mode", "mpi", "--steps", 10, *QUIET), "--mode 'mpi'", "monolithic")
 
 
-def _current_step(store) -> int:
-    try:
-        m = json.loads((store / "MANIFEST.json").read_text())
-    except (OSError, ValueError):
-        return -1
-    return m["current"]["step"] if m.get("current") else -1
-
-
 @pytest.mark.parametrize("mode,serial_mode", [("mpi", "ddm"), ("mpi-ooc", "ooc")])
 def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path, mode, serial_mode):
     out = tmp_path / "mpi"
@@ -154,7 +146,7 @@ def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path, mode, s
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         deadline = time.time() + 180
-        while _current_step(out) < 10:
+        while committed_step(out) < 10:
             assert job.poll() is None, job.communicate()
             assert time.time() < deadline, "the job committed no epoch beyond step 0 in 180 s"
             time.sleep(0.2)
@@ -172,7 +164,7 @@ def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path, mode, s
             job.kill()
             job.wait()
     # the last committed epoch resumes (here on one rank) to the serial bits of that step
-    stop = _current_step(out) + 20
+    stop = committed_step(out) + 20
     run_cli("resume", out, "--steps", stop, *QUIET, check=True, env=ENV)
     ref = tmp_path / "serial"
     run_cli("run", *BED, "--mode", serial_mode, "--steps", stop, "--out", ref, *QUIET, check=True, env=ENV)

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import committed_step, run_cli
 
 import ooc_dem
 from ooc_dem.engine.stepper import DomainStepper, Model
@@ -256,15 +256,6 @@ def test_sinkage_surface_is_the_bed_top_under_the_wheel_not_the_highest_sphere_a
     assert wheel_footprint(load_scenario("paper2008")) is None
 
 
-def _committed_step(out) -> int:
-    """The step of the run's committed epoch (read from the manifest, not the store)."""
-    try:
-        cur = json.loads((out / "MANIFEST.json").read_text()).get("current")
-    except (OSError, ValueError, AttributeError):
-        return 0
-    return cur["step"] if isinstance(cur, dict) and isinstance(cur.get("step"), int) else 0
-
-
 def test_a_run_with_the_wheel_sigkilled_mid_roll_resumes_to_the_same_bits(runs, tmp_path):
     """`ooc-dem run` (out-of-core, D = 6, the wheel rolling over re-decompositions) killed
     with SIGKILL as soon as an epoch past the start is committed; `ooc-dem resume` ends
@@ -283,12 +274,12 @@ def test_a_run_with_the_wheel_sigkilled_mid_roll_resumes_to_the_same_bits(runs, 
                              "--out", str(out), "--no-progress"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.time() + 600
-    while time.time() < deadline and proc.poll() is None and _committed_step(out) == 0:
+    while time.time() < deadline and proc.poll() is None and committed_step(out) <= 0:
         time.sleep(0.01)
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=60)
     assert proc.returncode == -signal.SIGKILL, proc.stderr.read()
-    killed_at = _committed_step(out)
+    killed_at = committed_step(out)
     assert 0 < killed_at < WHEEL3D_STEPS, killed_at
     cp = run_cli("resume", out, "--no-progress")
     assert cp.returncode == 0, cp.stderr

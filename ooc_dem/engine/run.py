@@ -619,9 +619,9 @@ class Simulation:
 
     def complete_outputs(self) -> list[str]:
         """After the last commit: write whichever outputs a kill left unwritten; return their names."""
+        from ..plots import figure_files
         from ..repose import REPOSE_FIGURE
         repose = (REPOSE_FIGURE,) if self.opts.figures and self.sc.repose.enabled else ()
-        from ..plots import figure_files
         figures = figure_files(self.sc) if self.opts.figures and self.metrics is not None else ()
         return complete_outputs(self.out, self.step, self.finish, series=self.metrics is not None,
                                 figures=figures, summary_figures=repose)

@@ -96,15 +96,16 @@ def _assign_owners(ids, x, off, bounds, owner_row, owned):
 
 
 @njit(cache=True)
-def _own_rows(ids, x, off, bounds, owner_row, owned, owned_before, shared, role):
+def _own_rows(ids, x, off, bounds, owner_row, owned, owned_before, role):
     """``_assign_owners`` after keeping the last ownership in owned_before, and each row's
-    forces.ROLE_* bits from the two and ``shared``; returns how many rows are owned."""
+    forces.ROLE_* bits from the two (its ROLE_SHARED bit, fixed for the local sets, kept);
+    returns how many rows are owned."""
     for r in range(owned.shape[0]):
         owned_before[r] = owned[r]
     count = _assign_owners(ids, x, off, bounds, owner_row, owned)
     for r in range(owned.shape[0]):
         role[r] = ((ROLE_OWNED if owned[r] else 0) | (ROLE_OWNED_BEFORE if owned_before[r] else 0)
-                   | (ROLE_SHARED if shared[r] else 0))
+                   | (role[r] & ROLE_SHARED))
     return count
 
 
@@ -150,14 +151,10 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                 status = SWEEPS_REBUILD
                 done = sw
                 break
-            owned_before[:] = owned
-            if _assign_owners(ids, pos[:, AX_X], off, bounds, owner_row, owned) != n_total:
+            if _own_rows(ids, pos[:, AX_X], off, bounds, owner_row, owned, owned_before, role) != n_total:
                 status = SWEEPS_OWNERSHIP
                 done = sw
                 break
-            for r in range(role.shape[0]):
-                role[r] = ((ROLE_OWNED if owned[r] else 0) | (ROLE_OWNED_BEFORE if owned_before[r] else 0)
-                           | (role[r] & ROLE_SHARED))
             for j in range(len(doms)):
                 if active[j] and disp2[j] > rebuild2[j]:
                     # the rebuild reloads every row from the discs: write the rows back first
@@ -270,14 +267,13 @@ class LiveDomains:
         self.owner_row = np.full(int(self.p.id.max()) + 1 if len(self.p) else 0, -1, np.int64)
         self.owned = np.zeros(len(self.p), np.bool_)
         self.owned_before = np.zeros(len(self.p), np.bool_)
-        # forces.ROLE_* of each row in the compiled sweeps (set with the ownership)
+        # forces.ROLE_* of each row in the compiled sweeps: ROLE_SHARED (the row's disc has
+        # a copy in another sub-domain) is fixed for these local sets, the ownership bits
+        # are set with the ownership
         self.role = np.zeros(len(self.p), np.int8)
-        # rows whose disc has a copy in another sub-domain (fixed for these local sets)
         if len(self.p):
             _, inverse, counts = np.unique(self.p.id, return_inverse=True, return_counts=True)
-            self.shared = counts[inverse] > 1
-        else:
-            self.shared = np.zeros(0, np.bool_)
+            self.role[counts[inverse] > 1] = ROLE_SHARED
         # the steppers' neighbour-list references, one array for all (checked in _refresh)
         self.ref = np.zeros((len(self.p), self.p.dim))
         self.disp2 = np.zeros(self.D)
@@ -292,6 +288,15 @@ class LiveDomains:
                 st = DomainStepper(view, model_nowheel, None, reorder=False)
             st.ref = self.ref[a:b]
             self.steppers.append(st)
+        # rows of the advanced sub-domains (fixed for these local sets)
+        self._active_rows = np.concatenate(
+            [np.arange(self.off[j], self.off[j + 1]) for j in range(self.D) if self.active[j]]
+            or [np.zeros(0, np.int64)])
+        # the compiled sweeps' per-sub-domain flags, lane plan and rebuild thresholds
+        self.flags = [np.zeros(4, np.int64) for _ in range(self.D)]
+        self._lane_plan = self._lanes()
+        self._rebuild2 = np.array([0.25 * st.model.skin ** 2 for st in self.steppers])
+        self._doms, self._doms_key = None, None
         self._own()
 
     def resident(self) -> list[int]:
@@ -304,17 +309,13 @@ class LiveDomains:
         owned row)."""
         p = self.p
         total = _own_rows(p.id, p.pos[:, AX_X], self.off, self.bounds, self.owner_row, self.owned,
-                          self.owned_before, self.shared, self.role)
+                          self.owned_before, self.role)
         if total != self.n:
             raise EngineError(f"serial DDM owns {total} of {self.n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")
 
     def owned_active_rows(self) -> np.ndarray:
         """Rows owned at the start of the last sweep by the advanced sub-domains."""
-        if not hasattr(self, "_active_rows"):
-            self._active_rows = np.concatenate(
-                [np.arange(self.off[j], self.off[j + 1]) for j in range(self.D) if self.active[j]]
-                or [np.zeros(0, np.int64)])
         return self._active_rows[self.owned[self._active_rows]]
 
     def owned_rows(self, d: int) -> np.ndarray:
@@ -357,7 +358,7 @@ class LiveDomains:
         """The compiled sweeps' typed list of sub-domains: built again only when a stepper's
         buffers were replaced (grown), since making it costs more than a short sweep."""
         key = tuple((id(st.rows), id(st.bodies.rows), id(st.half_off)) for st in self.steppers)
-        if getattr(self, "_doms_key", None) == key:
+        if self._doms_key == key:
             return self._doms
         doms = None
         for j, (st, fl) in enumerate(zip(self.steppers, self.flags)):
@@ -377,10 +378,6 @@ class LiveDomains:
             raise EngineError("serial DDM: the step kernels have no one-thread twin")
         recbuf = np.zeros((nsweeps * K, N_REC))
         norec = np.zeros(1, WHEEL_RECORD)
-        if not hasattr(self, "flags"):
-            self.flags = [np.zeros(4, np.int64) for _ in range(self.D)]
-            self._lane_plan = self._lanes()
-            self._rebuild2 = np.array([0.25 * st.model.skin ** 2 for st in self.steppers])
         for st, fl in zip(self.steppers, self.flags):
             fl[F_REBUILD] = 0 if st._built else 1
             fl[F_PAIRS_DONE] = 1 if st._pairs_done else 0

@@ -153,6 +153,7 @@ class MpiEngine:
         self.ws = np.zeros(WS_SIZE)
         self.bounds = np.array([-np.inf, np.inf])
         self.starts = np.zeros(self.R + 1, np.int64)
+        self.rank_discs: list[int] = []   # discs owned by each rank at the last share-out
         self.live: LiveDomains | None = None
         self.ghost_row = np.zeros(0, np.int64)
         self._pairs = None   # the exchange's (dest, source) pairs for the current ranges
@@ -274,7 +275,7 @@ class MpiEngine:
                 "redecompositions": len(self.redecompositions),
                 "ranks": self.R, "rank_starts": [int(s) for s in self.starts],
                 # each rank's owned discs at the last re-cut (the load balance)
-                "rank_discs": list(getattr(self, "rank_discs", [])),
+                "rank_discs": list(self.rank_discs),
                 "local_set_builds": self.builds,
                 # rank 0's share of the exchange (a first measure of the halo traffic)
                 "rank0_halo_rows_sent": self.halo_rows_sent, "rank0_messages": self.messages}
@@ -454,16 +455,11 @@ class MpiEngine:
             self.halo_rows_sent += len(send)
         return recv
 
-    def _owned_real(self) -> np.ndarray:
-        """Rows of this rank's own sub-domains owned at the start of the last sweep."""
-        live = self.live
-        return live.owned_active_rows()
-
     def _mine(self) -> Particles:
         m = self.model
         if self.live is None:
             return Particles.empty(0, m.dim, m.hist_cap)
-        return self.live.p.take(self._owned_real())
+        return self.live.p.take(self.live.owned_active_rows())
 
     def _sum(self, counts: np.ndarray) -> np.ndarray:
         """Element-wise sum of an int64 array over the ranks (exact: any order)."""
@@ -513,7 +509,7 @@ class MpiEngine:
             self.ghost_rows = ghosts
             self.ghost_row = np.full(len(live.owner_row), -1, np.int64)
             self.ghost_row[live.p.id[ghosts]] = ghosts
-        owned = len(self._owned_real()) if self.live is not None else 0
+        owned = len(self.live.owned_active_rows()) if self.live is not None else 0
         total = int(self.comm.allreduce(owned))
         if total != self.n:
             raise EngineError(f"MPI ranks own {total} of {self.n} discs (bounds {self.bounds.tolist()}): "
@@ -526,7 +522,7 @@ class MpiEngine:
         decision taken over all ranks). False: the local sets must be rebuilt."""
         live = self.live
         received = []
-        owned_rows = self._owned_real() if live is not None else np.zeros(0, np.int64)
+        owned_rows = self.live.owned_active_rows() if live is not None else np.zeros(0, np.int64)
         x = live.p.pos[owned_rows, AX_X] if live is not None else np.zeros(0)
         if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
             self._pairs = self._partners(self.window)
@@ -695,6 +691,7 @@ class MpiOocEngine(OocEngine):
         self.path = str(path if path is not None else store.path)
         self._ro_store = None        # ranks > 0: the store opened read-only
         self.starts = np.zeros(self.R + 1, np.int64)
+        self._epoch_hist = None      # (step, x histogram) of the epoch the sweeps read
 
     def _call(self, name: str, args: tuple, **local):
         if self.R > 1:
@@ -739,25 +736,30 @@ class MpiOocEngine(OocEngine):
 
     def _open_source(self, step: int) -> None:
         """Ranks > 0: the committed epoch `step`, read-only (rank 0 verified it)."""
-        if self._store_reader is not None and self._store_reader.step == step:
-            return
         from storage import open_store
         if self._store_reader is not None:
+            if self._store_reader.step == step:
+                return
             self._store_reader.close()
-        if self._ro_store is None:
-            self._ro_store = open_store(self.path, repair=False)
-        else:   # see the epochs rank 0 committed since
+        if self._ro_store is not None:   # reopened to see the epochs rank 0 committed since
             self._ro_store.close()
-            self._ro_store = open_store(self.path, repair=False)
+        self._ro_store = open_store(self.path, repair=False)
         self._store_reader = open_epoch(self._ro_store, step, verify=False)
 
-    def _share_out(self, src) -> np.ndarray:
+    def _x_histogram(self):
+        # built once per source epoch: a sweep's re-decomposition (``_wheel_check``) and
+        # its share-out both need it, and each build reads every group's attrs
+        step = self._source().step
+        if self._epoch_hist is None or self._epoch_hist[0] != step:
+            self._epoch_hist = (step, super()._x_histogram())
+        return self._epoch_hist[1]
+
+    def _share_out(self) -> np.ndarray:
         """starts[r]: the first slab of rank r, contiguous ranges of about equal disc counts
-        (from the epoch's x histogram: the same on every rank)."""
+        (from the epoch's x histogram: the same on every rank; the outer bounds are
+        infinite, which ``below`` counts as 0 and n)."""
         hist = self._x_histogram()
-        below = [hist.below(float(b)) if np.isfinite(b) else (0.0 if b < 0 else float(hist.n))
-                 for b in self.bounds]
-        return rank_starts(np.diff(np.array(below)), self.R)
+        return rank_starts(np.diff([hist.below(float(b)) for b in self.bounds]), self.R)
 
     def _op_sweep_ranks(self, step0: int, k: int, epoch_step: int, basename: str, ws) -> np.ndarray | None:
         if self.rank != 0:
@@ -766,7 +768,7 @@ class MpiOocEngine(OocEngine):
         self._step = step0
         wslab = self._wheel_check()
         src = self._source()
-        self.starts = self._share_out(src)
+        self.starts = self._share_out()
         lo_d, hi_d = int(self.starts[self.rank]), int(self.starts[self.rank + 1])
         done = {"owned": 0, "resident": [], "rec": np.zeros((0, N_REC)), "ws": None}
 
@@ -822,8 +824,3 @@ class MpiOocEngine(OocEngine):
 
     def info(self) -> dict:
         return {**super().info(), "ranks": self.R, "rank_starts": [int(s) for s in self.starts]}
-
-    def close(self) -> None:
-        for x in (self._store_reader, self._ro_store):
-            if x is not None:
-                x.close()

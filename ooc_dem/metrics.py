@@ -150,9 +150,14 @@ class WheelMetrics:
         n = a[W_N]
         if n == 0:
             return {"steps": 0}
+        dt = self.sc.physics.dt
         t0 = self.windows[k, 0] - w.settle_time
         t1 = self.windows[k, 1] - w.settle_time
-        dur = a[W_T1] - a[W_T0] + self.sc.physics.dt
+        # a run stopped early (--steps, --until) covers only part of the window: say so
+        covered = a[W_T1] + dt - w.settle_time
+        if covered < t1 - 0.5 * dt:
+            t1 = covered
+        dur = a[W_T1] - a[W_T0] + dt
         dist = a[W_X1] - a[W_X0]
         # slip needs a distance the rim would roll; a vanishing radius or omega has none
         rolled = w.radius * w.omega * dur

@@ -90,3 +90,31 @@ def test_sweep_drawbar_pull_increases_with_slip(tmp_path):
     assert list(data["slip"]) == [0.05, 0.3, 0.6]
     assert np.all(np.diff(data["drawbar_pull"]) > 0), data["drawbar_pull"]
     assert (out / "drawbar_pull_slip.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_windows_of_a_run_stopped_early_say_what_they_cover():
+    """`--duration` shorter than the travel: the windows end where the records do, not at
+    the scenario's travel_time (the table's header and summary.json would claim 0–2 s)."""
+    from ooc_dem.metrics import WheelMetrics
+    from ooc_dem.physics.layout import N_REC, REC_T, REC_X
+    from ooc_dem.scenario import load_scenario
+    sc = load_scenario("quick")
+    dt = sc.physics.dt
+    steps = int(round((sc.wheel.settle_time + 0.5) / dt))   # 0.5 s of the 2 s travel
+    rec = np.zeros((steps, N_REC))
+    rec[:, REC_T] = np.arange(steps) * dt
+    rec[:, REC_X] = np.arange(steps) * 1e-6
+    m = WheelMetrics(sc, surface=0.0, total_steps=steps)
+    m.add(rec, 0)
+    s = m.summary()
+    a, b = s["slip"]["whole_travel"]["window_s"]
+    assert a == 0.0 and abs(b - 0.5) <= 2 * dt
+    a, b = s["slip"]["steady"]["window_s"]
+    assert a == pytest.approx(sc.output.steady_start) and abs(b - 0.5) <= 2 * dt
+    # a run that covers its whole travel keeps the scenario's bounds exactly
+    full = int(round((sc.wheel.settle_time + sc.wheel.travel_time) / dt))
+    rec = np.zeros((full, N_REC))
+    rec[:, REC_T] = np.arange(full) * dt
+    m = WheelMetrics(sc, surface=0.0, total_steps=full)
+    m.add(rec, 0)
+    assert m.summary()["slip"]["whole_travel"]["window_s"] == [0.0, sc.wheel.travel_time]

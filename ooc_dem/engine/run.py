@@ -413,9 +413,13 @@ class Simulation:
         from ..bed import tiled_bed_parts
         parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
         band = wheel_footprint(self.sc)
-        surf = [surface_height(p, p.pos[:, AX_X].max() - p.pos[:, AX_X].min(), self.sc.soil.r_max,
-                               x_origin=p.pos[:, AX_X].min(), across=band) for p in parts()]
-        self.surface = float(np.mean(surf))
+        surf = []
+
+        def part_surface(p):   # each part's own columns (its own x origin)
+            x0 = p.pos[:, AX_X].min()
+            surf.append(surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max,
+                                       x_origin=x0, across=band))
+
         try:
             self.store = create_store(self.out, self._store_backend(), self._meta(),
                                       compression=self.opts.compression)
@@ -425,7 +429,9 @@ class Simulation:
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._with_io_options(self._ooc_engine_class().create_streamed(
             self.sc, self.model, parts, np.zeros(WS_SIZE), domains=self.plan.domains, block=self.plan.block,
-            store=self.store, commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer))
+            store=self.store, commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer,
+            observe=part_surface))
+        self.surface = float(np.mean(surf))
         self.step = 0
         self.commit()
         self._start_trajectory()

@@ -464,16 +464,20 @@ class OocEngine(SlabSweep):
 
     @classmethod
     def create_streamed(cls, sc, model: Model, parts, wheel_state: np.ndarray, *, domains: int,
-                        block: int, store, commit_sweep, part_sink=None) -> "OocEngine":
+                        block: int, store, commit_sweep, part_sink=None, observe=None) -> "OocEngine":
         """Start from a bed produced in x-ordered parts (``parts()`` yields them), never
-        holding the whole bed: pass 1 counts the discs in x bins (for the bounds), pass 2
-        writes each sub-domain's group as soon as no later part can add to it."""
+        holding the whole bed: pass 1 counts the discs in x bins (for the bounds) and hands
+        each part to ``observe`` (the caller's own per-part summaries, so that no third pass
+        is needed), pass 2 writes each sub-domain's group as soon as no later part can add
+        to it."""
         eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store,
                   commit_sweep=commit_sweep, part_sink=part_sink)
         eng.D = domains
         hist = XHistogram(sc.bin.length)
         for part in parts():
             hist.add_x(part.pos[:, AX_X])
+            if observe is not None:
+                observe(part)
         eng._n = hist.n
         eng.bounds = eng.decompose(hist, step=0)
         eng._writer = store.begin_epoch(0)

@@ -48,6 +48,27 @@ def drawbar_force(t, wc):
 
 
 @njit(cache=True)
+def record_and_integrate_wheel(rec, s, t, ws, wg, wc, fx_soil, fy_soil, torque_soil, contacts, gy, dt):
+    """Step s's ``layout.WHEEL_RECORD`` row (the wheel's state at the step's start and the
+    soil's reaction), then the wheel's integration: one writer for 2D and 3D."""
+    w0 = ws[0]
+    r0 = rec[s]
+    r0.t = t
+    r0.x = w0.x
+    r0.y = w0.y
+    r0.vx = w0.vx
+    r0.vy = w0.vy
+    r0.wz = w0.wz
+    r0.theta = w0.theta
+    r0.fx = fx_soil
+    r0.fy = fy_soil
+    r0.torque = torque_soil
+    r0.drawbar = drawbar_force(t, wc)
+    r0.contacts = contacts
+    integrate_wheel(t, ws, wg, wc, fx_soil, fy_soil, gy, dt)
+
+
+@njit(cache=True)
 def integrate_wheel(t, ws, wg, wc, fx_soil, fy_soil, gy, dt):
     m = wg[0].mass
     s = ws[0]

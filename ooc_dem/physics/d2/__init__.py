@@ -14,7 +14,7 @@ from .. import layout as L
 from ..forces import (N_CHUNKS, gather_integrate, gather_integrate_serial, load_history,
                       load_history_serial, lug_directions, produce, produce_serial,
                       sync_history, sync_history_serial, wheel_reaction)
-from ..integrate import apply_wheel_controls, drawbar_force, integrate_wheel
+from ..integrate import apply_wheel_controls, record_and_integrate_wheel
 from ..twins import serial_twin
 from ..layout import AX_Y, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY
 from ..neighbors import build_pairs, build_pairs_serial
@@ -84,21 +84,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
             return s, rebuilds
         if wheel:
             wfxs, wfys, wtqs, cnt = wheel_reaction(d.gid, bd)
-            w0 = ws[0]
-            r0 = rec[s]
-            r0.t = t
-            r0.x = w0.x
-            r0.y = w0.y
-            r0.vx = w0.vx
-            r0.vy = w0.vy
-            r0.wz = w0.wz
-            r0.theta = w0.theta
-            r0.fx = wfxs
-            r0.fy = wfys
-            r0.torque = wtqs
-            r0.drawbar = drawbar_force(t, wc)
-            r0.contacts = cnt
-            integrate_wheel(t, ws, wg, wc, wfxs, wfys, gy, dt)
+            record_and_integrate_wheel(rec, s, t, ws, wg, wc, wfxs, wfys, wtqs, cnt, gy, dt)
         if disp2 > half2:
             rebuilds += 1
             sync_history(n, d, pl, err, every, 0)

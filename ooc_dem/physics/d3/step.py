@@ -19,7 +19,7 @@ from numba import njit
 
 from .. import layout as L2
 from ..forces import lug_directions, wheel_reaction
-from ..integrate import apply_wheel_controls, drawbar_force, integrate_wheel
+from ..integrate import apply_wheel_controls, record_and_integrate_wheel
 from .forces import N_CHUNKS, gather_integrate, load_history, produce, sync_history
 from .layout import (
     ERR_BODY_CAPACITY,
@@ -90,21 +90,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
             return s + 1, rebuilds
         if wheel:
             wfx, wfy, wtq, cnt = wheel_reaction(d.gid, bd)
-            w0 = ws[0]
-            r0 = rec[s]
-            r0.t = t
-            r0.x = w0.x
-            r0.y = w0.y
-            r0.vx = w0.vx
-            r0.vy = w0.vy
-            r0.wz = w0.wz
-            r0.theta = w0.theta
-            r0.fx = wfx
-            r0.fy = wfy
-            r0.torque = wtq
-            r0.drawbar = drawbar_force(t, wc)
-            r0.contacts = cnt
-            integrate_wheel(t, ws, wg, wc, wfx, wfy, gy, dt)
+            record_and_integrate_wheel(rec, s, t, ws, wg, wc, wfx, wfy, wtq, cnt, gy, dt)
         if disp2 > half2:
             rebuilds += 1
             if held:

@@ -162,6 +162,29 @@ def _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, mo
     row.wt = qx * (-row.by) - qy * (-row.bx) - moz
 
 
+@njit(inline="always", cache=True)
+def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw, nx, ny, nz,
+                   delta, qx, qy, VX, VY, WZ, vxi, vyi, vzi, wxi, wyi, wzi, ri, meff, ii, dt):
+    """Sphere i's contact with wheel part pid (a lug or the rim) at normal n, overlap delta
+    and contact point q (relative to the axle point): its springs from the history (p: the
+    history cursor), the law, and its body row at bat when bat < bend. Returns (p, the rows
+    written: 1, or 0 when the buffer is full)."""
+    p, found = _lookup(hist_id, i, hn, p, pid)
+    if found:
+        s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
+        m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
+    else:
+        s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+    (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
+        cpw, nx, ny, nz, delta, vxi - (VX - WZ * qy), vyi - (VY + WZ * qx), vzi, 0.0, 0.0, WZ,
+        wxi, wyi, wzi, 0.0, ri, meff, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
+    if bat < bend:
+        _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
+                   mnz, nx, ny, nz, ri, qx, qy)
+        return p, 1
+    return p, 0
+
+
 @njit(parallel=True, cache=True)
 def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
     """Phase 1: one row per contact of spheres 0..n-1 at time n (module doc).
@@ -259,29 +282,16 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
                         dd = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz)
                         delta = cap_r + ri - dd
                         if delta > 0.0 and dd > 0.0:
-                            pid = ID_LUG0 + lug
-                            p, found = _lookup(hist_id, i, hn, p, pid)
-                            if found:
-                                s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
-                                m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
-                            else:
-                                s0x = s0y = s0z = m0x = m0y = m0z = 0.0
                             nx = ddx / dd
                             ny = ddy / dd
                             nz = ddz / dd
-                            qx = px + cap_r * nx
-                            qy = py + cap_r * ny
-                            (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
-                             mnz) = contact(
-                                cp[T_WHEEL, ti], nx, ny, nz, delta, vxi - (VX - WZ * qy),
-                                vyi - (VY + WZ * qx), vzi, 0.0, 0.0, WZ, wxi, wyi, wzi, 0.0, ri,
-                                meff, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
-                            if bat < bend:
-                                _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz,
-                                           mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri, qx, qy)
-                                bat += 1
-                            else:
-                                full = True
+                            p, wrote = _wheel_contact(
+                                body, bat, bend, i, ID_LUG0 + lug, hist_id, hist_s, hist_m, hn, p,
+                                cp[T_WHEEL, ti], nx, ny, nz, delta, px + cap_r * nx,
+                                py + cap_r * ny, VX, VY, WZ, vxi, vyi, vzi, wxi, wyi, wzi, ri,
+                                meff, ii, dt)
+                            bat += wrote
+                            full = full or wrote == 0
                     # the rim: the closest point of the solid cylinder
                     rho = math.sqrt(d2)
                     delta = -1.0
@@ -311,22 +321,12 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
                             nz = ez / de
                             delta = ri - de
                     if delta > 0.0:
-                        p, found = _lookup(hist_id, i, hn, p, ID_RIM)
-                        if found:
-                            s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
-                            m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
-                        else:
-                            s0x = s0y = s0z = m0x = m0y = m0z = 0.0
-                        (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
-                            cp[T_WHEEL, ti], nx, ny, nz, delta, vxi - (VX - WZ * qy),
-                            vyi - (VY + WZ * qx), vzi, 0.0, 0.0, WZ, wxi, wyi, wzi, 0.0, ri,
-                            meff, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
-                        if bat < bend:
-                            _wheel_row(body, bat, i, ID_RIM, fn, ftx, fty, ftz, snx, sny, snz,
-                                       mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri, qx, qy)
-                            bat += 1
-                        else:
-                            full = True
+                        p, wrote = _wheel_contact(
+                            body, bat, bend, i, ID_RIM, hist_id, hist_s, hist_m, hn, p,
+                            cp[T_WHEEL, ti], nx, ny, nz, delta, qx, qy, VX, VY, WZ, vxi, vyi, vzi,
+                            wxi, wyi, wzi, ri, meff, ii, dt)
+                        bat += wrote
+                        full = full or wrote == 0
             # ------------------------------------------------------ walls
             for wall in range(5):
                 if not flags[wall]:

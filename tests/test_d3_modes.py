@@ -165,3 +165,18 @@ def test_sigkill_then_resume_gives_the_same_bits(runs, tmp_path):
     a, b = ooc_dem.open_run(out).state(), runs["ooc-hdf5-10"].state()
     for k in a:
         assert np.array_equal(a[k], b[k]), k
+
+
+def test_tile_share_takes_the_division_noise_away():
+    """A bin n tiles across gives the tile of the base bin (0.6 m / 6 is the 0.1 m tile of
+    0.2 m / 2, the same settled tile), so that a domain study compares the same soil; a
+    share that is not a short decimal stays the quotient."""
+    from ooc_dem.bed import tile_scenario, tile_share
+    from ooc_dem.scenario import load_scenario
+    assert 0.6 / 6 != 0.1 and tile_share(0.6, 6) == 0.1
+    assert tile_share(8.6, 86) == 0.1 and tile_share(0.2, 2) == 0.1
+    assert tile_share(1.0, 3) == 1.0 / 3
+    base = load_scenario("paper2008-3d")
+    wide = load_scenario("paper2008-3d", ["bin.width=0.6", "bed.tiles_across=6", "soil.n=30000"])
+    assert tile_scenario(wide).bed_hash() == tile_scenario(base).bed_hash()
+    assert tile_scenario(wide).bin.width == 0.1

@@ -109,3 +109,34 @@ def test_export_vtk_read_by_vtk(store3d, tmp_path, capsys):
         assert np.array_equal(vtk_to_numpy(pd.GetArray("radius")), s["r"]), name
         assert np.array_equal(vtk_to_numpy(pd.GetArray("velocity")), s["vel"]), name
         assert np.array_equal(vtk_to_numpy(pd.GetArray("spin")), s["spin"]), name
+
+
+def test_domain_sensitivity_runs_share_the_tile_under_the_wheel(capsys):
+    """tools/domain_sensitivity.py: every configuration of a seed is made of the base's
+    settled tile (the same bed hash), the other seeds of another; tile counts across that
+    would put the wheel on another kind of seam are refused with exit code 2."""
+    import importlib.util
+    from pathlib import Path
+
+    from ooc_dem.bed import tile_grid, tile_scenario
+    from ooc_dem.scenario import load_scenario
+    path = Path(__file__).resolve().parents[1] / "tools" / "domain_sensitivity.py"
+    spec = importlib.util.spec_from_file_location("domain_sensitivity", path)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert [n for n in range(1, 15) if tool.seam_matches_base(n)] == [2, 6, 10, 14]
+    base = load_scenario("paper2008-3d")
+    configs = tool.configurations([2, 6, 10], [2, 3])
+    assert [c[0] for c in configs] == ["base", "across6", "across10", "along3"]
+    tiles = {}
+    for seed in (2008, 2009):
+        for name, across, along in configs:
+            sc = load_scenario("paper2008-3d", tool.run_settings(base, [], seed, across, along))
+            assert tile_grid(sc) == (along, across)
+            assert sc.wheel.z0 == 0.0   # mid-width: on the seam between tiles across/2 - 1 and across/2
+            tiles.setdefault(seed, set()).add(tile_scenario(sc).bed_hash())
+    assert len(tiles[2008]) == 1 and len(tiles[2009]) == 1 and tiles[2008] != tiles[2009]
+    assert tool.main(["--across", "2,4"]) == 2
+    assert "2 m with m odd" in capsys.readouterr().err
+    assert tool.main(["--scenario", "quick-3d"]) == 2
+    assert "tiled bed" in capsys.readouterr().err

@@ -51,6 +51,17 @@ def configurations(across: list[int], along: list[int]) -> list[tuple[str, int, 
     return out
 
 
+def run_settings(sc, settings: list[str], seed: int, n_across: int, n_along: int) -> list[str]:
+    """The --set values of one run: the base scenario ``sc`` (with ``settings``) on a bin
+    n_across x n_along of its tiles, seeded with ``seed``, monolithic, no snapshots."""
+    from ooc_dem.bed import tile_size
+    tile_len, tile_wid = tile_size(sc)
+    return [*settings, f"soil.seed={seed}", f"bed.tiles_across={n_across}",
+            f"bin.width={n_across * tile_wid:.15g}", f"bin.length={n_along * tile_len:.15g}",
+            f"soil.n={n_across * n_along * sc.bed.tile}", "output.snapshot_interval=0",
+            "decomposition.domains=1"]
+
+
 def value(summary: dict, key: str, window: str) -> float | None:
     v = summary.get(key, {})
     v = v.get(window, {}) if window != "static" else v.get("static", {})
@@ -100,10 +111,7 @@ def main(argv=None) -> int:
     for seed in seeds:
         for name, n_across, n_along in configurations(across, along):
             run = out / f"s{seed}-{name}"
-            sets = [*a.set, f"soil.seed={seed}", f"bed.tiles_across={n_across}",
-                    f"bin.width={n_across * tile_wid:.15g}", f"bin.length={n_along * tile_len:.15g}",
-                    f"soil.n={n_across * n_along * sc.bed.tile}", "output.snapshot_interval=0",
-                    "decomposition.domains=1"]
+            sets = run_settings(sc, a.set, seed, n_across, n_along)
             if not (run / "summary.json").is_file():
                 cmd = [sys.executable, "-m", "ooc_dem.cli", "run", a.scenario, "--out", str(run),
                        "--no-progress", "--no-figures"] + [x for kv in sets for x in ("--set", kv)]

@@ -110,6 +110,17 @@ def _lookup(hid, i, hn, p, pid):
     return p, (p < hn and hid[i, p] == pid)
 
 
+@njit(inline="always", cache=True)
+def _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid):
+    """Sphere i's springs with body pid (a wall or a wheel part) from its history (zero for a
+    new contact); returns (p, sx, sy, sz, mx, my, mz), p the advanced merge pointer."""
+    p, found = _lookup(hist_id, i, hn, p, pid)
+    if found:
+        return (p, hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2], hist_m[i, p, 0],
+                hist_m[i, p, 1], hist_m[i, p, 2])
+    return p, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+
+
 @njit(cache=True)
 def _wall(wall):
     """(pid, nx, ny, nz) of wall k = 0..4 in ascending id order (the normal points into
@@ -169,12 +180,7 @@ def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw,
     and contact point q (relative to the axle point): its springs from the history (p: the
     history cursor), the law, and its body row at bat when bat < bend. Returns (p, the rows
     written: 1, or 0 when the buffer is full)."""
-    p, found = _lookup(hist_id, i, hn, p, pid)
-    if found:
-        s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
-        m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
-    else:
-        s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+    p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid)
     (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
         cpw, nx, ny, nz, delta, vxi - (VX - WZ * qy), vyi - (VY + WZ * qx), vzi, 0.0, 0.0, WZ,
         wxi, wyi, wzi, 0.0, ri, meff, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
@@ -344,12 +350,8 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
                     delta = ri - yi
                 if delta <= 0.0:
                     continue
-                p, found = _lookup(hist_id, i, hn, p, pid)
-                if found:
-                    s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
-                    m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
-                else:
-                    s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+                p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p,
+                                                                pid)
                 (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
                     cp[T_WALL, ti], nx, ny, nz, delta, vxi, vyi, vzi, 0.0, 0.0, 0.0,
                     wxi, wyi, wzi, 0.0, ri, mi, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)

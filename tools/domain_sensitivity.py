@@ -27,6 +27,7 @@ import argparse
 import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 from pathlib import Path
@@ -63,9 +64,8 @@ def run_settings(sc, settings: list[str], seed: int, n_across: int, n_along: int
 
 
 def value(summary: dict, key: str, window: str) -> float | None:
-    v = summary.get(key, {})
-    v = v.get(window, {}) if window != "static" else v.get("static", {})
-    return v.get("value") if isinstance(v, dict) else None
+    """summary[key][window]["value"] (window: whole_travel, steady or static), None if absent."""
+    return summary.get(key, {}).get(window, {}).get("value")
 
 
 def main(argv=None) -> int:
@@ -134,10 +134,9 @@ def main(argv=None) -> int:
         for q in QUANTITIES:
             base = [runs[f"s{s}-base"][q] for s in seeds]
             diffs = [runs[f"s{s}-{name}"][q] - runs[f"s{s}-base"][q] for s in seeds]
-            m = sum(diffs) / len(diffs)
-            se = (math.sqrt(sum((d - m) ** 2 for d in diffs) / (len(diffs) - 1) / len(diffs))
-                  if len(diffs) > 1 else None)
-            bm = sum(base) / len(base)
+            m = statistics.fmean(diffs)
+            se = statistics.stdev(diffs) / math.sqrt(len(diffs)) if len(diffs) > 1 else None
+            bm = statistics.fmean(base)
             per_q[q] = {"diffs": diffs, "mean": m, "se": se, "base_mean": bm,
                         "mean_percent": 100.0 * m / bm if bm else None}
         report["differences"][name] = per_q

@@ -478,10 +478,12 @@ def _checkpoint_export(store, args) -> int:
         from .checkpoint import open_epoch
         reader = open_epoch(store, args.epoch)
         try:
-            snap = read_snapshot(reader, args.store)
+            # sorted on disk beside the output (never inside the store): bounded memory
+            snap = read_snapshot(reader, args.store, workdir=out.resolve().parent)
         finally:
             reader.close()
-        files = export_snapshot(snap, fmt, out)
+        with snap:
+            files = export_snapshot(snap, fmt, out)
     except (ExportError, StateError) as e:
         raise CliError(str(e)) from None
     _warn_fallback(store)   # after the work: a refusal stays one line

@@ -24,15 +24,17 @@ simulated time:
 point per sphere with its radius (ParaView: Glyph filter, sphere, scale by radius).
 
 Floats are written so that they read back to the same bits (``repr``; HDF5 as
-float64). Only the per-disc scalars are read from the store (never the contact
-history), domain group by domain group. Files are written under a temporary name
-and renamed when complete.
+float64). Only the per-disc columns are read from the store (never the contact
+history), domain group by domain group, and sorted by id in bounded memory
+(``read_snapshot``: an external merge through unnamed temporary files beside the
+output), so a store larger than RAM exports too. Files are written under a
+temporary name and renamed when complete.
 """
 from __future__ import annotations
 
 import os
 import stat
-from dataclasses import dataclass, field
+import tempfile
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
@@ -71,64 +73,209 @@ class ExportError(Exception):
     """An export cannot be written (one-line message)."""
 
 
-@dataclass
 class Snapshot:
-    """The exported content of one epoch: per-disc columns sorted by id, wheel, step, time."""
-    step: int
-    time: float
-    cols: dict[str, np.ndarray]
-    wheel_state: np.ndarray
-    info: dict = field(default_factory=dict)
+    """The exported content of one epoch, sorted by id, held in a temporary file.
+
+    Built by ``read_snapshot``; the writers read it back in slices (``chunks``), so an
+    export holds a few slices in RAM whatever the number of discs. Close it (or use it as
+    a context manager) to free the temporary file; it is unnamed, so even a killed export
+    leaves nothing behind.
+    """
+
+    def __init__(self, step, time, wheel_state, info, dim, records, n, int_ranges):
+        self.step = step
+        self.time = time
+        self.wheel_state = wheel_state
+        self.info = info
+        self.dim = dim
+        self.columns = snapshot_columns(dim)
+        self.dtype = _record_dtype(dim)
+        self._records = records     # an unnamed temporary file of n records, id order
+        self._n = n
+        self.int_ranges = int_ranges  # integer column -> (min, max) over every disc
 
     def __len__(self) -> int:
-        return len(self.cols["id"])
+        return self._n
+
+    def chunks(self, rows: int | None = None):
+        """(first row, {column: array}) of consecutive slices of at most `rows` discs."""
+        rows = rows or _ROWS_PER_WRITE
+        for start in range(0, self._n, rows):
+            rec = _read_records(self._records, self.dtype, start, min(rows, self._n - start))
+            yield start, {k: rec[k] for k in self.columns}
+
+    def close(self) -> None:
+        self._records.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def _record_dtype(dim: int) -> np.dtype:
+    """One exported disc: the snapshot's columns with the state's dtypes."""
+    vec = vector_columns(dim)
+    of = {name: FIELD_DTYPES[k] for k, names in vec.items() for name in names}
+    return np.dtype([(c, of.get(c, FIELD_DTYPES.get(c))) for c in snapshot_columns(dim)])
+
+
+def _read_records(f, dtype: np.dtype, start: int, count: int) -> np.ndarray:
+    size = dtype.itemsize
+    buf = bytearray(count * size)
+    view, done = memoryview(buf), 0
+    while done < len(buf):
+        got = os.preadv(f.fileno(), [view[done:]], (start * size) + done)
+        if got == 0:
+            raise ExportError(f"{f.name}: temporary export file ended early")
+        done += got
+    return np.frombuffer(buf, dtype)
 
 
 def infer_format(out) -> str | None:
     return _SUFFIX_FORMAT.get(Path(out).suffix.lower())
 
 
-def read_snapshot(reader, source: str = "") -> Snapshot:
-    """The columns (``snapshot_columns(dim)``) of every domain group of an epoch reader
-    (format 2: see checkpoint.open_epoch), sorted by id."""
+def _group_records(reader, d, source: str, dim: int | None) -> tuple[np.ndarray, int]:
+    """One domain group's discs as export records sorted by id (and the dimension)."""
     names = ["id", "pos", "vel", "spin", "r", "mass", "mat"]
-    parts = [reader.read_domain(d, names) for d in reader.domains()]
-    dim = 2
-    for p in parts:
-        if p["pos"].ndim == 2 and p["pos"].shape[1] in (2, 3):
-            dim = p["pos"].shape[1]
-            break
+    p = reader.read_domain(d, names)
+    n = len(p["id"])
+    if dim is None:
+        pos = p["pos"]
+        dim = pos.shape[1] if pos.ndim == 2 and pos.shape[1] in (2, 3) else 2
     vec = vector_columns(dim)
-    cols = {}
+    rec = np.empty(n, _record_dtype(dim))
     for k in names:
-        dt = FIELD_DTYPES[k]
-        if k in vec:
-            width = len(vec[k])
-            for d, p in zip(reader.domains(), parts):
-                if p[k].shape != (len(p["id"]), width):
-                    raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
-                                     f"shape {p[k].shape}, expected ({len(p['id'])}, {width}) "
-                                     f"({dim}D)")
-            a = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
-                 else np.zeros((0, width), dt))
+        width = len(vec[k]) if k in vec else None
+        want = (n, width) if width else (n,)
+        if p[k].shape != want:
+            raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
+                             f"shape {p[k].shape}, expected {want}" + (f" ({dim}D)" if width else ""))
+        if width:
             for c, name in enumerate(vec[k]):
-                cols[name] = a[:, c]
+                rec[name] = p[k][:, c]
         else:
-            for d, p in zip(reader.domains(), parts):
-                if p[k].shape != (len(p["id"]),):
-                    raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
-                                     f"shape {p[k].shape}, expected ({len(p['id'])},)")
-            cols[k] = (np.concatenate([np.asarray(p[k], dt) for p in parts]) if parts
-                       else np.zeros(0, dt))
-    cols = {k: cols[k] for k in snapshot_columns(dim)}
-    order = np.argsort(cols["id"], kind="stable")
-    cols = {k: np.ascontiguousarray(v[order]) for k, v in cols.items()}
-    check_unique_sorted(cols["id"], f"{source}: epoch {reader.step}")
+            rec[k] = p[k]
+    del p
+    rec = rec[np.argsort(rec["id"], kind="stable")]
+    check_unique_sorted(rec["id"], f"{source}: epoch {reader.step}")
+    return rec, dim
+
+
+def _flush(records, out) -> None:
+    try:
+        records.flush()
+    except OSError as e:
+        raise ExportError(_oserror(out, e)) from None
+
+
+def _spill(records, rec: np.ndarray, out) -> None:
+    try:
+        records.write(rec.tobytes())
+    except OSError as e:
+        raise ExportError(_oserror(out, e)) from None
+
+
+def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 << 20) -> Snapshot:
+    """The columns (``snapshot_columns(dim)``) of every domain group of an epoch reader
+    (format 2: see checkpoint.open_epoch), sorted by id, in bounded memory.
+
+    An external merge sort: each group (one slab) is read, sorted by id and appended to an
+    unnamed temporary file in `workdir` as a sorted run; the runs are then merged into a
+    second temporary file holding every disc in id order, a few slices of each run in RAM
+    at a time (about `buffer_bytes` in all). Repeated ids, within a group or across groups,
+    are refused. Disk: twice the records (one copy when the epoch has a single group).
+    """
     arrays, attrs = reader.read_globals()
     validate_globals(arrays, attrs, f"{source}: epoch {reader.step}")
+    where = f"{source}: epoch {reader.step}"
+
+    def temp():
+        try:
+            return tempfile.TemporaryFile(dir=workdir)
+        except OSError as e:
+            raise ExportError(f"{workdir}: cannot create a temporary export file "
+                              f"({e.strerror})") from None
+
+    runs_file, runs, dim = temp(), [], None     # runs: (first record, count)
+    lo = {"id": None, "mat": None}
+    hi = dict(lo)
+    try:
+        start = 0
+        for d in reader.domains():
+            rec, dim = _group_records(reader, d, source, dim)
+            if len(rec):
+                for k in lo:
+                    a, b = rec[k].min(), rec[k].max()
+                    lo[k] = int(a) if lo[k] is None else min(lo[k], int(a))
+                    hi[k] = int(b) if hi[k] is None else max(hi[k], int(b))
+                _spill(runs_file, rec, workdir)
+                runs.append((start, len(rec)))
+                start += len(rec)
+            del rec
+        dim = dim or 2
+        dtype = _record_dtype(dim)
+        _flush(runs_file, workdir)
+        if len(runs) > 1:
+            merged = temp()
+            try:
+                _merge_runs(runs_file, runs, dtype, merged, where,
+                            max(64, buffer_bytes // (2 * len(runs) * dtype.itemsize)), workdir)
+            except BaseException:
+                merged.close()
+                raise
+            _flush(merged, workdir)
+            runs_file.close()
+            runs_file = merged
+    except BaseException:
+        runs_file.close()
+        raise
     info = {"source": str(source), "mode": str(attrs.get("mode", ""))}
-    return Snapshot(attrs["step"], float(attrs.get("time", 0.0)), cols,
-                    np.asarray(arrays["wheel_state"], np.float64), info)
+    ranges = {k: (lo[k], hi[k]) for k in lo if lo[k] is not None}
+    return Snapshot(attrs["step"], float(attrs.get("time", 0.0)),
+                    np.asarray(arrays["wheel_state"], np.float64), info, dim, runs_file,
+                    start, ranges)
+
+
+def _merge_runs(src, runs, dtype, dst, where: str, rows: int, out) -> None:
+    """Merge sorted runs of `src` into `dst` in id order, `rows` to 2 x rows of each run in RAM.
+
+    Each round takes, from every run's buffer, the records up to the smallest last id among
+    the buffers of runs not yet fully read (nothing beyond it can come later from any run),
+    sorts that batch and writes it; the run that set the bound is emptied, so every round
+    writes at least one buffer's worth unless the runs are ending.
+    """
+    pos = [s for s, _ in runs]          # next record of each run still on disk
+    end = [s + c for s, c in runs]
+    bufs = [np.empty(0, dtype)] * len(runs)
+    last = None
+    while True:
+        for i in range(len(runs)):
+            if len(bufs[i]) < rows and pos[i] < end[i]:
+                take = min(rows, end[i] - pos[i])
+                bufs[i] = np.concatenate([bufs[i], _read_records(src, dtype, pos[i], take)])
+                pos[i] += take
+        live = [i for i in range(len(runs)) if len(bufs[i])]
+        if not live:
+            return
+        open_runs = [bufs[i]["id"][-1] for i in live if pos[i] < end[i]]
+        bound = min(open_runs) if open_runs else None
+        parts = []
+        for i in live:
+            k = len(bufs[i]) if bound is None else int(np.searchsorted(bufs[i]["id"], bound, "right"))
+            parts.append(bufs[i][:k])
+            bufs[i] = bufs[i][k:]
+        batch = np.concatenate(parts)
+        batch = batch[np.argsort(batch["id"], kind="stable")]
+        if len(batch):
+            if last is not None and batch["id"][0] <= last:
+                raise StateError(f"{where}: disc id {int(last)} appears more than once")
+            check_unique_sorted(batch["id"], where)
+            last = batch["id"][-1]
+            _spill(dst, batch, out)
 
 
 def export_snapshot(snap: Snapshot, fmt: str, out) -> list[Path]:
@@ -241,12 +388,17 @@ def _fmt(a: np.ndarray) -> list[str]:
     return [repr(v) for v in a.tolist()] if a.dtype.kind == "f" else [str(v) for v in a.tolist()]
 
 
-def _write_columns(f, columns: list[np.ndarray], sep: str) -> None:
-    """One line per row, the columns' values joined by sep (in slices, to bound memory)."""
-    n = len(columns[0]) if columns else 0
-    for s in range(0, n, _ROWS_PER_WRITE):
-        texts = [_fmt(c[s:s + _ROWS_PER_WRITE]) for c in columns]
+def _write_columns(f, snap: Snapshot, columns_of, sep: str) -> None:
+    """One line per disc (id order): the arrays ``columns_of(first_row, chunk)`` gives for
+    each slice of the snapshot, their values joined by sep."""
+    for start, chunk in snap.chunks():
+        texts = [_fmt(c) for c in columns_of(start, chunk)]
         f.write("".join(sep.join(row) + "\n" for row in zip(*texts)))
+
+
+def _index(start: int, chunk: dict) -> np.ndarray:
+    """The rows' positions in the export (0-based), for connectivity."""
+    return np.arange(start, start + len(chunk["id"]), dtype=np.int64)
 
 
 def _field_items(snap: Snapshot) -> list[tuple[str, str, str]]:
@@ -297,21 +449,32 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
     _, h5 = output_files("xdmf", out)
     if ":" in h5.name:
         raise ExportError(f"--out {out}: the file name must not contain ':' (XDMF HDF references)")
-    c, n = snap.cols, len(snap)
+    n = len(snap)
+    # each dataset from a slice of the snapshot (rows first..): written slice by slice
     data = {
-        "positions": _xyz_array(c),
-        "velocity": _xyz_array(c, "v"),
-        "radius": c["r"], "spin": _spin_array(c), "id": c["id"], "mass": c["mass"], "material": c["mat"],
-        "connectivity": np.arange(n, dtype=np.int64).reshape(n, 1),
+        "positions": lambda s, c: _xyz_array(c),
+        "velocity": lambda s, c: _xyz_array(c, "v"),
+        "radius": lambda s, c: c["r"], "spin": lambda s, c: _spin_array(c),
+        "id": lambda s, c: c["id"], "mass": lambda s, c: c["mass"],
+        "material": lambda s, c: c["mat"],
+        "connectivity": lambda s, c: _index(s, c).reshape(-1, 1),
     }
+    spin_shape = (n,) if spin_width(snap.dim) == 1 else (n, 3)
+    shapes = {"positions": (n, 3), "velocity": (n, 3), "spin": spin_shape, "connectivity": (n, 1)}
+    dtypes = {"id": snap.dtype["id"], "material": snap.dtype["mat"], "connectivity": np.dtype(np.int64)}
     try:
         tmp = new_temp(h5)
     except OSError as e:
         raise ExportError(_oserror(h5, e)) from None
     try:
         with h5py.File(tmp, "w") as f:
-            for k, v in data.items():
-                f.create_dataset(k, data=v)
+            sets = {k: f.create_dataset(k, shape=shapes.get(k, (n,)),
+                                        dtype=dtypes.get(k, np.dtype(np.float64)))
+                    for k in data}
+            for start, chunk in snap.chunks():
+                for k, of in data.items():
+                    v = of(start, chunk)
+                    sets[k][start:start + len(v)] = v
             ws = f.create_dataset("wheel_state", data=np.asarray(snap.wheel_state, np.float64))
             ws.attrs["components"] = ",".join(WHEEL_NAMES)
             f.attrs["step"] = np.int64(snap.step)
@@ -338,14 +501,12 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
              '      <Geometry GeometryType="XYZ">',
              f"        {item('positions', f'{n} 3', 'f', 8)}",
              "      </Geometry>"]
-    for name, atype in (("radius", "Scalar"), ("velocity", "Vector"), ("spin", "Scalar"),
-                        ("id", "Scalar"), ("mass", "Scalar"), ("material", "Scalar")):
-        a = data[name]
-        if a.ndim == 2:
-            atype = "Vector"
-        dims = f"{n} 3" if a.ndim == 2 else f"{n}"
+    for name in ("radius", "velocity", "spin", "id", "mass", "material"):
+        shape, dt = shapes.get(name, (n,)), dtypes.get(name, np.dtype(np.float64))
+        atype = "Vector" if len(shape) == 2 else "Scalar"
+        dims = " ".join(map(str, shape))
         lines += [f'      <Attribute Name="{name}" AttributeType="{atype}" Center="Node">',
-                  f"        {item(name, dims, a.dtype.kind, a.dtype.itemsize)}",
+                  f"        {item(name, dims, dt.kind, dt.itemsize)}",
                   "      </Attribute>"]
     # per-epoch values: Grid-centred attributes = field data in ParaView's XDMF 3 reader
     for name, kind, text in _field_items(snap):
@@ -362,16 +523,21 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
 
 # ------------------------------------------------------------------ VTK
 
-def _vtk_legacy_type(a: np.ndarray) -> str:
-    if a.dtype.kind == "f":
+def _vtk_legacy_type(snap: Snapshot, column: str) -> str:
+    if snap.dtype[column].kind == "f":
         return "double"
-    if a.size and (int(a.max()) > np.iinfo(np.int32).max or int(a.min()) < np.iinfo(np.int32).min):
+    lo, hi = snap.int_ranges.get(column, (0, 0))
+    if hi > np.iinfo(np.int32).max or lo < np.iinfo(np.int32).min:
         return "vtktypeint64"
     return "int"
 
 
+def _spin_columns(dim: int) -> list[str]:
+    return vector_columns(dim)["spin"]
+
+
 def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
-    c, n = snap.cols, len(snap)
+    n = len(snap)
     with _Atomic(out) as f:
         f.write("# vtk DataFile Version 4.2\n")
         f.write(_description(snap)[:255] + "\n")
@@ -381,38 +547,40 @@ def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
         for name, kind, text in items:
             f.write(f"{name} 1 1 {'vtktypeint64' if kind == 'i' else 'double'}\n{text}\n")
         f.write(f"POINTS {n} double\n")
-        _write_columns(f, _xyz(c), " ")
+        _write_columns(f, snap, lambda s, c: _xyz(c), " ")
         f.write(f"VERTICES {n} {2 * n}\n")
-        _write_columns(f, [np.ones(n, np.int64), np.arange(n, dtype=np.int64)], " ")
+        _write_columns(f, snap, lambda s, c: [np.ones(len(c["id"]), np.int64), _index(s, c)], " ")
         f.write(f"POINT_DATA {n}\n")
         f.write("SCALARS radius double 1\nLOOKUP_TABLE default\n")
-        _write_columns(f, [c["r"]], " ")
+        _write_columns(f, snap, lambda s, c: [c["r"]], " ")
         f.write("VECTORS velocity double\n")
-        _write_columns(f, _xyz(c, "v"), " ")
+        _write_columns(f, snap, lambda s, c: _xyz(c, "v"), " ")
         # further point arrays as a FIELD block: a legacy reader keeps only the first SCALARS
         # unless told to read them all, but always reads every FIELD array
-        more = (("spin", _spin(c)), ("id", [c["id"]]), ("mass", [c["mass"]]),
-                ("material", [c["mat"]]))
+        more = (("spin", _spin_columns(snap.dim)), ("id", ["id"]), ("mass", ["mass"]),
+                ("material", ["mat"]))
         f.write(f"FIELD point_arrays {len(more)}\n")
         for name, cols in more:
-            f.write(f"{name} {len(cols)} {n} {_vtk_legacy_type(cols[0])}\n")
-            _write_columns(f, cols, " ")
+            f.write(f"{name} {len(cols)} {n} {_vtk_legacy_type(snap, cols[0])}\n")
+            _write_columns(f, snap, lambda s, c, cols=cols: [c[k] for k in cols], " ")
     return out
 
 
 _VTP_TYPE = {"f8": "Float64", "i8": "Int64", "i4": "Int32"}
 
 
-def _vtp_array(f, name, a: np.ndarray, ncomp: int = 1, columns=None, indent="        ") -> None:
-    t = _VTP_TYPE[f"{a.dtype.kind}{a.dtype.itemsize}"]
+def _vtp_array(f, snap: Snapshot, name, columns_of, dtype: np.dtype, ncomp: int = 1,
+               indent="        ") -> None:
+    t = _VTP_TYPE[f"{dtype.kind}{dtype.itemsize}"]
     nm = f' Name="{name}"' if name else ""
     f.write(f'{indent}<DataArray type="{t}"{nm} NumberOfComponents="{ncomp}" format="ascii">\n')
-    _write_columns(f, columns if columns is not None else [a], " ")
+    _write_columns(f, snap, columns_of, " ")
     f.write(f"{indent}</DataArray>\n")
 
 
 def _write_vtp(snap: Snapshot, out: Path) -> Path:
-    c, n = snap.cols, len(snap)
+    n = len(snap)
+    f8, i8 = np.dtype(np.float64), np.dtype(np.int64)
     with _Atomic(out) as f:
         f.write('<?xml version="1.0"?>\n')
         f.write(f"<!-- {_xml_comment(_description(snap))} -->\n")
@@ -426,17 +594,16 @@ def _write_vtp(snap: Snapshot, out: Path) -> Path:
         f.write(f'    <Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
                 f'NumberOfStrips="0" NumberOfPolys="0">\n')
         f.write('      <PointData Scalars="radius" Vectors="velocity">\n')
-        for name, a in (("radius", c["r"]), ("id", c["id"]), ("mass", c["mass"]),
-                        ("material", c["mat"])):
-            _vtp_array(f, name, a)
-        spin = _spin(c)
-        _vtp_array(f, "spin", spin[0], len(spin), spin)
-        _vtp_array(f, "velocity", c["vx"], 3, _xyz(c, "v"))
+        for name, col in (("radius", "r"), ("id", "id"), ("mass", "mass"), ("material", "mat")):
+            _vtp_array(f, snap, name, lambda s, c, col=col: [c[col]], snap.dtype[col])
+        spin = _spin_columns(snap.dim)
+        _vtp_array(f, snap, "spin", lambda s, c: [c[k] for k in spin], f8, len(spin))
+        _vtp_array(f, snap, "velocity", lambda s, c: _xyz(c, "v"), f8, 3)
         f.write("      </PointData>\n      <Points>\n")
-        _vtp_array(f, "positions", c["x"], 3, _xyz(c))
+        _vtp_array(f, snap, "positions", lambda s, c: _xyz(c), f8, 3)
         f.write("      </Points>\n      <Verts>\n")
-        _vtp_array(f, "connectivity", np.arange(n, dtype=np.int64))
-        _vtp_array(f, "offsets", np.arange(1, n + 1, dtype=np.int64))
+        _vtp_array(f, snap, "connectivity", lambda s, c: [_index(s, c)], i8)
+        _vtp_array(f, snap, "offsets", lambda s, c: [_index(s, c) + 1], i8)
         f.write("      </Verts>\n    </Piece>\n  </PolyData>\n</VTKFile>\n")
     return out
 
@@ -449,6 +616,6 @@ def _write_csv(snap: Snapshot, out: Path) -> Path:
         f.write(f"# step={snap.step} time={float(snap.time)!r}\n")
         f.write("# wheel_state " + ",".join(f"{k}={float(v)!r}" for k, v in
                                             zip(WHEEL_NAMES, snap.wheel_state)) + "\n")
-        f.write(",".join(snap.cols) + "\n")
-        _write_columns(f, list(snap.cols.values()), ",")
+        f.write(",".join(snap.columns) + "\n")
+        _write_columns(f, snap, lambda s, c: [c[k] for k in snap.columns], ",")
     return out

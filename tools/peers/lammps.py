@@ -524,6 +524,20 @@ def _hwm(pid: int) -> int:
     return 0
 
 
+def launch_prefix(mpirun: str, ranks: int) -> list[str]:
+    """The launcher's words for `ranks` unbound ranks. Open MPI refuses root without
+    --allow-run-as-root, which MPICH's Hydra (the PyPI ``mpich`` wheel of the test extra)
+    does not know; each binds with its own spelling."""
+    try:
+        banner = subprocess.run([mpirun, "--version"], capture_output=True, text=True,
+                                timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        banner = ""
+    if "Open MPI" in banner or "OpenRTE" in banner:
+        return [mpirun, "-np", str(ranks), "--allow-run-as-root", "--bind-to", "none"]
+    return [mpirun, "-n", str(ranks), "-bind-to", "none"]
+
+
 def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: str, tag: str,
                warmup: int) -> dict:
     """Run one input; peak RSS = sum over the lmp ranks of each rank's VmHWM (polled)."""
@@ -532,7 +546,7 @@ def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: 
     logf = f"log.{tag}"
     cmd = [lmp, "-in", f"in.{tag}", "-log", logf, "-echo", "none"]
     if mpirun:
-        cmd = [mpirun, "-np", str(ranks), "--allow-run-as-root", "--bind-to", "none"] + cmd
+        cmd = launch_prefix(mpirun, ranks) + cmd
     elif ranks != 1:
         raise SystemExit("mpirun not found: only --ranks 1 can run")
     env = dict(os.environ, OMP_NUM_THREADS="1")

@@ -9,6 +9,7 @@ baseline against N (least squares) is the memory cost per disc of each mode.
     python tools/memsweep.py --sizes 1e4,1e5,1e6,4e6 --domains 32 --steps 20 --out memsweep
     python tools/memsweep.py --sizes 1e5,4e5,2e6 --slab-discs 12500 --out memsweep-slab   # fixed slab
     python tools/memsweep.py --family bed3d --sizes 1e4,1e5,1e6,4e6 --out memsweep3d   # spheres
+    python tools/memsweep.py --sizes 1e5,1e6,1e7,5e7 --slab-discs 500000 --monolithic-max 1e7   # past RAM
 """
 from __future__ import annotations
 
@@ -33,6 +34,9 @@ def main():
     ap.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr"])
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--modes", default="monolithic,ooc")
+    ap.add_argument("--monolithic-max", type=float,
+                    help="run monolithic only up to this N (beyond it the whole bed would not fit "
+                         "in this machine's RAM; out-of-core goes on)")
     ap.add_argument("--out", default="memsweep")
     ap.add_argument("--family", default="bed", choices=["bed", "bed3d"],
                     help="bed-N (2D discs) or bed3d-N (3D spheres)")
@@ -44,6 +48,8 @@ def main():
     runs = []
     for n in sizes:
         for m in modes:
+            if m == "monolithic" and a.monolithic_max is not None and n > a.monolithic_max:
+                continue
             r = run_child(f"{a.family}-{n}", m, overrides=["decomposition.policy=equal"], backend=a.backend,
                           domains=(-(-n // a.slab_discs) if a.slab_discs else a.domains)
                           if m != "monolithic" else None,
@@ -63,7 +69,8 @@ def main():
             fits[m] = {"bytes_per_disc": float(slope), "intercept_bytes": float(icpt)}
     if "monolithic" in fits and "ooc" in fits:
         fits["ooc_over_monolithic_slope"] = fits["ooc"]["bytes_per_disc"] / fits["monolithic"]["bytes_per_disc"]
-    doc = {"domains": a.domains, "slab_discs": a.slab_discs, "backend": a.backend, "steps": a.steps, "runs": runs, "fits": fits}
+    doc = {"domains": a.domains, "slab_discs": a.slab_discs, "backend": a.backend, "steps": a.steps,
+           "monolithic_max": a.monolithic_max, "runs": runs, "fits": fits}
     (out / "memsweep.json").write_text(json.dumps(doc, indent=2))
     import matplotlib
     matplotlib.use("Agg")

@@ -87,7 +87,8 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
         disp2 = gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, dt,
                                  part, err, held)
         if err[ERR_HIST_OVERFLOW] != 0:
-            return s + 1, rebuilds
+            # fatal; step s is not done (its wheel is not advanced): as in 2D
+            return s, rebuilds
         if wheel:
             wfx, wfy, wtq, cnt = wheel_reaction(d.gid, bd)
             record_and_integrate_wheel(rec, s, t, ws, wg, wc, wfx, wfy, wtq, cnt, gy, dt)

@@ -33,3 +33,24 @@ def test_profile_report(tmp_path):
 def test_profile_bad_mode(tmp_path):
     cp = run_cli("profile", "bed-6000", "--modes", "monolithic,turbo", "--out", tmp_path / "p")
     assert cp.returncode == 2 and "--modes" in cp.stderr and len(cp.stderr.strip().splitlines()) == 1
+
+
+def test_memsweep_stops_monolithic_at_its_limit(tmp_path):
+    """tools/memsweep.py: monolithic runs only up to --monolithic-max, out-of-core goes on at a
+    fixed slab size (D = ceil(N / slab)); JSON and PNG written, slopes fitted per mode."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    tool = Path(__file__).resolve().parents[1] / "tools" / "memsweep.py"
+    cp = subprocess.run([sys.executable, str(tool), "--sizes", "1000,2000,3000", "--slab-discs", "1000",
+                         "--monolithic-max", "2000", "--steps", "2", "--out", str(tmp_path / "m")],
+                        capture_output=True, text=True, timeout=900)
+    assert cp.returncode == 0, cp.stderr[-3000:]
+    doc = json.loads((tmp_path / "m" / "memsweep.json").read_text())
+    seen = sorted((r["mode"], r["n_discs"]) for r in doc["runs"])
+    assert seen == [("monolithic", 1000), ("monolithic", 2000), ("ooc", 1000), ("ooc", 2000),
+                    ("ooc", 3000)]
+    assert {r["n_discs"]: r["resident_discs_max"] < r["n_discs"] for r in doc["runs"]
+            if r["mode"] == "ooc"} == {1000: False, 2000: True, 3000: True}
+    assert set(doc["fits"]) == {"monolithic", "ooc", "ooc_over_monolithic_slope"}
+    assert (tmp_path / "m" / "memsweep.png").stat().st_size > 10_000

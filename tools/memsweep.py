@@ -76,17 +76,18 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    what = "spheres" if a.family == "bed3d" else "discs"
     for m in modes:
         rs = [r for r in runs if r["mode"] == m]
         n = [r["n_discs"] for r in rs]
         ax.plot(n, [r["peak_above_baseline_bytes"] / 2**20 for r in rs], "o-",
-                label=f"{m}: {fits.get(m, {}).get('bytes_per_disc', float('nan')):.0f} B/disc")
+                label=f"{m}: {fits.get(m, {}).get('bytes_per_disc', float('nan')):.0f} B/{what[:-1]}")
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("discs N")
+    ax.set_xlabel(f"{what} N")
     ax.set_ylabel("peak RSS above baseline [MiB]")
     ax.set_title(f"peak memory against N (out-of-core: "
-                 f"{f'slabs of {a.slab_discs} discs' if a.slab_discs else f'D = {a.domains}'})")
+                 f"{f'slabs of {a.slab_discs} {what}' if a.slab_discs else f'D = {a.domains}'})")
     ax.grid(alpha=0.3, which="both")
     ax.legend()
     fig.tight_layout()

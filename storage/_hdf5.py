@@ -98,7 +98,8 @@ class Writer:
 class Reader:
     def __init__(self, path: str):
         self.path = path
-        self._objs = {}            # path -> object, checked once (see _get)
+        self._objs = {}            # path -> object of one group, checked once (see _get)
+        self._objs_group = None
         self.f = _open(path, "r")
 
     def _get(self, path: str):
@@ -107,6 +108,12 @@ class Reader:
         make a hostile epoch file read outside the store."""
         if path in self._objs:
             return self._objs[path]
+        # objects of one group at a time: an open dataset holds ~40 kB of HDF5 buffers once
+        # read (measured), so keeping every group's open grew with D, not with the slab
+        group = "/".join(path.split("/")[:2])
+        if group != self._objs_group:
+            self._objs.clear()
+            self._objs_group = group
         h5py = _h5py()
         obj = self.f
         for part in path.split("/"):

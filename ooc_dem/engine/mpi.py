@@ -209,7 +209,9 @@ class MpiEngine:
             send_command(self.comm, (name, args))
         if name == "init":
             return None
-        return getattr(self, "_op_" + name)(*args, **local)
+        out = getattr(self, "_op_" + name)(*args, **local)
+        _WorkerState.idle = True
+        return out
 
     # -------------------------------------------------- rank 0: engine interface
     def advance(self, step0: int, nsteps: int) -> np.ndarray:
@@ -579,10 +581,18 @@ def broadcast_wheel(comm, root: int, ws: np.ndarray, rec: np.ndarray, k: int) ->
     return buf[:WS_SIZE].copy(), buf[WS_SIZE + 1:WS_SIZE + 1 + rows * N_REC].reshape(rows, N_REC).copy()
 
 
+class _WorkerState:
+    """Rank 0's knowledge of where the other ranks are: waiting for a command (none sent
+    yet, or the last op returned on rank 0, so theirs did too), or inside one, where a
+    collective may wait for rank 0."""
+    idle = True
+
+
 def send_command(comm, command) -> None:
     """Rank 0 -> every rank: its length (a non-blocking broadcast, which the others poll
     with sleeps), then the pickled command."""
     from mpi4py import MPI
+    _WorkerState.idle = command[0] == "stop"
     data = bytearray(pickle.dumps(command))
     comm.Ibcast(np.array([len(data)], np.int64), root=0).Wait()
     comm.Bcast([data, MPI.BYTE], root=0)
@@ -647,14 +657,18 @@ def run_everywhere(comm, command) -> int:
 def run_ranks(command) -> int:
     """A `run` or `resume` under mpiexec with python -m mpi4py semantics: rank 0 runs
     `command()` (the ordinary command, which drives the engine), the others serve it;
-    an error anywhere, or a non-zero exit of rank 0, aborts every rank."""
+    an exception anywhere aborts every rank. A non-zero exit of rank 0 (an error already
+    said in one line) stops the waiting ranks and ends the job with that exit code; only
+    if they are inside an op (a collective may wait for rank 0) is the job aborted."""
     comm = world()
     if comm.Get_rank() != 0:
         run_everywhere(comm, lambda: worker_loop(comm))
         return 0
     rc = run_everywhere(comm, command)
-    if rc:
-        # the error is said (one line, flushed); MPI's own abort notice would be a second
+    if rc and not _WorkerState.idle:
+        # MPI_Abort ends the job at once, so the launcher may not forward what rank 0 has
+        # just written (the one-line error went missing under load): only when it must.
+        # The error is said (one line, flushed); MPI's own abort notice would be a second
         sys.stdout.flush()
         sys.stderr.flush()
         devnull = os.open(os.devnull, os.O_WRONLY)
@@ -696,7 +710,9 @@ class MpiOocEngine(OocEngine):
     def _call(self, name: str, args: tuple, **local):
         if self.R > 1:
             send_command(self.comm, (name, args))
-        return getattr(self, "_op_" + name)(*args, **local)
+        out = getattr(self, "_op_" + name)(*args, **local)
+        _WorkerState.idle = True
+        return out
 
     def _announce(self) -> None:
         """Rank 0: the other ranks make their engine like this one (same geometry)."""

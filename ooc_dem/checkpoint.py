@@ -267,8 +267,13 @@ def check_unique_sorted(sorted_ids: np.ndarray, where: str) -> None:
         raise StateError(f"{where}: disc id {int(sorted_ids[dup[0]])} appears more than once")
 
 
-# ids held at once by check_unique_ids beyond the largest group's (2**22: 32 MB), whatever N is
-ID_CHECK_CAP = 1 << 22
+# ids held at once by check_unique_ids when twice the largest group is fewer (2**16: 512 kB).
+# Kept small so that the check stays under a slab's memory: at 2**22 (32 MB of ids, and as much
+# again for their concatenation and sort) it was the peak of out-of-core runs past 4M discs,
+# and it made their RSS rise with N up to there. Ids that follow x (tiled and streamed beds)
+# are read about twice whatever the cap; ids scattered over every group cost one read of every
+# group per range, N / cap of them.
+ID_CHECK_CAP = 1 << 16
 
 
 def _group_ids(reader, d, where: str) -> np.ndarray:

@@ -140,7 +140,8 @@ def test_hash_verify_and_bounds_memory_scales_with_the_group_not_n(tmp_path, mon
     """The same group size (3000 discs), 4 and 16 groups: the peaks of `checkpoint hash`,
     the epoch validation and the bounds' histogram stay within 1.5x (an array of the whole
     bed would make them 4x). ID_CHECK_CAP is lowered to 0 so the id check holds its floor
-    of two groups' ids (its default holds up to 2**22 ids, a constant, whatever N is)."""
+    of two groups' ids (its default, 2**16 ids, is a constant whatever N is, but larger than
+    these groups)."""
     monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", 0)
     hash_particles(_state(5, 0), None, 0)   # compile the digest kernel outside the measurement
     peaks = {}

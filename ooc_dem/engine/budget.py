@@ -59,16 +59,24 @@ MIB = 1 << 20
 #         57 MB, hash 111 MB): ~230 B per disc of its chunk (2^18) + ~130 B per disc
 #   3D  --family bed3d --sizes 2e4,1e5 (monolithic) 2355, 2388 B/sphere (fit 2396)
 #       3D hash: not separated (below the sweeps' peak at 3e4); 1.5x the 2D figures
+# Since out-of-core processes fix malloc's mmap threshold (heap.py: a freed slab's arrays go
+# back to the system instead of fragmenting the heap), re-measured in a fresh clone and venv
+# (`pip install ".[test]"`, numba's cache warm), 2026-12-03:
+#   baseline (the bed-300 / bed3d soil.n=300 runs above): 180.6 / 181.8 MiB in that venv,
+#         183.4 / 184.7 MiB in an editable install
+#   2D  bed-100000 --memory 270MB (D = 3, K = 28, 36 589 resident): 223.7 MB
+#         -> ~840 B per resident disc above 185 MiB + 8 MiB
+#   3D  bed3d-30000 --memory 260MB (D = 4, K = 1, 8 325 resident): 212.5 MB
+#         -> ~2300 B per resident sphere above 185 MiB + 8 MiB (the 3D run loads more kernels:
+#         its baseline is kept 5 MiB higher)
+# The 1400 / 3000 B and 200 / 215 MiB before the fix over-estimated these peaks by 20-22 %.
 BYTE_MODELS = {
-    2: ByteModel(dim=2, state=bytes_per_disc(2), monolithic=1100, resident=1400, ooc_setup=400,
+    2: ByteModel(dim=2, state=bytes_per_disc(2), monolithic=1100, resident=1000, ooc_setup=400,
                  streamed_setup=0, final_hash=0, hash_chunk=0, ooc_fixed=8 * MIB,
-                 baseline=200 * MIB),
-    3: ByteModel(dim=3, state=bytes_per_disc(3), monolithic=2500, resident=3000, ooc_setup=900,
+                 baseline=185 * MIB),
+    3: ByteModel(dim=3, state=bytes_per_disc(3), monolithic=2500, resident=2400, ooc_setup=900,
                  streamed_setup=0, final_hash=0, hash_chunk=0, ooc_fixed=8 * MIB,
-                 # 3D loads more compiled kernels (the Hertz and linear laws, both pair-row
-                 # layouts): a bed3d-30000 run at --memory 260MB peaked at 262.8 MB against
-                 # 250.6 estimated with 200 MB here (fresh clone, cold caches, warm-up run)
-                 baseline=215 * MIB),
+                 baseline=190 * MIB),
 }
 HASH_CHUNK = 1 << 18    # rows a field is hashed in at a time (checkpoint.hash_epoch's chunk)
 

@@ -959,10 +959,10 @@ class EpochReader:
             raise StoreError(f"{self._where}: cannot open epoch {self.step} "
                              f"({type(ex).__name__}: {ex})") from ex
         self._part_readers: dict[int, object] = {}
-        # each domain's attrs as read once (JSON text, decoded afresh for every caller): an
+        # each group's attrs as read once (JSON text, decoded afresh for every caller): an
         # epoch never changes while it is read, and a sweep asks for every group's x range
         # once per slab (D^2 lookups: 62 500 HDF5 attribute reads took half of a sweep at D = 250)
-        self._domain_attrs_json: dict[int, str | None] = {}
+        self._attrs_json: dict[str, str | None] = {}
         store._readers.add(self)
 
     def __repr__(self):
@@ -1013,23 +1013,19 @@ class EpochReader:
         """name -> (shape, dtype) of the arrays of domain d (from the manifest, no I/O)."""
         return {n: (tuple(s), np.dtype(t)) for n, (s, t) in self._dom(d)["arrays"].items()}
 
-    def _attrs(self, g: str, r=None, memo: dict | None = None, key=None) -> dict:
+    def _attrs(self, g: str, r=None) -> dict:
         self._check()
         r = self._r if r is None else r
         try:
-            if memo is not None and key in memo:
-                a = memo[key]
-            else:
-                a = r.attrs_json(g)
-                if memo is not None:
-                    memo[key] = a
+            if g not in self._attrs_json:   # a group's name is unique across the epoch's files
+                self._attrs_json[g] = r.attrs_json(g)
+            a = self._attrs_json[g]
             return json.loads(a) if a is not None else {}
         except Exception as ex:  # noqa: BLE001
             raise StoreError(f"{self._where}: attrs of /{g} unreadable ({type(ex).__name__}: {ex})") from ex
 
     def domain_attrs(self, d: int) -> dict:
-        d = operator.index(d)
-        return self._attrs(domain_group(d), self._reader(d), self._domain_attrs_json, d)
+        return self._attrs(domain_group(operator.index(d)), self._reader(d))
 
     def _read(self, g: str, arrays: dict, names, rows, r=None) -> dict[str, np.ndarray]:
         self._check()

@@ -1,5 +1,8 @@
 """Out-of-core mode: the sweep over HDF5/zarr epochs is bit-identical to the monolithic run."""
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -162,12 +165,10 @@ def test_a_sweep_does_not_grow_resident_memory_group_by_group(tmp_path):
     with every group of a sweep (+30 MiB over 10 groups here, ~1.4 MiB a group at 500k-disc
     slabs in the memsweep) until the sweep ended. Measured in a fresh process after each
     group is staged: set-up and two sweeps of 10 groups."""
-    import subprocess
-    import sys
     groups = 10
     cp = subprocess.run([sys.executable, "-c", _RSS_PER_GROUP, str(tmp_path / "run"), str(groups)],
-                        capture_output=True, text=True, timeout=600, env={**__import__("os").environ,
-                                                                          "NUMBA_NUM_THREADS": "1"})
+                        capture_output=True, text=True, timeout=600,
+                        env={**os.environ, "NUMBA_NUM_THREADS": "1"})
     assert cp.returncode == 0, cp.stderr[-3000:]
     rss = np.array(json.loads(cp.stdout.strip().splitlines()[-1]), dtype=np.int64)
     assert len(rss) == 3 * groups   # the set-up's epoch and two sweeps

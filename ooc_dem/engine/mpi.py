@@ -233,9 +233,9 @@ class MpiEngine:
         yield self.particles()
 
     def _group(self, q: Particles) -> tuple[dict, dict]:
-        """One sub-domain's epoch group: its owned discs sorted by x (as serial DDM's groups)."""
+        """One sub-domain's epoch group: its owned discs in cell order (as serial DDM's groups)."""
         from .sweep import group_of
-        g, attrs = group_of(q)
+        g, attrs = group_of(q, None, self.model.order_cell)
         attrs["x_summary"] = x_summary(g.pos[:, AX_X], self.sc.bin.length)
         return particles_to_record(g), attrs
 

@@ -106,6 +106,12 @@ class Model:
                    skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc,
                    wheel_enabled=sc.wheel.enabled, r_max=sc.soil.r_max, dim=3, hist_cap=sc.hist_cap)
 
+    @property
+    def order_cell(self) -> float:
+        """The cell of the particles' memory order (one contact hop: 2 r_max + skin), as the
+        neighbour grid's: epoch groups are stored in this order (sweep.group_order)."""
+        return 2.0 * self.r_max + self.skin
+
     def layouts(self):
         """(CONTACT_PARAMS, WALLS) record dtypes of this model's dimension."""
         if self.dim == 3:

@@ -24,8 +24,8 @@ import numpy as np
 
 from ..checkpoint import open_epoch, particles_to_record, record_to_particles
 from ..heap import bound_heap
-from ..decomposition import (XHistogram, equal_bounds, owner, summary_ok, wheel_bounds, wheel_slab_index,
-                             wheel_slab_ok, x_summary)
+from ..decomposition import (XHistogram, equal_bounds, group_order, owner, summary_ok, wheel_bounds,
+                             wheel_slab_index, wheel_slab_ok, x_summary)
 from ..physics.layout import AX_X, WS_X
 from ..state import DISC_FIELDS, HIST_FIELDS
 from ..state import Particles
@@ -35,7 +35,7 @@ from .stepper import N_REC, DomainStepper, EngineError, Model
 
 
 class RamEpochs:
-    """Serial DDM's epoch in RAM: per-domain disc sets sorted by x, with their attrs.
+    """Serial DDM's epoch in RAM: per-domain disc sets in cell order (groups), with their attrs.
 
     Between sweeps the live sub-domains (live.py) hold the newest states; this view is
     made from them only when a commit, a re-decomposition or a rebuild needs it. The
@@ -71,23 +71,35 @@ class RamEpochs:
 
 
 def _read_rows(src, d, lo: float, hi: float, hist_cap: int | None = None) -> Particles | None:
-    """Discs of group d with lo <= x < hi (groups are sorted by x: one contiguous slice)."""
+    """Discs of group d with lo <= x < hi. Groups are written in cell order (``group_order``:
+    x sorted up to one cell column), so these rows lie in one short candidate range: after
+    the last row whose running maximum of x is below lo, before the first whose running
+    minimum of the rest is at or above hi. The range is read and filtered exactly, so any
+    row order is read correctly (x-sorted groups of older stores give the exact slice)."""
     attrs = src.domain_attrs(d)
     n = int(attrs.get("n", 0))
     if n == 0 or attrs["xmax"] < lo or attrs["xmin"] >= hi:
         return None
     x = src.read_domain(d, ["pos"])["pos"][:, AX_X]
-    a, b = int(np.searchsorted(x, lo, "left")), int(np.searchsorted(x, hi, "left"))
+    a = int(np.searchsorted(np.maximum.accumulate(x), lo, "left"))
+    b = int(np.searchsorted(np.minimum.accumulate(x[::-1])[::-1], hi, "left"))
     if b <= a:
         return None
+    inside = (x[a:b] >= lo) & (x[a:b] < hi)
+    del x
+    if not inside.any():
+        return None
     if a == 0 and b == n:
-        return record_to_particles(src.read_domain(d), hist_cap)
-    # scalar arrays by row; the CSR history by the matching entry range
-    hn = src.read_domain(d, ["hist_n"])["hist_n"]
-    off = np.concatenate([[0], np.cumsum(hn, dtype=np.int64)])
-    rec = src.read_domain(d, list(DISC_FIELDS), slice(a, b))
-    rec.update(src.read_domain(d, list(HIST_FIELDS), slice(int(off[a]), int(off[b]))))
-    return record_to_particles(rec, hist_cap)
+        p = record_to_particles(src.read_domain(d), hist_cap)
+    else:
+        # scalar arrays by row; the CSR history by the matching entry range
+        hn = src.read_domain(d, ["hist_n"])["hist_n"]
+        start, stop = int(hn[:a].sum(dtype=np.int64)), int(hn[:b].sum(dtype=np.int64))
+        del hn
+        rec = src.read_domain(d, list(DISC_FIELDS), slice(a, b))
+        rec.update(src.read_domain(d, list(HIST_FIELDS), slice(start, stop)))
+        p = record_to_particles(rec, hist_cap)
+    return p if inside.all() else p.take(np.flatnonzero(inside))
 
 
 def x_histogram(src, length: float) -> XHistogram:
@@ -119,13 +131,14 @@ def slab_bounds(sc, hist: XHistogram, domains: int, wheel_x: float, reach: float
     return equal_bounds(hist, domains)
 
 
-def group_of(p: Particles, rows=None) -> tuple[Particles, dict]:
-    """A domain group: discs `rows` of p (all if None) sorted by x (strips are then
-    contiguous), with its x extent. One gather, whatever `rows` is."""
+def group_of(p: Particles, rows, cell: float) -> tuple[Particles, dict]:
+    """A domain group: discs `rows` of p (all if None) in cell order (``group_order`` with
+    cells of side `cell`), with its x extent. One gather, whatever `rows` is."""
     rows = np.arange(len(p)) if rows is None else np.asarray(rows)
-    q = p.take(rows[np.argsort(p.pos[rows, AX_X], kind="stable")])
-    attrs = {"n": len(q), "xmin": float(q.pos[0, AX_X]) if len(q) else 0.0,
-             "xmax": float(q.pos[-1, AX_X]) if len(q) else 0.0}
+    q = p.take(rows[group_order(p.pos[rows], cell)])
+    x = q.pos[:, AX_X]
+    attrs = {"n": len(q), "xmin": float(x.min()) if len(q) else 0.0,
+             "xmax": float(x.max()) if len(q) else 0.0}
     return q, attrs
 
 
@@ -185,7 +198,7 @@ class SlabSweep:
             self.fixed = True
         groups = owner(self.bounds, particles.pos[:, AX_X])
         for d in range(self.D):
-            self._stage(d, *group_of(particles, np.flatnonzero(groups == d)))
+            self._stage(d, *group_of(particles, np.flatnonzero(groups == d), self.model.order_cell))
         self._n = len(particles)
 
     def _stage(self, d: int, q: Particles, attrs: dict) -> None:
@@ -317,7 +330,8 @@ class DdmEngine(SlabSweep):
             # the live sub-domains hold the newest states: the epoch's groups are
             # each slab's owned discs (ownership at the start of the last sweep)
             live = self._live
-            self.epoch.current = {d: group_of(live.p, live.owned_rows(d)) for d in range(live.D)}
+            cell = self.model.order_cell
+            self.epoch.current = {d: group_of(live.p, live.owned_rows(d), cell) for d in range(live.D)}
             self._live_newer = False
         return self.epoch
 
@@ -489,7 +503,7 @@ class OocEngine(SlabSweep):
         def flush(upto: float):
             for d in range(eng.D):
                 if d not in written and eng.bounds[d + 1] <= upto:
-                    eng._stage(d, *group_of(Particles.concat(pending.pop(d))))
+                    eng._stage(d, *group_of(Particles.concat(pending.pop(d)), None, model.order_cell))
                     written.add(d)
 
         for part in parts():
@@ -564,7 +578,7 @@ class OocEngine(SlabSweep):
             raise
 
     def _slab_pieces(self, src, d: int) -> list[Particles]:
-        """Slab d's discs and its halo from epoch ``src``: x-sorted strips of its groups."""
+        """Slab d's discs and its halo from epoch ``src``: strips of its groups, in x order."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
         return [q for g in src.domains()
                 if (q := _read_rows(src, g, lo - self.halo, hi + self.halo, self.model.hist_cap)) is not None]
@@ -577,8 +591,8 @@ class OocEngine(SlabSweep):
         lo, hi = self.bounds[d], self.bounds[d + 1]
         if pieces is None:
             pieces = self._slab_pieces(src, d)
-        # the pieces are x-sorted strips: already in a cache-friendly order, and memory
-        # order never changes a result (docs/design.md §3), so no spatial re-sort here
+        # the pieces are cell-ordered strips in x order (group_order): already the kernels'
+        # cache-friendly order, so no spatial re-sort here
         local = Particles.concat(pieces, self.model.dim, self.model.hist_cap)
         del pieces
         if d == wslab:
@@ -587,7 +601,7 @@ class OocEngine(SlabSweep):
             st = DomainStepper(local, self.model_nowheel, None, reorder=False)
         owned = np.flatnonzero((st.p.pos[:, AX_X] >= lo) & (st.p.pos[:, AX_X] < hi))
         rec = st.advance(step0, k) if len(local) else np.zeros((0, N_REC))
-        q, attrs = group_of(st.p, owned)
+        q, attrs = group_of(st.p, owned, self.model.order_cell)
         return q, attrs, rec, (st.ws.copy() if d == wslab else None), len(local)
 
     def _slabs(self, src, step0: int, k: int, wslab: int, stage):

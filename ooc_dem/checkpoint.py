@@ -112,37 +112,81 @@ def validate_globals(arrays: dict, attrs: dict, where: str) -> None:
         raise StateError(f"{where}: globals attribute 'redecompositions' must be a list")
 
 
-def particles_to_record(p: Particles) -> dict[str, np.ndarray]:
-    """The store record (format 2) of a state: the disc fields as they are, the history
-    fields as CSR (the used slots, disc after disc)."""
-    rec = {k: np.ascontiguousarray(getattr(p, k), FIELD_DTYPES[k]) for k in DISC_FIELDS}
-    used = np.arange(p.hist_cap)[None, :] < p.hist_n[:, None]
+def particles_to_record(p: Particles, rows=None) -> dict[str, np.ndarray]:
+    """The store record (format 2) of a state, or of its discs `rows` in that order: the
+    disc fields as they are, the history fields as CSR (the used slots, disc after disc).
+    With `rows`, each field is gathered once, straight into the record (no intermediate
+    state of the selected discs)."""
+    if rows is None:
+        rec = {k: np.ascontiguousarray(getattr(p, k), FIELD_DTYPES[k]) for k in DISC_FIELDS}
+        used = np.arange(p.hist_cap)[None, :] < p.hist_n[:, None]
+        for k in HIST_FIELDS:
+            rec[k] = np.ascontiguousarray(getattr(p, k)[used], FIELD_DTYPES[k])
+        return rec
+    rows = np.asarray(rows, np.intp)
+    rec = {k: np.asarray(getattr(p, k)[rows], FIELD_DTYPES[k]) for k in DISC_FIELDS}
+    hn = rec["hist_n"].astype(np.intp)
+    # flat slot (row * capacity + slot) of every used history entry, disc after disc
+    first = np.cumsum(hn) - hn
+    flat = np.repeat(rows * p.hist_cap - first, hn) + np.arange(int(hn.sum()))
     for k in HIST_FIELDS:
-        rec[k] = np.ascontiguousarray(getattr(p, k)[used], FIELD_DTYPES[k])
+        a = getattr(p, k)
+        rec[k] = np.asarray(a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])[flat], FIELD_DTYPES[k])
     return rec
 
 
 def record_to_particles(rec: dict[str, np.ndarray], hist_cap: int | None = None) -> Particles:
     """A state from a store record (format 2; a format-1 record is converted first)."""
-    rec = upgrade_v1(rec)
-    pos = rec.get("pos")
-    if pos is None or pos.ndim != 2 or pos.shape[1] not in (2, 3):
-        raise StateError(f"pos: shape {None if pos is None else pos.shape}, expected (n, 2) or (n, 3)")
-    n, dim = pos.shape
+    return records_to_particles([rec], hist_cap)
+
+
+def records_to_particles(recs: list[dict[str, np.ndarray]], hist_cap: int | None = None,
+                         dim: int = 2) -> Particles:
+    """One state from store records (format 2; format 1 converted first), one after the
+    other: allocated once, each record copied straight into its rows (no state per
+    record and no concatenation). `dim` gives the shape of an empty result only."""
+    recs = [upgrade_v1(r) for r in recs]
+    for rec in recs:
+        pos = rec.get("pos")
+        if pos is None or pos.ndim != 2 or pos.shape[1] not in (2, 3):
+            raise StateError(f"pos: shape {None if pos is None else pos.shape}, expected (n, 2) or (n, 3)")
+        if recs[0]["pos"].shape[1] != pos.shape[1]:
+            raise StateError("records of different dimensions")
+    dim = recs[0]["pos"].shape[1] if recs else dim
     hist_cap = default_hist_cap(dim) if hist_cap is None else hist_cap
-    p = Particles.empty(n, dim, hist_cap)
-    for k in DISC_FIELDS:
-        getattr(p, k)[:] = rec[k]
-    if n and (int(p.hist_n.max(initial=0)) > hist_cap or int(p.hist_n.min(initial=0)) < 0):
-        raise StateError(f"contact history counts outside [0, {hist_cap}] (capacity)")
-    used = np.arange(hist_cap)[None, :] < p.hist_n[:, None]
-    total = int(p.hist_n.sum())
-    for k in HIST_FIELDS:
-        flat = rec[k]
-        if len(flat) != total:
-            raise StateError(f"{k}: {len(flat)} entries, expected {total} from hist_n")
-        getattr(p, k)[used] = flat
+    p = Particles.empty(sum(len(r["pos"]) for r in recs), dim, hist_cap)
+    at = 0
+    for rec in recs:
+        n = len(rec["pos"])
+        rows = slice(at, at + n)
+        for k in DISC_FIELDS:
+            getattr(p, k)[rows] = rec[k]
+        hn = p.hist_n[rows]
+        if n and (int(hn.max(initial=0)) > hist_cap or int(hn.min(initial=0)) < 0):
+            raise StateError(f"contact history counts outside [0, {hist_cap}] (capacity)")
+        used = np.arange(hist_cap)[None, :] < hn[:, None]
+        total = int(hn.sum())
+        for k in HIST_FIELDS:
+            flat = rec[k]
+            if len(flat) != total:
+                raise StateError(f"{k}: {len(flat)} entries, expected {total} from hist_n")
+            getattr(p, k)[rows][used] = flat
+        at += n
     return p
+
+
+def record_rows(rec: dict[str, np.ndarray], rows) -> dict[str, np.ndarray]:
+    """Discs `rows` of a store record (format 2), in that order, as a record."""
+    rows = np.asarray(rows, np.intp)
+    out = {k: rec[k][rows] for k in DISC_FIELDS}
+    hn_all = rec["hist_n"].astype(np.intp)
+    hn = hn_all[rows]
+    # each selected disc's CSR entries, moved from where they start in rec to where they go
+    start = (np.cumsum(hn_all) - hn_all)[rows]
+    flat = np.repeat(start - (np.cumsum(hn) - hn), hn) + np.arange(int(hn.sum()))
+    for k in HIST_FIELDS:
+        out[k] = rec[k][flat]
+    return out
 
 
 class V1Epoch:

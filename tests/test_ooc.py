@@ -138,17 +138,17 @@ def test_streamed_hash_equals_in_memory_hash(bare, tmp_path, id_cap, monkeypatch
 _RSS_PER_GROUP = r'''
 import json, sys
 import psutil
-from ooc_dem.engine import sweep
+import storage
 from ooc_dem.engine.run import RunOptions, Simulation
 from ooc_dem.scenario import load_scenario
 out, groups = sys.argv[1], int(sys.argv[2])
 proc, after_stage = psutil.Process(), []
-stage = sweep.OocEngine._stage
+write_domain = storage.EpochWriter.write_domain
 
-def staged(self, d, q, attrs):
-    stage(self, d, q, attrs)
+def staged(self, d, arrays, attrs):
+    write_domain(self, d, arrays, attrs)
     after_stage.append(proc.memory_info().rss)
-sweep.OocEngine._stage = staged
+storage.EpochWriter.write_domain = staged
 sc = load_scenario(f"bed-{50_000 * groups}", ["decomposition.policy=equal"])
 sim = Simulation(sc, out, RunOptions(mode="ooc", backend="hdf5", domains=groups, block=20, steps=40,
                                      checkpoint_every=40, progress=False, figures=False))

@@ -790,13 +790,13 @@ class MpiOocEngine(OocEngine):
 
         def groups():
             for d in range(lo_d, hi_d):
-                q, attrs, rec, new_ws, resident = self._advance_slab(src, d, step0, k, wslab)
-                done["owned"] += len(q)
-                done["resident"].append(resident)
+                local, owned, rec, new_ws = self._advance_slab(src, d, step0, k, wslab)
+                done["owned"] += len(owned)
+                done["resident"].append(len(local))
                 if d == wslab:
                     done["rec"], done["ws"] = rec, new_ws
-                yield d, particles_to_record(q), self._summarised(q, attrs)
-                del q
+                yield (d, *self._owned_group(local, owned))
+                del local
 
         part, failure = None, None
         if self.rank == 0:

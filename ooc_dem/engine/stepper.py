@@ -186,9 +186,12 @@ class DomainStepper:
     Optionally (keep_forces) the last step's forces and torques."""
 
     def __init__(self, particles: Particles, model: Model, wheel_state: np.ndarray | None = None,
-                 reorder: bool = True, keep_forces: bool = False):
+                 reorder: bool = True, keep_forces: bool = False, pairs_hint: int = 0):
         """keep_forces: keep each step's contact forces and torques in ``force`` (N, D) and
-        ``torque`` (N, R) (diagnostics and tests; 24 bytes a disc in 2D)."""
+        ``torque`` (N, R) (diagnostics and tests; 24 bytes a disc in 2D). pairs_hint: the
+        candidate pairs expected (e.g. from a like slab), so that the first build fills the
+        list at once instead of counting, growing it and building again; a wrong hint
+        costs that second build, never a result."""
         if particles.dim != model.dim:
             raise EngineError(f"{particles.dim}D particles handed to a {model.dim}D model")
         if particles.hist_cap != model.hist_cap:
@@ -212,7 +215,7 @@ class DomainStepper:
         self._idx = np.int32 if n < 2**28 else np.int64
         self.half_off = np.zeros(n + 1, self._idx)
         self.inc_off = np.zeros(n + 1, self._idx)
-        self._grow_pairs(0)
+        self._grow_pairs(max(0, int(pairs_hint)))
         self.ref = np.zeros((n, model.dim))   # positions at the last neighbour-list build
         nf = n if keep_forces else 0
         self._forces = Forces(np.zeros((nf, model.dim)), np.zeros((nf, spin_width(model.dim))))

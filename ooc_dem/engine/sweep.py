@@ -22,7 +22,8 @@ from typing import Callable
 import numba
 import numpy as np
 
-from ..checkpoint import open_epoch, particles_to_record, record_to_particles
+from ..checkpoint import (open_epoch, particles_to_record, record_rows, record_to_particles,
+                          records_to_particles)
 from ..heap import bound_heap
 from ..decomposition import (XHistogram, equal_bounds, group_order, owner, summary_ok, wheel_bounds,
                              wheel_slab_index, wheel_slab_ok, x_summary)
@@ -70,12 +71,13 @@ class RamEpochs:
         self.current[d] = (record_to_particles(arrays, self.hist_cap), attrs)
 
 
-def _read_rows(src, d, lo: float, hi: float, hist_cap: int | None = None) -> Particles | None:
-    """Discs of group d with lo <= x < hi. Groups are written in cell order (``group_order``:
-    x sorted up to one cell column), so these rows lie in one short candidate range: after
-    the last row whose running maximum of x is below lo, before the first whose running
-    minimum of the rest is at or above hi. The range is read and filtered exactly, so any
-    row order is read correctly (x-sorted groups of older stores give the exact slice)."""
+def _read_rows(src, d, lo: float, hi: float) -> dict | None:
+    """The store record of group d's discs with lo <= x < hi. Groups are written in cell
+    order (``group_order``: x sorted up to one cell column), so these rows lie in one short
+    candidate range: after the last row whose running maximum of x is below lo, before the
+    first whose running minimum of the rest is at or above hi. The range is read and
+    filtered exactly, so any row order is read correctly (x-sorted groups of older stores
+    give the exact slice)."""
     attrs = src.domain_attrs(d)
     n = int(attrs.get("n", 0))
     if n == 0 or attrs["xmax"] < lo or attrs["xmin"] >= hi:
@@ -90,7 +92,7 @@ def _read_rows(src, d, lo: float, hi: float, hist_cap: int | None = None) -> Par
     if not inside.any():
         return None
     if a == 0 and b == n:
-        p = record_to_particles(src.read_domain(d), hist_cap)
+        rec = src.read_domain(d)
     else:
         # scalar arrays by row; the CSR history by the matching entry range
         hn = src.read_domain(d, ["hist_n"])["hist_n"]
@@ -98,8 +100,7 @@ def _read_rows(src, d, lo: float, hi: float, hist_cap: int | None = None) -> Par
         del hn
         rec = src.read_domain(d, list(DISC_FIELDS), slice(a, b))
         rec.update(src.read_domain(d, list(HIST_FIELDS), slice(start, stop)))
-        p = record_to_particles(rec, hist_cap)
-    return p if inside.all() else p.take(np.flatnonzero(inside))
+    return rec if inside.all() else record_rows(rec, np.flatnonzero(inside))
 
 
 def x_histogram(src, length: float) -> XHistogram:
@@ -131,15 +132,24 @@ def slab_bounds(sc, hist: XHistogram, domains: int, wheel_x: float, reach: float
     return equal_bounds(hist, domains)
 
 
-def group_of(p: Particles, rows, cell: float) -> tuple[Particles, dict]:
-    """A domain group: discs `rows` of p (all if None) in cell order (``group_order`` with
-    cells of side `cell`), with its x extent. One gather, whatever `rows` is."""
+def group_rows(p: Particles, rows, cell: float) -> np.ndarray:
+    """Rows `rows` of p (all if None) in a group's cell order (``group_order`` with cells
+    of side `cell`)."""
     rows = np.arange(len(p)) if rows is None else np.asarray(rows)
-    q = p.take(rows[group_order(p.pos[rows], cell)])
-    x = q.pos[:, AX_X]
-    attrs = {"n": len(q), "xmin": float(x.min()) if len(q) else 0.0,
-             "xmax": float(x.max()) if len(q) else 0.0}
-    return q, attrs
+    return rows[group_order(p.pos[rows], cell)]
+
+
+def group_attrs(x: np.ndarray) -> dict:
+    """A group's count and x extent, from its discs' x."""
+    return {"n": len(x), "xmin": float(x.min()) if len(x) else 0.0,
+            "xmax": float(x.max()) if len(x) else 0.0}
+
+
+def group_of(p: Particles, rows, cell: float) -> tuple[Particles, dict]:
+    """A domain group: discs `rows` of p (all if None) in cell order (``group_rows``), with
+    its x extent. One gather, whatever `rows` is."""
+    q = p.take(group_rows(p, rows, cell))
+    return q, group_attrs(q.pos[:, AX_X])
 
 
 def auto_block(sc, domains: int, length: float) -> int:
@@ -459,6 +469,7 @@ class OocEngine(SlabSweep):
         self._store_reader = None   # the current committed epoch
         self.committed_step = None
         self.io_overlap = False     # read ahead and write behind in threads (``_slabs``)
+        self._pairs_per_disc = 0.0  # candidate pairs per resident disc of the last slab
 
     @classmethod
     def default_block(cls, sc, domains: int) -> int:
@@ -577,44 +588,64 @@ class OocEngine(SlabSweep):
                 self._writer = None
             raise
 
-    def _slab_pieces(self, src, d: int) -> list[Particles]:
-        """Slab d's discs and its halo from epoch ``src``: strips of its groups, in x order."""
+    def _slab_pieces(self, src, d: int) -> list[dict]:
+        """Slab d's discs and its halo from epoch ``src``: the records of strips of its
+        groups, in x order."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
         return [q for g in src.domains()
-                if (q := _read_rows(src, g, lo - self.halo, hi + self.halo, self.model.hist_cap)) is not None]
+                if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
 
     def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int, pieces=None):
         """Slab d of the sweep: its discs and halo (``pieces``, else read from epoch ``src``),
-        advanced k steps; (its owned discs as a group and the group's attrs, the wheel
-        records, the wheel state after (the slab of the wheel only, else None), the
-        resident count)."""
+        advanced k steps; (the advanced local set, the rows of its owned discs, the wheel
+        records, the wheel state after (the slab of the wheel only, else None))."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
         if pieces is None:
             pieces = self._slab_pieces(src, d)
         # the pieces are cell-ordered strips in x order (group_order): already the kernels'
         # cache-friendly order, so no spatial re-sort here
-        local = Particles.concat(pieces, self.model.dim, self.model.hist_cap)
+        local = records_to_particles(pieces, self.model.hist_cap, self.model.dim)
         del pieces
+        # the list sized from the last slab's pairs per disc: one neighbour build, not two
+        hint = int(self._pairs_per_disc * len(local))
         if d == wslab:
-            st = DomainStepper(local, self.model, self.ws, reorder=False)
+            st = DomainStepper(local, self.model, self.ws, reorder=False, pairs_hint=hint)
         else:
-            st = DomainStepper(local, self.model_nowheel, None, reorder=False)
+            st = DomainStepper(local, self.model_nowheel, None, reorder=False, pairs_hint=hint)
         owned = np.flatnonzero((st.p.pos[:, AX_X] >= lo) & (st.p.pos[:, AX_X] < hi))
         rec = st.advance(step0, k) if len(local) else np.zeros((0, N_REC))
-        q, attrs = group_of(st.p, owned, self.model.order_cell)
-        return q, attrs, rec, (st.ws.copy() if d == wslab else None), len(local)
+        if len(local):
+            self._pairs_per_disc = st.pairs / len(local)
+        return st.p, owned, rec, (st.ws.copy() if d == wslab else None)
+
+    def _owned_group(self, local: Particles, owned: np.ndarray) -> tuple[dict, dict]:
+        """A slab's owned discs (rows `owned` of its advanced local set) as an epoch group:
+        (store record, gathered in cell order straight from the local set; its attrs)."""
+        rec = particles_to_record(local, group_rows(local, owned, self.model.order_cell))
+        x = rec["pos"][:, AX_X]
+        return rec, {**group_attrs(x), "x_summary": x_summary(x, self.sc.bin.length)}
+
+    def _stage_owned(self, d: int, local: Particles, owned: np.ndarray) -> dict:
+        """Write slab d's owned discs as group d of the epoch being written; returns the
+        group's record."""
+        if self._writer is None:
+            raise RuntimeError("out-of-core sweep without an open epoch writer")
+        rec, attrs = self._owned_group(local, owned)
+        self._writer.write_domain(d, rec, attrs)
+        return rec
 
     def _slabs(self, src, step0: int, k: int, wslab: int, stage):
-        """Every slab in turn (``_advance_slab``), each result passed to ``stage(d, q, attrs)``;
-        yields (d, owned count, rec, ws, resident). With ``io_overlap`` the reads of slab d + 1 and the
-        writes of slab d - 1 run in two threads while slab d computes (the kernel releases
-        the GIL): the same slabs, read and written in the same order, so the same bits;
-        up to three slabs are resident instead of one."""
+        """Every slab in turn (``_advance_slab``), each result passed to ``stage(d, local,
+        owned)``; yields (d, owned count, rec, ws, resident). With ``io_overlap`` the reads
+        of slab d + 1 and the staging (gather and write) of slab d - 1 run in two threads
+        while slab d computes (the kernel releases the GIL): the same slabs, read and
+        written in the same order, so the same bits; up to three slabs are resident
+        instead of one."""
         if not self.io_overlap:
             for d in range(self.D):
-                q, attrs, rec, ws, n_local = self._advance_slab(src, d, step0, k, wslab)
-                stage(d, q, attrs)
-                yield d, len(q), rec, ws, n_local
+                local, owned, rec, ws = self._advance_slab(src, d, step0, k, wslab)
+                stage(d, local, owned)
+                yield d, len(owned), rec, ws, len(local)
             return
         from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(1, "ooc-read") as reads, ThreadPoolExecutor(1, "ooc-write") as writes:
@@ -624,13 +655,13 @@ class OocEngine(SlabSweep):
                 pieces = ahead.result()
                 if d + 1 < self.D:
                     ahead = reads.submit(self._slab_pieces, src, d + 1)
-                q, attrs, rec, ws, n_local = self._advance_slab(src, d, step0, k, wslab, pieces)
+                local, owned, rec, ws = self._advance_slab(src, d, step0, k, wslab, pieces)
                 del pieces
                 if written is not None:
                     written.result()       # one write in flight: memory stays three slabs
-                written = writes.submit(stage, d, q, attrs)
-                yield d, len(q), rec, ws, n_local
-                del q
+                written = writes.submit(stage, d, local, owned)
+                yield d, len(owned), rec, ws, len(local)
+                del local
             if written is not None:
                 written.result()
 
@@ -642,10 +673,10 @@ class OocEngine(SlabSweep):
         # trajectory: a frame at the sweep's end gets each slab's owned discs as it passes
         write_part = self.part_sink(step0 + k) if self.part_sink is not None else None
 
-        def stage(d, q, attrs):
-            self._stage(d, q, attrs)
+        def stage(d, local, owned):
+            group = self._stage_owned(d, local, owned)
             if write_part is not None:
-                write_part(q)
+                write_part(group)
 
         for d, n_owned, rec, ws, n_local in self._slabs(src, step0, k, wslab, stage):
             resident.append(n_local)

@@ -164,13 +164,17 @@ def records_to_particles(recs: list[dict[str, np.ndarray]], hist_cap: int | None
         hn = p.hist_n[rows]
         if n and (int(hn.max(initial=0)) > hist_cap or int(hn.min(initial=0)) < 0):
             raise StateError(f"contact history counts outside [0, {hist_cap}] (capacity)")
-        used = np.arange(hist_cap)[None, :] < hn[:, None]
+        hn = hn.astype(np.intp)
         total = int(hn.sum())
+        # the flat slot (row * capacity + slot) each CSR entry goes to, disc after disc
+        first = np.cumsum(hn) - hn
+        dest = np.repeat(np.arange(at, at + n) * hist_cap - first, hn) + np.arange(total)
         for k in HIST_FIELDS:
             flat = rec[k]
             if len(flat) != total:
                 raise StateError(f"{k}: {len(flat)} entries, expected {total} from hist_n")
-            getattr(p, k)[rows][used] = flat
+            a = getattr(p, k)
+            a.reshape(a.shape[0] * hist_cap, *a.shape[2:])[dest] = flat
         at += n
     return p
 

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from ooc_dem.bed import settled_bed
+from ooc_dem.checkpoint import particles_to_record, record_rows, records_to_particles
+from ooc_dem.decomposition import group_order
 from ooc_dem.engine.run import RunOptions, Simulation, read_all_particles
 from ooc_dem.scenario import load_scenario
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
@@ -177,3 +179,67 @@ def test_a_sweep_does_not_grow_resident_memory_group_by_group(tmp_path):
         grown = sweep_rss.max() - sweep_rss[0]
         assert grown < 10 * 2**20, (f"RSS grew {grown / 2**20:.1f} MiB over the groups of one sweep "
                                     f"(MiB after each group: {np.round(rss / 2**20, 1).tolist()})")
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_group_order_is_cell_order_x_column_first(dim):
+    """Groups are stored in cell order: the packed int64 key sorts as the cells' (x column,
+    y row[, z row]) tuples do, for beds far longer than a slab and for particles flown off
+    (clipped to the key's edge, still a permutation)."""
+    rng = np.random.default_rng(dim)
+    cell = 0.005
+    pos = rng.random((20_000, dim)) * np.array([30_000.0, 0.5, 0.2][:dim]) - 0.01
+    o = group_order(pos, cell)
+    assert np.array_equal(o, np.lexsort(np.floor(pos / cell).T[::-1]))
+    pos[:3] = np.array([1e300, -1e300, 7.0][:dim])
+    assert np.array_equal(np.sort(group_order(pos, cell)), np.arange(len(pos)))
+
+
+def test_records_gather_and_fill_like_the_particles_they_hold():
+    """The sweep's record paths (owned rows gathered straight into a record, strips of
+    records filtered by row, a slab filled from several records) hold exactly what the
+    per-Particles paths held."""
+    p = settled_bed(load_scenario("quick"))
+    rng = np.random.default_rng(7)
+    hn = rng.integers(0, p.hist_cap + 1, len(p))
+    p.hist_n[:] = hn
+    unused = np.arange(p.hist_cap)[None, :] >= hn[:, None]
+    for k in ("hist_id", "hist_s", "hist_m"):
+        a = getattr(p, k)
+        a[...] = rng.integers(-5, 10**6, a.shape) if a.dtype.kind == "i" else rng.random(a.shape)
+        a[unused] = 0
+    rows = rng.permutation(len(p))[: len(p) // 3]
+    got, want = particles_to_record(p, rows), particles_to_record(p.take(rows))
+    assert sorted(got) == sorted(want)
+    for k in want:
+        assert np.array_equal(got[k], want[k]) and got[k].dtype == want[k].dtype, k
+    rec = particles_to_record(p)
+    half = len(p) // 2
+    pieces = [record_rows(rec, np.arange(half)), record_rows(rec, np.zeros(0, np.int64)),
+              record_rows(rec, np.arange(half, len(p)))]
+    q = records_to_particles(pieces, p.hist_cap, p.dim)
+    for k, v in p.arrays().items():
+        assert np.array_equal(getattr(q, k), v), k
+
+
+
+def test_strip_reads_are_exact_in_any_row_order():
+    """A halo strip is read from the candidate rows that the running max / min of x bound,
+    then filtered by x: the discs with lo <= x < hi and no other, whether the group is in
+    cell order, x order or shuffled (a foreign store's)."""
+    from ooc_dem.engine.sweep import RamEpochs, _read_rows, group_attrs
+    p = settled_bed(load_scenario("quick"))
+    x = p.pos[:, AX_X]
+    rng = np.random.default_rng(3)
+    for order in (group_order(p.pos, 0.004), np.argsort(x), rng.permutation(len(p))):
+        g = p.take(order)
+        ram = RamEpochs(p.hist_cap)
+        ram.write_particles(0, g, group_attrs(g.pos[:, AX_X]))
+        for lo, hi in [(-1.0, 9.0), (0.1, 0.2), (0.25, 0.2500001), (x.min(), x.max()), (9.0, 10.0)]:
+            rec = _read_rows(ram, 0, lo, hi)
+            want = np.sort(p.id[(x >= lo) & (x < hi)])
+            got = np.zeros(0, np.int64) if rec is None else np.sort(rec["id"])
+            assert np.array_equal(got, want), (lo, hi)
+            if rec is not None:
+                q = records_to_particles([rec], p.hist_cap, p.dim)
+                assert np.array_equal(q.hist_n, p.hist_n[np.searchsorted(p.id, q.id)])

@@ -72,8 +72,8 @@ def child(a) -> dict:
         wall = time.perf_counter() - t
         sweeps.append({"step": step0 + k, "wall_s": round(wall, 3),
                        **{f"{key}_s": round(v, 3) for key, v in now.items()},
-                       # assembling slabs in RAM: concatenating the pieces, sorting the owned
-                       # discs by x, converting between records and particles
+                       # assembling slabs in RAM: filling a slab from its strips' records,
+                       # ordering the owned discs by cell and gathering them into a record
                        "other_s": round(wall - sum(now.values()), 3)})
         return rec
     sweep.OocEngine.sweep = timed_sweep

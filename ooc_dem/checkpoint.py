@@ -112,6 +112,15 @@ def validate_globals(arrays: dict, attrs: dict, where: str) -> None:
         raise StateError(f"{where}: globals attribute 'redecompositions' must be a list")
 
 
+def csr_slots(base: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The flat positions of CSR entries laid out disc after disc: disc i's counts[i]
+    entries are base[i], base[i] + 1, ... (counts as intp). With base = row * capacity
+    these are slots of the (N, capacity) history arrays; with base = a CSR start, entries
+    of a stored record."""
+    first = np.cumsum(counts) - counts
+    return np.repeat(base - first, counts) + np.arange(int(counts.sum()))
+
+
 def particles_to_record(p: Particles, rows=None) -> dict[str, np.ndarray]:
     """The store record (format 2) of a state, or of its discs `rows` in that order: the
     disc fields as they are, the history fields as CSR (the used slots, disc after disc).
@@ -119,19 +128,14 @@ def particles_to_record(p: Particles, rows=None) -> dict[str, np.ndarray]:
     state of the selected discs)."""
     if rows is None:
         rec = {k: np.ascontiguousarray(getattr(p, k), FIELD_DTYPES[k]) for k in DISC_FIELDS}
-        used = np.arange(p.hist_cap)[None, :] < p.hist_n[:, None]
-        for k in HIST_FIELDS:
-            rec[k] = np.ascontiguousarray(getattr(p, k)[used], FIELD_DTYPES[k])
-        return rec
-    rows = np.asarray(rows, np.intp)
-    rec = {k: np.asarray(getattr(p, k)[rows], FIELD_DTYPES[k]) for k in DISC_FIELDS}
-    hn = rec["hist_n"].astype(np.intp)
-    # flat slot (row * capacity + slot) of every used history entry, disc after disc
-    first = np.cumsum(hn) - hn
-    flat = np.repeat(rows * p.hist_cap - first, hn) + np.arange(int(hn.sum()))
+        rows = np.arange(len(p), dtype=np.intp)
+    else:
+        rows = np.asarray(rows, np.intp)
+        rec = {k: np.asarray(getattr(p, k)[rows], FIELD_DTYPES[k]) for k in DISC_FIELDS}
+    slots = csr_slots(rows * p.hist_cap, rec["hist_n"].astype(np.intp))
     for k in HIST_FIELDS:
         a = getattr(p, k)
-        rec[k] = np.asarray(a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])[flat], FIELD_DTYPES[k])
+        rec[k] = np.asarray(a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])[slots], FIELD_DTYPES[k])
     return rec
 
 
@@ -166,9 +170,7 @@ def records_to_particles(recs: list[dict[str, np.ndarray]], hist_cap: int | None
             raise StateError(f"contact history counts outside [0, {hist_cap}] (capacity)")
         hn = hn.astype(np.intp)
         total = int(hn.sum())
-        # the flat slot (row * capacity + slot) each CSR entry goes to, disc after disc
-        first = np.cumsum(hn) - hn
-        dest = np.repeat(np.arange(at, at + n) * hist_cap - first, hn) + np.arange(total)
+        dest = csr_slots(np.arange(at, at + n) * hist_cap, hn)   # the slot each entry goes to
         for k in HIST_FIELDS:
             flat = rec[k]
             if len(flat) != total:
@@ -184,12 +186,9 @@ def record_rows(rec: dict[str, np.ndarray], rows) -> dict[str, np.ndarray]:
     rows = np.asarray(rows, np.intp)
     out = {k: rec[k][rows] for k in DISC_FIELDS}
     hn_all = rec["hist_n"].astype(np.intp)
-    hn = hn_all[rows]
-    # each selected disc's CSR entries, moved from where they start in rec to where they go
-    start = (np.cumsum(hn_all) - hn_all)[rows]
-    flat = np.repeat(start - (np.cumsum(hn) - hn), hn) + np.arange(int(hn.sum()))
+    entries = csr_slots((np.cumsum(hn_all) - hn_all)[rows], hn_all[rows])
     for k in HIST_FIELDS:
-        out[k] = rec[k][flat]
+        out[k] = rec[k][entries]
     return out
 
 

@@ -47,8 +47,8 @@ import time
 
 import numpy as np
 
-from ..checkpoint import particles_to_record, record_to_particles
-from ..decomposition import XHistogram, owner, wheel_slab_index, wheel_slab_ok, x_summary
+from ..checkpoint import record_to_particles
+from ..decomposition import XHistogram, owner, wheel_slab_index, wheel_slab_ok
 from ..physics.layout import AX_X, WS_SIZE, WS_X
 from ..state import Particles, fields
 from .interface import write_epoch
@@ -234,10 +234,8 @@ class MpiEngine:
 
     def _group(self, q: Particles) -> tuple[dict, dict]:
         """One sub-domain's epoch group: its owned discs in cell order (as serial DDM's groups)."""
-        from .sweep import group_of
-        g, attrs = group_of(q, None, self.model.order_cell)
-        attrs["x_summary"] = x_summary(g.pos[:, AX_X], self.sc.bin.length)
-        return particles_to_record(g), attrs
+        from .sweep import group_record
+        return group_record(q, None, self.model.order_cell, self.sc.bin.length)
 
     def write_domains(self, writer) -> None:
         for d, q in enumerate(self._call("gather", ())):

@@ -109,7 +109,7 @@ class Model:
     @property
     def order_cell(self) -> float:
         """The cell of the particles' memory order (one contact hop: 2 r_max + skin), as the
-        neighbour grid's: epoch groups are stored in this order (sweep.group_order)."""
+        neighbour grid's: epoch groups are stored in this order (decomposition.group_order)."""
         return 2.0 * self.r_max + self.skin
 
     def layouts(self):

@@ -145,6 +145,15 @@ def group_attrs(x: np.ndarray) -> dict:
             "xmax": float(x.max()) if len(x) else 0.0}
 
 
+def group_record(p: Particles, rows, cell: float, length: float) -> tuple[dict, dict]:
+    """A domain group as the store writes it: discs `rows` of p (all if None) gathered in
+    cell order straight into a store record, and its attrs (count, x extent, x summary
+    over a bin of `length`)."""
+    rec = particles_to_record(p, group_rows(p, rows, cell))
+    x = rec["pos"][:, AX_X]
+    return rec, {**group_attrs(x), "x_summary": x_summary(x, length)}
+
+
 def group_of(p: Particles, rows, cell: float) -> tuple[Particles, dict]:
     """A domain group: discs `rows` of p (all if None) in cell order (``group_rows``), with
     its x extent. One gather, whatever `rows` is."""
@@ -540,9 +549,13 @@ class OocEngine(SlabSweep):
         return eng
 
     def _stage(self, d, q: Particles, attrs):
+        self._write_group(d, particles_to_record(q), self._summarised(q, attrs))
+
+    def _write_group(self, d: int, rec: dict, attrs: dict) -> None:
+        """Write group d (a store record and its attrs) into the epoch being written."""
         if self._writer is None:
             raise RuntimeError("out-of-core sweep without an open epoch writer")
-        self._writer.write_domain(d, particles_to_record(q), self._summarised(q, attrs))
+        self._writer.write_domain(d, rec, attrs)
 
     def _source(self):
         return self._store_reader
@@ -619,19 +632,15 @@ class OocEngine(SlabSweep):
         return st.p, owned, rec, (st.ws.copy() if d == wslab else None)
 
     def _owned_group(self, local: Particles, owned: np.ndarray) -> tuple[dict, dict]:
-        """A slab's owned discs (rows `owned` of its advanced local set) as an epoch group:
-        (store record, gathered in cell order straight from the local set; its attrs)."""
-        rec = particles_to_record(local, group_rows(local, owned, self.model.order_cell))
-        x = rec["pos"][:, AX_X]
-        return rec, {**group_attrs(x), "x_summary": x_summary(x, self.sc.bin.length)}
+        """A slab's owned discs (rows `owned` of its advanced local set) as an epoch group
+        (``group_record``)."""
+        return group_record(local, owned, self.model.order_cell, self.sc.bin.length)
 
     def _stage_owned(self, d: int, local: Particles, owned: np.ndarray) -> dict:
         """Write slab d's owned discs as group d of the epoch being written; returns the
         group's record."""
-        if self._writer is None:
-            raise RuntimeError("out-of-core sweep without an open epoch writer")
         rec, attrs = self._owned_group(local, owned)
-        self._writer.write_domain(d, rec, attrs)
+        self._write_group(d, rec, attrs)
         return rec
 
     def _slabs(self, src, step0: int, k: int, wslab: int, stage):

@@ -17,7 +17,7 @@ On-disk layout
                           "current": EPOCH|null, "previous": EPOCH|null}
                           EPOCH = {"step": int,
                                    "path": "epochs/e000000001234.h5",
-                                   "files": [{"path": rel, "size": int, "sha256": hex}, ...],
+                                   "files": [{"path": rel, "size": int, "xxh3_128": hex}, ...],
                                    "domains": {"0": {"n": rows, "arrays": {name: [shape, dtype]}}, ...},
                                    "globals": {"arrays": {name: [shape, dtype]}} | null,
                                    "committed_at": iso time,
@@ -48,8 +48,11 @@ On-disk layout
   a version-1 epoch's 2D component arrays as version 2). A commit into a version-1 store
   moves the manifest to version 2 and stamps the older entries with their version.
 * Paths in the manifest are relative to STORE and use "/". "files" lists the HDF5
-  file, or every file under the zarr directory individually; "sha256" is over the
-  file's bytes. The memory backend lists one pseudo-file per array (checksum over
+  file, or every file under the zarr directory individually; the checksum is over the
+  file's bytes: "xxh3_128" (XXH3, 128 bits, 32 hex digits) as written now, or "sha256"
+  (64 hex digits) as older stores recorded it, which is still checked. It detects torn,
+  truncated or altered files; it is no authenticity check (the manifest that holds it
+  lives in the same store), so the fast non-cryptographic hash serves. The memory backend lists one pseudo-file per array (checksum over
   the array bytes) and per group's attrs, under the same "epochs/<name>.mem" paths.
 * "n" is the row count of the domain's first array (0 if none); arrays of one
   domain may have different lengths (e.g. CSR pointers and entries).
@@ -71,7 +74,7 @@ validates the whole manifest first and refuses, with a one-line StoreError, anyt
 that is not exactly what this package writes:
 
 * types and ranges everywhere: steps, sizes, shapes are non-negative ints below 2**63
-  (not bools, floats or strings), sha256 is 64 lowercase hex digits, domain keys are
+  (not bools, floats or strings), a file has exactly one checksum, in its lowercase hex length, domain keys are
   canonical ids ("0", "17"; not "01", "-1", " 1"), dtypes are numeric numpy ``dtype.str``
   strings, array names as above, the arrays' bytes fit in the epoch's recorded files;
 * paths: a str, relative, "/"-separated, no "."/".."/empty part, no NUL, only the
@@ -126,7 +129,7 @@ Recovery
 ``open_store(path, repair=True)`` takes the write lock, then deletes
 ``MANIFEST.json.tmp``, ``*.tmp-<pid>`` and epoch files the manifest does not name
 (listed in ``store.repaired``; ``Store.leftovers()`` lists them without deleting). A
-missing, unparsable or invalid manifest is a StoreError (nothing is deleted or written). ``read_epoch()`` verifies the current epoch's sizes and sha256 (once per
+missing, unparsable or invalid manifest is a StoreError (nothing is deleted or written). ``read_epoch()`` verifies the current epoch's sizes and checksums (once per
 Store object; epochs this object committed count as verified) and falls back to the
 previous epoch if they fail, recording a message in ``store.warnings``; if both
 fail it raises StoreError naming the file and the problem. Wrong data is never
@@ -152,10 +155,13 @@ should ignore SIGXFSZ so that a file-size limit is an error, not a kill.)
 
 Page cache
 ----------
-Written files are dropped from the page cache after writing (``drop_page_cache``:
+Written files are dropped from the page cache once committed (``drop_page_cache``:
 ``posix_fadvise(POSIX_FADV_DONTNEED)``, which starts write-back of dirty pages and
-drops clean ones), and files are dropped after each ``read_domain`` /
-``read_globals``, so memory measurements are not inflated by cached store data.
+drops clean ones); an HDF5 epoch's groups are written back as they are written
+(``start_writeback``: sync_file_range, so dirty pages never pile up) and dropped after
+the commit has read the file's checksum from the cache. Files are dropped after each
+``read_domain`` / ``read_globals``, so memory measurements are not inflated by cached
+store data.
 
 Partial reads
 -------------

@@ -21,12 +21,11 @@ Anything else is refused with a one-line StoreError; nothing is guessed.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import re
 import stat
 
-from ._util import EPOCH_DIR, StoreError
+from ._util import EPOCH_DIR, StoreError, new_digest
 
 # the characters of every name the store itself writes (epoch names, groups, array names,
 # zarr keys, the memory backend's ".attrs" pseudo-files)
@@ -179,16 +178,17 @@ def read_regular(path: str, limit: int, what: str | None = None) -> bytes:
         os.close(fd)
 
 
-def sha256_regular(path: str, size: int, what: str | None = None) -> str:
-    """sha256 of the first `size` bytes of a regular file that must be exactly `size` long
-    (the size is checked before reading; no more than `size` bytes are ever read)."""
+def digest_regular(path: str, size: int, name: str, what: str | None = None) -> str:
+    """Hex digest `name` (one of ``DIGESTS``) of the first `size` bytes of a regular file that
+    must be exactly `size` long (the size is checked before reading; no more than `size`
+    bytes are ever read)."""
     where = what or path
     fd = open_regular(path, where)
     try:
         actual = os.fstat(fd).st_size
         if actual != size:
             raise StoreError(f"{where}: size {actual} != recorded {size} (truncated?)")
-        h = hashlib.sha256()
+        h = new_digest(name)
         buf = bytearray(1 << 20)
         mv = memoryview(buf)
         left = size

@@ -10,10 +10,10 @@ import os
 import stat
 
 from . import _hdf5, _zarr, _zarr_zip
-from ._confine import Resolver, read_regular, sha256_regular
+from ._confine import Resolver, digest_regular, read_regular
 from ._util import (EPOCH_DIR, EPOCH_NAME_RE, FORMAT, LOCK_FILE, MANIFEST, MANIFEST_TMP,
-                    MAX_MANIFEST_BYTES, TMP_NAME_RE, StoreError, drop_page_cache, fsync_path,
-                    parse_json, remove_path, to_json, write_error)
+                    MAX_MANIFEST_BYTES, TMP_NAME_RE, StoreError, drop_page_cache, file_checksum,
+                    file_entries, fsync_path, parse_json, remove_path, to_json, write_error)
 
 # what each backend writes, and every epoch format it reads (by the epoch name's extension):
 # zarr epochs were directories before (``_zarr``, ~20 files and directories per group),
@@ -184,9 +184,7 @@ class Place:
             remove_path(final)
             raise write_error(final, e) from e
         rel = f"{EPOCH_DIR}/{basename}"
-        files = [{"path": rel if r == "" else f"{rel}/{r}", "size": size, "sha256": sha}
-                 for r, size, sha in inner]
-        return rel, files
+        return rel, file_entries(rel, inner)
 
     def publish_part(self, tmp: str, basename: str, durable: bool) -> None:
         """Rename a part another process finished (``store.write_part``) into place."""
@@ -262,7 +260,7 @@ class Place:
         return problems
 
     def check_files(self, entry) -> list[str]:
-        """Sizes and sha256 of every listed file, which must be all the epoch's files."""
+        """Sizes and checksums of every listed file, which must be all the epoch's files."""
         base = self._epoch(entry)
         bad = self._check_epoch_kind(base)
         if bad:
@@ -273,12 +271,13 @@ class Place:
                 p = self.resolver.path(f["path"], base)
                 if not self.resolver.has_no_links(p):
                     raise StoreError(f"{p}: reached through a symbolic link (not allowed)")
-                sha = sha256_regular(p, f["size"])
+                digest, want = file_checksum(f, p)
+                got = digest_regular(p, f["size"], digest)
             except StoreError as e:
                 problems.append(str(e))
                 continue
-            if sha != f["sha256"]:
-                problems.append(f"{p}: sha256 mismatch (content changed)")
+            if got != want:
+                problems.append(f"{p}: {digest} mismatch (content changed)")
         if self.fmt_of(base).IS_DIR:
             found, odd = _walk_epoch(base)
             problems += odd

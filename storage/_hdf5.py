@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import ATTRS_KEY, FORMAT, drop_page_cache, fsync_path, remove_path, sha256_file
+from ._util import ATTRS_KEY, FORMAT, drop_page_cache, file_digest, fsync_path, remove_path, start_writeback
 
 EXT = "h5"
 IS_DIR = False
@@ -87,16 +87,17 @@ class Writer:
             rows = int(min(a.shape[0], max(1, CHUNK_BYTES // max(1, row))))
             g.create_dataset(name, data=a, chunks=(rows,) + a.shape[1:], **self.filters)
         self.f.flush()
-        drop_page_cache(self.path)           # starts write-back, drops clean pages
+        # written back now, dropped once the commit has read the file's checksum (finish)
+        start_writeback(self.path)
 
     def finish(self, durable: bool) -> list[tuple[str, int, str]]:
-        """Close the file and return [(relpath within epoch, size, sha256)] ("" = the file itself)."""
+        """Close the file and return [(relpath within epoch, size, digest)] ("" = the file itself)."""
         f, self.f = self.f, None
         f.close()
         if durable:
             fsync_path(self.path)
-        size, sha = sha256_file(self.path)
-        return [("", size, sha)]
+        size, digest = file_digest(self.path)
+        return [("", size, digest)]
 
     def abort(self) -> None:
         f, self.f = self.f, None

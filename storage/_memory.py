@@ -8,11 +8,9 @@ epoch are its arrays and attrs, checksummed over their bytes.
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
-from ._util import EPOCH_DIR, StoreError, parse_json, to_json
+from ._util import DIGEST, EPOCH_DIR, StoreError, file_checksum, new_digest, parse_json, to_json
 
 _REGISTRY: dict[str, "Backing"] = {}
 
@@ -25,15 +23,20 @@ class Backing:
         self.epochs: dict[str, dict[str, dict]] = {}
 
 
+def _digest(raw: bytes, name: str = DIGEST) -> str:
+    h = new_digest(name)
+    h.update(raw)
+    return h.hexdigest()
+
+
 def _file_entries(base: str, groups: dict) -> list[dict]:
     files = []
     for g, content in groups.items():
         for name, a in content["arrays"].items():
             files.append({"path": f"{base}/{g}/{name}", "size": int(a.nbytes),
-                          "sha256": hashlib.sha256(a.tobytes()).hexdigest()})
+                          DIGEST: _digest(a.tobytes())})
         raw = content["attrs"].encode()
-        files.append({"path": f"{base}/{g}/.attrs", "size": len(raw),
-                      "sha256": hashlib.sha256(raw).hexdigest()})
+        files.append({"path": f"{base}/{g}/.attrs", "size": len(raw), DIGEST: _digest(raw)})
     return files
 
 
@@ -157,8 +160,10 @@ class Place:
             raw = grp["attrs"].encode() if name == ".attrs" else grp["arrays"][name].tobytes()
             if len(raw) != f["size"]:
                 problems.append(f"{where}: size {len(raw)} != recorded {f['size']} (truncated?)")
-            elif hashlib.sha256(raw).hexdigest() != f["sha256"]:
-                problems.append(f"{where}: sha256 mismatch (content changed)")
+            else:
+                digest, want = file_checksum(f, where)
+                if _digest(raw, digest) != want:
+                    problems.append(f"{where}: {digest} mismatch (content changed)")
         return problems
 
     def repair(self, m: dict) -> list[str]:

@@ -5,7 +5,6 @@ sharding, no consolidated metadata. Epochs are written as one zip archive each n
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import sys
@@ -13,8 +12,8 @@ import sys
 import numpy as np
 
 from ._confine import open_regular, read_regular
-from ._util import (ATTRS_KEY, FORMAT, StoreError, drop_page_cache, fsync_tree, parse_json,
-                    pread_into, remove_path, sha256_file)
+from ._util import (ATTRS_KEY, FORMAT, StoreError, drop_page_cache, file_digest, fsync_tree,
+                    new_digest, parse_json, pread_into, remove_path)
 
 EXT = "zarr"
 IS_DIR = True
@@ -66,11 +65,13 @@ def _array_metadata(a: np.ndarray) -> bytes:
 
 
 def _write_file(path: str, data: bytes, hashed: dict, rel: str) -> None:
-    """Write a new file; remember (size, mtime, sha256) so it is not read back to be hashed."""
+    """Write a new file; remember (size, mtime, digest) so it is not read back to be hashed."""
     with open(path, "xb") as f:
         f.write(data)
     st = os.stat(path)
-    hashed[rel] = (st.st_size, st.st_mtime_ns, hashlib.sha256(data).hexdigest())
+    h = new_digest()
+    h.update(data)
+    hashed[rel] = (st.st_size, st.st_mtime_ns, h.hexdigest())
     drop_page_cache(path)
 
 
@@ -81,7 +82,7 @@ class Writer:
         if compression is not None:
             raise ValueError("the zarr directory layout is written uncompressed only")
         self.path = path
-        self._hashed: dict[str, tuple[int, int, str]] = {}   # rel -> (size, mtime_ns, sha)
+        self._hashed: dict[str, tuple[int, int, str]] = {}   # rel -> (size, mtime_ns, digest)
         self._zgroups = None                                  # zarr handles, only for fallbacks
         os.makedirs(path)                                     # a new directory, as zarr's "w-"
         self._write_group_doc("", {"ooc_dem_format": FORMAT, "step": int(step)})
@@ -141,16 +142,16 @@ class Writer:
         st = os.stat(p)
         h = self._hashed.get(rel)
         if h is None or h[0] != st.st_size or h[1] != st.st_mtime_ns:
-            size, sha = sha256_file(p)
-            h = (size, st.st_mtime_ns, sha)
+            size, digest = file_digest(p)
+            h = (size, st.st_mtime_ns, digest)
             self._hashed[rel] = h
         return h[2]
 
     def finish(self, durable: bool) -> list[tuple[str, int, str]]:
         files = []
         for rel in walk_files(self.path):
-            sha = self._hash(rel)
-            files.append((rel, self._hashed[rel][0], sha))
+            digest = self._hash(rel)
+            files.append((rel, self._hashed[rel][0], digest))
         if durable:
             fsync_tree(self.path)
         return files

@@ -14,12 +14,11 @@ file is now created, renamed and deleted like an HDF5 epoch.
 Compression (optional, per store): the zarr codecs ``zstd`` or ``blosc`` (lz4, byte
 shuffle) after the ``bytes`` codec, chunks of about ``CHUNK_BYTES`` of rows, so a row range
 decodes only the chunks it touches. The archive is written as a stream (zip data
-descriptors, no seeking back), so its sha256 is computed as it is written.
+descriptors, no seeking back), so its checksum is computed as it is written.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import struct
@@ -29,7 +28,7 @@ import zipfile
 import numpy as np
 
 from ._confine import open_regular
-from ._util import ATTRS_KEY, FORMAT, drop_page_cache, pread_into, remove_path
+from ._util import ATTRS_KEY, FORMAT, drop_page_cache, new_digest, pread_into, remove_path
 
 EXT = "zip"
 IS_DIR = False
@@ -127,12 +126,12 @@ class _HashingStream:
 
     def __init__(self, f):
         self._f = f
-        self.sha = hashlib.sha256()
+        self.digest = new_digest()
         self.pos = 0
 
     def write(self, b) -> int:
         n = self._f.write(b)
-        self.sha.update(b)
+        self.digest.update(b)
         self.pos += len(b) if isinstance(b, (bytes, bytearray)) else memoryview(b).nbytes
         return n
 
@@ -202,7 +201,7 @@ class Writer:
             self._put(_chunk_key(prefix, i, a.ndim), self._encoder.encode(part))
 
     def finish(self, durable: bool) -> list[tuple[str, int, str]]:
-        """Close the archive and return [("", size, sha256)] (the epoch is this one file)."""
+        """Close the archive and return [("", size, digest)] (the epoch is this one file)."""
         zf, self._zip = self._zip, None
         zf.close()
         self._f.flush()
@@ -210,7 +209,7 @@ class Writer:
             os.fsync(self._f.fileno())
         self._f.close()
         drop_page_cache(self.path)
-        return [("", self._stream.pos, self._stream.sha.hexdigest())]
+        return [("", self._stream.pos, self._stream.digest.hexdigest())]
 
     def abort(self) -> None:
         zf, self._zip = getattr(self, "_zip", None), None

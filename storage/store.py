@@ -18,7 +18,7 @@ import numpy as np
 from . import _confine, _disk, _lock, _memory
 from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, SUPPORTED_VERSIONS, GLOBALS_GROUP, LOCK_FILE, MANIFEST,
                     MANIFEST_TMP, MAX_JSON_DEPTH, MAX_PARTS, StoreError, array_meta, check_array_name,
-                    domain_group, epoch_basename, gather_rows, json_depth, json_roundtrip, normalize_rows,
+                    domain_group, epoch_basename, file_checksum, file_entries, gather_rows, json_depth, json_roundtrip, normalize_rows,
                     part_basename, prepare_arrays, remove_path, to_json, write_error)
 from ._util import TMP_NAME_RE as _TMP_RE
 
@@ -42,7 +42,6 @@ _MAX_INT64 = 2**63 - 1
 _MAX_NDIM = 32
 _MAX_DOMAIN_ID = 10**9 - 1
 _MAX_NAME_CHARS = 200          # ARRAY_NAME_RE's limit, checked first to keep messages short
-_SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
 _DOMAIN_KEY_RE = re.compile(r"^(0|[1-9][0-9]{0,8})$")   # str(d) of a domain id d >= 0
 
 
@@ -204,9 +203,7 @@ def _check_entry(e, role: str, where: str, place, ext) -> None:
             seen.add(p)
             listed += 1
             stored += _int(f.get("size"), f"{what} file {p!r} size")
-            sha = f.get("sha256")
-            if not (isinstance(sha, str) and _SHA256_RE.match(sha)):
-                raise StoreError(f"{what}: file {p!r} sha256 {_show(sha)} is not 64 lowercase hex digits")
+            file_checksum(f, f"{what}: file {p!r}")
         # the checksums must cover the epoch's own files, always (see check_files for zarr:
         # the files found must be exactly the listed ones)
         if not place.is_memory and not listed:
@@ -1135,7 +1132,7 @@ def write_part(path, step: int, basename: str, part: int, domains, durable: bool
                 raise write_error(tmp, e) from e
             raise
         rel = f"{EPOCH_DIR}/{name}"
-        files = [{"path": rel if r == "" else f"{rel}/{r}", "size": size, "sha256": sha} for r, size, sha in inner]
+        files = file_entries(rel, inner)
         return {"part": part, "path": rel, "tmp": tmp, "files": files, "domains": metas}
     finally:
         store.close()

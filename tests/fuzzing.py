@@ -657,6 +657,7 @@ def _fix_checksums(world: World, rels: list[str]):
             if f["path"] in rels:
                 p = world.run / f["path"]
                 f["size"] = p.stat().st_size
+                f.pop("xxh3_128", None)          # an older store's checksum, still accepted
                 f["sha256"] = _sha(p)
     world.write_manifest(m)
 

@@ -343,8 +343,8 @@ def corrupt(store, backend, kind):
 
 
 KINDS = ["truncate", "flip", "delete_group", "delete_manifest", "stray_tmp", "both_epochs"]
-PROBLEM = {"truncate": "truncated", "flip": "sha256 mismatch", "delete_group": None,
-           "both_epochs": "sha256 mismatch"}
+PROBLEM = {"truncate": "truncated", "flip": "xxh3_128 mismatch", "delete_group": None,
+           "both_epochs": "xxh3_128 mismatch"}
 
 
 @pytest.mark.parametrize("backend", ["hdf5", "zarr"])

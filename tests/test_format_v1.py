@@ -58,6 +58,8 @@ def to_v1(store: Path) -> None:
         data = path.read_bytes()
         for fe in e["files"]:
             if fe["path"] == e["path"]:
+                # a version-1 store recorded sha256 checksums
+                fe.pop("xxh3_128", None)
                 fe["size"], fe["sha256"] = len(data), hashlib.sha256(data).hexdigest()
         e.pop("format_version", None)
     m["format_version"] = 1

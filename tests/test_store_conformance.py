@@ -535,6 +535,42 @@ def test_both_epochs_corrupt_raises(spath, backend):
 
 
 @pytest.mark.parametrize("backend_", DISK)
+def test_files_carry_xxh3_128_and_sha256_of_older_stores_is_still_checked(tmp_path, backend_):
+    """New epochs record XXH3-128 of each file's bytes (the value the xxhash package gives);
+    an epoch whose entries carry sha256, as stores written before did, verifies and reads,
+    and a changed byte under either checksum is a mismatch named by the checksum."""
+    import hashlib
+
+    import xxhash
+    p = str(tmp_path / "s")
+    s = create_store(p, backend_, {})
+    write_epoch(s, 1)
+    write_epoch(s, 2)
+    s.close()
+    mpath = pathlib.Path(p, "MANIFEST.json")
+    m = json.loads(mpath.read_text())
+    for e in (m["current"], m["previous"]):
+        for f in e["files"]:
+            data = pathlib.Path(p, f["path"]).read_bytes()
+            assert set(f) == {"path", "size", "xxh3_128"}
+            assert f["xxh3_128"] == xxhash.xxh3_128(data).hexdigest() and f["size"] == len(data)
+    # the previous epoch re-signed with sha256, as an older store recorded it
+    for f in m["previous"]["files"]:
+        data = pathlib.Path(p, f["path"]).read_bytes()
+        del f["xxh3_128"]
+        f["sha256"] = hashlib.sha256(data).hexdigest()
+    mpath.write_text(json.dumps(m))
+    s = open_store(p)
+    assert s.verify(1) == [] and s.verify(2) == []
+    assert_epoch(s, 1, reader=s.read_epoch(1))
+    s.close()
+    for step, entry, name in ((2, "current", "xxh3_128"), (1, "previous", "sha256")):
+        flip_byte(pathlib.Path(p, m[entry]["files"][-1]["path"]))
+        problems = open_store(p, repair=False).verify(step)
+        assert problems and f"{name} mismatch (content changed)" in problems[0], problems
+
+
+@pytest.mark.parametrize("backend_", DISK)
 def test_missing_or_unreadable_manifest(tmp_path, backend_):
     p = str(tmp_path / "s")
     s = create_store(p, backend_, {})
@@ -638,6 +674,19 @@ def test_drop_page_cache_never_raises(tmp_path):
     storage.drop_page_cache(f, sync=True)
     storage.drop_page_cache(tmp_path)
     storage.drop_page_cache(tmp_path / "missing")
+
+
+def test_start_writeback_never_raises_nor_blocks(tmp_path):
+    """The write-back hint on a file, a directory, a missing path, and a FIFO (opened
+    non-blocking: a FIFO with no writer would otherwise hang the writer)."""
+    from storage._util import start_writeback
+    f = tmp_path / "f"
+    f.write_bytes(b"x" * 100000)
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for p in (f, tmp_path, tmp_path / "missing", fifo):
+        start_writeback(p)
+    assert f.read_bytes() == b"x" * 100000
 
 
 # ----------------------------------------------------------------------------- property test

@@ -353,6 +353,16 @@ def _set_file(field, value):
     return f
 
 
+def _swap_checksum(name, value):
+    """The first file's checksum replaced by `name`: `value` (None: no checksum at all)."""
+    def f(m):
+        entry = m["current"]["files"][0]
+        entry.pop("xxh3_128")
+        if name is not None:
+            entry[name] = value
+    return f
+
+
 def _set_array(field, value):
     def f(m):
         spec = m["current"]["domains"]["0"]["arrays"]["pos"]
@@ -385,9 +395,16 @@ HOSTILE = {
     "size negative": (_set_file("size", -1), "size"),
     "size huge": (_set_file("size", 10**40), "size"),
     "size str": (_set_file("size", "249888"), "size"),
-    "sha256 short": (_set_file("sha256", "abc"), "sha256"),
-    "sha256 not hex": (_set_file("sha256", "g" * 64), "sha256"),
-    "sha256 int": (_set_file("sha256", 7), "sha256"),
+    "xxh3_128 short": (_set_file("xxh3_128", "abc"), "xxh3_128 'abc' is not 32 lowercase hex"),
+    "xxh3_128 not hex": (_set_file("xxh3_128", "g" * 32), "is not 32 lowercase hex"),
+    "xxh3_128 upper case": (_set_file("xxh3_128", "A" * 32), "is not 32 lowercase hex"),
+    "xxh3_128 int": (_set_file("xxh3_128", 7), "xxh3_128 7 is not 32"),
+    "xxh3_128 with sha256's length": (_set_file("xxh3_128", "0" * 64), "is not 32 lowercase hex"),
+    "sha256 short": (_swap_checksum("sha256", "abc"), "sha256 'abc' is not 64 lowercase hex"),
+    "sha256 not hex": (_swap_checksum("sha256", "g" * 64), "is not 64 lowercase hex"),
+    "sha256 int": (_swap_checksum("sha256", 7), "sha256 7 is not 64"),
+    "two checksums": (_set_file("sha256", "0" * 64), "more than one checksum"),
+    "no checksum": (_swap_checksum(None, None), "no checksum"),
     "shape not a list": (_set_array("shape", 1500), "shape"),
     "shape negative": (_set_array("shape", [-1]), "shape"),
     "shape float": (_set_array("shape", [1500.0]), "shape"),

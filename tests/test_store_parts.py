@@ -162,7 +162,7 @@ def test_a_damaged_or_missing_part_fails_verification_and_reading_falls_back(tmp
     part.write_bytes(bytes(data))
     store = open_store(path)
     problems = store.verify()
-    assert [p.step for p in problems] == [20] and "e000000000020.p1.h5: sha256 mismatch" in problems[0]
+    assert [p.step for p in problems] == [20] and "e000000000020.p1.h5: xxh3_128 mismatch" in problems[0]
     r = store.read_epoch()
     assert r.step == 10 and "using previous epoch 10" in store.warnings[-1]
     r.close()

@@ -52,6 +52,7 @@ def _tamper_current(store: Path, edit):
     data = path.read_bytes()
     for f in cur["files"]:
         if f["path"] == cur["path"]:
+            f.pop("xxh3_128", None)         # re-signed the way older stores were (still read)
             f["size"], f["sha256"] = len(data), hashlib.sha256(data).hexdigest()
     # the previous epoch would be resumed from instead if it were left intact; drop it
     m["previous"] = None

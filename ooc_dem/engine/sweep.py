@@ -601,24 +601,23 @@ class OocEngine(SlabSweep):
                 self._writer = None
             raise
 
-    def _slab_pieces(self, src, d: int) -> list[dict]:
-        """Slab d's discs and its halo from epoch ``src``: the records of strips of its
-        groups, in x order."""
+    def _read_slab(self, src, d: int) -> Particles:
+        """Slab d's discs and its halo from epoch ``src``: the strips of its groups, in x
+        order, read as records and filled into one state. The strips are cell-ordered
+        (group_order), so the slab is already in the kernels' cache-friendly order: no
+        spatial re-sort."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
-        return [q for g in src.domains()
-                if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
+        pieces = [q for g in src.domains()
+                  if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
+        return records_to_particles(pieces, self.model.hist_cap, self.model.dim)
 
-    def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int, pieces=None):
-        """Slab d of the sweep: its discs and halo (``pieces``, else read from epoch ``src``),
+    def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int, local=None):
+        """Slab d of the sweep: its discs and halo (``local``, else read from epoch ``src``),
         advanced k steps; (the advanced local set, the rows of its owned discs, the wheel
         records, the wheel state after (the slab of the wheel only, else None))."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
-        if pieces is None:
-            pieces = self._slab_pieces(src, d)
-        # the pieces are cell-ordered strips in x order (group_order): already the kernels'
-        # cache-friendly order, so no spatial re-sort here
-        local = records_to_particles(pieces, self.model.hist_cap, self.model.dim)
-        del pieces
+        if local is None:
+            local = self._read_slab(src, d)
         # the list sized from the last slab's pairs per disc: one neighbour build, not two
         hint = int(self._pairs_per_disc * len(local))
         if d == wslab:
@@ -658,14 +657,13 @@ class OocEngine(SlabSweep):
             return
         from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(1, "ooc-read") as reads, ThreadPoolExecutor(1, "ooc-write") as writes:
-            ahead = reads.submit(self._slab_pieces, src, 0)
+            ahead = reads.submit(self._read_slab, src, 0)
             written = None
             for d in range(self.D):
-                pieces = ahead.result()
+                local = ahead.result()
                 if d + 1 < self.D:
-                    ahead = reads.submit(self._slab_pieces, src, d + 1)
-                local, owned, rec, ws = self._advance_slab(src, d, step0, k, wslab, pieces)
-                del pieces
+                    ahead = reads.submit(self._read_slab, src, d + 1)
+                local, owned, rec, ws = self._advance_slab(src, d, step0, k, wslab, local)
                 if written is not None:
                     written.result()       # one write in flight: memory stays three slabs
                 written = writes.submit(stage, d, local, owned)

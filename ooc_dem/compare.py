@@ -36,6 +36,7 @@ def compare_runs(a, b) -> str:
     out.append(f"{'steps':24s} {sa['steps']:>28} {sb['steps']:>28}")
     ha, hb = sa.get("state_hash"), sb.get("state_hash")
     same = ha is not None and ha == hb
-    out.append(f"final states: {'BIT-IDENTICAL' if same else 'DIFFERENT'} (sha256 {ha[:16] if ha else '?'}… vs "
-               f"{hb[:16] if hb else '?'}…)")
+    # the state hash is the canonical multiset hash (statehash, "mset-v2:<hex>")
+    out.append(f"final states: {'BIT-IDENTICAL' if same else 'DIFFERENT'} (state hash "
+               f"{ha[:24] if ha else '?'}… vs {hb[:24] if hb else '?'}…)")
     return "\n".join(out)

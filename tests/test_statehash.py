@@ -291,6 +291,7 @@ def _strip_summaries(store_dir):
     data = path.read_bytes()
     for e in cur["files"]:
         if e["path"] == cur["path"]:
+            e.pop("xxh3_128", None)    # re-signed as the stores of that time were (sha256)
             e["size"], e["sha256"] = len(data), hashlib.sha256(data).hexdigest()
     m["previous"] = None
     (store_dir / "MANIFEST.json").write_text(json.dumps(m))
@@ -324,6 +325,7 @@ def test_store_without_summaries_resumes_to_the_same_bits(tmp_path):
     data = path.read_bytes()
     for e in m["current"]["files"]:
         if e["path"] == m["current"]["path"]:
+            e.pop("xxh3_128", None)    # re-signed as the stores of that time were (sha256)
             e["size"], e["sha256"] = len(data), hashlib.sha256(data).hexdigest()
     m["previous"] = None
     (tmp_path / "lie" / "MANIFEST.json").write_text(json.dumps(m))

@@ -115,6 +115,52 @@ def test_io_overlap_gives_the_same_bits(wheel, bare, tmp_path, backend):
     assert summary["state_hash"] == ref_summary["state_hash"]
 
 
+def _within(x, lo, hi, reach):
+    return np.maximum(np.maximum(lo - x, x - hi), 0.0) <= reach
+
+
+def test_cone_spans_hold_every_disc_within_reach_and_shrink_to_the_slab():
+    """Step s of a k-step block advances the discs within k - s hops of the slab: in x
+    order the span is exactly those discs; in any order it still holds them all."""
+    from ooc_dem.engine.sweep import cone_spans
+    rng = np.random.default_rng(7)
+    hop, lo, hi, k = 0.01, 0.3, 0.5, 20
+    x = np.sort(rng.uniform(lo - k * hop, hi + k * hop, 5000))
+    spans = cone_spans(x, lo, hi, hop, k)
+    assert spans.shape == (k, 2)
+    for s in range(k):
+        rows = np.flatnonzero(_within(x, lo, hi, (k - s) * hop))
+        assert (spans[s, 0], spans[s, 1]) == (rows[0], rows[-1] + 1)
+    assert spans[0, 0] == 0 and spans[0, 1] == len(x)        # the first step: the whole read slab
+    assert spans[-1, 1] - spans[-1, 0] < 0.6 * len(x)         # the last: the slab and one hop
+    shuffled = rng.permutation(x)
+    spans = cone_spans(shuffled, lo, hi, hop, k)
+    for s in range(k):
+        rows = np.flatnonzero(_within(shuffled, lo, hi, (k - s) * hop))
+        assert spans[s, 0] <= rows[0] and rows[-1] < spans[s, 1]
+    assert np.array_equal(cone_spans(x[:0], lo, hi, hop, k), np.zeros((k, 2), np.int64))
+
+
+def test_a_cone_one_hop_too_narrow_loses_the_monolithic_bits(bare, tmp_path, monkeypatch):
+    """The exactness tests above see the cone: one that leaves out the hop the last steps
+    need (the partners of the discs at the slab's edge) ends on other bits."""
+    from ooc_dem.engine import sweep
+    sc, bed, (ref_summary, ref_p, _, _) = bare
+    exact = sweep.cone_spans
+
+    def narrow(x, lo, hi, hop, k):
+        spans = exact(x, lo, hi, hop, k)
+        spans[:-1] = exact(x, lo, hi, hop, k - 1)          # step s: k - s - 1 hops
+        own = np.flatnonzero(_within(x, lo, hi, 0.0))
+        spans[-1] = (own.min(), own.max() + 1)             # the last step: the slab alone
+        return spans
+
+    monkeypatch.setattr(sweep, "cone_spans", narrow)
+    summary, p, _, _ = run(sc, tmp_path / "o", bed, 100, mode="ooc", domains=6, block=10)
+    assert summary["state_hash"] != ref_summary["state_hash"]
+    assert not np.array_equal(ref_p.pos, p.pos)
+
+
 @pytest.mark.parametrize("id_cap", [97, None])
 def test_streamed_hash_equals_in_memory_hash(bare, tmp_path, id_cap, monkeypatch):
     """`checkpoint hash` streams an epoch group by group (their lane sums added; the ids

@@ -144,6 +144,7 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     next refresh copies them), and all owned discs on return."""
     status = SWEEPS_DONE
     done = nsweeps
+    every_disc = np.zeros((0, 2), np.int64)   # run_steps' spans: each step advances every disc
     for sw in range(nsweeps):
         if sw > 0 or refresh_first:
             moved = _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
@@ -173,7 +174,8 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                     continue
                 rec = recbuf[sw * K:] if j == wslab else norec
                 k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,
-                                         flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0, roles)
+                                         flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0, roles,
+                                         every_disc)
                 flags[F_DONE] = k
                 flags[F_REBUILDS] += rb
                 flags[F_REBUILD] = 0

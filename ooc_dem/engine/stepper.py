@@ -35,6 +35,8 @@ from ..state import Particles, default_hist_cap
 
 # role argument of run_steps: every disc is owned, every pair row reloaded
 EVERY_DISC = np.zeros(0, np.int8)
+# spans argument of run_steps: no light cone, every step advances every disc
+NO_CONE = np.zeros((0, 2), np.int64)
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
 PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
 
@@ -254,9 +256,12 @@ class DomainStepper:
                 self.rows, self.ref, *self._forces, self.bodies.rows)
         return sum(a.nbytes for a in arrs)
 
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+    def advance(self, step0: int, nsteps: int, spans: np.ndarray | None = None) -> np.ndarray:
         """Advance nsteps from global step step0; returns the per-step wheel records
-        (nsteps x N_REC, columns REC_COLUMNS)."""
+        (nsteps x N_REC, columns REC_COLUMNS). spans: (nsteps, 2) index ranges [first, end)
+        of the discs each step advances (an out-of-core slab's light cone,
+        ``engine.sweep.cone_spans``: only the discs whose state can still reach the owned
+        ones by the block's end; the rest are left as they are); None: all, every step."""
         m = self.model
         rec = np.zeros((nsteps if m.wheel_enabled else 0, N_REC))
         # small domains run on one thread: a parallel launch costs more than it saves
@@ -266,7 +271,7 @@ class DomainStepper:
         if serial:
             numba.set_num_threads(1)
         try:
-            done = self._run(nsteps, step0, rec)
+            done = self._run(nsteps, step0, rec, NO_CONE if spans is None else spans)
         finally:
             if serial:
                 numba.set_num_threads(threads)
@@ -285,14 +290,14 @@ class DomainStepper:
         """A chunk's wall/wheel rows did not fit: twice the room."""
         self.bodies = Bodies(np.zeros(2 * self.bodies.rows.shape[0], self._body_row), self.bodies.count)
 
-    def _run(self, nsteps, step0, rec) -> int:
+    def _run(self, nsteps, step0, rec, spans=NO_CONE) -> int:
         recv = record(rec, WHEEL_RECORD) if len(rec) else np.zeros(1, WHEEL_RECORD)  # unused
         done = 0
         while True:
             kp, d, pl, bd, forces, ws, err = self.kernel_args()
             k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, bd, forces, ws,
                                         err, recv[done:] if len(rec) else recv, not self._built,
-                                        self._pairs_done, EVERY_DISC)
+                                        self._pairs_done, EVERY_DISC, spans[done:])
             self._pairs_done = False
             done += k
             self.rebuilds += rb

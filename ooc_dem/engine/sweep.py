@@ -169,6 +169,38 @@ def auto_block(sc, domains: int, length: float) -> int:
     return int(max(1, min(200, (0.05 * width) // hop)))
 
 
+def cone_spans(x: np.ndarray, lo: float, hi: float, hop: float, k: int) -> np.ndarray:
+    """The light cone of slab [lo, hi) over a block of k steps: (k, 2) index ranges
+    [first, end) of the discs step s (0-based) advances (``DomainStepper.advance``).
+
+    A disc's state reaches at most one contact hop further per step (the halo's own
+    premise), so for the owned discs to be exact after k steps, step s needs exact only
+    the discs within k - s - 1 hops of the slab, and for them the rows of their partners
+    one hop further out: it advances the discs within k - s hops (x from the start of the
+    block). Those farther out are left as they are: nothing they hold can reach the
+    owned discs any more. The slab's halo work halves. The discs come in x-column order
+    (group_order), so each range is tight; in any other order the smallest range holding
+    them is a superset, so the owned discs are still exact."""
+    spans = np.zeros((k, 2), np.int64)
+    n = len(x)
+    if n == 0 or k <= 0:
+        return spans
+    dist = np.maximum(np.maximum(lo - x, x - hi), 0.0)
+    hops = np.minimum(np.ceil(dist / hop), k + 1).astype(np.int64)   # 0: inside the slab
+    rows = np.arange(n, dtype=np.int64)
+    first = np.full(k + 2, n, np.int64)
+    last = np.full(k + 2, -1, np.int64)
+    np.minimum.at(first, hops, rows)
+    np.maximum.at(last, hops, rows)
+    # the rows of discs within m hops: from the least first to the greatest last of hops <= m
+    first = np.minimum.accumulate(first)
+    last = np.maximum.accumulate(last)
+    reach = k - np.arange(k)          # step s advances the discs within k - s hops
+    spans[:, 0] = first[reach]
+    spans[:, 1] = np.maximum(last[reach] + 1, first[reach])
+    return spans
+
+
 class SlabSweep:
     """What serial DDM and out-of-core share: D slabs (bounds), K steps per sweep, the
     halo, the wheel's slab and the re-decomposition when the wheel nears its slab's edge,
@@ -195,9 +227,10 @@ class SlabSweep:
         self.resident_first: list[int] | None = None
         self._n = None
         self._step = 0
-        hop = 2.0 * sc.soil.r_max + sc.bed.skin
-        # halo: K contact hops (a hop is at most 2 r_max plus the motion the skin allows)
-        self.halo = self.K * hop
+        # a contact hop: at most 2 r_max plus the motion the skin allows
+        self.hop = 2.0 * sc.soil.r_max + sc.bed.skin
+        # halo: K contact hops
+        self.halo = self.K * self.hop
         w = sc.wheel
         self.reach = max(w.radius, w.lug_tip_radius) + sc.soil.r_max if w.enabled else 0.0
         # no owned disc of another slab may feel the wheel within a block
@@ -625,7 +658,8 @@ class OocEngine(SlabSweep):
         else:
             st = DomainStepper(local, self.model_nowheel, None, reorder=False, pairs_hint=hint)
         owned = np.flatnonzero((st.p.pos[:, AX_X] >= lo) & (st.p.pos[:, AX_X] < hi))
-        rec = st.advance(step0, k) if len(local) else np.zeros((0, N_REC))
+        cone = cone_spans(st.p.pos[:, AX_X], lo, hi, self.hop, k)
+        rec = st.advance(step0, k, cone) if len(local) else np.zeros((0, N_REC))
         if len(local):
             self._pairs_per_disc = st.pairs / len(local)
         return st.p, owned, rec, (st.ws.copy() if d == wslab else None)

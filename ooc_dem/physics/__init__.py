@@ -1,6 +1,6 @@
 """Numba kernels only, no I/O. One module of step kernels per dimension (``d2``, ``d3``),
-each exposing ``run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done)``
-and ``spatial_order(pos, n, cell)``; ``kernels(dim)`` picks it."""
+each exposing ``run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done,
+role, spans)`` and ``spatial_order(pos, n, cell)``; ``kernels(dim)`` picks it."""
 import importlib
 
 

@@ -47,10 +47,11 @@ N_CHUNKS = 64
 
 
 @njit(inline="always", cache=True)
-def chunk_range(c, n):
-    size = (n + N_CHUNKS - 1) // N_CHUNKS
-    lo = c * size
-    hi = min(n, lo + size)
+def chunk_range(c, first, end):
+    """Chunk c of discs first..end-1 (N_CHUNKS contiguous pieces)."""
+    size = (end - first + N_CHUNKS - 1) // N_CHUNKS
+    lo = first + c * size
+    hi = min(end, lo + size)
     return lo, max(lo, hi)
 
 
@@ -78,8 +79,10 @@ def _body_row(body, at, i, pid, bx, by, tq, s, m, wt):
 
 
 @njit(parallel=True, cache=True)
-def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_done):
-    """Phase 1: one row per contact of discs 0..n-1 at time n (see module doc).
+def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_done):
+    """Phase 1: one row per contact of discs first..end-1 at time n (see module doc): the
+    rows of their walls and wheel parts, and of their own half lists (pairs whose lower id
+    is one of them).
 
     d: layout Discs, pl: Pairs (half list + rows), bd: Bodies (per-chunk body rows),
     cp: CONTACT_PARAMS table [type_a, type_b], walls: WALLS, wg: WHEEL_GEOMETRY,
@@ -114,7 +117,7 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_done):
     if R > reach:
         reach = R
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, first, end)
         bat = ch * bcap
         bend = bat + bcap
         full = False
@@ -284,8 +287,9 @@ def _keep(hist_id, hist_s, hist_m, i, k, cap, pid, s, m):
 
 
 @njit(parallel=True, cache=True)
-def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
-    """Phase 2: per disc, sum its rows in ascending partner-id order (module doc),
+def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, err):
+    """Phase 2: per disc of first..end-1 (the span ``produce`` just made rows for: the
+    chunks of body rows are the same), sum its rows in ascending partner-id order (module doc),
     rewrite its history from them, then advance it one leapfrog step:
     v_(n+1/2) = v_(n-1/2) + a_n dt, x_(n+1) = x_n + v_(n+1/2) dt.
     force (N, D) / torque (N, R) get the contact forces and torques of time n (unless they
@@ -304,9 +308,9 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err):
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     cap = hist_id.shape[1]
-    keep = force.shape[0] >= n
+    keep = force.shape[0] >= end
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, first, end)
         bat = ch * bcap
         bend = bat + bcount[ch]
         over = False
@@ -444,7 +448,7 @@ def sync_history(n, d, pl, err, role, need):
     inc_off, inc_k, on, rows = pl.inc_off, pl.inc_k, pl.on, pl.rows
     cap = hist_id.shape[1]
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, 0, n)
         over = False
         for i in range(lo, hi):
             if role.shape[0] and (role[i] & need) != need:
@@ -482,7 +486,7 @@ def load_history(n, d, pl, role):
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, 0, n)
         for i in range(lo, hi):
             hn = hist_n[i]
             p = 0

@@ -25,7 +25,8 @@ DIM = 2
 
 # nogil: an out-of-core sweep reads and writes slabs in other threads while this runs
 @njit(cache=True, nogil=True)
-def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role):
+def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role,
+              spans):
     """Advance discs 0..len(d.gid)-1 (and the wheel when kp.wg.enabled) nsteps from global
     step step0.
 
@@ -38,7 +39,10 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     the call that stopped on ERR_BODY_CAPACITY (redo its body rows only). role: each
     disc's forces.ROLE_* bits in a serial-DDM sub-domain, which pair rows are reloaded
     (length 0: every row, and every disc's history written back at the end; else the
-    caller writes back what it needs with sync_history).
+    caller writes back what it needs with sync_history). spans: (m, 2) index ranges
+    [first, end): step s of this call advances only discs spans[s] (the shrinking light
+    cone of an out-of-core slab, ``engine.sweep.cone_spans``); steps past the m-th, and
+    every step when m = 0, advance all discs.
 
     A pair's contact history lives in its row of the pair list while the steps run
     (read and rewritten by ``produce``, no per-disc lookup); ``load_history`` fills the
@@ -75,11 +79,16 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
         if wheel:
             apply_wheel_controls(t, ws, wg, wc)
             lug_directions(ws[0].theta, nlugs, lugdir)
-        produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_done and s == 0)
+        first = 0
+        end = n
+        if s < spans.shape[0]:
+            first = spans[s, 0]
+            end = spans[s, 1]
+        produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_done and s == 0)
         if err[ERR_BODY_CAPACITY] != 0:
             return s, rebuilds
-        disp2 = gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, dt, part,
-                                 err)
+        disp2 = gather_integrate(first, end, d, pl, bd, forces.force, forces.torque, kp.gravity,
+                                 dt, part, err)
         if err[ERR_HIST_OVERFLOW] != 0:
             return s, rebuilds
         if wheel:

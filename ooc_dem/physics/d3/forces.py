@@ -94,10 +94,11 @@ def _rolling_of(row):
 
 
 @njit(inline="always", cache=True)
-def chunk_range(c, n):
-    size = (n + N_CHUNKS - 1) // N_CHUNKS
-    lo = c * size
-    hi = min(n, lo + size)
+def chunk_range(c, first, end):
+    """Chunk c of spheres first..end-1 (N_CHUNKS contiguous pieces)."""
+    size = (end - first + N_CHUNKS - 1) // N_CHUNKS
+    lo = first + c * size
+    hi = min(end, lo + size)
     return lo, max(lo, hi)
 
 
@@ -192,8 +193,9 @@ def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw,
 
 
 @njit(parallel=True, cache=True)
-def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
-    """Phase 1: one row per contact of spheres 0..n-1 at time n (module doc).
+def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
+    """Phase 1: one row per contact of spheres first..end-1 at time n (module doc): their
+    wall and wheel rows and the rows of their own half lists.
 
     d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies, cp: CONTACT_PARAMS table
     [type_a, type_b], walls: WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE
@@ -243,7 +245,7 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
     if R > reach:
         reach = R
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, first, end)
         bat = ch * bcap
         bend = bat + bcap
         full = False
@@ -369,7 +371,7 @@ def produce(n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
         return   # no pair row made: rerunnable after growing the wall rows, even when held
     # ---------------------------------------------------------- pairs (i = a, lower id)
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, first, end)
         for i in range(lo, hi):
             xi = pos[i, 0]
             yi = pos[i, 1]
@@ -468,8 +470,8 @@ def _keep(hist_id, hist_s, hist_m, i, k, cap, pid, row):
 
 
 @njit(parallel=True, cache=True)
-def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err, held=False):
-    """Phase 2: per sphere, sum its rows in ascending partner-id order (module doc),
+def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, err, held=False):
+    """Phase 2: per sphere of first..end-1 (the span ``produce`` made rows for), sum its rows in ascending partner-id order (module doc),
     rewrite its history from them (an overflow of the history capacity sets
     err[ERR_HIST_OVERFLOW]: fatal, never a silent drop), then advance it one leapfrog
     step. force/torque (N, 3) get the contact force and torque of time n (unless they
@@ -487,12 +489,12 @@ def gather_integrate(n, d, pl, bd, force, torque, gravity, dt, part, err, held=F
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     cap = hist_id.shape[1]
-    keep = force.shape[0] >= n
+    keep = force.shape[0] >= end
     gx = gravity[0]
     gy = gravity[1]
     gz = gravity[2]
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, first, end)
         bat = ch * bcap
         bend = bat + bcount[ch]
         over = False
@@ -593,7 +595,7 @@ def load_history(n, d, pl):
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, 0, n)
         for i in range(lo, hi):
             hn = hist_n[i]
             p = 0
@@ -626,7 +628,7 @@ def sync_history(n, d, pl, err):
     inc_off, inc_k, on, rows = pl.inc_off, pl.inc_k, pl.on, pl.rows
     cap = hist_id.shape[1]
     for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, n)
+        lo, hi = chunk_range(ch, 0, n)
         over = False
         for i in range(lo, hi):
             k = 0

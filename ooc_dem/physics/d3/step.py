@@ -32,7 +32,7 @@ from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry poi
 # nogil: an out-of-core sweep reads and writes slabs in other threads while this runs
 @njit(cache=True, nogil=True)
 def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done=False,
-              role=None):
+              role=None, spans=None):
     """Advance spheres 0..len(d.r)-1 nsteps from global step step0.
 
     kp: layout.KernelParams, d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies,
@@ -44,7 +44,9 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     role: the 2D signature's serial-DDM disc roles: empty or None (every sphere is
     stepped) holds the pairs' springs in the rows during the call (forces.load_history /
     sync_history, the spheres leave whole), non-empty rewrites every sphere's history at
-    every step (no role-dependent sync: every sphere leaves whole after each step).
+    every step (no role-dependent sync: every sphere leaves whole after each step);
+    spans: the 2D signature's (m, 2) index ranges [first, end) of the spheres step s
+    advances (an out-of-core slab's light cone); None, or steps past the m-th: all.
     Returns (steps done, rebuilds)."""
     n = d.r.shape[0]
     wg = kp.wg
@@ -77,14 +79,19 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
         if wheel:
             apply_wheel_controls(t, ws, wg, wc)
             lug_directions(ws[0].theta, nlugs, lugdir)
-        produce(n, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err, held)
+        first = 0
+        end = n
+        if spans is not None and s < spans.shape[0]:
+            first = spans[s, 0]
+            end = spans[s, 1]
+        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err, held)
         if err[ERR_BODY_CAPACITY] != 0:
             # no pair row of this step was made (produce): the rows still hold the springs
             # of the last step, so the sync leaves the spheres whole; nothing was advanced
             if held:
                 sync_history(n, d, pl, err)
             return s, rebuilds
-        disp2 = gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, dt,
+        disp2 = gather_integrate(first, end, d, pl, bd, forces.force, forces.torque, kp.gravity, dt,
                                  part, err, held)
         if err[ERR_HIST_OVERFLOW] != 0:
             # fatal; step s is not done (its wheel is not advanced): as in 2D

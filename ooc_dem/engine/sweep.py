@@ -162,8 +162,9 @@ def group_of(p: Particles, rows, cell: float) -> tuple[Particles, dict]:
 
 
 def auto_block(sc, domains: int, length: float) -> int:
-    """K for out-of-core: the largest block whose redundant halo work (2 K hop / slab width)
-    stays at or below 10 % of a slab, capped at 200 steps; at least 1."""
+    """K for out-of-core: the largest block whose halo (2 K hop / slab width) stays at or
+    below 10 % of a slab (its redundant work, with the light cone, about half that), capped
+    at 200 steps; at least 1."""
     hop = 2.0 * sc.soil.r_max + sc.bed.skin
     width = length / max(1, domains)
     return int(max(1, min(200, (0.05 * width) // hop)))

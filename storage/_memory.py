@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._util import DIGEST, EPOCH_DIR, StoreError, file_checksum, new_digest, parse_json, to_json
+from ._util import DIGEST, EPOCH_DIR, StoreError, bytes_digest, file_checksum, parse_json, to_json
 
 _REGISTRY: dict[str, "Backing"] = {}
 
@@ -23,20 +23,14 @@ class Backing:
         self.epochs: dict[str, dict[str, dict]] = {}
 
 
-def _digest(raw: bytes, name: str = DIGEST) -> str:
-    h = new_digest(name)
-    h.update(raw)
-    return h.hexdigest()
-
-
 def _file_entries(base: str, groups: dict) -> list[dict]:
     files = []
     for g, content in groups.items():
         for name, a in content["arrays"].items():
             files.append({"path": f"{base}/{g}/{name}", "size": int(a.nbytes),
-                          DIGEST: _digest(a.tobytes())})
+                          DIGEST: bytes_digest(a.tobytes())})
         raw = content["attrs"].encode()
-        files.append({"path": f"{base}/{g}/.attrs", "size": len(raw), DIGEST: _digest(raw)})
+        files.append({"path": f"{base}/{g}/.attrs", "size": len(raw), DIGEST: bytes_digest(raw)})
     return files
 
 
@@ -162,7 +156,7 @@ class Place:
                 problems.append(f"{where}: size {len(raw)} != recorded {f['size']} (truncated?)")
             else:
                 digest, want = file_checksum(f, where)
-                if _digest(raw, digest) != want:
+                if bytes_digest(raw, digest) != want:
                     problems.append(f"{where}: {digest} mismatch (content changed)")
         return problems
 

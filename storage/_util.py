@@ -310,6 +310,19 @@ def new_digest(name: str = DIGEST):
     return hashlib.new(name)
 
 
+def bytes_digest(raw, name: str = DIGEST) -> str:
+    """Hex digest `name` of bytes already in memory."""
+    h = new_digest(name)
+    h.update(raw)
+    return h.hexdigest()
+
+
+def show(v) -> str:
+    """A value from a manifest for a one-line message (short, whatever it is)."""
+    r = repr(v)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
 def file_checksum(entry: Mapping, what: str) -> tuple[str, str]:
     """(digest name, hex) of a manifest file entry: exactly one of ``DIGESTS``' keys, its
     value that digest's hex length in lowercase; StoreError otherwise (hostile manifests)."""
@@ -320,8 +333,7 @@ def file_checksum(entry: Mapping, what: str) -> tuple[str, str]:
     name = names[0]
     hexv = entry[name]
     if not (isinstance(hexv, str) and len(hexv) == DIGESTS[name] and _LOWER_HEX.fullmatch(hexv)):
-        shown = repr(hexv) if len(repr(hexv)) <= 80 else repr(hexv)[:77] + "..."
-        raise StoreError(f"{what}: {name} {shown} is not {DIGESTS[name]} lowercase hex digits")
+        raise StoreError(f"{what}: {name} {show(hexv)} is not {DIGESTS[name]} lowercase hex digits")
     return name, hexv
 
 

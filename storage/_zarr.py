@@ -12,8 +12,8 @@ import sys
 import numpy as np
 
 from ._confine import open_regular, read_regular
-from ._util import (ATTRS_KEY, FORMAT, StoreError, drop_page_cache, file_digest, fsync_tree,
-                    new_digest, parse_json, pread_into, remove_path)
+from ._util import (ATTRS_KEY, FORMAT, StoreError, bytes_digest, drop_page_cache, file_digest,
+                    fsync_tree, parse_json, pread_into, remove_path)
 
 EXT = "zarr"
 IS_DIR = True
@@ -69,9 +69,7 @@ def _write_file(path: str, data: bytes, hashed: dict, rel: str) -> None:
     with open(path, "xb") as f:
         f.write(data)
     st = os.stat(path)
-    h = new_digest()
-    h.update(data)
-    hashed[rel] = (st.st_size, st.st_mtime_ns, h.hexdigest())
+    hashed[rel] = (st.st_size, st.st_mtime_ns, bytes_digest(data))
     drop_page_cache(path)
 
 

@@ -21,6 +21,7 @@ from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, SUPPORTED_VERSIONS, GLOBA
                     domain_group, epoch_basename, file_checksum, file_entries, gather_rows, json_depth, json_roundtrip, normalize_rows,
                     part_basename, prepare_arrays, remove_path, to_json, write_error)
 from ._util import TMP_NAME_RE as _TMP_RE
+from ._util import show as _show
 
 BACKENDS = ("hdf5", "zarr", "memory")
 # the extension of the epochs a backend writes, and of those it reads (zarr: one zip archive
@@ -58,12 +59,6 @@ def _key(path) -> str:
         return os.fspath(path)
     except TypeError:
         raise StoreError(f"{path!r}: store path must be a str or os.PathLike") from None
-
-
-def _show(v) -> str:
-    """A value from a manifest for a one-line message (short, whatever it is)."""
-    r = repr(v)
-    return r if len(r) <= 60 else r[:57] + "..."
 
 
 # ============================================================================ open / create

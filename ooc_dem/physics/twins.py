@@ -12,6 +12,7 @@ import types
 import warnings
 
 from numba import njit
+from numba.core.cpu_options import ParallelOptions
 from numba.core.errors import NumbaPerformanceWarning
 
 # the twins ask for the parallel pipeline on purpose without a parallel loop
@@ -21,9 +22,17 @@ warnings.filterwarnings("ignore", message="The keyword argument 'parallel=True' 
 # numba's parallel pipeline with every transformation off: no parallel region is made
 # (prange is a plain range), yet the loops compile to code several times faster than
 # plain njit's (measured on the history lookup loop: 15 us against 120 us for 1500
-# discs); same source, same arithmetic, same bits
+# discs); same source, same arithmetic, same bits. Given to numba as a ParallelOptions,
+# never as a dict: numba builds its options from a dict by popping the keys, so one
+# shared dict is empty after the first compilation and every later twin would get the
+# default (every transformation on: a parallel region inside each "serial" step)
 NO_PARFORS = {"comprehension": False, "prange": False, "numpy": False, "reduction": False,
-              "setitem": False, "stencil": False, "fusion": False}
+              "inplace_binop": False, "setitem": False, "stencil": False, "fusion": False}
+
+
+def no_parfors() -> ParallelOptions:
+    """numba's parallel pipeline with every transformation off (a fresh copy)."""
+    return ParallelOptions(dict(NO_PARFORS))
 
 
 def serial_twin(kernel, name: str, parallel: bool = False, **callees):
@@ -41,4 +50,4 @@ def serial_twin(kernel, name: str, parallel: bool = False, **callees):
     f.__qualname__ = name
     f.__module__ = py.__module__
     f.__doc__ = f"Serial twin of {py.__name__} (physics.twins)."
-    return njit(cache=True, parallel=True if parallel else NO_PARFORS)(f)
+    return njit(cache=True, parallel=True if parallel else no_parfors())(f)

@@ -62,3 +62,46 @@ def test_wheel_run_thread_independent():
     assert np.array_equal(recs[0], recs[1])
     assert_same_state(states[0].p, states[1].p)
     assert np.array_equal(states[0].ws, states[1].ws)
+
+
+_TOY = '''
+import numpy as np
+from numba import njit, prange
+
+@njit(parallel=True)
+def fill(a):
+    for i in prange(a.shape[0]):
+        a[i] = i
+    return a
+
+@njit(parallel=True)
+def scale(a, c):
+    for i in prange(a.shape[0]):
+        a[i] *= c
+    return a
+'''
+
+
+def test_serial_twins_have_no_parallel_region(tmp_path, monkeypatch):
+    """Serial DDM runs one sub-domain per thread with the kernels' serial twins: a twin
+    must not open a parallel region of its own (nested regions create threads every call).
+    Every twin made, not only the first, is free of numba's parallel scheduler: numba once
+    emptied the shared options dict on the first compilation, so the later twins came out
+    parallel. The toy module is written here so that its twins compile afresh (LLVM of
+    cached code cannot be inspected)."""
+    from ooc_dem.physics.twins import serial_twin
+    (tmp_path / "twin_toy.py").write_text(_TOY)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import twin_toy
+    scheduled = "do_scheduling"   # numba's parallel launch (numba/parfors/parfor_lowering.py)
+    twins = [serial_twin(twin_toy.fill, "fill_serial"), serial_twin(twin_toy.scale, "scale_serial")]
+    a = np.zeros(8)
+    twins[0](a)
+    twins[1](a, 2.0)
+    assert np.array_equal(a, 2.0 * np.arange(8))
+    # the parallel originals do launch (so the check below can fail)
+    twin_toy.fill(np.zeros(8))
+    assert any(scheduled in ir for ir in twin_toy.fill.inspect_llvm().values())
+    for twin in twins:
+        irs = twin.inspect_llvm()
+        assert irs and not any(scheduled in ir for ir in irs.values()), twin.__name__

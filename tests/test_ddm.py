@@ -130,9 +130,11 @@ def test_cli_ddm_and_compare(tmp_path):
     assert "BIT-IDENTICAL" in cmp
 
 
-def test_compiled_sweeps_on_one_thread_give_the_monolithic_bits():
-    """On one numba thread serial DDM runs whole sweeps in one compiled call
-    (live.run_sweeps): the engine must take that path and keep the bits."""
+@pytest.mark.parametrize("threads", [1, 2])
+def test_compiled_sweeps_give_the_monolithic_bits(threads):
+    """Serial DDM runs whole sweeps in one compiled call (live.run_sweeps), the
+    sub-domains side by side on the threads: the engine must take that path and keep
+    the bits."""
     import numba
     from ooc_dem.bed import settled_bed
     from ooc_dem.engine.run import place_wheel
@@ -144,14 +146,37 @@ def test_compiled_sweeps_on_one_thread_give_the_monolithic_bits():
                                  "wheel.omega=5.0", "decomposition.margin=0.001"])
     bed = settled_bed(sc)
     ws = place_wheel(sc, bed)
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
         mono = DomainStepper(bed.take(np.arange(len(bed))), Model.from_scenario(sc), ws)
         mono.advance(0, 600)
         p, w, _, eng = sweep_run(sc, bed.take(np.arange(len(bed))), ws, 600, domains=6, block=1)
     finally:
-        numba.set_num_threads(threads)
+        numba.set_num_threads(before)
     assert eng.compiled_sweeps
     assert state_hash(p, w, 600) == state_hash(mono.p, mono.ws, 600)
     assert np.array_equal(p.sorted_by_id().hist_s, mono.p.sorted_by_id().hist_s)
+
+
+def test_one_step_sweeps_keep_rows_through_pair_rebuilds(wheel_case, monkeypatch):
+    """One-step sweeps keep every pair row from sweep to sweep and copy no history
+    between them (live._run_sweeps, keep_rows); when a refresh moves a halo disc past
+    its sub-domain's rebuild threshold, that pair list is rebuilt and its rows reloaded
+    from the discs' histories, which the sub-domain writes back from its own rows first.
+    Forced at every sweep here (threshold 0): still the monolithic bits."""
+    from ooc_dem.engine import live
+    made = []
+    init = live.LiveDomains.__init__
+
+    def eager(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self._rebuild2[:] = 0.0
+        made.append(self)
+    monkeypatch.setattr(live.LiveDomains, "__init__", eager)
+    sc, bed, ws, steps, (ref_p, ref_ws, ref_rec) = wheel_case
+    p, w, rec, eng = sweep_run(sc, bed, ws, steps, domains=6, block=1)
+    assert made and eng.compiled_sweeps
+    assert_same_state(ref_p, p)
+    assert np.array_equal(ref_ws, w)
+    assert np.array_equal(ref_rec, rec)

@@ -32,7 +32,8 @@ from numba.typed import List
 
 from ..decomposition import group_order
 from ..physics import layout as L
-from ..physics.forces import ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, sync_history_serial
+from ..physics.forces import (ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, ROLE_STABLE,
+                              sync_history_serial)
 from ..physics.layout import AX_X, ERR_BODY_CAPACITY, ERR_PAIR_CAPACITY, WHEEL_RECORD, record
 from ..physics.twins import serial_twin
 from ..state import Particles
@@ -41,9 +42,10 @@ from .stepper import N_REC, DomainStepper, EngineError, Model
 
 @njit(cache=True)
 def _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built,
-             off, ref, disp2):
+             off, ref, disp2, with_hist=True):
     """Copy every halo row from its owner's row (what a sweep changes; id, r, mass,
-    inertia and mat are fixed per disc). Returns the largest |x - x_built|; disp2[d]
+    inertia and mat are fixed per disc), its contact history too unless with_hist is
+    False (K = 1: see ``_run_sweeps``). Returns the largest |x - x_built|; disp2[d]
     gets sub-domain d's largest squared displacement from its neighbour-list reference
     (any dimension: the axes of pos, the components of spin and the springs)."""
     cap = hist_id.shape[1]
@@ -59,13 +61,14 @@ def _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_
                     vel[r, a] = vel[s, a]
                 for a in range(spin.shape[1]):
                     spin[r, a] = spin[s, a]
-                hist_n[r] = hist_n[s]
-                for q in range(cap):
-                    hist_id[r, q] = hist_id[s, q]
-                    for c in range(hist_s.shape[2]):
-                        hist_s[r, q, c] = hist_s[s, q, c]
-                    for c in range(hist_m.shape[2]):
-                        hist_m[r, q, c] = hist_m[s, q, c]
+                if with_hist:
+                    hist_n[r] = hist_n[s]
+                    for q in range(cap):
+                        hist_id[r, q] = hist_id[s, q]
+                        for c in range(hist_s.shape[2]):
+                            hist_s[r, q, c] = hist_s[s, q, c]
+                        for c in range(hist_m.shape[2]):
+                            hist_m[r, q, c] = hist_m[s, q, c]
             dx = abs(pos[r, AX_X] - x_built[r])
             if dx > moved:
                 moved = dx
@@ -119,7 +122,7 @@ SWEEPS_DONE, SWEEPS_REBUILD, SWEEPS_WHEEL, SWEEPS_DOMAIN, SWEEPS_OWNERSHIP = ran
 def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, recbuf, norec,
                 ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built, off, ref,
                 disp2, bounds, owned, owned_before, role, n_total, membership_skin, rebuild2,
-                wheel_reach, active):
+                wheel_reach, active, keep_rows, all_stable):
     """Serial DDM, whole sweeps in one compiled call: per sweep, (1) every halo copy from
     its owner and ownership from x (skipped before the first sweep of a fresh build),
     (2) every sub-domain K steps with the one-thread step, the sub-domains side by side on
@@ -141,14 +144,26 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     are reloaded (a pair of two discs owned through two sweeps keeps its row: both were
     computed from their true states) and which discs' histories are written back: after
     each sweep only the owned discs another sub-domain has copies of (ROLE_SHARED: the
-    next refresh copies them), and all owned discs on return."""
+    next refresh copies them), and all owned discs on return.
+
+    keep_rows (K = 1, and every halo row refreshed from its owner here): every pair row
+    is kept from sweep to sweep and no history is copied or written back between sweeps.
+    Why exact: at the start of each one-step sweep every disc of a local set holds its
+    true time-n state, so every row made in the sweep is the true one (the law reads
+    only the pair's two states and the row's springs, true by the same argument the
+    sweep before); a halo disc's wrong position after its step is overwritten by the
+    next refresh, and its own wall and wheel springs were made from its true state. A
+    rebuild of a pair list reloads its rows from the discs' histories: all of the
+    sub-domain's discs are written back from its rows first (their partners outside the
+    local set have no rows). all_stable: forces.ROLE_STABLE for every row (the roles
+    that make load_history keep every row)."""
     status = SWEEPS_DONE
     done = nsweeps
     every_disc = np.zeros((0, 2), np.int64)   # run_steps' spans: each step advances every disc
     for sw in range(nsweeps):
         if sw > 0 or refresh_first:
             moved = _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
-                             x_built, off, ref, disp2)
+                             x_built, off, ref, disp2, not keep_rows)
             if moved > membership_skin:
                 status = SWEEPS_REBUILD
                 done = sw
@@ -161,7 +176,8 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                 if active[j] and disp2[j] > rebuild2[j]:
                     # the rebuild reloads every row from the discs: write the rows back first
                     kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
-                    sync_history_serial(d.gid.shape[0], d, pl, err, roles, ROLE_OWNED_BEFORE)
+                    sync_history_serial(d.gid.shape[0], d, pl, err, roles,
+                                        0 if keep_rows else ROLE_OWNED_BEFORE)
                     flags[F_REBUILD] = 1
         s0 = step0 + sw * K
         for lane in prange(len(lane_off) - 1):
@@ -174,13 +190,13 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                     continue
                 rec = recbuf[sw * K:] if j == wslab else norec
                 k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,
-                                         flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0, roles,
-                                         every_disc)
+                                         flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0,
+                                         all_stable[:n] if keep_rows else roles, every_disc)
                 flags[F_DONE] = k
                 flags[F_REBUILDS] += rb
                 flags[F_REBUILD] = 0
                 flags[F_PAIRS_DONE] = 0
-                if k == K and not err.any():
+                if k == K and not err.any() and not keep_rows:
                     # the next refresh copies every owned disc that has copies elsewhere
                     sync_history_serial(n, d, pl, err, roles, ROLE_OWNED | ROLE_SHARED)
         stop = False
@@ -242,9 +258,12 @@ class LiveDomains:
 
     def __init__(self, discs: Particles, bounds: np.ndarray, halo: float, membership_skin: float,
                  model: Model, model_nowheel: Model, ws: np.ndarray, wslab: int,
-                 active: np.ndarray | None = None):
+                 active: np.ndarray | None = None, whole_refresh: bool = True):
         """active: which sub-domains are advanced (default all; an MPI rank's two ghost
-        sub-domains, which only hold the neighbour ranks' copies, are not)."""
+        sub-domains, which only hold the neighbour ranks' copies, are not).
+        whole_refresh: every halo row is refreshed from its owner's row before each sweep
+        (serial DDM; an MPI rank's rows beyond the exchanged strips are not), so one-step
+        sweeps may keep every pair row (``_run_sweeps``' keep_rows)."""
         self.bounds = np.asarray(bounds, np.float64)
         self.D = len(self.bounds) - 1
         self.n = len(discs)
@@ -252,6 +271,7 @@ class LiveDomains:
         self.active = (np.ones(self.D, np.bool_) if active is None
                        else np.asarray(active, np.bool_).copy())
         self.membership_skin = membership_skin
+        self.whole_refresh = whole_refresh
         x = discs.pos[:, AX_X]
         order = np.argsort(x, kind="stable")
         xs = x[order]
@@ -390,6 +410,8 @@ class LiveDomains:
         doms = self._domain_list()
         p = self.p
         lanes, lane_off = self._lane_plan
+        keep_rows = K == 1 and self.whole_refresh
+        all_stable = np.full(max(self.resident(), default=0) if keep_rows else 0, ROLE_STABLE, np.int8)
         done = 0
         status = SWEEPS_DONE
         wslab = self.wslab if self.wslab >= 0 else 0
@@ -402,7 +424,7 @@ class LiveDomains:
                                self.disp2, self.bounds, self.owned, self.owned_before, self.role,
                                self.n, self.membership_skin,
                                self._rebuild2, wheel_reach if self.wslab >= 0 else -1.0,
-                               self.active)
+                               self.active, keep_rows, all_stable)
             done += n_sw
             if status == SWEEPS_DOMAIN:
                 # a sub-domain stopped (a buffer to grow, or an error): finish its block

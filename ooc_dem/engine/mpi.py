@@ -502,7 +502,8 @@ class MpiEngine:
             real = np.ones(len(lb) - 1, np.bool_)
             real[[0, -1]] = False   # the ghosts: copies of the neighbour ranks' discs
             self.live = LiveDomains(local, lb, self.halo, self.membership_skin, self.model,
-                                    self.model_nowheel, self.ws, wl, active=real)
+                                    self.model_nowheel, self.ws, wl, active=real,
+                                    whole_refresh=False)
             live = self.live
             ghosts = np.concatenate([np.arange(live.off[0], live.off[1]),
                                      np.arange(live.off[-2], live.off[-1])])

@@ -502,8 +502,6 @@ def cmd_checkpoint(args):
     from storage import open_store
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
-    from .heap import bound_heap
-    bound_heap()   # hash, verify and export stream the groups one at a time, like a sweep
     # read-only: no repair (a running writer's temporary epoch must not be deleted under it)
     store = open_store(args.store, repair=False)
     try:

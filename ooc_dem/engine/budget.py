@@ -59,7 +59,7 @@ MIB = 1 << 20
 #         57 MB, hash 111 MB): ~230 B per disc of its chunk (2^18) + ~130 B per disc
 #   3D  --family bed3d --sizes 2e4,1e5 (monolithic) 2355, 2388 B/sphere (fit 2396)
 #       3D hash: not separated (below the sweeps' peak at 3e4); 1.5x the 2D figures
-# Since out-of-core processes fix malloc's mmap threshold (heap.py: a freed slab's arrays go
+# Since ooc-dem processes fix malloc's mmap threshold (heap.py: a freed slab's arrays go
 # back to the system instead of fragmenting the heap), re-measured in a fresh clone and venv
 # (`pip install ".[test]"`, numba's cache warm), 2026-12-03:
 #   baseline (the bed-300 / bed3d soil.n=300 runs above): 180.6 / 181.8 MiB in that venv,

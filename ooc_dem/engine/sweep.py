@@ -23,7 +23,6 @@ import numpy as np
 
 from ..checkpoint import (open_epoch, particles_to_record, record_rows, record_to_particles,
                           records_to_particles)
-from ..heap import bound_heap
 from ..decomposition import (XHistogram, equal_bounds, group_order, owner, summary_ok, wheel_bounds,
                              wheel_slab_index, wheel_slab_ok, x_summary)
 from ..physics.layout import AX_X, WS_X
@@ -502,7 +501,6 @@ class OocEngine(SlabSweep):
                  store, commit_sweep: Callable[[np.ndarray, int, int], None],
                  part_sink: Callable[[int], Callable | None] | None = None, redecompositions=()):
         super().__init__(sc, model, wheel_state, block, bounds, redecompositions)
-        bound_heap()   # slab after slab: keep malloc's heap from growing with the groups
         self.store = store
         self.commit_sweep = commit_sweep
         self.part_sink = part_sink

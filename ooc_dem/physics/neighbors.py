@@ -48,36 +48,44 @@ def spatial_order(pos, n, cell):
     return np.argsort(keys, kind="mergesort")
 
 
+@njit(inline="always", cache=True)
+def _cell_xy(pos, i, x0, y0, cell, ncx, ncy):
+    """Disc i's cell (column, row), clipped to the grid."""
+    cx = int((pos[i, AX_X] - x0) / cell)
+    cy = int((pos[i, AX_Y] - y0) / cell)
+    return min(max(cx, 0), ncx - 1), min(max(cy, 0), ncy - 1)
+
+
 @njit(cache=True)
-def _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of):
-    counts = cell_start
-    counts[:] = 0
+def _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list):
+    """Counting sort of the discs by cell, ascending index within a cell. cell_start
+    serves as the counts, then as each cell's fill cursor, then is shifted back to the
+    cells' starts (no second array of the grid's size: a neighbour build's temporaries
+    are the peak of a large monolithic run's memory)."""
+    cell_start[:] = 0
     for i in range(n):
-        cx = int((pos[i, AX_X] - x0) / cell)
-        cy = int((pos[i, AX_Y] - y0) / cell)
-        cx = min(max(cx, 0), ncx - 1)
-        cy = min(max(cy, 0), ncy - 1)
-        c = cy * ncx + cx
-        cell_of[i] = c
-        counts[c + 1] += 1
+        cx, cy = _cell_xy(pos, i, x0, y0, cell, ncx, ncy)
+        cell_start[cy * ncx + cx + 1] += 1
     for c in range(ncx * ncy):
-        counts[c + 1] += counts[c]
-    fill = counts[:-1].copy()
+        cell_start[c + 1] += cell_start[c]
     for i in range(n):
-        c = cell_of[i]
-        cell_list[fill[c]] = i
-        fill[c] += 1
+        cx, cy = _cell_xy(pos, i, x0, y0, cell, ncx, ncy)
+        c = cy * ncx + cx
+        cell_list[cell_start[c]] = i
+        cell_start[c] += 1
+    # cell_start[c] is now the end of cell c, i.e. the start of cell c + 1
+    for c in range(ncx * ncy, 0, -1):
+        cell_start[c] = cell_start[c - 1]
+    cell_start[0] = 0
 
 
 @njit(parallel=True, cache=True)
-def _scan(pos, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+def _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc, fill):
     """fill False: count each disc's partners with higher / lower ids into
     half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id."""
     for i in prange(n):
-        c = cell_of[i]
-        cx = c % ncx
-        cy = c // ncx
+        cx, cy = _cell_xy(pos, i, x0, y0, cell, ncx, ncy)
         nu = 0
         nl = 0
         xi = pos[i, AX_X]
@@ -153,11 +161,11 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     # collects them, which is still exact (distances are checked)
     if ncx * ncy > 4 * n + 64:
         ncy = max(1, (4 * n + 64) // ncx)
-    cell_start = np.zeros(ncx * ncy + 1, np.int64)
+    # int32: a domain's disc count (RAM bounds it far below 2**31)
+    cell_start = np.zeros(ncx * ncy + 1, np.int32)
     cell_list = np.empty(n, np.int32)
-    cell_of = np.empty(n, np.int32)
-    _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, cell_of)
-    _scan(pos, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+    _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list)
+    _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc_k, False)
     for i in range(n):
         half_off[i + 1] += half_off[i]
@@ -165,7 +173,7 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     npairs = half_off[n]
     if npairs > pair_b.shape[0] or npairs > inc_k.shape[0]:
         return npairs
-    _scan(pos, r, gid, n, ncx, ncy, cell_start, cell_list, cell_of, skin,
+    _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc_k, True)
     _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):

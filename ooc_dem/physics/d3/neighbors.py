@@ -13,6 +13,7 @@ sorted by global id, the set of pairs is exact: distances are checked).
 """
 import numpy as np
 from numba import njit, prange
+from ..layout import AX_X, AX_Y, AX_Z
 from ..neighbors import _slots, _sort_by_gid  # dimension-free: the same in 2D and 3D
 
 
@@ -54,36 +55,44 @@ def _grid(pos, n, cutoff):
         cell *= 1.25
 
 
+@njit(inline="always", cache=True)
+def _cell_xyz(pos, i, lo, cell, ncx, ncy, ncz):
+    """Sphere i's cell (x, y, z indices), clipped to the grid."""
+    cx = min(max(int((pos[i, AX_X] - lo[AX_X]) / cell), 0), ncx - 1)
+    cy = min(max(int((pos[i, AX_Y] - lo[AX_Y]) / cell), 0), ncy - 1)
+    cz = min(max(int((pos[i, AX_Z] - lo[AX_Z]) / cell), 0), ncz - 1)
+    return cx, cy, cz
+
+
 @njit(cache=True)
-def _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, cell_of):
-    counts = cell_start
-    counts[:] = 0
+def _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list):
+    """Counting sort of the spheres by cell, ascending index within a cell; cell_start
+    serves as counts, fill cursors, then starts (as the 2D _bin: no second grid-sized
+    array)."""
+    cell_start[:] = 0
     for i in range(n):
-        cx = min(max(int((pos[i, 0] - lo[0]) / cell), 0), ncx - 1)
-        cy = min(max(int((pos[i, 1] - lo[1]) / cell), 0), ncy - 1)
-        cz = min(max(int((pos[i, 2] - lo[2]) / cell), 0), ncz - 1)
+        cx, cy, cz = _cell_xyz(pos, i, lo, cell, ncx, ncy, ncz)
+        cell_start[(cz * ncy + cy) * ncx + cx + 1] += 1
+    ncell = ncx * ncy * ncz
+    for c in range(ncell):
+        cell_start[c + 1] += cell_start[c]
+    for i in range(n):
+        cx, cy, cz = _cell_xyz(pos, i, lo, cell, ncx, ncy, ncz)
         c = (cz * ncy + cy) * ncx + cx
-        cell_of[i] = c
-        counts[c + 1] += 1
-    for c in range(ncx * ncy * ncz):
-        counts[c + 1] += counts[c]
-    fill = counts[:-1].copy()
-    for i in range(n):
-        c = cell_of[i]
-        cell_list[fill[c]] = i
-        fill[c] += 1
+        cell_list[cell_start[c]] = i
+        cell_start[c] += 1
+    for c in range(ncell, 0, -1):   # each cursor ends at the next cell's start
+        cell_start[c] = cell_start[c - 1]
+    cell_start[0] = 0
 
 
 @njit(parallel=True, cache=True)
-def _scan(pos, r, gid, n, ncx, ncy, ncz, cell_start, cell_list, cell_of, skin,
+def _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc, fill):
     """fill False: count each sphere's partners with higher / lower ids into
     half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id."""
     for i in prange(n):
-        c = cell_of[i]
-        cx = c % ncx
-        cy = (c // ncx) % ncy
-        cz = c // (ncx * ncy)
+        cx, cy, cz = _cell_xyz(pos, i, lo, cell, ncx, ncy, ncz)
         nu = 0
         nl = 0
         xi = pos[i, 0]
@@ -141,11 +150,11 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     if n == 0:
         return 0
     lo, cell, ncx, ncy, ncz = _grid(pos, n, 2.0 * r[:n].max() + skin)
-    cell_start = np.zeros(ncx * ncy * ncz + 1, np.int64)
-    cell_list = np.empty(n, np.int64)
-    cell_of = np.empty(n, np.int64)
-    _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, cell_of)
-    _scan(pos, r, gid, n, ncx, ncy, ncz, cell_start, cell_list, cell_of, skin,
+    # int32: a domain's sphere count (RAM bounds it far below 2**31)
+    cell_start = np.zeros(ncx * ncy * ncz + 1, np.int32)
+    cell_list = np.empty(n, np.int32)
+    _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list)
+    _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc_k, False)
     for i in range(n):
         half_off[i + 1] += half_off[i]
@@ -153,7 +162,7 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     npairs = half_off[n]
     if npairs > pair_b.shape[0] or npairs > inc_k.shape[0] or npairs > pair_a.shape[0]:
         return npairs
-    _scan(pos, r, gid, n, ncx, ncy, ncz, cell_start, cell_list, cell_of, skin,
+    _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc_k, True)
     _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):

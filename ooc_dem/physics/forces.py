@@ -485,6 +485,18 @@ def load_history(n, d, pl, role):
     gid = d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
+    if role.shape[0]:
+        every_stable = True
+        for i in range(n):
+            if (role[i] & ROLE_STABLE) != ROLE_STABLE:
+                every_stable = False
+                break
+        if every_stable:
+            # every row is kept (serial DDM's one-step sweeps), so nothing is loaded; a
+            # disc's own history may then still hold its pairs' springs behind its body
+            # entries until the gather rewrites hist_n: produce only looks up body
+            # entries (negative ids, sorted first), so they change nothing
+            return
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, 0, n)
         for i in range(lo, hi):

@@ -138,11 +138,6 @@ def test_compiled_sweeps_give_the_monolithic_bits(threads):
     sub-domains side by side on the threads: the engine must take that path and keep
     the bits."""
     import numba
-    from ooc_dem.bed import settled_bed
-    from ooc_dem.engine.run import place_wheel
-    from ooc_dem.engine.stepper import DomainStepper, Model
-    from ooc_dem.engine.sweep import sweep_run
-    from ooc_dem.scenario import load_scenario
     from ooc_dem.state import state_hash
     sc = load_scenario("quick", ["wheel.settle_time=0.0", "wheel.drop_gap=0.0",
                                  "wheel.omega=5.0", "decomposition.margin=0.001"])
@@ -151,14 +146,13 @@ def test_compiled_sweeps_give_the_monolithic_bits(threads):
     before = numba.get_num_threads()
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        mono = DomainStepper(bed.take(np.arange(len(bed))), Model.from_scenario(sc), ws)
-        mono.advance(0, 600)
+        ref_p, ref_ws, _ = mono(sc, bed, ws, 600)
         p, w, _, eng = sweep_run(sc, bed.take(np.arange(len(bed))), ws, 600, domains=6, block=1)
     finally:
         numba.set_num_threads(before)
     assert eng.compiled_sweeps
-    assert state_hash(p, w, 600) == state_hash(mono.p, mono.ws, 600)
-    assert np.array_equal(p.sorted_by_id().hist_s, mono.p.sorted_by_id().hist_s)
+    assert state_hash(p, w, 600) == state_hash(ref_p, ref_ws, 600)
+    assert np.array_equal(p.sorted_by_id().hist_s, ref_p.sorted_by_id().hist_s)
 
 
 def test_one_step_sweeps_keep_rows_through_pair_rebuilds(wheel_case, monkeypatch):

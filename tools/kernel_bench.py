@@ -35,6 +35,35 @@ def law_overrides(family: str, law: str) -> list[str]:
     return NO_ROLLING
 
 
+def _phase_loops(produce, gather_integrate, held3d: bool):
+    """Compiled loops of k steps: produce only, and produce + gather_integrate (2D: rows made
+    afresh, pairs_done False; 3D: springs held in the rows)."""
+    from numba import njit
+    if held3d:
+        @njit
+        def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
+            for _ in range(k):
+                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, True)
+
+        @njit
+        def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, force, torque, gravity, part):
+            for _ in range(k):
+                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, True)
+                gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err, True)
+    else:
+        @njit
+        def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
+            for _ in range(k):
+                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, False)
+
+        @njit
+        def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, force, torque, gravity, part):
+            for _ in range(k):
+                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, False)
+                gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err)
+    return p_loop, pg_loop
+
+
 def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     import numpy as np
     from ooc_dem.bed import settled_bed
@@ -51,31 +80,46 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     forces_mod = sys.modules[kern.run_steps.py_func.__module__.rsplit(".", 1)[0] + ".forces"]
     kp, d, pl, bd, forces, ws, err = st.kernel_args()
     part = np.zeros(forces_mod.N_CHUNKS)
-    # a tree whose kernels hold the pairs' springs in the rows runs its phases that way
-    held = hasattr(forces_mod, "load_history")
-    if held:
-        forces_mod.load_history(n, d, pl)
-    extra = (True,) if held else ()
+    # the phases as run_steps calls them on a whole bed: the pairs' springs held in the pair
+    # rows from load_history to sync_history (2D: role of length 0 = every disc; 3D: held)
+    if family == "bed3d":
+        load = (n, d, pl)
+        sync = (n, d, pl, err)
+    else:
+        every = np.zeros(0, np.int8)
+        load = (n, d, pl, every)
+        sync = (n, d, pl, err, every, 0)
+    forces_mod.load_history(*load)
     from ooc_dem.physics.layout import LUG_DIRECTION
-    lugdir = np.zeros(max(1, int(kp.wg[0].nlugs)), LUG_DIRECTION)   # a bare bed: no wheel
-    tp = tg = cp_ = cg = 0.0
-    for _ in range(steps):   # the phases alone (no rebuild: a few steps of a settled bed)
-        w0, c0 = time.perf_counter(), time.process_time()
-        forces_mod.produce(n, d, pl, bd, kp.cp, kp.walls, kp.wg, ws, lugdir, kp.dt, err, *extra)
-        w1, c1 = time.perf_counter(), time.process_time()
-        forces_mod.gather_integrate(n, d, pl, bd, forces.force, forces.torque, kp.gravity, kp.dt,
-                                    part, err, *extra)
-        w2, c2 = time.perf_counter(), time.process_time()
-        tp += w1 - w0
-        tg += w2 - w1
-        cp_ += c1 - c0
-        cg += c2 - c1
-    if held:
-        forces_mod.sync_history(n, d, pl, err)
+    lugdir = np.zeros(max(1, int(kp.wg[0]["nlugs"])), LUG_DIRECTION)   # a bare bed: no wheel
+    # timed inside compiled loops: a call from Python types its record arguments each time
+    # (~8 ms, more than a whole step of a small bed); produce alone, then produce + gather
+    p_loop, pg_loop = _phase_loops(forces_mod.produce, forces_mod.gather_integrate, family == "bed3d")
+    args = (n, d, pl, bd, kp.cp, kp.walls, kp.wg, ws, lugdir, kp.dt, err)
+    gargs = (forces.force, forces.torque, kp.gravity, part)
+    p_loop(1, *args)
+    pg_loop(1, *args, *gargs)   # compile both before timing
+    w0, c0 = time.perf_counter(), time.process_time()
+    p_loop(steps, *args)
+    w1, c1 = time.perf_counter(), time.process_time()
+    pg_loop(steps, *args, *gargs)
+    w2, c2 = time.perf_counter(), time.process_time()
+    tp, cp_ = w1 - w0, c1 - c0
+    tg, cg = (w2 - w1) - tp, (c2 - c1) - cp_
+    forces_mod.sync_history(*sync)
     if err.any():
         raise SystemExit(f"kernel error flags {err.tolist()}")
+    # one neighbour build (cell binning, half list, CSR index) per particle, best of 3;
+    # the advance below rebuilds the list and reloads the springs from the discs
+    tb = float("inf")
+    for _ in range(3):
+        w0 = time.perf_counter()
+        kern.build_pairs(d.pos, d.r, d.gid, n, kp.skin, pl.half_off, pl.pair_b, pl.pair_a,
+                         pl.inc_off, pl.inc_k, pl.ref)
+        tb = min(tb, time.perf_counter() - w0)
     st._built = False
     st.advance(warmup + steps, 1)   # rebuild the list after the phase-only steps
+    builds0 = st.rebuilds
     w0, c0 = time.perf_counter(), time.process_time()
     st.advance(warmup + steps + 1, steps)
     ws_, cs_ = time.perf_counter() - w0, time.process_time() - c0
@@ -89,6 +133,7 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     return {"family": family, "n": n, "law": law, "steps": steps,
             "produce_ns": round(tp * ns, 1), "gather_integrate_ns": round(tg * ns, 1),
             "produce_cpu_ns": round(cp_ * ns, 1), "gather_integrate_cpu_ns": round(cg * ns, 1),
+            "neighbour_build_ns": round(tb * 1e9 / n, 1), "rebuilds_in_step_timing": st.rebuilds - builds0,
             "step_ns": round(ws_ * ns, 1), "step_cpu_ns": round(cs_ * ns, 1),
             "particle_steps_per_s": round(n * steps / ws_),
             "contacts_per_particle": round(float(np.mean(st.p.hist_n)), 3),

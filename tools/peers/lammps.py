@@ -614,6 +614,17 @@ def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: 
     else:
         k = 1 if warmup > 0 else 0          # the timed run
         el, procs, steps, atoms = float(loops[k][0]), int(loops[k][1]), int(loops[k][2]), int(loops[k][3])
+    # LAMMPS's own profile of the timed run (3D: of the one run): per section, the average
+    # time over ranks and its share of the loop, and the max/avg imbalance across ranks
+    breakdown = {}
+    tables = re.findall(r"MPI task timing breakdown:\n.*\n-+\n((?:\w+\s*\|.*\n)+)", text)
+    if len(tables) > (0 if ticks else k):
+        for row in tables[0 if ticks else k].splitlines():
+            cells = [c.strip() for c in row.split("|")]
+            if len(cells) == 6 and cells[2]:
+                avg, mx = float(cells[2]), float(cells[3] or cells[2])
+                breakdown[cells[0].lower()] = {"avg_s": avg, "percent": float(cells[5]),
+                                               "max_over_avg": round(mx / avg, 3) if avg > 0 else None}
     if procs != ranks:
         raise SystemExit(f"LAMMPS ran on {procs} procs where {ranks} were asked ({' '.join(cmd)}): "
                          f"the launcher is not of the binary's MPI; give the right one with --mpirun")
@@ -626,7 +637,7 @@ def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: 
             "kinetic_energy_end_J": float(kin.group(1)) if kin else None,
             "peak_rss_bytes": peak, "ranks_seen": len(hwm),
             "lammps_estimate_bytes": (float(mem[k][1]) * 2 ** 20 * procs) if mem else None,
-            "process_wall_s": round(wall, 2)}
+            "process_wall_s": round(wall, 2), "timing_breakdown": breakdown}
 
 
 # ------------------------------------------------------------------ running ooc-dem

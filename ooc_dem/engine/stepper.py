@@ -230,7 +230,11 @@ class DomainStepper:
         self.rebuilds = 0
 
     def _grow_pairs(self, npairs: int) -> None:
+        """Room for npairs candidate pairs (+ headroom). The old list is let go first: a
+        rebuild follows, and the springs are in the discs' histories (written back before
+        the build that overflowed), so old and new never need to coexist."""
         cap = int(npairs * PAIR_HEADROOM) + 64
+        self.pair_b = self.pair_a = self.inc_k = self.on = self.rows = None
         self.pair_b = np.zeros(cap, self._idx)
         self.pair_a = np.zeros(cap, self._idx)
         self.inc_k = np.zeros(cap, self._idx)
@@ -298,6 +302,7 @@ class DomainStepper:
             k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, bd, forces, ws,
                                         err, recv[done:] if len(rec) else recv, not self._built,
                                         self._pairs_done, EVERY_DISC, spans[done:])
+            del kp, d, pl, bd, forces, ws, err   # no view may keep a list that is regrown
             self._pairs_done = False
             done += k
             self.rebuilds += rb

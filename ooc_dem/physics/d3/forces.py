@@ -122,7 +122,7 @@ def _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid):
     return p, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def _wall(wall):
     """(pid, nx, ny, nz) of wall k = 0..4 in ascending id order (the normal points into
     the box): back z=width, front z=0, right x=length, left x=0, bottom y=0."""
@@ -253,90 +253,99 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
             xi = pos[i, 0]
             yi = pos[i, 1]
             zi = pos[i, 2]
+            ri = r[i]
+            # most spheres touch neither a wall nor the wheel: test that on the position
+            # first (ri > t is exactly a wall's own test ri - t > 0, and the wheel's test
+            # is the one below, so no contact is skipped or added)
+            near_wall = ((flags[0] and ri > width - zi) or (flags[1] and ri > zi)
+                         or (flags[2] and ri > length - xi) or (flags[3] and ri > xi)
+                         or (flags[4] and ri > yi))
+            dxw = xi - X
+            dyw = yi - Y
+            d2 = dxw * dxw + dyw * dyw
+            zm = cap_r + ri
+            near_wheel = (wheel_on and d2 < (reach + ri) * (reach + ri) and zi > zlo - zm
+                          and zi < zhi + zm)
+            if not (near_wall or near_wheel):
+                continue
             vxi = vel[i, 0]
             vyi = vel[i, 1]
             vzi = vel[i, 2]
             wxi = spin[i, 0]
             wyi = spin[i, 1]
             wzi = spin[i, 2]
-            ri = r[i]
             mi = mass[i]
             ii = inertia[i]
             ti = mat[i]
             hn = hist_n[i]
             p = 0
             # ------------------------------------------------------ wheel
-            if wheel_on:
-                dxw = xi - X
-                dyw = yi - Y
-                d2 = dxw * dxw + dyw * dyw
-                zm = cap_r + ri
-                if (d2 < (reach + ri) * (reach + ri) and zi > zlo - zm and zi < zhi + zm):
-                    meff = mi * wmass / (mi + wmass)
-                    zc = min(max(zi, zlo), zhi)
-                    for lug in range(nlugs):
-                        ux = lugdir[lug].ux
-                        uy = lugdir[lug].uy
-                        sproj = dxw * ux + dyw * uy
-                        if sproj < lug_in:
-                            sproj = lug_in
-                        elif sproj > lug_out:
-                            sproj = lug_out
-                        px = sproj * ux        # the lug's closest axis point, relative to C
-                        py = sproj * uy
-                        ddx = dxw - px
-                        ddy = dyw - py
-                        ddz = zi - zc
-                        dd = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz)
-                        delta = cap_r + ri - dd
-                        if delta > 0.0 and dd > 0.0:
-                            nx = ddx / dd
-                            ny = ddy / dd
-                            nz = ddz / dd
-                            p, wrote = _wheel_contact(
-                                body, bat, bend, i, ID_LUG0 + lug, hist_id, hist_s, hist_m, hn, p,
-                                cp[T_WHEEL, ti], nx, ny, nz, delta, px + cap_r * nx,
-                                py + cap_r * ny, VX, VY, WZ, vxi, vyi, vzi, wxi, wyi, wzi, ri,
-                                meff, ii, dt)
-                            bat += wrote
-                            full = full or wrote == 0
-                    # the rim: the closest point of the solid cylinder
-                    rho = math.sqrt(d2)
-                    delta = -1.0
-                    nx = ny = nz = qx = qy = 0.0
-                    if zi >= zlo and zi <= zhi:
-                        if rho > 0.0:         # the curved surface (radial normal)
-                            nx = dxw / rho
-                            ny = dyw / rho
-                            delta = R + ri - rho
-                            qx = R * nx
-                            qy = R * ny
-                    elif rho <= R:            # an end face
-                        nz = 1.0 if zi > zhi else -1.0
-                        delta = ri - abs(zi - zc)
-                        qx = dxw
-                        qy = dyw
-                    else:                     # an end face's edge circle
-                        qx = R * dxw / rho
-                        qy = R * dyw / rho
-                        ex = dxw - qx
-                        ey = dyw - qy
-                        ez = zi - zc
-                        de = math.sqrt(ex * ex + ey * ey + ez * ez)
-                        if de > 0.0:
-                            nx = ex / de
-                            ny = ey / de
-                            nz = ez / de
-                            delta = ri - de
-                    if delta > 0.0:
+            if near_wheel:
+                meff = mi * wmass / (mi + wmass)
+                zc = min(max(zi, zlo), zhi)
+                for lug in range(nlugs):
+                    ux = lugdir[lug].ux
+                    uy = lugdir[lug].uy
+                    sproj = dxw * ux + dyw * uy
+                    if sproj < lug_in:
+                        sproj = lug_in
+                    elif sproj > lug_out:
+                        sproj = lug_out
+                    px = sproj * ux        # the lug's closest axis point, relative to C
+                    py = sproj * uy
+                    ddx = dxw - px
+                    ddy = dyw - py
+                    ddz = zi - zc
+                    dd = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz)
+                    delta = cap_r + ri - dd
+                    if delta > 0.0 and dd > 0.0:
+                        nx = ddx / dd
+                        ny = ddy / dd
+                        nz = ddz / dd
                         p, wrote = _wheel_contact(
-                            body, bat, bend, i, ID_RIM, hist_id, hist_s, hist_m, hn, p,
-                            cp[T_WHEEL, ti], nx, ny, nz, delta, qx, qy, VX, VY, WZ, vxi, vyi, vzi,
-                            wxi, wyi, wzi, ri, meff, ii, dt)
+                            body, bat, bend, i, ID_LUG0 + lug, hist_id, hist_s, hist_m, hn, p,
+                            cp[T_WHEEL, ti], nx, ny, nz, delta, px + cap_r * nx,
+                            py + cap_r * ny, VX, VY, WZ, vxi, vyi, vzi, wxi, wyi, wzi, ri,
+                            meff, ii, dt)
                         bat += wrote
                         full = full or wrote == 0
+                # the rim: the closest point of the solid cylinder
+                rho = math.sqrt(d2)
+                delta = -1.0
+                nx = ny = nz = qx = qy = 0.0
+                if zi >= zlo and zi <= zhi:
+                    if rho > 0.0:         # the curved surface (radial normal)
+                        nx = dxw / rho
+                        ny = dyw / rho
+                        delta = R + ri - rho
+                        qx = R * nx
+                        qy = R * ny
+                elif rho <= R:            # an end face
+                    nz = 1.0 if zi > zhi else -1.0
+                    delta = ri - abs(zi - zc)
+                    qx = dxw
+                    qy = dyw
+                else:                     # an end face's edge circle
+                    qx = R * dxw / rho
+                    qy = R * dyw / rho
+                    ex = dxw - qx
+                    ey = dyw - qy
+                    ez = zi - zc
+                    de = math.sqrt(ex * ex + ey * ey + ez * ez)
+                    if de > 0.0:
+                        nx = ex / de
+                        ny = ey / de
+                        nz = ez / de
+                        delta = ri - de
+                if delta > 0.0:
+                    p, wrote = _wheel_contact(
+                        body, bat, bend, i, ID_RIM, hist_id, hist_s, hist_m, hn, p,
+                        cp[T_WHEEL, ti], nx, ny, nz, delta, qx, qy, VX, VY, WZ, vxi, vyi, vzi,
+                        wxi, wyi, wzi, ri, meff, ii, dt)
+                    bat += wrote
+                    full = full or wrote == 0
             # ------------------------------------------------------ walls
-            for wall in range(5):
+            for wall in range(5 if near_wall else 0):
                 if not flags[wall]:
                     continue
                 pid, nx, ny, nz = _wall(wall)

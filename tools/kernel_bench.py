@@ -36,31 +36,23 @@ def law_overrides(family: str, law: str) -> list[str]:
 
 
 def _phase_loops(produce, gather_integrate, held3d: bool):
-    """Compiled loops of k steps: produce only, and produce + gather_integrate (2D: rows made
-    afresh, pairs_done False; 3D: springs held in the rows)."""
+    """Compiled loops of k steps: produce only, and produce + gather_integrate, with the
+    trailing arguments run_steps gives them (2D: rows made afresh, pairs_done False;
+    3D: springs held in the rows)."""
     from numba import njit
-    if held3d:
-        @njit
-        def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
-            for _ in range(k):
-                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, True)
+    ptail = (True,) if held3d else (False,)
+    gtail = (True,) if held3d else ()
 
-        @njit
-        def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, force, torque, gravity, part):
-            for _ in range(k):
-                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, True)
-                gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err, True)
-    else:
-        @njit
-        def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
-            for _ in range(k):
-                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, False)
+    @njit
+    def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
+        for _ in range(k):
+            produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, *ptail)
 
-        @njit
-        def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, force, torque, gravity, part):
-            for _ in range(k):
-                produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, False)
-                gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err)
+    @njit
+    def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, force, torque, gravity, part):
+        for _ in range(k):
+            produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, *ptail)
+            gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err, *gtail)
     return p_loop, pg_loop
 
 

@@ -34,6 +34,10 @@ run 20
 def test_two_ranks_run_on_two_procs(lmp, tmp_path):
     v = peers.run_lammps(lmp, peers.pick_mpirun(lmp), 2, tmp_path, MELT, "np2", 0)
     assert v["ranks"] == 2 and v["ranks_seen"] == 2 and v["atoms"] == 256
+    # LAMMPS's own profile of the run, per section (what limits it)
+    shares = v["timing_breakdown"]
+    assert {"pair", "neigh", "comm", "modify", "other"} <= shares.keys()
+    assert abs(sum(x["percent"] for x in shares.values()) - 100.0) < 0.5
 
 
 def test_launcher_of_another_mpi_is_refused(lmp, tmp_path):

@@ -143,11 +143,7 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_don
                     for lug in range(nlugs):
                         ux = lugdir[lug].ux
                         uy = lugdir[lug].uy
-                        sproj = dxw * ux + dyw * uy
-                        if sproj < lug_in:
-                            sproj = lug_in
-                        elif sproj > lug_out:
-                            sproj = lug_out
+                        sproj = lug_axis_offset(dxw, dyw, ux, uy, lug_in, lug_out)
                         px = X + sproj * ux
                         py = Y + sproj * uy
                         ddx = xi - px
@@ -273,6 +269,19 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_don
         bcount[ch] = bat - ch * bcap
         if full:
             err[ERR_BODY_CAPACITY] = 1
+
+
+@njit(inline="always", cache=True)
+def lug_axis_offset(dxw, dyw, ux, uy, lug_in, lug_out):
+    """How far along a lug's direction (ux, uy) lies the point of its axis closest to a
+    particle at (dxw, dyw) from the axle: the projection, clamped to the lug's extent
+    lug_in..lug_out (2D and 3D produce)."""
+    s = dxw * ux + dyw * uy
+    if s < lug_in:
+        s = lug_in
+    elif s > lug_out:
+        s = lug_out
+    return s
 
 
 @njit(inline="always", cache=True)

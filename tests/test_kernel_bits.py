@@ -23,6 +23,13 @@ Cases (each exercises different parts of the kernel):
 - paper2008 (the full 6986-disc bed, drawbar control, paper omega): 3500 steps of
   settling then 3500 of travel, lugs and rim in the soil, 2 threads;
 - bed-100k (tiled bed, no wheel): 150 steps at the tile seams.
+
+3D cases, recorded on main at 9965678, before the 3D pair law ran in blocks
+(``d3.forces.law_block``):
+- quick-3d (the wheel, Hertz spheres with rolling resistance): 3000 steps, monolithic
+  and serial DDM with 3 sub-domains (pairs' springs in the discs' histories, not held);
+- bed3d-20000 on the Hertz law (walls too) and on the LAMMPS comparison's linear law
+  without rolling (``tools/peers/lammps.py``'s overrides: the sliding row layout).
 """
 from __future__ import annotations
 
@@ -49,6 +56,16 @@ PAPER2008_7000 = "mset-v2:b2bf3778513e76d392dde7a28e417b6b6a34ca4e052f9cf9fd7cf1
 # tile), so its bits changed by a bed, not by the kernel (before: mset-v2:b096e188…b25e0)
 BED100K_150 = "mset-v2:bd623b5985dec3c4272d35d05f00dd4ac42e8453687dabfdb73cb01c4e9d443e"
 
+QUICK3D_3000 = "mset-v2:2d0621bb10b9a219307bc226315cdcb1b82f3b5471ed342cd357f15003fcc99a"
+BED3D_HERTZ_400 = "mset-v2:57c64f8877d77a27a58671d4db811f8a8c0800c24620c22e5e50222d6d1229e8"
+BED3D_LINEAR_400 = "mset-v2:a597d010304ad62624b2ea7654ed9bf246cfe602f08e19a4594f2ce81a6bc89e"
+HERTZ = ["contact.soil_soil.law=hertz", "contact.soil_wall.law=hertz"]
+LINEAR = ["contact.soil_soil.rolling_friction=0", "contact.soil_soil.rolling_damping=0",
+          "contact.soil_wall.rolling_friction=0", "contact.soil_wall.rolling_damping=0",
+          'contact.soil_soil.law="linear"', "contact.soil_soil.kn=50000.0",
+          "contact.soil_soil.ks=16666.666666666668", "contact.soil_soil.damping_n=0.3",
+          "contact.soil_soil.damping_t=0.3", "contact.soil_soil.friction=0.5"]
+
 CASES = {
     "quick-monolithic": (["quick", *QUICK, "--steps", 6000], {}, QUICK_6000),
     "quick-ddm6": (["quick", *QUICK, "--steps", 6000, "--mode", "ddm", "--domains", 6], {}, QUICK_6000),
@@ -60,6 +77,11 @@ CASES = {
     "paper2008-2threads": (["paper2008", *PAPER, "--steps", 7000], {"NUMBA_NUM_THREADS": "2"},
                            PAPER2008_7000),
     "bed-100k": (["bed-100k", "--steps", 150], {}, BED100K_150),
+    "quick-3d": (["quick-3d", "--steps", 3000], {}, QUICK3D_3000),
+    "quick-3d-ddm3": (["quick-3d", "--steps", 3000, "--mode", "ddm", "--domains", 3], {},
+                      QUICK3D_3000),
+    "bed3d-hertz": (["bed3d-20000", *HERTZ, "--steps", 400], {}, BED3D_HERTZ_400),
+    "bed3d-linear": (["bed3d-20000", *LINEAR, "--steps", 400], {}, BED3D_LINEAR_400),
 }
 
 

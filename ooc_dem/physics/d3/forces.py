@@ -26,6 +26,13 @@ from numba.extending import overload
 from ..forces import lug_axis_offset
 from .contact import contact
 from .layout import (
+    N_LAW_IN,
+    N_LAW_OUT,
+    LawIn,
+    LawOut,
+    LAW_HERTZ,
+    LAW_LINEAR,
+    LawParams,
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
     ID_WALL_BACK,
@@ -42,6 +49,12 @@ from .layout import (
 # spheres are produced and gathered in N_CHUNKS contiguous chunks (wall rows are
 # buffered per chunk); the chunking never changes a result
 N_CHUNKS = 64
+# touching pairs per law block (law_block): large enough that the loop's overlap checks
+# of its ~50 arrays cost little per pair, small enough to stay in the core's L2
+LAW_BLOCK = 256
+# the block arrays' rows are padded by a cache line: with rows 2 KiB apart a pair's ~50
+# fields would all fall in two sets of the L1 cache and evict each other
+LAW_ROW = LAW_BLOCK + 8
 
 
 # ---------------------------------------------------------- the row's rolling parts
@@ -191,6 +204,108 @@ def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw,
                    mnz, nx, ny, nz, ri, qx, qy)
         return p, 1
     return p, 0
+
+
+LAW_MIXED = -1   # law_block's law when a block's pairs do not all have one law
+
+
+def law_block(k, law_in, law_out, dt, rows, law):
+    """The contact law (contact.contact) on pairs 0..k-1 of a block: their arguments are
+    the LawIn rows of law_in, their pair-row fields go to the LawOut rows of law_out
+    (force on b, n x Ft, new springs, and the rolling parts when the layout of rows has
+    them). law: LAW_LINEAR or LAW_HERTZ when every pair of the block has that law (a
+    constant at the call: the other law's arithmetic is compiled out), else LAW_MIXED.
+
+    One loop with no call and no early exit, so the compiler evaluates several pairs per
+    instruction (SIMD); each pair's arithmetic and its order are contact's (no fused or
+    reordered operation), so its bits do not depend on the block it is in."""
+
+
+# error_model numpy: no division-by-zero test in the loop (it would stop the SIMD; the law
+# never divides by zero: dd > 0, its other divisors are tested first, masses are positive)
+@overload(law_block, prefer_literal=True, jit_options={"error_model": "numpy"})
+def _law_block(k, law_in, law_out, dt, rows, law):
+    rolling = _rolling_type(rows)
+    fixed = law.literal_value if isinstance(law, types.IntegerLiteral) else LAW_MIXED
+
+    def impl(k, law_in, law_out, dt, rows, law):
+        nx_, ny_, nz_ = law_in[LawIn.nx], law_in[LawIn.ny], law_in[LawIn.nz]
+        delta_ = law_in[LawIn.delta]
+        vrx_, vry_, vrz_ = law_in[LawIn.vrx], law_in[LawIn.vry], law_in[LawIn.vrz]
+        wax_, way_, waz_ = law_in[LawIn.wax], law_in[LawIn.way], law_in[LawIn.waz]
+        wbx_, wby_, wbz_ = law_in[LawIn.wbx], law_in[LawIn.wby], law_in[LawIn.wbz]
+        ra_, rb_ = law_in[LawIn.ra], law_in[LawIn.rb]
+        meff_, ieff_, reff_ = law_in[LawIn.meff], law_in[LawIn.ieff], law_in[LawIn.reff]
+        s_x_, s_y_, s_z_ = law_in[LawIn.s_x], law_in[LawIn.s_y], law_in[LawIn.s_z]
+        m_x_, m_y_, m_z_ = law_in[LawIn.m_x], law_in[LawIn.m_y], law_in[LawIn.m_z]
+        bx, by, bz = law_out[LawOut.bx], law_out[LawOut.by], law_out[LawOut.bz]
+        cx, cy, cz = law_out[LawOut.cx], law_out[LawOut.cy], law_out[LawOut.cz]
+        mox_, moy_, moz_ = law_out[LawOut.mox], law_out[LawOut.moy], law_out[LawOut.moz]
+        sx_, sy_, sz_ = law_out[LawOut.sx], law_out[LawOut.sy], law_out[LawOut.sz]
+        mx_, my_, mz_ = law_out[LawOut.mx], law_out[LawOut.my], law_out[LawOut.mz]
+        law_, kn, ks = law_in[LawIn.law], law_in[LawIn.kn], law_in[LawIn.ks]
+        zn, zt, mu, mur = law_in[LawIn.zn], law_in[LawIn.zt], law_in[LawIn.mu], law_in[LawIn.mur]
+        zr, estar, gstar = law_in[LawIn.zr], law_in[LawIn.estar], law_in[LawIn.gstar]
+        beta, no_tension = law_in[LawIn.beta], law_in[LawIn.no_tension]
+        for t in range(k):
+            c = LawParams(law_[t] if fixed == LAW_MIXED else fixed, kn[t], ks[t], zn[t], zt[t],
+                          mu[t], mur[t], zr[t], estar[t], gstar[t], beta[t], no_tension[t])
+            nx = nx_[t]
+            ny = ny_[t]
+            nz = nz_[t]
+            (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
+                c, nx, ny, nz, delta_[t], vrx_[t], vry_[t], vrz_[t], wax_[t], way_[t], waz_[t],
+                wbx_[t], wby_[t], wbz_[t], ra_[t], rb_[t], meff_[t], ieff_[t], reff_[t],
+                s_x_[t], s_y_[t], s_z_[t], m_x_[t], m_y_[t], m_z_[t], dt)
+            bx[t] = fn * nx - ftx
+            by[t] = fn * ny - fty
+            bz[t] = fn * nz - ftz
+            cx[t] = ny * ftz - nz * fty
+            cy[t] = nz * ftx - nx * ftz
+            cz[t] = nx * fty - ny * ftx
+            sx_[t] = snx
+            sy_[t] = sny
+            sz_[t] = snz
+            if rolling:   # a constant: without rolling parts the rolling law is compiled out
+                mox_[t] = mox
+                moy_[t] = moy
+                moz_[t] = moz
+                mx_[t] = mnx
+                my_[t] = mny
+                mz_[t] = mnz
+    return impl
+
+
+@njit(inline="always", cache=True)
+def _run_law_block(k, law_in, law_out, dt, rows, laws):
+    """law_block on a block whose pairs' laws are the bit set laws (1 << law): the one law
+    compiled alone when the block has one."""
+    if laws == 1 << LAW_LINEAR:
+        law_block(k, law_in, law_out, dt, rows, LAW_LINEAR)
+    elif laws == 1 << LAW_HERTZ:
+        law_block(k, law_in, law_out, dt, rows, LAW_HERTZ)
+    else:
+        law_block(k, law_in, law_out, dt, rows, LAW_MIXED)
+
+
+@njit(inline="always", cache=True)
+def _put_pair_rows(k, slot, law_out, rows, on):
+    """The rows of a block's pairs (law_block's results) into their slots; they touch."""
+    for t in range(k):
+        q = slot[t]
+        row = rows[q]
+        row.bx = law_out[LawOut.bx, t]
+        row.by = law_out[LawOut.by, t]
+        row.bz = law_out[LawOut.bz, t]
+        row.cx = law_out[LawOut.cx, t]
+        row.cy = law_out[LawOut.cy, t]
+        row.cz = law_out[LawOut.cz, t]
+        row.sx = law_out[LawOut.sx, t]
+        row.sy = law_out[LawOut.sy, t]
+        row.sz = law_out[LawOut.sz, t]
+        put_rolling(row, law_out[LawOut.mox, t], law_out[LawOut.moy, t], law_out[LawOut.moz, t],
+                    law_out[LawOut.mx, t], law_out[LawOut.my, t], law_out[LawOut.mz, t])
+        on[q] = 1
 
 
 @njit(parallel=True, cache=True)
@@ -376,18 +491,20 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
     if any_full[0]:
         return   # no pair row made: rerunnable after growing the wall rows, even when held
     # ---------------------------------------------------------- pairs (i = a, lower id)
+    # each chunk lists its touching pairs' law arguments in blocks; law_block evaluates a
+    # full block at once and its rows are put in place (the order of evaluation never
+    # changes a row: each depends only on its own arguments)
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, first, end)
+        law_in = np.empty((N_LAW_IN, LAW_ROW))
+        law_out = np.empty((N_LAW_OUT, LAW_ROW))
+        slot = np.empty(LAW_BLOCK, np.int64)
+        k = 0
+        laws = 0   # the laws of the block's pairs, a bit set (1 << law)
         for i in range(lo, hi):
             xi = pos[i, 0]
             yi = pos[i, 1]
             zi = pos[i, 2]
-            vxi = vel[i, 0]
-            vyi = vel[i, 1]
-            vzi = vel[i, 2]
-            wxi = spin[i, 0]
-            wyi = spin[i, 1]
-            wzi = spin[i, 2]
             ri = r[i]
             mi = mass[i]
             ii = inertia[i]
@@ -406,10 +523,6 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
                     on[q] = 0
                     continue
                 dd = math.sqrt(d2)
-                delta = rs - dd
-                nx = dx / dd
-                ny = dy / dd
-                nz = dz / dd
                 s0x = s0y = s0z = m0x = m0y = m0z = 0.0
                 if held:
                     if on[q]:
@@ -424,24 +537,54 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
                             m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
                 mb = mass[b]
                 ib = inertia[b]
-                (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
-                    cp[ti, mat[b]], nx, ny, nz, delta,
-                    vel[b, 0] - vxi, vel[b, 1] - vyi, vel[b, 2] - vzi,
-                    wxi, wyi, wzi, spin[b, 0], spin[b, 1], spin[b, 2], ri, rb,
-                    mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb),
-                    s0x, s0y, s0z, m0x, m0y, m0z, dt)
-                row = rows[q]
-                row.bx = fn * nx - ftx
-                row.by = fn * ny - fty
-                row.bz = fn * nz - ftz
-                row.cx = ny * ftz - nz * fty
-                row.cy = nz * ftx - nx * ftz
-                row.cz = nx * fty - ny * ftx
-                row.sx = snx
-                row.sy = sny
-                row.sz = snz
-                put_rolling(row, mox, moy, moz, mnx, mny, mnz)
-                on[q] = 1
+                law_in[LawIn.nx, k] = dx / dd
+                law_in[LawIn.ny, k] = dy / dd
+                law_in[LawIn.nz, k] = dz / dd
+                law_in[LawIn.delta, k] = rs - dd
+                law_in[LawIn.vrx, k] = vel[b, 0] - vel[i, 0]
+                law_in[LawIn.vry, k] = vel[b, 1] - vel[i, 1]
+                law_in[LawIn.vrz, k] = vel[b, 2] - vel[i, 2]
+                law_in[LawIn.wax, k] = spin[i, 0]
+                law_in[LawIn.way, k] = spin[i, 1]
+                law_in[LawIn.waz, k] = spin[i, 2]
+                law_in[LawIn.wbx, k] = spin[b, 0]
+                law_in[LawIn.wby, k] = spin[b, 1]
+                law_in[LawIn.wbz, k] = spin[b, 2]
+                law_in[LawIn.ra, k] = ri
+                law_in[LawIn.rb, k] = rb
+                law_in[LawIn.meff, k] = mi * mb / (mi + mb)
+                law_in[LawIn.ieff, k] = ii * ib / (ii + ib)
+                law_in[LawIn.reff, k] = ri * rb / (ri + rb)
+                law_in[LawIn.s_x, k] = s0x
+                law_in[LawIn.s_y, k] = s0y
+                law_in[LawIn.s_z, k] = s0z
+                law_in[LawIn.m_x, k] = m0x
+                law_in[LawIn.m_y, k] = m0y
+                law_in[LawIn.m_z, k] = m0z
+                c = cp[ti, mat[b]]
+                law_in[LawIn.law, k] = c.law
+                laws |= 1 << np.int64(c.law)
+                law_in[LawIn.kn, k] = c.kn
+                law_in[LawIn.ks, k] = c.ks
+                law_in[LawIn.zn, k] = c.zn
+                law_in[LawIn.zt, k] = c.zt
+                law_in[LawIn.mu, k] = c.mu
+                law_in[LawIn.mur, k] = c.mur
+                law_in[LawIn.zr, k] = c.zr
+                law_in[LawIn.estar, k] = c.estar
+                law_in[LawIn.gstar, k] = c.gstar
+                law_in[LawIn.beta, k] = c.beta
+                law_in[LawIn.no_tension, k] = c.no_tension
+                slot[k] = q
+                k += 1
+                if k == LAW_BLOCK:
+                    _run_law_block(k, law_in, law_out, dt, rows, laws)
+                    _put_pair_rows(k, slot, law_out, rows, on)
+                    k = 0
+                    laws = 0
+        if k > 0:
+            _run_law_block(k, law_in, law_out, dt, rows, laws)
+            _put_pair_rows(k, slot, law_out, rows, on)
 
 
 @njit(inline="always", cache=True)

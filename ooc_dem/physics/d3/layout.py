@@ -30,6 +30,8 @@ parts have the 2D ids (lug k: ID_LUG0 + k = -1000 + k, rim ID_RIM = -100), below
 from __future__ import annotations
 
 import math
+from collections import namedtuple
+from enum import IntEnum
 
 import numpy as np
 
@@ -95,6 +97,26 @@ def pair_row_layout(cp) -> np.dtype:
     """The pair-row layout of contact table cp (CONTACT_PARAMS records [type_a, type_b]):
     PAIR_ROW_SLIDING when no material pair has rolling resistance, else PAIR_ROW_ROLLING."""
     return PAIR_ROW_ROLLING if bool(np.any(np.asarray(cp["mur"]) > 0.0)) else PAIR_ROW_SLIDING
+
+
+# ------------------------------------------------------------ law blocks
+# The touching sphere pairs are evaluated in blocks (forces.law_block): a block's law
+# inputs and results are rows of two (fields, LAW_BLOCK) arrays (structure of arrays),
+# so the compiler runs the law on several pairs at once (SIMD). Each pair's arithmetic is
+# ``contact.contact``'s, with no reordering, so its bits are those of the pair evaluated alone.
+# LawIn: the law's arguments (contact.contact), then its material pair's parameters (the
+# CONTACT_PARAMS fields, in their order: copied per pair, as an indexed load in the loop
+# would stop the SIMD); LawOut: the pair row's fields (PAIR_ROW_ROLLING).
+LawIn = IntEnum("LawIn", ("nx", "ny", "nz", "delta", "vrx", "vry", "vrz", "wax", "way", "waz",
+                          "wbx", "wby", "wbz", "ra", "rb", "meff", "ieff", "reff",
+                          "s_x", "s_y", "s_z", "m_x", "m_y", "m_z") + CONTACT_PARAMS.names,
+                start=0)
+LawOut = IntEnum("LawOut", PAIR_ROW_ROLLING.names, start=0)
+N_LAW_IN = len(LawIn)
+N_LAW_OUT = len(LawOut)
+# one material pair's parameters as scalars (the fields of CONTACT_PARAMS): what the law
+# reads from a table record
+LawParams = namedtuple("LawParams", CONTACT_PARAMS.names)
 
 
 # one sphere-wall or sphere-wheel-part contact (the body is always a): sphere row index,

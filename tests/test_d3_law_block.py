@@ -29,22 +29,23 @@ def _table():
 
 
 def _pairs(k, types_a, types_b, seed):
-    """k pairs' law arguments (LawIn columns without the parameters) and their types."""
+    """k touching pairs as produce lists them (LawIn columns up to the material pair)."""
     rng = np.random.default_rng(seed)
+    args = np.zeros((L.N_LAW_IN, k))
+    args[L.LawIn.ra] = rng.uniform(2e-3, 3e-3, k)
+    args[L.LawIn.rb] = rng.uniform(2e-3, 3e-3, k)
     n = rng.normal(size=(k, 3))
     n /= np.linalg.norm(n, axis=1)[:, None]
-    args = np.zeros((len(L.LawIn), k))
-    args[L.LawIn.nx], args[L.LawIn.ny], args[L.LawIn.nz] = n.T
-    args[L.LawIn.delta] = rng.uniform(1e-7, 2e-4, k)
+    dist = args[L.LawIn.ra] + args[L.LawIn.rb] - rng.uniform(1e-7, 2e-4, k)   # overlapping
+    args[L.LawIn.dx], args[L.LawIn.dy], args[L.LawIn.dz] = (n * dist[:, None]).T
     for f in (L.LawIn.vrx, L.LawIn.vry, L.LawIn.vrz):
         args[f] = rng.normal(0.0, 0.05, k)
     for f in (L.LawIn.wax, L.LawIn.way, L.LawIn.waz, L.LawIn.wbx, L.LawIn.wby, L.LawIn.wbz):
         args[f] = rng.normal(0.0, 20.0, k)
-    args[L.LawIn.ra] = rng.uniform(2e-3, 3e-3, k)
-    args[L.LawIn.rb] = rng.uniform(2e-3, 3e-3, k)
-    args[L.LawIn.meff] = rng.uniform(1e-5, 5e-5, k)
-    args[L.LawIn.ieff] = rng.uniform(1e-11, 5e-11, k)
-    args[L.LawIn.reff] = 0.5 * args[L.LawIn.ra]
+    args[L.LawIn.ma] = rng.uniform(2e-5, 9e-5, k)
+    args[L.LawIn.mb] = rng.uniform(2e-5, 9e-5, k)
+    args[L.LawIn.ia] = 0.4 * args[L.LawIn.ma] * args[L.LawIn.ra] ** 2
+    args[L.LawIn.ib] = 0.4 * args[L.LawIn.mb] * args[L.LawIn.rb] ** 2
     # springs: new contacts (zero), small (sticking) and large (sliding) ones
     scale = rng.choice([0.0, 1e-4, 1e-2, 10.0], size=k)
     for f in (L.LawIn.s_x, L.LawIn.s_y, L.LawIn.s_z):
@@ -53,38 +54,26 @@ def _pairs(k, types_a, types_b, seed):
         args[f] = rng.normal(size=k) * scale * 1e-3
     ta = rng.choice(types_a, size=k)
     tb = rng.choice(types_b, size=k)
+    args[L.LawIn.material] = ta * L.N_TYPES + tb
     return args, ta, tb
 
 
 @njit
-def _blocks(args, ta, tb, cp, dt, rows):
-    """produce's way: each pair's parameters copied into its column, blocks of at most
-    LAW_BLOCK pairs, each run by the law(s) it holds; returns the LawOut columns."""
+def _blocks(args, cp, dt, rows):
+    """produce's way: blocks of at most LAW_BLOCK pairs run by law_rows (one record for a
+    block of one material pair, else each pair's parameters); returns the LawOut columns."""
     k = args.shape[1]
     out = np.zeros((L.N_LAW_OUT, k))
     law_in = np.empty((L.N_LAW_IN, F.LAW_ROW))
     law_out = np.zeros((L.N_LAW_OUT, F.LAW_ROW))
     for first in range(0, k, F.LAW_BLOCK):
         m = min(k - first, F.LAW_BLOCK)
-        laws = 0
+        uniform = True
         for t in range(m):
-            for f in range(args.shape[0]):
+            for f in range(L.LawIn.material + 1):
                 law_in[f, t] = args[f, first + t]
-            c = cp[ta[first + t], tb[first + t]]
-            law_in[L.LawIn.law, t] = c.law
-            law_in[L.LawIn.kn, t] = c.kn
-            law_in[L.LawIn.ks, t] = c.ks
-            law_in[L.LawIn.zn, t] = c.zn
-            law_in[L.LawIn.zt, t] = c.zt
-            law_in[L.LawIn.mu, t] = c.mu
-            law_in[L.LawIn.mur, t] = c.mur
-            law_in[L.LawIn.zr, t] = c.zr
-            law_in[L.LawIn.estar, t] = c.estar
-            law_in[L.LawIn.gstar, t] = c.gstar
-            law_in[L.LawIn.beta, t] = c.beta
-            law_in[L.LawIn.no_tension, t] = c.no_tension
-            laws |= 1 << np.int64(c.law)
-        F._run_law_block(m, law_in, law_out, dt, rows, laws)
+            uniform = uniform and law_in[L.LawIn.material, t] == law_in[L.LawIn.material, 0]
+        F.law_rows(m, law_in, law_out, dt, rows, cp, uniform)
         for f in range(L.N_LAW_OUT):
             for t in range(m):
                 out[f, first + t] = law_out[f, t]
@@ -93,17 +82,26 @@ def _blocks(args, ta, tb, cp, dt, rows):
 
 @njit
 def _one_by_one(args, ta, tb, cp, dt):
-    """The scalar law on each pair (as the wall and wheel contacts call it), in LawOut columns."""
+    """Each pair alone, as the scalar code computed it before the blocks (the contact
+    geometry and effective quantities, then contact.contact, the law of the wall and wheel
+    contacts), in LawOut columns."""
     k = args.shape[1]
     out = np.zeros((L.N_LAW_OUT, k))
     for t in range(k):
         a = args[:, t]
-        nx, ny, nz = a[L.LawIn.nx], a[L.LawIn.ny], a[L.LawIn.nz]
+        dx, dy, dz = a[L.LawIn.dx], a[L.LawIn.dy], a[L.LawIn.dz]
+        ri, rb = a[L.LawIn.ra], a[L.LawIn.rb]
+        mi, mb = a[L.LawIn.ma], a[L.LawIn.mb]
+        ii, ib = a[L.LawIn.ia], a[L.LawIn.ib]
+        d2 = dx * dx + dy * dy + dz * dz
+        rs = ri + rb
+        dd = np.sqrt(d2)
+        nx, ny, nz = dx / dd, dy / dd, dz / dd
         (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
-            cp[ta[t], tb[t]], nx, ny, nz, a[L.LawIn.delta], a[L.LawIn.vrx], a[L.LawIn.vry],
+            cp[ta[t], tb[t]], nx, ny, nz, rs - dd, a[L.LawIn.vrx], a[L.LawIn.vry],
             a[L.LawIn.vrz], a[L.LawIn.wax], a[L.LawIn.way], a[L.LawIn.waz], a[L.LawIn.wbx],
-            a[L.LawIn.wby], a[L.LawIn.wbz], a[L.LawIn.ra], a[L.LawIn.rb], a[L.LawIn.meff],
-            a[L.LawIn.ieff], a[L.LawIn.reff], a[L.LawIn.s_x], a[L.LawIn.s_y], a[L.LawIn.s_z],
+            a[L.LawIn.wby], a[L.LawIn.wbz], ri, rb, mi * mb / (mi + mb), ii * ib / (ii + ib),
+            ri * rb / (ri + rb), a[L.LawIn.s_x], a[L.LawIn.s_y], a[L.LawIn.s_z],
             a[L.LawIn.m_x], a[L.LawIn.m_y], a[L.LawIn.m_z], dt)
         out[L.LawOut.bx, t] = fn * nx - ftx
         out[L.LawOut.by, t] = fn * ny - fty
@@ -126,16 +124,19 @@ def _one_by_one(args, ta, tb, cp, dt):
 ROLLING_FIELDS = ("mox", "moy", "moz", "mx", "my", "mz")
 
 
-@pytest.mark.parametrize("blocks", ["linear", "hertz", "mixed"])
+# linear / hertz: blocks of one material pair (one record); hertz-2 / mixed: several
+# material pairs, one law or both
+@pytest.mark.parametrize("blocks", ["linear", "hertz", "hertz-2", "mixed"])
 @pytest.mark.parametrize("layout", ["rolling", "sliding"])
 def test_block_law_gives_the_bits_of_the_pair_law(blocks, layout):
-    types_a, types_b = {"linear": ([LINEAR], [LINEAR]), "hertz": ([HERTZ], [HERTZ, LINEAR]),
+    types_a, types_b = {"linear": ([LINEAR], [LINEAR]), "hertz": ([HERTZ], [HERTZ]),
+                        "hertz-2": ([HERTZ], [HERTZ, LINEAR]),
                         "mixed": ([LINEAR, HERTZ], [LINEAR, HERTZ])}[blocks]
     args, ta, tb = _pairs(700, types_a, types_b, seed=len(blocks) + len(layout))
     cp = _table()
     dt = 2e-6
     rows = np.zeros(1, L.PAIR_ROW_ROLLING if layout == "rolling" else L.PAIR_ROW_SLIDING)
-    got = _blocks(args, ta, tb, cp, dt, rows)
+    got = _blocks(args, cp, dt, rows)
     want = _one_by_one(args, ta, tb, cp, dt)
     # the cases are there: new contacts, sliding ones (the spring cut to the Coulomb
     # limit), and both laws in one block when mixed
@@ -144,6 +145,8 @@ def test_block_law_gives_the_bits_of_the_pair_law(blocks, layout):
     assert (s_in == 0).sum() > 50 and (s_out < 0.5 * s_in).sum() > 50
     laws = _table()["law"][ta, tb]
     assert len(np.unique(laws[:F.LAW_BLOCK])) == (2 if blocks == "mixed" else 1)
+    several = len(np.unique((ta * L.N_TYPES + tb)[:F.LAW_BLOCK])) > 1
+    assert several == (blocks not in ("linear", "hertz"))
     for f in L.LawOut:
         if layout == "sliding" and f.name in ROLLING_FIELDS:
             continue   # not computed for a layout without rolling parts (never read)
@@ -154,8 +157,8 @@ def test_block_law_compiles_to_simd():
     """The block loop is vectorised (packed square roots in its machine code): the LLVM
     option set in ooc_dem.physics is what allows it."""
     rows = np.zeros(1, L.PAIR_ROW_SLIDING)
-    args, ta, tb = _pairs(8, [LINEAR], [LINEAR], seed=1)
-    _blocks(args, ta, tb, _table(), 1e-6, rows)
+    args, _, _ = _pairs(8, [LINEAR], [LINEAR], seed=1)
+    _blocks(args, _table(), 1e-6, rows)
     asm = "".join(_blocks.inspect_asm().values())
     packed = {"x86_64": ("vsqrtpd", "sqrtpd"), "AMD64": ("vsqrtpd", "sqrtpd"),
               "aarch64": ("fsqrt\tv", "fsqrt\tz"), "arm64": ("fsqrt\tv",)}[platform.machine()]

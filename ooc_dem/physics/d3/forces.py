@@ -7,7 +7,11 @@ The 3D twin of ``ooc_dem.physics.forces`` (read its module doc). Two phases:
    pair row in the pair's slot (``layout.pair_row_layout``: force on b, n x Ft, the
    rolling moment and the new springs); walls (``layout.BODY_ROW``) go to per-chunk buffers in sphere order,
    walls in ascending id (-5 .. -1). The wall rows are made first; when a buffer is
-   full no pair row is made, so the step can be rerun after growing it.
+   full no pair row is made, so the step can be rerun after growing it. The touching
+   pairs are not evaluated one by one: each chunk lists them in blocks (what the law
+   needs of each pair, as columns: ``layout.LawIn``) and ``law_block`` runs the law on a
+   block in one vectorised loop (SIMD), whose per-pair arithmetic is that of a pair
+   evaluated alone, so the bits are the same.
 2. ``gather_integrate``: one pass per sphere sums its rows in ascending partner-id
    order -- its wall rows, then its incoming pairs (lower-id partners, CSR index),
    then its own half-list pairs (the higher id adds the force and tb, the lower
@@ -32,6 +36,7 @@ from .layout import (
     LawOut,
     LAW_HERTZ,
     LAW_LINEAR,
+    N_TYPES,
     LawParams,
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
@@ -209,33 +214,37 @@ def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw,
 LAW_MIXED = -1   # law_block's law when a block's pairs do not all have one law
 
 
-def law_block(k, law_in, law_out, dt, rows, law):
-    """The contact law (contact.contact) on pairs 0..k-1 of a block: their arguments are
-    the LawIn rows of law_in, their pair-row fields go to the LawOut rows of law_out
+def law_block(k, law_in, law_out, dt, rows, law, c0):
+    """The contact law (contact.contact) on pairs 0..k-1 of a block: what it needs of them
+    is in the LawIn rows of law_in, their pair-row fields go to the LawOut rows of law_out
     (force on b, n x Ft, new springs, and the rolling parts when the layout of rows has
-    them). law: LAW_LINEAR or LAW_HERTZ when every pair of the block has that law (a
-    constant at the call: the other law's arithmetic is compiled out), else LAW_MIXED.
+    them). c0: the CONTACT_PARAMS record of every pair of the block (one material pair),
+    or None: each pair's parameters are in its LawIn columns. law: LAW_LINEAR or LAW_HERTZ
+    when every pair of the block has that law (a constant at the call: the other law's
+    arithmetic is compiled out), else LAW_MIXED.
 
     One loop with no call and no early exit, so the compiler evaluates several pairs per
-    instruction (SIMD); each pair's arithmetic and its order are contact's (no fused or
-    reordered operation), so its bits do not depend on the block it is in."""
+    instruction (SIMD); each pair's arithmetic and its order are those of a pair evaluated
+    alone (the contact geometry and effective quantities as produce computed them, then
+    contact's law; no fused or reordered operation), so its bits do not depend on the block."""
 
 
 # error_model numpy: no division-by-zero test in the loop (it would stop the SIMD; the law
-# never divides by zero: dd > 0, its other divisors are tested first, masses are positive)
+# never divides by zero: the pairs touch (dd > 0), its other divisors are tested first,
+# masses and inertias are positive)
 @overload(law_block, prefer_literal=True, jit_options={"error_model": "numpy"})
-def _law_block(k, law_in, law_out, dt, rows, law):
+def _law_block(k, law_in, law_out, dt, rows, law, c0):
     rolling = _rolling_type(rows)
     fixed = law.literal_value if isinstance(law, types.IntegerLiteral) else LAW_MIXED
+    uniform = not isinstance(c0, types.NoneType)
 
-    def impl(k, law_in, law_out, dt, rows, law):
-        nx_, ny_, nz_ = law_in[LawIn.nx], law_in[LawIn.ny], law_in[LawIn.nz]
-        delta_ = law_in[LawIn.delta]
+    def impl(k, law_in, law_out, dt, rows, law, c0):
+        dx_, dy_, dz_ = law_in[LawIn.dx], law_in[LawIn.dy], law_in[LawIn.dz]
         vrx_, vry_, vrz_ = law_in[LawIn.vrx], law_in[LawIn.vry], law_in[LawIn.vrz]
         wax_, way_, waz_ = law_in[LawIn.wax], law_in[LawIn.way], law_in[LawIn.waz]
         wbx_, wby_, wbz_ = law_in[LawIn.wbx], law_in[LawIn.wby], law_in[LawIn.wbz]
         ra_, rb_ = law_in[LawIn.ra], law_in[LawIn.rb]
-        meff_, ieff_, reff_ = law_in[LawIn.meff], law_in[LawIn.ieff], law_in[LawIn.reff]
+        ma_, mb_, ia_, ib_ = law_in[LawIn.ma], law_in[LawIn.mb], law_in[LawIn.ia], law_in[LawIn.ib]
         s_x_, s_y_, s_z_ = law_in[LawIn.s_x], law_in[LawIn.s_y], law_in[LawIn.s_z]
         m_x_, m_y_, m_z_ = law_in[LawIn.m_x], law_in[LawIn.m_y], law_in[LawIn.m_z]
         bx, by, bz = law_out[LawOut.bx], law_out[LawOut.by], law_out[LawOut.bz]
@@ -248,15 +257,34 @@ def _law_block(k, law_in, law_out, dt, rows, law):
         zr, estar, gstar = law_in[LawIn.zr], law_in[LawIn.estar], law_in[LawIn.gstar]
         beta, no_tension = law_in[LawIn.beta], law_in[LawIn.no_tension]
         for t in range(k):
-            c = LawParams(law_[t] if fixed == LAW_MIXED else fixed, kn[t], ks[t], zn[t], zt[t],
-                          mu[t], mur[t], zr[t], estar[t], gstar[t], beta[t], no_tension[t])
-            nx = nx_[t]
-            ny = ny_[t]
-            nz = nz_[t]
+            if uniform:   # a constant: one record for the block, or each pair's columns
+                c = LawParams(c0.law if fixed == LAW_MIXED else fixed, c0.kn, c0.ks, c0.zn,
+                              c0.zt, c0.mu, c0.mur, c0.zr, c0.estar, c0.gstar, c0.beta,
+                              c0.no_tension)
+            else:
+                c = LawParams(law_[t] if fixed == LAW_MIXED else fixed, kn[t], ks[t], zn[t],
+                              zt[t], mu[t], mur[t], zr[t], estar[t], gstar[t], beta[t],
+                              no_tension[t])
+            # the contact geometry and effective quantities (produce's distance test made d2)
+            dx = dx_[t]
+            dy = dy_[t]
+            dz = dz_[t]
+            ra = ra_[t]
+            rb = rb_[t]
+            ma = ma_[t]
+            mb = mb_[t]
+            ia = ia_[t]
+            ib = ib_[t]
+            d2 = dx * dx + dy * dy + dz * dz
+            rs = ra + rb
+            dd = math.sqrt(d2)
+            nx = dx / dd
+            ny = dy / dd
+            nz = dz / dd
             (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
-                c, nx, ny, nz, delta_[t], vrx_[t], vry_[t], vrz_[t], wax_[t], way_[t], waz_[t],
-                wbx_[t], wby_[t], wbz_[t], ra_[t], rb_[t], meff_[t], ieff_[t], reff_[t],
-                s_x_[t], s_y_[t], s_z_[t], m_x_[t], m_y_[t], m_z_[t], dt)
+                c, nx, ny, nz, rs - dd, vrx_[t], vry_[t], vrz_[t], wax_[t], way_[t], waz_[t],
+                wbx_[t], wby_[t], wbz_[t], ra, rb, ma * mb / (ma + mb), ia * ib / (ia + ib),
+                ra * rb / (ra + rb), s_x_[t], s_y_[t], s_z_[t], m_x_[t], m_y_[t], m_z_[t], dt)
             bx[t] = fn * nx - ftx
             by[t] = fn * ny - fty
             bz[t] = fn * nz - ftz
@@ -277,15 +305,44 @@ def _law_block(k, law_in, law_out, dt, rows, law):
 
 
 @njit(inline="always", cache=True)
-def _run_law_block(k, law_in, law_out, dt, rows, laws):
-    """law_block on a block whose pairs' laws are the bit set laws (1 << law): the one law
-    compiled alone when the block has one."""
+def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
+    """law_block on a filled block of k pairs (LawIn columns up to the material pair):
+    uniform (one material pair, in column 0): its record for the whole block, its one law
+    compiled alone; else each pair's parameters are copied into its columns first, and
+    the block runs with one law compiled alone when it has one."""
+    m0 = np.int64(law_in[LawIn.material, 0])
+    if uniform:
+        c0 = cp[m0 // N_TYPES, m0 % N_TYPES]
+        if c0.law == LAW_LINEAR:
+            law_block(k, law_in, law_out, dt, rows, LAW_LINEAR, c0)
+        elif c0.law == LAW_HERTZ:
+            law_block(k, law_in, law_out, dt, rows, LAW_HERTZ, c0)
+        else:
+            law_block(k, law_in, law_out, dt, rows, LAW_MIXED, c0)
+        return
+    laws = 0   # the laws of the block's pairs, a bit set (1 << law)
+    for t in range(k):
+        m = np.int64(law_in[LawIn.material, t])
+        c = cp[m // N_TYPES, m % N_TYPES]
+        law_in[LawIn.law, t] = c.law
+        law_in[LawIn.kn, t] = c.kn
+        law_in[LawIn.ks, t] = c.ks
+        law_in[LawIn.zn, t] = c.zn
+        law_in[LawIn.zt, t] = c.zt
+        law_in[LawIn.mu, t] = c.mu
+        law_in[LawIn.mur, t] = c.mur
+        law_in[LawIn.zr, t] = c.zr
+        law_in[LawIn.estar, t] = c.estar
+        law_in[LawIn.gstar, t] = c.gstar
+        law_in[LawIn.beta, t] = c.beta
+        law_in[LawIn.no_tension, t] = c.no_tension
+        laws |= 1 << np.int64(c.law)
     if laws == 1 << LAW_LINEAR:
-        law_block(k, law_in, law_out, dt, rows, LAW_LINEAR)
+        law_block(k, law_in, law_out, dt, rows, LAW_LINEAR, None)
     elif laws == 1 << LAW_HERTZ:
-        law_block(k, law_in, law_out, dt, rows, LAW_HERTZ)
+        law_block(k, law_in, law_out, dt, rows, LAW_HERTZ, None)
     else:
-        law_block(k, law_in, law_out, dt, rows, LAW_MIXED)
+        law_block(k, law_in, law_out, dt, rows, LAW_MIXED, None)
 
 
 @njit(inline="always", cache=True)
@@ -500,7 +557,7 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
         law_out = np.empty((N_LAW_OUT, LAW_ROW))
         slot = np.empty(LAW_BLOCK, np.int64)
         k = 0
-        laws = 0   # the laws of the block's pairs, a bit set (1 << law)
+        uniform = True   # the block's pairs so far have one material pair
         for i in range(lo, hi):
             xi = pos[i, 0]
             yi = pos[i, 1]
@@ -522,7 +579,6 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
                 if d2 >= rs * rs or d2 == 0.0:
                     on[q] = 0
                     continue
-                dd = math.sqrt(d2)
                 s0x = s0y = s0z = m0x = m0y = m0z = 0.0
                 if held:
                     if on[q]:
@@ -535,12 +591,9 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
                         s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
                         if rolling:   # else unused: no pair has rolling resistance
                             m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
-                mb = mass[b]
-                ib = inertia[b]
-                law_in[LawIn.nx, k] = dx / dd
-                law_in[LawIn.ny, k] = dy / dd
-                law_in[LawIn.nz, k] = dz / dd
-                law_in[LawIn.delta, k] = rs - dd
+                law_in[LawIn.dx, k] = dx
+                law_in[LawIn.dy, k] = dy
+                law_in[LawIn.dz, k] = dz
                 law_in[LawIn.vrx, k] = vel[b, 0] - vel[i, 0]
                 law_in[LawIn.vry, k] = vel[b, 1] - vel[i, 1]
                 law_in[LawIn.vrz, k] = vel[b, 2] - vel[i, 2]
@@ -552,38 +605,28 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
                 law_in[LawIn.wbz, k] = spin[b, 2]
                 law_in[LawIn.ra, k] = ri
                 law_in[LawIn.rb, k] = rb
-                law_in[LawIn.meff, k] = mi * mb / (mi + mb)
-                law_in[LawIn.ieff, k] = ii * ib / (ii + ib)
-                law_in[LawIn.reff, k] = ri * rb / (ri + rb)
+                law_in[LawIn.ma, k] = mi
+                law_in[LawIn.mb, k] = mass[b]
+                law_in[LawIn.ia, k] = ii
+                law_in[LawIn.ib, k] = inertia[b]
                 law_in[LawIn.s_x, k] = s0x
                 law_in[LawIn.s_y, k] = s0y
                 law_in[LawIn.s_z, k] = s0z
                 law_in[LawIn.m_x, k] = m0x
                 law_in[LawIn.m_y, k] = m0y
                 law_in[LawIn.m_z, k] = m0z
-                c = cp[ti, mat[b]]
-                law_in[LawIn.law, k] = c.law
-                laws |= 1 << np.int64(c.law)
-                law_in[LawIn.kn, k] = c.kn
-                law_in[LawIn.ks, k] = c.ks
-                law_in[LawIn.zn, k] = c.zn
-                law_in[LawIn.zt, k] = c.zt
-                law_in[LawIn.mu, k] = c.mu
-                law_in[LawIn.mur, k] = c.mur
-                law_in[LawIn.zr, k] = c.zr
-                law_in[LawIn.estar, k] = c.estar
-                law_in[LawIn.gstar, k] = c.gstar
-                law_in[LawIn.beta, k] = c.beta
-                law_in[LawIn.no_tension, k] = c.no_tension
+                material = ti * N_TYPES + mat[b]
+                law_in[LawIn.material, k] = material
+                uniform = uniform and material == law_in[LawIn.material, 0]
                 slot[k] = q
                 k += 1
                 if k == LAW_BLOCK:
-                    _run_law_block(k, law_in, law_out, dt, rows, laws)
+                    law_rows(k, law_in, law_out, dt, rows, cp, uniform)
                     _put_pair_rows(k, slot, law_out, rows, on)
                     k = 0
-                    laws = 0
+                    uniform = True
         if k > 0:
-            _run_law_block(k, law_in, law_out, dt, rows, laws)
+            law_rows(k, law_in, law_out, dt, rows, cp, uniform)
             _put_pair_rows(k, slot, law_out, rows, on)
 
 

@@ -104,13 +104,15 @@ def pair_row_layout(cp) -> np.dtype:
 # inputs and results are rows of two (fields, LAW_BLOCK) arrays (structure of arrays),
 # so the compiler runs the law on several pairs at once (SIMD). Each pair's arithmetic is
 # ``contact.contact``'s, with no reordering, so its bits are those of the pair evaluated alone.
-# LawIn: the law's arguments (contact.contact), then its material pair's parameters (the
-# CONTACT_PARAMS fields, in their order: copied per pair, as an indexed load in the loop
-# would stop the SIMD); LawOut: the pair row's fields (PAIR_ROW_ROLLING).
-LawIn = IntEnum("LawIn", ("nx", "ny", "nz", "delta", "vrx", "vry", "vrz", "wax", "way", "waz",
-                          "wbx", "wby", "wbz", "ra", "rb", "meff", "ieff", "reff",
-                          "s_x", "s_y", "s_z", "m_x", "m_y", "m_z") + CONTACT_PARAMS.names,
-                start=0)
+# LawIn: what the law needs of a touching pair (the centres' offset b - a, relative
+# velocity, spins, radii, masses, inertias, stored springs), its material pair in the contact
+# table (type_a * N_TYPES + type_b) and that pair's parameters (the CONTACT_PARAMS fields,
+# in their order; filled only for a block of several material pairs: an indexed load in
+# the loop would stop the SIMD); LawOut: the pair row's fields (PAIR_ROW_ROLLING).
+LawIn = IntEnum("LawIn", ("dx", "dy", "dz", "vrx", "vry", "vrz", "wax", "way", "waz",
+                          "wbx", "wby", "wbz", "ra", "rb", "ma", "mb", "ia", "ib",
+                          "s_x", "s_y", "s_z", "m_x", "m_y", "m_z", "material")
+                + CONTACT_PARAMS.names, start=0)
 LawOut = IntEnum("LawOut", PAIR_ROW_ROLLING.names, start=0)
 N_LAW_IN = len(LawIn)
 N_LAW_OUT = len(LawOut)

@@ -36,6 +36,7 @@ from .layout import (
     LawOut,
     LAW_HERTZ,
     LAW_LINEAR,
+    N_FIELDS,
     N_TYPES,
     LawParams,
     ERR_BODY_CAPACITY,
@@ -321,22 +322,16 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
             law_block(k, law_in, law_out, dt, rows, LAW_MIXED, c0)
         return
     laws = 0   # the laws of the block's pairs, a bit set (1 << law)
+    # the table's records as float64 (all their fields are): row a holds records [a, b]
+    # one after another; LawIn has the fields in the record's order from LawIn.law on
+    fields = cp.view(np.float64)
     for t in range(k):
         m = np.int64(law_in[LawIn.material, t])
-        c = cp[m // N_TYPES, m % N_TYPES]
-        law_in[LawIn.law, t] = c.law
-        law_in[LawIn.kn, t] = c.kn
-        law_in[LawIn.ks, t] = c.ks
-        law_in[LawIn.zn, t] = c.zn
-        law_in[LawIn.zt, t] = c.zt
-        law_in[LawIn.mu, t] = c.mu
-        law_in[LawIn.mur, t] = c.mur
-        law_in[LawIn.zr, t] = c.zr
-        law_in[LawIn.estar, t] = c.estar
-        law_in[LawIn.gstar, t] = c.gstar
-        law_in[LawIn.beta, t] = c.beta
-        law_in[LawIn.no_tension, t] = c.no_tension
-        laws |= 1 << np.int64(c.law)
+        a = m // N_TYPES
+        at = (m % N_TYPES) * N_FIELDS
+        for f in range(N_FIELDS):
+            law_in[LawIn.law + f, t] = fields[a, at + f]
+        laws |= 1 << np.int64(law_in[LawIn.law, t])
     if laws == 1 << LAW_LINEAR:
         law_block(k, law_in, law_out, dt, rows, LAW_LINEAR, None)
     elif laws == 1 << LAW_HERTZ:

@@ -7,9 +7,9 @@ import llvmlite.binding as _llvm
 
 # The 3D pair law runs on blocks of pairs (d3.forces.law_block), one loop that reads ~40
 # arrays and writes 15. LLVM vectorizes such a loop only after checking at run time that
-# the arrays do not overlap, and by default gives up beyond 8 such checks (the two
-# options: without a loop hint, and with one); this budget lets it (the checks cost a few ns per block of 256 pairs). It changes no result: LLVM
-# vectorizes without reordering or fusing any floating-point operation.
+# the arrays do not overlap, and by default gives up beyond 8 such checks (two options:
+# loops without and with a vectorize hint); this budget lets it. It changes no result:
+# LLVM vectorizes without reordering or fusing any floating-point operation (no fast-math).
 _llvm.set_option("", "--runtime-memory-check-threshold=4096")
 _llvm.set_option("", "--vectorize-memory-check-threshold=4096")
 

@@ -306,20 +306,27 @@ def _law_block(k, law_in, law_out, dt, rows, law, c0):
 
 
 @njit(inline="always", cache=True)
+def _law_block_of(k, law_in, law_out, dt, rows, laws, c0):
+    """law_block with the block's one law compiled alone when laws (the bit set 1 << law of
+    its pairs) has one, else both."""
+    if laws == 1 << LAW_LINEAR:
+        law_block(k, law_in, law_out, dt, rows, LAW_LINEAR, c0)
+    elif laws == 1 << LAW_HERTZ:
+        law_block(k, law_in, law_out, dt, rows, LAW_HERTZ, c0)
+    else:
+        law_block(k, law_in, law_out, dt, rows, LAW_MIXED, c0)
+
+
+@njit(inline="always", cache=True)
 def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
     """law_block on a filled block of k pairs (LawIn columns up to the material pair):
-    uniform (one material pair, in column 0): its record for the whole block, its one law
-    compiled alone; else each pair's parameters are copied into its columns first, and
-    the block runs with one law compiled alone when it has one."""
-    m0 = np.int64(law_in[LawIn.material, 0])
+    uniform (one material pair, in column 0): its record for the whole block; else each
+    pair's parameters are copied into its columns first. Either way the block's one law
+    is compiled alone when it has one."""
     if uniform:
+        m0 = np.int64(law_in[LawIn.material, 0])
         c0 = cp[m0 // N_TYPES, m0 % N_TYPES]
-        if c0.law == LAW_LINEAR:
-            law_block(k, law_in, law_out, dt, rows, LAW_LINEAR, c0)
-        elif c0.law == LAW_HERTZ:
-            law_block(k, law_in, law_out, dt, rows, LAW_HERTZ, c0)
-        else:
-            law_block(k, law_in, law_out, dt, rows, LAW_MIXED, c0)
+        _law_block_of(k, law_in, law_out, dt, rows, 1 << np.int64(c0.law), c0)
         return
     laws = 0   # the laws of the block's pairs, a bit set (1 << law)
     # the table's records as float64 (all their fields are): row a holds records [a, b]
@@ -332,12 +339,7 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
         for f in range(N_FIELDS):
             law_in[LawIn.law + f, t] = fields[a, at + f]
         laws |= 1 << np.int64(law_in[LawIn.law, t])
-    if laws == 1 << LAW_LINEAR:
-        law_block(k, law_in, law_out, dt, rows, LAW_LINEAR, None)
-    elif laws == 1 << LAW_HERTZ:
-        law_block(k, law_in, law_out, dt, rows, LAW_HERTZ, None)
-    else:
-        law_block(k, law_in, law_out, dt, rows, LAW_MIXED, None)
+    _law_block_of(k, law_in, law_out, dt, rows, laws, None)
 
 
 @njit(inline="always", cache=True)

@@ -30,6 +30,11 @@ from .layout import (
 )
 from .step import run_steps, spatial_order
 
+# run_steps' role and spans as the engine passes them (engine.stepper: every sphere
+# stepped, no light cone): the same argument types, so the driver and the engine share one
+# compiled run_steps (with None the kernels would be compiled again, for literal values)
+EVERY_SPHERE = np.zeros(0, np.int8)
+NO_CONE = np.zeros((0, 2), np.int64)
 SERIAL_BELOW = 3000   # spheres; below this the driver runs on one thread (same bits)
 PAIR_HEADROOM = 1.05
 
@@ -116,8 +121,10 @@ class Sim:
                                np.zeros(1, WHEEL_GEOMETRY), np.zeros(1, WHEEL_CONTROLS))
         self.ws = np.zeros(1, WHEEL_STATE)
         self.rec = np.zeros(1, WHEEL_RECORD)
-        self.half_off = np.zeros(n + 1, np.int64)
-        self.inc_off = np.zeros(n + 1, np.int64)
+        # the engine's index type (engine.stepper.DomainStepper): the same kernel signatures
+        self._idx = np.int32 if n < 2**28 else np.int64
+        self.half_off = np.zeros(n + 1, self._idx)
+        self.inc_off = np.zeros(n + 1, self._idx)
         self.ref = np.zeros((n, 3))
         self._grow_pairs(0)
         nf = n if keep_forces else 0
@@ -129,9 +136,9 @@ class Sim:
 
     def _grow_pairs(self, npairs):
         cap = int(npairs * PAIR_HEADROOM) + 64
-        self.pair_b = np.zeros(cap, np.int64)
-        self.pair_a = np.zeros(cap, np.int64)
-        self.inc_k = np.zeros(cap, np.int64)
+        self.pair_b = np.zeros(cap, self._idx)
+        self.pair_a = np.zeros(cap, self._idx)
+        self.inc_k = np.zeros(cap, self._idx)
         self.on = np.zeros(cap, np.uint8)
         self.rows = np.zeros(cap, pair_row_layout(self.kp.cp))
 
@@ -158,7 +165,8 @@ class Sim:
             pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k,
                        self.ref, self.on, self.rows)
             k, rb = run_steps(nsteps - done, self.step, self.kp, d, pl, self.bodies,
-                              self.forces, self.ws, self.err, self.rec, not self._built)
+                              self.forces, self.ws, self.err, self.rec, not self._built, False,
+                              EVERY_SPHERE, NO_CONE)
             done += k
             self.step += k
             self.rebuilds += rb

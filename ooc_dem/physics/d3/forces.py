@@ -215,31 +215,25 @@ def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw,
 LAW_MIXED = -1   # law_block's law when a block's pairs do not all have one law
 
 
-def law_block(k, law_in, law_out, dt, rows, law, c0):
-    """The contact law (contact.contact) on pairs 0..k-1 of a block: what it needs of them
-    is in the LawIn rows of law_in, their pair-row fields go to the LawOut rows of law_out
-    (force on b, n x Ft, new springs, and the rolling parts when the layout of rows has
-    them). c0: the CONTACT_PARAMS record of every pair of the block (one material pair),
-    or None: each pair's parameters are in its LawIn columns. law: LAW_LINEAR or LAW_HERTZ
-    when every pair of the block has that law (a constant at the call: the other law's
-    arithmetic is compiled out), else LAW_MIXED.
+def _law_block(fixed, uniform):
+    """law_block compiled for one law and one source of the parameters: the pair law
+    (contact.contact) on pairs 0..k-1 of a block: what it needs of them is in the LawIn
+    rows of law_in, their pair-row fields go to the LawOut rows of law_out (force on b,
+    n x Ft, new springs, and the rolling parts when the layout of rows has them).
+    fixed: LAW_LINEAR or LAW_HERTZ when every pair of the block has that law (the other
+    law's arithmetic is compiled out), else LAW_MIXED; uniform: c0 is the CONTACT_PARAMS
+    record of every pair of the block (one material pair), else each pair's parameters
+    are in its LawIn columns (c0 is None).
 
     One loop with no call and no early exit, so the compiler evaluates several pairs per
     instruction (SIMD); each pair's arithmetic and its order are those of a pair evaluated
     alone (the contact geometry and effective quantities as produce computed them, then
-    contact's law; no fused or reordered operation), so its bits do not depend on the block."""
+    contact's law; no fused or reordered operation), so its bits do not depend on the block.
+    Each variant is one dispatcher, compiled once per signature and cached (an @overload's
+    implementation is compiled again for each typing context of its caller)."""
 
-
-# error_model numpy: no division-by-zero test in the loop (it would stop the SIMD; the law
-# never divides by zero: the pairs touch (dd > 0), its other divisors are tested first,
-# masses and inertias are positive)
-@overload(law_block, prefer_literal=True, jit_options={"error_model": "numpy"})
-def _law_block(k, law_in, law_out, dt, rows, law, c0):
-    rolling = _rolling_type(rows)
-    fixed = law.literal_value if isinstance(law, types.IntegerLiteral) else LAW_MIXED
-    uniform = not isinstance(c0, types.NoneType)
-
-    def impl(k, law_in, law_out, dt, rows, law, c0):
+    def law_block(k, law_in, law_out, dt, rows, c0):
+        rolling = has_rolling(rows)
         dx_, dy_, dz_ = law_in[LawIn.dx], law_in[LawIn.dy], law_in[LawIn.dz]
         vrx_, vry_, vrz_ = law_in[LawIn.vrx], law_in[LawIn.vry], law_in[LawIn.vrz]
         wax_, way_, waz_ = law_in[LawIn.wax], law_in[LawIn.way], law_in[LawIn.waz]
@@ -302,19 +296,30 @@ def _law_block(k, law_in, law_out, dt, rows, law, c0):
                 mx_[t] = mnx
                 my_[t] = mny
                 mz_[t] = mnz
-    return impl
+
+    # error_model numpy: no division-by-zero test in the loop (it would stop the SIMD; the law
+    # never divides by zero: the pairs touch (dd > 0), its other divisors are tested first,
+    # masses and inertias are positive)
+    return njit(error_model="numpy", cache=True)(law_block)
+
+
+law_block_linear = _law_block(LAW_LINEAR, False)
+law_block_hertz = _law_block(LAW_HERTZ, False)
+law_block_mixed = _law_block(LAW_MIXED, False)
+law_block_linear_one = _law_block(LAW_LINEAR, True)   # one record for the block
+law_block_hertz_one = _law_block(LAW_HERTZ, True)
 
 
 @njit(inline="always", cache=True)
-def _law_block_of(k, law_in, law_out, dt, rows, laws, c0):
-    """law_block with the block's one law compiled alone when laws (the bit set 1 << law of
-    its pairs) has one, else both."""
+def _law_block_of(k, law_in, law_out, dt, rows, laws):
+    """law_block with each pair's parameters in its columns, the block's one law compiled
+    alone when laws (the bit set 1 << law of its pairs) has one, else both."""
     if laws == 1 << LAW_LINEAR:
-        law_block(k, law_in, law_out, dt, rows, LAW_LINEAR, c0)
+        law_block_linear(k, law_in, law_out, dt, rows, None)
     elif laws == 1 << LAW_HERTZ:
-        law_block(k, law_in, law_out, dt, rows, LAW_HERTZ, c0)
+        law_block_hertz(k, law_in, law_out, dt, rows, None)
     else:
-        law_block(k, law_in, law_out, dt, rows, LAW_MIXED, c0)
+        law_block_mixed(k, law_in, law_out, dt, rows, None)
 
 
 @njit(inline="always", cache=True)
@@ -323,10 +328,14 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
     uniform (one material pair, in column 0): its record for the whole block; else each
     pair's parameters are copied into its columns first. Either way the block's one law
     is compiled alone when it has one."""
+    k = np.int64(k)   # never a literal: one compiled law_block per signature
     if uniform:
         m0 = np.int64(law_in[LawIn.material, 0])
         c0 = cp[m0 // N_TYPES, m0 % N_TYPES]
-        _law_block_of(k, law_in, law_out, dt, rows, 1 << np.int64(c0.law), c0)
+        if c0.law == LAW_LINEAR:
+            law_block_linear_one(k, law_in, law_out, dt, rows, c0)
+        else:
+            law_block_hertz_one(k, law_in, law_out, dt, rows, c0)
         return
     laws = 0   # the laws of the block's pairs, a bit set (1 << law)
     # the table's records as float64 (all their fields are): row a holds records [a, b]
@@ -339,7 +348,7 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
         for f in range(N_FIELDS):
             law_in[LawIn.law + f, t] = fields[a, at + f]
         laws |= 1 << np.int64(law_in[LawIn.law, t])
-    _law_block_of(k, law_in, law_out, dt, rows, laws, None)
+    _law_block_of(k, law_in, law_out, dt, rows, laws)
 
 
 @njit(inline="always", cache=True)

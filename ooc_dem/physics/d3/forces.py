@@ -215,8 +215,8 @@ def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw,
 LAW_MIXED = -1   # law_block's law when a block's pairs do not all have one law
 
 
-def _law_block(fixed, uniform):
-    """law_block compiled for one law and one source of the parameters: the pair law
+def law_block(fixed, uniform):
+    """The block law compiled for one law and one source of the parameters: the pair law
     (contact.contact) on pairs 0..k-1 of a block: what it needs of them is in the LawIn
     rows of law_in, their pair-row fields go to the LawOut rows of law_out (force on b,
     n x Ft, new springs, and the rolling parts when the layout of rows has them).
@@ -232,7 +232,7 @@ def _law_block(fixed, uniform):
     Each variant is one dispatcher, compiled once per signature and cached (an @overload's
     implementation is compiled again for each typing context of its caller)."""
 
-    def law_block(k, law_in, law_out, dt, rows, c0):
+    def block(k, law_in, law_out, dt, rows, c0):
         rolling = has_rolling(rows)
         dx_, dy_, dz_ = law_in[LawIn.dx], law_in[LawIn.dy], law_in[LawIn.dz]
         vrx_, vry_, vrz_ = law_in[LawIn.vrx], law_in[LawIn.vry], law_in[LawIn.vrz]
@@ -300,19 +300,19 @@ def _law_block(fixed, uniform):
     # error_model numpy: no division-by-zero test in the loop (it would stop the SIMD; the law
     # never divides by zero: the pairs touch (dd > 0), its other divisors are tested first,
     # masses and inertias are positive)
-    return njit(error_model="numpy", cache=True)(law_block)
+    return njit(error_model="numpy", cache=True)(block)
 
 
-law_block_linear = _law_block(LAW_LINEAR, False)
-law_block_hertz = _law_block(LAW_HERTZ, False)
-law_block_mixed = _law_block(LAW_MIXED, False)
-law_block_linear_one = _law_block(LAW_LINEAR, True)   # one record for the block
-law_block_hertz_one = _law_block(LAW_HERTZ, True)
+law_block_linear = law_block(LAW_LINEAR, False)
+law_block_hertz = law_block(LAW_HERTZ, False)
+law_block_mixed = law_block(LAW_MIXED, False)
+law_block_linear_one = law_block(LAW_LINEAR, True)   # one record for the block
+law_block_hertz_one = law_block(LAW_HERTZ, True)
 
 
 @njit(inline="always", cache=True)
 def _law_block_of(k, law_in, law_out, dt, rows, laws):
-    """law_block with each pair's parameters in its columns, the block's one law compiled
+    """The block law with each pair's parameters in its columns, the block's one law compiled
     alone when laws (the bit set 1 << law of its pairs) has one, else both."""
     if laws == 1 << LAW_LINEAR:
         law_block_linear(k, law_in, law_out, dt, rows, None)
@@ -324,11 +324,11 @@ def _law_block_of(k, law_in, law_out, dt, rows, laws):
 
 @njit(inline="always", cache=True)
 def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
-    """law_block on a filled block of k pairs (LawIn columns up to the material pair):
+    """The block law on a filled block of k pairs (LawIn columns up to the material pair):
     uniform (one material pair, in column 0): its record for the whole block; else each
     pair's parameters are copied into its columns first. Either way the block's one law
     is compiled alone when it has one."""
-    k = np.int64(k)   # never a literal: one compiled law_block per signature
+    k = np.int64(k)   # never a literal: one compiled block law per signature
     if uniform:
         m0 = np.int64(law_in[LawIn.material, 0])
         c0 = cp[m0 // N_TYPES, m0 % N_TYPES]

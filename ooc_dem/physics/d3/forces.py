@@ -316,18 +316,6 @@ law_block_hertz_one = law_block(LAW_HERTZ, True)
 
 
 @njit(inline="always", cache=True)
-def _law_block_of(k, law_in, law_out, dt, rows, laws):
-    """The block law with each pair's parameters in its columns, the block's one law compiled
-    alone when laws (the bit set 1 << law of its pairs) has one, else both."""
-    if laws == 1 << LAW_LINEAR:
-        law_block_linear(k, law_in, law_out, dt, rows, None)
-    elif laws == 1 << LAW_HERTZ:
-        law_block_hertz(k, law_in, law_out, dt, rows, None)
-    else:
-        law_block_mixed(k, law_in, law_out, dt, rows, None)
-
-
-@njit(inline="always", cache=True)
 def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
     """The block law on a filled block of k pairs (LawIn columns up to the material pair):
     uniform (one material pair, in column 0): its record for the whole block; else each
@@ -337,10 +325,10 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
     if uniform:
         m0 = np.int64(law_in[LawIn.material, 0])
         c0 = cp[m0 // N_TYPES, m0 % N_TYPES]
-        if c0.law == LAW_LINEAR:
-            law_block_linear_one(k, law_in, law_out, dt, rows, c0)
-        else:
+        if c0.law == LAW_HERTZ:   # as contact.contact decides: any other law is linear
             law_block_hertz_one(k, law_in, law_out, dt, rows, c0)
+        else:
+            law_block_linear_one(k, law_in, law_out, dt, rows, c0)
         return
     laws = 0   # the laws of the block's pairs, a bit set (1 << law)
     # the table's records as float64 (all their fields are): row a holds records [a, b]
@@ -353,7 +341,12 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
         for f in range(N_FIELDS):
             law_in[LawIn.law + f, t] = fields[a, at + f]
         laws |= 1 << np.int64(law_in[LawIn.law, t])
-    _law_block_of(k, law_in, law_out, dt, rows, laws)
+    if laws == 1 << LAW_LINEAR:
+        law_block_linear(k, law_in, law_out, dt, rows, None)
+    elif laws == 1 << LAW_HERTZ:
+        law_block_hertz(k, law_in, law_out, dt, rows, None)
+    else:
+        law_block_mixed(k, law_in, law_out, dt, rows, None)
 
 
 @njit(inline="always", cache=True)

@@ -33,10 +33,6 @@ from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFL
                               Pairs, discs_of, record, spin_width)
 from ..state import Particles, default_hist_cap
 
-# role argument of run_steps: every disc is owned, every pair row reloaded
-EVERY_DISC = np.zeros(0, np.int8)
-# spans argument of run_steps: no light cone, every step advances every disc
-NO_CONE = np.zeros((0, 2), np.int64)
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
 PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
 
@@ -214,7 +210,7 @@ class DomainStepper:
         self.n = len(particles)
         n = self.n
         self.ws = np.zeros(WS_SIZE) if wheel_state is None else np.array(wheel_state, dtype=np.float64)
-        self._idx = np.int32 if n < 2**28 else np.int64
+        self._idx = L.index_dtype(n)
         self.half_off = np.zeros(n + 1, self._idx)
         self.inc_off = np.zeros(n + 1, self._idx)
         self._grow_pairs(max(0, int(pairs_hint)))
@@ -275,7 +271,7 @@ class DomainStepper:
         if serial:
             numba.set_num_threads(1)
         try:
-            done = self._run(nsteps, step0, rec, NO_CONE if spans is None else spans)
+            done = self._run(nsteps, step0, rec, L.NO_CONE if spans is None else spans)
         finally:
             if serial:
                 numba.set_num_threads(threads)
@@ -294,14 +290,14 @@ class DomainStepper:
         """A chunk's wall/wheel rows did not fit: twice the room."""
         self.bodies = Bodies(np.zeros(2 * self.bodies.rows.shape[0], self._body_row), self.bodies.count)
 
-    def _run(self, nsteps, step0, rec, spans=NO_CONE) -> int:
+    def _run(self, nsteps, step0, rec, spans=L.NO_CONE) -> int:
         recv = record(rec, WHEEL_RECORD) if len(rec) else np.zeros(1, WHEEL_RECORD)  # unused
         done = 0
         while True:
             kp, d, pl, bd, forces, ws, err = self.kernel_args()
             k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, bd, forces, ws,
                                         err, recv[done:] if len(rec) else recv, not self._built,
-                                        self._pairs_done, EVERY_DISC, spans[done:])
+                                        self._pairs_done, L.EVERY_PARTICLE, spans[done:])
             del kp, d, pl, bd, forces, ws, err   # no view may keep a list that is regrown
             self._pairs_done = False
             done += k

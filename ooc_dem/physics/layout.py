@@ -27,6 +27,21 @@ import numpy as np
 
 F8 = "<f8"
 
+# ------------------------------------------------------- run_steps' arguments
+# role: every particle is owned, every pair row reloaded; spans: no light cone, every step
+# advances every particle. Every caller passes these (not None): the same argument types,
+# so one compiled run_steps serves the engine and the test drivers (with None, numba
+# compiles the step again for literal values)
+EVERY_PARTICLE = np.zeros(0, np.int8)
+NO_CONE = np.zeros((0, 2), np.int64)
+
+
+def index_dtype(n: int):
+    """The pair lists' and CSR offsets' index type for a domain of n particles: int32 while
+    the pair count (~8 n) stays far below 2**31, else int64."""
+    return np.int32 if n < 2**28 else np.int64
+
+
 # ------------------------------------------------------------------- axes
 # columns of the per-particle vectors pos / vel (N, D) and of forces (N, D):
 # x = travel (slabs run along x), y = vertical (gravity in -y), z = across the bin (3D)

@@ -28,13 +28,9 @@ from .layout import (
     KernelParams,
     Pairs,
 )
+from ..layout import EVERY_PARTICLE, NO_CONE, index_dtype
 from .step import run_steps, spatial_order
 
-# run_steps' role and spans as the engine passes them (engine.stepper: every sphere
-# stepped, no light cone): the same argument types, so the driver and the engine share one
-# compiled run_steps (with None the kernels would be compiled again, for literal values)
-EVERY_SPHERE = np.zeros(0, np.int8)
-NO_CONE = np.zeros((0, 2), np.int64)
 SERIAL_BELOW = 3000   # spheres; below this the driver runs on one thread (same bits)
 PAIR_HEADROOM = 1.05
 
@@ -121,8 +117,7 @@ class Sim:
                                np.zeros(1, WHEEL_GEOMETRY), np.zeros(1, WHEEL_CONTROLS))
         self.ws = np.zeros(1, WHEEL_STATE)
         self.rec = np.zeros(1, WHEEL_RECORD)
-        # the engine's index type (engine.stepper.DomainStepper): the same kernel signatures
-        self._idx = np.int32 if n < 2**28 else np.int64
+        self._idx = index_dtype(n)   # the engine's: the same kernel signatures
         self.half_off = np.zeros(n + 1, self._idx)
         self.inc_off = np.zeros(n + 1, self._idx)
         self.ref = np.zeros((n, 3))
@@ -166,7 +161,7 @@ class Sim:
                        self.ref, self.on, self.rows)
             k, rb = run_steps(nsteps - done, self.step, self.kp, d, pl, self.bodies,
                               self.forces, self.ws, self.err, self.rec, not self._built, False,
-                              EVERY_SPHERE, NO_CONE)
+                              EVERY_PARTICLE, NO_CONE)
             done += k
             self.step += k
             self.rebuilds += rb

@@ -46,6 +46,7 @@ import sys
 import time
 
 import numpy as np
+from numba import njit
 
 from ..checkpoint import record_to_particles
 from ..decomposition import XHistogram, owner, wheel_slab_index, wheel_slab_ok
@@ -88,14 +89,75 @@ def world():
 
 
 def row_dtype(dim: int, cap: int) -> np.dtype:
-    """One disc's whole state as one record: the exchange buffers' element type."""
-    return np.dtype([(k, dt, tail) for k, (dt, tail) in fields(dim, cap).items()])
+    """One disc's moving state as one record (its id and ``_MOVING`` fields): the
+    exchange buffers' element type (what a refresh copies; the fixed fields travel only
+    when the local sets are built)."""
+    f = fields(dim, cap)
+    return np.dtype([(k, *f[k]) for k in ("id", *_MOVING)])
+
+
+@njit(cache=True)
+def _copy_moving(dst_rows, d_pos, d_vel, d_spin, d_hn, d_hid, d_hs, d_hm,
+                 src_rows, s_pos, s_vel, s_spin, s_hn, s_hid, s_hs, s_hm):
+    """Row dst_rows[i] of the d_* fields <- row src_rows[i] of the s_* fields (the
+    ``_MOVING`` fields, any dimension); a negative dst_rows[i] is skipped."""
+    for i in range(len(src_rows)):
+        a = dst_rows[i]
+        b = src_rows[i]
+        if a < 0:
+            continue
+        for c in range(d_pos.shape[1]):
+            d_pos[a, c] = s_pos[b, c]
+            d_vel[a, c] = s_vel[b, c]
+        for c in range(d_spin.shape[1]):
+            d_spin[a, c] = s_spin[b, c]
+        d_hn[a] = s_hn[b]
+        for q in range(d_hid.shape[1]):
+            d_hid[a, q] = s_hid[b, q]
+            for c in range(d_hs.shape[2]):
+                d_hs[a, q, c] = s_hs[b, q, c]
+            for c in range(d_hm.shape[2]):
+                d_hm[a, q, c] = s_hm[b, q, c]
+
+
+@njit(cache=True)
+def _strip_rows(rows, x, lo, hi):
+    """The rows among `rows` whose x lies in [lo, hi)."""
+    out = np.empty(len(rows), np.int64)
+    n = 0
+    for i in range(len(rows)):
+        v = x[rows[i]]
+        if v >= lo and v < hi:
+            out[n] = rows[i]
+            n += 1
+    return out[:n]
+
+
+@njit(cache=True)
+def _claim_ghosts(ids, ghost_row, owner_row, stamp, tick):
+    """The ghost row of each received disc id (-1: not one of this rank's ghost discs,
+    skipped); each claimed row becomes its disc's owner row and is stamped `tick`."""
+    rows = np.full(len(ids), -1, np.int64)
+    for i in range(len(ids)):
+        g = ids[i]
+        if 0 <= g < len(ghost_row) and ghost_row[g] >= 0:
+            r = ghost_row[g]
+            rows[i] = r
+            owner_row[g] = r
+            stamp[r] = tick
+    return rows
+
+
+def _moving(p) -> tuple:
+    """p's ``_MOVING`` fields (a Particles or an exchange buffer), in ``_copy_moving``'s order."""
+    return tuple(p[k] if isinstance(p, np.ndarray) else getattr(p, k) for k in _MOVING)
 
 
 def pack(p: Particles, rows, dtype: np.dtype) -> np.ndarray:
+    rows = np.asarray(rows, np.int64)
     buf = np.empty(len(rows), dtype)
-    for k in dtype.names:
-        buf[k] = getattr(p, k)[rows]
+    buf["id"] = p.id[rows]
+    _copy_moving(np.arange(len(rows)), *_moving(buf), rows, *_moving(p))
     return buf
 
 
@@ -156,6 +218,8 @@ class MpiEngine:
         self.rank_discs: list[int] = []   # discs owned by each rank at the last share-out
         self.live: LiveDomains | None = None
         self.ghost_row = np.zeros(0, np.int64)
+        self.stamp = np.zeros(0, np.int64)
+        self._tick = 0
         self._pairs = None   # the exchange's (dest, source) pairs for the current ranges
         self.wslab = -1
         self.n = 0
@@ -441,19 +505,30 @@ class MpiEngine:
                             src if near(src, self.rank) else MPI.PROC_NULL))
         return out
 
-    def _sendrecv(self, send: np.ndarray, dest: int, source: int) -> np.ndarray:
-        """Counts first, then the rows (one buffer of whole disc records)."""
+    def _exchange(self, sends: list[np.ndarray]) -> list[np.ndarray]:
+        """One round for all partners: sends[i] (whole disc rows) goes to self._pairs[i]'s
+        dest, and what its source sent comes back (empty for MPI.PROC_NULL). Every send is
+        posted first, then each message is received at its probed size (no count message),
+        so a block costs one latency, not two per partner."""
         from mpi4py import MPI
-        n_out = np.array([len(send)], np.int64)
-        n_in = np.zeros(1, np.int64)
-        self.comm.Sendrecv(n_out, dest=dest, sendtag=11, recvbuf=n_in, source=source, recvtag=11)
-        recv = np.empty(int(n_in[0]), self.dtype)
-        self.comm.Sendrecv([send.view(np.uint8), MPI.BYTE], dest=dest, sendtag=12,
-                           recvbuf=[recv.view(np.uint8), MPI.BYTE], source=source, recvtag=12)
-        if dest != MPI.PROC_NULL:
-            self.messages += 2
-            self.halo_rows_sent += len(send)
-        return recv
+        reqs = []
+        for (dest, _), send in zip(self._pairs, sends):
+            if dest != MPI.PROC_NULL:
+                reqs.append(self.comm.Isend([send.view(np.uint8), MPI.BYTE], dest=dest, tag=12))
+                self.messages += 1
+                self.halo_rows_sent += len(send)
+        got = []
+        status = MPI.Status()
+        for _, source in self._pairs:
+            if source == MPI.PROC_NULL:
+                got.append(np.empty(0, self.dtype))
+                continue
+            self.comm.Probe(source=source, tag=12, status=status)
+            recv = np.empty(status.Get_count(MPI.BYTE) // self.dtype.itemsize, self.dtype)
+            self.comm.Recv([recv.view(np.uint8), MPI.BYTE], source=source, tag=12)
+            got.append(recv)
+        MPI.Request.Waitall(reqs)
+        return got
 
     def _mine(self) -> Particles:
         m = self.model
@@ -510,6 +585,7 @@ class MpiEngine:
             self.ghost_rows = ghosts
             self.ghost_row = np.full(len(live.owner_row), -1, np.int64)
             self.ghost_row[live.p.id[ghosts]] = ghosts
+            self.stamp = np.zeros(len(live.p), np.int64)   # the refresh (tick) that last wrote a ghost row
         owned = len(self.live.owned_active_rows()) if self.live is not None else 0
         total = int(self.comm.allreduce(owned))
         if total != self.n:
@@ -521,41 +597,39 @@ class MpiEngine:
         """Ghost rows <- the owners' time-n rows (exchange), then every halo row <- its
         owner's row and ownership from x (live.LiveDomains.refresh, with the rebuild
         decision taken over all ranks). False: the local sets must be rebuilt."""
+        from mpi4py import MPI
         live = self.live
-        received = []
-        owned_rows = self.live.owned_active_rows() if live is not None else np.zeros(0, np.int64)
-        x = live.p.pos[owned_rows, AX_X] if live is not None else np.zeros(0)
         if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
             self._pairs = self._partners(self.window)
-        for dest, source in self._pairs:
-            rng = self._range(dest) if dest >= 0 else None
-            rows = (owned_rows[(x >= rng[0] - self.window) & (x < rng[1] + self.window)]
-                    if rng is not None else np.zeros(0, np.int64))
-            send = pack(live.p, rows, self.dtype) if live is not None else np.empty(0, self.dtype)
-            recv = self._sendrecv(send, dest, source)
-            if live is not None and len(recv):
-                ids = recv["id"]
-                ok = ids < len(self.ghost_row)
-                ok[ok] = self.ghost_row[ids[ok]] >= 0
-                rows_in = self.ghost_row[ids[ok]]
-                for name in _MOVING:
-                    getattr(live.p, name)[rows_in] = recv[name][ok]
-                live.owner_row[ids[ok]] = rows_in
-                received.append(ids[ok])
-        moved = 0.0
+        self._tick += 1
         if live is not None:
             p = live.p
-            moved = _refresh(p.id, live.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s,
-                             p.hist_m, live.x_built, live.off, live.ref, live.disp2)
-        from mpi4py import MPI
-        if self.comm.allreduce(moved, op=MPI.MAX) > self.membership_skin:
+            owned_rows = live.owned_active_rows()
+            sends = []
+            for dest, _ in self._pairs:
+                rng = self._range(dest) if dest >= 0 else None
+                rows = (_strip_rows(owned_rows, p.pos[:, AX_X], rng[0] - self.window, rng[1] + self.window)
+                        if rng is not None else np.zeros(0, np.int64))
+                sends.append(pack(p, rows, self.dtype))
+        else:
+            sends = [np.empty(0, self.dtype) for _ in self._pairs]
+        for recv in self._exchange(sends):
+            if live is not None and len(recv):
+                rows_in = _claim_ghosts(recv["id"], self.ghost_row, live.owner_row, self.stamp, self._tick)
+                _copy_moving(rows_in, *_moving(live.p), np.arange(len(recv)), *_moving(recv))
+        moved = np.zeros(1)
+        if live is not None:
+            p = live.p
+            moved[0] = _refresh(p.id, live.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s,
+                                p.hist_m, live.x_built, live.off, live.ref, live.disp2)
+        self.comm.Allreduce(MPI.IN_PLACE, moved, op=MPI.MAX)
+        if moved[0] > self.membership_skin:
             return False
         if live is None:
             return True
         # every disc a ghost owned must have come from its owner (else a halo row is stale)
         ghost_owned = self.ghost_rows[live.owned[self.ghost_rows]]
-        got = np.concatenate(received) if received else np.zeros(0, np.int64)
-        missing = ~np.isin(live.p.id[ghost_owned], got)
+        missing = self.stamp[ghost_owned] != self._tick
         if missing.any():
             raise EngineError(f"MPI rank {self.rank}: {int(missing.sum())} halo discs were not sent by "
                               f"their owners (bounds {self.bounds.tolist()}): exchange error")

@@ -92,7 +92,7 @@ def test_bare_bed_ranks_give_the_serial_bits(serial, tmp_path, ranks):
     run_mpi(ranks, "run", *BED, "--mode", "mpi", "--steps", BED_STEPS, "--out", out, *QUIET)
     assert_same_run(serial / "bed", out)
     eng = summary(out)["engine"]
-    assert eng["ranks"] == ranks and len(eng["rank_starts"]) == ranks + 1
+    assert eng["ranks"] == ranks and sorted(set(eng["rank_domains"])) == list(range(ranks))
 
 
 @pytest.mark.parametrize("ranks", [2, 3])
@@ -106,6 +106,35 @@ def test_wheel_run_ranks_give_the_serial_bits(serial, tmp_path, ranks):
     assert s["engine"]["redecompositions"] == ref["engine"]["redecompositions"]
     assert s["engine"]["bounds"] == ref["engine"]["bounds"]
     assert s["slip"] == ref["slip"] and s["net_traction"] == ref["net_traction"]
+
+
+def test_share_out_is_scattered_only_when_a_sub_domain_is_too_large_to_cut():
+    from ooc_dem.engine.mpi import rank_domains, rank_intervals, rank_segments
+    # the paper2008 wheel slab mid-bin holds half the discs: contiguous ranges split 5416 | 1570
+    # (or 2014 | 4972), the wheel slab alone against the two sides 3400 | 3586
+    assert rank_domains(np.array([2014, 3400, 1572]), 2).tolist() == [1, 0, 1]
+    # cuttable counts stay contiguous (fewer exchange partners), even with a tiny gain
+    assert rank_domains(np.array([10, 3460, 3516]), 2).tolist() == [0, 0, 1]
+    assert rank_domains(np.array([100] * 6), 3).tolist() == [0, 0, 1, 1, 2, 2]
+    assert rank_domains(np.array([0, 10, 0]), 2).tolist() == [0, 1, 1]
+    bounds = np.array([-np.inf, 0.2, 0.5, np.inf])
+    owner = np.array([1, 0, 1])
+    assert rank_intervals(owner, bounds, 1).tolist() == [[-np.inf, 0.2], [0.5, np.inf]]
+    assert rank_intervals(owner, bounds, 0).tolist() == [[0.2, 0.5]]
+    lb, glob = rank_segments(owner, bounds, 1)   # own, ghost (rank 0's slab), own
+    assert lb.tolist() == bounds.tolist() and glob.tolist() == [0, -1, 2]
+    lb, glob = rank_segments(np.array([0, 0, 1, 1]), np.array([-np.inf, 1.0, 2.0, 3.0, np.inf]), 0)
+    assert lb.tolist() == [-np.inf, 1.0, 2.0, np.inf] and glob.tolist() == [0, 1, -1]
+
+
+def test_scattered_share_out_gives_the_serial_bits(tmp_path):
+    """The wheel's slab mid-bin holds two thirds of the quick bed: rank 0 gets it alone and
+    rank 1 both sides (two intervals, a ghost between them); same bits as serial DDM."""
+    args = ["quick", "--set", "wheel.x0=0.2", "--domains", "3", "--steps", 300, *QUIET]
+    run_cli("run", *args, "--mode", "ddm", "--out", tmp_path / "ddm", check=True, env=ENV)
+    run_mpi(2, "run", *args, "--mode", "mpi", "--out", tmp_path / "mpi")
+    assert summary(tmp_path / "mpi")["engine"]["rank_domains"] == [1, 0, 1]
+    assert_same_run(tmp_path / "ddm", tmp_path / "mpi")
 
 
 @pytest.mark.parametrize("first,then", [(2, 3), (3, 1)])
@@ -210,23 +239,23 @@ def test_each_rank_writes_its_own_part_of_every_epoch(serial, tmp_path, backend)
     run_mpi(3, "run", *BED, "--mode", "mpi", "--steps", BED_STEPS, "--checkpoint-every", 20, "--backend", backend,
             "--out", out, *QUIET)
     assert_same_run(serial / "bed", out)
-    starts = summary(out)["engine"]["rank_starts"]
+    owner = summary(out)["engine"]["rank_domains"]
+    of = lambda r: [d for d, q in enumerate(owner) if q == r]
     m = json.loads((out / "MANIFEST.json").read_text())
     for e in (m["current"], m["previous"]):
         parts = e["parts"]
-        owners = [r for r in range(1, 3) if starts[r + 1] > starts[r]]
+        owners = [r for r in range(1, 3) if of(r)]
         assert len(parts) == len(owners) >= 1
         for k, r in enumerate(owners, start=1):
             assert parts[k - 1]["path"].endswith(f".p{k}.{'h5' if backend == 'hdf5' else 'zip'}")
             mine = sorted(int(d) for d, info in e["domains"].items() if info.get("part") == k)
-            assert mine == list(range(starts[r], starts[r + 1]))
-        assert sorted(int(d) for d, info in e["domains"].items() if "part" not in info) == \
-            list(range(starts[0], starts[1]))
+            assert mine == of(r)
+        assert sorted(int(d) for d, info in e["domains"].items() if "part" not in info) == of(0)
     cp = run_cli("checkpoint", "verify", out)
     assert cp.returncode == 0 and "verified" in cp.stdout, cp.stderr
     if backend == "hdf5":
         import h5py
-        d = starts[1]
+        d = of(owners[0])[0]
         with h5py.File(out / m["current"]["parts"][0]["path"], "r") as f:
             assert f"d{d:04d}" in f["domains"]
 

@@ -171,7 +171,7 @@ def main(argv=None) -> int:
     print(json.dumps({"pingpong": pp}), flush=True)
     if a.pingpong_only:
         return 0
-    from ooc_dem.engine.mpi import row_dtype
+    from ooc_dem.engine.mpi import row_words
     from ooc_dem.engine.stepper import Model
     from ooc_dem.scenario import load_scenario
     report = {"tool": "tools/mpiscale.py", "pingpong": pp, "scenarios": []}
@@ -200,7 +200,7 @@ def main(argv=None) -> int:
                      "hashes_equal": len(hashes) == 1,
                      "speedup_2_ranks_over_1": one["wall_time_s"] / two["wall_time_s"],
                      "speedup_2_ranks_over_monolithic_2_threads": mono["wall_time_s"] / two["wall_time_s"],
-                     "model": model(one, two, pp, row_dtype(m.dim, m.hist_cap).itemsize, a.target,
+                     "model": model(one, two, pp, 8 * row_words(m.dim, m.hist_cap), a.target,
                                     (8, 64, 1024))}
             report["scenarios"].append(entry)
     report["machine"] = {"cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in load0],

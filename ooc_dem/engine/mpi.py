@@ -1,19 +1,22 @@
-"""MPI mode: ranks own contiguous ranges of serial DDM's sub-domains (slabs along x).
+"""MPI mode: ranks own serial DDM's sub-domains (slabs along x).
 
 Serial DDM (live.py) keeps every sub-domain with its halo in RAM; a sweep is (1) every
 halo copy refreshed from its owner's time-n copy, (2) ownership from x, (3) every
 sub-domain K steps with THE per-domain step. Here rank r holds the ``LiveDomains`` of
-its sub-domains d in [starts[r], starts[r + 1]) only, plus two *ghost* sub-domains: all
-of x left and right of its range. A ghost is never advanced; its rows are the copies
-of the discs the other ranks own within a strip (halo + membership skin) of this
-rank's range, and they are what halo rows of the rank's own sub-domains are refreshed
-from. So the refresh of copies whose owner is on another rank becomes, once per block,
-an exchange with the ranks within that strip (the left and right neighbours, unless a
-range is narrower than the strip): ``Sendrecv`` of the counts, then of one NumPy
-buffer of whole disc rows (``row_dtype``), written into the ghost rows. A disc that
-crosses into another rank's range is in that rank's ghost already (it was within the
-strip), so migration needs nothing more: after the refresh the new owner has its
-time-n state and ownership from x hands it over, contact history included.
+its own sub-domains only (``rank_domains``: contiguous ranges cut by disc count, or a
+scattered share-out when one sub-domain is too large for the cut to balance), plus
+*ghost* sub-domains: each run of x between and beyond them that other ranks own. A
+ghost is never advanced; its rows are the copies of the discs the other ranks own
+within a strip (halo + membership skin) of this rank's intervals, and they are what
+halo rows of the rank's own sub-domains are refreshed from. So the refresh of copies
+whose owner is on another rank becomes, once per block, an exchange with the ranks
+within that strip (the neighbours): one round in which every rank posts its sends of
+one float64 buffer of disc rows (``row_words``: the id and the moving fields) and
+receives each partner's at its probed size, written into the ghost rows by compiled
+kernels. A disc that crosses into another rank's sub-domain is in that rank's ghost
+already (it was within the strip), so migration needs nothing more: after the refresh
+the new owner has its time-n state and ownership from x hands it over, contact
+history included.
 
 Why the bits equal serial DDM's (and so the monolithic run's): each sub-domain's local
 set is exactly the one serial DDM builds (every disc within halo + membership skin of
@@ -25,11 +28,12 @@ anywhere: an ``allreduce`` of the largest move) - is computed identically on eve
 rank from data every rank has (the bounds, the broadcast wheel state), so the ranks
 never disagree about what comes next.
 
-The wheel lives on the rank whose range holds its slab; after each block that rank
-broadcasts the wheel state and the block's wheel records. Re-decompositions use the
-serial rule on the x histogram of every disc (``decomposition.XHistogram``, an
-``Allreduce`` of its integer counts) and re-cut the ranks' ranges by disc count. A rebuild sends every rank the discs within
-its strip (``alltoall`` of pickled parts: first cut, only neighbours get non-empty ones).
+The wheel lives on the rank that owns its slab; after each block that rank broadcasts
+the wheel state and the block's wheel records. Re-decompositions use the serial rule on
+the x histogram of every disc (``decomposition.XHistogram``, an ``Allreduce`` of its
+integer counts) and share the sub-domains out again by disc count. A rebuild sends every
+rank the discs within its strip (``alltoall`` of pickled parts: first cut, only
+neighbours get non-empty ones).
 
 Driving: rank 0 runs the ordinary ``Simulation`` (store, metrics, trajectory, outputs)
 with an ``MpiEngine``; every engine call broadcasts a command that the other ranks'
@@ -88,77 +92,101 @@ def world():
     return MPI.COMM_WORLD
 
 
-def row_dtype(dim: int, cap: int) -> np.dtype:
-    """One disc's moving state as one record (its id and ``_MOVING`` fields): the
-    exchange buffers' element type (what a refresh copies; the fixed fields travel only
-    when the local sets are built)."""
+def row_words(dim: int, cap: int) -> int:
+    """Words (float64) of one disc's row in the exchange buffers: its id and ``_MOVING``
+    fields, in that order (``_pack_rows``). Integers travel as float64, exact below 2**53."""
     f = fields(dim, cap)
-    return np.dtype([(k, *f[k]) for k in ("id", *_MOVING)])
+    return sum(int(np.prod(f[k][1], dtype=np.int64)) for k in ("id", *_MOVING))
 
 
 @njit(cache=True)
-def _copy_moving(dst_rows, d_pos, d_vel, d_spin, d_hn, d_hid, d_hs, d_hm,
-                 src_rows, s_pos, s_vel, s_spin, s_hn, s_hid, s_hs, s_hm):
-    """Row dst_rows[i] of the d_* fields <- row src_rows[i] of the s_* fields (the
-    ``_MOVING`` fields, any dimension); a negative dst_rows[i] is skipped."""
-    for i in range(len(src_rows)):
-        a = dst_rows[i]
-        b = src_rows[i]
-        if a < 0:
-            continue
-        for c in range(d_pos.shape[1]):
-            d_pos[a, c] = s_pos[b, c]
-            d_vel[a, c] = s_vel[b, c]
-        for c in range(d_spin.shape[1]):
-            d_spin[a, c] = s_spin[b, c]
-        d_hn[a] = s_hn[b]
-        for q in range(d_hid.shape[1]):
-            d_hid[a, q] = s_hid[b, q]
-            for c in range(d_hs.shape[2]):
-                d_hs[a, q, c] = s_hs[b, q, c]
-            for c in range(d_hm.shape[2]):
-                d_hm[a, q, c] = s_hm[b, q, c]
-
-
-@njit(cache=True)
-def _strip_rows(rows, x, lo, hi):
-    """The rows among `rows` whose x lies in [lo, hi)."""
-    out = np.empty(len(rows), np.int64)
-    n = 0
+def _pack_rows(rows, buf, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m):
+    """buf[i] <- row rows[i]'s id and ``_MOVING`` fields, in that order, each field's
+    components row-major (any dimension and history width; buf has row_words columns)."""
+    cap = hist_id.shape[1]
     for i in range(len(rows)):
-        v = x[rows[i]]
-        if v >= lo and v < hi:
-            out[n] = rows[i]
-            n += 1
-    return out[:n]
+        r = rows[i]
+        w = 0
+        buf[i, w] = ids[r]
+        w += 1
+        for c in range(pos.shape[1]):
+            buf[i, w] = pos[r, c]
+            w += 1
+        for c in range(vel.shape[1]):
+            buf[i, w] = vel[r, c]
+            w += 1
+        for c in range(spin.shape[1]):
+            buf[i, w] = spin[r, c]
+            w += 1
+        buf[i, w] = hist_n[r]
+        w += 1
+        for q in range(cap):
+            buf[i, w] = hist_id[r, q]
+            w += 1
+        for q in range(cap):
+            for c in range(hist_s.shape[2]):
+                buf[i, w] = hist_s[r, q, c]
+                w += 1
+        for q in range(cap):
+            for c in range(hist_m.shape[2]):
+                buf[i, w] = hist_m[r, q, c]
+                w += 1
 
 
 @njit(cache=True)
-def _claim_ghosts(ids, ghost_row, owner_row, stamp, tick):
-    """The ghost row of each received disc id (-1: not one of this rank's ghost discs,
-    skipped); each claimed row becomes its disc's owner row and is stamped `tick`."""
-    rows = np.full(len(ids), -1, np.int64)
-    for i in range(len(ids)):
-        g = ids[i]
-        if 0 <= g < len(ghost_row) and ghost_row[g] >= 0:
-            r = ghost_row[g]
-            rows[i] = r
-            owner_row[g] = r
-            stamp[r] = tick
-    return rows
+def _unpack_ghosts(buf, ghost_row, owner_row, stamp, tick, pos, vel, spin, hist_n, hist_id, hist_s, hist_m):
+    """The rows of a ``_pack_rows`` buffer into this rank's ghost rows: each received disc's
+    ghost row (found by id; a disc that is not one of this rank's ghosts is skipped) gets
+    its fields, becomes its owner row and is stamped `tick`."""
+    cap = hist_id.shape[1]
+    for i in range(buf.shape[0]):
+        g = np.int64(buf[i, 0])
+        if g < 0 or g >= len(ghost_row) or ghost_row[g] < 0:
+            continue
+        r = ghost_row[g]
+        owner_row[g] = r
+        stamp[r] = tick
+        w = 1
+        for c in range(pos.shape[1]):
+            pos[r, c] = buf[i, w]
+            w += 1
+        for c in range(vel.shape[1]):
+            vel[r, c] = buf[i, w]
+            w += 1
+        for c in range(spin.shape[1]):
+            spin[r, c] = buf[i, w]
+            w += 1
+        hist_n[r] = np.int32(buf[i, w])
+        w += 1
+        for q in range(cap):
+            hist_id[r, q] = np.int64(buf[i, w])
+            w += 1
+        for q in range(cap):
+            for c in range(hist_s.shape[2]):
+                hist_s[r, q, c] = buf[i, w]
+                w += 1
+        for q in range(cap):
+            for c in range(hist_m.shape[2]):
+                hist_m[r, q, c] = buf[i, w]
+                w += 1
 
 
-def _moving(p) -> tuple:
-    """p's ``_MOVING`` fields (a Particles or an exchange buffer), in ``_copy_moving``'s order."""
-    return tuple(p[k] if isinstance(p, np.ndarray) else getattr(p, k) for k in _MOVING)
+def _moving(p: Particles) -> tuple:
+    """p's ``_MOVING`` fields, in the kernels' order."""
+    return tuple(getattr(p, k) for k in _MOVING)
 
 
-def pack(p: Particles, rows, dtype: np.dtype) -> np.ndarray:
+def room(buf: np.ndarray, rows: int) -> np.ndarray:
+    """buf if it has `rows` rows, else a larger one (a quarter more): the exchange reuses
+    its buffers, since fresh ones of a few hundred kB cost their page faults every block."""
+    return buf if len(buf) >= rows else np.empty((rows + rows // 4 + 16, buf.shape[1]))
+
+
+def pack(p: Particles, rows, buf: np.ndarray) -> np.ndarray:
+    """The rows' exchange rows (``_pack_rows``) in buf's first len(rows) rows (a view)."""
     rows = np.asarray(rows, np.int64)
-    buf = np.empty(len(rows), dtype)
-    buf["id"] = p.id[rows]
-    _copy_moving(np.arange(len(rows)), *_moving(buf), rows, *_moving(p))
-    return buf
+    _pack_rows(rows, buf, p.id, *_moving(p))
+    return buf[:len(rows)]
 
 
 def rank_starts(counts: np.ndarray, ranks: int) -> np.ndarray:
@@ -181,6 +209,75 @@ def rank_starts(counts: np.ndarray, ranks: int) -> np.ndarray:
         starts.append(s)
     starts.append(D)
     return np.array(starts, np.int64)
+
+
+# a scattered share-out is taken only when it lowers the busiest rank's discs by more than
+# this fraction of a rank's mean: each sub-domain it separates from its neighbours adds an
+# exchange partner, and disc counts are only a proxy for a rank's work
+SCATTER_GAIN = 0.05
+
+
+def rank_domains(counts: np.ndarray, ranks: int) -> np.ndarray:
+    """owner[d]: the rank of sub-domain d. Contiguous ranges cut by disc count
+    (``rank_starts``), unless giving the largest sub-domains first to the least loaded rank
+    balances the ranks clearly better (``SCATTER_GAIN``). That happens when one sub-domain
+    holds about 1/R of the discs: the paper's wheel slab is half of paper2008's bin, so
+    with the wheel mid-bin two contiguous ranges split 71/29 and {wheel slab}, {left,
+    right} 49/51. The ranks compute the same owner from the same (reduced) counts."""
+    counts = np.asarray(counts, np.int64)
+    D = len(counts)
+    contiguous = np.repeat(np.arange(ranks, dtype=np.int64), np.diff(rank_starts(counts, ranks)))
+    scattered = np.zeros(D, np.int64)
+    load = np.zeros(ranks, np.int64)
+    for d in sorted(range(D), key=lambda d: (-counts[d], d)):
+        r = int(np.argmin(load))   # the first of the least loaded
+        scattered[d] = r
+        load[r] += counts[d]
+    busiest = lambda own: int(np.bincount(own, weights=counts, minlength=ranks).max())
+    if busiest(scattered) < busiest(contiguous) - SCATTER_GAIN * counts.sum() / ranks:
+        return scattered
+    return contiguous
+
+
+def rank_intervals(owner: np.ndarray, bounds: np.ndarray, r: int) -> np.ndarray:
+    """The x intervals [lo, hi) rank r owns (its runs of neighbouring sub-domains, merged),
+    shape (k, 2); empty for a rank without sub-domains."""
+    out = []
+    for d in np.flatnonzero(owner == r):
+        if out and out[-1][1] == d:
+            out[-1][1] = d + 1
+        else:
+            out.append([d, d + 1])
+    return np.array([[bounds[a], bounds[b]] for a, b in out], np.float64).reshape(-1, 2)
+
+
+def rank_segments(owner: np.ndarray, bounds: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rank r's local decomposition: (segment bounds, the global sub-domain of each segment
+    or -1). Its own sub-domains are segments as they are; each run of other ranks'
+    sub-domains between them (and beyond them) is one *ghost* segment."""
+    lb, glob = [-np.inf], []
+    for d in range(len(owner)):
+        if owner[d] != r and glob and glob[-1] < 0:
+            lb[-1] = bounds[d + 1]   # the ghost before grows
+        else:
+            glob.append(int(d) if owner[d] == r else -1)
+            lb.append(bounds[d + 1])
+    return np.array(lb, np.float64), np.array(glob, np.int64)
+
+
+@njit(cache=True)
+def _near_rows(rows, x, intervals, width):
+    """The rows among `rows` whose x lies within `width` of one of the intervals [lo, hi)."""
+    out = np.empty(len(rows), np.int64)
+    n = 0
+    for i in range(len(rows)):
+        v = x[rows[i]]
+        for k in range(intervals.shape[0]):
+            if v >= intervals[k, 0] - width and v < intervals[k, 1] + width:
+                out[n] = rows[i]
+                n += 1
+                break
+    return out[:n]
 
 
 class MpiEngine:
@@ -211,10 +308,12 @@ class MpiEngine:
         # (the strip plus the motion a built set tolerates)
         self.strip = self.halo + self.membership_skin
         self.window = self.strip + self.membership_skin
-        self.dtype = row_dtype(model.dim, model.hist_cap)
+        self.words = row_words(model.dim, model.hist_cap)   # a disc's row in the exchange buffers
         self.ws = np.zeros(WS_SIZE)
         self.bounds = np.array([-np.inf, np.inf])
-        self.starts = np.zeros(self.R + 1, np.int64)
+        self.owner = np.zeros(self.D, np.int64)   # the rank of each sub-domain (rank_domains)
+        self.glob = np.zeros(0, np.int64)         # this rank's segments' sub-domains (-1: a ghost)
+        self._iv: list[np.ndarray] = []           # each rank's x intervals (rank_intervals)
         self.rank_discs: list[int] = []   # discs owned by each rank at the last share-out
         self.live: LiveDomains | None = None
         self.ghost_row = np.zeros(0, np.int64)
@@ -337,7 +436,7 @@ class MpiEngine:
         return {"domains": self.D, "block": self.K, "halo_m": self.halo,
                 "bounds": [float(v) for v in self.bounds[1:-1]],
                 "redecompositions": len(self.redecompositions),
-                "ranks": self.R, "rank_starts": [int(s) for s in self.starts],
+                "ranks": self.R, "rank_domains": [int(r) for r in self.owner],
                 # each rank's owned discs at the last re-cut (the load balance)
                 "rank_discs": list(self.rank_discs),
                 "local_set_builds": self.builds,
@@ -387,7 +486,7 @@ class MpiEngine:
     def _part_number(self) -> int:
         """This rank's part of an epoch: 1 + the ranks before it (rank 0 aside, whose groups
         are in the epoch's main file) that own sub-domains; 0 for rank 0 or no sub-domain."""
-        owns = lambda r: self.starts[r + 1] > self.starts[r]
+        owns = lambda r: bool((self.owner == r).any())
         if self.rank == 0 or not owns(self.rank):
             return 0
         return 1 + sum(1 for r in range(1, self.rank) if owns(r))
@@ -399,9 +498,9 @@ class MpiEngine:
         groups = []
         if self.live is not None:
             live = self.live
-            for j in range(1, live.D - 1):
-                d = int(self.starts[self.rank]) + j - 1
-                groups.append((d, *self._group(live.p.take(live.owned_rows(j)))))
+            for j, d in enumerate(self.glob):
+                if d >= 0:
+                    groups.append((int(d), *self._group(live.p.take(live.owned_rows(j)))))
         part = None
         if self.rank == 0:
             for d, rec, attrs in groups:
@@ -421,8 +520,9 @@ class MpiEngine:
         mine = {}
         if self.live is not None:
             live = self.live
-            for j in range(1, live.D - 1):
-                mine[int(self.starts[self.rank]) + j - 1] = live.p.take(live.owned_rows(j))
+            for j, d in enumerate(self.glob):
+                if d >= 0:
+                    mine[int(d)] = live.p.take(live.owned_rows(j))
         got = self.comm.gather(mine, root=0)
         if self.rank != 0:
             return None
@@ -476,25 +576,25 @@ class MpiEngine:
 
     def _share_wheel(self, rec: np.ndarray, k: int) -> np.ndarray:
         """The wheel's rank broadcasts its state and this block's wheel records."""
-        root = int(np.searchsorted(self.starts, self.wslab, "right") - 1)
+        root = int(self.owner[self.wslab])
         self.ws, rec = broadcast_wheel(self.comm, root, self.ws, rec, k)
         if self.R > 1:
             self.messages += 1
         return rec
 
     # ------------------------------------------------------ ownership and exchange
-    def _range(self, r: int) -> tuple[float, float] | None:
-        s, e = int(self.starts[r]), int(self.starts[r + 1])
-        return None if e == s else (float(self.bounds[s]), float(self.bounds[e]))
+    def _intervals(self, r: int) -> np.ndarray:
+        """Rank r's x intervals (fixed between share-outs: ``_distribute`` computes them)."""
+        return self._iv[r]
 
     def _partners(self, width: float) -> list[tuple[int, int]]:
         """(dest, source) pairs of the exchange, in an order every rank walks alike: at
         offset o, send to rank + o and receive from rank - o, then the mirror; a pair
-        exchanges when both have sub-domains and their ranges are within `width`."""
+        exchanges when both have sub-domains and one interval of each are within `width`."""
         from mpi4py import MPI
-        near = lambda a, b: (0 <= a < self.R and 0 <= b < self.R and (ra := self._range(a)) is not None
-                             and (rb := self._range(b)) is not None
-                             and max(rb[0] - ra[1], ra[0] - rb[1]) < width)
+        iv = [self._intervals(r) for r in range(self.R)]
+        near = lambda a, b: (0 <= a < self.R and 0 <= b < self.R
+                             and any(max(jb[0] - ja[1], ja[0] - jb[1]) < width for ja in iv[a] for jb in iv[b]))
         far = max([abs(a - b) for a in range(self.R) for b in range(self.R) if a != b and near(a, b)],
                   default=0)
         out = []
@@ -514,19 +614,20 @@ class MpiEngine:
         reqs = []
         for (dest, _), send in zip(self._pairs, sends):
             if dest != MPI.PROC_NULL:
-                reqs.append(self.comm.Isend([send.view(np.uint8), MPI.BYTE], dest=dest, tag=12))
+                reqs.append(self.comm.Isend([send, MPI.DOUBLE], dest=dest, tag=12))
                 self.messages += 1
                 self.halo_rows_sent += len(send)
         got = []
         status = MPI.Status()
-        for _, source in self._pairs:
+        for i, (_, source) in enumerate(self._pairs):
             if source == MPI.PROC_NULL:
-                got.append(np.empty(0, self.dtype))
+                got.append(self._recv[i][:0])
                 continue
             self.comm.Probe(source=source, tag=12, status=status)
-            recv = np.empty(status.Get_count(MPI.BYTE) // self.dtype.itemsize, self.dtype)
-            self.comm.Recv([recv.view(np.uint8), MPI.BYTE], source=source, tag=12)
-            got.append(recv)
+            n = status.Get_count(MPI.DOUBLE) // self.words
+            self._recv[i] = room(self._recv[i], n)
+            self.comm.Recv([self._recv[i], n * self.words, MPI.DOUBLE], source=source, tag=12)
+            got.append(self._recv[i][:n])
         MPI.Request.Waitall(reqs)
         return got
 
@@ -557,31 +658,28 @@ class MpiEngine:
         x = mine.pos[:, AX_X]
         if recut:
             counts = self._sum(np.bincount(owner(self.bounds, x), minlength=self.D).astype(np.int64))
-            self.starts = rank_starts(counts, self.R)
-            self.rank_discs = [int(counts[a:b].sum()) for a, b in zip(self.starts[:-1], self.starts[1:])]
-        sends = []
-        for q in range(self.R):
-            rng = self._range(q)
-            sel = (np.zeros(0, np.int64) if rng is None else
-                   np.flatnonzero((x >= rng[0] - self.strip) & (x < rng[1] + self.strip)))
-            sends.append(mine.take(sel))
+            self.owner = rank_domains(counts, self.R)
+            self.rank_discs = [int(counts[self.owner == r].sum()) for r in range(self.R)]
+        self._iv = [rank_intervals(self.owner, self.bounds, r) for r in range(self.R)]
+        every = np.arange(len(mine), dtype=np.int64)
+        sends = [mine.take(_near_rows(every, x, self._intervals(q), self.strip)) for q in range(self.R)]
         got = self.comm.alltoall(sends) if self.R > 1 else sends
         local = Particles.concat([g for g in got if len(g)], m.dim, m.hist_cap)
         self.wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if self.sc.wheel.enabled else -1
-        s, e = int(self.starts[self.rank]), int(self.starts[self.rank + 1])
         self.live = None
         self._pairs = None
-        if e > s:
-            lb = np.concatenate([[-np.inf], self.bounds[s:e + 1], [np.inf]])
-            wl = self.wslab - s + 1 if s <= self.wslab < e else -1
-            real = np.ones(len(lb) - 1, np.bool_)
-            real[[0, -1]] = False   # the ghosts: copies of the neighbour ranks' discs
+        self.glob = np.zeros(0, np.int64)
+        if (self.owner == self.rank).any():
+            lb, self.glob = rank_segments(self.owner, self.bounds, self.rank)
+            at = np.flatnonzero(self.glob == self.wslab) if self.wslab >= 0 else []
+            wl = int(at[0]) if len(at) else -1
+            real = self.glob >= 0   # the ghosts: copies of the other ranks' discs
             self.live = LiveDomains(local, lb, self.halo, self.membership_skin, self.model,
                                     self.model_nowheel, self.ws, wl, active=real,
                                     whole_refresh=False)
             live = self.live
-            ghosts = np.concatenate([np.arange(live.off[0], live.off[1]),
-                                     np.arange(live.off[-2], live.off[-1])])
+            ghosts = np.concatenate([np.arange(live.off[j], live.off[j + 1]) for j in np.flatnonzero(~real)]
+                                    or [np.zeros(0, np.int64)])
             self.ghost_rows = ghosts
             self.ghost_row = np.full(len(live.owner_row), -1, np.int64)
             self.ghost_row[live.p.id[ghosts]] = ghosts
@@ -601,22 +699,23 @@ class MpiEngine:
         live = self.live
         if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
             self._pairs = self._partners(self.window)
+            self._send = [np.empty((0, self.words)) for _ in self._pairs]
+            self._recv = [np.empty((0, self.words)) for _ in self._pairs]
         self._tick += 1
         if live is not None:
             p = live.p
             owned_rows = live.owned_active_rows()
             sends = []
-            for dest, _ in self._pairs:
-                rng = self._range(dest) if dest >= 0 else None
-                rows = (_strip_rows(owned_rows, p.pos[:, AX_X], rng[0] - self.window, rng[1] + self.window)
-                        if rng is not None else np.zeros(0, np.int64))
-                sends.append(pack(p, rows, self.dtype))
+            for i, (dest, _) in enumerate(self._pairs):
+                rows = (_near_rows(owned_rows, p.pos[:, AX_X], self._intervals(dest), self.window)
+                        if dest >= 0 else np.zeros(0, np.int64))
+                self._send[i] = room(self._send[i], len(rows))
+                sends.append(pack(p, rows, self._send[i]))
         else:
-            sends = [np.empty(0, self.dtype) for _ in self._pairs]
+            sends = [b[:0] for b in self._send]
         for recv in self._exchange(sends):
             if live is not None and len(recv):
-                rows_in = _claim_ghosts(recv["id"], self.ghost_row, live.owner_row, self.stamp, self._tick)
-                _copy_moving(rows_in, *_moving(live.p), np.arange(len(recv)), *_moving(recv))
+                _unpack_ghosts(recv, self.ghost_row, live.owner_row, self.stamp, self._tick, *_moving(live.p))
         moved = np.zeros(1)
         if live is not None:
             p = live.p

@@ -8,12 +8,18 @@ best of the repeats is kept (this machine varies by 15-25 % from run to run). A 
 time is the ``wall_time_s`` of its ``summary.json`` (the steps and their epochs, without
 interpreter start and bed set-up). The hashes must agree (bit-identical modes).
 
+Each scenario is given as NAME[:D[:K[:STEPS]]] (the flags --domains, --block, --steps
+fill what an entry leaves out). ``--wheel-x0`` runs each wheel scenario again with the
+wheel set down at those x (the load balance changes as the wheel travels: the paper's
+wheel slab is half of paper2008's bin), so one report covers the run's start and end.
+
 Then a ping-pong of ``Sendrecv`` between two ranks through the MPI's shared memory gives
 the latency and bandwidth, and the model (README, "Scaling model") predicts the
 efficiency of R ranks on a larger bed from: the time per particle-step of one rank, the
 halo rows and messages per block measured here, and those two MPI numbers.
 
-    python tools/mpiscale.py                                   # bed-1000000 and a paper2008 segment
+    python tools/mpiscale.py                    # bed-1000000 (D 8, K 20) and paper2008 (D 3, K 4)
+    python tools/mpiscale.py --scenarios paper2008:3:4:4000 --wheel-x0 0.15,0.32
     python tools/mpiscale.py --scenarios bed-100000 --steps 200 --repeat 1
     python tools/mpiscale.py --pingpong-only
 
@@ -153,12 +159,14 @@ def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ran
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scenarios", default="bed-1000000,paper2008")
+    ap.add_argument("--scenarios", default="bed-1000000:8:20:200,paper2008:3:4:4000",
+                    help="NAME[:D[:K[:STEPS]]], comma-separated")
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--domains", type=int, default=8)
     ap.add_argument("--block", type=int, default=20)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--set", action="append", default=[], help="scenario override for every run")
+    ap.add_argument("--wheel-x0", default="", help="also run each wheel scenario with wheel.x0 at these x (m)")
     ap.add_argument("--target", type=float, default=1e8, help="discs of the modelled bed")
     ap.add_argument("--pingpong-only", action="store_true")
     a = ap.parse_args(argv)
@@ -175,28 +183,38 @@ def main(argv=None) -> int:
     from ooc_dem.engine.stepper import Model
     from ooc_dem.scenario import load_scenario
     report = {"tool": "tools/mpiscale.py", "pingpong": pp, "scenarios": []}
+    cases = []
+    for item in a.scenarios.split(","):
+        name, *rest = item.split(":")
+        try:
+            D, K, steps = [int(v) for v in rest] + [a.domains, a.block, a.steps][len(rest):]
+        except ValueError:
+            ap.error(f"--scenarios entry {item!r}: NAME[:D[:K[:STEPS]]] with integers")
+        cases.append((name, D, K, steps, list(a.set)))
+        if a.wheel_x0 and load_scenario(name, a.set).wheel.enabled:
+            cases += [(name, D, K, steps, [*a.set, f"wheel.x0={x}"]) for x in a.wheel_x0.split(",")]
     with tempfile.TemporaryDirectory(prefix="mpiscale-") as tmp:
         work = Path(tmp)
-        for scen in a.scenarios.split(","):
+        for scen, D, K, steps, sets in cases:
             # a first run of each configuration warms numba's cache and the bed cache
             configs = [("monolithic", 1, 2), ("mpi", 1, 1), ("mpi", 2, 1)]
             for mode, R, T in configs:
-                run_once(scen, mode, R, T, a.block, a.domains, a.block, a.set, work, mpiexec)
+                run_once(scen, mode, R, T, K, D, K, sets, work, mpiexec)
             best = {}
             for _ in range(a.repeat):
                 for mode, R, T in configs:
-                    r = run_once(scen, mode, R, T, a.steps, a.domains, a.block, a.set, work, mpiexec)
+                    r = run_once(scen, mode, R, T, steps, D, K, sets, work, mpiexec)
                     print(json.dumps({k: v for k, v in r.items() if k != "engine"}), flush=True)
                     key = (mode, R, T)
                     if key not in best or r["wall_time_s"] < best[key]["wall_time_s"]:
                         best[key] = r
             mono, one, two = best[configs[0]], best[configs[1]], best[configs[2]]
             hashes = {r["state_hash"] for r in best.values()}
-            sc = load_scenario(scen, a.set)
+            sc = load_scenario(scen, sets)
             m = Model.from_scenario(sc)
             one = {**one, "discs_per_m": one["n"] / sc.bin.length}
-            entry = {"scenario": scen, "n": one["n"], "steps": a.steps, "domains": a.domains,
-                     "block": a.block, "runs": list(best.values()),
+            entry = {"scenario": scen, "set": sets, "n": one["n"], "steps": steps, "domains": D,
+                     "block": K, "runs": list(best.values()),
                      "hashes_equal": len(hashes) == 1,
                      "speedup_2_ranks_over_1": one["wall_time_s"] / two["wall_time_s"],
                      "speedup_2_ranks_over_monolithic_2_threads": mono["wall_time_s"] / two["wall_time_s"],

@@ -171,6 +171,17 @@ def _unpack_ghosts(buf, ghost_row, owner_row, stamp, tick, pos, vel, spin, hist_
                 w += 1
 
 
+@njit(cache=True)
+def _largest_move(rows, x, x_built):
+    """max |x - x_built| over the rows (0 for none)."""
+    moved = 0.0
+    for r in rows:
+        d = abs(x[r] - x_built[r])
+        if d > moved:
+            moved = d
+    return moved
+
+
 def _moving(p: Particles) -> tuple:
     """p's ``_MOVING`` fields, in the kernels' order."""
     return tuple(getattr(p, k) for k in _MOVING)
@@ -319,6 +330,7 @@ class MpiEngine:
         self.ghost_row = np.zeros(0, np.int64)
         self.stamp = np.zeros(0, np.int64)
         self._tick = 0
+        self.moved = 0.0   # the largest x move of any disc since the local sets were built
         self._pairs = None   # the exchange's (dest, source) pairs for the current ranges
         self.wslab = -1
         self.n = 0
@@ -560,27 +572,47 @@ class MpiEngine:
             self._distribute(mine, recut=True)
         elif wheel and wheel_slab_index(self.bounds, float(self.ws[WS_X])) != self.wslab:
             self._distribute(self._mine(), recut=True)   # every rebuild re-balances the ranks
-        elif not self._refresh():
+        elif self.moved > self.membership_skin:
+            # a disc may have come within the halo of a sub-domain whose local set lacks it
             self._distribute(self._mine(), recut=True)   # every rebuild re-balances the ranks
+        else:
+            self._refresh()
         rec = np.zeros((0, N_REC))
         live = self.live
         if live is not None:
-            # this rank's sub-domains in one compiled sweep (not its two ghosts)
+            # this rank's sub-domains in one compiled sweep (not its ghosts)
             r, _, _ = live.run_sweeps(step0, 1, k, False, -1.0)
             if live.wslab >= 0:
                 rec = r
                 self.ws = live.steppers[live.wslab].ws.copy()
-        if wheel:
-            rec = self._share_wheel(rec, k)
-        return rec
+        return self._end_block(rec, k)
 
-    def _share_wheel(self, rec: np.ndarray, k: int) -> np.ndarray:
-        """The wheel's rank broadcasts its state and this block's wheel records."""
-        root = int(self.owner[self.wslab])
-        self.ws, rec = broadcast_wheel(self.comm, root, self.ws, rec, k)
+    def _end_block(self, rec: np.ndarray, k: int) -> np.ndarray:
+        """One ``Allreduce`` (MAX) after the sweep gives every rank what the next block
+        decides on: the largest x move of any disc since the local sets were built (each
+        rank's over the discs it owned in the sweep, whose copies the next refresh makes)
+        and, with a wheel, the wheel's state and the block's records from the wheel's rank
+        (every other rank gives -inf there, so the maximum is that rank's values, bit for
+        bit). Returns the records."""
+        from mpi4py import MPI
+        wheel = self.sc.wheel.enabled
+        buf = np.full(1 + (WS_SIZE + 1 + k * N_REC if wheel else 0), -np.inf)
+        live = self.live
+        if live is not None:
+            buf[0] = _largest_move(live.owned_active_rows(), live.p.pos[:, AX_X], live.x_built)
+            if wheel and live.wslab >= 0:
+                buf[1:1 + WS_SIZE] = self.ws
+                buf[1 + WS_SIZE] = len(rec)
+                buf[2 + WS_SIZE:2 + WS_SIZE + rec.size] = rec.ravel()
         if self.R > 1:
+            self.comm.Allreduce(MPI.IN_PLACE, buf, op=MPI.MAX)
             self.messages += 1
-        return rec
+        self.moved = float(buf[0])
+        if not wheel:
+            return rec
+        self.ws = buf[1:1 + WS_SIZE].copy()
+        rows = int(buf[1 + WS_SIZE])
+        return buf[2 + WS_SIZE:2 + WS_SIZE + rows * N_REC].reshape(rows, N_REC).copy()
 
     # ------------------------------------------------------ ownership and exchange
     def _intervals(self, r: int) -> np.ndarray:
@@ -668,6 +700,7 @@ class MpiEngine:
         self.wslab = wheel_slab_index(self.bounds, float(self.ws[WS_X])) if self.sc.wheel.enabled else -1
         self.live = None
         self._pairs = None
+        self.moved = 0.0
         self.glob = np.zeros(0, np.int64)
         if (self.owner == self.rank).any():
             lb, self.glob = rank_segments(self.owner, self.bounds, self.rank)
@@ -691,11 +724,10 @@ class MpiEngine:
                               f"decomposition error")
         self.builds += 1
 
-    def _refresh(self) -> bool:
+    def _refresh(self) -> None:
         """Ghost rows <- the owners' time-n rows (exchange), then every halo row <- its
-        owner's row and ownership from x (live.LiveDomains.refresh, with the rebuild
-        decision taken over all ranks). False: the local sets must be rebuilt."""
-        from mpi4py import MPI
+        owner's row and ownership from x (live.LiveDomains.refresh; the rebuild decision
+        was taken before, over all ranks, from the last block's largest move)."""
         live = self.live
         if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
             self._pairs = self._partners(self.window)
@@ -716,16 +748,11 @@ class MpiEngine:
         for recv in self._exchange(sends):
             if live is not None and len(recv):
                 _unpack_ghosts(recv, self.ghost_row, live.owner_row, self.stamp, self._tick, *_moving(live.p))
-        moved = np.zeros(1)
-        if live is not None:
-            p = live.p
-            moved[0] = _refresh(p.id, live.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s,
-                                p.hist_m, live.x_built, live.off, live.ref, live.disp2)
-        self.comm.Allreduce(MPI.IN_PLACE, moved, op=MPI.MAX)
-        if moved[0] > self.membership_skin:
-            return False
         if live is None:
-            return True
+            return
+        p = live.p
+        _refresh(p.id, live.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s, p.hist_m,
+                 live.x_built, live.off, live.ref, live.disp2)
         # every disc a ghost owned must have come from its owner (else a halo row is stale)
         ghost_owned = self.ghost_rows[live.owned[self.ghost_rows]]
         missing = self.stamp[ghost_owned] != self._tick
@@ -736,7 +763,6 @@ class MpiEngine:
         for j, st in enumerate(live.steppers):
             if live.disp2[j] > 0.25 * st.model.skin ** 2:
                 st._built = False
-        return True
 
 
 def broadcast_wheel(comm, root: int, ws: np.ndarray, rec: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -176,3 +176,30 @@ def test_one_step_sweeps_keep_rows_through_pair_rebuilds(wheel_case, monkeypatch
     assert_same_state(ref_p, p)
     assert np.array_equal(ref_ws, w)
     assert np.array_equal(ref_rec, rec)
+
+
+def test_sweeps_after_the_first_call_go_straight_to_the_compiled_overload(bare_bed):
+    """LiveDomains calls numba's compiled overload directly once the dispatcher has typed a
+    list of sub-domains (live.LiveDomains._compiled: typing costs an MPI block ~5 %). The
+    overload must be found (else the saving is silently lost), and calls one sweep at a
+    time through it keep the monolithic bits."""
+    from ooc_dem.decomposition import XHistogram, equal_bounds
+    from ooc_dem.engine.live import LiveDomains, sweeps_kernel
+    from ooc_dem.physics.layout import WS_SIZE
+    sc, bed = bare_bed
+    model = Model.from_scenario(sc)
+    K, calls = 3, 4
+    hop = 2.0 * sc.soil.r_max + sc.bed.skin
+    bounds = equal_bounds(XHistogram.of(bed.pos[:, AX_X], sc.bin.length), 4)
+    live = LiveDomains(bed.take(np.arange(len(bed))), bounds, K * hop, hop, model, model.without_wheel(),
+                       np.zeros(WS_SIZE), -1)
+    run = sweeps_kernel(live.steppers[0].kern)
+    for c in range(calls):
+        live.run_sweeps(c * K, 1, K, c > 0, -1.0)
+        if c == 0:
+            assert live._entry[1] is None   # the dispatcher compiled or loaded it
+    held, fn = live._entry
+    assert held is live._domain_list() and fn is not None and fn is not run
+    ref, _, _ = mono(sc, bed, None, calls * K)
+    out = live.p.take(live.owned_active_rows())
+    assert_same_state(ref, out)

@@ -203,3 +203,25 @@ def test_sweeps_after_the_first_call_go_straight_to_the_compiled_overload(bare_b
     ref, _, _ = mono(sc, bed, None, calls * K)
     out = live.p.take(live.owned_active_rows())
     assert_same_state(ref, out)
+
+
+def test_fresh_local_sets_refuse_a_refresh(bare_bed):
+    """A refresh before the first sweep of fresh local sets would write springs back from
+    pair lists never built (it wiped the histories: found when MPI blocks asked for one);
+    run_sweeps refuses it in one line, and takes it after a sweep."""
+    from ooc_dem.decomposition import XHistogram, equal_bounds
+    from ooc_dem.engine.live import LiveDomains
+    from ooc_dem.engine.stepper import EngineError
+    from ooc_dem.physics.layout import WS_SIZE
+    sc, bed = bare_bed
+    model = Model.from_scenario(sc)
+    hop = 2.0 * sc.soil.r_max + sc.bed.skin
+    bounds = equal_bounds(XHistogram.of(bed.pos[:, AX_X], sc.bin.length), 3)
+    live = LiveDomains(bed.take(np.arange(len(bed))), bounds, 2 * hop, hop, model, model.without_wheel(),
+                       np.zeros(WS_SIZE), -1)
+    with pytest.raises(EngineError, match="not been swept"):
+        live.run_sweeps(0, 1, 2, True, -1.0)
+    live.run_sweeps(0, 1, 2, False, -1.0)
+    live.run_sweeps(2, 1, 2, True, -1.0)
+    ref, _, _ = mono(sc, bed, None, 4)
+    assert_same_state(ref, live.p.take(live.owned_active_rows()))

@@ -323,6 +323,7 @@ class LiveDomains:
         self._rebuild2 = np.array([0.25 * st.model.skin ** 2 for st in self.steppers])
         self._doms, self._doms_key = None, None
         self._entry = (None, None)   # (list of sub-domains, the compiled sweeps for it: _compiled)
+        self._swept = False          # a sweep has run on these local sets (run_sweeps' refresh_first)
         self._own()
 
     def resident(self) -> list[int]:
@@ -420,7 +421,11 @@ class LiveDomains:
 
     def run_sweeps(self, step0: int, nsweeps: int, K: int, refresh_first: bool, wheel_reach: float):
         """Up to nsweeps sweeps of K steps in compiled calls (see ``_run_sweeps``); returns
-        (wheel records of the steps done, sweeps done, why it stopped: SWEEPS_*)."""
+        (wheel records of the steps done, sweeps done, why it stopped: SWEEPS_*). refresh_first
+        only after a sweep: fresh local sets hold current states already, and their pair
+        lists are not built (a refresh would write springs back from them)."""
+        if refresh_first and not self._swept:
+            raise EngineError("serial DDM: a refresh asked of local sets that have not been swept")
         run = sweeps_kernel(self.steppers[0].kern) if self.steppers else None
         if run is None:
             raise EngineError("serial DDM: the step kernels have no one-thread twin")
@@ -467,6 +472,7 @@ class LiveDomains:
                 raise EngineError(f"serial DDM lost ownership of discs at step {step0 + done * K} "
                                   f"(bounds {self.bounds.tolist()}): decomposition error")
             break
+        self._swept = self._swept or done > 0
         for st, fl in zip(self.steppers, self.flags):
             st._built = fl[F_REBUILD] == 0
             st._pairs_done = False
@@ -516,4 +522,5 @@ class LiveDomains:
             if d == self.wslab:
                 rec_wheel = rec
                 ws = st.ws.copy()
+        self._swept = True
         return rec_wheel, ws

@@ -57,7 +57,7 @@ from ..decomposition import XHistogram, owner, wheel_slab_index, wheel_slab_ok
 from ..physics.layout import AX_X, WS_SIZE, WS_X
 from ..state import Particles, fields
 from .interface import write_epoch
-from .live import LiveDomains, _refresh
+from .live import SWEEPS_REBUILD, LiveDomains
 from .stepper import N_REC, EngineError, Model
 from ..checkpoint import open_epoch
 from .sweep import OocEngine, slab_bounds
@@ -331,6 +331,7 @@ class MpiEngine:
         self.stamp = np.zeros(0, np.int64)
         self._tick = 0
         self.moved = 0.0   # the largest x move of any disc since the local sets were built
+        self._fresh = False
         self._pairs = None   # the exchange's (dest, source) pairs for the current ranges
         self.wslab = -1
         self.n = 0
@@ -575,16 +576,22 @@ class MpiEngine:
         elif self.moved > self.membership_skin:
             # a disc may have come within the halo of a sub-domain whose local set lacks it
             self._distribute(self._mine(), recut=True)   # every rebuild re-balances the ranks
-        else:
-            self._refresh()
+        elif not self._fresh:   # (local sets just built hold every disc's current state)
+            self._refresh_ghosts()
         rec = np.zeros((0, N_REC))
         live = self.live
         if live is not None:
-            # this rank's sub-domains in one compiled sweep (not its ghosts)
-            r, _, _ = live.run_sweeps(step0, 1, k, False, -1.0)
+            # this rank's sub-domains in one compiled sweep (not its ghosts), which first
+            # refreshes every halo row from its owner's row and takes ownership from x,
+            # unless the local sets are fresh
+            r, _, status = live.run_sweeps(step0, 1, k, not self._fresh, -1.0)
+            if status == SWEEPS_REBUILD:   # never: self.moved bounds every local row's move
+                raise EngineError(f"MPI rank {self.rank}: a disc moved beyond the membership skin "
+                                  f"unseen at step {step0}: exchange error")
             if live.wslab >= 0:
                 rec = r
                 self.ws = live.steppers[live.wslab].ws.copy()
+        self._fresh = False
         return self._end_block(rec, k)
 
     def _end_block(self, rec: np.ndarray, k: int) -> np.ndarray:
@@ -701,6 +708,7 @@ class MpiEngine:
         self.live = None
         self._pairs = None
         self.moved = 0.0
+        self._fresh = True   # the next sweep starts from the states just shared out
         self.glob = np.zeros(0, np.int64)
         if (self.owner == self.rank).any():
             lb, self.glob = rank_segments(self.owner, self.bounds, self.rank)
@@ -724,10 +732,11 @@ class MpiEngine:
                               f"decomposition error")
         self.builds += 1
 
-    def _refresh(self) -> None:
-        """Ghost rows <- the owners' time-n rows (exchange), then every halo row <- its
-        owner's row and ownership from x (live.LiveDomains.refresh; the rebuild decision
-        was taken before, over all ranks, from the last block's largest move)."""
+    def _refresh_ghosts(self) -> None:
+        """Ghost rows <- the owners' time-n rows (the exchange); the rebuild decision was
+        taken before, over all ranks, from the last block's largest move. The sweep that
+        follows refreshes the halo rows of this rank's sub-domains from their owners' rows
+        and takes ownership from x (``live._run_sweeps``' refresh_first)."""
         live = self.live
         if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
             self._pairs = self._partners(self.window)
@@ -750,19 +759,12 @@ class MpiEngine:
                 _unpack_ghosts(recv, self.ghost_row, live.owner_row, self.stamp, self._tick, *_moving(live.p))
         if live is None:
             return
-        p = live.p
-        _refresh(p.id, live.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s, p.hist_m,
-                 live.x_built, live.off, live.ref, live.disp2)
         # every disc a ghost owned must have come from its owner (else a halo row is stale)
         ghost_owned = self.ghost_rows[live.owned[self.ghost_rows]]
         missing = self.stamp[ghost_owned] != self._tick
         if missing.any():
             raise EngineError(f"MPI rank {self.rank}: {int(missing.sum())} halo discs were not sent by "
                               f"their owners (bounds {self.bounds.tolist()}): exchange error")
-        live._own()
-        for j, st in enumerate(live.steppers):
-            if live.disp2[j] > 0.25 * st.model.skin ** 2:
-                st._built = False
 
 
 def broadcast_wheel(comm, root: int, ws: np.ndarray, rec: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -94,81 +94,72 @@ def world():
 
 def row_words(dim: int, cap: int) -> int:
     """Words (float64) of one disc's row in the exchange buffers: its id and ``_MOVING``
-    fields, in that order (``_pack_rows``). Integers travel as float64, exact below 2**53."""
+    fields, in that order (``_rows_io``). Integers travel as float64, exact below 2**53."""
     f = fields(dim, cap)
     return sum(int(np.prod(f[k][1], dtype=np.int64)) for k in ("id", *_MOVING))
 
 
-@njit(cache=True)
-def _pack_rows(rows, buf, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m):
-    """buf[i] <- row rows[i]'s id and ``_MOVING`` fields, in that order, each field's
-    components row-major (any dimension and history width; buf has row_words columns)."""
-    cap = hist_id.shape[1]
-    for i in range(len(rows)):
-        r = rows[i]
-        w = 0
-        buf[i, w] = ids[r]
-        w += 1
-        for c in range(pos.shape[1]):
-            buf[i, w] = pos[r, c]
-            w += 1
-        for c in range(vel.shape[1]):
-            buf[i, w] = vel[r, c]
-            w += 1
-        for c in range(spin.shape[1]):
-            buf[i, w] = spin[r, c]
-            w += 1
-        buf[i, w] = hist_n[r]
-        w += 1
-        for q in range(cap):
-            buf[i, w] = hist_id[r, q]
-            w += 1
-        for q in range(cap):
-            for c in range(hist_s.shape[2]):
-                buf[i, w] = hist_s[r, q, c]
-                w += 1
-        for q in range(cap):
-            for c in range(hist_m.shape[2]):
-                buf[i, w] = hist_m[r, q, c]
-                w += 1
+def _moving(p: Particles) -> tuple:
+    """p's id and ``_MOVING`` fields, in the exchange row's order (``_rows_io``)."""
+    return (p.id, *(getattr(p, k) for k in _MOVING))
 
 
-@njit(cache=True)
-def _unpack_ghosts(buf, ghost_row, owner_row, stamp, tick, pos, vel, spin, hist_n, hist_id, hist_s, hist_m):
-    """The rows of a ``_pack_rows`` buffer into this rank's ghost rows: each received disc's
-    ghost row (found by id; a disc that is not one of this rank's ghosts is skipped) gets
-    its fields, becomes its owner row and is stamped `tick`."""
-    cap = hist_id.shape[1]
-    for i in range(buf.shape[0]):
-        g = np.int64(buf[i, 0])
-        if g < 0 or g >= len(ghost_row) or ghost_row[g] < 0:
+@njit(inline="always")
+def _field_io(buf, i, w, f, r, into_buf):
+    """Columns w.. of buffer row i <-> row r of the 2D field f; returns the next column."""
+    for c in range(f.shape[1]):
+        if into_buf:
+            buf[i, w + c] = f[r, c]
+        else:
+            f[r, c] = buf[i, w + c]
+    return w + f.shape[1]
+
+
+@njit(inline="always")
+def _rows_io(buf, state_rows, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, into_buf):
+    """Buffer row i <-> state row state_rows[i] (skipped when negative), into the buffer
+    (into_buf) or out of it: the id and ``_MOVING`` fields in turn, each field's components
+    row-major (any dimension and history width; buf has row_words columns)."""
+    n = len(ids)
+    fields_1d = (ids.reshape(n, 1), hist_n.reshape(n, 1))
+    hist_s2, hist_m2 = hist_s.reshape(n, -1), hist_m.reshape(n, -1)
+    for i in range(len(state_rows)):
+        r = state_rows[i]
+        if r < 0:
             continue
-        r = ghost_row[g]
-        owner_row[g] = r
-        stamp[r] = tick
-        w = 1
-        for c in range(pos.shape[1]):
-            pos[r, c] = buf[i, w]
-            w += 1
-        for c in range(vel.shape[1]):
-            vel[r, c] = buf[i, w]
-            w += 1
-        for c in range(spin.shape[1]):
-            spin[r, c] = buf[i, w]
-            w += 1
-        hist_n[r] = np.int32(buf[i, w])
-        w += 1
-        for q in range(cap):
-            hist_id[r, q] = np.int64(buf[i, w])
-            w += 1
-        for q in range(cap):
-            for c in range(hist_s.shape[2]):
-                hist_s[r, q, c] = buf[i, w]
-                w += 1
-        for q in range(cap):
-            for c in range(hist_m.shape[2]):
-                hist_m[r, q, c] = buf[i, w]
-                w += 1
+        w = _field_io(buf, i, 0, fields_1d[0], r, into_buf)
+        w = _field_io(buf, i, w, pos, r, into_buf)
+        w = _field_io(buf, i, w, vel, r, into_buf)
+        w = _field_io(buf, i, w, spin, r, into_buf)
+        w = _field_io(buf, i, w, fields_1d[1], r, into_buf)
+        w = _field_io(buf, i, w, hist_id, r, into_buf)
+        w = _field_io(buf, i, w, hist_s2, r, into_buf)
+        _field_io(buf, i, w, hist_m2, r, into_buf)
+
+
+# the two directions compiled apart, each with its direction a constant in the loops
+@njit(cache=True)
+def _pack_rows(buf, state_rows, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m):
+    _rows_io(buf, state_rows, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, True)
+
+
+@njit(cache=True)
+def _unpack_rows(buf, state_rows, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m):
+    _rows_io(buf, state_rows, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, False)
+
+
+@njit(cache=True)
+def _claim_ghosts(ids, ghost_row, owner_row, stamp, tick):
+    """The ghost row of each received disc id (-1: not one of this rank's ghost discs);
+    each claimed row becomes its disc's owner row and is stamped `tick`."""
+    rows = np.full(len(ids), -1, np.int64)
+    for i in range(len(ids)):
+        g = np.int64(ids[i])
+        if 0 <= g < len(ghost_row) and ghost_row[g] >= 0:
+            rows[i] = ghost_row[g]
+            owner_row[g] = rows[i]
+            stamp[rows[i]] = tick
+    return rows
 
 
 @njit(cache=True)
@@ -182,11 +173,6 @@ def _largest_move(rows, x, x_built):
     return moved
 
 
-def _moving(p: Particles) -> tuple:
-    """p's ``_MOVING`` fields, in the kernels' order."""
-    return tuple(getattr(p, k) for k in _MOVING)
-
-
 def room(buf: np.ndarray, rows: int) -> np.ndarray:
     """buf if it has `rows` rows, else a larger one (a quarter more): the exchange reuses
     its buffers, since fresh ones of a few hundred kB cost their page faults every block."""
@@ -194,9 +180,9 @@ def room(buf: np.ndarray, rows: int) -> np.ndarray:
 
 
 def pack(p: Particles, rows, buf: np.ndarray) -> np.ndarray:
-    """The rows' exchange rows (``_pack_rows``) in buf's first len(rows) rows (a view)."""
+    """The rows' exchange rows in buf's first len(rows) rows (a view)."""
     rows = np.asarray(rows, np.int64)
-    _pack_rows(rows, buf, p.id, *_moving(p))
+    _pack_rows(buf, rows, *_moving(p))
     return buf[:len(rows)]
 
 
@@ -756,7 +742,8 @@ class MpiEngine:
             sends = [b[:0] for b in self._send]
         for recv in self._exchange(sends):
             if live is not None and len(recv):
-                _unpack_ghosts(recv, self.ghost_row, live.owner_row, self.stamp, self._tick, *_moving(live.p))
+                rows = _claim_ghosts(recv[:, 0], self.ghost_row, live.owner_row, self.stamp, self._tick)
+                _unpack_rows(recv, rows, *_moving(live.p))
         if live is None:
             return
         # every disc a ghost owned must have come from its owner (else a halo row is stale)

@@ -24,12 +24,15 @@ its slab), every halo row holds its owner's time-n state before the step, and th
 is the same; memory order and extra discs never change a result (docs/design.md §3).
 Everything that decides the schedule - re-decompositions (the wheel leaving its slab),
 the wheel's slab, rebuilds of the local sets (a disc moved beyond the membership skin
-anywhere: an ``allreduce`` of the largest move) - is computed identically on every
-rank from data every rank has (the bounds, the broadcast wheel state), so the ranks
-never disagree about what comes next.
+anywhere) - is computed identically on every rank from data every rank has (the
+bounds, the wheel state and the largest move, both from the block's ``Allreduce``), so
+the ranks never disagree about what comes next.
 
-The wheel lives on the rank that owns its slab; after each block that rank broadcasts
-the wheel state and the block's wheel records. Re-decompositions use the serial rule on
+The wheel lives on the rank that owns its slab. One ``Allreduce`` (MAX) ends each
+block: every rank's largest disc move since the local sets were built, and the wheel's
+state and the block's wheel records from the wheel's rank (-inf from the others). The
+halo refresh from the owners' rows and the ownership update run inside the compiled
+sweep. Re-decompositions use the serial rule on
 the x histogram of every disc (``decomposition.XHistogram``, an ``Allreduce`` of its
 integer counts) and share the sub-domains out again by disc count. A rebuild sends every
 rank the discs within its strip (``alltoall`` of pickled parts: first cut, only
@@ -278,7 +281,7 @@ def _near_rows(rows, x, intervals, width):
 
 
 class MpiEngine:
-    """The sub-domains of this rank (``LiveDomains`` with two ghosts) and the collective
+    """The sub-domains of this rank (``LiveDomains`` with its ghosts) and the collective
     block step; on rank 0 also the engine interface ``Simulation`` drives."""
 
     name = "mpi"

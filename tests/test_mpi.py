@@ -137,6 +137,18 @@ def test_scattered_share_out_gives_the_serial_bits(tmp_path):
     assert_same_run(tmp_path / "ddm", tmp_path / "mpi")
 
 
+def test_spheres_on_ranks_give_the_serial_bits(tmp_path):
+    """3D kernels have no one-thread twin: each rank advances its sub-domains with their own
+    steppers after the same exchange and refresh (serial DDM's per-sub-domain sweep); the
+    wheel rolling on the quick-3d bed ends on serial DDM's bits."""
+    args = ["quick-3d", "--set", "wheel.settle_time=0.01", "--set", "wheel.drop_gap=0", "--steps", 600,
+            "--block", 4, *QUIET]
+    run_cli("run", *args, "--mode", "ddm", "--out", tmp_path / "ddm", check=True, env=ENV)
+    run_mpi(2, "run", *args, "--mode", "mpi", "--out", tmp_path / "mpi")
+    assert sorted(set(summary(tmp_path / "mpi")["engine"]["rank_domains"])) == [0, 1]
+    assert_same_run(tmp_path / "ddm", tmp_path / "mpi")
+
+
 @pytest.mark.parametrize("first,then", [(2, 3), (3, 1)])
 def test_resume_with_another_rank_count(serial, tmp_path, first, then):
     """An epoch written by R ranks resumes on R' ranks (1: a plain process, no mpiexec,

@@ -513,11 +513,20 @@ class LiveDomains:
             fl[F_PAIRS_DONE] = 1 if st._pairs_done else 0
             st._pairs_done = False
 
+    @property
+    def compiled(self) -> bool:
+        """The step kernels have a one-thread twin, so whole sweeps run in one compiled call
+        (``run_sweeps``); else each sub-domain is advanced by its own stepper (``advance``)."""
+        return bool(self.steppers) and sweeps_kernel(self.steppers[0].kern) is not None
+
     def advance(self, step0: int, k: int):
-        """Every sub-domain K steps in place; returns (wheel records, wheel state or None)."""
+        """Every advanced sub-domain K steps in place, each with its own stepper; returns
+        (wheel records, wheel state or None)."""
         rec_wheel = np.zeros((0, N_REC))
         ws = None
         for d, st in enumerate(self.steppers):
+            if not self.active[d]:
+                continue
             rec = st.advance(step0, k) if st.n else np.zeros((0, N_REC))
             if d == self.wslab:
                 rec_wheel = rec

@@ -573,8 +573,16 @@ class MpiEngine:
             # this rank's sub-domains in one compiled sweep (not its ghosts), which first
             # refreshes every halo row from its owner's row and takes ownership from x,
             # unless the local sets are fresh
-            r, _, status = live.run_sweeps(step0, 1, k, not self._fresh, -1.0)
-            if status == SWEEPS_REBUILD:   # never: self.moved bounds every local row's move
+            if live.compiled:
+                r, _, status = live.run_sweeps(step0, 1, k, not self._fresh, -1.0)
+                unseen = status == SWEEPS_REBUILD
+            else:
+                # kernels without a one-thread twin (3D): each sub-domain with its own stepper,
+                # after the same refresh and ownership (serial DDM's per-sub-domain sweep)
+                unseen = not self._fresh and not live.refresh()
+                if not unseen:
+                    r, _ = live.advance(step0, k)
+            if unseen:   # never: self.moved bounds every local row's move
                 raise EngineError(f"MPI rank {self.rank}: a disc moved beyond the membership skin "
                                   f"unseen at step {step0}: exchange error")
             if live.wslab >= 0:

@@ -570,9 +570,9 @@ class MpiEngine:
         rec = np.zeros((0, N_REC))
         live = self.live
         if live is not None:
-            # this rank's sub-domains in one compiled sweep (not its ghosts), which first
-            # refreshes every halo row from its owner's row and takes ownership from x,
-            # unless the local sets are fresh
+            # this rank's sub-domains (not its ghosts): every halo row refreshed from its
+            # owner's row and ownership from x (unless the local sets are fresh), then K steps;
+            # 2D in one compiled sweep that does both
             if live.compiled:
                 r, _, status = live.run_sweeps(step0, 1, k, not self._fresh, -1.0)
                 unseen = status == SWEEPS_REBUILD

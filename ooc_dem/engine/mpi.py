@@ -102,7 +102,7 @@ def row_words(dim: int, cap: int) -> int:
     return sum(int(np.prod(f[k][1], dtype=np.int64)) for k in ("id", *_MOVING))
 
 
-def _moving(p: Particles) -> tuple:
+def _exchange_fields(p: Particles) -> tuple:
     """p's id and ``_MOVING`` fields, in the exchange row's order (``_rows_io``)."""
     return (p.id, *(getattr(p, k) for k in _MOVING))
 
@@ -185,7 +185,7 @@ def room(buf: np.ndarray, rows: int) -> np.ndarray:
 def pack(p: Particles, rows, buf: np.ndarray) -> np.ndarray:
     """The rows' exchange rows in buf's first len(rows) rows (a view)."""
     rows = np.asarray(rows, np.int64)
-    _pack_rows(buf, rows, *_moving(p))
+    _pack_rows(buf, rows, *_exchange_fields(p))
     return buf[:len(rows)]
 
 
@@ -754,7 +754,7 @@ class MpiEngine:
         for recv in self._exchange(sends):
             if live is not None and len(recv):
                 rows = _claim_ghosts(recv[:, 0], self.ghost_row, live.owner_row, self.stamp, self._tick)
-                _unpack_rows(recv, rows, *_moving(live.p))
+                _unpack_rows(recv, rows, *_exchange_fields(live.p))
         if live is None:
             return
         # every disc a ghost owned must have come from its owner (else a halo row is stale)

@@ -8,7 +8,10 @@ without write conflicts):
    neighbour list (``neighbors.build_pairs``: each pair once, stored with its lower
    global id ``a``), so the law is evaluated once per pair in canonical orientation;
    the row (``layout.PAIR_ROW``) holds the force on b, both torque terms and the
-   pair's new springs, in the pair's slot of the list. Walls and wheel parts
+   pair's new springs, in the pair's slot of the list. The touching pairs are listed
+   in blocks (their law arguments as columns, ``layout.LawIn``) and ``law_block`` runs
+   the law on a block in one vectorised loop (SIMD) whose per-pair arithmetic is that
+   of a pair evaluated alone: the same bits. Walls and wheel parts
    (``layout.BODY_ROW``, one row per disc-body contact) go to per-chunk buffers in
    disc order. A producer only reads the time-n state and writes rows, so it can be
    rerun (e.g. after growing a buffer) without changing anything.
@@ -31,6 +34,8 @@ from numba import njit, prange
 
 from .contact import contact
 from .layout import (AX_X, AX_Y, ERR_BODY_CAPACITY, HM_R, HS_T, SP_Z, ERR_HIST_OVERFLOW, ERR_NBR_OVERFLOW,  # noqa: F401
+                     LAW_BLOCK, LAW_ROW, N_FIELDS, N_LAW_IN, N_LAW_OUT, N_TYPES, LawIn, LawOut,
+                     LawParams,
                      ERR_PAIR_CAPACITY, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT,
                      ID_WALL_RIGHT, T_WALL, T_WHEEL, WG_CAP, WG_ENABLED, WG_LUG_IN,
                      WG_LUG_OUT, WG_MASS, WG_NLUGS, WG_R, WG_SIZE, WS_SIZE, WS_THETA, WS_VX,
@@ -44,6 +49,10 @@ ROLE_STABLE = ROLE_OWNED | ROLE_OWNED_BEFORE
 # discs are produced and gathered in N_CHUNKS contiguous chunks (body rows are
 # buffered per chunk, in disc order); the chunking never changes a result
 N_CHUNKS = 64
+# produce runs the chunks in groups, each with its own law-block columns: allocated once
+# a group rather than once a chunk (a serial-DDM step makes them for every sub-domain;
+# paper2008 D = 6 ran ~10 % faster so)
+CHUNKS_PER_GROUP = 4
 
 
 @njit(inline="always", cache=True)
@@ -63,6 +72,100 @@ def _lookup(hid, hs, hm, i, hn, p, pid):
     if p < hn and hid[i, p] == pid:
         return p, hs[i, p, HS_T], hm[i, p, HM_R]
     return p, 0.0, 0.0
+
+
+def law_block(uniform):
+    """The pair law (contact.contact) on pairs 0..k-1 of a block: what it needs of them is
+    in the LawIn rows of law_in, their pair-row fields go to the LawOut rows of law_out.
+    uniform: c0 is the CONTACT_PARAMS record of every pair of the block (one material
+    pair), else each pair's parameters are in its LawIn columns (c0 is None).
+
+    One loop with no call and no early exit, so the compiler evaluates several pairs per
+    instruction (SIMD); each pair's arithmetic and its order are those of the pair evaluated
+    alone (the contact geometry and effective quantities, then contact's law; numba sets no
+    fast-math, so no operation is fused or reordered): its bits do not depend on the block."""
+
+    def block(k, law_in, law_out, dt, c0):
+        dx_, dy_, vrx_, vry_ = law_in[LawIn.dx], law_in[LawIn.dy], law_in[LawIn.vrx], law_in[LawIn.vry]
+        wa_, wb_, ra_, rb_ = law_in[LawIn.wa], law_in[LawIn.wb], law_in[LawIn.ra], law_in[LawIn.rb]
+        ma_, mb_, ia_, ib_ = law_in[LawIn.ma], law_in[LawIn.mb], law_in[LawIn.ia], law_in[LawIn.ib]
+        s_old_, m_old_ = law_in[LawIn.s_old], law_in[LawIn.m_old]
+        kn, ks, zn, zt = law_in[LawIn.kn], law_in[LawIn.ks], law_in[LawIn.zn], law_in[LawIn.zt]
+        mu, mur, zr = law_in[LawIn.mu], law_in[LawIn.mur], law_in[LawIn.zr]
+        bx_, by_, ta_, tb_ = law_out[LawOut.bx], law_out[LawOut.by], law_out[LawOut.ta], law_out[LawOut.tb]
+        s_, m_ = law_out[LawOut.s], law_out[LawOut.m]
+        for t in range(k):
+            if uniform:   # a constant: one record for the block, or each pair's columns
+                c = c0
+            else:
+                c = LawParams(kn[t], ks[t], zn[t], zt[t], mu[t], mur[t], zr[t])
+            dx = dx_[t]
+            dy = dy_[t]
+            ra = ra_[t]
+            rb = rb_[t]
+            ma = ma_[t]
+            mb = mb_[t]
+            ia = ia_[t]
+            ib = ib_[t]
+            d2 = dx * dx + dy * dy
+            rs = ra + rb
+            dd = math.sqrt(d2)
+            nx = dx / dd
+            ny = dy / dd
+            fn, ft, s_new, mom, m_new = contact(
+                c, nx, ny, rs - dd, vrx_[t], vry_[t], wa_[t], wb_[t], ra, rb, ma * mb / (ma + mb),
+                ia * ib / (ia + ib), ra * rb / (ra + rb), s_old_[t], m_old_[t], dt)
+            bx_[t] = fn * nx + ft * ny
+            by_[t] = fn * ny - ft * nx
+            ta_[t] = ra * ft - mom
+            tb_[t] = rb * ft + mom
+            s_[t] = s_new
+            m_[t] = m_new
+
+    # error_model numpy: no division-by-zero test in the loop (it would stop the SIMD; the law
+    # never divides by zero: the pairs touch (dd > 0), masses and inertias are positive)
+    return njit(error_model="numpy", cache=True)(block)
+
+
+law_block_one = law_block(True)      # one record for the block
+law_block_each = law_block(False)    # each pair's parameters in its columns
+
+
+@njit(inline="always", cache=True)
+def law_rows(k, law_in, law_out, dt, cp, uniform):
+    """The block law on a filled block of k pairs (LawIn columns up to the material pair):
+    uniform (one material pair, in column 0): its record for the whole block; else each
+    pair's parameters are copied into its columns first."""
+    k = np.int64(k)   # never a literal: one compiled block law per signature
+    if uniform:
+        m0 = np.int64(law_in[LawIn.material, 0])
+        law_block_one(k, law_in, law_out, dt, cp[m0 // N_TYPES, m0 % N_TYPES])
+        return
+    # the table's records as float64 (all their fields are): row a holds records [a, b]
+    # one after another; LawIn has the fields in the record's order from LawIn.kn on
+    fields = cp.view(np.float64)
+    for t in range(k):
+        m = np.int64(law_in[LawIn.material, t])
+        a = m // N_TYPES
+        at = (m % N_TYPES) * N_FIELDS
+        for f in range(N_FIELDS):
+            law_in[LawIn.kn + f, t] = fields[a, at + f]
+    law_block_each(k, law_in, law_out, dt, None)
+
+
+@njit(inline="always", cache=True)
+def _put_pair_rows(k, slot, law_out, rows, on):
+    """The rows of a block's pairs (law_block's results) into their slots; they touch."""
+    for t in range(k):
+        q = slot[t]
+        row = rows[q]
+        row.bx = law_out[LawOut.bx, t]
+        row.by = law_out[LawOut.by, t]
+        row.ta = law_out[LawOut.ta, t]
+        row.tb = law_out[LawOut.tb, t]
+        row.s = law_out[LawOut.s, t]
+        row.m = law_out[LawOut.m, t]
+        on[q] = 1
 
 
 @njit(inline="always", cache=True)
@@ -116,159 +219,178 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_don
     reach = lug_out + cap_r
     if R > reach:
         reach = R
-    for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, first, end)
-        bat = ch * bcap
-        bend = bat + bcap
-        full = False
-        for i in range(lo, hi):
-            xi = pos[i, AX_X]
-            yi = pos[i, AX_Y]
-            vxi = vel[i, AX_X]
-            vyi = vel[i, AX_Y]
-            wi = spin[i, SP_Z]
-            ri = r[i]
-            mi = mass[i]
-            ii = inertia[i]
-            ti = mat[i]
-            hn = hist_n[i]
-            p = 0
-            # ------------------------------------------------------ wheel
-            if wheel_on:
-                dxw = xi - X
-                dyw = yi - Y
-                d2 = dxw * dxw + dyw * dyw
-                if d2 < (reach + ri) * (reach + ri):
-                    meff = mi * wmass / (mi + wmass)
-                    for lug in range(nlugs):
-                        ux = lugdir[lug].ux
-                        uy = lugdir[lug].uy
-                        sproj = lug_axis_offset(dxw, dyw, ux, uy, lug_in, lug_out)
-                        px = X + sproj * ux
-                        py = Y + sproj * uy
-                        ddx = xi - px
-                        ddy = yi - py
-                        dd = math.sqrt(ddx * ddx + ddy * ddy)
-                        delta = cap_r + ri - dd
-                        if delta > 0.0 and dd > 0.0:
-                            pid = ID_LUG0 + lug
-                            p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
-                            nx = ddx / dd
-                            ny = ddy / dd
-                            # velocity of the lug point p: V + Wz x (p - C)
-                            vax = VX - WZ * (py - Y)
-                            vay = VY + WZ * (px - X)
+    for grp in prange(N_CHUNKS // CHUNKS_PER_GROUP):
+        law_in = np.empty((N_LAW_IN, LAW_ROW))
+        law_out = np.empty((N_LAW_OUT, LAW_ROW))
+        slot = np.empty(LAW_BLOCK, np.int64)
+        k = 0
+        uniform = True   # the block's pairs so far have one material pair
+        for ch in range(grp * CHUNKS_PER_GROUP, (grp + 1) * CHUNKS_PER_GROUP):
+            lo, hi = chunk_range(ch, first, end)
+            bat = ch * bcap
+            bend = bat + bcap
+            full = False
+            for i in range(lo, hi):
+                xi = pos[i, AX_X]
+                yi = pos[i, AX_Y]
+                vxi = vel[i, AX_X]
+                vyi = vel[i, AX_Y]
+                wi = spin[i, SP_Z]
+                ri = r[i]
+                mi = mass[i]
+                ii = inertia[i]
+                ti = mat[i]
+                hn = hist_n[i]
+                p = 0
+                # ------------------------------------------------------ wheel
+                if wheel_on:
+                    dxw = xi - X
+                    dyw = yi - Y
+                    d2 = dxw * dxw + dyw * dyw
+                    if d2 < (reach + ri) * (reach + ri):
+                        meff = mi * wmass / (mi + wmass)
+                        for lug in range(nlugs):
+                            ux = lugdir[lug].ux
+                            uy = lugdir[lug].uy
+                            sproj = lug_axis_offset(dxw, dyw, ux, uy, lug_in, lug_out)
+                            px = X + sproj * ux
+                            py = Y + sproj * uy
+                            ddx = xi - px
+                            ddy = yi - py
+                            dd = math.sqrt(ddx * ddx + ddy * ddy)
+                            delta = cap_r + ri - dd
+                            if delta > 0.0 and dd > 0.0:
+                                pid = ID_LUG0 + lug
+                                p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
+                                nx = ddx / dd
+                                ny = ddy / dd
+                                # velocity of the lug point p: V + Wz x (p - C)
+                                vax = VX - WZ * (py - Y)
+                                vay = VY + WZ * (px - X)
+                                fn, ft, s_new, mom, m_new = contact(
+                                    cp[T_WHEEL, ti], nx, ny, delta, vxi - vax, vyi - vay, WZ, wi, cap_r,
+                                    ri, meff, ii, ri, s_old, m_old, dt)
+                                bx = fn * nx + ft * ny
+                                by = fn * ny - ft * nx
+                                # reaction on the wheel at q = p + cap_r n, about the centre
+                                qx = px + cap_r * nx - X
+                                qy = py + cap_r * ny - Y
+                                if bat < bend:
+                                    _body_row(body, bat, i, pid, bx, by, ri * ft + mom, s_new, m_new,
+                                              qx * (-by) - qy * (-bx) - mom)
+                                    bat += 1
+                                else:
+                                    full = True
+                        dw = math.sqrt(d2)
+                        delta = R + ri - dw
+                        if delta > 0.0 and dw > 0.0:
+                            p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, ID_RIM)
+                            nx = dxw / dw
+                            ny = dyw / dw
                             fn, ft, s_new, mom, m_new = contact(
-                                cp[T_WHEEL, ti], nx, ny, delta, vxi - vax, vyi - vay, WZ, wi, cap_r,
-                                ri, meff, ii, ri, s_old, m_old, dt)
+                                cp[T_WHEEL, ti], nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri,
+                                meff, ii, ri, s_old, m_old, dt)
                             bx = fn * nx + ft * ny
                             by = fn * ny - ft * nx
-                            # reaction on the wheel at q = p + cap_r n, about the centre
-                            qx = px + cap_r * nx - X
-                            qy = py + cap_r * ny - Y
+                            qx = R * nx
+                            qy = R * ny
                             if bat < bend:
-                                _body_row(body, bat, i, pid, bx, by, ri * ft + mom, s_new, m_new,
+                                _body_row(body, bat, i, ID_RIM, bx, by, ri * ft + mom, s_new, m_new,
                                           qx * (-by) - qy * (-bx) - mom)
                                 bat += 1
                             else:
                                 full = True
-                    dw = math.sqrt(d2)
-                    delta = R + ri - dw
-                    if delta > 0.0 and dw > 0.0:
-                        p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, ID_RIM)
-                        nx = dxw / dw
-                        ny = dyw / dw
+                # ------------------------------------------------------ walls
+                # most discs touch no wall: test all three overlaps first (ri > t is exactly
+                # the walls' own test ri - t > 0, so no contact is skipped or added)
+                near_wall = ((has_right and ri > length - xi) or (has_left and ri > xi)
+                             or (has_bottom and ri > yi))
+                for wall in range(3 if near_wall else 0):
+                    # ascending ids: right (-3), left (-2), bottom (-1)
+                    if wall == 0:
+                        if not has_right:
+                            continue
+                        delta = ri - (length - xi)
+                        nx = -1.0
+                        ny = 0.0
+                        pid = ID_WALL_RIGHT
+                    elif wall == 1:
+                        if not has_left:
+                            continue
+                        delta = ri - xi
+                        nx = 1.0
+                        ny = 0.0
+                        pid = ID_WALL_LEFT
+                    else:
+                        if not has_bottom:
+                            continue
+                        delta = ri - yi
+                        nx = 0.0
+                        ny = 1.0
+                        pid = ID_WALL_BOTTOM
+                    if delta > 0.0:
+                        p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
                         fn, ft, s_new, mom, m_new = contact(
-                            cp[T_WHEEL, ti], nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri,
-                            meff, ii, ri, s_old, m_old, dt)
-                        bx = fn * nx + ft * ny
-                        by = fn * ny - ft * nx
-                        qx = R * nx
-                        qy = R * ny
+                            cp[T_WALL, ti], nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri,
+                            mi, ii, ri, s_old, m_old, dt)
                         if bat < bend:
-                            _body_row(body, bat, i, ID_RIM, bx, by, ri * ft + mom, s_new, m_new,
-                                      qx * (-by) - qy * (-bx) - mom)
+                            _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx,
+                                      ri * ft + mom, s_new, m_new, 0.0)
                             bat += 1
                         else:
                             full = True
-            # ------------------------------------------------------ walls
-            # most discs touch no wall: test all three overlaps first (ri > t is exactly
-            # the walls' own test ri - t > 0, so no contact is skipped or added)
-            near_wall = ((has_right and ri > length - xi) or (has_left and ri > xi)
-                         or (has_bottom and ri > yi))
-            for wall in range(3 if near_wall else 0):
-                # ascending ids: right (-3), left (-2), bottom (-1)
-                if wall == 0:
-                    if not has_right:
+                # ------------------------------------------------------ pairs (i = a, lower id)
+                if pairs_done:
+                    continue   # a rerun after growing the body buffers: the pair rows are made
+                # the touching pairs' law arguments are listed in a block; law_rows evaluates a
+                # full block at once and puts its rows in place (the order of evaluation never
+                # changes a row: each depends only on its own arguments)
+                for q in range(half_off[i], half_off[i + 1]):
+                    b = np.int64(pair_b[q])
+                    dx = pos[b, AX_X] - xi
+                    dy = pos[b, AX_Y] - yi
+                    rb = r[b]
+                    d2 = dx * dx + dy * dy
+                    rs = ri + rb
+                    if d2 >= rs * rs or d2 == 0.0:
+                        # no contact: the pair's springs restart from zero
+                        on[q] = 0
+                        row = rows[q]
+                        row.s = 0.0
+                        row.m = 0.0
                         continue
-                    delta = ri - (length - xi)
-                    nx = -1.0
-                    ny = 0.0
-                    pid = ID_WALL_RIGHT
-                elif wall == 1:
-                    if not has_left:
-                        continue
-                    delta = ri - xi
-                    nx = 1.0
-                    ny = 0.0
-                    pid = ID_WALL_LEFT
-                else:
-                    if not has_bottom:
-                        continue
-                    delta = ri - yi
-                    nx = 0.0
-                    ny = 1.0
-                    pid = ID_WALL_BOTTOM
-                if delta > 0.0:
-                    p, s_old, m_old = _lookup(hist_id, hist_s, hist_m, i, hn, p, pid)
-                    fn, ft, s_new, mom, m_new = contact(
-                        cp[T_WALL, ti], nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri,
-                        mi, ii, ri, s_old, m_old, dt)
-                    if bat < bend:
-                        _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx,
-                                  ri * ft + mom, s_new, m_new, 0.0)
-                        bat += 1
-                    else:
-                        full = True
-            # ------------------------------------------------------ pairs (i = a, lower id)
-            if pairs_done:
-                continue   # a rerun after growing the body buffers: the pair rows are made
-            for q in range(half_off[i], half_off[i + 1]):
-                b = np.int64(pair_b[q])
-                dx = pos[b, AX_X] - xi
-                dy = pos[b, AX_Y] - yi
-                rb = r[b]
-                d2 = dx * dx + dy * dy
-                rs = ri + rb
-                row = rows[q]
-                if d2 >= rs * rs or d2 == 0.0:
-                    # no contact: the pair's springs restart from zero
-                    on[q] = 0
-                    row.s = 0.0
-                    row.m = 0.0
-                    continue
-                dd = math.sqrt(d2)
-                delta = rs - dd
-                # the pair's springs of the last step (its row is its contact history)
-                s_old = row.s
-                m_old = row.m
-                nx = dx / dd
-                ny = dy / dd
-                mb = mass[b]
-                ib = inertia[b]
-                fn, ft, s_new, mom, m_new = contact(
-                    cp[ti, mat[b]], nx, ny, delta, vel[b, AX_X] - vxi, vel[b, AX_Y] - vyi, wi, spin[b, SP_Z], ri, rb,
-                    mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb), s_old, m_old, dt)
-                row.bx = fn * nx + ft * ny
-                row.by = fn * ny - ft * nx
-                row.ta = ri * ft - mom
-                row.tb = rb * ft + mom
-                row.s = s_new
-                row.m = m_new
-                on[q] = 1
-        bcount[ch] = bat - ch * bcap
-        if full:
-            err[ERR_BODY_CAPACITY] = 1
+                    # the pair's springs of the last step (its row is its contact history)
+                    row = rows[q]
+                    law_in[LawIn.s_old, k] = row.s
+                    law_in[LawIn.m_old, k] = row.m
+                    law_in[LawIn.dx, k] = dx
+                    law_in[LawIn.dy, k] = dy
+                    law_in[LawIn.vrx, k] = vel[b, AX_X] - vxi
+                    law_in[LawIn.vry, k] = vel[b, AX_Y] - vyi
+                    law_in[LawIn.wa, k] = wi
+                    law_in[LawIn.wb, k] = spin[b, SP_Z]
+                    law_in[LawIn.ra, k] = ri
+                    law_in[LawIn.rb, k] = rb
+                    law_in[LawIn.ma, k] = mi
+                    law_in[LawIn.mb, k] = mass[b]
+                    law_in[LawIn.ia, k] = ii
+                    law_in[LawIn.ib, k] = inertia[b]
+                    material = ti * N_TYPES + mat[b]
+                    law_in[LawIn.material, k] = material
+                    uniform = uniform and material == law_in[LawIn.material, 0]
+                    slot[k] = q
+                    k += 1
+                    if k == LAW_BLOCK:
+                        law_rows(k, law_in, law_out, dt, cp, uniform)
+                        _put_pair_rows(k, slot, law_out, rows, on)
+                        k = 0
+                        uniform = True
+            bcount[ch] = bat - ch * bcap
+            if full:
+                err[ERR_BODY_CAPACITY] = 1
+        if k > 0:
+              law_rows(k, law_in, law_out, dt, cp, uniform)
+              _put_pair_rows(k, slot, law_out, rows, on)
 
 
 @njit(inline="always", cache=True)

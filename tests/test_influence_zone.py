@@ -86,11 +86,19 @@ def test_tool_on_a_rolling_quick3d_run(tool, tmp_path, capsys):
     assert ahead["front_x"] == pytest.approx(front)
     assert sum(r["n"] for r in ahead["profile"]) == int(((x >= front) & (np.abs(z) <= 0.03)).sum())
     assert png.stat().st_size > 10_000
+    # one frame twice: the wheel did not travel, nothing to measure
+    assert tool.main([str(out), "--t0", "0.1", "--t1", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "t = 0.1-0.1 s" in err and "no spheres" in err and len(err.strip().splitlines()) == 1
 
 
 def test_refusals(tool, tmp_path, capsys):
     assert tool.main([str(tmp_path / "nothing")]) == 2
     assert "influence_zone:" in capsys.readouterr().err
+    assert tool.main([str(tmp_path), "--bin", "0"]) == 2
+    assert "--bin" in capsys.readouterr().err
+    assert tool.main([str(tmp_path), "--fractions", "2"]) == 2
+    assert "--fractions" in capsys.readouterr().err
     out = tmp_path / "q2"
     ooc_dem.run("quick", out, steps=20)
     assert tool.main([str(out)]) == 2

@@ -36,6 +36,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from ooc_dem.physics.layout import AX_X, AX_Y, AX_Z, WS_X  # noqa: E402
+
 
 def nearest_frame(times: np.ndarray, t: float) -> int:
     """Index of the frame whose time is closest to t."""
@@ -56,8 +58,8 @@ def _binned(d: np.ndarray, e: np.ndarray, side: np.ndarray, bin_width: float) ->
         db = d[m]
         rows.append({"e_lo": b * bin_width, "e_hi": (b + 1) * bin_width, "n": int(m.sum()),
                      "disp": float(np.linalg.norm(db, axis=1).mean()),
-                     "dx": float(db[:, 0].mean()), "dy": float(db[:, 1].mean()),
-                     "dz_out": float((db[:, 2] * side[m]).mean())})
+                     "dx": float(db[:, AX_X].mean()), "dy": float(db[:, AX_Y].mean()),
+                     "dz_out": float((db[:, AX_Z] * side[m]).mean())})
     return rows
 
 
@@ -65,8 +67,9 @@ def lateral_profile(pos0: np.ndarray, pos1: np.ndarray, x_range: tuple[float, fl
                     half_width: float, bin_width: float) -> list[dict]:
     """Per lateral bin of e = |z - z0| - half_width (initial positions, spheres whose initial x
     is in x_range): count and mean displacement |d|, dx, dy and dz away from the wheel."""
-    x, z = pos0[:, 0], pos0[:, 2]
-    sel = (x >= x_range[0]) & (x <= x_range[1])
+    x, z = pos0[:, AX_X], pos0[:, AX_Z]
+    lo, hi = x_range
+    sel = (x >= lo) & (x <= hi)
     return _binned(pos1[sel] - pos0[sel], np.abs(z[sel] - z0) - half_width,
                    np.where(z[sel] >= z0, 1.0, -1.0), bin_width)
 
@@ -75,7 +78,7 @@ def ahead_profile(pos0: np.ndarray, pos1: np.ndarray, front: float, z0: float, h
                   bin_width: float) -> list[dict]:
     """The same ahead of the wheel: spheres of its track (|z - z0| <= half_width) that started
     at x >= front (the lugs' front at the end), binned by e = x - front."""
-    x, z = pos0[:, 0], pos0[:, 2]
+    x, z = pos0[:, AX_X], pos0[:, AX_Z]
     sel = (x >= front) & (np.abs(z - z0) <= half_width)
     return _binned(pos1[sel] - pos0[sel], x[sel] - front, np.where(z[sel] >= z0, 1.0, -1.0),
                    bin_width)
@@ -130,6 +133,10 @@ def main(argv=None) -> int:
     run = Path(a.run)
     try:
         fractions = [float(p) for p in a.fractions.split(",")]
+        if not all(0.0 < p < 1.0 for p in fractions):
+            raise ValueError(f"--fractions: each must be between 0 and 1, got {a.fractions}")
+        if a.bin is not None and not 0.0 < a.bin < 1.0:
+            raise ValueError(f"--bin: a width in m between 0 and 1, got {a.bin}")
         sc = load_scenario(run / "scenario.toml")
         if sc.dim != 3 or not sc.wheel.enabled:
             raise ValueError(f"{run}: needs a 3D wheel run (this one is {sc.dim}D"
@@ -146,11 +153,16 @@ def main(argv=None) -> int:
     if not np.array_equal(f0["id"], f1["id"]):
         print("influence_zone: the two frames hold different spheres", file=sys.stderr)
         return 2
-    xw0, xw1 = float(f0["wheel_state"][0]), float(f1["wheel_state"][0])
+    xw0, xw1 = float(f0["wheel_state"][WS_X]), float(f1["wheel_state"][WS_X])
     bin_width = a.bin or 2.0 * sc.soil.r_max
     rows = lateral_profile(f0["pos"], f1["pos"], (min(xw0, xw1), max(xw0, xw1)), wheel_z0(sc),
                            0.5 * sc.wheel.width, bin_width)
-    zone = zone_edges(rows, fractions, a.floor_from)
+    try:
+        zone = zone_edges(rows, fractions, a.floor_from)
+    except ValueError as e:   # e.g. --t0 and --t1 on one frame: the wheel did not travel
+        print(f"influence_zone: {run}, t = {traj.times[i0]:g}-{traj.times[i1]:g} s: {e}",
+              file=sys.stderr)
+        return 2
     front = max(xw0, xw1) + sc.wheel.lug_tip_radius
     ahead = ahead_profile(f0["pos"], f1["pos"], front, wheel_z0(sc), 0.5 * sc.wheel.width,
                           bin_width)

@@ -90,12 +90,10 @@ def edges_of(rows: list[dict], fractions: list[float], floor: float, wheel: floa
     outside = [r for r in rows if r["e_lo"] >= 0.0]
     edges = {}
     for p in fractions:
-        edge = None
-        for j, r in enumerate(outside):
-            if all(s["disp"] - floor < p * (wheel - floor) for s in outside[j:]):
-                edge = r["e_lo"]
-                break
-        edges[f"{p:g}"] = edge
+        # the edge is the start of the bin after the last one at or above p
+        above = [j for j, r in enumerate(outside) if r["disp"] - floor >= p * (wheel - floor)]
+        j = above[-1] + 1 if above else 0
+        edges[f"{p:g}"] = outside[j]["e_lo"] if j < len(outside) else None
     return edges
 
 
@@ -155,8 +153,9 @@ def main(argv=None) -> int:
         return 2
     xw0, xw1 = float(f0["wheel_state"][WS_X]), float(f1["wheel_state"][WS_X])
     bin_width = a.bin or 2.0 * sc.soil.r_max
-    rows = lateral_profile(f0["pos"], f1["pos"], (min(xw0, xw1), max(xw0, xw1)), wheel_z0(sc),
-                           0.5 * sc.wheel.width, bin_width)
+    z0, half_width = wheel_z0(sc), 0.5 * sc.wheel.width
+    rows = lateral_profile(f0["pos"], f1["pos"], (min(xw0, xw1), max(xw0, xw1)), z0, half_width,
+                           bin_width)
     try:
         zone = zone_edges(rows, fractions, a.floor_from)
     except ValueError as e:   # e.g. --t0 and --t1 on one frame: the wheel did not travel
@@ -164,8 +163,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     front = max(xw0, xw1) + sc.wheel.lug_tip_radius
-    ahead = ahead_profile(f0["pos"], f1["pos"], front, wheel_z0(sc), 0.5 * sc.wheel.width,
-                          bin_width)
+    ahead = ahead_profile(f0["pos"], f1["pos"], front, z0, half_width, bin_width)
     report = {"run": str(run), "t0": float(traj.times[i0]), "t1": float(traj.times[i1]),
               "wheel_x": [xw0, xw1], "wheel_width": sc.wheel.width, "bin_width_m": sc.bin.width,
               "wall_gap_m": 0.5 * (sc.bin.width - sc.wheel.width), "lateral_bin": bin_width,

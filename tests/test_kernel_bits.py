@@ -34,7 +34,6 @@ Cases (each exercises different parts of the kernel):
 from __future__ import annotations
 
 import json
-import os
 
 import pytest
 

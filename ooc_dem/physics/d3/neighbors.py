@@ -14,7 +14,7 @@ sorted by global id, the set of pairs is exact: distances are checked).
 import numpy as np
 from numba import njit, prange
 from ..layout import AX_X, AX_Y, AX_Z
-from ..neighbors import _slots, _sort_by_gid  # dimension-free: the same in 2D and 3D
+from ..neighbors import SCAN_CHUNK, _slots, _sort_by_gid  # dimension-free: the same in 2D and 3D
 
 
 @njit(cache=True)
@@ -90,54 +90,55 @@ def _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list):
 def _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc, fill):
     """fill False: count each sphere's partners with higher / lower ids into
-    half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id."""
-    for i in prange(n):
-        cx, cy, cz = _cell_xyz(pos, i, lo, cell, ncx, ncy, ncz)
-        nu = 0
-        nl = 0
-        xi = pos[i, 0]
-        yi = pos[i, 1]
-        zi = pos[i, 2]
-        ri = r[i]
-        gi = gid[i]
-        u0 = half_off[i] if fill else 0
-        l0 = inc_off[i] if fill else 0
-        for oz in range(-1, 2):
-            zz = cz + oz
-            if zz < 0 or zz >= ncz:
-                continue
-            for oy in range(-1, 2):
-                yy = cy + oy
-                if yy < 0 or yy >= ncy:
-                    continue
-                for ox in range(-1, 2):
-                    xx = cx + ox
-                    if xx < 0 or xx >= ncx:
-                        continue
-                    cc = (zz * ncy + yy) * ncx + xx
-                    for q in range(cell_start[cc], cell_start[cc + 1]):
+    half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id.
+    Branch-free over the candidates, one run of spheres per row of three cells (as the 2D
+    scan, physics.neighbors._scan, says why)."""
+    # a sphere's candidates are the spheres of 27 cells: the buffers hold 27 of the fullest cell
+    fullest = 0
+    for c in range(ncx * ncy * ncz):
+        fullest = max(fullest, cell_start[c + 1] - cell_start[c])
+    room = 27 * fullest
+    for ch in prange((n + SCAN_CHUNK - 1) // SCAN_CHUNK):
+        higher = np.empty(room, np.int32)
+        lower = np.empty(room, np.int32)
+        for i in range(ch * SCAN_CHUNK, min(n, (ch + 1) * SCAN_CHUNK)):
+            cx, cy, cz = _cell_xyz(pos, i, lo, cell, ncx, ncy, ncz)
+            nu = 0
+            nl = 0
+            xi = pos[i, 0]
+            yi = pos[i, 1]
+            zi = pos[i, 2]
+            ri = r[i]
+            gi = gid[i]
+            xlo = max(cx - 1, 0)
+            xhi = min(cx + 1, ncx - 1)
+            for zz in range(max(cz - 1, 0), min(cz + 2, ncz)):
+                for yy in range(max(cy - 1, 0), min(cy + 2, ncy)):
+                    row = (zz * ncy + yy) * ncx
+                    for q in range(cell_start[row + xlo], cell_start[row + xhi + 1]):
                         j = cell_list[q]
-                        if j == i:
-                            continue
                         dx = pos[j, 0] - xi
                         dy = pos[j, 1] - yi
                         dz = pos[j, 2] - zi
                         cut = ri + r[j] + skin
-                        if dx * dx + dy * dy + dz * dz < cut * cut:
-                            if gid[j] > gi:
-                                if fill:
-                                    pair_b[u0 + nu] = j
-                                nu += 1
-                            else:
-                                if fill:
-                                    inc[l0 + nl] = j
-                                nl += 1
-        if not fill:
-            half_off[i + 1] = nu
-            inc_off[i + 1] = nl
-            continue
-        _sort_by_gid(pair_b, u0, u0 + nu, gid)
-        _sort_by_gid(inc, l0, l0 + nl, gid)
+                        # i itself is near but neither higher nor lower (ids are unique)
+                        near = dx * dx + dy * dy + dz * dz < cut * cut
+                        higher[nu] = j
+                        lower[nl] = j
+                        nu += near & (gid[j] > gi)
+                        nl += near & (gid[j] < gi)
+            if not fill:
+                half_off[i + 1] = nu
+                inc_off[i + 1] = nl
+                continue
+            u0 = half_off[i]
+            l0 = inc_off[i]
+            for k in range(nu):
+                pair_b[u0 + k] = higher[k]
+            for k in range(nl):
+                inc[l0 + k] = lower[k]
+            _sort_by_gid(pair_b, u0, u0 + nu, gid)
+            _sort_by_gid(inc, l0, l0 + nl, gid)
 
 
 @njit(cache=True)

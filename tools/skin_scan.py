@@ -1,0 +1,108 @@
+#!/usr/bin/env python
+"""Which Verlet skin makes a run fastest: advance the same state with several skins and time it.
+
+The pair list holds every pair within r_i + r_j + skin and is rebuilt when some particle has
+moved half the skin, so the skin never changes a result, only the time: a smaller skin means
+fewer candidate pairs to test each step and more rebuilds. This takes the last committed epoch
+of a run's store (so the particles move as they do in that run: a wheel mid-travel, a bed
+settling), advances it --steps steps monolithically once per skin and prints, per skin, the
+time a step, the rebuilds, the candidate pairs a particle and the state's hash after the steps
+(every skin must give the same: ``same_bits``). Skins are interleaved over --repeat rounds
+(this machine's speed drifts); the best round of each is ``us_per_step``.
+
+    python tools/skin_scan.py RUN --skins 0.0006,0.0002,0.0001,0.00005 --steps 20000
+
+RUN: a store written by ``ooc-dem run`` (its own scenario.toml is used, with bed.skin set).
+The whole state is held in memory: a tool for runs that fit in RAM.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _state_of(run: Path, skin: float):
+    from ooc_dem.checkpoint import read_all_particles
+    from ooc_dem.engine.stepper import Model
+    from ooc_dem.scenario import load_scenario
+    from storage.store import open_store
+    sc = load_scenario(str(run / "scenario.toml"), [f"bed.skin={skin}"])
+    model = Model.from_scenario(sc)
+    with open_store(run) as store:
+        reader = store.read_epoch(None)
+        try:
+            arrays, attrs = reader.read_globals()
+            particles = read_all_particles(reader, model.dim, model.hist_cap)
+        finally:
+            reader.close()
+    return model, particles, np.asarray(arrays["wheel_state"], np.float64), int(attrs["step"])
+
+
+def one(run: Path, skin: float, steps: int) -> dict:
+    from ooc_dem.engine.monolithic import MonolithicEngine
+    model, particles, ws, step0 = _state_of(run, skin)
+    engine = MonolithicEngine(particles, ws, model)
+    warm = 10
+    engine.advance(step0, warm)   # compiles (or loads) the kernels, builds the list
+    builds0 = engine.stepper.rebuilds
+    t0 = time.perf_counter()
+    engine.advance(step0 + warm, steps)
+    wall = time.perf_counter() - t0
+    p = engine.particles()
+    order = np.argsort(p.id, kind="stable")
+    h = hashlib.sha256()
+    for a in (p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s, p.hist_m):
+        h.update(np.ascontiguousarray(a[order]).tobytes())
+    return {"skin": skin, "us_per_step": round(wall / steps * 1e6, 1),
+            "rebuilds": engine.stepper.rebuilds - builds0,
+            "candidate_pairs_per_particle": round(engine.stepper.pairs / len(p), 3),
+            "state_sha256": h.hexdigest()}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("run", type=Path)
+    ap.add_argument("--skins", default="0.0006,0.0002,0.0001,0.00005")
+    ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--repeat", type=int, default=2)
+    a = ap.parse_args(argv)
+    try:
+        skins = [float(x) for x in a.skins.split(",")]
+    except ValueError:
+        print(f"skin_scan: --skins {a.skins!r}: expected comma-separated lengths in m", file=sys.stderr)
+        return 2
+    if not skins or any(not (s > 0.0) for s in skins) or a.steps < 1 or a.repeat < 1:
+        print("skin_scan: --skins must be positive lengths, --steps and --repeat at least 1", file=sys.stderr)
+        return 2
+    if not (a.run / "scenario.toml").is_file():
+        print(f"skin_scan: {a.run}: not a run store (no scenario.toml)", file=sys.stderr)
+        return 2
+    from storage import StoreError
+    best: dict[float, dict] = {}
+    times: dict[float, list] = {s: [] for s in skins}
+    for _ in range(a.repeat):
+        for s in skins:
+            try:
+                r = one(a.run, s, a.steps)
+            except (StoreError, ValueError, KeyError, OSError) as e:   # foreign or damaged store
+                print(f"skin_scan: {a.run}: {' '.join(str(e).split())}", file=sys.stderr)
+                return 2
+            times[s].append(r["us_per_step"])
+            if s not in best or r["us_per_step"] < best[s]["us_per_step"]:
+                best[s] = r
+    rows = [dict(best[s], us_per_step_rounds=times[s]) for s in skins]
+    out = {"run": str(a.run), "steps": a.steps, "rows": rows,
+           "same_bits": len({r["state_sha256"] for r in rows}) == 1,
+           "fastest_skin": min(rows, key=lambda r: r["us_per_step"])["skin"]}
+    print(json.dumps(out, indent=1))
+    return 0 if out["same_bits"] else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

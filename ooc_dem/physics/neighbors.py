@@ -83,6 +83,34 @@ def _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list):
 SCAN_CHUNK = 256
 
 
+@njit(inline="always", cache=True)
+def fullest_cell(cell_start, ncells):
+    """The most particles any one cell holds (2D and 3D scans size their buffers by it)."""
+    fullest = 0
+    for c in range(ncells):
+        fullest = max(fullest, cell_start[c + 1] - cell_start[c])
+    return fullest
+
+
+@njit(inline="always", cache=True)
+def _put_partners(i, nu, nl, higher, lower, half_off, pair_b, inc_off, inc, gid, fill):
+    """A scan's result for particle i (2D and 3D): its partner counts (fill False), or its
+    nu higher-id and nl lower-id partners from the candidate buffers at its offsets,
+    sorted by id (fill True)."""
+    if not fill:
+        half_off[i + 1] = nu
+        inc_off[i + 1] = nl
+        return
+    u0 = half_off[i]
+    l0 = inc_off[i]
+    for k in range(nu):
+        pair_b[u0 + k] = higher[k]
+    for k in range(nl):
+        inc[l0 + k] = lower[k]
+    _sort_by_gid(pair_b, u0, u0 + nu, gid)
+    _sort_by_gid(inc, l0, l0 + nl, gid)
+
+
 @njit(parallel=True, cache=True)
 def _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
           half_off, pair_b, inc_off, inc, fill):
@@ -96,10 +124,7 @@ def _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
     and the branchy scan spent most of its time on mispredictions (paper2008: 386 us
     a counting pass on 2 threads)."""
     # a disc's candidates are the discs of 9 cells: the buffers hold 9 of the fullest cell
-    fullest = 0
-    for c in range(ncx * ncy):
-        fullest = max(fullest, cell_start[c + 1] - cell_start[c])
-    room = 9 * fullest
+    room = 9 * fullest_cell(cell_start, ncx * ncy)
     for ch in prange((n + SCAN_CHUNK - 1) // SCAN_CHUNK):
         higher = np.empty(room, np.int32)
         lower = np.empty(room, np.int32)
@@ -126,18 +151,7 @@ def _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
                     lower[nl] = j
                     nu += near & (gid[j] > gi)
                     nl += near & (gid[j] < gi)
-            if not fill:
-                half_off[i + 1] = nu
-                inc_off[i + 1] = nl
-                continue
-            u0 = half_off[i]
-            l0 = inc_off[i]
-            for k in range(nu):
-                pair_b[u0 + k] = higher[k]
-            for k in range(nl):
-                inc[l0 + k] = lower[k]
-            _sort_by_gid(pair_b, u0, u0 + nu, gid)
-            _sort_by_gid(inc, l0, l0 + nl, gid)
+            _put_partners(i, nu, nl, higher, lower, half_off, pair_b, inc_off, inc, gid, fill)
 
 
 @njit(parallel=True, cache=True)

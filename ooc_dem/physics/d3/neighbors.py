@@ -14,7 +14,7 @@ sorted by global id, the set of pairs is exact: distances are checked).
 import numpy as np
 from numba import njit, prange
 from ..layout import AX_X, AX_Y, AX_Z
-from ..neighbors import SCAN_CHUNK, _slots, _sort_by_gid  # dimension-free: the same in 2D and 3D
+from ..neighbors import SCAN_CHUNK, _put_partners, _slots, fullest_cell  # the same in 2D and 3D
 
 
 @njit(cache=True)
@@ -94,10 +94,7 @@ def _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
     Branch-free over the candidates, one run of spheres per row of three cells (as the 2D
     scan, physics.neighbors._scan, says why)."""
     # a sphere's candidates are the spheres of 27 cells: the buffers hold 27 of the fullest cell
-    fullest = 0
-    for c in range(ncx * ncy * ncz):
-        fullest = max(fullest, cell_start[c + 1] - cell_start[c])
-    room = 27 * fullest
+    room = 27 * fullest_cell(cell_start, ncx * ncy * ncz)
     for ch in prange((n + SCAN_CHUNK - 1) // SCAN_CHUNK):
         higher = np.empty(room, np.int32)
         lower = np.empty(room, np.int32)
@@ -127,18 +124,7 @@ def _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
                         lower[nl] = j
                         nu += near & (gid[j] > gi)
                         nl += near & (gid[j] < gi)
-            if not fill:
-                half_off[i + 1] = nu
-                inc_off[i + 1] = nl
-                continue
-            u0 = half_off[i]
-            l0 = inc_off[i]
-            for k in range(nu):
-                pair_b[u0 + k] = higher[k]
-            for k in range(nl):
-                inc[l0 + k] = lower[k]
-            _sort_by_gid(pair_b, u0, u0 + nu, gid)
-            _sort_by_gid(inc, l0, l0 + nl, gid)
+            _put_partners(i, nu, nl, higher, lower, half_off, pair_b, inc_off, inc, gid, fill)
 
 
 @njit(cache=True)

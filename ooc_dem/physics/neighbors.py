@@ -113,7 +113,7 @@ def _put_partners(i, nu, nl, higher, lower, half_off, pair_b, inc_off, inc, gid,
 
 @njit(parallel=True, cache=True)
 def _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
-          half_off, pair_b, inc_off, inc, fill):
+          half_off, pair_b, inc_off, inc, fill, room):
     """fill False: count each disc's partners with higher / lower ids into
     half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id.
 
@@ -122,9 +122,8 @@ def _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
     cut-off; higher / lower id). Whether a candidate is a partner is a
     coin toss for the branch predictor (about 4 in 11 are, half of them of each kind),
     and the branchy scan spent most of its time on mispredictions (paper2008: 386 us
-    a counting pass on 2 threads)."""
-    # a disc's candidates are the discs of 9 cells: the buffers hold 9 of the fullest cell
-    room = 9 * fullest_cell(cell_start, ncx * ncy)
+    a counting pass on 2 threads). room: the candidate buffers' length, 9 times the
+    fullest cell (a disc's candidates are the discs of 9 cells)."""
     for ch in prange((n + SCAN_CHUNK - 1) // SCAN_CHUNK):
         higher = np.empty(room, np.int32)
         lower = np.empty(room, np.int32)
@@ -192,8 +191,9 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     cell_start = np.zeros(ncx * ncy + 1, np.int32)
     cell_list = np.empty(n, np.int32)
     _bin(pos, n, x0, y0, cell, ncx, ncy, cell_start, cell_list)
+    room = 9 * fullest_cell(cell_start, ncx * ncy)   # both passes' candidate buffers
     _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
-          half_off, pair_b, inc_off, inc_k, False)
+          half_off, pair_b, inc_off, inc_k, False, room)
     for i in range(n):
         half_off[i + 1] += half_off[i]
         inc_off[i + 1] += inc_off[i]
@@ -201,7 +201,7 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     if npairs > pair_b.shape[0] or npairs > inc_k.shape[0]:
         return npairs
     _scan(pos, r, gid, n, x0, y0, cell, ncx, ncy, cell_start, cell_list, skin,
-          half_off, pair_b, inc_off, inc_k, True)
+          half_off, pair_b, inc_off, inc_k, True, room)
     _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):
         ref[i, AX_X] = pos[i, AX_X]

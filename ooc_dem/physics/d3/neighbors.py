@@ -88,13 +88,12 @@ def _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list):
 
 @njit(parallel=True, cache=True)
 def _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
-          half_off, pair_b, inc_off, inc, fill):
+          half_off, pair_b, inc_off, inc, fill, room):
     """fill False: count each sphere's partners with higher / lower ids into
     half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id.
     Branch-free over the candidates, one run of spheres per row of three cells (as the 2D
-    scan, physics.neighbors._scan, says why)."""
-    # a sphere's candidates are the spheres of 27 cells: the buffers hold 27 of the fullest cell
-    room = 27 * fullest_cell(cell_start, ncx * ncy * ncz)
+    scan, physics.neighbors._scan, says why). room: the candidate buffers' length, 27 times
+    the fullest cell (a sphere's candidates are the spheres of 27 cells)."""
     for ch in prange((n + SCAN_CHUNK - 1) // SCAN_CHUNK):
         higher = np.empty(room, np.int32)
         lower = np.empty(room, np.int32)
@@ -141,8 +140,9 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     cell_start = np.zeros(ncx * ncy * ncz + 1, np.int32)
     cell_list = np.empty(n, np.int32)
     _bin(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list)
+    room = 27 * fullest_cell(cell_start, ncx * ncy * ncz)   # both passes' candidate buffers
     _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
-          half_off, pair_b, inc_off, inc_k, False)
+          half_off, pair_b, inc_off, inc_k, False, room)
     for i in range(n):
         half_off[i + 1] += half_off[i]
         inc_off[i + 1] += inc_off[i]
@@ -150,7 +150,7 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     if npairs > pair_b.shape[0] or npairs > inc_k.shape[0] or npairs > pair_a.shape[0]:
         return npairs
     _scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
-          half_off, pair_b, inc_off, inc_k, True)
+          half_off, pair_b, inc_off, inc_k, True, room)
     _slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):
         pref[i, 0] = pos[i, 0]

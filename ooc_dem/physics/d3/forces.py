@@ -343,8 +343,8 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
 
 
 @njit(inline="always", cache=True)
-def _put_pair_rows(k, slot, law_out, rows, on):
-    """The rows of a block's pairs (law_block's results) into their slots; they touch."""
+def _put_pair_rows(k, slot, law_out, rows):
+    """The rows of a block's pairs (law_block's results) into their slots."""
     for t in range(k):
         q = slot[t]
         row = rows[q]
@@ -359,7 +359,6 @@ def _put_pair_rows(k, slot, law_out, rows, on):
         row.sz = law_out[LawOut.sz, t]
         put_rolling(row, law_out[LawOut.mox, t], law_out[LawOut.moy, t], law_out[LawOut.moz, t],
                     law_out[LawOut.mx, t], law_out[LawOut.my, t], law_out[LawOut.mz, t])
-        on[q] = 1
 
 
 @njit(parallel=True, cache=True)
@@ -385,7 +384,7 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
     pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
     mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
-    half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
+    half_off, pair_a, pair_b, on, rows = pl.half_off, pl.pair_a, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     rolling = has_rolling(rows)
@@ -545,86 +544,127 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
     if any_full[0]:
         return   # no pair row made: rerunnable after growing the wall rows, even when held
     # ---------------------------------------------------------- pairs (i = a, lower id)
-    # each chunk lists its touching pairs' law arguments in blocks; law_block evaluates a
-    # full block at once and its rows are put in place (the order of evaluation never
-    # changes a row: each depends only on its own arguments)
+    # each chunk lists its touching pairs in blocks of law arguments (columns); law_block
+    # evaluates a full block at once and its rows are put in place (the order of
+    # evaluation never changes a row: each depends only on its own arguments). Listing
+    # is two passes: the distance test writes every candidate to the block's next column
+    # and moves on by one only when the pair touches (about half of a settled bed's
+    # candidates do: a branch on it would be mispredicted every other pair), then
+    # _fill_block reads what the law needs of the touching ones.
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, first, end)
         law_in = np.empty((N_LAW_IN, LAW_ROW))
         law_out = np.empty((N_LAW_OUT, LAW_ROW))
-        slot = np.empty(LAW_BLOCK, np.int64)
+        slot = np.empty(LAW_ROW, np.int64)      # the pair's slot in the list
+        side_a = np.empty(LAW_ROW, np.int64)    # its spheres a and b
+        side_b = np.empty(LAW_ROW, np.int64)
+        was_on = np.empty(LAW_ROW, np.uint8)    # in contact at the last step
         k = 0
-        uniform = True   # the block's pairs so far have one material pair
-        for i in range(lo, hi):
-            xi = pos[i, 0]
-            yi = pos[i, 1]
-            zi = pos[i, 2]
+        # the chunk's pairs in one loop (a loop per sphere would end at a count that
+        # varies from sphere to sphere, another mispredicted branch)
+        for q in range(half_off[lo], half_off[hi]):
+            i = np.int64(pair_a[q])
+            b = np.int64(pair_b[q])
             ri = r[i]
-            mi = mass[i]
-            ii = inertia[i]
-            ti = mat[i]
-            hn = hist_n[i]
-            p = 0
-            for q in range(half_off[i], half_off[i + 1]):
-                b = np.int64(pair_b[q])
-                dx = pos[b, 0] - xi
-                dy = pos[b, 1] - yi
-                dz = pos[b, 2] - zi
-                rb = r[b]
-                d2 = dx * dx + dy * dy + dz * dz
-                rs = ri + rb
-                if d2 >= rs * rs or d2 == 0.0:
-                    on[q] = 0
-                    continue
-                s0x = s0y = s0z = m0x = m0y = m0z = 0.0
-                if held:
-                    if on[q]:
-                        row = rows[q]
-                        s0x, s0y, s0z = row.sx, row.sy, row.sz
-                        _, _, _, m0x, m0y, m0z = rolling_of(row)
-                else:
-                    p, found = _lookup(hist_id, i, hn, p, gid[b])
-                    if found:
-                        s0x, s0y, s0z = hist_s[i, p, 0], hist_s[i, p, 1], hist_s[i, p, 2]
-                        if rolling:   # else unused: no pair has rolling resistance
-                            m0x, m0y, m0z = hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2]
-                law_in[LawIn.dx, k] = dx
-                law_in[LawIn.dy, k] = dy
-                law_in[LawIn.dz, k] = dz
-                law_in[LawIn.vrx, k] = vel[b, 0] - vel[i, 0]
-                law_in[LawIn.vry, k] = vel[b, 1] - vel[i, 1]
-                law_in[LawIn.vrz, k] = vel[b, 2] - vel[i, 2]
-                law_in[LawIn.wax, k] = spin[i, 0]
-                law_in[LawIn.way, k] = spin[i, 1]
-                law_in[LawIn.waz, k] = spin[i, 2]
-                law_in[LawIn.wbx, k] = spin[b, 0]
-                law_in[LawIn.wby, k] = spin[b, 1]
-                law_in[LawIn.wbz, k] = spin[b, 2]
-                law_in[LawIn.ra, k] = ri
-                law_in[LawIn.rb, k] = rb
-                law_in[LawIn.ma, k] = mi
-                law_in[LawIn.mb, k] = mass[b]
-                law_in[LawIn.ia, k] = ii
-                law_in[LawIn.ib, k] = inertia[b]
-                law_in[LawIn.s_x, k] = s0x
-                law_in[LawIn.s_y, k] = s0y
-                law_in[LawIn.s_z, k] = s0z
-                law_in[LawIn.m_x, k] = m0x
-                law_in[LawIn.m_y, k] = m0y
-                law_in[LawIn.m_z, k] = m0z
-                material = ti * N_TYPES + mat[b]
-                law_in[LawIn.material, k] = material
-                uniform = uniform and material == law_in[LawIn.material, 0]
-                slot[k] = q
-                k += 1
-                if k == LAW_BLOCK:
-                    law_rows(k, law_in, law_out, dt, rows, cp, uniform)
-                    _put_pair_rows(k, slot, law_out, rows, on)
-                    k = 0
-                    uniform = True
+            dx = pos[b, 0] - pos[i, 0]
+            dy = pos[b, 1] - pos[i, 1]
+            dz = pos[b, 2] - pos[i, 2]
+            rb = r[b]
+            d2 = dx * dx + dy * dy + dz * dz
+            rs = ri + rb
+            # the test "d2 >= rs^2 or d2 == 0: no contact", as one flag
+            touch = np.uint8(not d2 >= rs * rs) & np.uint8(d2 != 0.0)
+            law_in[LawIn.dx, k] = dx
+            law_in[LawIn.dy, k] = dy
+            law_in[LawIn.dz, k] = dz
+            law_in[LawIn.ra, k] = ri
+            law_in[LawIn.rb, k] = rb
+            slot[k] = q
+            side_a[k] = i
+            side_b[k] = b
+            was_on[k] = on[q]
+            on[q] = touch
+            k += touch
+            if k == LAW_BLOCK:
+                _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held)
+                law_rows(k, law_in, law_out, dt, rows, cp, _one_material(k, law_in))
+                _put_pair_rows(k, slot, law_out, rows)
+                k = 0
         if k > 0:
-            law_rows(k, law_in, law_out, dt, rows, cp, uniform)
-            _put_pair_rows(k, slot, law_out, rows, on)
+            _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held)
+            law_rows(k, law_in, law_out, dt, rows, cp, _one_material(k, law_in))
+            _put_pair_rows(k, slot, law_out, rows)
+
+
+@njit(inline="always", cache=True)
+def _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held):
+    """The law arguments of a block's k touching pairs besides their offsets and radii
+    (the distance test wrote those): relative velocity, spins, masses, inertias, their
+    material pair and their springs of the last step (zero for a new contact). held: the
+    springs are those of the pair's row; not held: of sphere a's history (sorted by
+    partner id; a block lists each sphere's pairs in ascending partner id, so one merge
+    pointer per sphere finds them)."""
+    vel, spin, mass, inertia, mat, gid = d.vel, d.spin, d.mass, d.inertia, d.mat, d.gid
+    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
+    rolling = has_rolling(rows)
+    last_a = -1
+    p = 0
+    for t in range(k):
+        a = side_a[t]
+        b = side_b[t]
+        law_in[LawIn.vrx, t] = vel[b, 0] - vel[a, 0]
+        law_in[LawIn.vry, t] = vel[b, 1] - vel[a, 1]
+        law_in[LawIn.vrz, t] = vel[b, 2] - vel[a, 2]
+        law_in[LawIn.wax, t] = spin[a, 0]
+        law_in[LawIn.way, t] = spin[a, 1]
+        law_in[LawIn.waz, t] = spin[a, 2]
+        law_in[LawIn.wbx, t] = spin[b, 0]
+        law_in[LawIn.wby, t] = spin[b, 1]
+        law_in[LawIn.wbz, t] = spin[b, 2]
+        law_in[LawIn.ma, t] = mass[a]
+        law_in[LawIn.mb, t] = mass[b]
+        law_in[LawIn.ia, t] = inertia[a]
+        law_in[LawIn.ib, t] = inertia[b]
+        law_in[LawIn.material, t] = mat[a] * N_TYPES + mat[b]
+        s0x = s0y = s0z = m0x = m0y = m0z = 0.0
+        if held:
+            # read whatever the row holds, keep it only if the pair touched (a select,
+            # not a branch)
+            row = rows[slot[t]]
+            on_last = was_on[t] != 0
+            s0x = row.sx if on_last else 0.0
+            s0y = row.sy if on_last else 0.0
+            s0z = row.sz if on_last else 0.0
+            _, _, _, m0x_, m0y_, m0z_ = rolling_of(row)
+            m0x = m0x_ if on_last else 0.0
+            m0y = m0y_ if on_last else 0.0
+            m0z = m0z_ if on_last else 0.0
+        else:
+            if a != last_a:
+                last_a = a
+                p = 0
+            p, found = _lookup(hist_id, a, hist_n[a], p, gid[b])
+            if found:
+                s0x, s0y, s0z = hist_s[a, p, 0], hist_s[a, p, 1], hist_s[a, p, 2]
+                if rolling:   # else unused: no pair has rolling resistance
+                    m0x, m0y, m0z = hist_m[a, p, 0], hist_m[a, p, 1], hist_m[a, p, 2]
+        law_in[LawIn.s_x, t] = s0x
+        law_in[LawIn.s_y, t] = s0y
+        law_in[LawIn.s_z, t] = s0z
+        law_in[LawIn.m_x, t] = m0x
+        law_in[LawIn.m_y, t] = m0y
+        law_in[LawIn.m_z, t] = m0z
+
+
+@njit(inline="always", cache=True)
+def _one_material(k, law_in):
+    """Whether a block's k pairs all have one material pair (law_rows then takes its record
+    once for the block)."""
+    m0 = law_in[LawIn.material, 0]
+    same = True
+    for t in range(1, k):
+        same = same & (law_in[LawIn.material, t] == m0)
+    return same
 
 
 @njit(inline="always", cache=True)

@@ -751,37 +751,45 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
                 tz += brow.tz
                 bat += 1
             kw = k   # wall entries
+            # Every candidate's row is summed, weighted by its contact flag (1.0 or 0.0):
+            # about half the candidates touch, and a branch on the flag would be
+            # mispredicted every other pair (paid ~10 ns a sphere at 100k, 2 threads). The
+            # same bits as summing only the touching ones: a row holds finite values (made
+            # from a finite state, or zeros), so a row that does not touch adds +-0.0, and
+            # x +- 0.0 is x for every sum here (each starts at +0.0, so none is ever -0.0).
             # partners with lower ids (i is b): the CSR index, ascending partner id
             for e in range(inc_off[i], inc_off[i + 1]):
                 q = inc_k[e]
-                if on[q]:
-                    row = rows[q]
-                    if not held and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
-                                                   gid[pair_a[q]], row):
-                        over = True
-                    k += 1
-                    fx += row.bx
-                    fy += row.by
-                    fz += row.bz
-                    mox, moy, moz, _, _, _ = rolling_of(row)
-                    tx += ri * row.cx + mox
-                    ty += ri * row.cy + moy
-                    tz += ri * row.cz + moz
+                touch = on[q]
+                row = rows[q]
+                if not held and touch and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
+                                                         gid[pair_a[q]], row):
+                    over = True
+                k += touch
+                w = np.float64(touch)
+                mox, moy, moz, _, _, _ = rolling_of(row)
+                fx += row.bx * w
+                fy += row.by * w
+                fz += row.bz * w
+                tx += (ri * row.cx + mox) * w
+                ty += (ri * row.cy + moy) * w
+                tz += (ri * row.cz + moz) * w
             # partners with higher ids (i is a): its own half list, ascending partner id
             for q in range(half_off[i], half_off[i + 1]):
-                if on[q]:
-                    row = rows[q]
-                    if not held and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
-                                                   gid[pair_b[q]], row):
-                        over = True
-                    k += 1
-                    fx -= row.bx
-                    fy -= row.by
-                    fz -= row.bz
-                    mox, moy, moz, _, _, _ = rolling_of(row)
-                    tx += ri * row.cx - mox
-                    ty += ri * row.cy - moy
-                    tz += ri * row.cz - moz
+                touch = on[q]
+                row = rows[q]
+                if not held and touch and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
+                                                         gid[pair_b[q]], row):
+                    over = True
+                k += touch
+                w = np.float64(touch)
+                mox, moy, moz, _, _, _ = rolling_of(row)
+                fx -= row.bx * w
+                fy -= row.by * w
+                fz -= row.bz * w
+                tx += (ri * row.cx - mox) * w
+                ty += (ri * row.cy - moy) * w
+                tz += (ri * row.cz - moz) * w
             if k > cap:
                 over = True
             hist_n[i] = min(kw if held else k, cap)

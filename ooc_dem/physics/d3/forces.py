@@ -382,12 +382,11 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
     the last step iff on[q], its springs are the row's; each row is read and rewritten
     in place); not held: they are looked up in the lower sphere's history."""
     pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
-    mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
+    mass, inertia, mat = d.mass, d.inertia, d.mat
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_a, pair_b, on, rows = pl.half_off, pl.pair_a, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
-    rolling = has_rolling(rows)
     wl = walls[0]
     length = wl.length
     width = wl.width

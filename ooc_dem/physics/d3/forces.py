@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange, types
 from numba.extending import overload
 
-from ..forces import copy_pair_params, lug_axis_offset
+from ..forces import copy_pair_params, lug_axis_offset, one_material
 from .contact import contact
 from .layout import (
     N_LAW_IN,
@@ -586,12 +586,12 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
             k += touch
             if k == LAW_BLOCK:
                 _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held)
-                law_rows(k, law_in, law_out, dt, rows, cp, _one_material(k, law_in))
+                law_rows(k, law_in, law_out, dt, rows, cp, one_material(k, law_in, LawIn.material))
                 _put_pair_rows(k, slot, law_out, rows)
                 k = 0
         if k > 0:
             _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held)
-            law_rows(k, law_in, law_out, dt, rows, cp, _one_material(k, law_in))
+            law_rows(k, law_in, law_out, dt, rows, cp, one_material(k, law_in, LawIn.material))
             _put_pair_rows(k, slot, law_out, rows)
 
 
@@ -653,17 +653,6 @@ def _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held):
         law_in[LawIn.m_x, t] = m0x
         law_in[LawIn.m_y, t] = m0y
         law_in[LawIn.m_z, t] = m0z
-
-
-@njit(inline="always", cache=True)
-def _one_material(k, law_in):
-    """Whether a block's k pairs all have one material pair (law_rows then takes its record
-    once for the block)."""
-    m0 = law_in[LawIn.material, 0]
-    same = True
-    for t in range(1, k):
-        same = same & (law_in[LawIn.material, t] == m0)
-    return same
 
 
 @njit(inline="always", cache=True)

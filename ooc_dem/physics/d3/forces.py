@@ -686,6 +686,16 @@ def _keep(hist_id, hist_s, hist_m, i, k, cap, pid, row):
     return True
 
 
+@njit(inline="always", cache=True)
+def _add_row(row, w, side, ri, fx, fy, fz, tx, ty, tz):
+    """A sphere's sums plus a pair row weighted by w (its contact flag): side 1.0 for b
+    (+force, r_b c + M), -1.0 for a (-force, r_a c - M). x + (-1.0 * y) is x - y, exactly."""
+    mox, moy, moz, _, _, _ = rolling_of(row)
+    return (fx + side * row.bx * w, fy + side * row.by * w, fz + side * row.bz * w,
+            tx + (ri * row.cx + side * mox) * w, ty + (ri * row.cy + side * moy) * w,
+            tz + (ri * row.cz + side * moz) * w)
+
+
 @njit(parallel=True, cache=True)
 def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, err, held=False):
     """Phase 2: per sphere of first..end-1 (the span ``produce`` made rows for), sum its rows in ascending partner-id order (module doc),
@@ -754,14 +764,8 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
                                                          gid[pair_a[q]], row):
                     over = True
                 k += touch
-                w = np.float64(touch)
-                mox, moy, moz, _, _, _ = rolling_of(row)
-                fx += row.bx * w
-                fy += row.by * w
-                fz += row.bz * w
-                tx += (ri * row.cx + mox) * w
-                ty += (ri * row.cy + moy) * w
-                tz += (ri * row.cz + moz) * w
+                fx, fy, fz, tx, ty, tz = _add_row(row, np.float64(touch), 1.0, ri, fx, fy, fz,
+                                                  tx, ty, tz)
             # partners with higher ids (i is a): its own half list, ascending partner id
             for q in range(half_off[i], half_off[i + 1]):
                 touch = on[q]
@@ -770,14 +774,8 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
                                                          gid[pair_b[q]], row):
                     over = True
                 k += touch
-                w = np.float64(touch)
-                mox, moy, moz, _, _, _ = rolling_of(row)
-                fx -= row.bx * w
-                fy -= row.by * w
-                fz -= row.bz * w
-                tx += (ri * row.cx - mox) * w
-                ty += (ri * row.cy - moy) * w
-                tz += (ri * row.cz - moz) * w
+                fx, fy, fz, tx, ty, tz = _add_row(row, np.float64(touch), -1.0, ri, fx, fy, fz,
+                                                  tx, ty, tz)
             if k > cap:
                 over = True
             hist_n[i] = min(kw if held else k, cap)

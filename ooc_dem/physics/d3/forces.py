@@ -561,7 +561,8 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
         k = 0
         # the chunk's pairs in one loop (a loop per sphere would end at a count that
         # varies from sphere to sphere, another mispredicted branch)
-        for q in range(half_off[lo], half_off[hi]):
+        # (a chunk past the span's end is empty: lo == hi may exceed it, so no index)
+        for q in range(half_off[lo] if lo < hi else 0, half_off[hi] if lo < hi else 0):
             i = np.int64(pair_a[q])
             b = np.int64(pair_b[q])
             ri = r[i]

@@ -54,7 +54,8 @@ from .layout import (
 # a wall's or the wheel's contact: a few a step, so one compiled call instead of a copy of
 # the law inlined at each of produce's three sites (a smaller produce compiles faster);
 # the same arithmetic, so the same bits
-body_contact = njit(cache=True)(getattr(contact, "py_func", contact))   # (a plain function under NUMBA_DISABLE_JIT)
+# (contact is a plain function under NUMBA_DISABLE_JIT)
+body_contact = njit(cache=True)(getattr(contact, "py_func", contact))
 
 # spheres are produced and gathered in N_CHUNKS contiguous chunks (wall rows are
 # buffered per chunk); the chunking never changes a result

@@ -41,76 +41,134 @@ from .stepper import N_REC, DomainStepper, EngineError, Model
 
 
 @njit(cache=True)
-def _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built,
-             off, ref, disp2, with_hist=True):
-    """Copy every halo row from its owner's row (what a sweep changes; id, r, mass,
-    inertia and mat are fixed per disc), its contact history too unless with_hist is
-    False (K = 1: see ``_run_sweeps``). Returns the largest |x - x_built|; disp2[d]
-    gets sub-domain d's largest squared displacement from its neighbour-list reference
-    (any dimension: the axes of pos, the components of spin and the springs)."""
+def _refresh_rows(lo, hi, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
+                  x_built, ref, with_hist):
+    """Rows lo..hi-1 of ``_refresh``: every halo row copied from its owner's row; returns
+    (their largest |x - x_built|, the largest squared displacement from ref of the halo
+    rows). An owner row is not measured: the refresh does not move it, and the step that
+    moved it rebuilt its sub-domain's lists if it went beyond the threshold (run_steps
+    checks every row after its gather), so it is within it."""
     cap = hist_id.shape[1]
     dim = pos.shape[1]
     moved = 0.0
-    for d in range(len(off) - 1):
-        m2 = 0.0
-        for r in range(off[d], off[d + 1]):
-            s = owner_row[ids[r]]
-            if s != r:  # owner rows are never written here, so the sources are all time n
-                for a in range(dim):
-                    pos[r, a] = pos[s, a]
-                    vel[r, a] = vel[s, a]
-                for a in range(spin.shape[1]):
-                    spin[r, a] = spin[s, a]
-                if with_hist:
-                    hist_n[r] = hist_n[s]
-                    for q in range(cap):
-                        hist_id[r, q] = hist_id[s, q]
-                        for c in range(hist_s.shape[2]):
-                            hist_s[r, q, c] = hist_s[s, q, c]
-                        for c in range(hist_m.shape[2]):
-                            hist_m[r, q, c] = hist_m[s, q, c]
-            dx = abs(pos[r, AX_X] - x_built[r])
-            if dx > moved:
-                moved = dx
+    m2 = 0.0
+    for r in range(lo, hi):
+        s = owner_row[ids[r]]
+        if s != r:  # owner rows are never written here, so the sources are all time n
+            for a in range(dim):
+                pos[r, a] = pos[s, a]
+                vel[r, a] = vel[s, a]
+            for a in range(spin.shape[1]):
+                spin[r, a] = spin[s, a]
+            if with_hist:
+                hist_n[r] = hist_n[s]
+                for q in range(cap):
+                    hist_id[r, q] = hist_id[s, q]
+                    for c in range(hist_s.shape[2]):
+                        hist_s[r, q, c] = hist_s[s, q, c]
+                    for c in range(hist_m.shape[2]):
+                        hist_m[r, q, c] = hist_m[s, q, c]
             e2 = 0.0
             for a in range(dim):
                 e = pos[r, a] - ref[r, a]
                 e2 += e * e
             if e2 > m2:
                 m2 = e2
-        disp2[d] = m2
+        dx = abs(pos[r, AX_X] - x_built[r])
+        if dx > moved:
+            moved = dx
+    return moved, m2
+
+
+@njit(cache=True)
+def _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built,
+             off, ref, disp2, with_hist=True):
+    """Copy every halo row from its owner's row (what a sweep changes; id, r, mass,
+    inertia and mat are fixed per disc), its contact history too unless with_hist is
+    False (K = 1: see ``_run_sweeps``). Returns the largest |x - x_built|; disp2[d]
+    gets the largest squared displacement from its neighbour-list reference of sub-domain
+    d's refreshed rows (any dimension: the axes of pos, the components of spin and the
+    springs)."""
+    moved = 0.0
+    for d in range(len(off) - 1):
+        mv, disp2[d] = _refresh_rows(off[d], off[d + 1], ids, owner_row, pos, vel, spin, hist_n,
+                                     hist_id, hist_s, hist_m, x_built, ref, with_hist)
+        moved = max(moved, mv)
     return moved
 
 
 @njit(cache=True)
-def _assign_owners(ids, x, off, bounds, owner_row, owned):
-    """A disc belongs to the slab holding its x; returns how many rows are owned."""
+def _own_range(lo, hi, x_lo, x_hi, ids, x, owner_row, owned, owned_before, role):
+    """Rows lo..hi-1 of one sub-domain (slab x_lo <= x < x_hi): the last ownership kept in
+    owned_before, ownership from x (owner_row of the owned discs set), each row's
+    forces.ROLE_* bits from the two (its ROLE_SHARED bit, fixed for the local sets, kept);
+    returns how many are owned."""
     count = 0
-    for d in range(len(off) - 1):
-        lo = bounds[d]
-        hi = bounds[d + 1]
-        for r in range(off[d], off[d + 1]):
-            if x[r] >= lo and x[r] < hi:
-                owned[r] = True
-                owner_row[ids[r]] = r
-                count += 1
-            else:
-                owned[r] = False
+    for r in range(lo, hi):
+        before = owned[r]
+        owned_before[r] = before
+        now = x[r] >= x_lo and x[r] < x_hi
+        owned[r] = now
+        if now:
+            owner_row[ids[r]] = r
+            count += 1
+        role[r] = ((ROLE_OWNED if now else 0) | (ROLE_OWNED_BEFORE if before else 0)
+                   | (role[r] & ROLE_SHARED))
     return count
 
 
 @njit(cache=True)
 def _own_rows(ids, x, off, bounds, owner_row, owned, owned_before, role):
-    """``_assign_owners`` after keeping the last ownership in owned_before, and each row's
-    forces.ROLE_* bits from the two (its ROLE_SHARED bit, fixed for the local sets, kept);
+    """A disc belongs to the slab holding its x (``_own_range`` over every sub-domain);
     returns how many rows are owned."""
-    for r in range(owned.shape[0]):
-        owned_before[r] = owned[r]
-    count = _assign_owners(ids, x, off, bounds, owner_row, owned)
-    for r in range(owned.shape[0]):
-        role[r] = ((ROLE_OWNED if owned[r] else 0) | (ROLE_OWNED_BEFORE if owned_before[r] else 0)
-                   | (role[r] & ROLE_SHARED))
+    count = 0
+    for d in range(len(off) - 1):
+        count += _own_range(off[d], off[d + 1], bounds[d], bounds[d + 1], ids, x, owner_row,
+                            owned, owned_before, role)
     return count
+
+
+def row_pieces(off, size: int = 256) -> np.ndarray:
+    """The rows of every sub-domain cut into pieces of at most `size` rows: (n, 3) rows
+    (first row, end row, sub-domain), so that a parallel loop over the pieces shares the
+    rows evenly between the threads whatever the sub-domains' sizes."""
+    pieces = [(a, min(a + size, int(off[d + 1])), d)
+              for d in range(len(off) - 1) for a in range(int(off[d]), int(off[d + 1]), size)]
+    return np.array(pieces, np.int64).reshape(-1, 3)
+
+
+@njit(cache=True, parallel=True)
+def refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
+                       x_built, ref, disp2, with_hist, part, membership_skin, bounds, owned,
+                       owned_before, role):
+    """``_refresh`` then ``_own_rows`` with the rows shared between the threads (two
+    parallel loops over ``row_pieces``: every halo copy must be made before any owner row
+    moves in owner_row). Each row is written by one piece only, and every value is the one
+    the serial pass gives (copies, maxima, counts). Returns (largest |x - x_built|, rows
+    owned; -1 when the motion already stops the sweep: ownership is then left as it was)."""
+    n = pieces.shape[0]
+    for t in prange(n):
+        part[t, 0], part[t, 1] = _refresh_rows(pieces[t, 0], pieces[t, 1], ids, owner_row, pos, vel,
+                                               spin, hist_n, hist_id, hist_s, hist_m, x_built, ref,
+                                               with_hist)
+    moved = 0.0
+    disp2[:] = 0.0
+    for t in range(n):
+        moved = max(moved, part[t, 0])
+        d = pieces[t, 2]
+        disp2[d] = max(disp2[d], part[t, 1])
+    if moved > membership_skin:
+        return moved, -1
+    x = pos[:, AX_X]
+    for t in prange(n):
+        d = pieces[t, 2]
+        part[t, 0] = _own_range(pieces[t, 0], pieces[t, 1], bounds[d], bounds[d + 1], ids, x,
+                                owner_row, owned, owned_before, role)
+    count = 0
+    for t in range(n):
+        count += np.int64(part[t, 0])   # a count of at most `size` rows: exact as a float
+    return moved, count
+
 
 
 # per-sub-domain flags of the compiled sweeps (one int64 array per sub-domain)
@@ -122,7 +180,7 @@ SWEEPS_DONE, SWEEPS_REBUILD, SWEEPS_WHEEL, SWEEPS_DOMAIN, SWEEPS_OWNERSHIP = ran
 def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, recbuf, norec,
                 ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built, off, ref,
                 disp2, bounds, owned, owned_before, role, n_total, membership_skin, rebuild2,
-                wheel_reach, active, keep_rows, all_stable):
+                wheel_reach, active, keep_rows, all_stable, pieces, part):
     """Serial DDM, whole sweeps in one compiled call: per sweep, (1) every halo copy from
     its owner and ownership from x (skipped before the first sweep of a fresh build),
     (2) every sub-domain K steps with the one-thread step, the sub-domains side by side on
@@ -156,19 +214,22 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     rebuild of a pair list reloads its rows from the discs' histories: all of the
     sub-domain's discs are written back from its rows first (their partners outside the
     local set have no rows). all_stable: forces.ROLE_STABLE for every row (the roles
-    that make load_history keep every row)."""
+    that make load_history keep every row). pieces, part: the rows in pieces for the
+    parallel refresh and ownership (``row_pieces``) and their scratch (len(pieces), 2)."""
     status = SWEEPS_DONE
     done = nsweeps
     every_disc = np.zeros((0, 2), np.int64)   # run_steps' spans: each step advances every disc
     for sw in range(nsweeps):
         if sw > 0 or refresh_first:
-            moved = _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
-                             x_built, off, ref, disp2, not keep_rows)
+            moved, count = refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n,
+                                              hist_id, hist_s, hist_m, x_built, ref, disp2,
+                                              not keep_rows, part, membership_skin, bounds,
+                                              owned, owned_before, role)
             if moved > membership_skin:
                 status = SWEEPS_REBUILD
                 done = sw
                 break
-            if _own_rows(ids, pos[:, AX_X], off, bounds, owner_row, owned, owned_before, role) != n_total:
+            if count != n_total:
                 status = SWEEPS_OWNERSHIP
                 done = sw
                 break
@@ -321,6 +382,9 @@ class LiveDomains:
         self.flags = [np.zeros(4, np.int64) for _ in range(self.D)]
         self._lane_plan = self._lanes()
         self._rebuild2 = np.array([0.25 * st.model.skin ** 2 for st in self.steppers])
+        # the refresh and the ownership share the rows between the threads in pieces
+        self._pieces = row_pieces(self.off)
+        self._part = np.zeros((len(self._pieces), 2))
         self._doms, self._doms_key = None, None
         self._entry = (None, None)   # (list of sub-domains, the compiled sweeps for it: _compiled)
         self._swept = False          # a sweep has run on these local sets (run_sweeps' refresh_first)
@@ -442,7 +506,6 @@ class LiveDomains:
         all_stable = np.full(max(self.resident(), default=0) if keep_rows else 0, ROLE_STABLE, np.int8)
         done = 0
         status = SWEEPS_DONE
-        wslab = self.wslab if self.wslab >= 0 else 0
         while done < nsweeps:
             args = (nsweeps - done, K, step0 + done * K, refresh_first or done > 0, doms,
                     lanes, lane_off, self.wslab,
@@ -452,7 +515,7 @@ class LiveDomains:
                     self.disp2, self.bounds, self.owned, self.owned_before, self.role,
                     self.n, self.membership_skin,
                     self._rebuild2, wheel_reach if self.wslab >= 0 else -1.0,
-                    self.active, keep_rows, all_stable)
+                    self.active, keep_rows, all_stable, self._pieces, self._part)
             n_sw, status = self._compiled(run, doms, args)(*args)
             done += n_sw
             if status == SWEEPS_DOMAIN:

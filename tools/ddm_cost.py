@@ -17,7 +17,8 @@ JIT warm-up, on ``--threads`` threads:
 - ``blocked_us``: {K: microseconds a step} of the sub-domains' local sets stepped K steps
   each in turn, nothing refreshed between them. Timing only (the halos go stale): what
   stepping a sub-domain several times while it is in cache gains a row, the premise of
-  temporal blocking, against K = 1 (one thread: the loop a lane runs).
+  temporal blocking, against K = 1 (one thread: the loop a lane runs; null for a
+  dimension whose kernels have no one-thread step, 3D today).
 """
 from __future__ import annotations
 
@@ -38,7 +39,18 @@ def main(argv=None) -> int:
     ap.add_argument("--blocks", default="1,2,4,8", help="K values of blocked_us")
     a = ap.parse_args(argv)
     if a.domains < 2 or a.steps < 1 or a.threads < 1 or a.repeat < 1:
-        print("ddm_cost: --domains >= 2, --steps, --threads and --repeat >= 1", file=sys.stderr)
+        print("ddm_cost: --domains must be >= 2, --steps, --threads and --repeat >= 1",
+              file=sys.stderr)
+        return 2
+    if not (Path(a.run) / "scenario.toml").is_file():
+        print(f"ddm_cost: {a.run} is not a run store (no scenario.toml)", file=sys.stderr)
+        return 2
+    try:
+        blocks_k = sorted({int(k) for k in a.blocks.split(",")})
+    except ValueError:
+        blocks_k = []
+    if not blocks_k or min(blocks_k) < 1:
+        print(f"ddm_cost: --blocks {a.blocks!r}: comma-separated K values >= 1", file=sys.stderr)
         return 2
     import numba
     numba.set_num_threads(a.threads)
@@ -120,8 +132,13 @@ def main(argv=None) -> int:
     refresh_loop(a.steps, *args)
     out["refresh_us"] = round((time.perf_counter() - t) / a.steps * 1e6, 1)
 
-    # the local sets stepped K steps each in turn (one thread's loop, as a lane runs them)
-    step_serial = kernels(sc.dim).run_steps_serial
+    # the local sets stepped K steps each in turn (one thread's loop, as a lane runs them);
+    # a dimension whose kernels have no one-thread step has no compiled sweeps to compare
+    step_serial = getattr(kernels(sc.dim), "run_steps_serial", None)
+    if step_serial is None:
+        out["blocked_us"] = None
+        print(json.dumps(out, indent=2))
+        return 0
 
     @njit
     def blocks(nsteps, K, s0, doms, recs, stable, every):
@@ -137,7 +154,7 @@ def main(argv=None) -> int:
     from numba.typed import List
     every = np.zeros((0, 2), np.int64)
     blocked = {}
-    for K in sorted({int(k) for k in a.blocks.split(",")}):
+    for K in blocks_k:
         n = max(K, (a.steps // 2 // K) * K)
         best = float("inf")
         for _ in range(a.repeat):

@@ -303,14 +303,16 @@ _SWEEPS = {}
 
 def sweeps_kernel(kern):
     """The compiled sweeps for one dimension's step kernels (None when the kernel module
-    has no one-thread step: the sweep then advances the sub-domains one call each)."""
+    has no one-thread step: the sweep then advances the sub-domains one call each): its
+    one-thread step, and its write-back of the rows' springs (``sweep_sync_history``)."""
     step = getattr(kern, "run_steps_serial", None)
     if step is None:
         return None
     if kern.__name__ not in _SWEEPS:
         name = "run_sweeps_" + kern.__name__.rsplit(".", 1)[-1]
         _SWEEPS[kern.__name__] = serial_twin(_run_sweeps, name, parallel=True,
-                                             run_steps_serial=step)
+                                             run_steps_serial=step,
+                                             sync_history_serial=kern.sweep_sync_history)
     return _SWEEPS[kern.__name__]
 
 
@@ -502,7 +504,7 @@ class LiveDomains:
         doms = self._domain_list()
         p = self.p
         lanes, lane_off = self._lane_plan
-        keep_rows = K == 1 and self.whole_refresh
+        keep_rows = K == 1 and self.whole_refresh and self.steppers[0].kern.SWEEP_KEEPS_ROWS
         all_stable = np.full(max(self.resident(), default=0) if keep_rows else 0, ROLE_STABLE, np.int8)
         done = 0
         status = SWEEPS_DONE

@@ -577,7 +577,7 @@ class MpiEngine:
                 r, _, status = live.run_sweeps(step0, 1, k, not self._fresh, -1.0)
                 unseen = status == SWEEPS_REBUILD
             else:
-                # kernels without a one-thread twin (3D): each sub-domain with its own stepper,
+                # kernels without a one-thread twin: each sub-domain with its own stepper,
                 # after the same refresh and ownership (serial DDM's per-sub-domain sweep)
                 unseen = not self._fresh and not live.refresh()
                 if not unseen:

@@ -1,6 +1,7 @@
 """The 2D step kernels (discs in the x-y plane, spin about z): the per-dimension entry
 points the engine calls (``physics.kernels(dim)``), ``run_steps`` (and its one-thread
-twin ``run_steps_serial``) and ``spatial_order``.
+twin ``run_steps_serial`` with what serial DDM's compiled sweeps take of a dimension:
+``SWEEP_KEEPS_ROWS``, ``sweep_sync_history``) and ``spatial_order``.
 
 A step (``run_steps``): wheel controls, ``forces.produce`` (one row per contact),
 ``forces.gather_integrate`` (each disc sums its rows in ascending partner-id order
@@ -113,3 +114,9 @@ run_steps_serial = serial_twin(run_steps, "run_steps_serial", produce=produce_se
                                gather_integrate=gather_integrate_serial,
                                build_pairs=build_pairs_serial, sync_history=sync_history_serial,
                                load_history=load_history_serial)
+
+# serial DDM's compiled sweeps (engine.live._run_sweeps): at K = 1 every pair row is kept
+# from sweep to sweep, and the rows' springs are written back into the histories of the
+# discs with given roles by the one-thread sync
+SWEEP_KEEPS_ROWS = True
+sweep_sync_history = sync_history_serial

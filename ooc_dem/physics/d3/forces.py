@@ -874,3 +874,12 @@ def sync_history(n, d, pl, err):
             hist_n[i] = min(k, cap)
         if over:
             err[ERR_HIST_OVERFLOW] = 1
+
+
+# the one-thread twins (physics.twins): serial DDM runs its sub-domains side by side
+from ..twins import serial_twin  # noqa: E402
+
+produce_serial = serial_twin(produce, "produce_serial")
+gather_integrate_serial = serial_twin(gather_integrate, "gather_integrate_serial")
+sync_history_serial = serial_twin(sync_history, "sync_history_serial")
+load_history_serial = serial_twin(load_history, "load_history_serial")

@@ -157,3 +157,12 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
         pref[i, 1] = pos[i, 1]
         pref[i, 2] = pos[i, 2]
     return npairs
+
+
+# the one-thread twin (physics.twins): serial DDM runs its sub-domains side by side
+from ..neighbors import _slots_serial  # noqa: E402
+from ..twins import serial_twin  # noqa: E402
+
+_scan_serial = serial_twin(_scan, "_scan_serial")
+build_pairs_serial = serial_twin(build_pairs, "build_pairs_serial", _scan=_scan_serial,
+                                 _slots=_slots_serial)

@@ -20,13 +20,16 @@ from numba import njit
 from .. import layout as L2
 from ..forces import lug_directions, wheel_reaction
 from ..integrate import apply_wheel_controls, record_and_integrate_wheel
-from .forces import N_CHUNKS, gather_integrate, load_history, produce, sync_history
+from ..twins import serial_twin
+from .forces import (N_CHUNKS, gather_integrate, gather_integrate_serial, load_history,
+                     load_history_serial, produce, produce_serial, sync_history,
+                     sync_history_serial)
 from .layout import (
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
     ERR_PAIR_CAPACITY,
 )
-from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry point)
+from .neighbors import build_pairs, build_pairs_serial, spatial_order  # noqa: F401  (spec entry point)
 
 
 # nogil: an out-of-core sweep reads and writes slabs in other threads while this runs
@@ -113,3 +116,24 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     if held:
         sync_history(n, d, pl, err)
     return nsteps, rebuilds
+
+
+# the same step on one thread (serial DDM runs its sub-domains side by side,
+# engine.live._run_sweeps)
+run_steps_serial = serial_twin(run_steps, "run_steps_serial", produce=produce_serial,
+                               gather_integrate=gather_integrate_serial,
+                               build_pairs=build_pairs_serial, sync_history=sync_history_serial,
+                               load_history=load_history_serial)
+
+# serial DDM's compiled sweeps give run_steps the sub-domain's roles, and with roles every
+# sphere's history is rewritten at every step: the rows are not kept from sweep to sweep
+# (2D keeps them at K = 1), and no history is ever behind its rows
+SWEEP_KEEPS_ROWS = False
+
+
+@njit(cache=True)
+def sweep_sync_history(n, d, pl, err, role, need):
+    """What the compiled sweeps call to write the rows' springs back into the histories of
+    the spheres whose roles hold ``need`` (2D: forces.sync_history_serial): nothing to do,
+    every history is current after each step run with roles."""
+    return

@@ -75,14 +75,10 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     kp, d, pl, bd, forces, ws, err = st.kernel_args()
     part = np.zeros(forces_mod.N_CHUNKS)
     # the phases as run_steps calls them on a whole bed: the pairs' springs held in the pair
-    # rows from load_history to sync_history (2D: role of length 0 = every disc; 3D: held)
-    if family == "bed3d":
-        load = (n, d, pl)
-        sync = (n, d, pl, err)
-    else:
-        every = np.zeros(0, np.int8)
-        load = (n, d, pl, every)
-        sync = (n, d, pl, err, every, 0)
+    # rows from load_history to sync_history (a role of length 0: every particle)
+    every = np.zeros(0, np.int8)
+    load = (n, d, pl, every)
+    sync = (n, d, pl, err, every, 0)
     forces_mod.load_history(*load)
     from ooc_dem.physics.layout import LUG_DIRECTION
     lugdir = np.zeros(max(1, int(kp.wg[0]["nlugs"])), LUG_DIRECTION)   # a bare bed: no wheel

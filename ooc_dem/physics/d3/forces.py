@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange, types
 from numba.extending import overload
 
-from ..forces import copy_pair_params, lug_axis_offset, one_material
+from ..forces import ROLE_STABLE, copy_pair_params, lug_axis_offset, one_material
 from .contact import contact
 from .layout import (
     N_LAW_IN,
@@ -811,20 +811,37 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
 
 
 @njit(parallel=True, cache=True)
-def load_history(n, d, pl):
+def load_history(n, d, pl, role):
     """The pair rows' springs from the lower sphere's history (after a neighbour build and
-    at the start of every held run: the histories may have been set from outside, e.g. a
-    restart): on[q] = in contact at the last step. From here to ``sync_history`` a
-    sphere's own history holds only its wall entries (negative ids, sorted first)."""
+    at the start of every run: the histories may have been set from outside, e.g. a
+    restart or a serial-DDM halo refresh): on[q] = in contact at the last step. From here
+    to ``sync_history`` a sphere's own history holds only its wall entries (negative ids,
+    sorted first). role (length n, or 0 = reload every row): as in 2D
+    (physics.forces.load_history), a pair whose two spheres are both ROLE_STABLE keeps its
+    row, and with every sphere stable nothing is loaded."""
     gid = d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
+    if role.shape[0]:
+        every_stable = True
+        for i in range(n):
+            if (role[i] & ROLE_STABLE) != ROLE_STABLE:
+                every_stable = False
+                break
+        if every_stable:
+            # every row is kept (serial DDM's one-step sweeps); a sphere's history may then
+            # still hold its pairs' springs behind its wall entries until the gather rewrites
+            # hist_n: produce only looks up wall entries (negative ids, sorted first)
+            return
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, 0, n)
         for i in range(lo, hi):
             hn = hist_n[i]
             p = 0
+            stable = role.shape[0] and (role[i] & ROLE_STABLE) == ROLE_STABLE
             for q in range(half_off[i], half_off[i + 1]):
+                if stable and (role[pair_b[q]] & ROLE_STABLE) == ROLE_STABLE:
+                    continue
                 p, found = _lookup(hist_id, i, hn, p, gid[pair_b[q]])
                 row = rows[q]
                 if found:
@@ -841,12 +858,13 @@ def load_history(n, d, pl):
 
 
 @njit(parallel=True, cache=True)
-def sync_history(n, d, pl, err):
+def sync_history(n, d, pl, err, role, need):
     """Each sphere's full history, sorted by partner id, from its wall entries (kept by
     the gather) and its pairs' springs in the rows: lower-id partners through the CSR
     index, then its own half list -- what the gather writes when not held. Run before a
     neighbour rebuild and at the end of every held run, so the spheres always leave the
-    step whole. Idempotent."""
+    step whole. role (length n, or 0 = every sphere): only spheres with all bits of
+    ``need`` in their role are written (serial DDM, as in 2D). Idempotent."""
     gid = d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
@@ -856,6 +874,8 @@ def sync_history(n, d, pl, err):
         lo, hi = chunk_range(ch, 0, n)
         over = False
         for i in range(lo, hi):
+            if role.shape[0] and (role[i] & need) != need:
+                continue
             k = 0
             hn = hist_n[i]
             while k < hn and hist_id[i, k] < 0:

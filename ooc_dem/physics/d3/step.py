@@ -41,13 +41,14 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     kp: layout.KernelParams, d: layout.Discs, pl: layout.Pairs, bd: layout.Bodies,
     forces: layout.Forces (length 0 when not kept), ws: WHEEL_STATE record (1,),
     err: ERRORS flags (int64 array), rec: WHEEL_RECORD rows, one per step (wheel runs),
-    rebuild_now: build the pair list first; pairs_done (the 2D signature's: this step's
-    pair rows are already made) is accepted and ignored: ``produce`` makes no pair row
-    when a wall buffer is full, so remaking the step gives the same bits;
-    role: the 2D signature's serial-DDM disc roles: empty or None (every sphere is
-    stepped) holds the pairs' springs in the rows during the call (forces.load_history /
-    sync_history, the spheres leave whole), non-empty rewrites every sphere's history at
-    every step (no role-dependent sync: every sphere leaves whole after each step);
+    rebuild_now: build the pair list first; pairs_done: the call that stopped on
+    err.body_capacity left the pair rows as they were (``produce`` makes no pair row when
+    a wall buffer is full): they are kept, not reloaded, and the step is remade;
+    role: serial-DDM roles of the spheres (forces.ROLE_*), as in 2D: None or empty (every
+    sphere) reloads every row from the histories at the start and writes every history
+    back at the end, so the spheres leave whole; non-empty keeps the rows of pairs of two
+    ROLE_STABLE spheres and writes nothing back (the caller does, with sync_history and
+    the roles). The pairs' springs live in the pair rows while the steps run.
     spans: the 2D signature's (m, 2) index ranges [first, end) of the spheres step s
     advances (an out-of-core slab's light cone); None, or steps past the m-th: all.
     Returns (steps done, rebuilds)."""
@@ -61,20 +62,19 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     dt = kp.dt
     skin = kp.skin
     part = np.zeros(N_CHUNKS)
-    # every sphere stepped (no serial-DDM roles): the pairs' springs are held in the pair
-    # rows while the steps run (load_history .. sync_history), not rewritten into every
-    # sphere's history each step; with roles, each step rewrites the histories in full
-    held = True
+    every = np.zeros(0, np.int8)
+    roles = every
     if role is not None:
-        held = role.shape[0] == 0
+        roles = role
+    whole = roles.shape[0] == 0   # the spheres leave whole (no caller-side sync)
     if rebuild_now:
         npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
                              pl.inc_off, pl.inc_k, pl.ref)
         if npairs > pl.pair_b.shape[0]:
             err[ERR_PAIR_CAPACITY] = npairs
             return 0, 0
-    if held:
-        load_history(n, d, pl)
+    if not pairs_done:
+        load_history(n, d, pl, every if rebuild_now else roles)
     half2 = 0.25 * skin * skin
     rebuilds = 0
     for s in range(nsteps):
@@ -87,15 +87,15 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
         if spans is not None and s < spans.shape[0]:
             first = spans[s, 0]
             end = spans[s, 1]
-        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err, held)
+        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err, True)
         if err[ERR_BODY_CAPACITY] != 0:
             # no pair row of this step was made (produce): the rows still hold the springs
             # of the last step, so the sync leaves the spheres whole; nothing was advanced
-            if held:
-                sync_history(n, d, pl, err)
+            if whole:
+                sync_history(n, d, pl, err, every, 0)
             return s, rebuilds
         disp2 = gather_integrate(first, end, d, pl, bd, forces.force, forces.torque, kp.gravity, dt,
-                                 part, err, held)
+                                 part, err, True)
         if err[ERR_HIST_OVERFLOW] != 0:
             # fatal; step s is not done (its wheel is not advanced): as in 2D
             return s, rebuilds
@@ -104,17 +104,15 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
             record_and_integrate_wheel(rec, s, t, ws, wg, wc, wfx, wfy, wtq, cnt, gy, dt)
         if disp2 > half2:
             rebuilds += 1
-            if held:
-                sync_history(n, d, pl, err)
+            sync_history(n, d, pl, err, every, 0)
             npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
                                  pl.pair_a, pl.inc_off, pl.inc_k, pl.ref)
             if npairs > pl.pair_b.shape[0]:
                 err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds
-            if held:
-                load_history(n, d, pl)
-    if held:
-        sync_history(n, d, pl, err)
+            load_history(n, d, pl, every)
+    if whole:
+        sync_history(n, d, pl, err, every, 0)
     return nsteps, rebuilds
 
 
@@ -125,15 +123,8 @@ run_steps_serial = serial_twin(run_steps, "run_steps_serial", produce=produce_se
                                build_pairs=build_pairs_serial, sync_history=sync_history_serial,
                                load_history=load_history_serial)
 
-# serial DDM's compiled sweeps give run_steps the sub-domain's roles, and with roles every
-# sphere's history is rewritten at every step: the rows are not kept from sweep to sweep
-# (2D keeps them at K = 1), and no history is ever behind its rows
-SWEEP_KEEPS_ROWS = False
-
-
-@njit(cache=True)
-def sweep_sync_history(n, d, pl, err, role, need):
-    """What the compiled sweeps call to write the rows' springs back into the histories of
-    the spheres whose roles hold ``need`` (2D: forces.sync_history_serial): nothing to do,
-    every history is current after each step run with roles."""
-    return
+# serial DDM's compiled sweeps (engine.live._run_sweeps), as in 2D: at K = 1 every pair
+# row is kept from sweep to sweep, and the rows' springs are written back into the
+# histories of the spheres with given roles by the one-thread sync
+SWEEP_KEEPS_ROWS = True
+sweep_sync_history = sync_history_serial

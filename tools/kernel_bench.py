@@ -35,13 +35,12 @@ def law_overrides(family: str, law: str) -> list[str]:
     return NO_ROLLING
 
 
-def _phase_loops(produce, gather_integrate, held3d: bool):
+def _phase_loops(produce, gather_integrate, is3d: bool):
     """Compiled loops of k steps: produce only, and produce + gather_integrate, with the
-    trailing arguments run_steps gives them (2D: rows made afresh, pairs_done False;
-    3D: springs held in the rows)."""
+    trailing arguments run_steps gives them (2D: rows made afresh, pairs_done False)."""
     from numba import njit
-    ptail = (True,) if held3d else (False,)
-    gtail = (True,) if held3d else ()
+    ptail = () if is3d else (False,)
+    gtail = ()
 
     @njit
     def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):

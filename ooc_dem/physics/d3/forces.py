@@ -15,10 +15,10 @@ The 3D twin of ``ooc_dem.physics.forces`` (read its module doc). Two phases:
 2. ``gather_integrate``: one pass per sphere sums its rows in ascending partner-id
    order -- its wall rows, then its incoming pairs (lower-id partners, CSR index),
    then its own half-list pairs (the higher id adds the force and tb, the lower
-   subtracts the force and adds ta) -- rewrites its history sorted by partner id (or,
-   while the pairs' springs are held in the rows, as in 2D, only its wall entries:
-   ``load_history`` / ``sync_history`` move the springs between the spheres' histories
-   and the rows around a run and a neighbour rebuild) and advances it (leapfrog:
+   subtracts the force and adds ta) -- rewrites its wall entries in its history (the
+   pairs' springs are held in the rows while a run goes on, as in 2D: ``load_history`` /
+   ``sync_history`` move them between the spheres' histories and the rows around a run
+   and a neighbour rebuild) and advances it (leapfrog:
    v(n+1/2) = v(n-1/2) + a_n dt, x(n+1) = x_n + v(n+1/2) dt, spin += torque / inertia dt). Every write goes to the sphere itself: no atomics.
 """
 import math
@@ -363,7 +363,7 @@ def _put_pair_rows(k, slot, law_out, rows):
 
 
 @njit(parallel=True, cache=True)
-def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=False):
+def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
     """Phase 1: one row per contact of spheres first..end-1 at time n (module doc): their
     wall and wheel rows and the rows of their own half lists.
 
@@ -378,10 +378,9 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
     W = (0, 0, wz); the law sees the wheel as body a with lever arm 0 and spin W.
     Sets err[ERR_BODY_CAPACITY] when a
     chunk's wall buffer is full (grow, rerun): the wall rows are made first, in a pass of
-    their own, and then no pair row is made, so a rerun gives the same rows. held: the
-    pairs' springs are held in the pair rows (``load_history``: a pair was in contact at
-    the last step iff on[q], its springs are the row's; each row is read and rewritten
-    in place); not held: they are looked up in the lower sphere's history."""
+    their own, and then no pair row is made, so a rerun gives the same rows. The pairs'
+    springs are held in the pair rows (``load_history``: a pair was in contact at the last
+    step iff on[q], its springs are the row's; each row is read and rewritten in place)."""
     pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
     mass, inertia, mat = d.mass, d.inertia, d.mat
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
@@ -542,7 +541,7 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
             err[ERR_BODY_CAPACITY] = 1
             any_full[0] = True
     if any_full[0]:
-        return   # no pair row made: rerunnable after growing the wall rows, even when held
+        return   # no pair row made: rerunnable after growing the wall rows
     # ---------------------------------------------------------- pairs (i = a, lower id)
     # each chunk lists its touching pairs in blocks of law arguments (columns); law_block
     # evaluates a full block at once and its rows are put in place (the order of
@@ -587,29 +586,23 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, held=Fals
             on[q] = touch
             k += touch
             if k == LAW_BLOCK:
-                _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held)
+                _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows)
                 law_rows(k, law_in, law_out, dt, rows, cp, one_material(k, law_in, LawIn.material))
                 _put_pair_rows(k, slot, law_out, rows)
                 k = 0
         if k > 0:
-            _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held)
+            _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows)
             law_rows(k, law_in, law_out, dt, rows, cp, one_material(k, law_in, LawIn.material))
             _put_pair_rows(k, slot, law_out, rows)
 
 
 @njit(inline="always", cache=True)
-def _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held):
+def _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows):
     """The law arguments of a block's k touching pairs besides their offsets and radii
     (the distance test wrote those): relative velocity, spins, masses, inertias, their
-    material pair and their springs of the last step (zero for a new contact). held: the
-    springs are those of the pair's row; not held: of sphere a's history (sorted by
-    partner id; a block lists each sphere's pairs in ascending partner id, so one merge
-    pointer per sphere finds them)."""
-    vel, spin, mass, inertia, mat, gid = d.vel, d.spin, d.mass, d.inertia, d.mat, d.gid
-    hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
-    rolling = has_rolling(rows)
-    last_a = -1
-    p = 0
+    material pair and their springs of the last step: the pair's row's (zero for a new
+    contact)."""
+    vel, spin, mass, inertia, mat = d.vel, d.spin, d.mass, d.inertia, d.mat
     for t in range(k):
         a = side_a[t]
         b = side_b[t]
@@ -627,28 +620,17 @@ def _fill_block(k, law_in, slot, side_a, side_b, was_on, d, rows, held):
         law_in[LawIn.ia, t] = inertia[a]
         law_in[LawIn.ib, t] = inertia[b]
         law_in[LawIn.material, t] = mat[a] * N_TYPES + mat[b]
-        s0x = s0y = s0z = m0x = m0y = m0z = 0.0
-        if held:
-            # read whatever the row holds, keep it only if the pair touched (a select,
-            # not a branch)
-            row = rows[slot[t]]
-            on_last = was_on[t] != 0
-            s0x = row.sx if on_last else 0.0
-            s0y = row.sy if on_last else 0.0
-            s0z = row.sz if on_last else 0.0
-            _, _, _, m0x_, m0y_, m0z_ = rolling_of(row)
-            m0x = m0x_ if on_last else 0.0
-            m0y = m0y_ if on_last else 0.0
-            m0z = m0z_ if on_last else 0.0
-        else:
-            if a != last_a:
-                last_a = a
-                p = 0
-            p, found = _lookup(hist_id, a, hist_n[a], p, gid[b])
-            if found:
-                s0x, s0y, s0z = hist_s[a, p, 0], hist_s[a, p, 1], hist_s[a, p, 2]
-                if rolling:   # else unused: no pair has rolling resistance
-                    m0x, m0y, m0z = hist_m[a, p, 0], hist_m[a, p, 1], hist_m[a, p, 2]
+        # read whatever the row holds, keep it only if the pair touched (a select, not a
+        # branch)
+        row = rows[slot[t]]
+        on_last = was_on[t] != 0
+        s0x = row.sx if on_last else 0.0
+        s0y = row.sy if on_last else 0.0
+        s0z = row.sz if on_last else 0.0
+        _, _, _, m0x_, m0y_, m0z_ = rolling_of(row)
+        m0x = m0x_ if on_last else 0.0
+        m0y = m0y_ if on_last else 0.0
+        m0z = m0z_ if on_last else 0.0
         law_in[LawIn.s_x, t] = s0x
         law_in[LawIn.s_y, t] = s0y
         law_in[LawIn.s_z, t] = s0z
@@ -699,20 +681,20 @@ def _add_row(row, w, side, ri, fx, fy, fz, tx, ty, tz):
 
 
 @njit(parallel=True, cache=True)
-def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, err, held=False):
+def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, err):
     """Phase 2: per sphere of first..end-1 (the span ``produce`` made rows for), sum its rows in ascending partner-id order (module doc),
     rewrite its history from them (an overflow of the history capacity sets
     err[ERR_HIST_OVERFLOW]: fatal, never a silent drop), then advance it one leapfrog
     step. force/torque (N, 3) get the contact force and torque of time n (unless they
     have length 0). Returns the largest squared displacement since the last neighbour
-    build (a max: order-free); part is scratch of N_CHUNKS entries. held (the pairs'
-    springs are held in the rows, ``produce``): only the wall entries are written to the
-    history (the pairs' are written back by ``sync_history``); the capacity is checked
-    on the sphere's full contact count either way."""
+    build (a max: order-free); part is scratch of N_CHUNKS entries. The pairs' springs are
+    held in the rows (``produce``): only the wall entries are written to the history (the
+    pairs' are written back by ``sync_history``); the capacity is checked on the sphere's
+    full contact count."""
     pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
-    mass, inertia, gid = d.mass, d.inertia, d.gid
+    mass, inertia = d.mass, d.inertia
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
-    half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
+    half_off = pl.half_off
     inc_off, inc_k = pl.inc_off, pl.inc_k
     on, rows, ref = pl.on, pl.rows, pl.ref
     body, bcount = bd.rows, bd.count
@@ -762,9 +744,6 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
                 q = inc_k[e]
                 touch = on[q]
                 row = rows[q]
-                if not held and touch and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
-                                                         gid[pair_a[q]], row):
-                    over = True
                 k += touch
                 fx, fy, fz, tx, ty, tz = _add_row(row, np.float64(touch), 1.0, ri, fx, fy, fz,
                                                   tx, ty, tz)
@@ -772,15 +751,12 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
             for q in range(half_off[i], half_off[i + 1]):
                 touch = on[q]
                 row = rows[q]
-                if not held and touch and not _keep_pair(hist_id, hist_s, hist_m, i, k, cap,
-                                                         gid[pair_b[q]], row):
-                    over = True
                 k += touch
                 fx, fy, fz, tx, ty, tz = _add_row(row, np.float64(touch), -1.0, ri, fx, fy, fz,
                                                   tx, ty, tz)
             if k > cap:
                 over = True
-            hist_n[i] = min(kw if held else k, cap)
+            hist_n[i] = min(kw, cap)
             if keep:
                 force[i, 0] = fx
                 force[i, 1] = fy
@@ -861,8 +837,7 @@ def load_history(n, d, pl, role):
 def sync_history(n, d, pl, err, role, need):
     """Each sphere's full history, sorted by partner id, from its wall entries (kept by
     the gather) and its pairs' springs in the rows: lower-id partners through the CSR
-    index, then its own half list -- what the gather writes when not held. Run before a
-    neighbour rebuild and at the end of every held run, so the spheres always leave the
+    index, then its own half list. Run before a neighbour rebuild and at the end of every held run, so the spheres always leave the
     step whole. role (length n, or 0 = every sphere): only spheres with all bits of
     ``need`` in their role are written (serial DDM, as in 2D). Idempotent."""
     gid = d.gid

@@ -87,7 +87,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
         if spans is not None and s < spans.shape[0]:
             first = spans[s, 0]
             end = spans[s, 1]
-        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err, True)
+        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err)
         if err[ERR_BODY_CAPACITY] != 0:
             # no pair row of this step was made (produce): the rows still hold the springs
             # of the last step, so the sync leaves the spheres whole; nothing was advanced
@@ -95,7 +95,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
                 sync_history(n, d, pl, err, every, 0)
             return s, rebuilds
         disp2 = gather_integrate(first, end, d, pl, bd, forces.force, forces.torque, kp.gravity, dt,
-                                 part, err, True)
+                                 part, err)
         if err[ERR_HIST_OVERFLOW] != 0:
             # fatal; step s is not done (its wheel is not advanced): as in 2D
             return s, rebuilds

@@ -304,7 +304,7 @@ _SWEEPS = {}
 def sweeps_kernel(kern):
     """The compiled sweeps for one dimension's step kernels (None when the kernel module
     has no one-thread step: the sweep then advances the sub-domains one call each): its
-    one-thread step, and its write-back of the rows' springs (``sweep_sync_history``)."""
+    one-thread step, and its write-back of the rows' springs (``sync_history_serial``)."""
     step = getattr(kern, "run_steps_serial", None)
     if step is None:
         return None
@@ -312,7 +312,7 @@ def sweeps_kernel(kern):
         name = "run_sweeps_" + kern.__name__.rsplit(".", 1)[-1]
         _SWEEPS[kern.__name__] = serial_twin(_run_sweeps, name, parallel=True,
                                              run_steps_serial=step,
-                                             sync_history_serial=kern.sweep_sync_history)
+                                             sync_history_serial=kern.sync_history_serial)
     return _SWEEPS[kern.__name__]
 
 
@@ -504,7 +504,7 @@ class LiveDomains:
         doms = self._domain_list()
         p = self.p
         lanes, lane_off = self._lane_plan
-        keep_rows = K == 1 and self.whole_refresh and self.steppers[0].kern.SWEEP_KEEPS_ROWS
+        keep_rows = K == 1 and self.whole_refresh
         all_stable = np.full(max(self.resident(), default=0) if keep_rows else 0, ROLE_STABLE, np.int8)
         done = 0
         status = SWEEPS_DONE

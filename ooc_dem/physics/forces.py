@@ -215,7 +215,7 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, pairs_don
     ws: WHEEL_STATE (records of shape (1,)); lugdir: LUG_DIRECTION of each lug.
     Sets err[ERR_BODY_CAPACITY] when a chunk's body buffer is full (grow, rerun)."""
     pos, vel, spin, r = d.pos, d.vel, d.spin, d.r
-    mass, inertia, mat, gid = d.mass, d.inertia, d.mat, d.gid
+    mass, inertia, mat = d.mass, d.inertia, d.mat
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
@@ -454,9 +454,9 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
     displacement since the last neighbour build (a max: order-free); part is scratch
     of N_CHUNKS entries."""
     pos, vel, spin = d.pos, d.vel, d.spin
-    mass, inertia, gid = d.mass, d.inertia, d.gid
+    mass, inertia = d.mass, d.inertia
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
-    half_off, pair_b, pair_a = pl.half_off, pl.pair_b, pl.pair_a
+    half_off = pl.half_off
     inc_off, inc_k = pl.inc_off, pl.inc_k
     on, rows, ref = pl.on, pl.rows, pl.ref
     gx = gravity[AX_X]
@@ -637,6 +637,18 @@ def sync_history(n, d, pl, err, role, need):
             err[ERR_HIST_OVERFLOW] = 1
 
 
+@njit(inline="always", cache=True)
+def keeps_every_row(role, n):
+    """Whether load_history keeps every pair row of particles 0..n-1 (2D and 3D): roles are
+    given and every particle is ROLE_STABLE (serial DDM's one-step sweeps)."""
+    if role.shape[0] == 0:
+        return False
+    for i in range(n):
+        if (role[i] & ROLE_STABLE) != ROLE_STABLE:
+            return False
+    return True
+
+
 @njit(parallel=True, cache=True)
 def load_history(n, d, pl, role):
     """The pair rows' springs from the lower disc's history: after a neighbour build, and
@@ -647,18 +659,11 @@ def load_history(n, d, pl, role):
     gid = d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
-    if role.shape[0]:
-        every_stable = True
-        for i in range(n):
-            if (role[i] & ROLE_STABLE) != ROLE_STABLE:
-                every_stable = False
-                break
-        if every_stable:
-            # every row is kept (serial DDM's one-step sweeps), so nothing is loaded; a
-            # disc's own history may then still hold its pairs' springs behind its body
-            # entries until the gather rewrites hist_n: produce only looks up body
-            # entries (negative ids, sorted first), so they change nothing
-            return
+    if keeps_every_row(role, n):
+        # nothing is loaded; a disc's own history may then still hold its pairs' springs
+        # behind its body entries until the gather rewrites hist_n: produce only looks up
+        # body entries (negative ids, sorted first), so they change nothing
+        return
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, 0, n)
         for i in range(lo, hi):

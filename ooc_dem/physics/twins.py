@@ -15,9 +15,11 @@ from numba import njit
 from numba.core.cpu_options import ParallelOptions
 from numba.core.errors import NumbaPerformanceWarning
 
-# the twins ask for the parallel pipeline on purpose without a parallel loop
-warnings.filterwarnings("ignore", message="The keyword argument 'parallel=True' was specified but no "
-                        "transformation", category=NumbaPerformanceWarning)
+# the twins ask for the parallel pipeline on purpose without a parallel loop (numba may put
+# terminal colour codes and a newline before the text: the pattern allows any prefix; pytest,
+# which restores the filters after each test, has the same filter in pyproject.toml)
+TWIN_WARNING = r"(?s).*The keyword argument 'parallel=True' was specified but no transformation"
+warnings.filterwarnings("ignore", message=TWIN_WARNING, category=NumbaPerformanceWarning)
 
 # numba's parallel pipeline with every transformation off: no parallel region is made
 # (prange is a plain range), yet the loops compile to code several times faster than
@@ -51,3 +53,17 @@ def serial_twin(kernel, name: str, parallel: bool = False, **callees):
     f.__module__ = py.__module__
     f.__doc__ = f"Serial twin of {py.__name__} (physics.twins)."
     return njit(cache=True, parallel=True if parallel else no_parfors())(f)
+
+
+def step_twin(run_steps, forces, neighbors):
+    """The one-thread twin ``run_steps_serial`` of a dimension's step: ``run_steps`` with its
+    phases (``produce``, ``gather_integrate``, ``load_history``, ``sync_history`` of the
+    module ``forces``, ``build_pairs`` of ``neighbors``) replaced by their serial twins (named
+    ``<phase>_serial`` in those modules). Serial DDM's compiled sweeps run it on each
+    sub-domain (engine.live)."""
+    return serial_twin(run_steps, "run_steps_serial",
+                       produce=forces.produce_serial,
+                       gather_integrate=forces.gather_integrate_serial,
+                       build_pairs=neighbors.build_pairs_serial,
+                       sync_history=forces.sync_history_serial,
+                       load_history=forces.load_history_serial)

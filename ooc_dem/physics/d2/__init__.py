@@ -1,7 +1,7 @@
 """The 2D step kernels (discs in the x-y plane, spin about z): the per-dimension entry
 points the engine calls (``physics.kernels(dim)``), ``run_steps`` (and its one-thread
-twin ``run_steps_serial`` with what serial DDM's compiled sweeps take of a dimension:
-``SWEEP_KEEPS_ROWS``, ``sweep_sync_history``) and ``spatial_order``.
+twin ``run_steps_serial``, with ``sync_history_serial`` for serial DDM's compiled sweeps)
+and ``spatial_order``.
 
 A step (``run_steps``): wheel controls, ``forces.produce`` (one row per contact),
 ``forces.gather_integrate`` (each disc sums its rows in ascending partner-id order
@@ -11,14 +11,16 @@ leapfrog, and a rebuild of the half pair list when some disc has moved half the 
 import numpy as np
 from numba import njit
 
+from .. import forces as forces_mod
 from .. import layout as L
-from ..forces import (N_CHUNKS, gather_integrate, gather_integrate_serial, load_history,
-                      load_history_serial, lug_directions, produce, produce_serial,
-                      sync_history, sync_history_serial, wheel_reaction)
+from .. import neighbors as neighbors_mod
+from ..forces import (N_CHUNKS, gather_integrate, load_history, lug_directions, produce,
+                      sync_history, wheel_reaction)
+from ..forces import sync_history_serial  # noqa: F401  (serial DDM's write-back, engine.live)
 from ..integrate import apply_wheel_controls, record_and_integrate_wheel
-from ..twins import serial_twin
+from ..twins import step_twin
 from ..layout import AX_Y, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY
-from ..neighbors import build_pairs, build_pairs_serial
+from ..neighbors import build_pairs
 from ..neighbors import spatial_order  # noqa: F401  (the entry point: spatial_order(pos, n, cell))
 
 DIM = 2
@@ -110,13 +112,4 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
 
 
 # the same step on one thread (serial DDM runs its sub-domains side by side)
-run_steps_serial = serial_twin(run_steps, "run_steps_serial", produce=produce_serial,
-                               gather_integrate=gather_integrate_serial,
-                               build_pairs=build_pairs_serial, sync_history=sync_history_serial,
-                               load_history=load_history_serial)
-
-# serial DDM's compiled sweeps (engine.live._run_sweeps): at K = 1 every pair row is kept
-# from sweep to sweep, and the rows' springs are written back into the histories of the
-# discs with given roles by the one-thread sync
-SWEEP_KEEPS_ROWS = True
-sweep_sync_history = sync_history_serial
+run_steps_serial = step_twin(run_steps, forces_mod, neighbors_mod)

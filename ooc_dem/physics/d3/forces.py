@@ -27,7 +27,8 @@ import numpy as np
 from numba import njit, prange, types
 from numba.extending import overload
 
-from ..forces import ROLE_STABLE, copy_pair_params, lug_axis_offset, one_material
+from ..forces import (ROLE_STABLE, copy_pair_params, keeps_every_row, lug_axis_offset,
+                      one_material)
 from .contact import contact
 from .layout import (
     N_LAW_IN,
@@ -798,17 +799,11 @@ def load_history(n, d, pl, role):
     gid = d.gid
     hist_n, hist_id, hist_s, hist_m = d.hist_n, d.hist_id, d.hist_s, d.hist_m
     half_off, pair_b, on, rows = pl.half_off, pl.pair_b, pl.on, pl.rows
-    if role.shape[0]:
-        every_stable = True
-        for i in range(n):
-            if (role[i] & ROLE_STABLE) != ROLE_STABLE:
-                every_stable = False
-                break
-        if every_stable:
-            # every row is kept (serial DDM's one-step sweeps); a sphere's history may then
-            # still hold its pairs' springs behind its wall entries until the gather rewrites
-            # hist_n: produce only looks up wall entries (negative ids, sorted first)
-            return
+    if keeps_every_row(role, n):
+        # a sphere's history may then still hold its pairs' springs behind its wall entries
+        # until the gather rewrites hist_n: produce only looks up wall entries (negative
+        # ids, sorted first)
+        return
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, 0, n)
         for i in range(lo, hi):

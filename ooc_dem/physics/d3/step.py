@@ -20,16 +20,16 @@ from numba import njit
 from .. import layout as L2
 from ..forces import lug_directions, wheel_reaction
 from ..integrate import apply_wheel_controls, record_and_integrate_wheel
-from ..twins import serial_twin
-from .forces import (N_CHUNKS, gather_integrate, gather_integrate_serial, load_history,
-                     load_history_serial, produce, produce_serial, sync_history,
-                     sync_history_serial)
+from ..twins import step_twin
+from . import forces as forces_mod
+from . import neighbors as neighbors_mod
+from .forces import N_CHUNKS, gather_integrate, load_history, produce, sync_history
 from .layout import (
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
     ERR_PAIR_CAPACITY,
 )
-from .neighbors import build_pairs, build_pairs_serial, spatial_order  # noqa: F401  (spec entry point)
+from .neighbors import build_pairs, spatial_order  # noqa: F401  (spec entry point)
 
 
 # nogil: an out-of-core sweep reads and writes slabs in other threads while this runs
@@ -118,13 +118,4 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
 
 # the same step on one thread (serial DDM runs its sub-domains side by side,
 # engine.live._run_sweeps)
-run_steps_serial = serial_twin(run_steps, "run_steps_serial", produce=produce_serial,
-                               gather_integrate=gather_integrate_serial,
-                               build_pairs=build_pairs_serial, sync_history=sync_history_serial,
-                               load_history=load_history_serial)
-
-# serial DDM's compiled sweeps (engine.live._run_sweeps), as in 2D: at K = 1 every pair
-# row is kept from sweep to sweep, and the rows' springs are written back into the
-# histories of the spheres with given roles by the one-thread sync
-SWEEP_KEEPS_ROWS = True
-sweep_sync_history = sync_history_serial
+run_steps_serial = step_twin(run_steps, forces_mod, neighbors_mod)

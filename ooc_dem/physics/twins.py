@@ -8,6 +8,7 @@ their own serial twins. The arithmetic is the same source, so the bits are the s
 """
 from __future__ import annotations
 
+import sys
 import types
 import warnings
 
@@ -55,15 +56,20 @@ def serial_twin(kernel, name: str, parallel: bool = False, **callees):
     return njit(cache=True, parallel=True if parallel else no_parfors())(f)
 
 
-def step_twin(run_steps, forces, neighbors):
-    """The one-thread twin ``run_steps_serial`` of a dimension's step: ``run_steps`` with its
-    phases (``produce``, ``gather_integrate``, ``load_history``, ``sync_history`` of the
-    module ``forces``, ``build_pairs`` of ``neighbors``) replaced by their serial twins (named
-    ``<phase>_serial`` in those modules). Serial DDM's compiled sweeps run it on each
-    sub-domain (engine.live)."""
-    return serial_twin(run_steps, "run_steps_serial",
-                       produce=forces.produce_serial,
-                       gather_integrate=forces.gather_integrate_serial,
-                       build_pairs=neighbors.build_pairs_serial,
-                       sync_history=forces.sync_history_serial,
-                       load_history=forces.load_history_serial)
+def step_twin(run_steps):
+    """The one-thread twin ``run_steps_serial`` of a dimension's step: ``run_steps`` with the
+    phases it calls (produce, gather_integrate, build_pairs, sync_history, load_history)
+    replaced by their serial twins, each found beside its phase as ``<phase>_serial`` (the
+    same convention in 2D and 3D). Serial DDM's compiled sweeps run it on each sub-domain
+    (engine.live)."""
+    g = getattr(run_steps, "py_func", run_steps).__globals__
+    callees = {}
+    for phase in STEP_PHASES:
+        kernel = g[phase]
+        home = sys.modules[getattr(kernel, "py_func", kernel).__module__]
+        callees[phase] = getattr(home, phase + "_serial")
+    return serial_twin(run_steps, "run_steps_serial", **callees)
+
+
+# what a step calls that runs in parallel (step_twin)
+STEP_PHASES = ("produce", "gather_integrate", "build_pairs", "sync_history", "load_history")

@@ -11,9 +11,7 @@ leapfrog, and a rebuild of the half pair list when some disc has moved half the 
 import numpy as np
 from numba import njit
 
-from .. import forces as forces_mod
 from .. import layout as L
-from .. import neighbors as neighbors_mod
 from ..forces import (N_CHUNKS, gather_integrate, load_history, lug_directions, produce,
                       sync_history, wheel_reaction)
 from ..forces import sync_history_serial  # noqa: F401  (serial DDM's write-back, engine.live)
@@ -112,4 +110,4 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
 
 
 # the same step on one thread (serial DDM runs its sub-domains side by side)
-run_steps_serial = step_twin(run_steps, forces_mod, neighbors_mod)
+run_steps_serial = step_twin(run_steps)

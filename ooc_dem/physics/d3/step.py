@@ -21,8 +21,6 @@ from .. import layout as L2
 from ..forces import lug_directions, wheel_reaction
 from ..integrate import apply_wheel_controls, record_and_integrate_wheel
 from ..twins import step_twin
-from . import forces as forces_mod
-from . import neighbors as neighbors_mod
 from .forces import N_CHUNKS, gather_integrate, load_history, produce, sync_history
 from .layout import (
     ERR_BODY_CAPACITY,
@@ -118,4 +116,4 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
 
 # the same step on one thread (serial DDM runs its sub-domains side by side,
 # engine.live._run_sweeps)
-run_steps_serial = step_twin(run_steps, forces_mod, neighbors_mod)
+run_steps_serial = step_twin(run_steps)

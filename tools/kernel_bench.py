@@ -40,7 +40,6 @@ def _phase_loops(produce, gather_integrate, is3d: bool):
     trailing arguments run_steps gives them (2D: rows made afresh, pairs_done False)."""
     from numba import njit
     ptail = () if is3d else (False,)
-    gtail = ()
 
     @njit
     def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
@@ -51,7 +50,7 @@ def _phase_loops(produce, gather_integrate, is3d: bool):
     def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, force, torque, gravity, part):
         for _ in range(k):
             produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, *ptail)
-            gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err, *gtail)
+            gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err)
     return p_loop, pg_loop
 
 

@@ -43,7 +43,10 @@ from .stepper import N_REC, DomainStepper, EngineError, Model
 @njit(cache=True)
 def _refresh_rows(lo, hi, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
                   x_built, ref, with_hist):
-    """Rows lo..hi-1 of ``_refresh``: every halo row copied from its owner's row; returns
+    """Rows lo..hi-1 of the halo refresh (``refresh_own_pieces``): every halo row copied
+    from its owner's row (what a sweep changes; id, r, mass, inertia and mat are fixed per
+    disc), its contact history too unless with_hist is False (K = 1: see ``_run_sweeps``);
+    returns
     (their largest |x - x_built|, the largest squared displacement from ref of the halo
     rows). An owner row is not measured: the refresh does not move it, and the step that
     moved it rebuilt its sub-domain's lists if it went beyond the threshold (run_steps
@@ -78,23 +81,6 @@ def _refresh_rows(lo, hi, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_
         if dx > moved:
             moved = dx
     return moved, m2
-
-
-@njit(cache=True)
-def _refresh(ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built,
-             off, ref, disp2, with_hist=True):
-    """Copy every halo row from its owner's row (what a sweep changes; id, r, mass,
-    inertia and mat are fixed per disc), its contact history too unless with_hist is
-    False (K = 1: see ``_run_sweeps``). Returns the largest |x - x_built|; disp2[d]
-    gets the largest squared displacement from its neighbour-list reference of sub-domain
-    d's refreshed rows (any dimension: the axes of pos, the components of spin and the
-    springs)."""
-    moved = 0.0
-    for d in range(len(off) - 1):
-        mv, disp2[d] = _refresh_rows(off[d], off[d + 1], ids, owner_row, pos, vel, spin, hist_n,
-                                     hist_id, hist_s, hist_m, x_built, ref, with_hist)
-        moved = max(moved, mv)
-    return moved
 
 
 @njit(cache=True)
@@ -141,11 +127,13 @@ def row_pieces(off, size: int = 256) -> np.ndarray:
 def refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
                        x_built, ref, disp2, with_hist, part, membership_skin, bounds, owned,
                        owned_before, role):
-    """``_refresh`` then ``_own_rows`` with the rows shared between the threads (two
-    parallel loops over ``row_pieces``: every halo copy must be made before any owner row
-    moves in owner_row). Each row is written by one piece only, and every value is the one
-    the serial pass gives (copies, maxima, counts). Returns (largest |x - x_built|, rows
-    owned; -1 when the motion already stops the sweep: ownership is then left as it was)."""
+    """The halo refresh (``_refresh_rows``; disp2[d]: the largest squared displacement from
+    its neighbour-list reference of sub-domain d's refreshed rows), then ownership from x
+    (``_own_range``), the rows shared between the threads: two parallel loops over
+    ``row_pieces``, since every halo copy must be made before any owner row moves in
+    owner_row. Each row is written by one piece only, and every value is the one a serial
+    pass gives (copies, maxima, counts). Returns (largest |x - x_built|, rows owned; -1
+    when the motion exceeds membership_skin: ownership is then left as it was)."""
     n = pieces.shape[0]
     for t in prange(n):
         part[t, 0], part[t, 1] = _refresh_rows(pieces[t, 0], pieces[t, 1], ids, owner_row, pos, vel,
@@ -362,7 +350,7 @@ class LiveDomains:
         if len(self.p):
             _, inverse, counts = np.unique(self.p.id, return_inverse=True, return_counts=True)
             self.role[counts[inverse] > 1] = ROLE_SHARED
-        # the steppers' neighbour-list references, one array for all (checked in _refresh)
+        # the steppers' neighbour-list references, one array for all (checked by the refresh)
         self.ref = np.zeros((len(self.p), self.p.dim))
         self.disp2 = np.zeros(self.D)
         self.steppers = []
@@ -401,8 +389,11 @@ class LiveDomains:
         both were computed from their true states; nothing outside the sub-domain writes an
         owned row)."""
         p = self.p
-        total = _own_rows(p.id, p.pos[:, AX_X], self.off, self.bounds, self.owner_row, self.owned,
-                          self.owned_before, self.role)
+        self._check_owned(_own_rows(p.id, p.pos[:, AX_X], self.off, self.bounds, self.owner_row,
+                                    self.owned, self.owned_before, self.role))
+
+    def _check_owned(self, total: int) -> None:
+        """Every disc owned exactly once (``total`` rows owned of n discs)."""
         if total != self.n:
             raise EngineError(f"serial DDM owns {total} of {self.n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")
@@ -420,15 +411,18 @@ class LiveDomains:
         """Halo copies <- owners' time-n copies, then ownership from x. False when the
         local sets must be rebuilt instead (a disc moved beyond the membership skin)."""
         p = self.p
-        moved = _refresh(p.id, self.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id,
-                         p.hist_s, p.hist_m, self.x_built, self.off, self.ref, self.disp2)
+        moved, total = refresh_own_pieces(self._pieces, p.id, self.owner_row, p.pos, p.vel, p.spin,
+                                          p.hist_n, p.hist_id, p.hist_s, p.hist_m, self.x_built,
+                                          self.ref, self.disp2, True, self._part,
+                                          self.membership_skin, self.bounds, self.owned,
+                                          self.owned_before, self.role)
         if moved > self.membership_skin:
             return False
-        self._own()
+        self._check_owned(total)
         # a refreshed disc may have jumped relative to its neighbour-list reference:
         # rebuild that sub-domain's lists when the skin no longer covers it
         for d, st in enumerate(self.steppers):
-            if self.disp2[d] > 0.25 * st.model.skin ** 2:
+            if self.disp2[d] > self._rebuild2[d]:
                 st._built = False
         return True
 

@@ -1,10 +1,10 @@
 """The installed package, as a user gets it from `pip install .`: built into a wheel, installed
 into a fresh virtual environment and run through its `ooc-dem` console script from outside the
 checkout (so nothing can be imported from the source tree by accident)."""
+import os
 import shutil
 import subprocess
 import sys
-import venv
 import zipfile
 from pathlib import Path
 
@@ -34,18 +34,21 @@ def test_the_wheel_holds_every_package_and_its_console_script_runs(tmp_path):
     assert _source_packages() <= in_wheel, f"packages missing from the wheel: {_source_packages() - in_wheel}"
     assert {"ooc_dem/scenarios/quick.toml", "ooc_dem/scenarios/quick-3d.toml"} <= names
 
-    # a fresh environment that sees this interpreter's dependencies but not the checkout
-    env_dir = tmp_path / "venv"
-    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
-    py = env_dir / "bin" / "python"
-    subprocess.run([py, "-m", "pip", "install", "--no-deps", "--force-reinstall", "-q", wheel],
+    # installed into a directory of its own and put first on the path of this interpreter, so that
+    # it sees this environment's dependencies whatever that is (a virtual environment or the bare
+    # interpreter: a nested venv with system site-packages would see the base interpreter's, not
+    # an outer venv's) and nothing of the checkout
+    target = tmp_path / "installed"
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--target", target, "-q", wheel],
                    check=True, capture_output=True, text=True, timeout=300)
+    env = {**os.environ, "PYTHONPATH": str(target)}
+    py = sys.executable
     outside = tmp_path / "elsewhere"
     outside.mkdir()
     where = subprocess.run([py, "-c", "import ooc_dem, ooc_dem.physics.d2, ooc_dem.physics.d3; print(ooc_dem.__file__)"],
-                           cwd=outside, check=True, capture_output=True, text=True, timeout=300)
-    assert Path(where.stdout.strip()).is_relative_to(env_dir), where.stdout
-    cp = subprocess.run([env_dir / "bin" / "ooc-dem", "scenarios"], cwd=outside,
+                           cwd=outside, env=env, check=True, capture_output=True, text=True, timeout=300)
+    assert Path(where.stdout.strip()).is_relative_to(target), where.stdout
+    cp = subprocess.run([target / "bin" / "ooc-dem", "scenarios"], cwd=outside, env=env,
                         capture_output=True, text=True, timeout=300)
     assert cp.returncode == 0, cp.stderr[-3000:]
     listed = {ln.split()[0] for ln in cp.stdout.splitlines() if ln.strip()}

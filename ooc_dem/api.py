@@ -227,21 +227,9 @@ class RunResult:
         StateError
             The epoch's checksums pass but it holds a state this engine could not have written.
         """
-        from .checkpoint import read_all_particles, validate_epoch
+        from .checkpoint import read_epoch_particles
         with open_store(self.path) as store:
-            meta = store.meta or {}
-            dim = meta.get("dim", 2) if meta.get("dim", 2) in (2, 3) else 2
-            cap = meta.get("hist_cap")
-            cap = cap if type(cap) is int and 0 <= cap <= 1_000_000 else None
-            reader = store.read_epoch(epoch)
-            try:
-                if cap is None:
-                    validate_epoch(reader, str(self.path), dim)
-                else:
-                    validate_epoch(reader, str(self.path), dim, cap)
-                particles = read_all_particles(reader, dim, cap)
-            finally:
-                reader.close()
+            particles, _, _ = read_epoch_particles(store, str(self.path), epoch)
         return dict(particles.arrays())
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -286,15 +287,19 @@ def _cached(sc: Scenario, build, progress=None) -> Particles:
     # loads: Particles converts it (state.upgrade_v1)
     beds = cache_dir() / "beds"
     path = beds / f"{sc.bed_hash()}.v2.npz"
+    from .checkpoint import StateError, check_bed
     for f in (path, beds / f"{sc.bed_hash()}.npz"):
         if f.is_file():
             try:
                 with np.load(f) as z:
                     p = Particles(**{k: z[k] for k in z.files})
+                check_bed(p, f"cached bed {f}", sc)   # the cache is a file like any other
                 # the capacity is no part of the bed's bits (nor of its hash): a bed cached
                 # at another capacity is refitted to this scenario's
                 return p if p.hist_cap == sc.hist_cap else p.with_hist_cap(sc.hist_cap)
-            except Exception:
+            except Exception as e:
+                if isinstance(e, StateError):
+                    print(f"ooc-dem: warning: {e}; rebuilding it", file=sys.stderr, flush=True)
                 if f == path:
                     path.unlink(missing_ok=True)
     p = build(progress)

@@ -9,6 +9,7 @@ Format-1 epochs (2D components as their own arrays) are read through ``V1Epoch``
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,15 +41,102 @@ _FINITE_FIELDS = ("pos", "vel", "spin", "r", "mass", "inertia", "hist_s", "hist_
 _POSITIVE_FIELDS = ("r", "mass", "inertia")
 
 
-def validate_record(rec: dict, where: str, dim: int = 2, hist_cap: int | None = None) -> None:
+def material_count(dim: int) -> int:
+    """The materials a disc may name: the rows of the contact table (``Model.cp``)."""
+    if dim == 3:
+        from .physics.d3.layout import N_TYPES
+        return N_TYPES
+    from .physics.layout import N_TYPES
+    return N_TYPES
+
+
+# a state read for a scenario (StateBounds): radii within this factor of the scenario's
+# range, masses and inertias within MASS_SLACK of those of a disc of that radius, and
+# positions within BOX_MARGIN bin extents of the bin. Legitimate states sit at factor 1
+# (beds are made of exactly these discs); the slack only keeps older or hand-made beds.
+RADIUS_SLACK = 2.0
+MASS_SLACK = 10.0
+BOX_MARGIN = 10.0
+
+
+@dataclass(frozen=True)
+class StateBounds:
+    """What a scenario says of the discs of any state of its runs, beyond the layout: the
+    disc count (``soil.n``), radii, masses and inertias in sane ratios to the soil's,
+    positions within a generous box around the bin, and speeds (and spins at the rim) of
+    at most r_max per time step: past that a step's contact detection is meaningless, and
+    values far beyond it (1e300) overflow the neighbour grid's arithmetic."""
+    n_discs: int
+    dt: float
+    r_min: float
+    r_max: float
+    density: float
+    thickness: float
+    box_lo: tuple
+    box_hi: tuple
+
+
+def state_bounds(sc) -> StateBounds:
+    """The StateBounds of a scenario's states."""
+    extent = (sc.bin.length, sc.bin.height) + ((sc.bin.width,) if sc.dim == 3 else ())
+    margin = BOX_MARGIN * max(extent)
+    return StateBounds(n_discs=sc.soil.n, dt=sc.physics.dt, r_min=sc.soil.r_min, r_max=sc.soil.r_max,
+                       density=sc.soil.density, thickness=sc.physics.thickness,
+                       box_lo=tuple(-margin for _ in extent),
+                       box_hi=tuple(e + margin for e in extent))
+
+
+def _check_bounds(rec: dict, where: str, dim: int, b: StateBounds) -> None:
+    """validate_record's scenario part (``StateBounds``): one line naming the array."""
+    r = rec["r"]
+    if not len(r):
+        return
+    if r.min() < b.r_min / RADIUS_SLACK or r.max() > b.r_max * RADIUS_SLACK:
+        raise StateError(f"{where}: array 'r' holds radii outside [{b.r_min / RADIUS_SLACK:g}, "
+                         f"{b.r_max * RADIUS_SLACK:g}] (the scenario's soil.r_min = {b.r_min:g}, "
+                         f"r_max = {b.r_max:g})")
+    if dim == 3:
+        nominal = b.density * (4.0 / 3.0) * math.pi * r ** 3
+    else:
+        nominal = b.density * math.pi * r * r * b.thickness
+    ratio = rec["mass"] / nominal
+    if ratio.min() < 1.0 / MASS_SLACK or ratio.max() > MASS_SLACK:
+        raise StateError(f"{where}: array 'mass' holds masses beyond {MASS_SLACK:g} times those of "
+                         f"discs of that radius and soil.density = {b.density:g}")
+    ratio = rec["inertia"] / (rec["mass"] * r * r)
+    if ratio.min() < 0.4 / MASS_SLACK or ratio.max() > 0.5 * MASS_SLACK:
+        raise StateError(f"{where}: array 'inertia' holds inertias beyond {MASS_SLACK:g} times "
+                         f"those of discs of that mass and radius")
+    pos = rec["pos"]
+    lo, hi = np.asarray(b.box_lo), np.asarray(b.box_hi)
+    if (pos.min(axis=0) < lo).any() or (pos.max(axis=0) > hi).any():
+        raise StateError(f"{where}: array 'pos' holds positions far outside the bin (beyond "
+                         f"{BOX_MARGIN:g} bin extents)")
+    reach = (b.r_max / b.dt) ** 2   # squared: no root, and 1e300 squares to inf, still refused
+    if np.einsum("ij,ij->i", rec["vel"], rec["vel"]).max() > reach:
+        raise StateError(f"{where}: array 'vel' holds speeds above soil.r_max / physics.dt = "
+                         f"{b.r_max / b.dt:g} m/s (a disc would cross its radius in one step)")
+    spin = rec["spin"]
+    if (np.einsum("ij,ij->i", spin, spin) * (r * r)).max() > reach:
+        raise StateError(f"{where}: array 'spin' holds spins whose rim speed is above "
+                         f"soil.r_max / physics.dt = {b.r_max / b.dt:g} m/s")
+
+
+def validate_record(rec: dict, where: str, dim: int | None = 2, hist_cap: int | None = None,
+                    bounds: StateBounds | None = None) -> None:
     """Refuse a domain record that this engine could not have written (StateError).
 
     Checks names, dtypes and shapes of every field (``state.record_fields(dim)``: pos must
-    be (n, dim) etc.), finite kinematics and springs, positive radii/masses/inertias,
-    non-negative ids and materials, ids unique within the record, history counts within
+    be (n, dim) etc.; dim None: pos's own width, 2 or 3), finite kinematics and springs,
+    positive radii/masses/inertias, non-negative ids, materials in [0, materials) (the
+    contact table's rows), ids unique within the record, history counts within
     [0, hist_cap] that add up to the CSR entries, and each disc's partners in strictly
-    ascending id order (the sum order of the determinism contract) and never itself.
+    ascending id order (the sum order of the determinism contract) and never itself; with
+    `bounds`, the scenario's (``StateBounds``).
     """
+    if dim is None:
+        pos = rec.get("pos")
+        dim = pos.shape[1] if pos is not None and pos.ndim == 2 and pos.shape[1] in (2, 3) else 2
     spec = record_fields(dim)
     for name, (dt, tail) in spec.items():
         a = rec.get(name)
@@ -71,6 +159,9 @@ def validate_record(rec: dict, where: str, dim: int = 2, hist_cap: int | None = 
     for name in ("id", "mat"):
         if n and rec[name].min() < 0:
             raise StateError(f"{where}: array {name!r} holds negative values")
+    if n and rec["mat"].max() >= material_count(dim):
+        raise StateError(f"{where}: array 'mat' holds {int(rec['mat'].max())}, beyond the "
+                         f"{material_count(dim)} materials of the contact table")
     check_unique_sorted(np.sort(rec["id"]), where)
     hist_n = rec["hist_n"]
     hist_cap = default_hist_cap(dim) if hist_cap is None else hist_cap
@@ -88,10 +179,13 @@ def validate_record(rec: dict, where: str, dim: int = 2, hist_cap: int | None = 
     same_disc = owner[1:] == owner[:-1]
     if (same_disc & (partner[1:] <= partner[:-1])).any():
         raise StateError(f"{where}: contact history not in strictly ascending partner-id order")
+    if bounds is not None:
+        _check_bounds(rec, where, dim, bounds)
 
 
-def validate_globals(arrays: dict, attrs: dict, where: str) -> None:
-    """Refuse an epoch's globals group that lacks what a resume needs (StateError)."""
+def validate_globals(arrays: dict, attrs: dict, where: str, step: int | None = None) -> None:
+    """Refuse an epoch's globals group that lacks what a resume needs (StateError); with
+    `step` (the manifest's), one whose own step differs."""
     if not isinstance(attrs, dict):
         raise StateError(f"{where}: globals attributes are not an object")
     ws = arrays.get("wheel_state")
@@ -100,9 +194,12 @@ def validate_globals(arrays: dict, attrs: dict, where: str) -> None:
     if ws.shape != (WS_SIZE,) or ws.dtype.kind != "f" or not np.isfinite(ws).all():
         raise StateError(f"{where}: wheel_state must be {WS_SIZE} finite floats, got {ws.dtype} "
                          f"{ws.shape}")
-    step = attrs.get("step")
+    expected, step = step, attrs.get("step")
     if type(step) is not int or step < 0:
         raise StateError(f"{where}: globals attribute 'step' = {show(step)}: must be an integer >= 0")
+    if expected is not None and step != expected:
+        raise StateError(f"{where}: globals attribute 'step' = {step}, the manifest says the epoch "
+                         f"holds step {expected}")
     for key in ("time", "surface", "wall_time"):
         v = attrs.get(key, 0.0)
         if type(v) not in (int, float) or not math.isfinite(v):
@@ -257,6 +354,61 @@ def open_epoch(store, step: int | None = None, verify: bool = True):
     return V1Epoch(reader) if v == 1 else reader
 
 
+def stored_scenario(meta: dict, where: str):
+    """The scenario a run store's meta holds, checked against its hash (StateError)."""
+    from .scenario import ScenarioError, scenario_from_toml
+    toml = meta.get("scenario_toml")
+    if not isinstance(toml, str):
+        raise StateError(f"{where}: stored scenario missing (store damaged or edited)")
+    try:
+        sc = scenario_from_toml(toml)
+    except (ScenarioError, ValueError, RecursionError) as e:   # tomllib's errors are ValueErrors
+        raise StateError(f"{where}: stored scenario unreadable ({' '.join(str(e).split())})") from None
+    if sc.hash() != meta.get("scenario_hash"):
+        raise StateError(f"{where}: stored scenario does not match its hash (store damaged or edited)")
+    return sc
+
+
+def stored_layout(meta: dict, where: str, sc=None) -> tuple[int, int, StateBounds | None]:
+    """(dim, history capacity, StateBounds) that a run store's epochs are read with, from its
+    meta (typed: StateError) and its scenario (`sc`, else the stored one when the meta holds
+    one; without a scenario no StateBounds). A run keeps the capacity it was written with
+    when that is larger (runs written when 2D's default was 12 may hold discs with more than
+    today's 8 contacts), up to the scenario's maximum."""
+    from .scenario import MAX_HIST_CAP
+    if not isinstance(meta, dict):
+        raise StateError(f"{where}: store meta is not an object")
+    dim = meta.get("dim", 2)   # format 1 was 2D only
+    if type(dim) is not int or dim not in (2, 3):
+        raise StateError(f"{where}: store meta 'dim' = {show(dim)}: must be the integer 2 or 3")
+    cap = meta.get("hist_cap")
+    if cap is not None and type(cap) is not int:
+        raise StateError(f"{where}: store meta 'hist_cap' = {show(cap)}: must be an integer")
+    if sc is None and "scenario_toml" in meta:
+        sc = stored_scenario(meta, where)
+    if sc is not None and sc.dim != dim:
+        raise StateError(f"{where}: store holds a {dim}-dimensional run, the stored scenario is "
+                         f"{sc.dim}-dimensional (store damaged or edited)")
+    own = sc.hist_cap if sc is not None else default_hist_cap(dim)
+    if cap is not None and own < cap <= MAX_HIST_CAP:
+        own = cap
+    return dim, own, (state_bounds(sc) if sc is not None else None)
+
+
+def read_epoch_particles(store, where: str, step: int | None = None):
+    """(Particles sorted by id, globals arrays, globals attrs) of a run store's epoch `step`
+    (default: the current, or the previous if the current fails verification), validated
+    (``validate_epoch``, with the store's ``stored_layout``) before it is read whole."""
+    dim, cap, bounds = stored_layout(store.meta or {}, where)
+    reader = open_epoch(store, step)
+    try:
+        validate_epoch(reader, where, dim, cap, bounds)
+        arrays, attrs = reader.read_globals()
+        return read_all_particles(reader, dim, cap), arrays, attrs
+    finally:
+        reader.close()
+
+
 def read_all_particles(reader, dim: int = 2, hist_cap: int | None = None) -> Particles:
     """All discs of an epoch (every domain group), sorted by id."""
     parts = [record_to_particles(reader.read_domain(d), hist_cap) for d in reader.domains()]
@@ -269,19 +421,36 @@ def hash_particles(p: Particles, wheel, step: int) -> str:
     return statehash.hash_records([particles_to_record(p)], wheel, step)
 
 
-def validate_epoch(reader, where: str, dim: int = 2, hist_cap: int | None = None) -> None:
-    """Refuse an epoch that this engine could not have written (StateError), domain by domain.
+def validate_epoch(reader, where: str, dim: int | None = 2, hist_cap: int | None = None,
+                   bounds: StateBounds | None = None) -> None:
+    """Refuse an epoch that this engine could not have written (StateError), domain by domain:
+    the one validation of every reader of an epoch (resume, ``hash_epoch``, export, the
+    API's ``state()``, the figures), ``checked_groups`` consumed.
 
-    Every domain record passes ``validate_record`` and its stored attrs agree with it;
-    ids are unique across domains (``check_unique_ids``); the globals pass
-    ``validate_globals``. Held in RAM: one domain at a time (and the bounded id check).
+    Held in RAM: one domain at a time (and the bounded id check).
+    """
+    for _ in checked_groups(reader, where, dim, hist_cap, bounds):
+        pass
+
+
+def checked_groups(reader, where: str, dim: int | None = 2, hist_cap: int | None = None,
+                   bounds: StateBounds | None = None):
+    """Yield (d, record) of every domain group of an epoch, each validated, after the
+    globals (``validate_globals``, their step the manifest's); when all are yielded, ids
+    are checked unique across domains (``check_unique_ids``) and, with `bounds`, the disc
+    count against the scenario's. A reader that streams the epoch (``hash_epoch``) reads
+    it once; a StateError may come after the last group, so results are used only once
+    the generator is exhausted.
+
+    Every record passes ``validate_record`` and its stored attrs agree with it.
     """
     arrays, attrs = reader.read_globals()
-    validate_globals(arrays, attrs, f"{where}: epoch {reader.step}")
+    validate_globals(arrays, attrs, f"{where}: epoch {reader.step}", reader.step)
+    n_discs = 0
     for d in reader.domains():
         at = f"{where}: epoch {reader.step} domain {d}"
         rec = reader.read_domain(d)
-        validate_record(rec, at, dim, hist_cap)
+        validate_record(rec, at, dim, hist_cap, bounds)
         dattrs = reader.domain_attrs(d)
         if not isinstance(dattrs, dict):
             raise StateError(f"{at}: attributes are not an object")
@@ -302,8 +471,36 @@ def validate_epoch(reader, where: str, dim: int = 2, hist_cap: int | None = None
             if (type(length) is not float or not math.isfinite(length) or length <= 0
                     or summary != x_summary(x, length)):
                 raise StateError(f"{at}: attribute 'x_summary' does not match the domain's discs")
+        n_discs += len(rec["id"])
+        del x
+        yield d, rec
         del rec
+    if bounds is not None and n_discs != bounds.n_discs:
+        raise StateError(f"{where}: epoch {reader.step} holds {n_discs} discs, the scenario has "
+                         f"soil.n = {bounds.n_discs}")
     check_unique_ids(reader, f"{where}: epoch {reader.step}")
+
+
+def check_bed(p: Particles, where: str, sc) -> None:
+    """Refuse a bed (a prepared ``bed.npz``, a cached settled bed) that a store holding it
+    would be refused for: the records of ``validate_record`` with the scenario's bounds
+    and history capacity, ids unique, and exactly ``soil.n`` discs. In slices of rows,
+    so the check holds one slice's record beside the bed."""
+    if len(p) != sc.soil.n:
+        raise StateError(f"{where}: holds {len(p)} discs, the scenario has soil.n = {sc.soil.n}")
+    if p.dim != sc.dim:
+        raise StateError(f"{where}: holds {p.dim}D discs, the scenario is {sc.dim}D")
+    cap = min(p.hist_cap, sc.hist_cap)
+    if len(p) and (int(p.hist_n.min()) < 0 or int(p.hist_n.max()) > cap):
+        raise StateError(f"{where}: hist_n outside [0, {cap}] (contact history capacity)")
+    bounds = state_bounds(sc)
+    for at in range(0, len(p), BED_CHECK_ROWS):
+        rec = particles_to_record(p, np.arange(at, min(len(p), at + BED_CHECK_ROWS)))
+        validate_record(rec, where, sc.dim, cap, bounds)
+    check_unique_sorted(np.sort(p.id), where)
+
+
+BED_CHECK_ROWS = 1 << 16
 
 
 def check_unique_sorted(sorted_ids: np.ndarray, where: str) -> None:
@@ -384,20 +581,18 @@ def check_unique_ids(reader, where: str, cap: int | None = None) -> None:
         del held
 
 
-def hash_epoch(reader) -> str:
-    """The canonical state hash of an epoch (``statehash``), streamed group by group: one
-    group's record in RAM at a time, read sequentially, the groups' lane sums added; disc
-    ids are checked unique across groups in bounded memory (``check_unique_ids``)."""
-    arrays, attrs = reader.read_globals()
-    validate_globals(arrays, attrs, f"epoch {reader.step}")
+def hash_epoch(reader, where: str = "", dim: int | None = None, hist_cap: int | None = None,
+               bounds: StateBounds | None = None) -> str:
+    """The canonical state hash of an epoch (``statehash``), streamed group by group and
+    validated as it is read (``checked_groups``, the validation of ``validate_epoch``; dim
+    None: each record's own): one group's record in RAM at a time, read sequentially, the
+    groups' lane sums added."""
     sums, n = statehash.zero(), 0
-    for d in reader.domains():
-        rec = reader.read_domain(d)
+    for d, rec in checked_groups(reader, where or "store", dim, hist_cap, bounds):
         try:
             sums = statehash.combine(sums, statehash.lane_sums(rec))
         except (KeyError, ValueError) as e:
             raise StateError(f"epoch {reader.step} domain {d}: {e}") from None
         n += len(rec["id"])
-        del rec
-    check_unique_ids(reader, f"epoch {reader.step}")
+    arrays, attrs = reader.read_globals()
     return statehash.finish(sums, n, int(attrs["step"]), arrays.get("wheel_state"))

@@ -286,8 +286,11 @@ def _load_bed(path, sc):
             bed = Particles(**{k: z[k] for k in z.files})
     except Exception as e:
         raise CliError(f"--bed {path}: unreadable bed.npz ({type(e).__name__})") from None
-    if len(bed) != sc.soil.n:
-        raise CliError(f"--bed {path}: holds {len(bed)} discs, the scenario has soil.n = {sc.soil.n}")
+    from .checkpoint import StateError, check_bed
+    try:
+        check_bed(bed, f"--bed {path}", sc)   # what a store holding it would be refused for
+    except StateError as e:
+        raise CliError(str(e)) from None
     return bed
 
 
@@ -475,9 +478,11 @@ def _checkpoint_export(store, args) -> int:
     out = Path(args.out)
     try:
         check_targets(output_files(fmt, out), out)   # before reading anything
-        from .checkpoint import open_epoch
+        from .checkpoint import open_epoch, stored_layout, validate_epoch
+        dim, cap, bounds = stored_layout(store.meta or {}, args.store)
         reader = open_epoch(store, args.epoch)
         try:
+            validate_epoch(reader, args.store, dim, cap, bounds)
             # sorted on disk beside the output (never inside the store): bounded memory
             snap = read_snapshot(reader, args.store, workdir=out.resolve().parent)
         finally:
@@ -498,7 +503,7 @@ def _warn_fallback(store) -> None:
 
 
 def cmd_checkpoint(args):
-    from .checkpoint import hash_epoch, open_epoch, validate_globals
+    from .checkpoint import hash_epoch, open_epoch, stored_layout, validate_globals
     from storage import open_store
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
@@ -512,13 +517,15 @@ def cmd_checkpoint(args):
             return _checkpoint_verify(store, args)
         if args.ckpt_command == "export":
             return _checkpoint_export(store, args)
+        layout = stored_layout(store.meta or {}, args.store) if args.ckpt_command == "hash" else None
         reader = open_epoch(store, args.epoch)
         try:
             if args.ckpt_command == "hash":
-                out = hash_epoch(reader)   # streamed: a store larger than RAM hashes too
+                # streamed and validated as read: a store larger than RAM hashes too
+                out = hash_epoch(reader, args.store, *layout)
             else:  # inspect
                 arrays, attrs = reader.read_globals()
-                validate_globals(arrays, attrs, f"{args.store}: epoch {reader.step}")
+                validate_globals(arrays, attrs, f"{args.store}: epoch {reader.step}", reader.step)
                 info = {"step": attrs["step"], "time": attrs.get("time"),
                         "discs": sum(reader.domain_len(d) for d in reader.domains()),
                         "domains": {str(d): reader.domain_len(d) for d in reader.domains()},

@@ -267,16 +267,11 @@ def _read_final(out: Path):
 def _read_final_particles(out: Path):
     """(Particles, wheel_state) of the last committed epoch of the run's store."""
     from storage import open_store
-    from .checkpoint import open_epoch, read_all_particles
+    from .checkpoint import read_epoch_particles
     store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
     try:
-        reader = open_epoch(store)
-        try:
-            p = read_all_particles(reader)
-            arrays, _ = reader.read_globals()
-            ws = np.asarray(arrays["wheel_state"], dtype=np.float64).copy()
-        finally:
-            reader.close()
+        p, arrays, _ = read_epoch_particles(store, str(out))
+        ws = np.asarray(arrays["wheel_state"], dtype=np.float64).copy()
     finally:
         store.close()
     return p, ws

@@ -552,7 +552,7 @@ class Store:
     def check_room(self, step: int, expected_bytes: int | None = None) -> None:
         """Refuse to start epoch `step` when it cannot fit: StoreError "disk full" if the free
         space of the file system (or the process's file-size limit, for a one-file epoch) is
-        below `expected_bytes` (default: the current epoch's size plus room for growth: 1/64
+        below `expected_bytes` (default: the newest verified epoch's size plus room for growth: 1/64
         and 4 KiB; states grow slowly, and a refusal should not come before it must),
         so that a sweep is never computed for an epoch that cannot be stored.
 
@@ -561,10 +561,11 @@ class Store:
         if self._place.is_memory:
             return
         if expected_bytes is None:
-            cur = self._m["current"]
-            if cur is None:
+            # the newest epoch known good: a damaged entry's recorded sizes are not to be trusted
+            good = [e for e in self._entries() if e["path"] in self._verified]
+            if not good:
                 return
-            size = sum(f["size"] for x in self._files_of(cur) for f in x["files"])
+            size = sum(f["size"] for x in self._files_of(good[-1]) for f in x["files"])
             expected_bytes = size + size // 64 + (4 << 10)
         need = int(expected_bytes)
         where = self._place.tmp_name(epoch_basename(step, _EXT[self.backend]))

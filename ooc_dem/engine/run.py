@@ -17,8 +17,8 @@ from .. import __version__
 from ..bed import settled_bed, surface_height, wheel_footprint
 from ..checkpoint import FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, read_all_particles
 from ..physics.layout import REC_X, WS_SIZE, WS_X, WS_Y
-from ..scenario import (MAX_DOMAINS, MAX_HIST_CAP, MAX_STEPS, Scenario, ScenarioError, big,
-                        critical_time_step, scenario_from_toml, show, steps_for_duration)
+from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, big, critical_time_step, show,
+                        steps_for_duration)
 from ..metrics import N_SERIES
 from ..outputs import complete_outputs, run_summary, write_outputs
 from ..physics.layout import AX_X, AX_Y, AX_Z
@@ -636,11 +636,12 @@ class Simulation:
         return self.engine.n_discs()
 
     def state_hash(self) -> str:
-        from ..checkpoint import hash_epoch
+        from ..checkpoint import hash_epoch, state_bounds
         from storage import open_store
         store = open_store(self.out, repair=False)   # read-only: this run holds the write lock
         reader = open_epoch(store)
-        h = hash_epoch(reader)   # streamed: never the whole state in RAM
+        # streamed and validated as read: never the whole state in RAM
+        h = hash_epoch(reader, str(self.out), self.model.dim, self.model.hist_cap, state_bounds(self.sc))
         reader.close()
         store.close()
         return h
@@ -720,7 +721,7 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
             mode: str | None = None) -> "Simulation | None":
     """resume_simulation's work on an open store (None: the run was already finished)."""
     from storage import StoreError
-    from ..checkpoint import StateError, validate_epoch
+    from ..checkpoint import StateError, stored_layout, stored_scenario, validate_epoch
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":
         raise RunError(f"{path}: not an ooc-dem run store")
@@ -728,15 +729,10 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
     if type(v) is not int or v not in SUPPORTED_VERSIONS:
         raise RunError(f"{path}: store format version {show(v)} is not supported "
                        f"(this engine reads versions {', '.join(map(str, SUPPORTED_VERSIONS))})")
-    toml = meta.get("scenario_toml")
-    if not isinstance(toml, str):
-        raise RunError(f"{path}: stored scenario missing (store damaged or edited)")
     try:
-        sc = scenario_from_toml(toml)
-    except (ScenarioError, ValueError, RecursionError) as e:   # tomllib's errors are ValueErrors
-        raise RunError(f"{path}: stored scenario unreadable ({' '.join(str(e).split())})") from None
-    if sc.hash() != meta.get("scenario_hash"):
-        raise RunError(f"{path}: stored scenario does not match its hash (store damaged or edited)")
+        sc = stored_scenario(meta, str(path))
+    except StateError as e:
+        raise RunError(str(e)) from None
     run = _stored_run_options(meta, path)
     if store.current() is None:
         raise RunError(f"{path}: no committed epoch: the run stopped before its first checkpoint; "
@@ -757,26 +753,15 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
                       steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
                       figures=figures, io_overlap=bool(run["io_overlap"]))
     sim = Simulation(sc, path, opts)
-    # a run keeps the capacity it was written with when that is larger (runs written when
-    # 2D's default was 12 may hold discs with more than today's 8 contacts); bounded,
-    # because the value comes from the store
-    cap = meta.get("hist_cap")
-    if type(cap) is int and sim.model.hist_cap < cap <= MAX_HIST_CAP:
-        sim.model.hist_cap = cap
-    dim = meta.get("dim", 2)   # format 1 was 2D only
-    if dim != sim.model.dim:
-        raise RunError(f"{path}: store holds a {show(dim)}-dimensional run, the stored scenario is "
-                       f"{sim.model.dim}-dimensional (store damaged or edited)")
     try:
+        dim, sim.model.hist_cap, bounds = stored_layout(meta, str(path), sc)
         reader = open_epoch(store)
-        validate_epoch(reader, str(path), sim.model.dim, sim.model.hist_cap)
+        validate_epoch(reader, str(path), dim, sim.model.hist_cap, bounds)
     except (StoreError, StateError) as e:
         raise RunError(str(e)) from None
     arrays, attrs = reader.read_globals()
     if attrs.get("scenario_hash") != sc.hash():
         raise RunError(f"{path}: epoch {reader.step} was written by a different scenario")
-    if attrs["step"] != reader.step:
-        raise RunError(f"{path}: epoch {reader.step} says it holds step {attrs['step']}")
     step = attrs["step"]
     sim.store = store
     sim.step = step

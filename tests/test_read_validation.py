@@ -1,0 +1,181 @@
+"""Every reader of an epoch validates it the same way: `checkpoint hash` and `checkpoint export`
+refuse what `resume` refuses; materials beyond the contact table, absurd finite values (a speed
+of 1e300, a mass of 5e-324) and counts against the scenario are refused before a step; beds from
+`--bed` and from the cache go through the same validation (a refused cache entry is rebuilt,
+with a warning); a hostile manifest meta gives the API's own StateError; the disk-space estimate
+of a resume comes from the epoch it resumed from, never from a damaged entry."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import ooc_dem
+from conftest import WHEEL_TEST, one_line_error, run_cli
+from ooc_dem.physics.layout import AX_X
+from test_untrusted_state import (STEPS, _manifest, _replace, _tamper_current,  # noqa: F401
+                                  base_run, run_copy)
+
+D0 = "domains/d0000"
+
+
+def _edit(name, index, value):
+    """An edit of one element of domain 0's array `name` (the dtype kept)."""
+    def edit(f):
+        a = f[f"{D0}/{name}"][:]
+        a[index] = value
+        f[f"{D0}/{name}"][:] = a
+    return edit
+
+
+def _float32_pos(f):
+    _replace(f, f"{D0}/pos", f[f"{D0}/pos"][:].astype(np.float32))
+
+
+def _globals_step(step):
+    def edit(f):
+        a = json.loads(f["globals"].attrs["ooc_dem_attrs"])
+        a["step"] = step
+        f["globals"].attrs["ooc_dem_attrs"] = json.dumps(a)
+    return edit
+
+
+# each: an edit of the current epoch (checksums recomputed) and a word of the refusal
+TAMPERED = {
+    "nan-position": (_edit("pos", (7, AX_X), np.nan), "non-finite"),
+    "zero-radius": (_edit("r", 0, 0.0), "'r'"),
+    "negative-id": (_edit("id", 3, -7), "'id'"),
+    "hist_n-over-capacity": (_edit("hist_n", 0, 99), "hist_n"),
+    "material-999": (_edit("mat", 0, 999), "'mat'"),
+    "float32-positions": (_float32_pos, "'pos'"),
+    "globals-step-not-the-manifests": (_globals_step(STEPS - 1), "'step'"),
+}
+
+
+@pytest.mark.parametrize("case", list(TAMPERED))
+def test_hash_and_export_refuse_what_resume_refuses(run_copy, tmp_path, case):
+    edit, needle = TAMPERED[case]
+    m = _tamper_current(run_copy, edit)
+    if case == "float32-positions":   # the manifest describes the array as it now is
+        m["current"]["domains"]["0"]["arrays"]["pos"][1] = "<f4"
+        (run_copy / "MANIFEST.json").write_text(json.dumps(m))
+    assert run_cli("checkpoint", "verify", run_copy).returncode == 0   # the checksums pass
+    one_line_error(run_cli("checkpoint", "hash", run_copy), needle)
+    out = tmp_path / "e.csv"
+    one_line_error(run_cli("checkpoint", "export", run_copy, "--out", out), needle)
+    assert not out.exists()
+    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
+                           "--no-figures"), needle)
+
+
+@pytest.mark.parametrize("field,index,value", [("vel", (0, 0), 1e300), ("mass", 0, 5e-324),
+                                               ("pos", (0, AX_X), 1e12), ("spin", (0, 0), 1e300)])
+def test_finite_absurd_values_are_refused_naming_the_array(run_copy, field, index, value):
+    _tamper_current(run_copy, _edit(field, index, value))
+    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
+                           "--no-figures"), f"'{field}'")
+    one_line_error(run_cli("checkpoint", "hash", run_copy), f"'{field}'")
+
+
+def test_disk_space_estimate_ignores_a_damaged_current_epochs_size(run_copy):
+    """The current epoch's recorded size says 10^18 bytes (nothing else recomputed, so it fails
+    verification): the resume falls back to the previous epoch and finishes."""
+    m = _manifest(run_copy)
+    m["current"]["files"][0]["size"] = 10 ** 18
+    (run_copy / "MANIFEST.json").write_text(json.dumps(m))
+    cp = run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress", "--no-figures")
+    assert cp.returncode == 0, cp.stderr[-2000:]
+    assert "using previous epoch" in cp.stderr
+    assert _manifest(run_copy)["current"]["step"] == STEPS + 20
+
+
+@pytest.mark.parametrize("key,value", [("dim", 3.0), ("dim", "2"), ("hist_cap", "12"),
+                                       ("hist_cap", 12.5)])
+def test_hostile_meta_types_raise_the_packages_state_error(run_copy, key, value):
+    m = _manifest(run_copy)
+    m["meta"][key] = value
+    (run_copy / "MANIFEST.json").write_text(json.dumps(m))
+    with pytest.raises(ooc_dem.StateError, match=key):
+        ooc_dem.open_run(run_copy).state()
+    one_line_error(run_cli("checkpoint", "hash", run_copy), key)
+
+
+def test_3d_material_index_beyond_the_table_is_refused(tmp_path):
+    """mat = 2^31 - 1 in a 3D store: indexed into the contact table it read far out of bounds
+    (a segmentation fault); refused by resume, hash and the API."""
+    out = tmp_path / "run3"
+    run_cli("run", "quick-3d", "--out", out, "--steps", 10, "--checkpoint-every", 5,
+            "--no-progress", "--no-figures", check=True)
+    _tamper_current(out, _edit("mat", 0, 2 ** 31 - 1))
+    one_line_error(run_cli("resume", out, "--steps", 20, "--no-progress", "--no-figures"), "'mat'")
+    one_line_error(run_cli("checkpoint", "hash", out), "'mat'")
+    with pytest.raises(ooc_dem.StateError, match="'mat'"):
+        ooc_dem.open_run(out).state()
+
+
+# ----------------------------------------------------------------------------- beds
+
+SMALL = ["--set", "soil.n=300", *sum((["--set", s] for s in WHEEL_TEST), [])]
+
+
+@pytest.fixture(scope="module")
+def prepared_bed(tmp_path_factory):
+    """A settled bed of a small quick scenario, prepared with its own cache."""
+    root = tmp_path_factory.mktemp("bed")
+    run_cli("prepare", "quick", *SMALL, "--out", root / "bed", "--no-progress", check=True,
+            env={"OOC_DEM_CACHE": str(root / "cache")})
+    return root
+
+
+def _bed_with(src, dst, edit):
+    shutil.copytree(src, dst)
+    with np.load(dst / "bed.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    edit(arrays)
+    np.savez(dst / "bed.npz", **arrays)
+    return dst
+
+
+def _set(name, index, value):
+    def edit(a):
+        a[name][index] = value
+    return edit
+
+
+BAD_BEDS = {
+    "zero-radius": (_set("r", 0, 0.0), "'r'"),
+    "hist_n-over-capacity": (_set("hist_n", 0, 99), "hist_n"),
+    "negative-id": (_set("id", 0, -7), "'id'"),
+    "material-minus-1": (_set("mat", 0, -1), "'mat'"),
+    "material-999": (_set("mat", 0, 999), "'mat'"),
+    "nan-position": (_set("pos", (0, AX_X), np.nan), "non-finite"),
+    "speed-1e300": (_set("vel", (0, 0), 1e300), "'vel'"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_BEDS))
+def test_run_refuses_a_bad_bed_in_one_line(prepared_bed, tmp_path, case):
+    edit, needle = BAD_BEDS[case]
+    bed = _bed_with(prepared_bed / "bed", tmp_path / "bed", edit)
+    out = tmp_path / "run"
+    one_line_error(run_cli("run", "quick", *SMALL, "--bed", bed, "--out", out, "--steps", 2,
+                           "--no-progress", "--no-figures"), "--bed", needle)
+    assert not (out / "MANIFEST.json").exists()   # nothing committed from it
+
+
+def test_a_refused_cache_entry_is_rebuilt_with_a_warning(prepared_bed, tmp_path):
+    """A cached bed with one disc removed (a consistent file: it loads) is refused against
+    soil.n, rebuilt and cached again; the run says so in one warning line."""
+    cache = tmp_path / "cache"
+    shutil.copytree(prepared_bed / "cache", cache)
+    (entry,) = (cache / "beds").glob("*.v2.npz")
+    with np.load(entry) as z:
+        arrays = {k: z[k][:-1] for k in z.files}
+    np.savez(entry, **arrays)
+    cp = run_cli("run", "quick", *SMALL, "--out", tmp_path / "run", "--steps", 2, "--no-progress",
+                 "--no-figures", env={"OOC_DEM_CACHE": str(cache)})
+    assert cp.returncode == 0, cp.stderr[-2000:]
+    warnings = [ln for ln in cp.stderr.splitlines() if "warning" in ln]
+    assert len(warnings) == 1 and "soil.n = 300" in warnings[0] and "rebuilding" in warnings[0], cp.stderr
+    with np.load(entry) as z, np.load(prepared_bed / "bed" / "bed.npz") as bed:
+        assert np.array_equal(z["pos"], bed["pos"])   # the same bed, settled again

@@ -21,9 +21,9 @@ import io
 import os
 import resource
 
-# HDF5 superblock, object headers and B-trees over the raw data: a generous allowance so
-# that the check refuses only what cannot fit
-H5_OVERHEAD = 64 << 10
+# HDF5 superblock, object headers and B-trees over the raw data (20-30 kB measured for a
+# trajectory frame or an export)
+H5_OVERHEAD = 32 << 10
 # after a failure, writes up to this size are kept in memory for HDF5 to read back
 # (metadata, a chunk being filled); larger raw data is dropped: the file is thrown away
 _KEEP_AFTER_FAILURE = 8 << 20
@@ -61,7 +61,7 @@ def check_room(path, need: int, largest_file: int | None = None) -> None:
     parent = os.path.dirname(os.path.abspath(os.fspath(path)))
     short = shortfall(parent, need, largest_file)
     if short is not None:
-        raise OSError(short[0], f"disk full or file too large ({short[1]})", os.fspath(path))
+        raise OSError(short[0], f"disk full or file too large: {short[1]}", os.fspath(path))
 
 
 class GuardedFile(io.RawIOBase):

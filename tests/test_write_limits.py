@@ -6,7 +6,7 @@ die of a signal (HDF5 used to crash with SIGSEGV after a failed write), leave no
 behind, and leave every committed epoch intact and the run resumable. The checks before
 writing (free space and the limit against the estimated size) are also switched off in a
 second pass, so that the failure is met in the middle of the write. A small tmpfs gives a
-real full disk (ENOSPC). tools/write_limits.py sweeps finer."""
+real full disk (ENOSPC)."""
 import json
 import os
 import resource

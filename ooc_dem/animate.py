@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from storage.writeguard import check_room
+
 from .plots import LAYER_COLOURS, _load_scenario, read_initial, run_file
 from .trajectory import Trajectory, TrajectoryError, wheel_outline
 
@@ -111,13 +113,12 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
         def write(tmp: Path) -> int:
             nonlocal coll
             if ext == ".mp4":
-                writer = iio.get_writer(tmp, format="FFMPEG", mode="I", fps=fps, codec="libx264",
-                                        pixelformat="yuv420p", macro_block_size=16,
-                                        output_params=["-f", "mp4"], ffmpeg_log_level="error")
+                writer = _Ffmpeg(tmp, (W, H), fps)
             else:
                 import imageio.plugins.pillow_legacy  # noqa: F401  (registers GIF-PIL)
                 writer = iio.get_writer(tmp, format="GIF-PIL", mode="I", duration=1.0 / fps, loop=0)
             n = 0
+            done = False
             try:
                 for fr in traj:   # one frame at a time
                     ids, pos, r = fr["id"], fr["pos"], fr["r"]
@@ -149,11 +150,19 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
                     n += 1
                     if bar is not None:
                         bar.update(1)
+                done = True
             finally:
-                writer.close()
+                if isinstance(writer, _Ffmpeg):
+                    writer.close(ok=done)    # raises if the encoder failed: no film is published
+                else:
+                    writer.close()
             return n
 
+        # a floor of the film's size (H.264 ~15 kB a frame here, GIF ~130 kB): refused up front
+        # only when surely too large; a failure while encoding is the encoder's exit status
+        per_frame = 2048 if ext == ".mp4" else W * H // 32
         try:
+            check_room(out, len(traj) * per_frame + 4096)
             n_written = _write_replacing_suffixed(out, write)
         except OSError as e:
             raise ExportError(f"--out {out}: cannot write ({e.strerror or e})") from None
@@ -165,6 +174,63 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
     finally:
         traj.close()
 
+
+
+class _Ffmpeg:
+    """H.264 MP4 through the ffmpeg binary of imageio-ffmpeg (the command imageio's FFMPEG
+    writer runs), fed rgb24 frames on its stdin; unlike that writer, the encoder's exit
+    status is checked, so a film it could not finish (a full disk, the file-size limit) is
+    an error instead of a truncated file."""
+
+    def __init__(self, path: Path, size: tuple[int, int], fps: int):
+        import subprocess
+        import threading
+        import imageio_ffmpeg
+        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
+               "-s", f"{size[0]}x{size[1]}", "-pix_fmt", "rgb24", "-r", str(int(fps)), "-i", "-",
+               "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-v", "error",
+               "-f", "mp4", str(path)]
+        self.p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.PIPE, start_new_session=True)
+        self._err = b""
+        self._broken = False
+
+        def drain():    # its messages, kept short: the last one names the failure
+            for line in self.p.stderr:
+                self._err = (self._err + line)[-4096:]
+        self._t = threading.Thread(target=drain, daemon=True)
+        self._t.start()
+
+    def append_data(self, img: np.ndarray) -> None:
+        try:
+            self.p.stdin.write(memoryview(np.ascontiguousarray(img)).cast("B"))
+        except (BrokenPipeError, ValueError):
+            self._broken = True      # the encoder stopped: close() says why
+            self.close()
+
+    def close(self, ok: bool = True) -> None:
+        """Finish the film and raise OSError if the encoder failed; ok=False (an error of
+        our own is being reported): stop the encoder, raise nothing."""
+        if self.p.returncode is None:
+            try:
+                self.p.stdin.close()
+            except OSError:
+                self._broken = True
+            if not ok:
+                self.p.kill()
+            self.p.wait()
+            self._t.join()
+        rc = self.p.returncode
+        if not ok or (rc == 0 and not self._broken):
+            return
+        lines = [ln.strip() for ln in self._err.decode("utf-8", "replace").splitlines() if ln.strip()]
+        why = f": {lines[-1]}" if lines else ""
+        if rc is not None and rc < 0:   # e.g. SIGXFSZ: subprocesses get the signal's default back
+            import signal
+            status = f"killed by {signal.Signals(-rc).name}"
+        else:
+            status = f"exit status {rc}"
+        raise OSError(f"the encoder failed (ffmpeg {status}{why})")
 
 
 def _write_replacing_suffixed(out: Path, write) -> int:

@@ -13,6 +13,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from storage.writeguard import check_room
+
 
 def new_temp(path) -> Path:
     """A new, empty temporary file beside `path`, with an ordinary file's permissions."""
@@ -27,13 +29,19 @@ def new_temp(path) -> Path:
     return Path(name)
 
 
-def write_replacing(path, write) -> None:
-    """Call ``write(temporary_path)``, then rename the temporary over `path`."""
+def write_replacing(path, write, need: int = 0) -> None:
+    """Call ``write(temporary_path)``, then rename the temporary over `path`. `need`: the
+    bytes it will write, about (OSError ENOSPC/EFBIG before anything is written when they
+    cannot fit: storage.writeguard.check_room)."""
+    if need:
+        check_room(path, need)
     tmp = new_temp(path)
     try:
         write(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(e, OSError) and e.filename is None and e.errno is not None:
+            raise OSError(e.errno, e.strerror, os.fspath(path)) from None   # name the file
         raise

@@ -32,6 +32,7 @@ temporary name and renamed when complete.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 import tempfile
@@ -39,6 +40,8 @@ from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
+
+from storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
 
 from .atomic import new_temp
 from .checkpoint import StateError, check_unique_sorted, validate_globals
@@ -284,11 +287,34 @@ def export_snapshot(snap: Snapshot, fmt: str, out) -> list[Path]:
     if fmt not in FORMATS:
         raise ExportError(f"--format {fmt!r}: must be one of {', '.join(FORMATS)}")
     check_targets(output_files(fmt, out), out)
+    _check_room(snap, fmt, out)
     if fmt == "xdmf":
         return _write_xdmf(snap, out)
     if fmt == "vtk":
         return [_write_vtp(snap, out) if out.suffix.lower() == ".vtp" else _write_vtk_legacy(snap, out)]
     return [_write_csv(snap, out)]
+
+
+# bytes of text a value takes in the text formats (a float's repr and separator, on the low
+# side: the check before writing refuses only what surely cannot fit)
+_TEXT_VALUE_BYTES = 10
+
+
+def _check_room(snap: Snapshot, fmt: str, out: Path) -> None:
+    """Refuse an export that cannot fit, before writing anything (one line)."""
+    n = len(snap)
+    try:
+        if fmt == "xdmf":
+            h5 = output_files(fmt, out)[1]
+            row = 2 * 3 * 8 + 3 * 8 + 8 * spin_width(snap.dim) + snap.dtype["id"].itemsize \
+                + snap.dtype["mat"].itemsize
+            check_room(h5, n * row + H5_OVERHEAD)
+            check_room(out, 4096)
+        else:
+            values = 3 * 3 + spin_width(snap.dim) + 6        # xyz, velocity, offsets, spin, ...
+            check_room(out, n * values * _TEXT_VALUE_BYTES + 4096)
+    except OSError as e:
+        raise ExportError(_oserror(e.filename or out, e)) from None
 
 
 def output_files(fmt: str, out: Path) -> list[Path]:
@@ -445,7 +471,6 @@ def _spin_array(c: dict) -> np.ndarray:
 # ------------------------------------------------------------------ XDMF + HDF5
 
 def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
-    import h5py
     _, h5 = output_files("xdmf", out)
     if ":" in h5.name:
         raise ExportError(f"--out {out}: the file name must not contain ':' (XDMF HDF references)")
@@ -466,24 +491,35 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
         tmp = new_temp(h5)
     except OSError as e:
         raise ExportError(_oserror(h5, e)) from None
+    f = guard = None
     try:
-        with h5py.File(tmp, "w") as f:
-            sets = {k: f.create_dataset(k, shape=shapes.get(k, (n,)),
-                                        dtype=dtypes.get(k, np.dtype(np.float64)))
-                    for k in data}
-            for start, chunk in snap.chunks():
-                for k, of in data.items():
-                    v = of(start, chunk)
-                    sets[k][start:start + len(v)] = v
-            ws = f.create_dataset("wheel_state", data=np.asarray(snap.wheel_state, np.float64))
-            ws.attrs["components"] = ",".join(WHEEL_NAMES)
-            f.attrs["step"] = np.int64(snap.step)
-            f.attrs["time"] = np.float64(snap.time)
-            f.attrs["description"] = _description(snap)
+        # through the write guard: a full disk or the file-size limit must reach us as an
+        # OSError, never reach HDF5 (which crashes after a failed write)
+        f, guard = create_h5(tmp, exclusive=False)
+        sets = {k: f.create_dataset(k, shape=shapes.get(k, (n,)),
+                                    dtype=dtypes.get(k, np.dtype(np.float64)))
+                for k in data}
+        for start, chunk in snap.chunks():
+            for k, of in data.items():
+                v = of(start, chunk)
+                sets[k][start:start + len(v)] = v
+            guard.check()    # stop at the first failed write
+        ws = f.create_dataset("wheel_state", data=np.asarray(snap.wheel_state, np.float64))
+        ws.attrs["components"] = ",".join(WHEEL_NAMES)
+        f.attrs["step"] = np.int64(snap.step)
+        f.attrs["time"] = np.float64(snap.time)
+        f.attrs["description"] = _description(snap)
+        f, g = None, f
+        close_h5(g, guard)
         os.replace(tmp, h5)
-    except OSError as e:
+    except BaseException as e:
+        if guard is not None:
+            with contextlib.suppress(Exception):
+                close_h5(f, guard)
         _unlink(tmp)
-        raise ExportError(_oserror(h5, e)) from None
+        if isinstance(e, OSError):
+            raise ExportError(_oserror(h5, e)) from None
+        raise
 
     def item(name, dims, kind, size):
         typ = "Int" if kind in "iu" else "Float"

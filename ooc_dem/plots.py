@@ -324,10 +324,15 @@ def _n_layers(depth: float, r: np.ndarray) -> int:
     return int(np.clip(round(depth / (4.0 * d)), 4, 16))
 
 
+# the least a figure takes (PNG, measured 40-200 kB): checked against the free space and the
+# file-size limit before it is drawn to disk
+FIGURE_BYTES = 16 << 10
+
+
 def _save(fig, path: Path) -> Path:
     # under a temporary name, renamed when complete: a kill never leaves a torn figure that a
     # resume would take for a finished one
-    write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"))
+    write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"), need=FIGURE_BYTES)
     import matplotlib.pyplot as plt
     plt.close(fig)
     return path

@@ -301,7 +301,11 @@ def _within(lo: float, hi: float, lo_open: bool = False, what: str = "a number")
     return (lambda v: lo <= v <= hi, f"{what} in [{lo:g}, {hi:g}]")
 
 
-_LENGTH = _within(0.0, 1e6, lo_open=True)      # m
+# m. The floor keeps every length resolvable at any coordinate in the bin: at 1e6 m a
+# double's spacing is 1.2e-10 m, so a narrower wheel or bin (wheel.width = 1e-300) made
+# z0 + w/2 - (z0 - w/2) == 0 and divided by zero in the bed's surface height
+MIN_LENGTH = 1e-9
+_LENGTH = _within(MIN_LENGTH, 1e6)
 _GAP = _within(0.0, 1e6)                        # m, may be 0
 _COUNT = lambda hi: (lambda v: 0 <= v <= hi, f"an integer in [0, {big(hi)}]")
 _CONSTRAINTS: dict[tuple[str, str], tuple] = {

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
+
 from .atomic import new_temp
 from .physics.layout import WS_SIZE, axes, spin_width
 from .plots import RunFileError, _one_line, run_file
@@ -331,26 +333,33 @@ class TrajectoryWriter:
     # ---- writing
     def _discard(self) -> None:
         if self._tmp is not None:
-            tmp, f = self._tmp
+            tmp, f, guard = self._tmp
             self._tmp = None
             self._pending_step = None
             with contextlib.suppress(Exception):
-                f.close()
+                close_h5(f, guard)
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+
+    def _row_bytes(self) -> int:
+        return sum(_DTYPES[k].itemsize * int(np.prod(_tails(self.dim)[k], dtype=np.int64))
+                   for k in ROW_FIELDS)
 
     def _begin(self, step: int) -> None:
         self._discard()
         if not 0 <= step <= MAX_STEP:
             raise TrajectoryError(f"step {step}: out of the frame names' range")
-        h5py = _h5py()
-        tmp = new_temp(self.folder / frame_name(step))
+        target = self.folder / frame_name(step)
+        # the whole frame is refused up front when it cannot fit (one line, nothing written);
+        # a failure while writing is the guard's (writeguard), raised as an OSError
+        check_room(target, self.n * self._row_bytes() + H5_OVERHEAD)
+        tmp = new_temp(target)
         try:
-            f = h5py.File(tmp, "w")
+            f, guard = create_h5(tmp, exclusive=False)
         except BaseException:
             os.unlink(tmp)
             raise
-        self._tmp = (tmp, f)
+        self._tmp = (tmp, f, guard)
         self._pending_step = step
         for k, v in self.header.items():
             f.attrs[k] = v
@@ -366,28 +375,34 @@ class TrajectoryWriter:
         get = (lambda k: getattr(arrays, k)) if not isinstance(arrays, dict) else arrays.__getitem__
         if self._pending_step != step:   # a new frame: drop any unfinished one
             self._begin(step)
-        f = self._tmp[1]
+        _, f, guard = self._tmp
         ids = np.asarray(get("id"))
         m = len(ids)
         if m == 0:
             return
-        start = f["id"].shape[0]
-        for k in ROW_FIELDS:
-            ds = f[k]
-            ds.resize(start + m, axis=0)
-            ds[start:start + m] = np.asarray(get(k), _DTYPES[k])
+        try:
+            start = f["id"].shape[0]
+            for k in ROW_FIELDS:
+                ds = f[k]
+                ds.resize(start + m, axis=0)
+                ds[start:start + m] = np.asarray(get(k), _DTYPES[k])
+            guard.check()
+        except BaseException:
+            self._discard()
+            raise
 
     def end(self, step: int, time: float, wheel_state) -> None:
         """Publish the frame at ``step`` (its rows written by write_part): its step, time and
         wheel state, close, (fsync,) rename into place (, fsync the folder)."""
         if self._pending_step != step:
             self._begin(step)
-        tmp, f = self._tmp
+        tmp, f, guard = self._tmp
         try:
             f.attrs["step"] = int(step)
             f.attrs["time"] = float(time)
             f.attrs["wheel_state"] = np.asarray(wheel_state, _DTYPES["wheel_state"])
-            f.close()
+            self._tmp = (tmp, None, guard)
+            close_h5(f, guard)
             if self.durable:
                 _fsync(tmp)
             os.replace(tmp, self.folder / frame_name(step))

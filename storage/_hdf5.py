@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import writeguard
 from ._util import ATTRS_KEY, FORMAT, drop_page_cache, file_digest, fsync_path, remove_path, start_writeback
 
 EXT = "h5"
@@ -30,14 +31,21 @@ _MDC_BYTES = 1 << 20
 
 
 def _open(path, mode):
+    """Open `path` for reading ("r"), or create it ("w-") through a write guard: returns
+    (file, guard), guard None when reading (see writeguard: a failed write must never reach
+    HDF5, which crashes the process after one)."""
     # no file locking (stores live on network/scratch filesystems), small chunk cache, no SWMR
-    f = _h5py().File(path, mode, locking=False, rdcc_nbytes=_RDCC_NBYTES)
+    guard = None
+    if mode == "r":
+        f = _h5py().File(path, mode, locking=False, rdcc_nbytes=_RDCC_NBYTES)
+    else:
+        f, guard = writeguard.create_h5(path, locking=False, rdcc_nbytes=_RDCC_NBYTES)
     cfg = f.id.get_mdc_config()
     cfg.set_initial_size = True
     cfg.initial_size = cfg.max_size = _MDC_BYTES
     cfg.min_size = min(cfg.min_size, _MDC_BYTES)
     f.id.set_mdc_config(cfg)
-    return f
+    return f, guard
 
 
 class Writer:
@@ -49,30 +57,17 @@ class Writer:
         self.path = path
         self.filters = FILTERS.get(compression)
         self.f = None
-        self.f = _open(path, "w-")
+        self.f, self._guard = _open(path, "w-")
         self.f.attrs["ooc_dem_format"] = FORMAT
         self.f.attrs["step"] = np.int64(step)
         self.f.create_group("domains")
 
     def _check_room(self, nbytes: int) -> None:
-        """Refuse a write that cannot fit *before* HDF5 tries it.
-
-        HDF5 reports a failed write (EFBIG under RLIMIT_FSIZE, ENOSPC on a full disk)
-        while it closes a dataset, where h5py can only print it, and a later flush
-        then crashes the process; so the room is checked here and the error raised
-        as an ordinary OSError that the store turns into a one-line StoreError.
-        """
-        import errno
+        """Refuse a group that cannot fit before writing it (an OSError, which the store
+        turns into a one-line StoreError); a failure during the write is the guard's."""
         import os
-        import resource
         need = int(nbytes) + 8192   # datasets plus headroom for HDF5 object headers
-        size = os.path.getsize(self.path)
-        soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
-        if soft != resource.RLIM_INFINITY and size + need > soft:
-            raise OSError(errno.EFBIG, "File too large (file-size limit reached)", self.path)
-        st = os.statvfs(os.path.dirname(os.path.abspath(self.path)))
-        if st.f_bavail * st.f_frsize < need:
-            raise OSError(errno.ENOSPC, "No space left on device", self.path)
+        writeguard.check_room(self.path, need, os.path.getsize(self.path) + need)
 
     def write_group(self, group: str, arrays: dict[str, np.ndarray], attrs_json: str) -> None:
         self.f.flush()
@@ -87,13 +82,14 @@ class Writer:
             rows = int(min(a.shape[0], max(1, CHUNK_BYTES // max(1, row))))
             g.create_dataset(name, data=a, chunks=(rows,) + a.shape[1:], **self.filters)
         self.f.flush()
+        self._guard.check()
         # written back now, dropped once the commit has read the file's checksum (finish)
         start_writeback(self.path)
 
     def finish(self, durable: bool) -> list[tuple[str, int, str]]:
         """Close the file and return [(relpath within epoch, size, digest)] ("" = the file itself)."""
         f, self.f = self.f, None
-        f.close()
+        writeguard.close_h5(f, self._guard)
         if durable:
             fsync_path(self.path)
         size, digest = file_digest(self.path)
@@ -103,7 +99,7 @@ class Writer:
         f, self.f = self.f, None
         if f is not None:
             try:
-                f.close()
+                writeguard.close_h5(f, self._guard)
             except Exception:  # noqa: BLE001 - the file is being thrown away
                 pass
         remove_path(self.path)
@@ -114,7 +110,7 @@ class Reader:
         self.path = path
         self._objs = {}            # path -> object of one group, checked once (see _get)
         self._objs_group = None
-        self.f = _open(path, "r")
+        self.f = _open(path, "r")[0]
 
     def _get(self, path: str):
         """The object at `path`, following hard links only: a soft or external link, or a

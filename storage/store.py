@@ -9,13 +9,13 @@ import json
 import operator
 import os
 import re
-import resource
 import weakref
 from collections.abc import Mapping
 
 import numpy as np
 
 from . import _confine, _disk, _lock, _memory
+from .writeguard import shortfall
 from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, SUPPORTED_VERSIONS, GLOBALS_GROUP, LOCK_FILE, MANIFEST,
                     MANIFEST_TMP, MAX_JSON_DEPTH, MAX_PARTS, StoreError, array_meta, check_array_name,
                     domain_group, epoch_basename, file_checksum, file_entries, gather_rows, json_depth, json_roundtrip, normalize_rows,
@@ -44,10 +44,6 @@ _MAX_NDIM = 32
 _MAX_DOMAIN_ID = 10**9 - 1
 _MAX_NAME_CHARS = 200          # ARRAY_NAME_RE's limit, checked first to keep messages short
 _DOMAIN_KEY_RE = re.compile(r"^(0|[1-9][0-9]{0,8})$")   # str(d) of a domain id d >= 0
-
-
-def _mb(n: int) -> str:
-    return f"{n / 1e6:.1f} MB"
 
 
 def _now() -> str:
@@ -570,20 +566,13 @@ class Store:
         need = int(expected_bytes)
         where = self._place.tmp_name(epoch_basename(step, _EXT[self.backend]))
         try:
-            st = os.statvfs(self._place.edir)
+            # a directory epoch's files are small each: only a one-file epoch meets the file-size limit
+            short = shortfall(self._place.edir, need, 0 if self._place.fmt.IS_DIR else need)
         except OSError as e:
             raise write_error(self._place.edir, e) from e
-        free = st.f_bavail * st.f_frsize
-        if free < need:
-            raise StoreError(f"{where}: disk full or file too large (epoch {step} needs about "
-                             f"{_mb(need)}, {_mb(free)} free on the store's file system; "
+        if short is not None:
+            raise StoreError(f"{where}: disk full or file too large (epoch {step} {short[1]}; "
                              f"committed epochs are untouched)")
-        if not self._place.fmt.IS_DIR:
-            soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
-            if soft != resource.RLIM_INFINITY and soft < need:
-                raise StoreError(f"{where}: disk full or file too large (epoch {step} needs about "
-                                 f"{_mb(need)}, the file-size limit is {_mb(soft)}; committed "
-                                 f"epochs are untouched)")
 
     def _commit(self, w: "EpochWriter", durable: bool) -> None:
         if sorted(w._parts) != list(range(1, len(w._parts) + 1)):

@@ -122,3 +122,21 @@ def zip_without(path, prefix: str) -> None:
             if not zi.filename.startswith(prefix):
                 dst.writestr(zi, src.read(zi))
     os.replace(tmp, path)
+
+
+@pytest.fixture
+def small_fs(tmp_path):
+    """mount(size) -> a directory on a tmpfs of that size (unmounted afterwards); the tests run
+    as root (in CI too), so a mount that fails is a failure, not a skip."""
+    mounted = []
+
+    def mount(size: str):
+        mnt = tmp_path / f"fs{len(mounted)}"
+        mnt.mkdir()
+        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], check=True,
+                       capture_output=True)
+        mounted.append(mnt)
+        return mnt
+    yield mount
+    for mnt in mounted:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)

@@ -13,23 +13,6 @@ from conftest import one_line_error, run_cli
 from storage import StoreError, create_store, open_store
 
 
-@pytest.fixture
-def small_fs(tmp_path):
-    """mount(size) -> a directory on a tmpfs of that size (unmounted afterwards)."""
-    mounted = []
-
-    def mount(size: str):
-        mnt = tmp_path / f"fs{len(mounted)}"
-        mnt.mkdir()
-        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], check=True,
-                       capture_output=True)
-        mounted.append(mnt)
-        return mnt
-    yield mount
-    for mnt in mounted:
-        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
-
-
 def _fill(mnt, leave: int):
     """A filler file taking the file system's free space down to `leave` bytes."""
     st = os.statvfs(mnt)

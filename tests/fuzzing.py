@@ -1438,6 +1438,8 @@ class Fuzzer:
         # with these bits
         self.ref_hash = {}
         self.n = 0
+        self.slowest: list = []           # (seconds, case) of the slowest cases
+        self._current = ""
         self.counts: dict[str, int] = {}
         self.missing: dict[str, int] = {}
         self.inapplicable: dict[str, int] = {}   # cases whose edits the harness could not apply
@@ -1546,6 +1548,7 @@ class Fuzzer:
     def run_case(self, case: dict) -> list[dict]:
         t0 = time.monotonic()
         self.n += 1
+        self._current = f"{case.get('strategy')} {case.get('base', 'h5')} {' '.join(map(str, case['argv']))[:80]}"
         strategy = case.get("strategy", "?")
         self.counts[strategy] = self.counts.get(strategy, 0) + 1
         root = self.cases_dir / f"c{self.n:06d}"
@@ -1612,7 +1615,9 @@ class Fuzzer:
         return fails
 
     def _finish(self, root, fails, t0):
-        self.elapsed += time.monotonic() - t0
+        dt = time.monotonic() - t0
+        self.elapsed += dt
+        self.slowest = sorted(self.slowest + [(round(dt, 2), self._current)], key=lambda x: -x[0])[:10]
         self.failures += fails
         if fails and self.keep_failed > 0:
             self.keep_failed -= 1
@@ -1775,6 +1780,7 @@ class Fuzzer:
                 "worker_restarts": self.worker.restarts,
                 "worker_baseline_rss_mb": round(self.worker.info.get("baseline_rss", 0) / 2**20, 1),
                 "max_peak_rss_mb": round(self.max_peak / 2**20, 1),
+                "slowest_cases": [f"{t} s {c}" for t, c in self.slowest],
                 "commands_missing": dict(self.missing),
                 "inapplicable_cases": dict(self.inapplicable),
                 "failures": len(self.failures),
@@ -2342,7 +2348,7 @@ def build_strategies():
 MiB = 1 << 20
 TRAJ_FIELDS = ["id", "pos", "vel", "spin", "r", "mat"]
 DECLARED_ROWS = [2 ** 20, 2 ** 22, 2 ** 25, 2 ** 28, 2 ** 31, 2 ** 40 + 1]
-BOMB_SIZES = [512 * MiB, 1024 * MiB]          # inflated sizes (each a few hundred KB on disk)
+BOMB_SIZES = [384 * MiB, 1024 * MiB]          # inflated sizes (each a few hundred KB on disk), > SIZE_BOUND
 DECLARED_SHAPES = [[2 ** 40], [2 ** 31], [2 ** 28], [2 ** 62, 2 ** 62], [1500, 2 ** 30], [2 ** 25]]
 RESUME30 = ["resume", "run", "--steps", "30", "--no-progress", "--no-figures"]
 EPOCH3D_CMDS = [["checkpoint", "hash", "run"], ["checkpoint", "hash", "run"], ["checkpoint", "verify", "run"],
@@ -2735,8 +2741,8 @@ def _known_cases() -> dict:
                                        M(["current", "files", 0, "size"], 10 ** 18)], base,
                      expect={"same_bits_as_intact": True}))
     # an absurd finite value that `check` accepts crashes `run`
-    cli += [_c("cli", ["run", "quick", "--set", "wheel.width=1e-300", "--steps", "1", "--out", "out/r", *RUN_TAIL]),
-            _c("cli", ["check", "quick", "--set", "wheel.width=1e-300"])]
+    cli += [_c("cli", ["run", "quick-3d", "--set", "wheel.width=1e-300", "--steps", "1", "--out", "out/r", *RUN_TAIL]),
+            _c("cli", ["check", "quick-3d", "--set", "wheel.width=1e-300"])]
     # untyped exceptions from the API on a hostile manifest; hist_cap sizing an allocation
     api = ["@api", "state", "run"]
     man += [_c("manifest", api, [M(["meta", "dim"], 3.0)]), _c("manifest", api, [M(["meta", "dim"], 3.0)], base="zarr"),
@@ -2750,7 +2756,8 @@ def _known_cases() -> dict:
                 _c("epoch3d", csv, [A("pos", "nan")], base), _c("epoch3d", resume, [A("vel", "1e300")], base),
                 _c("epoch3d", hash_, [A("hist_n", "all_99")], base), _c("epoch3d", api, [A("r", "zero")], base)]
     ep3.append(_c("epoch3d", resume, [A("id", "3e8")], "zarr_3d", expect={"size_bound": True}))
-    ep += [_c("epoch", resume, [A("id", "3e8")], b, expect={"size_bound": True}) for b in ("zarr", "ddm")]
+    ep += [_c("epoch", resume, [A("id", "3e8")], "zarr", expect={"size_bound": True}),
+           dict(_c("epoch", resume, [A("id", "3e8")], "ddm", expect={"size_bound": True}), heavy=True)]
     ep3 = [_epoch_expect(c) for c in ep3]
     # beds: `run --bed` and the bed cache load beds without the store's validation
     B = lambda name, kind, where="bed": {"op": "npz_array", "file": where, "name": name, "kind": kind, "rows": [0.0]}  # noqa: E731
@@ -2773,7 +2780,8 @@ def _known_cases() -> dict:
             T({"op": "traj", "frame": 1, "what": "attr", "key": "n_discs", "value": 2 ** 40})]
     Z = lambda *e, argv=("report", "run"), base="h5": _size_expect(_c("npz", list(argv), list(e), base=base))  # noqa: E731
     npz = [Z({"op": "npz_member", "member": "x", "what": "bomb", "size": 4 << 30}),
-           Z({"op": "npz_member", "member": "x", "what": "bomb", "size": 512 * MiB}, argv=("compare", "run", "run2")),
+           Z({"op": "npz_member", "member": "x", "what": "bomb", "size": 384 * MiB}),
+           Z({"op": "npz_member", "member": "x", "what": "bomb", "size": 384 * MiB}, argv=("compare", "run", "run2")),
            Z({"op": "npz_member", "member": "x", "what": "declared", "shape": [2 ** 40], "descr": "<f8"}),
            Z({"op": "npz_member", "member": "x", "what": "object"}),
            Z({"op": "npz_member", "member": "x", "what": "dtype", "descr": "<c16"}),
@@ -2784,8 +2792,8 @@ def _known_cases() -> dict:
         "zarr_codec", list(argv), [{"op": "zarr_codec", "which": "current", "group": "domain", "dom": 0,
                                     "name": "pos", "codec": codec, "encode": kw.get("encode", False),
                                     **({"size": kw["size"]} if "size" in kw else {})}], base=base))
-    zarr = [zc("gzip_bomb", resume, size=4 << 30), zc("gzip_bomb", hash_, size=512 * MiB),
-            zc("gzip_bomb", csv, base="zarr_3d", size=512 * MiB), zc("sharding", hash_), zc("unknown", hash_),
+    zarr = [zc("gzip_bomb", resume, size=4 << 30), zc("gzip_bomb", hash_, size=384 * MiB),
+            zc("gzip_bomb", resume, size=384 * MiB), zc("gzip_bomb", csv, base="zarr_3d", size=384 * MiB), zc("sharding", hash_), zc("unknown", hash_),
             zc("gzip", resume, encode=True), zc("blosc", verify), zc("zstd", ["@api", "state", "run"], base="zarr_zstd")]
     zarr += [zc("sharding_many", hash_), zc("sharding_many", csv, base="zarr_zstd")]
     for c in zarr:
@@ -2794,6 +2802,10 @@ def _known_cases() -> dict:
     # the 4 GB reproductions take seconds to build: campaigns only (the CI slice has the 512 MB ones)
     for c in npz + zarr:
         if c["edits"][0].get("size", 0) >= 4 << 30:
+            c["heavy"] = True
+    # a cache rebuild settles a bed (seconds): one in the CI slice, the others in campaigns
+    for c in beds:
+        if "cache" in c["needs"] and c["edits"][0]["kind"] != "drop_disc":
             c["heavy"] = True
     # writers under a file-size limit (`ulimit -f 100`: 102400 bytes)
     F = lambda argv, base="h5", limit=102400, needs=(): {  # noqa: E731
@@ -2821,18 +2833,22 @@ STRATEGY_BASES = {"scenario": ("h5", "zarr"), "scenario_file": ("h5", "zarr"), "
                   "fsize": ("h5", "zarr", "traj", "h5_3d", "bed")}
 
 
-def bases_for(names) -> list[str]:
-    """The base material the named strategies need (h5 and zarr always: the worker warms on them)."""
+def bases_for(names, heavy: bool = True) -> list[str]:
+    """The base material the named strategies need (h5 and zarr always: the worker warms on
+    them); with heavy, also what their heavy known cases start from."""
     out = ["h5", "zarr"]
     for n in names:
         out += [b for b in STRATEGY_BASES[n] if b not in out]
+        if heavy:
+            out += [c["base"] for c in KNOWN.get(n, []) if c.get("heavy") and c["base"] not in out]
     return out
 
 
 def run_strategy(fuzzer: Fuzzer, name: str, n: int, seed: int | None = None, known: bool = True,
-                 strategies: dict | None = None, heavy: bool = True) -> int:
+                 strategies: dict | None = None, heavy: bool = True, end: bool = True) -> int:
     """Run the known cases of a strategy plus n generated ones; returns the number of cases run.
-    heavy=False leaves out the known cases marked heavy (seconds to build their input)."""
+    heavy=False leaves out the known cases marked heavy (seconds to build their input);
+    end=False keeps the worker for the next strategy (its exit is checked at the last one)."""
     from hypothesis import HealthCheck, Phase, example, given, settings
     from hypothesis import seed as hseed
     strategies = strategies or build_strategies()
@@ -2853,7 +2869,8 @@ def run_strategy(fuzzer: Fuzzer, name: str, n: int, seed: int | None = None, kno
         body = hseed(seed)(body)
     if n > 0 or known:
         body()
-    fuzzer.end_worker()          # the next strategy gets a fresh worker
+    if end:
+        fuzzer.end_worker()      # the next strategy gets a fresh worker
     return fuzzer.counts.get(name, 0) - before
 
 

@@ -1428,8 +1428,7 @@ class Fuzzer:
                 shutil.copytree(self.bases[b], warm / b)
         tail = ["--no-progress", "--no-figures"]
         self.worker = Worker(prepare=prepare, errlog=self.work / "worker-stderr.log",
-                             warmup=[(["checkpoint", "verify", b], str(warm)) for b in stores] +
-                             [(["resume", b, "--steps", "21", *tail], str(warm)) for b in stores] +
+                             warmup=[(["resume", b, "--steps", "21", *tail], str(warm)) for b in stores] +
                              [(["report", "h5"], str(warm))],
                              mem_bound=mem_bound).start()
         self.commands = set(self.worker.info.get("commands", []))

@@ -23,8 +23,8 @@ pytestmark = pytest.mark.slow
 
 # generated cases per strategy in the default run (the known-bug examples come on top); also
 # tools/fuzz.py's proportions
-BUDGET = {"scenario": 30, "scenario_file": 10, "cli": 30, "manifest": 30, "epoch": 20, "runfiles": 12,
-          "epoch3d": 10, "bed": 4, "trajectory": 8, "npz": 6, "zarr_codec": 8, "fsize": 6}
+BUDGET = {"scenario": 20, "scenario_file": 6, "cli": 20, "manifest": 20, "epoch": 12, "runfiles": 8,
+          "epoch3d": 6, "bed": 3, "trajectory": 6, "npz": 5, "zarr_codec": 6, "fsize": 6}
 TIMEOUT = 10.0     # s per command in the default run (tools/fuzz.py: 20 s)
 
 
@@ -77,7 +77,7 @@ def test_fuzz_total(fuzzer, capsys):
     """The default setting covers every strategy and does not silently shrink; the worker that
     ran the slice exits cleanly (no case damaged its heap)."""
     assert set(BUDGET) == set(fuzzing.STRATEGY_NAMES)
-    assert sum(BUDGET.values()) >= 150
+    assert sum(BUDGET.values()) >= 100
     before = len(fuzzer.failures)
     fuzzer.end_worker()
     assert not fuzzer.failures[before:], _report(fuzzer.failures[before:])
@@ -87,4 +87,4 @@ def test_fuzz_total(fuzzer, capsys):
             print(f"\nfuzz total: {s['cases']} cases in {s['elapsed_s']} s ({s['cases_per_s']} cases/s), "
                   f"{s['failures']} failing, worker restarts {s['worker_restarts']}, "
                   f"max peak RSS {s['max_peak_rss_mb']} MB; slowest: {'; '.join(s['slowest_cases'][:5])}")
-        assert fuzzer.n >= 150
+        assert fuzzer.n >= 300     # with the known cases

@@ -2,8 +2,13 @@
 
 Every generated *case* is a JSON-able dict: the strategy that made it, the base store it starts
 from (``h5``: a finished monolithic HDF5 run, ``zarr``: a finished out-of-core zarr run with 3
-sub-domains), a list of *edits* applied to a fresh copy of the world before the command, the
-``argv`` given to ``ooc_dem.cli.main`` and a few *expectations*. ``Fuzzer.run_case`` builds the
+sub-domains; ``h5_3d``/``zarr_3d``: the same of quick-3d; ``traj``: an HDF5 run with trajectory
+frames; ``zarr_zstd``: compressed zarr arrays; ``ddm``: serial DDM; see BASE_RUNS), the material
+it ``needs`` (``bed``: a prepared bed in w/out/bed; ``cache``: a bed cache in w/cache, given to
+the command as OOC_DEM_CACHE), a list of *edits* applied to a fresh copy of the world before the
+command, the ``argv`` given to ``ooc_dem.cli.main`` (or ``@api WHAT RUN``: the Python API), an
+optional ``fsize`` (RLIMIT_FSIZE of the command) or ``fresh`` (a fresh interpreter instead of the
+worker: what is printed at interpreter exit counts) and a few *expectations*. ``Fuzzer.run_case`` builds the
 world, runs the command in a long-lived worker process and checks, for every case:
 
 * exit code 0 (any output), or exit code 2 with exactly one non-empty line on stderr; never a
@@ -21,6 +26,11 @@ world, runs the command in a long-lived worker process and checks, for every cas
 * the worker exits cleanly after each strategy: an abort at interpreter exit ("free(): invalid
   pointer") means some case damaged the heap (an out-of-bounds write in a kernel); the case is
   found by bisection in fresh workers and reported as ``heap_damage``;
+* no temporary (``*.tmp*``) is left anywhere in the world by a command that ended (exit 0 or 2);
+* under a file-size limit, exit 0 never leaves a file of exactly the limit (an output cut short);
+* a refusal of a hostile declared size (trajectory rows, npz members, inflated zarr chunks,
+  ``hist_cap``) peaks below SIZE_BOUND above the RSS at its call, and is never only the failure
+  of an allocation sized by that number ("out of memory");
 * per-case expectations, e.g. ``verify`` of an epoch whose bytes were flipped without fixing the
   checksum must not exit 0, and ``export --out`` over MANIFEST.json / an epoch file / a device
   must be refused (exit 2).

@@ -274,6 +274,12 @@ def _subparsers(parser) -> dict:
 # parent side: the worker handle
 # =====================================================================================
 
+def child_env() -> dict:
+    """The environment of a child interpreter: this checkout's ooc_dem first, no display."""
+    return dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
+        [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+
+
 class WorkerDied(Exception):
     pass
 
@@ -295,8 +301,7 @@ class Worker:
     def start(self):
         if self.prepare is not None:
             self.prepare()
-        env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
-            [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+        env = child_env()
         env.pop("PYTHONHASHSEED", None)
         err = open(self.errlog, "wb") if self.errlog else subprocess.DEVNULL
         try:
@@ -1835,8 +1840,7 @@ def _fresh_call(argv, cwd, timeout, env=None, fsize=None) -> dict:
     """The command in a fresh interpreter (`python -m ooc_dem.cli`), as a user runs it: what
     it prints at interpreter exit counts too (pipes: RLIMIT_FSIZE does not cut them)."""
     import resource
-    e = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
-        [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+    e = child_env()
     e.update(env or {})
 
     def limits():

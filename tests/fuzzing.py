@@ -1475,6 +1475,12 @@ class Fuzzer:
             if what == "resume":
                 shutil.copytree(self.bases[base], ref / "run")
                 self.worker.call(["resume", "run", "--steps", "30", "--no-progress", "--no-figures"], ref)
+            elif what == "export_previous":
+                shutil.copytree(self.bases[base], ref / "run")
+                self.worker.call(["checkpoint", "export", "run", "--epoch", "10", "--out", "e.csv"], ref)
+                self.ref_hash[key] = _csv_body(ref / "e.csv")
+                shutil.rmtree(ref, ignore_errors=True)
+                return self.ref_hash[key]
             elif what == "previous":
                 shutil.copytree(self.bases[base], ref / "run")
                 h = self.worker.call(["checkpoint", "hash", "run", "--epoch", "10"], ref)
@@ -1760,6 +1766,13 @@ class Fuzzer:
                                         f"`checkpoint hash` of a detectably invalid current epoch printed "
                                         f"{got[0][:24] if got else None}... (neither refused nor the previous "
                                         f"epoch's {want[0][:24]}...)", res))
+        if exp.get("export_fallback") and rc == 0:
+            got = _csv_body(world.w / out_opt)
+            want = self.reference(case.get("base", "h5"), "export_previous")
+            if got != want:
+                fails.append(self._fail(case, "accepted_invalid_epoch",
+                                        "`checkpoint export` of a detectably invalid current epoch wrote it "
+                                        "(neither refused nor the previous epoch)", res))
         made = world.w / (_opt(argv, "--out") or "-")
         if exp.get("resumable") and rc == 0 and (made / "MANIFEST.json").is_file():
             v = self.worker.call(["resume", str(made.relative_to(world.w)), "--steps", str(exp["resumable"]),
@@ -1806,6 +1819,14 @@ class Fuzzer:
                                      "detail": v["example"]["detail"],
                                      "stderr": v["example"]["stderr"][-1500:]}
                                     for k, v in sorted(classes.items())]}
+
+
+def _csv_body(path: Path):
+    """An exported CSV without its first line (which names the store), or None."""
+    try:
+        return path.read_text(errors="replace").split("\n", 1)[1]
+    except (OSError, IndexError):
+        return None
 
 
 TEMP_NAME = re.compile(r"\.tmp")
@@ -2473,9 +2494,14 @@ def _epoch_expect(case: dict) -> dict:
         case.setdefault("expect", {})["same_bits_as_intact"] = True
     # the readers of an epoch validate it as resume does: `hash` of a detectably invalid
     # current epoch refuses or falls back to the previous one (its hash)
-    if (argv[:2] == ["checkpoint", "hash"] and _opt(argv, "--epoch") is None and invalid_current(case["edits"])
-            and all(ed.get("which") == "current" and ed["op"] in ("array", "attrs") for ed in case["edits"])):
+    only_current = invalid_current(case["edits"]) and all(
+        ed.get("which") == "current" and ed["op"] in ("array", "attrs") for ed in case["edits"])
+    if argv[:2] == ["checkpoint", "hash"] and _opt(argv, "--epoch") is None and only_current:
         case.setdefault("expect", {})["hash_fallback"] = True
+    # ... and `export` of it refuses or writes the previous epoch
+    if (argv[:2] == ["checkpoint", "export"] and _opt(argv, "--epoch") is None and only_current
+            and (_opt(argv, "--out") or "").endswith(".csv")):
+        case.setdefault("expect", {})["export_fallback"] = True
     damaged = set()
     for ed in case["edits"]:
         if ed["op"] == "flip" and not ed.get("recompute"):
@@ -2769,9 +2795,10 @@ def _known_cases() -> dict:
         ep3 += [_c("epoch3d", resume, [A("mat", "i32max")], base), _c("epoch3d", hash_, [A("pos", "nan")], base),
                 _c("epoch3d", csv, [A("pos", "nan")], base), _c("epoch3d", resume, [A("vel", "1e300")], base),
                 _c("epoch3d", hash_, [A("hist_n", "all_99")], base), _c("epoch3d", api, [A("r", "zero")], base)]
-    ep3.append(_c("epoch3d", resume, [A("id", "3e8")], "zarr_3d", expect={"size_bound": True}))
-    ep += [_c("epoch", resume, [A("id", "3e8")], "zarr", expect={"size_bound": True}),
-           dict(_c("epoch", resume, [A("id", "3e8")], "ddm", expect={"size_bound": True}), heavy=True)]
+    big_id = dict(A("id", "3e8"), rows=[0.0])          # one disc, so that the ids stay distinct
+    ep3.append(_c("epoch3d", resume, [big_id], "zarr_3d", expect={"size_bound": True}))
+    ep += [_c("epoch", resume, [big_id], "zarr", expect={"size_bound": True}),
+           dict(_c("epoch", resume, [big_id], "ddm", expect={"size_bound": True}), heavy=True)]
     ep3 = [_epoch_expect(c) for c in ep3]
     # beds: `run --bed` and the bed cache load beds without the store's validation
     B = lambda name, kind, where="bed": {"op": "npz_array", "file": where, "name": name, "kind": kind, "rows": [0.0]}  # noqa: E731

@@ -2,8 +2,13 @@
 
 Every generated *case* is a JSON-able dict: the strategy that made it, the base store it starts
 from (``h5``: a finished monolithic HDF5 run, ``zarr``: a finished out-of-core zarr run with 3
-sub-domains), a list of *edits* applied to a fresh copy of the world before the command, the
-``argv`` given to ``ooc_dem.cli.main`` and a few *expectations*. ``Fuzzer.run_case`` builds the
+sub-domains; ``h5_3d``/``zarr_3d``: the same of quick-3d; ``traj``: an HDF5 run with trajectory
+frames; ``zarr_zstd``: compressed zarr arrays; ``ddm``: serial DDM; see BASE_RUNS), the material
+it ``needs`` (``bed``: a prepared bed in w/out/bed; ``cache``: a bed cache in w/cache, given to
+the command as OOC_DEM_CACHE), a list of *edits* applied to a fresh copy of the world before the
+command, the ``argv`` given to ``ooc_dem.cli.main`` (or ``@api WHAT RUN``: the Python API), an
+optional ``fsize`` (RLIMIT_FSIZE of the command) or ``fresh`` (a fresh interpreter instead of the
+worker: what is printed at interpreter exit counts) and a few *expectations*. ``Fuzzer.run_case`` builds the
 world, runs the command in a long-lived worker process and checks, for every case:
 
 * exit code 0 (any output), or exit code 2 with exactly one non-empty line on stderr; never a
@@ -21,6 +26,11 @@ world, runs the command in a long-lived worker process and checks, for every cas
 * the worker exits cleanly after each strategy: an abort at interpreter exit ("free(): invalid
   pointer") means some case damaged the heap (an out-of-bounds write in a kernel); the case is
   found by bisection in fresh workers and reported as ``heap_damage``;
+* no temporary (``*.tmp*``) is left anywhere in the world by a command that ended (exit 0 or 2);
+* under a file-size limit, exit 0 never leaves a file of exactly the limit (an output cut short);
+* a refusal of a hostile declared size (trajectory rows, npz members, inflated zarr chunks,
+  ``hist_cap``) peaks below SIZE_BOUND above the RSS at its call, and is never only the failure
+  of an allocation sized by that number ("out of memory");
 * per-case expectations, e.g. ``verify`` of an epoch whose bytes were flipped without fixing the
   checksum must not exit 0, and ``export --out`` over MANIFEST.json / an epoch file / a device
   must be refused (exit 2).
@@ -77,7 +87,11 @@ MEM_BOUND = 2 * GiB          # peak RSS above the worker's warm baseline
 CASE_TIMEOUT = 20.0          # s per command
 READ_ONLY = {"list", "verify", "inspect", "hash", "export"}
 BASES = ("h5", "zarr")
-SAFE_DIRS = ("run", "run2", "out", "runs")   # under R/w: where commands may write
+SAFE_DIRS = ("run", "run2", "out", "runs", "cache")   # under R/w: where commands may write
+SIZE_BOUND = 300 << 20       # peak RSS above the RSS at the call of a refusal of a hostile declared size
+# a run from a prepared bed or from the bed cache (the bed cases; tiny, with a commit and frames)
+BED_RUN = ["run", "quick", "--steps", "4", "--checkpoint-every", "2", "--no-progress", "--no-figures",
+           "--set", "output.series_interval=0.00002", "--set", "output.snapshot_interval=0.00002"]
 
 
 # =====================================================================================
@@ -112,10 +126,15 @@ def _worker_main() -> int:
         proto_out.write(json.dumps(obj) + "\n")
         proto_out.flush()
 
-    def call(argv, cwd):
+    def call(argv, cwd, env=None, fsize=None):
         from ooc_dem.cli import main
         from ooc_dem.profiling import reset_peak
         os.chdir(cwd)
+        if argv and argv[0] == API_PREFIX:
+            main = _api_main                 # the Python API, judged by the same exit rules
+        saved_env = {k: os.environ.get(k) for k in (env or {})}
+        os.environ.update(env or {})
+        saved_fsize = resource.getrlimit(resource.RLIMIT_FSIZE)
         outp, errp = scratch / "stdout", scratch / "stderr"
         sys.stdout.flush()
         sys.stderr.flush()
@@ -125,8 +144,12 @@ def _worker_main() -> int:
             os.dup2(fo.fileno(), 1)
             os.dup2(fe.fileno(), 2)
             hwm_reset = reset_peak()
+            rss0 = _status().get("VmRSS", 0)
             t0 = time.monotonic()
             try:
+                if fsize is not None:
+                    # the command's own writes only (the capture files are open already)
+                    resource.setrlimit(resource.RLIMIT_FSIZE, (int(fsize), saved_fsize[1]))
                 rc = main(list(argv))
                 rc = 0 if rc is None else rc
             except SystemExit as e:
@@ -142,6 +165,13 @@ def _worker_main() -> int:
                 traceback.print_exc()
                 rc = 1
             finally:
+                if fsize is not None:
+                    resource.setrlimit(resource.RLIMIT_FSIZE, saved_fsize)
+                for k, v in saved_env.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
                 try:
                     sys.stdout.flush()
                     sys.stderr.flush()
@@ -167,7 +197,7 @@ def _worker_main() -> int:
         st = _status()
         return {"rc": rc if isinstance(rc, int) else 1, "stdout": tail(outp), "stderr": tail(errp),
                 "exc": exc, "elapsed": round(elapsed, 4), "hwm": st.get("VmHWM", 0),
-                "hwm_reset": hwm_reset, "rss": st.get("VmRSS", 0)}
+                "hwm_reset": hwm_reset, "rss": st.get("VmRSS", 0), "rss0": rss0}
 
     # warm up: imports and the JIT caches (not counted as cases)
     import numpy  # noqa: F401
@@ -191,9 +221,39 @@ def _worker_main() -> int:
         if not line.strip():
             continue
         req = json.loads(line)
-        res = call(req["argv"], req["cwd"])
+        res = call(req["argv"], req["cwd"], req.get("env"), req.get("fsize"))
         res["id"] = req.get("id")
         send(res)
+    return 0
+
+
+API_PREFIX = "@api"
+
+
+def _api_main(argv) -> int:
+    """``@api WHAT RUN``: read a run through the Python API as a user would. Exit 0 when it
+    reads, 2 with the exception's one line when it raises one of the package's own exception
+    types (docs/api.md); anything else propagates (a traceback: a failure)."""
+    from ooc_dem.api import open_run
+    what, path = argv[1], argv[2]
+    try:
+        if what == "state":
+            open_run(path).state()
+        elif what == "summary":
+            open_run(path).summary  # noqa: B018
+        elif what == "trajectory":
+            from ooc_dem.trajectory import Trajectory
+            with Trajectory.of_run(path) as t:
+                for i in range(len(t)):
+                    t[i]
+        else:
+            raise SystemExit(f"@api: unknown {what!r}")
+    except Exception as e:  # noqa: BLE001
+        mod = type(e).__module__ or ""
+        if not (mod.startswith("ooc_dem") or mod.startswith("storage")):
+            raise
+        print(" ".join(str(e).split()) or type(e).__name__, file=sys.stderr)
+        return 2
     return 0
 
 
@@ -213,6 +273,12 @@ def _subparsers(parser) -> dict:
 # =====================================================================================
 # parent side: the worker handle
 # =====================================================================================
+
+def child_env() -> dict:
+    """The environment of a child interpreter: this checkout's ooc_dem first, no display."""
+    return dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
+        [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+
 
 class WorkerDied(Exception):
     pass
@@ -235,8 +301,7 @@ class Worker:
     def start(self):
         if self.prepare is not None:
             self.prepare()
-        env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
-            [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+        env = child_env()
         env.pop("PYTHONHASHSEED", None)
         err = open(self.errlog, "wb") if self.errlog else subprocess.DEVNULL
         try:
@@ -301,7 +366,7 @@ class Worker:
         except (KeyError, OSError):
             return ""
 
-    def call(self, argv, cwd, timeout=CASE_TIMEOUT) -> dict:
+    def call(self, argv, cwd, timeout=CASE_TIMEOUT, env=None, fsize=None) -> dict:
         """{"rc", "stdout", "stderr", "exc", "elapsed", "hwm", ...} or {"rc": None, "error": ...}."""
         if self.proc is None or self.proc.poll() is not None:
             self.restarts += self.proc is not None
@@ -309,7 +374,12 @@ class Worker:
         self._n += 1
         t0 = time.monotonic()
         try:
-            self.proc.stdin.write(json.dumps({"id": self._n, "argv": list(argv), "cwd": str(cwd)}) + "\n")
+            req = {"id": self._n, "argv": list(argv), "cwd": str(cwd)}
+            if env:
+                req["env"] = dict(env)
+            if fsize is not None:
+                req["fsize"] = int(fsize)
+            self.proc.stdin.write(json.dumps(req) + "\n")
             self.proc.stdin.flush()
             res = self._read(timeout)
         except (WorkerDied, BrokenPipeError) as e:
@@ -379,13 +449,29 @@ class Worker:
 # base material and worlds
 # =====================================================================================
 
+_RUN20 = ["--steps", "20", "--checkpoint-every", "10", "--no-progress", "--no-figures"]
 BASE_RUNS = {
-    "h5": ["run", "quick", "--steps", "20", "--checkpoint-every", "10", "--no-progress",
-           "--no-figures", "--set", "output.series_interval=0.00005"],
-    "zarr": ["run", "quick", "--steps", "20", "--checkpoint-every", "10", "--no-progress",
-             "--no-figures", "--mode", "ooc", "--domains", "3", "--block", "10", "--backend", "zarr",
+    "h5": ["run", "quick", *_RUN20, "--set", "output.series_interval=0.00005"],
+    "zarr": ["run", "quick", *_RUN20, "--mode", "ooc", "--domains", "3", "--block", "10", "--backend", "zarr",
              "--set", "output.series_interval=0.00005"],
+    # 3D stores: monolithic HDF5 and out-of-core zarr (the same epoch edits as 2D)
+    "h5_3d": ["run", "quick-3d", *_RUN20, "--set", "output.series_interval=0.00005"],
+    "zarr_3d": ["run", "quick-3d", *_RUN20, "--mode", "ooc", "--domains", "2", "--block", "10",
+                "--backend", "zarr", "--set", "output.series_interval=0.00005"],
+    # a frame every 10 steps (frames 0, 10, 20) for the trajectory and film cases
+    "traj": ["run", "quick", *_RUN20, "--set", "output.series_interval=0.00005",
+             "--set", "output.snapshot_interval=0.0001"],
+    # serial DDM (sub-domains in one process, HDF5)
+    "ddm": ["run", "quick", *_RUN20, "--mode", "ddm", "--domains", "3", "--set", "output.series_interval=0.00005"],
+    # a zarr store whose arrays carry a compression codec (zstd)
+    "zarr_zstd": ["run", "quick", *_RUN20, "--backend", "zarr", "--compression", "zstd",
+                  "--set", "output.series_interval=0.00005"],
+    # a prepared bed (`--bed` cases) made with a fresh bed cache (the bed-cache cases)
+    "bed": ["prepare", "quick", "--no-progress"],
 }
+# the second store of a world (`compare`, run2)
+OTHER_BASE = {"h5": "zarr", "zarr": "h5", "ddm": "h5", "h5_3d": "zarr_3d", "zarr_3d": "h5_3d", "traj": "h5",
+              "zarr_zstd": "h5"}
 
 TINY_SCENARIO = """\
 [scenario]
@@ -407,21 +493,31 @@ run_steps = 10
 """
 
 
-def make_bases(where: Path) -> dict:
-    """The finished base runs, made once with the real CLI (a fresh interpreter each)."""
+def make_bases(where: Path, names=None) -> dict:
+    """The finished base runs, made once with the real CLI's ``main`` in one worker process
+    (imports and JIT paid once, not per base). ``where/cache`` is the bed cache the "bed" base
+    was prepared with (its entry is the bed-cache cases' material)."""
     where.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
-        [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
-    out = {}
-    for name, argv in BASE_RUNS.items():
+    out, todo = {}, []
+    for name in (BASE_RUNS if names is None else names):
         d = where / name
-        if not (d / "summary.json").is_file():
+        if not (d / ("bed.npz" if name == "bed" else "summary.json")).is_file():
             shutil.rmtree(d, ignore_errors=True)
-            cp = subprocess.run([sys.executable, "-m", "ooc_dem.cli", *argv, "--out", str(d)],
-                                capture_output=True, text=True, timeout=1800, env=env)
-            if cp.returncode != 0:
-                raise RuntimeError(f"base run {name} failed ({cp.returncode}): {cp.stderr[-2000:]}")
+            todo.append(name)
         out[name] = d
+    if todo:
+        builder = Worker(use_rlimit=False).start()
+        try:
+            for name in todo:
+                env = {"OOC_DEM_CACHE": str(where / "cache")} if name == "bed" else None
+                res = builder.call([*BASE_RUNS[name], "--out", name], where, timeout=1800, env=env)
+                if res.get("rc") != 0:
+                    raise RuntimeError(f"base {name} failed ({res.get('rc')}): "
+                                       f"{(res.get('stderr') or res.get('error') or '')[-2000:]}")
+        finally:
+            builder.close()
+    if "bed" in out:
+        out["cache"] = where / "cache"
     return out
 
 
@@ -449,6 +545,13 @@ class World:
                              ("dev_full", "/dev/full")):
             os.symlink(target, self.w / name)
         (self.w / "scenario.toml").write_text(TINY_SCENARIO)
+
+    def add_material(self, what: str, bases: dict):
+        """The prepared bed (w/out/bed) or a copy of the bed cache (w/cache)."""
+        if what == "bed":
+            shutil.copytree(bases["bed"], self.w / "out" / "bed", symlinks=True)
+        elif what == "cache":
+            shutil.copytree(bases["cache"], self.w / "cache", symlinks=True)
 
     def add_run2(self):
         shutil.copytree(self.other, self.w / "run2", symlinks=True)
@@ -731,6 +834,14 @@ def apply_edit(world: World, ed: dict) -> None:
         _edit_array(world, ed)
     elif op == "attrs":
         _edit_attrs(world, ed)
+    elif op == "npz_array":
+        _edit_npz_array(world, ed)
+    elif op == "npz_member":
+        (_edit_bomb_npz if ed["what"] == "bomb" else _edit_npz_member)(world, ed)
+    elif op == "traj":
+        _edit_traj(world, ed)
+    elif op == "zarr_codec":
+        _edit_zarr_codec(world, ed)
     elif op == "runfile":
         p = run / ed["name"]
         if not ed.get("delete") and "summary_set" not in ed:
@@ -844,7 +955,24 @@ def _semantic(arr, kind, rows):
         a = a.astype(np.complex128)
     elif kind == "u8":
         a = a.astype(np.uint8)
+    elif kind in EXTREMES:
+        v = EXTREMES[kind]
+        if a.dtype.kind in "iu":
+            v = int(min(max(v, np.iinfo(a.dtype).min), np.iinfo(a.dtype).max))
+        elif a.dtype.kind == "b":
+            v = bool(v)
+        if n:
+            a[idx] = v
+    elif kind == "drop_row" and n > 1:
+        a = np.delete(a, idx[:1], axis=0)
+    elif kind == "unsort" and n > 1 and a.ndim >= 2:
+        a[idx] = a[idx][:, ::-1]
     return a
+
+
+# finite absurd values and out-of-range indices (each written at the drawn rows)
+EXTREMES = {"1e300": 1e300, "5e-324": 5e-324, "-5e-324": -5e-324, "999": 999, "i32max": 2 ** 31 - 1,
+            "minus7": -7, "minus1": -1, "1e-300": 1e-300, "1e150": 1e150, "3e8": 300_000_000}
 
 
 @contextlib.contextmanager
@@ -1006,6 +1134,240 @@ def _edit_attrs(world: World, ed: dict):
     _fix_all_checksums(world, ed["which"])
 
 
+def _bombs_dir(world: World) -> Path:
+    """Where built bombs are kept between cases (beside the session's case directories)."""
+    d = world.root.parent.parent / "bombs"
+    d.mkdir(exist_ok=True)
+    return d
+
+
+def _gzip_zeros(world: World, size: int) -> Path:
+    """A gzip stream of ``size`` zero bytes (about size / 1000 bytes), built once a session."""
+    import zlib
+    p = _bombs_dir(world) / f"zeros-{size}.gz"
+    if not p.is_file():
+        c = zlib.compressobj(1, zlib.DEFLATED, 31)
+        block = bytes(min(size, 16 << 20))
+        with open(p.with_suffix(".part"), "wb") as f:
+            left = size
+            while left:
+                k = min(left, len(block))
+                f.write(c.compress(block[:k]))
+                left -= k
+            f.write(c.flush())
+        os.replace(p.with_suffix(".part"), p)
+    return p
+
+
+def _npz_path(world: World, where: str) -> Path | None:
+    if where == "bed":
+        return world.w / "out" / "bed" / "bed.npz"
+    if where == "cache":
+        found = sorted((world.w / "cache" / "beds").glob("*.npz"))
+        return found[0] if found else None
+    return world.run / "initial.npz"
+
+
+def _edit_npz_array(world: World, ed: dict):
+    """One array of a bed file (a prepared bed.npz or a bed-cache entry) edited, or the file removed."""
+    import numpy as np
+    p = _npz_path(world, ed["file"])
+    if p is None or not p.is_file():
+        return
+    if ed["kind"] == "remove_file":
+        p.unlink()
+        return
+    with np.load(p, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    name = ed["name"] if ed["name"] in arrays else sorted(arrays)[0]
+    if ed["kind"] == "delete":
+        del arrays[name]
+    elif ed["kind"] == "drop_disc":           # one disc removed from every array (a consistent tamper)
+        i = min(int(ed.get("rows", [0.0])[0] * len(arrays["id"])), len(arrays["id"]) - 1)
+        arrays = {k: np.delete(v, i, axis=0) for k, v in arrays.items()}
+    else:
+        arrays[name] = _semantic(arrays[name], ed["kind"], ed.get("rows", [0.0]))
+    with open(p, "wb") as f:
+        np.savez(f, **arrays)
+
+
+def _npy_header(shape, descr="<f8", fortran=False) -> bytes:
+    """A .npy version-1 header declaring ``shape`` (whatever data follows)."""
+    d = "{'descr': %r, 'fortran_order': %s, 'shape': %s, }" % (descr, fortran, repr(tuple(shape)))
+    pad = 64 - (10 + len(d) + 1) % 64
+    d = (d + " " * pad + "\n").encode("latin1")
+    return b"\x93NUMPY\x01\x00" + len(d).to_bytes(2, "little") + d
+
+
+def _edit_npz_member(world: World, ed: dict):
+    """``initial.npz`` rebuilt with one hostile member (the others kept as written):
+    ``declared`` -- a header declaring ``shape`` over a few bytes of data; ``bomb`` -- ``size``
+    bytes of deflated zeros under a header declaring all of them (a few MB on disk);
+    ``object`` -- a pickled object array; ``shape``/``dtype``/``fortran`` -- wrong layouts."""
+    import zipfile
+    p = world.run / "initial.npz"
+    member = ed["member"] + ".npy"
+    kept = {}
+    if p.is_file() and not p.is_symlink():
+        try:
+            with zipfile.ZipFile(p) as zf:
+                kept = {n: zf.read(n) for n in zf.namelist() if n != member}
+        except (zipfile.BadZipFile, OSError):
+            kept = {}
+    what = ed["what"]
+    tmp = p.with_name("initial.npz.part")
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for n, data in kept.items():
+            zf.writestr(n, data)
+        if what == "bomb":
+            size = int(ed["size"])
+            zi = zipfile.ZipInfo(member)
+            zi.compress_type = zipfile.ZIP_DEFLATED
+            block = bytes(16 << 20)
+            with zf.open(zi, "w", force_zip64=True) as f:
+                f.write(_npy_header((size // 8,)))
+                left = size // 8 * 8
+                while left:
+                    k = min(left, len(block))
+                    f.write(block[:k])
+                    left -= k
+        elif what == "declared":
+            zf.writestr(member, _npy_header(tuple(ed["shape"]), ed.get("descr", "<f8")) + bytes(64))
+        elif what == "object":
+            import io
+            import numpy as np
+            b = io.BytesIO()
+            np.save(b, np.array([{"a": 1}, None], dtype=object), allow_pickle=True)
+            zf.writestr(member, b.getvalue())
+        elif what == "fortran":
+            zf.writestr(member, _npy_header((750, 2), "<f8", True) + bytes(750 * 2 * 8))
+        elif what == "shape":
+            zf.writestr(member, _npy_header(tuple(ed["shape"]), "<f8") + bytes(8 * math.prod(ed["shape"])))
+        elif what == "dtype":
+            zf.writestr(member, _npy_header((1500,), ed["descr"]) + bytes(1500 * 16))
+    os.replace(tmp, p)
+
+
+def _edit_bomb_npz(world: World, ed: dict):
+    """The bomb member is built once per (member, size) and copied (it takes seconds to deflate)."""
+    key = f"initial-{ed['member']}-{ed['size']}-{_sha(world.run / 'initial.npz')[:12]}.npz"
+    built = _bombs_dir(world) / key
+    if not built.is_file():
+        _edit_npz_member(world, ed)
+        shutil.copyfile(world.run / "initial.npz", built.with_suffix(".part"))
+        os.replace(built.with_suffix(".part"), built)
+    else:
+        shutil.copyfile(built, world.run / "initial.npz")
+
+
+def _frames(world: World) -> list[Path]:
+    return sorted((world.run / "trajectory").glob("frame-*.h5"))
+
+
+def _edit_traj(world: World, ed: dict):
+    """One trajectory frame file edited: an attribute, one dataset (_semantic kinds), every row
+    dataset re-declared at ``rows`` rows with no data written (a few KB on disk), or removed."""
+    import h5py
+    import numpy as np
+    frames = _frames(world)
+    if not frames:
+        return
+    p = frames[ed["frame"] % len(frames)]
+    what = ed["what"]
+    if what == "remove":
+        p.unlink()
+        return
+    with h5py.File(p, "r+") as f:
+        if what == "attr":
+            v = _decode_value(ed["value"])
+            if v is None:
+                if ed["key"] in f.attrs:
+                    del f.attrs[ed["key"]]
+            else:
+                f.attrs[ed["key"]] = np.array(v) if isinstance(v, list) else v
+        elif what == "dataset":
+            name = ed["name"] if ed["name"] in f else sorted(f)[0]
+            new = _semantic(f[name][()], ed["kind"], ed.get("rows", [0.0]))
+            del f[name]
+            if ed["kind"] != "delete":
+                f.create_dataset(name, data=new)
+        elif what == "declare_rows":
+            rows = int(ed["rows"])
+            for name in sorted(f):
+                ds = f[name]
+                tail, dt = ds.shape[1:], ds.dtype
+                del f[name]
+                f.create_dataset(name, shape=(rows, *tail), dtype=dt, chunks=(min(rows, 1 << 16), *tail),
+                                 fillvalue=0)
+            if ed.get("n_discs"):
+                f.attrs["n_discs"] = rows
+
+
+ZARR_CODECS = {
+    "gzip": {"name": "gzip", "configuration": {"level": 5}},
+    "zstd": {"name": "zstd", "configuration": {"level": 0, "checksum": False}},
+    "blosc": {"name": "blosc", "configuration": {"cname": "lz4", "clevel": 5, "shuffle": "shuffle",
+                                                  "typesize": 8, "blocksize": 0}},
+    "crc32c": {"name": "crc32c"},
+    "unknown": {"name": "frobnicate", "configuration": {}},
+}
+
+
+def _edit_zarr_codec(world: World, ed: dict):
+    """One array document of a zarr epoch names another codec chain: a compressor over the
+    chunk encoded with it (``encode``) or left as it was, a gzip chunk of ``size`` zero bytes
+    (far beyond the declared shape), the sharding codec, an unknown codec."""
+    m = world.manifest()
+    e = _epoch_entry(m, ed["which"])
+    if not e or m.get("backend") != "zarr":
+        return
+    import gzip
+    with _zarr_tree(world.run / e["path"]) as base:
+        doms = sorted((base / "domains").glob("d*"))
+        gdir = base / "globals" if ed["group"] == "globals" else doms[ed["dom"] % len(doms)]
+        names = sorted(x.name for x in gdir.iterdir() if x.is_dir())
+        adir = gdir / (ed["name"] if ed["name"] in names else names[ed.get("name_i", 0) % len(names)])
+        meta = json.loads((adir / "zarr.json").read_text())
+        chunks = sorted(p for p in (adir / "c").rglob("*") if p.is_file()) if (adir / "c").is_dir() else []
+        raw = chunks[0].read_bytes() if chunks else b""
+        codec = ed["codec"]
+        bytes_codec = {"name": "bytes", "configuration": {"endian": "little"}}
+        data = raw
+        if codec == "gzip_bomb":
+            meta["codecs"] = [bytes_codec, ZARR_CODECS["gzip"]]
+            data = None
+        elif codec == "sharding":
+            meta["codecs"] = [{"name": "sharding_indexed", "configuration": {
+                "chunk_shape": meta["chunk_grid"]["configuration"]["chunk_shape"],
+                "codecs": [bytes_codec], "index_codecs": [bytes_codec, {"name": "crc32c"}],
+                "index_location": "end"}}]
+        elif codec == "sharding_many":
+            # inner chunks of one row, an index without checksum: the chunk's bytes read as
+            # offsets, one read task per inner chunk
+            meta["codecs"] = [{"name": "sharding_indexed", "configuration": {
+                "chunk_shape": [1] * len(meta["shape"]), "codecs": [bytes_codec], "index_codecs": [bytes_codec],
+                "index_location": ed.get("index_location", "end")}}]
+        elif codec == "transpose":
+            meta["codecs"] = [{"name": "transpose", "configuration": {"order": list(range(len(meta["shape"])))[::-1]}},
+                              bytes_codec]
+        else:
+            meta["codecs"] = [bytes_codec, ZARR_CODECS[codec]]
+            if ed.get("encode") and codec == "gzip":
+                data = gzip.compress(raw)
+            elif ed.get("encode") and codec in ("zstd", "blosc"):
+                import numcodecs
+                data = bytes((numcodecs.Zstd(level=0) if codec == "zstd" else
+                              numcodecs.Blosc(cname="lz4", clevel=5, shuffle=1, typesize=8)).encode(raw))
+        (adir / "zarr.json").write_text(json.dumps(meta, indent=2))
+        target = chunks[0] if chunks else adir / "c" / "/".join(["0"] * max(1, len(meta["shape"])))
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if data is None:
+            shutil.copyfile(_gzip_zeros(world, int(ed["size"])), target)
+        else:
+            target.write_bytes(data)
+    _fix_all_checksums(world, ed["which"])
+
+
 # =====================================================================================
 # running and checking one case
 # =====================================================================================
@@ -1057,7 +1419,7 @@ class Fuzzer:
 
     def __init__(self, workdir: Path | None = None, bases_dir: Path | None = None,
                  timeout=CASE_TIMEOUT, mem_bound=MEM_BOUND, keep_failed: int = 0, log=None,
-                 bisect_budget_s: float = 150.0):
+                 bisect_budget_s: float = 150.0, bases=None):
         self.bisect_budget_s = bisect_budget_s
         self._tmp = None
         if workdir is None:
@@ -1066,37 +1428,32 @@ class Fuzzer:
         self.work = Path(workdir)
         self.cases_dir = self.work / "cases"
         self.cases_dir.mkdir(parents=True, exist_ok=True)
-        self.bases = make_bases(Path(bases_dir) if bases_dir else self.work / "bases")
+        self.bases = make_bases(Path(bases_dir) if bases_dir else self.work / "bases", bases)
         self.timeout = timeout
         self.mem_bound = mem_bound
         self.keep_failed = keep_failed
         self.log = log or (lambda msg: None)
         warm = self.work / "warm"
+        stores = [b for b in ("h5", "zarr", "h5_3d", "zarr_3d") if b in self.bases]
 
         def prepare():                   # fresh copies before every (re)start of the worker
             shutil.rmtree(warm, ignore_errors=True)
             warm.mkdir()
-            for b, d in self.bases.items():
-                shutil.copytree(d, warm / b)
-        self.worker = Worker(prepare=prepare, errlog=self.work / "worker-stderr.log", warmup=[(["checkpoint", "verify", b], str(warm)) for b in self.bases] +
-                             [(["resume", "h5", "--steps", "21", "--no-progress", "--no-figures"], str(warm)),
-                              (["resume", "zarr", "--steps", "21", "--no-progress", "--no-figures"], str(warm)),
-                              (["report", "h5"], str(warm))],
+            for b in stores:
+                shutil.copytree(self.bases[b], warm / b)
+        tail = ["--no-progress", "--no-figures"]
+        self.worker = Worker(prepare=prepare, errlog=self.work / "worker-stderr.log",
+                             warmup=[(["resume", b, "--steps", "21", *tail], str(warm)) for b in stores] +
+                             [(["report", "h5"], str(warm))],
                              mem_bound=mem_bound).start()
         self.commands = set(self.worker.info.get("commands", []))
-        # the state hash after `resume --steps 30` of each intact base: a resume that falls back
-        # from a damaged current epoch to the previous one must end with these bits
+        # the state hash after `resume --steps 30` of each intact base (made when first needed):
+        # a resume that falls back from a damaged current epoch to the previous one must end
+        # with these bits
         self.ref_hash = {}
-        ref = self.work / "ref"
-        shutil.rmtree(ref, ignore_errors=True)
-        ref.mkdir()
-        for b, d in self.bases.items():
-            shutil.copytree(d, ref / b)
-            self.worker.call(["resume", b, "--steps", "30", "--no-progress", "--no-figures"], ref)
-            h = self.worker.call(["checkpoint", "hash", b], ref)
-            self.ref_hash[b] = (h.get("stdout") or "").strip().splitlines()[-1:] or None
-        shutil.rmtree(ref, ignore_errors=True)
         self.n = 0
+        self.slowest: list = []           # (seconds, case) of the slowest cases
+        self._current = ""
         self.counts: dict[str, int] = {}
         self.missing: dict[str, int] = {}
         self.inapplicable: dict[str, int] = {}   # cases whose edits the harness could not apply
@@ -1105,6 +1462,39 @@ class Fuzzer:
         self.max_peak = 0
         self.history: list[dict] = []     # the last cases run in the current worker
         self.worker_cases: list[dict] = []  # every case run in the current worker
+
+    def reference(self, base: str, what: str):
+        """The state hash (as a one-item list) an intact world ends with: ``resume`` -- the
+        base resumed to step 30; ``bed_run`` -- BED_RUN from the intact bed cache."""
+        key = (base, what)
+        if key not in self.ref_hash:
+            ref = self.work / "ref"
+            shutil.rmtree(ref, ignore_errors=True)
+            ref.mkdir()
+            env = None
+            if what == "resume":
+                shutil.copytree(self.bases[base], ref / "run")
+                self.worker.call(["resume", "run", "--steps", "30", "--no-progress", "--no-figures"], ref)
+            elif what == "export_previous":
+                shutil.copytree(self.bases[base], ref / "run")
+                self.worker.call(["checkpoint", "export", "run", "--epoch", "10", "--out", "e.csv"], ref)
+                self.ref_hash[key] = _csv_body(ref / "e.csv")
+                shutil.rmtree(ref, ignore_errors=True)
+                return self.ref_hash[key]
+            elif what == "previous":
+                shutil.copytree(self.bases[base], ref / "run")
+                h = self.worker.call(["checkpoint", "hash", "run", "--epoch", "10"], ref)
+                self.ref_hash[key] = (h.get("stdout") or "").strip().splitlines()[-1:] or None
+                shutil.rmtree(ref, ignore_errors=True)
+                return self.ref_hash[key]
+            else:
+                shutil.copytree(self.bases["cache"], ref / "cache")
+                env = {"OOC_DEM_CACHE": str(ref / "cache")}
+                self.worker.call([*BED_RUN, "--out", "run"], ref, timeout=max(self.timeout, 60), env=env)
+            h = self.worker.call(["checkpoint", "hash", "run"], ref)
+            self.ref_hash[key] = (h.get("stdout") or "").strip().splitlines()[-1:] or None
+            shutil.rmtree(ref, ignore_errors=True)
+        return self.ref_hash[key]
 
     def restart_worker(self):
         """A fresh worker (a strategy's cases cannot be hit by an earlier one's heap damage)."""
@@ -1178,16 +1568,19 @@ class Fuzzer:
     def run_case(self, case: dict) -> list[dict]:
         t0 = time.monotonic()
         self.n += 1
+        self._current = f"{case.get('strategy')} {case.get('base', 'h5')} {' '.join(map(str, case['argv']))[:80]}"
         strategy = case.get("strategy", "?")
         self.counts[strategy] = self.counts.get(strategy, 0) + 1
         root = self.cases_dir / f"c{self.n:06d}"
         shutil.rmtree(root, ignore_errors=True)
-        other = "zarr" if case.get("base", "h5") == "h5" else "h5"
+        other = OTHER_BASE.get(case.get("base", "h5"), "h5")
         world = World(root, self.bases[case.get("base", "h5")], self.bases[other])
         fails = []
         try:
             if "run2" in json.dumps(case):
                 world.add_run2()
+            for what in case.get("needs", []):
+                world.add_material(what, self.bases)
             for i, ed in enumerate(case.get("edits", [])):
                 try:
                     apply_edit(world, ed)
@@ -1218,11 +1611,20 @@ class Fuzzer:
         stores0 = {d: snapshot(world.w / d) for d in ("run", "run2")}
         committed0 = _committed(world.run)
         restarts = self.worker.restarts
-        res = self.worker.call(argv, world.w, timeout=self.timeout)
+        env = {"OOC_DEM_CACHE": str(world.w / "cache")} if "cache" in case.get("needs", []) else None
+        timeout = max(self.timeout, case.get("timeout", 0))
+        if case.get("fresh"):
+            res = _fresh_call(argv, world.w, timeout, env, case.get("fsize"))
+        else:
+            res = self.worker.call(argv, world.w, timeout=timeout, env=env, fsize=case.get("fsize"))
         died = self.worker.proc is None or self.worker.proc.poll() is not None or self.worker.restarts != restarts
-        if res.get("rc") is None and self.history:
+        if case.get("fresh"):
+            pass                         # its own interpreter: nothing to do with the worker's history
+        elif res.get("rc") is None and self.history:
             res["preceded_by"] = list(self.history)
-        if died or res.get("rc") is None:
+        if case.get("fresh"):
+            pass
+        elif died or res.get("rc") is None:
             self.history, self.worker_cases = [], []
         else:
             self.history = (self.history + [{"base": case.get("base", "h5"), "edits": short(case.get("edits", [])),
@@ -1233,7 +1635,9 @@ class Fuzzer:
         return fails
 
     def _finish(self, root, fails, t0):
-        self.elapsed += time.monotonic() - t0
+        dt = time.monotonic() - t0
+        self.elapsed += dt
+        self.slowest = sorted(self.slowest + [(round(dt, 2), self._current)], key=lambda x: -x[0])[:10]
         self.failures += fails
         if fails and self.keep_failed > 0:
             self.keep_failed -= 1
@@ -1276,6 +1680,27 @@ class Fuzzer:
         base_rss = self.worker.info.get("baseline_rss", 0)
         if rc is not None and res.get("hwm_reset") and peak - base_rss > self.mem_bound:
             fails.append(self._fail(case, "memory", f"peak RSS {peak / GiB:.2f} GiB", res))
+        elif (rc is not None and res.get("hwm_reset") and case.get("expect", {}).get("size_bound")
+              and res.get("hwm", 0) - res.get("rss0", 0) > SIZE_BOUND):
+            fails.append(self._fail(case, "memory", f"peak RSS {(res['hwm'] - res['rss0']) / 2**20:.0f} MB "
+                                    f"above the RSS at the call (bound {SIZE_BOUND >> 20} MB) for a hostile "
+                                    f"declared size", res))
+        if (rc == 2 and case.get("expect", {}).get("size_bound") and not any(f["property"] == "memory" for f in fails)
+                and re.search(r"out of memory|unable to allocate|memoryerror", err, re.I)):
+            # refused only because the allocation failed: it was sized by the hostile number
+            # (the worker's RLIMIT_AS stops it; a user's machine would swap or be OOM-killed)
+            fails.append(self._fail(case, "memory", "a hostile declared size was refused only by running out "
+                                    "of memory (allocated before any check)", res))
+        if rc in (0, 2):
+            left = _temporaries(world.w)
+            if left:
+                fails.append(self._fail(case, "temporary_left", ", ".join(left[:3]), res))
+        if rc == 0 and case.get("fsize"):
+            cut = _cut_files(world.w, case["fsize"])
+            if cut:
+                fails.append(self._fail(case, "truncated_output", f"exit 0 under RLIMIT_FSIZE = {case['fsize']} "
+                                        f"with files of exactly that size (cut at the limit): "
+                                        f"{', '.join(cut[:3])}", res))
         # nothing outside the run directories changes
         outside1 = snapshot(world.root, [os.path.join("w", d) for d in SAFE_DIRS])
         if cmd == "animate" and _opt(argv, "--out") is None and rc == 0:
@@ -1292,7 +1717,8 @@ class Fuzzer:
         # read-only commands leave the stores alone
         out_opt = _opt(argv, "--out") or ""
         read_only = (cmd == "checkpoint" and sub in READ_ONLY and not (sub == "export" and out_opt.startswith("run"))) \
-            or cmd in ("compare", "check", "report") or (cmd == "profile" and out_opt == "victim")
+            or cmd in ("compare", "check", "report", API_PREFIX) or (cmd == "profile" and out_opt == "victim") \
+            or (cmd in ("animate", "export-trajectory") and out_opt.startswith("out/"))
         if read_only and rc is not None:
             for d in ("run", "run2"):
                 after = snapshot(world.w / d)
@@ -1326,12 +1752,44 @@ class Fuzzer:
         if exp.get("same_bits_as_intact") and rc == 0:
             h = self.worker.call(["checkpoint", "hash", "run"], world.w, timeout=self.timeout)
             got = (h.get("stdout") or "").strip().splitlines()[-1:]
-            want = self.ref_hash.get(case.get("base", "h5"))
+            want = self.reference(case.get("base", "h5"), "resume")
             if want and got != want:
                 fails.append(self._fail(case, "resumed_from_wrong_data",
                                         f"resume of a detectably invalid current epoch exited 0 and ended "
                                         f"with state hash {got[0][:16] if got else None}... instead of the "
                                         f"intact run's {want[0][:16]}... (neither refused nor fell back)", res))
+        if exp.get("hash_fallback") and rc == 0:
+            got = (res.get("stdout") or "").strip().splitlines()[-1:]
+            want = self.reference(case.get("base", "h5"), "previous")
+            if want and got != want:
+                fails.append(self._fail(case, "accepted_invalid_epoch",
+                                        f"`checkpoint hash` of a detectably invalid current epoch printed "
+                                        f"{got[0][:24] if got else None}... (neither refused nor the previous "
+                                        f"epoch's {want[0][:24]}...)", res))
+        if exp.get("export_fallback") and rc == 0:
+            got = _csv_body(world.w / out_opt)
+            want = self.reference(case.get("base", "h5"), "export_previous")
+            if got != want:
+                fails.append(self._fail(case, "accepted_invalid_epoch",
+                                        "`checkpoint export` of a detectably invalid current epoch wrote it "
+                                        "(neither refused nor the previous epoch)", res))
+        made = world.w / (_opt(argv, "--out") or "-")
+        if exp.get("resumable") and rc == 0 and (made / "MANIFEST.json").is_file():
+            v = self.worker.call(["resume", str(made.relative_to(world.w)), "--steps", str(exp["resumable"]),
+                                  "--no-progress", "--no-figures"], world.w, timeout=max(self.timeout, 30))
+            if v.get("rc") != 0:
+                r2 = dict(res, stderr=(v.get("stderr") or "") + (v.get("stdout") or "")[-500:])
+                fails.append(self._fail(case, "store_refused_by_own_resume",
+                                        f"exit 0, then `resume` of the store it wrote: exit {v.get('rc')}", r2))
+        if exp.get("same_as_intact_cache") and rc == 0 and (made / "MANIFEST.json").is_file():
+            h = self.worker.call(["checkpoint", "hash", str(made.relative_to(world.w))], world.w, timeout=self.timeout)
+            got = (h.get("stdout") or "").strip().splitlines()[-1:]
+            want = self.reference(case.get("base", "h5"), "bed_run")
+            if want and got != want:
+                fails.append(self._fail(case, "ran_on_damaged_cache",
+                                        f"exit 0 with state hash {got[0][:16] if got else None}... instead of "
+                                        f"{want[0][:16]}... (a damaged bed-cache entry neither rebuilt nor refused)",
+                                        res))
         if exp.get("refuse") and rc == 0 and (argv[:2] != ["checkpoint", "verify"]
                                               or world.epoch_bytes_changed()):
             fails.append(self._fail(case, "accepted_bad_input", exp["refuse"], res))
@@ -1349,6 +1807,7 @@ class Fuzzer:
                 "worker_restarts": self.worker.restarts,
                 "worker_baseline_rss_mb": round(self.worker.info.get("baseline_rss", 0) / 2**20, 1),
                 "max_peak_rss_mb": round(self.max_peak / 2**20, 1),
+                "slowest_cases": [f"{t} s {c}" for t, c in self.slowest],
                 "commands_missing": dict(self.missing),
                 "inapplicable_cases": dict(self.inapplicable),
                 "failures": len(self.failures),
@@ -1360,6 +1819,70 @@ class Fuzzer:
                                      "detail": v["example"]["detail"],
                                      "stderr": v["example"]["stderr"][-1500:]}
                                     for k, v in sorted(classes.items())]}
+
+
+def _csv_body(path: Path):
+    """An exported CSV without its first line (which names the store), or None."""
+    try:
+        return path.read_text(errors="replace").split("\n", 1)[1]
+    except (OSError, IndexError):
+        return None
+
+
+TEMP_NAME = re.compile(r"\.tmp")
+
+
+def _temporaries(root: Path) -> list[str]:
+    """Names of temporaries (``*.tmp*``) left anywhere below root after a command ended."""
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
+        for n in dirnames + filenames:
+            if TEMP_NAME.search(n):
+                out.append(os.path.relpath(os.path.join(dirpath, n), root))
+    return sorted(out)
+
+
+def _cut_files(root: Path, limit: int) -> list[str]:
+    """Regular files below root of exactly ``limit`` bytes (what a write cut by RLIMIT_FSIZE leaves)."""
+    out = []
+    for dirpath, _, filenames in os.walk(root, followlinks=False):
+        for n in filenames:
+            p = os.path.join(dirpath, n)
+            try:
+                st = os.lstat(p)
+            except OSError:
+                continue
+            if stat.S_ISREG(st.st_mode) and st.st_size == limit:
+                out.append(os.path.relpath(p, root))
+    return sorted(out)
+
+
+def _fresh_call(argv, cwd, timeout, env=None, fsize=None) -> dict:
+    """The command in a fresh interpreter (`python -m ooc_dem.cli`), as a user runs it: what
+    it prints at interpreter exit counts too (pipes: RLIMIT_FSIZE does not cut them)."""
+    import resource
+    e = child_env()
+    e.update(env or {})
+
+    def limits():
+        if fsize is not None:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (int(fsize), resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+    t0 = time.monotonic()
+    p = subprocess.Popen([sys.executable, "-m", "ooc_dem.cli", *argv], cwd=cwd, env=e, text=True,
+                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         start_new_session=True, preexec_fn=limits, errors="replace")
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        out, err = p.communicate()
+        return {"rc": None, "error": f"timeout after {timeout:.0f} s", "elapsed": timeout,
+                "stderr": err[-20000:], "stdout": out[-2000:]}
+    rc = p.returncode
+    if rc < 0:
+        err += f"\n[killed by signal {signal.Signals(-rc).name}]"
+    return {"rc": rc, "stdout": out[-65536:], "stderr": err[-65536:], "elapsed": time.monotonic() - t0,
+            "exc": None, "hwm_reset": False}
 
 
 def _only_sets(args):
@@ -1672,7 +2195,7 @@ def build_strategies():
     fracs = st.floats(0, 0.9999)
 
     @st.composite
-    def epoch_edit(draw):
+    def epoch_edit(draw, kinds=arr_kinds):
         k = draw(st.integers(0, 9))
         if k <= 2:
             n = draw(st.integers(1, 4))
@@ -1688,7 +2211,7 @@ def build_strategies():
             g = draw(st.sampled_from(["domain", "domain", "domain", "globals"]))
             return {"op": "array", "which": draw(which), "group": g, "dom": draw(st.integers(0, 5)),
                     "name": draw(st.sampled_from(dom_names if g == "domain" else glob_names)),
-                    "kind": draw(st.sampled_from(arr_kinds)), "rows": draw(st.lists(fracs, min_size=1, max_size=3)),
+                    "kind": draw(st.sampled_from(kinds)), "rows": draw(st.lists(fracs, min_size=1, max_size=3)),
                     "update_meta": draw(st.booleans())}
         return {"op": "attrs", "which": draw(which), "group": draw(st.sampled_from(["domain", "globals"])),
                 "dom": draw(st.integers(0, 5)), "value": draw(st.sampled_from(attr_values))}
@@ -1749,8 +2272,180 @@ def build_strategies():
                                      ["compare", "run2", "run"], ["compare", "run", "run"]]))
         return {"strategy": "runfiles", "base": draw(st.sampled_from(BASES)), "edits": edits, "argv": argv}
 
+    # ---- 3D stores: the epoch edits (and finite absurd values) on quick-3d, HDF5 and zarr
+    kinds3 = arr_kinds + list(EXTREMES) + ["drop_row", "unsort"]
+
+    @st.composite
+    def epoch3d_case(draw):
+        edits = draw(st.lists(epoch_edit(kinds3), min_size=1, max_size=2))
+        argv = draw(st.sampled_from(EPOCH3D_CMDS))
+        return _epoch_expect({"strategy": "epoch3d", "base": draw(st.sampled_from(["h5_3d", "zarr_3d"])),
+                              "edits": edits, "argv": argv})
+
+    # ---- beds: `run --bed` of an edited prepared bed, and an edited bed-cache entry
+    bed_kinds = arr_kinds + list(EXTREMES) + ["drop_disc", "delete"]
+
+    @st.composite
+    def bed_case(draw):
+        where = draw(st.sampled_from(["bed", "bed", "cache"]))
+        kinds = bed_kinds + (["remove_file"] if where == "cache" else [])
+        edits = [{"op": "npz_array", "file": where, "name": draw(st.sampled_from(dom_names)),
+                  "kind": draw(st.sampled_from(kinds)), "rows": draw(st.lists(fracs, min_size=1, max_size=3))}
+                 for _ in range(draw(st.integers(1, 2)))]
+        extra = draw(st.sampled_from([[], [], ["--mode", "ooc", "--domains", "2", "--backend", "zarr"],
+                                      ["--mode", "ddm", "--domains", "2"]]))
+        return _bed_case(where, edits, extra)
+
+    # ---- trajectory frames: declared row counts, shapes, dtypes, attributes
+    traj_attr_values = [None, -1, 0, 1, 3, 2 ** 25, 2 ** 40, 2 ** 62, 1.5, "x", _j(float("nan")),
+                        [0.0] * 6, [_j(float("nan"))] * 6, [1.0, 2.0], 1e308, 5e-324]
+
+    @st.composite
+    def traj_edit(draw):
+        k = draw(st.integers(0, 9))
+        frame = draw(st.integers(0, 5))
+        if k <= 2:
+            return {"op": "traj", "frame": frame, "what": "attr",
+                    "key": draw(st.sampled_from(["n_discs", "step", "dim", "frame_every_steps", "dt", "time",
+                                                 "wheel_state", "format_version", "format", "scenario_hash"])),
+                    "value": draw(st.sampled_from(traj_attr_values))}
+        if k <= 6:
+            return {"op": "traj", "frame": frame, "what": "dataset", "name": draw(st.sampled_from(TRAJ_FIELDS)),
+                    "kind": draw(st.sampled_from(kinds3)), "rows": draw(st.lists(fracs, min_size=1, max_size=3))}
+        if k <= 8:
+            return {"op": "traj", "frame": frame, "what": "declare_rows",
+                    "rows": draw(st.sampled_from(DECLARED_ROWS)), "n_discs": draw(st.booleans())}
+        return {"op": "traj", "frame": frame, "what": "remove"}
+
+    @st.composite
+    def trajectory_case(draw):
+        edits = draw(st.lists(traj_edit(), min_size=1, max_size=2))
+        return _size_expect({"strategy": "trajectory", "base": "traj", "edits": edits,
+                             "argv": draw(st.sampled_from(TRAJ_CMDS))})
+
+    # ---- npz members of initial.npz
+    @st.composite
+    def npz_edit(draw):
+        member = draw(st.sampled_from(["x", "y", "r", "id", "surface"]))
+        what = draw(st.sampled_from(["bomb", "declared", "declared", "object", "fortran", "shape", "dtype"]))
+        ed = {"op": "npz_member", "member": member, "what": what}
+        if what == "bomb":
+            ed["size"] = draw(st.sampled_from(BOMB_SIZES))
+        elif what == "declared":
+            ed["shape"] = draw(st.sampled_from(DECLARED_SHAPES))
+            ed["descr"] = draw(st.sampled_from(["<f8", "<i8", "|u1", "<c16"]))
+        elif what == "shape":
+            ed["shape"] = draw(st.sampled_from([[1500, 2], [3], [0], [1500, 1, 1], [1], [2, 750]]))
+        elif what == "dtype":
+            ed["descr"] = draw(st.sampled_from(["<c16", "|b1", "<U4", "|V16", ">f8", "<m8[s]"]))
+        return ed
+
+    @st.composite
+    def npz_case(draw):
+        edits = draw(st.lists(npz_edit(), min_size=1, max_size=2))
+        argv = draw(st.sampled_from(NPZ_CMDS))
+        base = "traj" if argv[0] == "animate" else draw(st.sampled_from(["h5", "zarr"]))
+        return _size_expect({"strategy": "npz", "base": base, "edits": edits, "argv": argv})
+
+    # ---- zarr archives with codecs
+    @st.composite
+    def zarr_codec_case(draw):
+        base = draw(st.sampled_from(["zarr", "zarr", "zarr_3d", "zarr_zstd"]))
+        g = draw(st.sampled_from(["domain", "domain", "domain", "globals"]))
+        codec = draw(st.sampled_from(["gzip", "zstd", "blosc", "crc32c", "unknown", "sharding", "sharding_many",
+                                      "transpose", "gzip_bomb", "gzip_bomb"]))
+        ed = {"op": "zarr_codec", "which": draw(which), "group": g, "dom": draw(st.integers(0, 5)),
+              "name": draw(st.sampled_from(dom_names if g == "domain" else glob_names)), "codec": codec,
+              "encode": draw(st.booleans())}
+        if codec == "gzip_bomb":
+            ed["size"] = draw(st.sampled_from(BOMB_SIZES))
+        case = _size_expect({"strategy": "zarr_codec", "base": base, "edits": [ed],
+                             "argv": draw(st.sampled_from(ZARR_CMDS))})
+        if codec.startswith("sharding") and case["argv"][0] == "checkpoint":
+            case["fresh"] = True        # what zarr prints at interpreter exit counts
+        return case
+
+    # ---- file-size limits on every writer
+    @st.composite
+    def fsize_case(draw):
+        argv, base, needs = draw(st.sampled_from(FSIZE_CMDS))
+        # log-uniform from 1 KB to 8 MB: every writer's output is cut somewhere, or fits
+        limit = draw(st.one_of(st.sampled_from(FSIZE_LIMITS), st.floats(10, 23).map(lambda e: int(2 ** e))))
+        return {"strategy": "fsize", "base": base, "edits": [], "argv": list(argv), "needs": list(needs),
+                "fsize": limit, "timeout": 30}
+
     return {"scenario": scenario_case(), "scenario_file": scenario_file_case(), "cli": cli_case(),
-            "manifest": manifest_case(), "epoch": epoch_case(), "runfiles": runfiles_case()}
+            "manifest": manifest_case(), "epoch": epoch_case(), "runfiles": runfiles_case(),
+            "epoch3d": epoch3d_case(), "bed": bed_case(), "trajectory": trajectory_case(), "npz": npz_case(),
+            "zarr_codec": zarr_codec_case(), "fsize": fsize_case()}
+
+
+MiB = 1 << 20
+TRAJ_FIELDS = ["id", "pos", "vel", "spin", "r", "mat"]
+DECLARED_ROWS = [2 ** 20, 2 ** 22, 2 ** 25, 2 ** 28, 2 ** 31, 2 ** 40 + 1]
+BOMB_SIZES = [384 * MiB, 1024 * MiB]          # inflated sizes (each a few hundred KB on disk), > SIZE_BOUND
+DECLARED_SHAPES = [[2 ** 40], [2 ** 31], [2 ** 28], [2 ** 62, 2 ** 62], [1500, 2 ** 30], [2 ** 25]]
+RESUME30 = ["resume", "run", "--steps", "30", "--no-progress", "--no-figures"]
+EPOCH3D_CMDS = [["checkpoint", "hash", "run"], ["checkpoint", "hash", "run"], ["checkpoint", "verify", "run"],
+                ["checkpoint", "inspect", "run"], ["checkpoint", "export", "run", "--out", "out/s.csv"],
+                ["checkpoint", "export", "run", "--out", "out/s.xdmf"], RESUME30, RESUME30,
+                ["@api", "state", "run"]]
+TRAJ_CMDS = [["animate", "run", "--out", "out/f.gif", "--no-progress"],
+             ["animate", "run", "--out", "out/f.mp4", "--no-progress"], ["report", "run"],
+             ["@api", "trajectory", "run"], ["@api", "trajectory", "run"],
+             ["export-trajectory", "run", "--out", "out/t.xdmf"], RESUME30]
+NPZ_CMDS = [["report", "run"], ["report", "run"], ["compare", "run", "run2"], ["compare", "run2", "run"],
+            ["animate", "run", "--out", "out/f.gif", "--no-progress"]]
+ZARR_CMDS = [RESUME30, RESUME30, ["checkpoint", "hash", "run"], ["checkpoint", "hash", "run"],
+             ["checkpoint", "export", "run", "--out", "out/s.csv"], ["checkpoint", "export", "run", "--out", "out/s.vtp"],
+             ["checkpoint", "verify", "run"], ["@api", "state", "run"]]
+FSIZE_LIMITS = [1024, 4096, 16384, 102400, 262144, 1 << 20, 4 << 20]
+FSIZE_CMDS = ([(["checkpoint", "export", "run", "--out", f"out/e.{x}"], b, ()) for x in ("csv", "xdmf", "vtk", "vtp")
+               for b in ("h5", "zarr")]
+              + [(["checkpoint", "export", "run", "--out", "out/e.xdmf"], "h5_3d", ())]
+              + [(RESUME30, b, ()) for b in ("h5", "zarr", "traj", "h5_3d")]
+              + [([*BED_RUN, "--out", "out/r"], "h5", ("cache",)),
+                 ([*BED_RUN, "--backend", "zarr", "--out", "out/r"], "h5", ("cache",))]
+              + [(["animate", "run", "--out", f"out/f.{x}", "--no-progress"], "traj", ()) for x in ("mp4", "gif")]
+              + [(["export-trajectory", "run", "--out", "out/t.xdmf"], "traj", ())])
+
+
+def invalid_bed(edits) -> bool:
+    """Whether the edits make a bed file detectably invalid (the store's own invariants)."""
+    for ed in edits:
+        n, k = ed.get("name"), ed.get("kind")
+        if k in ("delete", "drop_disc", "remove_file", "shorter", "longer", "empty", "2d"):
+            return True
+        if (n in FINITE and k in ("nan", "inf", "all_nan")) or (n == "id" and k in ("dup", "neg", "minus7", "minus1")) \
+                or (n == "hist_n" and k in ("99", "all_99", "neg", "999", "i32max", "minus7", "minus1")) \
+                or (n == "mat" and k in ("99", "all_99", "neg", "999", "i32max", "minus7", "minus1", "huge")) \
+                or (n in ("r", "mass", "inertia") and k in ("zero", "neg", "minus7", "minus1", "5e-324", "-5e-324")) \
+                or (n in ("vel", "spin") and k in ("1e300", "huge")):
+            return True
+    return False
+
+
+def _bed_case(where, edits, extra=()) -> dict:
+    """A run from an edited prepared bed (``where`` = "bed") or bed-cache entry ("cache"): a
+    detectably invalid bed is refused; a cache entry that fails is rebuilt (the intact run's
+    bits) or refused; whatever exits 0 leaves a store its own `resume` accepts."""
+    bad = invalid_bed(edits)
+    if where == "bed":
+        argv = [*BED_RUN, *extra, "--bed", "out/bed", "--out", "out/r"]
+        expect = {"resumable": 6, **({"refuse": "a run from a detectably invalid bed exited 0"} if bad else {})}
+        return {"strategy": "bed", "base": "h5", "edits": edits, "argv": argv, "needs": ["bed"], "expect": expect}
+    argv = [*BED_RUN, *extra, "--out", "out/r"]
+    expect = {"resumable": 6, **({"same_as_intact_cache": True} if bad and not extra else {})}
+    return {"strategy": "bed", "base": "h5", "edits": edits, "argv": argv, "needs": ["cache"], "expect": expect,
+            "timeout": 60}
+
+
+def _size_expect(case: dict) -> dict:
+    """A hostile declared size (rows, members, inflated chunks) is refused under SIZE_BOUND."""
+    for ed in case["edits"]:
+        if ed.get("what") in ("declare_rows", "bomb", "declared") or ed.get("codec") == "gzip_bomb":
+            case.setdefault("expect", {})["size_bound"] = True
+    return case
 
 
 PER_DISC = ("id", "pos", "vel", "spin", "r", "mass", "inertia", "mat", "hist_n")
@@ -1773,6 +2468,16 @@ def invalid_current(edits) -> bool:
                         or (n == "hist_n" and k in ("99", "all_99", "neg")) \
                         or (n in PER_DISC and k in ("shorter", "longer", "empty", "2d")):
                     return True
+                # finite absurd values and indices out of range (the step's arithmetic and
+                # the material table); 2D and 3D
+                if (n == "mat" and k in ("999", "i32max", "minus1", "minus7")) \
+                        or (n == "id" and k in ("minus1", "minus7")) \
+                        or (n == "hist_n" and k in ("999", "i32max", "minus1", "minus7")) \
+                        or (n in ("r", "mass", "inertia") and k in ("5e-324", "-5e-324", "minus1", "minus7")) \
+                        or (n in ("vel", "spin") and k == "1e300") \
+                        or (n in ("r", "mass", "inertia") and k == "zero") \
+                        or (n in FINITE and k in ("float32", "int32", "complex", "u8", "bool")):
+                    return True
             elif n == "wheel_state" and k in ("nan", "inf", "all_nan", "shorter", "longer", "empty", "2d"):
                 return True
         elif ed["op"] == "attrs" and ed["group"] == "globals" and ed["value"] in (
@@ -1787,6 +2492,16 @@ def _epoch_expect(case: dict) -> dict:
     argv = case["argv"]
     if argv[0] == "resume" and invalid_current(case["edits"]):
         case.setdefault("expect", {})["same_bits_as_intact"] = True
+    # the readers of an epoch validate it as resume does: `hash` of a detectably invalid
+    # current epoch refuses or falls back to the previous one (its hash)
+    only_current = invalid_current(case["edits"]) and all(
+        ed.get("which") == "current" and ed["op"] in ("array", "attrs") for ed in case["edits"])
+    if argv[:2] == ["checkpoint", "hash"] and _opt(argv, "--epoch") is None and only_current:
+        case.setdefault("expect", {})["hash_fallback"] = True
+    # ... and `export` of it refuses or writes the previous epoch
+    if (argv[:2] == ["checkpoint", "export"] and _opt(argv, "--epoch") is None and only_current
+            and (_opt(argv, "--out") or "").endswith(".csv")):
+        case.setdefault("expect", {})["export_fallback"] = True
     damaged = set()
     for ed in case["edits"]:
         if ed["op"] == "flip" and not ed.get("recompute"):
@@ -2050,18 +2765,131 @@ def _known_cases() -> dict:
           _c("runfiles", ["compare", "run", "run2"], [{"op": "runfile", "name": "initial.npz", "npz": {"x": "object"}}]),
           _c("runfiles", ["compare", "run", "run2"], [{"op": "runfile", "name": "series.csv", "text": "1e308," * 13 + "\n"}]),
           _c("runfiles", ["compare", "run", "run2"], [{"op": "runfile_link", "name": "summary.json", "target": "/dev/zero"}])]
+    # the readers that skipped the epoch validation (hash, export) and finite absurd values
+    hash_ = ["checkpoint", "hash", "run"]
+    csv = ["checkpoint", "export", "run", "--out", "out/s.csv"]
+    for base in BASES:
+        ep += [_c("epoch", hash_, [A("pos", "nan")], base), _c("epoch", csv, [A("pos", "nan")], base),
+               _c("epoch", hash_, [A("r", "zero")], base), _c("epoch", hash_, [A("id", "minus7")], base),
+               _c("epoch", hash_, [A("hist_n", "99")], base), _c("epoch", hash_, [A("pos", "float32", update_meta=True)], base),
+               _c("epoch", resume, [A("vel", "1e300")], base), _c("epoch", resume, [A("mass", "5e-324")], base),
+               _c("epoch", resume, [A("mat", "999")], base)]
+    # a damaged current epoch whose recorded size is absurd: resume falls back, never "disk full"
+    for base in BASES:
+        ep.append(_c("epoch", resume, [{"op": "flip", "which": "current", "file": 0, "offsets": [0.5], "xors": [7],
+                                        "recompute": False},
+                                       M(["current", "files", 0, "size"], 10 ** 18)], base,
+                     expect={"same_bits_as_intact": True}))
+    # an absurd finite value that `check` accepts crashes `run`
+    cli += [_c("cli", ["run", "quick-3d", "--set", "wheel.width=1e-300", "--steps", "1", "--out", "out/r", *RUN_TAIL]),
+            _c("cli", ["check", "quick-3d", "--set", "wheel.width=1e-300"])]
+    # untyped exceptions from the API on a hostile manifest; hist_cap sizing an allocation
+    api = ["@api", "state", "run"]
+    man += [_c("manifest", api, [M(["meta", "dim"], 3.0)]), _c("manifest", api, [M(["meta", "dim"], 3.0)], base="zarr"),
+            _c("manifest", api, [M(["meta", "hist_cap"], 100000)], expect={"size_bound": True}),
+            _c("manifest", ["checkpoint", "hash", "run"], [M(["meta", "hist_cap"], 100000)], expect={"size_bound": True})]
     ep = [_epoch_expect(c) for c in ep]
+    # 3D stores: a material index past the table, the same readers
+    ep3 = []
+    for base in ("h5_3d", "zarr_3d"):
+        ep3 += [_c("epoch3d", resume, [A("mat", "i32max")], base), _c("epoch3d", hash_, [A("pos", "nan")], base),
+                _c("epoch3d", csv, [A("pos", "nan")], base), _c("epoch3d", resume, [A("vel", "1e300")], base),
+                _c("epoch3d", hash_, [A("hist_n", "all_99")], base), _c("epoch3d", api, [A("r", "zero")], base)]
+    big_id = dict(A("id", "3e8"), rows=[0.0])          # one disc, so that the ids stay distinct
+    ep3.append(_c("epoch3d", resume, [big_id], "zarr_3d", expect={"size_bound": True}))
+    ep += [_c("epoch", resume, [big_id], "zarr", expect={"size_bound": True}),
+           dict(_c("epoch", resume, [big_id], "ddm", expect={"size_bound": True}), heavy=True)]
+    ep3 = [_epoch_expect(c) for c in ep3]
+    # beds: `run --bed` and the bed cache load beds without the store's validation
+    B = lambda name, kind, where="bed": {"op": "npz_array", "file": where, "name": name, "kind": kind, "rows": [0.0]}  # noqa: E731
+    beds = [_bed_case("bed", [B("mat", "999")]), _bed_case("bed", [B("r", "zero")]),
+            _bed_case("bed", [B("hist_n", "99")]), _bed_case("bed", [B("id", "minus7")]),
+            _bed_case("bed", [B("mat", "minus1")]), _bed_case("bed", [B("pos", "nan")]),
+            _bed_case("bed", [B("mat", "i32max")], ["--mode", "ooc", "--domains", "2", "--backend", "zarr"]),
+            _bed_case("cache", [B("id", "drop_disc", "cache")]), _bed_case("cache", [B("r", "zero", "cache")]),
+            _bed_case("cache", [B("pos", "nan", "cache")]), _bed_case("cache", [B("mat", "999", "cache")])]
+    # allocations sized by a declared size: a frame declaring 2^25 rows, an npz member of 4 GB
+    # deflated zeros, a gzip zarr chunk inflating to 4 GB
+    T = lambda *e, argv=("animate", "run", "--out", "out/f.gif", "--no-progress"): _size_expect(  # noqa: E731
+        _c("trajectory", list(argv), list(e), base="traj"))
+    traj = [T({"op": "traj", "frame": 1, "what": "declare_rows", "rows": 2 ** 25, "n_discs": True}),
+            T({"op": "traj", "frame": 1, "what": "declare_rows", "rows": 2 ** 25, "n_discs": False}),
+            T({"op": "traj", "frame": 0, "what": "declare_rows", "rows": 2 ** 25, "n_discs": True},
+              argv=("@api", "trajectory", "run")),
+            T({"op": "traj", "frame": 2, "what": "dataset", "name": "pos", "kind": "nan", "rows": [0.0]}),
+            T({"op": "traj", "frame": 2, "what": "dataset", "name": "mat", "kind": "i32max", "rows": [0.0]}),
+            T({"op": "traj", "frame": 1, "what": "attr", "key": "n_discs", "value": 2 ** 40})]
+    Z = lambda *e, argv=("report", "run"), base="h5": _size_expect(_c("npz", list(argv), list(e), base=base))  # noqa: E731
+    npz = [Z({"op": "npz_member", "member": "x", "what": "bomb", "size": 4 << 30}),
+           Z({"op": "npz_member", "member": "x", "what": "bomb", "size": 384 * MiB}),
+           Z({"op": "npz_member", "member": "x", "what": "bomb", "size": 384 * MiB}, argv=("compare", "run", "run2")),
+           Z({"op": "npz_member", "member": "x", "what": "declared", "shape": [2 ** 40], "descr": "<f8"}),
+           Z({"op": "npz_member", "member": "x", "what": "object"}),
+           Z({"op": "npz_member", "member": "x", "what": "dtype", "descr": "<c16"}),
+           Z({"op": "npz_member", "member": "surface", "what": "shape", "shape": [0]}),
+           Z({"op": "npz_member", "member": "x", "what": "shape", "shape": [1500, 2]}),
+           Z({"op": "npz_member", "member": "y", "what": "shape", "shape": [1]})]
+    zc = lambda codec, argv, base="zarr", **kw: _size_expect(_c(  # noqa: E731
+        "zarr_codec", list(argv), [{"op": "zarr_codec", "which": "current", "group": "domain", "dom": 0,
+                                    "name": "pos", "codec": codec, "encode": kw.get("encode", False),
+                                    **({"size": kw["size"]} if "size" in kw else {})}], base=base))
+    zarr = [zc("gzip_bomb", resume, size=4 << 30), zc("gzip_bomb", hash_, size=384 * MiB),
+            zc("gzip_bomb", resume, size=384 * MiB), zc("gzip_bomb", csv, base="zarr_3d", size=384 * MiB), zc("sharding", hash_), zc("unknown", hash_),
+            zc("gzip", resume, encode=True), zc("blosc", verify), zc("zstd", ["@api", "state", "run"], base="zarr_zstd")]
+    zarr += [zc("sharding_many", hash_), zc("sharding_many", csv, base="zarr_zstd")]
+    for c in zarr:
+        if c["edits"][0]["codec"].startswith("sharding"):
+            c["fresh"] = True     # zarr's messages at interpreter exit count
+    # the 4 GB reproductions take seconds to build: campaigns only (the CI slice has the 512 MB ones)
+    for c in npz + zarr:
+        if c["edits"][0].get("size", 0) >= 4 << 30:
+            c["heavy"] = True
+    # a cache rebuild settles a bed (seconds): one in the CI slice, the others in campaigns
+    for c in beds:
+        if "cache" in c["needs"] and c["edits"][0]["kind"] != "drop_disc":
+            c["heavy"] = True
+    # writers under a file-size limit (`ulimit -f 100`: 102400 bytes)
+    F = lambda argv, base="h5", limit=102400, needs=(): {  # noqa: E731
+        "strategy": "fsize", "base": base, "edits": [], "argv": list(argv), "fsize": limit, "needs": list(needs),
+        "timeout": 30}
+    fs = [F(["checkpoint", "export", "run", "--out", "out/e.xdmf"]),
+          F(["checkpoint", "export", "run", "--out", "out/e.xdmf"], base="zarr"),
+          F(RESUME30, base="traj", limit=4096), F(RESUME30, base="h5", limit=102400),
+          F(["animate", "run", "--out", "out/f.mp4", "--no-progress"], base="traj", limit=16384),
+          F([*BED_RUN, "--out", "out/r"], needs=("cache",), limit=102400)]
     return {"scenario": scen, "scenario_file": scen_file, "cli": cli, "manifest": man, "epoch": ep,
-            "runfiles": rf}
+            "runfiles": rf, "epoch3d": ep3, "bed": beds, "trajectory": traj, "npz": npz, "zarr_codec": zarr,
+            "fsize": fs}
 
 
 KNOWN = _known_cases()
-STRATEGY_NAMES = ("scenario", "scenario_file", "cli", "manifest", "epoch", "runfiles")
+STRATEGY_NAMES = ("scenario", "scenario_file", "cli", "manifest", "epoch", "runfiles",
+                  "epoch3d", "bed", "trajectory", "npz", "zarr_codec", "fsize")
+# the base material each strategy's worlds start from
+STRATEGY_BASES = {"scenario": ("h5", "zarr"), "scenario_file": ("h5", "zarr"), "cli": ("h5", "zarr"),
+                  "manifest": ("h5", "zarr"), "epoch": ("h5", "zarr", "ddm"), "runfiles": ("h5", "zarr"),
+                  "epoch3d": ("h5_3d", "zarr_3d"), "bed": ("h5", "zarr", "bed"),
+                  "trajectory": ("traj", "h5"), "npz": ("h5", "zarr", "traj"),
+                  "zarr_codec": ("zarr", "h5", "zarr_3d", "h5_3d", "zarr_zstd"),
+                  "fsize": ("h5", "zarr", "traj", "h5_3d", "bed")}
+
+
+def bases_for(names, heavy: bool = True) -> list[str]:
+    """The base material the named strategies need (h5 and zarr always: the worker warms on
+    them); with heavy, also what their heavy known cases start from."""
+    out = ["h5", "zarr"]
+    for n in names:
+        out += [b for b in STRATEGY_BASES[n] if b not in out]
+        if heavy:
+            out += [c["base"] for c in KNOWN.get(n, []) if c.get("heavy") and c["base"] not in out]
+    return out
 
 
 def run_strategy(fuzzer: Fuzzer, name: str, n: int, seed: int | None = None, known: bool = True,
-                 strategies: dict | None = None) -> int:
-    """Run the known cases of a strategy plus n generated ones; returns the number of cases run."""
+                 strategies: dict | None = None, heavy: bool = True, end: bool = True) -> int:
+    """Run the known cases of a strategy plus n generated ones; returns the number of cases run.
+    heavy=False leaves out the known cases marked heavy (seconds to build their input);
+    end=False keeps the worker for the next strategy (its exit is checked at the last one)."""
     from hypothesis import HealthCheck, Phase, example, given, settings
     from hypothesis import seed as hseed
     strategies = strategies or build_strategies()
@@ -2076,12 +2904,14 @@ def run_strategy(fuzzer: Fuzzer, name: str, n: int, seed: int | None = None, kno
 
     if known:
         for ex in KNOWN.get(name, []):
-            body = example(case=ex)(body)
+            if heavy or not ex.get("heavy"):
+                body = example(case=ex)(body)
     if seed is not None:
         body = hseed(seed)(body)
     if n > 0 or known:
         body()
-    fuzzer.end_worker()          # the next strategy gets a fresh worker
+    if end:
+        fuzzer.end_worker()      # the next strategy gets a fresh worker
     return fuzzer.counts.get(name, 0) - before
 
 

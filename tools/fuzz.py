@@ -2,13 +2,17 @@
 """Long fuzz run of the `ooc-dem` command line (the setting of tests/test_fuzz.py, longer).
 
     python tools/fuzz.py --cases 5000 [--seed S] [--strategies scenario,cli,manifest,...]
+    python tools/fuzz.py --long --seed S          # the release campaign (>= 5000 cases, every class)
 
 Runs the strategies of tests/fuzzing.py (hostile scenario values, scenario files, CLI flags,
-manifest edits, epoch edits, run-directory files; plus every bug found by hand) in one long-lived
+manifest edits, epoch edits, run-directory files, 3D stores, beds and the bed cache, trajectory
+frames, initial.npz members, zarr codecs, file-size limits; plus every bug found by hand) in one long-lived
 worker process and checks every case: exit 0, or exit 2 with exactly one line on stderr; nothing
 outside the run directories created, changed or deleted; committed epochs untouched by a refused
-command; peak RSS bounded; no timeout. --cases is split over the chosen strategies in the
-proportions of the default test run.
+command; no temporary left; peak RSS bounded (300 MB above the call's RSS for a refusal of a
+hostile declared size); no timeout. --cases is split over the chosen strategies in the
+proportions of the default test run. The same --seed, --cases and --strategies give the same
+cases (hypothesis, no example database); without --seed the run is derandomized.
 
 Prints one JSON object on stdout (progress goes to stderr): cases per strategy, elapsed time,
 cases/s, the distinct failure classes (one reproducer each) and every failure (argv, edits, exit
@@ -38,6 +42,8 @@ def _load(name: str, path: Path):
 # the harness itself (not only its worker) stays inside a memory bound: a harness bug must fail
 # this run, never push the machine into its OOM killer
 HARNESS_ADDRESS_SPACE = 8 << 30
+LONG_CASES = 20000
+LONG_TIMEOUT = 60.0
 
 
 def main(argv=None) -> int:
@@ -48,12 +54,15 @@ def main(argv=None) -> int:
     weights = _load("_test_fuzz_budget", ROOT / "tests" / "test_fuzz.py").BUDGET
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--cases", type=int, default=5000, help="generated cases in total (default %(default)s)")
+    p.add_argument("--cases", type=int, default=None, help="generated cases in total (default 5000; --long: "
+                   f"{LONG_CASES})")
+    p.add_argument("--long", action="store_true",
+                   help=f"the release campaign: {LONG_CASES} cases over every strategy, {LONG_TIMEOUT:.0f} s a command")
     p.add_argument("--seed", type=int, default=None,
                    help="hypothesis seed (default: derandomized, the same cases every run)")
     p.add_argument("--strategies", default=",".join(fuzzing.STRATEGY_NAMES),
                    help="comma-separated subset of: " + ", ".join(fuzzing.STRATEGY_NAMES))
-    p.add_argument("--timeout", type=float, default=fuzzing.CASE_TIMEOUT, help="per command, s")
+    p.add_argument("--timeout", type=float, default=None, help=f"per command, s (default {fuzzing.CASE_TIMEOUT:.0f})")
     p.add_argument("--mem-bound-gib", type=float, default=fuzzing.MEM_BOUND / fuzzing.GiB,
                    help="peak RSS above the worker's baseline, GiB")
     p.add_argument("--no-known", action="store_true", help="skip the known-bug examples")
@@ -66,6 +75,10 @@ def main(argv=None) -> int:
     bad = [s for s in names if s not in fuzzing.STRATEGY_NAMES]
     if bad or not names:
         p.error(f"--strategies: unknown {bad}; choose from {', '.join(fuzzing.STRATEGY_NAMES)}")
+    if a.cases is None:
+        a.cases = LONG_CASES if a.long else 5000
+    if a.timeout is None:
+        a.timeout = LONG_TIMEOUT if a.long else fuzzing.CASE_TIMEOUT
     if a.cases < 0:
         p.error("--cases must be >= 0")
     total_w = sum(weights[s] for s in names)
@@ -77,7 +90,8 @@ def main(argv=None) -> int:
 
     t0 = time.monotonic()
     fz = fuzzing.Fuzzer(workdir=Path(a.workdir) if a.workdir else None, timeout=a.timeout,
-                        mem_bound=int(a.mem_bound_gib * fuzzing.GiB), keep_failed=a.keep_failed, log=log)
+                        mem_bound=int(a.mem_bound_gib * fuzzing.GiB), keep_failed=a.keep_failed, log=log,
+                        bases=fuzzing.bases_for(names))
     try:
         strategies = fuzzing.build_strategies()
         for s in names:
@@ -87,7 +101,9 @@ def main(argv=None) -> int:
         summary = fz.summary()
     finally:
         fz.close()
-    summary.update({"seed": a.seed, "requested_cases": a.cases, "generated_per_strategy": per,
+    summary.update({"seed": a.seed, "long": a.long, "strategies": names,
+                    "command": "python tools/fuzz.py " + " ".join(sys.argv[1:] if argv is None else argv),
+                    "requested_cases": a.cases, "generated_per_strategy": per,
                     "timeout_s": a.timeout, "wall_s": round(time.monotonic() - t0, 1),
                     "all_failures": [{k: (f[k][-1500:] if k == "stderr" else fuzzing.short(f[k])) for k in
                                       ("class", "strategy", "base", "edits", "argv", "property", "detail",

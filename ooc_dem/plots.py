@@ -190,39 +190,95 @@ def read_series(path) -> dict[str, np.ndarray]:
     return cols
 
 
-def read_initial(path) -> tuple:
-    """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as written."""
+# |coordinate|, radius and surface height [m] an initial bed may hold when no scenario gives
+# the bin (far beyond any bed; it keeps the figures' extents finite)
+MAX_INITIAL_COORD = 1e6
+
+
+def _npy_header(f, where: str):
+    """(shape, dtype, header bytes) of the .npy stream f, read from its header only."""
+    fmt = np.lib.format
+    version = fmt.read_magic(f)
+    if version == (1, 0):
+        shape, fortran, dtype = fmt.read_array_header_1_0(f)
+    elif version == (2, 0):
+        shape, fortran, dtype = fmt.read_array_header_2_0(f)
+    else:
+        raise RunFileError(f"{where}: .npy format version {version} (not what ooc-dem writes)")
+    if dtype.hasobject or dtype.fields is not None or fortran:
+        raise RunFileError(f"{where}: dtype {dtype.str} (an object, structured or Fortran-order "
+                           f"array is not what ooc-dem writes; refused)")
+    return tuple(shape), dtype, f.tell()
+
+
+def read_npz_members(path, want: dict, n: int | None) -> dict[str, np.ndarray]:
+    """Members of an npz archive, each checked from its headers before it is read (untrusted
+    input): ``want`` maps a member name to (its ndim, 1 = n entries or 0 = one number; the
+    allowed dtype kinds). Each declared size must agree with the zip entry's size and with
+    ``n`` (when known, else with the memory of this machine), so nothing is allocated or
+    inflated beyond what is expected. Never unpickled; RunFileError (one line) otherwise."""
     import zipfile
     import zlib
+    from .engine.run import machine_memory
+    found, budget = {}, machine_memory() // 4
     try:
-        z = np.load(path, allow_pickle=False)
-        if not isinstance(z, np.lib.npyio.NpzFile):
-            raise RunFileError(f"{path}: not an npz archive")
-        with z:
-            missing = [k for k in INITIAL_ARRAYS if k not in z.files]
-            if missing:
-                raise RunFileError(f"{path}: no array {missing[0]!r}")
-            arrays = {k: z[k] for k in INITIAL_ARRAYS}
+        with zipfile.ZipFile(path) as zf:
+            for k, (ndim, kinds) in want.items():
+                where = f"{path}: {k!r}"
+                try:
+                    zi = zf.getinfo(f"{k}.npy")
+                except KeyError:
+                    raise RunFileError(f"{path}: no array {k!r}") from None
+                if zi.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+                    raise RunFileError(f"{where}: zip compression {zi.compress_type} (refused)")
+                with zf.open(zi) as f:
+                    shape, dtype, head = _npy_header(f, where)
+                if len(shape) != ndim or dtype.kind not in kinds or dtype.itemsize > 8:
+                    raise RunFileError(f"{where}: shape {shape} dtype {dtype.str}: expected a "
+                                       + ("1-D array" if ndim else "number") + f" of kind {kinds!r}")
+                count = int(np.prod(shape, dtype=np.int64))
+                if ndim and n is not None and count != n:
+                    raise RunFileError(f"{where}: {count} entries, the run has {n} discs")
+                nbytes = count * dtype.itemsize
+                if zi.file_size != head + nbytes:
+                    raise RunFileError(f"{where}: declares {nbytes} bytes of data, its zip entry "
+                                       f"holds {zi.file_size - head}")
+                budget -= nbytes
+                if budget < 0:
+                    raise RunFileError(f"{where}: {nbytes} bytes, beyond this machine's memory")
+                with zf.open(zi) as f:
+                    found[k] = np.lib.format.read_array(f, allow_pickle=False)
     except RunFileError:
         raise
-    except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, NotImplementedError) as e:
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error,
+            NotImplementedError) as e:
         raise RunFileError(f"{path}: not a readable npz archive ({_one_line(e)})") from None
-    n = None
-    for k in ("id", "x", "y", "r"):
-        a = arrays[k]
-        if a.ndim != 1 or a.dtype.kind not in ("iu" if k == "id" else "iuf"):
-            raise RunFileError(f"{path}: {k!r} must be a 1-D {'integer' if k == 'id' else 'numeric'} array "
-                               f"(has shape {a.shape}, dtype {a.dtype.str})")
-        if n is not None and len(a) != n:
-            raise RunFileError(f"{path}: {k!r} has {len(a)} entries, 'id' has {n}")
-        n = len(a)
-        if k != "id" and not np.isfinite(a).all():
-            raise RunFileError(f"{path}: {k!r} holds non-finite values")
-    surface = arrays["surface"]
-    if surface.size != 1 or surface.dtype.kind not in "iuf" or not np.isfinite(surface).all():
-        raise RunFileError(f"{path}: 'surface' must be one finite number")
-    return (arrays["id"].astype(np.int64), arrays["x"].astype(np.float64), arrays["y"].astype(np.float64),
-            arrays["r"].astype(np.float64), float(surface.reshape(-1)[0]))
+    return found
+
+
+def read_initial(path, n: int | None = None, sc=None) -> tuple:
+    """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as
+    written, sizes read from its headers before anything is allocated (``n``: the run's disc
+    count when known), distinct ids, finite positions, radii > 0 and a surface above the
+    floor, within the scenario's bin (``sc``) or MAX_INITIAL_COORD."""
+    want = {"id": (1, "iu"), "x": (1, "iuf"), "y": (1, "iuf"), "r": (1, "iuf"), "surface": (0, "iuf")}
+    a = read_npz_members(path, want, n)
+    if len(a["id"]) != len(a["x"]) or len(a["y"]) != len(a["x"]) or len(a["r"]) != len(a["x"]):
+        raise RunFileError(f"{path}: 'id', 'x', 'y' and 'r' differ in length")
+    iid = a["id"].astype(np.int64)
+    x, y, r = (a[k].astype(np.float64) for k in ("x", "y", "r"))
+    surface = float(a["surface"])
+    if len(np.unique(iid)) != len(iid):
+        raise RunFileError(f"{path}: 'id' holds a disc id twice")
+    reach = MAX_INITIAL_COORD if sc is None else 10.0 * max(sc.bin.length, sc.bin.height)
+    for k, v in (("x", x), ("y", y)):
+        if not (np.isfinite(v).all() and (np.abs(v) <= reach).all()):
+            raise RunFileError(f"{path}: {k!r} holds values that are not finite or beyond {reach:g} m")
+    if not (np.isfinite(r).all() and (r > 0).all() and (r <= reach).all()):
+        raise RunFileError(f"{path}: 'r' must be radii in (0, {reach:g}] m")
+    if not 0.0 < surface <= reach:
+        raise RunFileError(f"{path}: 'surface' = {surface!r} is not a height in (0, {reach:g}] m")
+    return iid, x, y, r, surface
 
 
 def _window(summary: dict | None, key: str, name: str):
@@ -571,9 +627,9 @@ def make_figures(out_dir, final=None) -> list[Path]:
         # a `--backend memory` run's store lived only in its process: no final state to draw
         initial_file = None
     if initial_file is not None:
-        init = read_initial(initial_file)
         if final is None:
             final = _read_final(out)
+        init = read_initial(initial_file, len(final[0]), sc)
         fid, fx, fy, fr, ws = final
         final = (np.asarray(fid, np.int64), np.asarray(fx, np.float64), np.asarray(fy, np.float64),
                  np.asarray(fr, np.float64), None if ws is None else np.asarray(ws, np.float64))
@@ -640,11 +696,13 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
 
 def _initial_z(path, n: int):
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
-    with np.load(path, allow_pickle=False) as z:
-        if "z" not in z.files:
+    try:
+        a = read_npz_members(path, {"z": (1, "iuf")}, n)["z"]
+    except RunFileError as e:
+        if str(e) == f"{path}: no array 'z'":
             return None
-        a = z["z"]
-    if a.ndim != 1 or len(a) != n or a.dtype.kind not in "iuf" or not np.isfinite(a).all():
+        raise
+    if not np.isfinite(a).all():
         raise RunFileError(f"{path}: 'z' must be a 1-D finite numeric array of {n} entries")
     return a.astype(np.float64)
 

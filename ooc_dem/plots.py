@@ -195,74 +195,14 @@ def read_series(path) -> dict[str, np.ndarray]:
 MAX_INITIAL_COORD = 1e6
 
 
-def _npy_header(f, where: str):
-    """(shape, dtype, header bytes) of the .npy stream f, read from its header only."""
-    fmt = np.lib.format
-    version = fmt.read_magic(f)
-    if version == (1, 0):
-        shape, fortran, dtype = fmt.read_array_header_1_0(f)
-    elif version == (2, 0):
-        shape, fortran, dtype = fmt.read_array_header_2_0(f)
-    else:
-        raise RunFileError(f"{where}: .npy format version {version} (not what ooc-dem writes)")
-    if dtype.hasobject or dtype.fields is not None or fortran:
-        raise RunFileError(f"{where}: dtype {dtype.str} (an object, structured or Fortran-order "
-                           f"array is not what ooc-dem writes; refused)")
-    return tuple(shape), dtype, f.tell()
-
-
-def read_npz_members(path, want: dict, n: int | None) -> dict[str, np.ndarray]:
-    """Members of an npz archive, each checked from its headers before it is read (untrusted
-    input): ``want`` maps a member name to (its ndim, 1 = n entries or 0 = one number; the
-    allowed dtype kinds). Each declared size must agree with the zip entry's size and with
-    ``n`` (when known, else with the memory of this machine), so nothing is allocated or
-    inflated beyond what is expected. Never unpickled; RunFileError (one line) otherwise."""
-    import zipfile
-    import zlib
-    from .engine.run import machine_memory
-    found, budget = {}, machine_memory() // 4
-    try:
-        with zipfile.ZipFile(path) as zf:
-            for k, (ndim, kinds) in want.items():
-                where = f"{path}: {k!r}"
-                try:
-                    zi = zf.getinfo(f"{k}.npy")
-                except KeyError:
-                    raise RunFileError(f"{path}: no array {k!r}") from None
-                if zi.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
-                    raise RunFileError(f"{where}: zip compression {zi.compress_type} (refused)")
-                with zf.open(zi) as f:
-                    shape, dtype, head = _npy_header(f, where)
-                if len(shape) != ndim or dtype.kind not in kinds or dtype.itemsize > 8:
-                    raise RunFileError(f"{where}: shape {shape} dtype {dtype.str}: expected a "
-                                       + ("1-D array" if ndim else "number") + f" of kind {kinds!r}")
-                count = int(np.prod(shape, dtype=np.int64))
-                if ndim and n is not None and count != n:
-                    raise RunFileError(f"{where}: {count} entries, the run has {n} discs")
-                nbytes = count * dtype.itemsize
-                if zi.file_size != head + nbytes:
-                    raise RunFileError(f"{where}: declares {nbytes} bytes of data, its zip entry "
-                                       f"holds {zi.file_size - head}")
-                budget -= nbytes
-                if budget < 0:
-                    raise RunFileError(f"{where}: {nbytes} bytes, beyond this machine's memory")
-                with zf.open(zi) as f:
-                    found[k] = np.lib.format.read_array(f, allow_pickle=False)
-    except RunFileError:
-        raise
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error,
-            NotImplementedError) as e:
-        raise RunFileError(f"{path}: not a readable npz archive ({_one_line(e)})") from None
-    return found
-
-
 def read_initial(path, n: int | None = None, sc=None) -> tuple:
     """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as
     written, sizes read from its headers before anything is allocated (``n``: the run's disc
     count when known), distinct ids, finite positions, radii > 0 and a surface above the
     floor, within the scenario's bin (``sc``) or MAX_INITIAL_COORD."""
-    want = {"id": (1, "iu"), "x": (1, "iuf"), "y": (1, "iuf"), "r": (1, "iuf"), "surface": (0, "iuf")}
-    a = read_npz_members(path, want, n)
+    from .npzfile import read_npz_members
+    want = {"id": ((), "iu"), "x": ((), "iuf"), "y": ((), "iuf"), "r": ((), "iuf"), "surface": (None, "iuf")}
+    a = read_npz_members(path, want, n, RunFileError)
     if len(a["id"]) != len(a["x"]) or len(a["y"]) != len(a["x"]) or len(a["r"]) != len(a["x"]):
         raise RunFileError(f"{path}: 'id', 'x', 'y' and 'r' differ in length")
     iid = a["id"].astype(np.int64)
@@ -696,8 +636,9 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
 
 def _initial_z(path, n: int):
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
+    from .npzfile import read_npz_members
     try:
-        a = read_npz_members(path, {"z": (1, "iuf")}, n)["z"]
+        a = read_npz_members(path, {"z": ((), "iuf")}, n, RunFileError)["z"]
     except RunFileError as e:
         if str(e) == f"{path}: no array 'z'":
             return None

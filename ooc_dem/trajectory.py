@@ -142,13 +142,13 @@ def _check_row_bytes(f, path, rows: int, dim: int) -> None:
     """Refuse a file whose datasets declare more rows than it holds: the writer's datasets are
     unfiltered, so every row's bytes are in the file, and a read allocates no more than the
     file's own size (nor more than this machine's memory)."""
-    from .engine.run import machine_memory
+    import psutil
     for k in ROW_FIELDS:
         if f[k].id.get_create_plist().get_nfilters():
             raise TrajectoryError(f"{path}: dataset {k!r} is filtered or compressed (not what "
                                   f"ooc-dem writes; refused)")
     need, size = rows * _row_bytes(dim), os.stat(path).st_size
-    if need > size or need > machine_memory() // 4:
+    if need > size or need > psutil.virtual_memory().total // 4:
         raise TrajectoryError(f"{path}: {rows} rows declared ({need} bytes), the file holds "
                               f"{size} bytes (refused)")
 

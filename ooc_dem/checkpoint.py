@@ -384,6 +384,9 @@ def stored_layout(meta: dict, where: str, sc=None) -> tuple[int, int, StateBound
     cap = meta.get("hist_cap")
     if cap is not None and type(cap) is not int:
         raise StateError(f"{where}: store meta 'hist_cap' = {show(cap)}: must be an integer")
+    if cap is not None and not 1 <= cap <= MAX_HIST_CAP:   # no run is written with more
+        raise StateError(f"{where}: store meta 'hist_cap' = {cap}: not a contact-history "
+                         f"capacity (1 to {MAX_HIST_CAP})")
     if sc is None and "scenario_toml" in meta:
         sc = stored_scenario(meta, where)
     if sc is not None and sc.dim != dim:

@@ -190,39 +190,35 @@ def read_series(path) -> dict[str, np.ndarray]:
     return cols
 
 
-def read_initial(path) -> tuple:
-    """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as written."""
-    import zipfile
-    import zlib
-    try:
-        z = np.load(path, allow_pickle=False)
-        if not isinstance(z, np.lib.npyio.NpzFile):
-            raise RunFileError(f"{path}: not an npz archive")
-        with z:
-            missing = [k for k in INITIAL_ARRAYS if k not in z.files]
-            if missing:
-                raise RunFileError(f"{path}: no array {missing[0]!r}")
-            arrays = {k: z[k] for k in INITIAL_ARRAYS}
-    except RunFileError:
-        raise
-    except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, NotImplementedError) as e:
-        raise RunFileError(f"{path}: not a readable npz archive ({_one_line(e)})") from None
-    n = None
-    for k in ("id", "x", "y", "r"):
-        a = arrays[k]
-        if a.ndim != 1 or a.dtype.kind not in ("iu" if k == "id" else "iuf"):
-            raise RunFileError(f"{path}: {k!r} must be a 1-D {'integer' if k == 'id' else 'numeric'} array "
-                               f"(has shape {a.shape}, dtype {a.dtype.str})")
-        if n is not None and len(a) != n:
-            raise RunFileError(f"{path}: {k!r} has {len(a)} entries, 'id' has {n}")
-        n = len(a)
-        if k != "id" and not np.isfinite(a).all():
-            raise RunFileError(f"{path}: {k!r} holds non-finite values")
-    surface = arrays["surface"]
-    if surface.size != 1 or surface.dtype.kind not in "iuf" or not np.isfinite(surface).all():
-        raise RunFileError(f"{path}: 'surface' must be one finite number")
-    return (arrays["id"].astype(np.int64), arrays["x"].astype(np.float64), arrays["y"].astype(np.float64),
-            arrays["r"].astype(np.float64), float(surface.reshape(-1)[0]))
+# |coordinate|, radius and surface height [m] an initial bed may hold when no scenario gives
+# the bin (far beyond any bed; it keeps the figures' extents finite)
+MAX_INITIAL_COORD = 1e6
+
+
+def read_initial(path, n: int | None = None, sc=None) -> tuple:
+    """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as
+    written, sizes read from its headers before anything is allocated (``n``: the run's disc
+    count when known), distinct ids, finite positions, radii > 0 and a surface above the
+    floor, within the scenario's bin (``sc``) or MAX_INITIAL_COORD."""
+    from .npzfile import read_npz_members
+    want = {"id": ((), "iu"), "x": ((), "iuf"), "y": ((), "iuf"), "r": ((), "iuf"), "surface": (None, "iuf")}
+    a = read_npz_members(path, want, n, RunFileError)
+    if len(a["id"]) != len(a["x"]) or len(a["y"]) != len(a["x"]) or len(a["r"]) != len(a["x"]):
+        raise RunFileError(f"{path}: 'id', 'x', 'y' and 'r' differ in length")
+    iid = a["id"].astype(np.int64)
+    x, y, r = (a[k].astype(np.float64) for k in ("x", "y", "r"))
+    surface = float(a["surface"])
+    if len(np.unique(iid)) != len(iid):
+        raise RunFileError(f"{path}: 'id' holds a disc id twice")
+    reach = MAX_INITIAL_COORD if sc is None else 10.0 * max(sc.bin.length, sc.bin.height)
+    for k, v in (("x", x), ("y", y)):
+        if not (np.isfinite(v).all() and (np.abs(v) <= reach).all()):
+            raise RunFileError(f"{path}: {k!r} holds values that are not finite or beyond {reach:g} m")
+    if not (np.isfinite(r).all() and (r > 0).all() and (r <= reach).all()):
+        raise RunFileError(f"{path}: 'r' must be radii in (0, {reach:g}] m")
+    if not 0.0 < surface <= reach:
+        raise RunFileError(f"{path}: 'surface' = {surface!r} is not a height in (0, {reach:g}] m")
+    return iid, x, y, r, surface
 
 
 def _window(summary: dict | None, key: str, name: str):
@@ -576,9 +572,9 @@ def make_figures(out_dir, final=None) -> list[Path]:
         # a `--backend memory` run's store lived only in its process: no final state to draw
         initial_file = None
     if initial_file is not None:
-        init = read_initial(initial_file)
         if final is None:
             final = _read_final(out)
+        init = read_initial(initial_file, len(final[0]), sc)
         fid, fx, fy, fr, ws = final
         final = (np.asarray(fid, np.int64), np.asarray(fx, np.float64), np.asarray(fy, np.float64),
                  np.asarray(fr, np.float64), None if ws is None else np.asarray(ws, np.float64))
@@ -645,11 +641,14 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
 
 def _initial_z(path, n: int):
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
-    with np.load(path, allow_pickle=False) as z:
-        if "z" not in z.files:
+    from .npzfile import read_npz_members
+    try:
+        a = read_npz_members(path, {"z": ((), "iuf")}, n, RunFileError)["z"]
+    except RunFileError as e:
+        if str(e) == f"{path}: no array 'z'":
             return None
-        a = z["z"]
-    if a.ndim != 1 or len(a) != n or a.dtype.kind not in "iuf" or not np.isfinite(a).all():
+        raise
+    if not np.isfinite(a).all():
         raise RunFileError(f"{path}: 'z' must be a 1-D finite numeric array of {n} entries")
     return a.astype(np.float64)
 

@@ -136,6 +136,25 @@ def _scan(folder: Path) -> tuple[dict[int, Path], list[Path]]:
     return dict(sorted(frames.items())), temps
 
 
+def _row_bytes(dim: int) -> int:
+    return sum(_DTYPES[k].itemsize * int(np.prod(_tails(dim)[k], dtype=np.int64)) for k in ROW_FIELDS)
+
+
+def _check_row_bytes(f, path, rows: int, dim: int) -> None:
+    """Refuse a file whose datasets declare more rows than it holds: the writer's datasets are
+    unfiltered, so every row's bytes are in the file, and a read allocates no more than the
+    file's own size (nor more than this machine's memory)."""
+    import psutil
+    for k in ROW_FIELDS:
+        if f[k].id.get_create_plist().get_nfilters():
+            raise TrajectoryError(f"{path}: dataset {k!r} is filtered or compressed (not what "
+                                  f"ooc-dem writes; refused)")
+    need, size = rows * _row_bytes(dim), os.stat(path).st_size
+    if need > size or need > psutil.virtual_memory().total // 4:
+        raise TrajectoryError(f"{path}: {rows} rows declared ({need} bytes), the file holds "
+                              f"{size} bytes (refused)")
+
+
 def _is_count(a) -> bool:
     return isinstance(a, (int, np.integer)) and not isinstance(a, bool) and 0 <= int(a) <= MAX_ROWS
 
@@ -183,8 +202,12 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
             raise TrajectoryError(f"{path}: dataset {k!r} has {ds.shape[0]} rows, 'id' has {rows}")
     if rows > MAX_ROWS:
         raise TrajectoryError(f"{path}: {rows} rows (refused)")
+    if rows > int(attrs["n_discs"]):
+        raise TrajectoryError(f"{path}: {rows} rows, more than its n_discs = {int(attrs['n_discs'])}")
+    _check_row_bytes(f, path, rows, dim)
     return {"dim": dim, "frame_every_steps": int(attrs["frame_every_steps"]), "dt": float(dt),
-            "scenario_hash": h, "step": s, "time": float(t), "wheel_state": np.array(ws), "rows": rows}
+            "scenario_hash": h, "step": s, "time": float(t), "wheel_state": np.array(ws), "rows": rows,
+            "n_discs": int(attrs["n_discs"])}
 
 
 def _open_frame(path, step: int | None = None):
@@ -472,6 +495,9 @@ def _check_legacy_index(f, path, F: int) -> dict[str, np.ndarray]:
             if f[k].shape[0] < end:
                 raise TrajectoryError(f"{path}: dataset {k!r} has {f[k].shape[0]} rows, the committed "
                                       f"frames need {end}")
+        if int(rows.max()) > int(f.attrs["n_discs"]):
+            raise TrajectoryError(f"{path}: a frame of {int(rows.max())} rows, more than n_discs")
+        _check_row_bytes(f, path, end, int(f.attrs["dim"]))
         s = idx["frame_step"]
         if (s < 0).any() or (np.diff(s) <= 0).any():
             raise TrajectoryError(f"{path}: frame steps are not rising")
@@ -504,7 +530,7 @@ class Trajectory:
             f, head = _open_frame(p, s)
             f.close()
             if heads:
-                for key in ("dim", "frame_every_steps", "dt", "scenario_hash"):
+                for key in ("dim", "frame_every_steps", "dt", "scenario_hash", "n_discs"):
                     if head[key] != heads[0][key]:
                         raise TrajectoryError(f"{p}: {key} {head[key]!r}, the first frame's is "
                                               f"{heads[0][key]!r} (frames of different runs)")

@@ -179,6 +179,28 @@ def _read_json(path: str) -> dict:
     return doc
 
 
+def check_codecs(meta: dict, where: str, compressors=()) -> None:
+    """Refuse (ValueError) an array document whose codecs are not the writer's: ``bytes``
+    (little or big endian), then at most one of ``compressors``, no storage transformer. Read
+    before the zarr library sees the array: an unknown codec could inflate a small chunk
+    without bound, and zarr's failures leave its event loop's tasks behind at exit."""
+    codecs = meta.get("codecs")
+    if not (isinstance(codecs, list) and codecs and all(isinstance(c, dict) for c in codecs)):
+        raise ValueError(f"{where}: malformed array metadata (codecs)")
+    names = [c.get("name") for c in codecs]
+    first = codecs[0].get("configuration") or {}
+    bad = [n for i, n in enumerate(names) if not (n == "bytes" if i == 0 else (i == 1 and n in compressors))]
+    if bad:
+        shown = bad[0] if isinstance(bad[0], str) else json.dumps(bad[0])
+        raise ValueError(f"{where}: codec {shown[:40]!r} is not one ooc-dem writes "
+                         f"(bytes{''.join(f', {c}' for c in compressors)}; refused)")
+    if not (isinstance(first, dict) and set(first) <= {"endian"}
+            and first.get("endian", "little") in ("little", "big")):
+        raise ValueError(f"{where}: malformed bytes codec configuration")
+    if meta.get("storage_transformers"):
+        raise ValueError(f"{where}: storage transformers are not written by ooc-dem (refused)")
+
+
 def _member(adir: str, meta: dict, name: str) -> _Member:
     """Parse array metadata; `raw` is the chunk path for an uncompressed one-chunk array in
     native byte order (what the writer produces), else None (read through zarr)."""
@@ -186,6 +208,7 @@ def _member(adir: str, meta: dict, name: str) -> _Member:
     if not (isinstance(shape, list) and all(type(v) is int and v >= 0 for v in shape)
             and isinstance(dtype, str)):
         raise ValueError(f"{adir}: malformed array metadata (shape, data_type)")
+    check_codecs(meta, adir)
     shape = tuple(shape)
     dtype = np.dtype(dtype)
     raw = None

@@ -29,6 +29,7 @@ import numpy as np
 
 from ._confine import open_regular
 from ._util import ATTRS_KEY, FORMAT, drop_page_cache, new_digest, pread_into, remove_path
+from ._zarr import check_codecs
 
 EXT = "zip"
 IS_DIR = False
@@ -263,7 +264,8 @@ def _member(key: str, meta: dict) -> _Member:
         dtype = np.dtype(dtype)
     except TypeError:
         raise ValueError(f"{key}: unknown data_type {dtype[:40]!r}") from None
-    codecs = meta.get("codecs") or []
+    check_codecs(meta, key, tuple(CODECS))
+    codecs = meta["codecs"]
     grid = meta.get("chunk_grid") or {}
     cke = meta.get("chunk_key_encoding") or {}
     chunk_shape = grid.get("configuration", {}).get("chunk_shape", None) \
@@ -279,12 +281,16 @@ def _member(key: str, meta: dict) -> _Member:
               and tuple(chunk_shape[1:]) == tuple(max(1, v) for v in shape[1:])
               and cke.get("name") == "default"
               and (cke.get("configuration") or {}).get("separator", "/") == "/")
+    if len(codecs) == 2 and not simple:
+        # compressed chunks are decoded here only, where a chunk's declared size is checked
+        # before it is inflated; zarr would inflate any size
+        raise ValueError(f"{key}: compressed array not in the writer's chunking (refused)")
     if not simple:
         return _Member(shape, dtype, False, None, 0, key)
     rows = chunk_shape[0] if shape else 1
     if len(codecs) == 1 and (not shape or rows == max(1, shape[0])):
         return _Member(shape, dtype, True, None, rows, key)
-    if len(codecs) == 2 and isinstance(codecs[1], dict) and codecs[1].get("name") in CODECS:
+    if len(codecs) == 2:
         return _Member(shape, dtype, True, codecs[1]["name"], rows, key)
     return _Member(shape, dtype, False, None, 0, key)
 
@@ -441,6 +447,9 @@ class Reader:
         return a
 
     def _via_zarr(self, a: _Member):
+        if a.codec is not None:   # bounded decoding only (_read_rows)
+            raise ValueError(f"{self.path}: {a.key}: compressed array of dtype {a.dtype.str}, "
+                             f"not the one expected")
         if self._zroot is None:
             import zarr
             from zarr.storage import ZipStore

@@ -13,7 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 ORDER = ["physics", "state", "engine", "application"]
 STATE = {"ooc_dem.state", "ooc_dem.statehash", "ooc_dem.checkpoint", "ooc_dem.scenario", "ooc_dem.decomposition",
-         "ooc_dem.fields", "ooc_dem.atomic", "ooc_dem.heap"}
+         "ooc_dem.fields", "ooc_dem.atomic", "ooc_dem.heap", "ooc_dem.npzfile"}
 ENGINE = {"ooc_dem.engine", "ooc_dem.engine.stepper", "ooc_dem.engine.live", "ooc_dem.engine.sweep",
           "ooc_dem.engine.interface", "ooc_dem.engine.monolithic", "ooc_dem.bed"}
 

@@ -339,8 +339,12 @@ class LiveDomains:
         self.p = discs.take(np.concatenate(rows) if rows else np.zeros(0, np.int64))
         self.off = np.asarray(off, np.int64)
         self.x_built = self.p.pos[:, AX_X].copy()
-        # owner_row[id]: the row holding the disc's authoritative copy; owned[row]
-        self.owner_row = np.full(int(self.p.id.max()) + 1 if len(self.p) else 0, -1, np.int64)
+        # slot[row]: the rank of the row's id among the local sets' ids (a table sized by the
+        # discs, not by the largest id); owner_row[slot]: the row holding the disc's
+        # authoritative copy; owned[row]
+        self.uids, slot, counts = np.unique(self.p.id, return_inverse=True, return_counts=True)
+        self.slot = slot.astype(np.int64).reshape(-1)
+        self.owner_row = np.full(len(self.uids), -1, np.int64)
         self.owned = np.zeros(len(self.p), np.bool_)
         self.owned_before = np.zeros(len(self.p), np.bool_)
         # forces.ROLE_* of each row in the compiled sweeps: ROLE_SHARED (the row's disc has
@@ -348,8 +352,7 @@ class LiveDomains:
         # are set with the ownership
         self.role = np.zeros(len(self.p), np.int8)
         if len(self.p):
-            _, inverse, counts = np.unique(self.p.id, return_inverse=True, return_counts=True)
-            self.role[counts[inverse] > 1] = ROLE_SHARED
+            self.role[counts[self.slot] > 1] = ROLE_SHARED
         # the steppers' neighbour-list references, one array for all (checked by the refresh)
         self.ref = np.zeros((len(self.p), self.p.dim))
         self.disp2 = np.zeros(self.D)
@@ -389,7 +392,7 @@ class LiveDomains:
         both were computed from their true states; nothing outside the sub-domain writes an
         owned row)."""
         p = self.p
-        self._check_owned(_own_rows(p.id, p.pos[:, AX_X], self.off, self.bounds, self.owner_row,
+        self._check_owned(_own_rows(self.slot, p.pos[:, AX_X], self.off, self.bounds, self.owner_row,
                                     self.owned, self.owned_before, self.role))
 
     def _check_owned(self, total: int) -> None:
@@ -411,7 +414,7 @@ class LiveDomains:
         """Halo copies <- owners' time-n copies, then ownership from x. False when the
         local sets must be rebuilt instead (a disc moved beyond the membership skin)."""
         p = self.p
-        moved, total = refresh_own_pieces(self._pieces, p.id, self.owner_row, p.pos, p.vel, p.spin,
+        moved, total = refresh_own_pieces(self._pieces, self.slot, self.owner_row, p.pos, p.vel, p.spin,
                                           p.hist_n, p.hist_id, p.hist_s, p.hist_m, self.x_built,
                                           self.ref, self.disp2, True, self._part,
                                           self.membership_skin, self.bounds, self.owned,
@@ -506,7 +509,7 @@ class LiveDomains:
             args = (nsweeps - done, K, step0 + done * K, refresh_first or done > 0, doms,
                     lanes, lane_off, self.wslab,
                     record(recbuf[done * K:], WHEEL_RECORD) if self.wslab >= 0 else norec,
-                    norec, p.id, self.owner_row, p.pos, p.vel, p.spin, p.hist_n,
+                    norec, self.slot, self.owner_row, p.pos, p.vel, p.spin, p.hist_n,
                     p.hist_id, p.hist_s, p.hist_m, self.x_built, self.off, self.ref,
                     self.disp2, self.bounds, self.owned, self.owned_before, self.role,
                     self.n, self.membership_skin,

@@ -151,13 +151,22 @@ def _unpack_rows(buf, state_rows, ids, pos, vel, spin, hist_n, hist_id, hist_s, 
     _rows_io(buf, state_rows, ids, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, False)
 
 
+def _slots_of(uids, ids) -> np.ndarray:
+    """The slot (index in the sorted local ids ``uids``) of each received id, -1 for an id
+    this rank does not hold."""
+    ids = np.asarray(ids).astype(np.int64)
+    at = np.minimum(np.searchsorted(uids, ids), max(len(uids) - 1, 0))
+    found = uids[at] == ids if len(uids) else np.zeros(len(ids), np.bool_)
+    return np.where(found, at, -1).astype(np.int64)
+
+
 @njit(cache=True)
-def _claim_ghosts(ids, ghost_row, owner_row, stamp, tick):
-    """The ghost row of each received disc id (-1: not one of this rank's ghost discs);
-    each claimed row becomes its disc's owner row and is stamped `tick`."""
-    rows = np.full(len(ids), -1, np.int64)
-    for i in range(len(ids)):
-        g = np.int64(ids[i])
+def _claim_ghosts(slots, ghost_row, owner_row, stamp, tick):
+    """The ghost row of each received disc (by its slot, ``_slots_of``; -1: not one of this
+    rank's ghost discs); each claimed row becomes its disc's owner row and is stamped `tick`."""
+    rows = np.full(len(slots), -1, np.int64)
+    for i in range(len(slots)):
+        g = slots[i]
         if 0 <= g < len(ghost_row) and ghost_row[g] >= 0:
             rows[i] = ghost_row[g]
             owner_row[g] = rows[i]
@@ -719,8 +728,8 @@ class MpiEngine:
             ghosts = np.concatenate([np.arange(live.off[j], live.off[j + 1]) for j in np.flatnonzero(~real)]
                                     or [np.zeros(0, np.int64)])
             self.ghost_rows = ghosts
-            self.ghost_row = np.full(len(live.owner_row), -1, np.int64)
-            self.ghost_row[live.p.id[ghosts]] = ghosts
+            self.ghost_row = np.full(len(live.owner_row), -1, np.int64)   # by live.slot
+            self.ghost_row[live.slot[ghosts]] = ghosts
             self.stamp = np.zeros(len(live.p), np.int64)   # the refresh (tick) that last wrote a ghost row
         owned = len(self.live.owned_active_rows()) if self.live is not None else 0
         total = int(self.comm.allreduce(owned))
@@ -753,7 +762,8 @@ class MpiEngine:
             sends = [b[:0] for b in self._send]
         for recv in self._exchange(sends):
             if live is not None and len(recv):
-                rows = _claim_ghosts(recv[:, 0], self.ghost_row, live.owner_row, self.stamp, self._tick)
+                rows = _claim_ghosts(_slots_of(live.uids, recv[:, 0]), self.ghost_row, live.owner_row,
+                                     self.stamp, self._tick)
                 _unpack_rows(recv, rows, *_exchange_fields(live.p))
         if live is None:
             return

@@ -468,7 +468,7 @@ def checked_groups(reader, where: str, dim: int | None = 2, hist_cap: int | None
         if len(x) and (x.min() < dattrs.get("xmin", -math.inf)
                        or x.max() > dattrs.get("xmax", math.inf)):
             raise StateError(f"{at}: discs outside the domain's stored x range")
-        summary = dattrs.get("x_summary")   # absent in stores written before issue 17
+        summary = dattrs.get("x_summary")   # absent in stores written before groups kept x summaries
         if summary is not None:
             length = summary.get("length") if isinstance(summary, dict) else None
             if (type(length) is not float or not math.isfinite(length) or length <= 0

@@ -1,6 +1,6 @@
 """A child process under a hard memory limit: a memory cgroup made for it, removed after.
 
-The honest memory proof of the out-of-core mode (issue 17): whatever an RSS sample
+The honest memory proof of the out-of-core mode: whatever an RSS sample
 might miss, the kernel does not - a process that needs more than the limit is killed
 by the cgroup's OOM killer, and that is reported as such (``oom_killed``), never as a
 mysterious failure.

@@ -21,7 +21,7 @@ equality check between runs, NOT a security boundary: XXH64 is not collision-res
 against someone who crafts a state on purpose, and the lane sums can be steered by such
 a person. Untrusted stores are protected by validation (checkpoint.py), not by the hash.
 
-Version 1 (before issue 17) was an unprefixed SHA-256 of the state sorted by id; it
+Version 1 (engines before this hash) was an unprefixed SHA-256 of the state sorted by id; it
 needed all ids in RAM.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The 3D pair law evaluated in blocks (physics.d3.forces.law_block, issue 15): the touching
+"""The 3D pair law evaluated in blocks (physics.d3.forces.law_block): the touching
 pairs' arguments are laid out as columns and one loop runs the law on them, which the
 compiler turns into SIMD code. The per-pair arithmetic must stay contact.contact's: every
 output of a block is compared, with np.array_equal, to the scalar law on the same pair

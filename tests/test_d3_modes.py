@@ -1,4 +1,4 @@
-"""Issue 15: the 3D engine in every mode gives the same bits (docs/design.md section 3).
+"""The 3D engine in every mode gives the same bits (docs/design.md section 3).
 
 Two levels:
 - kernels in the engine: a loose 3D fill falling into the box (spheres moving, contacts

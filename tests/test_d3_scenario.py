@@ -1,4 +1,4 @@
-"""3D scenarios (issue 15): the new keys are validated like every other (one line naming
+"""3D scenarios: the new keys are validated like every other (one line naming
 the key, exit 2), the time-step check covers both contact laws, the built-ins load."""
 from __future__ import annotations
 

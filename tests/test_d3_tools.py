@@ -1,4 +1,4 @@
-"""Issue 15: the checkpoint tools (list / verify / inspect / hash / prune / export) on a 3D
+"""The checkpoint tools (list / verify / inspect / hash / prune / export) on a 3D
 store, and the exports' 3D points, radius, 3-component velocity and spin read back by
 meshio and VTK (ParaView's readers)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Store format 1 (issue 14): a store written before the state became dimension-generic (its
+"""Store format 1: a store written before the state became dimension-generic (its
 domain records hold the 2D components as their own arrays: x, y, vx, vy, w, hist_ft, hist_mr)
 still opens for resume, hash, verify, inspect and export, and resumes to the bits of a run
 that never left format 2.

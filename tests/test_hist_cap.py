@@ -1,4 +1,4 @@
-"""The contact-history capacity is a model value (issue 14): a run with a smaller capacity
+"""The contact-history capacity is a model value: a run with a smaller capacity
 holds less RAM per disc and gives the same bits (the canonical hash pads the history to a
 content-defined width, so the capacity never enters it); a state that does not fit is refused."""
 import dataclasses

@@ -1,4 +1,4 @@
-"""Hostile input (issue 13): every bad scenario value, flag or file is ONE line on stderr naming
+"""Hostile input: every bad scenario value, flag or file is ONE line on stderr naming
 the offending key, flag or file, exit code 2, no traceback, nothing committed lost.
 
 Real `ooc-dem` subprocesses (conftest.run_cli), except the systematic sweep over every scenario
@@ -58,7 +58,7 @@ def finished_bed_run(tmp_path_factory):
 # ------------------------------------------------------------------ A. memory
 
 
-def test_A_step_count_beyond_the_maximum_is_refused_by_the_flag(tmp_path):
+def test_step_count_beyond_the_maximum_is_refused_by_the_flag(tmp_path):
     # today `--steps 1000000000000000` sizes the series for every step up front (189 TiB)
     for steps in ("1000000000000000", "100000000000", "1e11", "1e30"):
         cp = run_cli("run", "quick", "--steps", steps, "--out", tmp_path / "o", "--no-progress")
@@ -66,7 +66,7 @@ def test_A_step_count_beyond_the_maximum_is_refused_by_the_flag(tmp_path):
         assert not (tmp_path / "o").exists()
 
 
-def test_A_series_buffer_is_sized_by_the_rows_kept_not_the_step_count(monkeypatch):
+def test_series_buffer_is_sized_by_the_rows_kept_not_the_step_count(monkeypatch):
     """--steps 1e9 must not allocate 1e9 / steps_per_row rows up front; the grown buffer gives
     the same bits as one sized for the whole run."""
     from ooc_dem import metrics
@@ -90,7 +90,7 @@ def test_A_series_buffer_is_sized_by_the_rows_kept_not_the_step_count(monkeypatc
     assert grown.summary() == whole.summary()
 
 
-def test_A_bed_larger_than_memory_refused_before_allocating(tmp_path):
+def test_bed_larger_than_memory_refused_before_allocating(tmp_path):
     total = psutil.virtual_memory().total
     out = tmp_path / "o"
     line = one_line_error(run_cli("run", "bed-2000000000", "--out", out), "soil.n", "memory",
@@ -110,14 +110,14 @@ def test_A_bed_larger_than_memory_refused_before_allocating(tmp_path):
 # ------------------------------------------------------------------ B. domains
 
 
-def test_B_domains_and_block_flags_bounded_like_the_scenario(tmp_path):
+def test_domains_and_block_flags_bounded_like_the_scenario(tmp_path):
     one_line_error(run_cli("run", "quick", "--mode", "ddm", "--domains", "5000", "--out", tmp_path / "o",
                            timeout=120), "--domains", "4096")
     one_line_error(run_cli("run", "quick", "--mode", "ooc", "--block", "20000", "--out", tmp_path / "o",
                            timeout=120), "--block", "10000")
 
 
-def test_B_more_domains_than_the_bed_holds_refused_naming_the_maximum(tmp_path):
+def test_more_domains_than_the_bed_holds_refused_naming_the_maximum(tmp_path):
     # 1500 discs in 0.4 m: at most 75 slabs of >= 20 discs (1000 took 110 s a step)
     line = one_line_error(run_cli("run", "quick", "--mode", "ddm", "--domains", "1000",
                                   "--out", tmp_path / "o", timeout=120), "--domains 1000", "at most 75")
@@ -145,19 +145,19 @@ EXTREME_RUNS = [
 
 
 @pytest.mark.parametrize("args,needle", EXTREME_RUNS, ids=[" ".join(a)[:40] for a, _ in EXTREME_RUNS])
-def test_C_extreme_numbers_one_line(args, needle, tmp_path):
+def test_extreme_numbers_one_line(args, needle, tmp_path):
     cp = run_cli("run", "quick", *args, "--out", tmp_path / "o", "--no-progress", timeout=120)
     one_line_error(cp, needle)
     assert not (tmp_path / "o").exists()
 
 
-def test_C_bad_bed_counts(tmp_path):
+def test_bad_bed_counts(tmp_path):
     for name in ("bed-inf", "bed-nan", "bed-1e400", "bed-" + "9" * 5000, "bed-0", "bed--5", "bed-1e-5"):
         one_line_error(run_cli("run", name, "--out", tmp_path / "o"), "bed-N needs a disc count")
     assert not (tmp_path / "o").exists()
 
 
-def test_C_resume_until_huge_keeps_the_store(finished_bed_run, tmp_path):
+def test_resume_until_huge_keeps_the_store(finished_bed_run, tmp_path):
     store = tmp_path / "store"
     shutil.copytree(finished_bed_run, store)
     before = run_cli("checkpoint", "hash", store, check=True).stdout
@@ -166,7 +166,7 @@ def test_C_resume_until_huge_keeps_the_store(finished_bed_run, tmp_path):
     assert run_cli("checkpoint", "hash", store, check=True).stdout == before
 
 
-def test_C_deeply_nested_overrides_and_files(tmp_path):
+def test_deeply_nested_overrides_and_files(tmp_path):
     deep_key = "scenario.name." + ".".join(["a"] * 3000)
     one_line_error(run_cli("run", "quick", "--set", f"{deep_key}=1", "--out", tmp_path / "o"), "--set")
     one_line_error(run_cli("run", "quick", "--set", "a." * 3000 + "b=1", "--out", tmp_path / "o"), "--set")
@@ -185,14 +185,14 @@ def test_C_deeply_nested_overrides_and_files(tmp_path):
 
 
 @pytest.mark.parametrize("name", [EMOJI, "../../x", ".hidden", "a/b", "tab\there", "x" * 101, ""])
-def test_C_scenario_name_is_one_safe_path_component(name, tmp_path):
+def test_scenario_name_is_one_safe_path_component(name, tmp_path):
     cp = run_cli("run", "bed-1200", "--set", f"scenario.name={json.dumps(name)}", "--steps", "5",
                  "--out", tmp_path / "o", "--no-progress")
     one_line_error(cp, "scenario.name")
     assert not (tmp_path / "o").exists()
 
 
-def test_C_any_description_is_stored_as_valid_toml_and_resumes(tmp_path):
+def test_any_description_is_stored_as_valid_toml_and_resumes(tmp_path):
     text = f"{EMOJI} \"quoted\" back\\slash\ttab \x01\x7f ü"
     out = tmp_path / "o"
     run_cli("run", "bed-1200", "--set", f"scenario.description={toml_string(text)}", "--steps", "5",
@@ -203,7 +203,7 @@ def test_C_any_description_is_stored_as_valid_toml_and_resumes(tmp_path):
     assert tomllib.loads((out / "scenario.toml").read_text(encoding="utf-8"))["scenario"]["description"] == text
 
 
-def test_C_dict_to_toml_writes_any_string():
+def test_dict_to_toml_writes_any_string():
     import tomllib
     for text in (EMOJI, "\x00\x1f\x7f", '"\\', "\U0010FFFF", "line\nbreak", "\u2028"):
         assert tomllib.loads(dict_to_toml({"s": {"v": text}}))["s"]["v"] == text
@@ -243,7 +243,7 @@ SCENARIO_KEYS = _scenario_keys()
 
 @pytest.mark.parametrize("scenario", ["quick", "bed-1200"])
 @pytest.mark.parametrize("key,default", SCENARIO_KEYS, ids=[k for k, _ in SCENARIO_KEYS])
-def test_C_every_key_at_extreme_values_is_accepted_or_one_line(scenario, key, default, capsys):
+def test_every_key_at_extreme_values_is_accepted_or_one_line(scenario, key, default, capsys):
     """Every key of every section at 1e308, 5e-324, 1e-200, -0.0, ... : `check` (run's own
     validation and planning) accepts it with a finite plan, or refuses it in one line naming it."""
     for value in _hostile_values(default):
@@ -271,7 +271,7 @@ FLAG_VALUES = ["0", "-1", "1e308", "-1e308", "5e-324", "1e-200", "-0.0", "nan", 
 
 
 @pytest.mark.parametrize("flag", ["--steps", "--duration", "--domains", "--block", "--checkpoint-every"])
-def test_C_every_numeric_flag_at_extreme_values_is_accepted_or_one_line(flag, capsys):
+def test_every_numeric_flag_at_extreme_values_is_accepted_or_one_line(flag, capsys):
     for value in FLAG_VALUES:
         try:
             rc = cli.main(["check", "quick", "--mode", "ooc", f"{flag}={value}"])
@@ -313,7 +313,7 @@ SUMMARY_CASES = {
 
 
 @pytest.mark.parametrize("command", ["report", "compare"])
-def test_D_hostile_summary_json(command, wheel_run_copy, finished_wheel_run):
+def test_hostile_summary_json(command, wheel_run_copy, finished_wheel_run):
     for case, data in SUMMARY_CASES.items():
         _damage(wheel_run_copy, "summary.json", data)
         args = [wheel_run_copy] if command == "report" else [finished_wheel_run, wheel_run_copy]
@@ -341,13 +341,13 @@ WRONG_TYPES = {
 
 
 @pytest.mark.parametrize("case", list(WRONG_TYPES))
-def test_D_summary_with_wrong_types_or_missing_keys(case, wheel_run_copy, finished_wheel_run):
+def test_summary_with_wrong_types_or_missing_keys(case, wheel_run_copy, finished_wheel_run):
     _summary_with(wheel_run_copy, WRONG_TYPES[case])
     one_line_error(run_cli("report", wheel_run_copy), "summary.json")
     one_line_error(run_cli("compare", wheel_run_copy, finished_wheel_run), "summary.json")
 
 
-def test_D_huge_summary_json(wheel_run_copy):
+def test_huge_summary_json(wheel_run_copy):
     with open(wheel_run_copy / "summary.json", "w") as f:
         f.write('{"pad": "' + "x" * (20 << 20) + '"}')
     one_line_error(run_cli("report", wheel_run_copy), "summary.json", "too large")
@@ -363,7 +363,7 @@ SERIES_CASES = {
 
 
 @pytest.mark.parametrize("case", list(SERIES_CASES))
-def test_D_hostile_series_csv(case, wheel_run_copy):
+def test_hostile_series_csv(case, wheel_run_copy):
     header = (wheel_run_copy / "series.csv").read_text().splitlines()[0]
     _damage(wheel_run_copy, "series.csv", SERIES_CASES[case](header))
     one_line_error(run_cli("report", wheel_run_copy), "series.csv")
@@ -374,7 +374,7 @@ def _npz(path, **arrays):
         np.savez(f, **arrays)
 
 
-def test_D_hostile_initial_npz(wheel_run_copy, tmp_path):
+def test_hostile_initial_npz(wheel_run_copy, tmp_path):
     f = wheel_run_copy / "initial.npz"
     with np.load(f) as z:
         good = {k: z[k] for k in z.files}
@@ -397,7 +397,7 @@ def test_D_hostile_initial_npz(wheel_run_copy, tmp_path):
         one_line_error(run_cli("report", wheel_run_copy), "initial.npz")
 
 
-def test_D_not_a_run_directory(tmp_path, finished_wheel_run):
+def test_not_a_run_directory(tmp_path, finished_wheel_run):
     cp = run_cli("report", finished_wheel_run, check=True)       # a run reports and compares
     assert "wheel slip" in cp.stdout and cp.stderr == ""
     assert "BIT-IDENTICAL" in run_cli("compare", finished_wheel_run, finished_wheel_run, check=True).stdout
@@ -416,7 +416,7 @@ def test_D_not_a_run_directory(tmp_path, finished_wheel_run):
         one_line_error(run_cli("compare", finished_wheel_run, d), "summary.json")
 
 
-def test_D_report_reads_only_regular_files_inside_the_run(wheel_run_copy, tmp_path):
+def test_report_reads_only_regular_files_inside_the_run(wheel_run_copy, tmp_path):
     outside = tmp_path / "outside.json"
     outside.write_text((wheel_run_copy / "summary.json").read_text())
     (wheel_run_copy / "summary.json").unlink()
@@ -434,7 +434,7 @@ def test_D_report_reads_only_regular_files_inside_the_run(wheel_run_copy, tmp_pa
 
 @pytest.mark.parametrize("window", [["output.steady_start=100", "output.steady_end=200"],
                                     ["wheel.travel_time=0.05"]])
-def test_E_sweep_with_an_empty_steady_window_refused_before_running(window, tmp_path):
+def test_sweep_with_an_empty_steady_window_refused_before_running(window, tmp_path):
     out = tmp_path / "sweep"
     args = [a for kv in WHEEL_TEST + window for a in ("--set", kv)]
     cp = run_cli("sweep", "quick", *args, "--slips", "0.1,0.2", "--out", out, "--no-progress", timeout=300)
@@ -442,7 +442,7 @@ def test_E_sweep_with_an_empty_steady_window_refused_before_running(window, tmp_
     assert not out.exists()
 
 
-def test_E_sweep_slips_sharing_a_directory_refused(tmp_path):
+def test_sweep_slips_sharing_a_directory_refused(tmp_path):
     out = tmp_path / "sweep"
     args = [a for kv in WHEEL_TEST for a in ("--set", kv)]
     one_line_error(run_cli("sweep", "quick", *args, "--slips", "0.1,0.1001", "--out", out, timeout=300),
@@ -453,7 +453,7 @@ def test_E_sweep_slips_sharing_a_directory_refused(tmp_path):
 # ------------------------------------------------------------------ F. --backend memory
 
 
-def test_F_memory_backend_run_writes_its_outputs(tmp_path):
+def test_memory_backend_run_writes_its_outputs(tmp_path):
     out = tmp_path / "mem"
     args = [a for kv in WHEEL_TEST for a in ("--set", kv)]
     cp = run_cli("run", "quick", *args, "--backend", "memory", "--steps", "300", "--out", out,
@@ -477,7 +477,7 @@ CHECK_KEYS = {"scenario", "scenario_hash", "mode", "backend", "n_discs", "steps"
               "memory_bytes", "memory_available_bytes", "memory_budget_bytes"}
 
 
-def test_G_check_prints_the_plan_and_writes_nothing(tmp_path):
+def test_check_prints_the_plan_and_writes_nothing(tmp_path):
     before = set(os.listdir("."))
     cp = run_cli("check", "quick", "--mode", "ooc", "--domains", "6", "--steps", "1e3", check=True)
     plan = json.loads(cp.stdout)
@@ -496,7 +496,7 @@ def test_G_check_prints_the_plan_and_writes_nothing(tmp_path):
     ["quick", "--set", "physics.dt=1e-3"], ["quick", "--mode", "ddm", "--domains", "1000"],
     ["bed-2000000000"], ["quick", "--set", "scenario.name=../x"], ["quick", "--duration", "1e308"],
     ["no-such-scenario"], ["quick", "--backend", "tape"]])
-def test_G_check_refuses_exactly_what_run_refuses(args, tmp_path):
+def test_check_refuses_exactly_what_run_refuses(args, tmp_path):
     run = one_line_error(run_cli("run", *args, "--out", tmp_path / "o", timeout=120))
     check = one_line_error(run_cli("check", *args, timeout=120))
     assert check.replace("ooc-dem check", "ooc-dem run") == run
@@ -505,7 +505,7 @@ def test_G_check_refuses_exactly_what_run_refuses(args, tmp_path):
 # ------------------------------------------------------------------ H. out of memory
 
 
-def test_H_memory_error_is_one_line(monkeypatch, capsys):
+def test_memory_error_is_one_line(monkeypatch, capsys):
     def exhausted(args):
         raise MemoryError("Unable to allocate 20.0 GiB")
     monkeypatch.setitem(cli.COMMANDS, "scenarios", exhausted)

@@ -1,4 +1,4 @@
-"""tools/influence_zone.py (issue 16, domain sensitivity): the lateral extent of the soil
+"""tools/influence_zone.py (domain sensitivity): the lateral extent of the soil
 the 3D wheel moves, from a run's trajectory frames. The binning and the zone's edges are
 checked on displacements made by hand (known answers), then the tool on a real quick-3d
 run's frames (the wheel rolling), and its refusals (exit code 2)."""

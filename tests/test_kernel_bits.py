@@ -1,8 +1,8 @@
-"""The kernel's bits, pinned (issue 14): final state hashes recorded on main (444869d)
+"""The kernel's bits, pinned: final state hashes recorded on main (444869d)
 BEFORE the kernel layer was rebuilt (pair rows + per-disc CSR gather). A change of the
 kernels that keeps the bits keeps these hashes; a change that alters them must say why.
 
-Issue 17 changed the hash, not the states: version 2 (``mset-v2:``, ooc_dem/statehash.py,
+The hash's version 2 changed the hash, not the states: version 2 (``mset-v2:``, ooc_dem/statehash.py,
 a multiset hash that streams) replaced version 1 (SHA-256 of the state sorted by id). The
 version-2 values below are the new hash of the SAME states: each case's run was repeated
 with the code of 2a1c594 (version 1), its summary and `checkpoint hash` gave the version-1
@@ -43,7 +43,7 @@ QUICK = ["wheel.control=slip", "wheel.slip=0.2", "wheel.omega=5.0", "wheel.settl
          "wheel.drop_gap=0.0", "wheel.lug_tip_radius=0.104", "decomposition.margin=0.001"]
 PAPER = ["wheel.settle_time=0.035", "wheel.drop_gap=0.0"]
 
-# version 1 (before issue 17): the same states
+# version 1 (before the streamed hash): the same states
 QUICK_6000_V1 = "8567c40dcfacd4544f00f5771b6bb7ebede381f80690d65467a4c05dfb404a88"
 PAPER2008_7000_V1 = "9f35eead0fde6961bf107dfbe88ccfa7afe92fa4f0e9f964246049e8ec6502ce"
 BED100K_150_V1 = "d336a4b2c1a003284f51bd03a3e5b6b545a522e81604891b85968fbed24953c6"   # the old tile
@@ -57,7 +57,7 @@ BED100K_150 = "mset-v2:bd623b5985dec3c4272d35d05f00dd4ac42e8453687dabfdb73cb01c4
 
 # The Hertz cases have a second value, recorded on 2026-12-05 on an Intel Xeon (AVX512-FP16,
 # glibc 2.36, numba 0.68.1, numpy 2.4.6) with the code of a0b58a2, whose bits passed the first
-# on the machines of earlier sessions (AMD EPYC) and in CI. The linear 3D case and every 2D
+# on the AMD EPYC machines and in CI. The linear 3D case and every 2D
 # case give one value on both. Not explained yet: not numpy (2.3.5 gives the second too),
 # not numba 0.68.0 against 0.68.1, not the CPU model LLVM tunes for (NUMBA_CPU_NAME=znver4
 # gives the second too); log(e) of the restitution is correctly rounded on the Xeon.

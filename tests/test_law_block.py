@@ -1,4 +1,4 @@
-"""The 2D pair law evaluated in blocks (physics.forces.law_block, issue 14), as in 3D: the
+"""The 2D pair law evaluated in blocks (physics.forces.law_block), as in 3D: the
 touching pairs' arguments are laid out as columns and one loop runs the law on them, which
 the compiler turns into SIMD code. The per-pair arithmetic must stay contact.contact's:
 every output of a block is compared, with np.array_equal, to the scalar law on the same pair

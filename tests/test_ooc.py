@@ -207,7 +207,7 @@ print(json.dumps(after_stage))
 
 
 def test_a_sweep_does_not_grow_resident_memory_group_by_group(tmp_path):
-    """Out-of-core RSS follows the slab, not the number of groups passed (issue 17): after
+    """Out-of-core RSS follows the slab, not the number of groups passed: after
     the first slab of 50k discs has come and gone, glibc's malloc had raised its mmap
     threshold and served the next slabs' arrays from a heap that fragmented, so RSS climbed
     with every group of a sweep (+30 MiB over 10 groups here, ~1.4 MiB a group at 500k-disc

@@ -1,4 +1,4 @@
-"""repose3d (issue 15): the angle-of-repose measurement on synthetic cones of known angle,
+"""repose3d: the angle-of-repose measurement on synthetic cones of known angle,
 the [repose] keys refused in one line, and a tiny heap run that writes the outputs
 (docs/reference/repose3d.md)."""
 from __future__ import annotations

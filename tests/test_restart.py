@@ -1,4 +1,4 @@
-"""Checkpoint/restart: SIGKILL at random moments, resume, same final bits (issue 6).
+"""Checkpoint/restart: SIGKILL at random moments, resume, same final bits.
 
 The trials use the machinery of ``tools/torture.py`` (the same code that runs the
 200-trial torture): an uninterrupted reference run per configuration gives the final

@@ -1,4 +1,4 @@
-"""The streamed state hash and the bounded-memory paths of issue 17.
+"""The streamed state hash and the bounded-memory paths of the checkpoint tools.
 
 - ``statehash.xxh64_words`` is XXH64 (checked against the ``xxhash`` package);
 - the hash is a function of the set of discs: any row order and any partition into
@@ -276,7 +276,7 @@ def test_ids_repeated_across_groups_are_refused_in_bounded_memory(tmp_path, monk
 
 
 def _strip_summaries(store_dir):
-    """Remove every group's x_summary from the current HDF5 epoch (as written before issue 17)
+    """Remove every group's x_summary from the current HDF5 epoch (as written before groups kept x summaries)
     and recompute the manifest's size and checksum of the file."""
     import hashlib
     m = json.loads((store_dir / "MANIFEST.json").read_text())
@@ -298,7 +298,7 @@ def _strip_summaries(store_dir):
 
 
 def test_store_without_summaries_resumes_to_the_same_bits(tmp_path):
-    """A store whose epoch lacks the x summaries (written before issue 17) verifies, resumes
+    """A store whose epoch lacks the x summaries (written before groups kept x summaries) verifies, resumes
     and ends with the hash of an uninterrupted run; a summary that lies is refused."""
     common = ["--mode", "ooc", "--backend", "hdf5", "--domains", 3, "--block", 10,
               "--no-progress", "--no-figures"]

@@ -1,4 +1,4 @@
-"""A store is untrusted input (issue 13): nothing in MANIFEST.json or epochs/ may make
+"""A store is untrusted input: nothing in MANIFEST.json or epochs/ may make
 `ooc-dem` read, write or delete outside the store, lose data inside it, hang, accept a
 wrong state, or print a traceback.
 

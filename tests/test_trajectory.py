@@ -1,4 +1,4 @@
-"""Trajectories (issue 19): frames written by every mode, kill-safe and resumable, exported
+"""Trajectories: frames written by every mode, kill-safe and resumable, exported
 as an XDMF time series (read back with VTK's vtkXdmfReader) and animated to GIF and MP4."""
 import os
 import signal

@@ -1,4 +1,4 @@
-"""A store's content is untrusted input (issue 13): an epoch edited consistently (its checksums
+"""A store's content is untrusted input: an epoch edited consistently (its checksums
 recomputed) is refused before it is stepped, hashed or exported; hostile run options and scenario
 text in the manifest are refused; `checkpoint export --out` never replaces a store's files or
 anything that is not a regular file; a kill after the last commit or before the first one leaves

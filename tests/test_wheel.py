@@ -1,4 +1,4 @@
-"""The paper's rig: outputs, sign conventions, drawbar pull - slip curve (issue 3)."""
+"""The paper's rig: outputs, sign conventions, drawbar pull - slip curve."""
 import json
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Issue 16: the lugged wheel in 3D (rim cylinder and lug plates spanning the wheel's width).
+"""The lugged wheel in 3D (rim cylinder and lug plates spanning the wheel's width).
 
 Two levels:
 - contact geometry through THE per-domain step (``DomainStepper`` on a few spheres): the

@@ -103,7 +103,7 @@ def _read_rows(src, d, lo: float, hi: float) -> dict | None:
 
 def x_histogram(src, length: float) -> XHistogram:
     """The discs' x histogram of an epoch (a store reader or RamEpochs) from its groups'
-    stored x summaries; a group without a valid one (a store written before issue 17, DDM's
+    stored x summaries; a group without a valid one (a store written before groups kept x summaries, DDM's
     groups in RAM) is counted from its x, one group at a time. Never one value per disc of
     the whole bed, and the same counts (so bounds) whichever way the discs are grouped."""
     hist = XHistogram(length)

@@ -11,7 +11,6 @@ the steps were grouped into blocks (modes and restarts give the same bits).
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 from numba import njit
@@ -105,7 +104,6 @@ class WheelMetrics:
             [t0 - min(0.1 * w.settle_time, 0.1), t0],   # static sinkage: end of settling
         ])
         self.wacc = np.zeros((len(self.windows), N_WACC))
-        self.static_sinkage = math.nan
 
     def add(self, rec: np.ndarray, step0: int) -> None:
         if len(rec) == 0:

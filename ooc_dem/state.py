@@ -9,7 +9,6 @@ physics.layout (AX_X, AX_Y, AX_Z).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -228,26 +227,6 @@ class Particles:
             else:
                 a[...] = b
         return q
-
-
-@dataclass
-class WheelState:
-    """Kinematic state of the rigid wheel (centre, half-step velocity, angle, spin)."""
-    x: float = 0.0
-    y: float = 0.0
-    vx: float = 0.0
-    vy: float = 0.0
-    theta: float = 0.0
-    wz: float = 0.0
-
-    def to_array(self) -> np.ndarray:
-        a = np.zeros(WS_SIZE)
-        a[:] = [self.x, self.y, self.vx, self.vy, self.theta, self.wz]
-        return a
-
-    @classmethod
-    def from_array(cls, a) -> "WheelState":
-        return cls(*[float(v) for v in a[:WS_SIZE]])
 
 
 def state_hash(p: Particles, wheel: np.ndarray | None, step: int) -> str:

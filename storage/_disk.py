@@ -149,9 +149,6 @@ class Place:
         drop_page_cache(self.mpath)
 
     # ------------------------------------------------------------------ epochs
-    def used_on_disk(self, basename: str) -> bool:
-        return os.path.lexists(os.path.join(self.edir, basename))
-
     def tmp_name(self, basename: str) -> str:
         return os.path.join(self.edir, f"{basename}.tmp-{os.getpid()}")
 

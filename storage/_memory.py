@@ -101,9 +101,6 @@ class Place:
     def write_manifest(self, m: dict, durable: bool = False) -> None:
         self.b.manifest_json = to_json(m, f"{self.key}: manifest")
 
-    def used_on_disk(self, basename: str) -> bool:
-        return f"{EPOCH_DIR}/{basename}" in self.b.epochs
-
     def new_writer(self, step: int, basename: str, compression=None) -> Writer:
         return Writer()
 

@@ -209,24 +209,6 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     return npairs
 
 
-@njit(parallel=True, cache=True)
-def max_displacement2(pos, ref, n):
-    """Largest squared displacement since the last build (max is order-free, so exact)."""
-    nch = 64
-    part = np.zeros(nch)
-    size = (n + nch - 1) // nch
-    for c in prange(nch):
-        m = 0.0
-        for i in range(c * size, min(n, (c + 1) * size)):
-            dx = pos[i, AX_X] - ref[i, AX_X]
-            dy = pos[i, AX_Y] - ref[i, AX_Y]
-            d = dx * dx + dy * dy
-            if d > m:
-                m = d
-        part[c] = m
-    return part.max()
-
-
 # serial twins (physics.twins): the pair-list build of one sub-domain on one thread
 from .twins import serial_twin  # noqa: E402
 

@@ -180,7 +180,9 @@ def validate_record(rec: dict, where: str, dim: int | None = 2, hist_cap: int | 
     if (same_disc & (partner[1:] <= partner[:-1])).any():
         raise StateError(f"{where}: contact history not in strictly ascending partner-id order")
     if bounds is not None:
-        _check_bounds(rec, where, dim, bounds)
+        # a hostile value may overflow a ratio: inf is refused by the comparison, not warned about
+        with np.errstate(all="ignore"):
+            _check_bounds(rec, where, dim, bounds)
 
 
 def validate_globals(arrays: dict, attrs: dict, where: str, step: int | None = None) -> None:

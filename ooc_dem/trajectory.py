@@ -164,7 +164,8 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
     returns its header (dim, frame_every_steps, dt, scenario_hash, step, time, wheel_state, rows)."""
     h5py = _h5py()
     attrs = f.attrs
-    if attrs.get("format") != FORMAT_NAME:
+    fmt = attrs.get("format")
+    if not isinstance(fmt, str) or fmt != FORMAT_NAME:   # an array attribute compares element-wise
         raise TrajectoryError(f"{path}: not an ooc-dem trajectory frame")
     v = attrs.get("format_version")
     if not isinstance(v, (int, np.integer)) or int(v) != FORMAT_VERSION:
@@ -457,7 +458,8 @@ def _check_legacy_layout(f, path) -> None:
     """The attributes and datasets of a trajectory, as ooc-dem writes them (untrusted input)."""
     h5py = _h5py()
     attrs = f.attrs
-    if attrs.get("format") != FORMAT_NAME:
+    fmt = attrs.get("format")
+    if not isinstance(fmt, str) or fmt != FORMAT_NAME:   # an array attribute compares element-wise
         raise TrajectoryError(f"{path}: not an ooc-dem trajectory")
     v = attrs.get("format_version")
     if not isinstance(v, (int, np.integer)) or int(v) != LEGACY_VERSION:

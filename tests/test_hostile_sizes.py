@@ -54,6 +54,13 @@ def test_an_initial_npz_member_of_deflated_zeros_is_refused_from_its_header(base
     refused_in_little_memory(cmd, needle, "initial.npz")
 
 
+def test_animate_bounds_an_initial_npz_member_by_the_first_frames_disc_count(bases, tmp_path):
+    run = rm.copy_run(bases("npz_member"), tmp_path / "run")
+    rm.bomb_member(run / "initial.npz", "x", 1 << 30)
+    refused_in_little_memory(rm.cli("animate", run, "--out", tmp_path / "f.gif", "--no-progress"),
+                             "'x'", "134217728 rows, expected 1500", "initial.npz")
+
+
 @pytest.mark.parametrize("layout", ["archive", "directory"])
 def test_a_zarr_chunk_behind_a_gzip_codec_is_refused_before_it_is_inflated(bases, tmp_path, layout):
     store = rm.copy_run(bases("zarr_gzip"), tmp_path / "run")

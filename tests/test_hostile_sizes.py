@@ -121,7 +121,7 @@ def test_initial_npz_values_that_broke_the_figures_are_one_line_errors(bases, tm
 # ----------------------------------------------------------------------------- beds
 
 BED_N = 300
-BED_SETS = ["--set", f"soil.n={BED_N}", *sum((["--set", s] for s in WHEEL_TEST), [])]
+BED_SETS = ["--set", f"soil.n={BED_N}", *(a for s in WHEEL_TEST for a in ("--set", s))]
 
 
 @pytest.fixture(scope="module")

@@ -66,7 +66,7 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
         first = traj[0]
         x0, y0, r0 = first["pos"][:, 0], first["pos"][:, 1], first["r"]
         init = run_file(run_dir, "initial.npz")
-        surface = read_initial(init)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
+        surface = read_initial(init, len(first["id"]), sc)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
         layer = layer_index(y0, surface, _n_layers(surface, r0))
         from matplotlib.colors import to_rgba_array
         palette = to_rgba_array(list(LAYER_COLOURS) + ["#4a7fbf"])   # the layers, then "unknown disc"

@@ -281,19 +281,57 @@ def cache_dir() -> Path:
     return Path(root)
 
 
+def read_bed(path, sc: Scenario, label: str) -> Particles:
+    """A bed file (``prepare``'s bed.npz, a bed-cache entry) read as untrusted input: every
+    member's size is read from its header and held against the scenario's soil.n (and a
+    history capacity of at most MAX_HIST_CAP) before anything is inflated, its dtype must
+    convert to the state's without loss, and the bed must pass ``check_bed``. A format-1 bed
+    (x, y, vx, vy, w, hist_ft, hist_mr) is read as such and converted. Anything else raises
+    StateError, one line starting with ``label`` and the file."""
+    from .checkpoint import StateError, check_bed
+    from .npzfile import npz_member_names, read_npz_members
+    from .scenario import MAX_HIST_CAP
+    from .state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
+    where = f"{label} {path}"
+    dtypes = dict(FIELD_DTYPES)
+    want = {}
+    for k, tail in field_tails(sc.dim, 0).items():
+        if k in HIST_FIELDS:     # a bed's capacity is its own, not the scenario's
+            tail = (range(MAX_HIST_CAP + 1),) + tail[1:]
+        want[k] = (tail, "iu" if FIELD_DTYPES[k].kind in "iu" else "iuf")
+    try:
+        if is_v1(npz_member_names(path, StateError)):
+            for new, comps in V1_ARRAYS.items():
+                tail, kinds = want.pop(new)
+                for c in comps:     # one component of the format-2 array: its last axis dropped
+                    want[c], dtypes[c] = (tail[:-1], kinds), FIELD_DTYPES[new]
+        arrays = read_npz_members(path, want, sc.soil.n, StateError, n_from=f"soil.n = {sc.soil.n}")
+    except StateError as e:
+        raise StateError(f"{label} {e}") from None
+    for k, a in arrays.items():
+        t = dtypes[k]
+        if not (np.can_cast(a.dtype, t) or (t.kind == "i" and (a.size == 0 or (
+                np.iinfo(t).min <= a.min() and a.max() <= np.iinfo(t).max)))):
+            raise StateError(f"{where}: {k!r} holds {a.dtype} values beyond {t}")
+    try:
+        p = Particles(**arrays)
+    except ValueError as e:
+        raise StateError(f"{where}: {' '.join(str(e).split())}") from None
+    check_bed(p, where, sc)
+    return p
+
+
 def _cached(sc: Scenario, build, progress=None) -> Particles:
     # format-2 beds (pos, vel, ...) under their own name, so that an engine of format 1
     # sharing the cache never sees (and deletes) them; a format-1 cache (x, y, ...) still
     # loads: Particles converts it (state.upgrade_v1)
     beds = cache_dir() / "beds"
     path = beds / f"{sc.bed_hash()}.v2.npz"
-    from .checkpoint import StateError, check_bed
+    from .checkpoint import StateError
     for f in (path, beds / f"{sc.bed_hash()}.npz"):
         if f.is_file():
             try:
-                with np.load(f) as z:
-                    p = Particles(**{k: z[k] for k in z.files})
-                check_bed(p, f"cached bed {f}", sc)   # the cache is a file like any other
+                p = read_bed(f, sc, "cached bed")   # the cache is a file like any other
                 # the capacity is no part of the bed's bits (nor of its hash): a bed cached
                 # at another capacity is refitted to this scenario's
                 return p if p.hist_cap == sc.hist_cap else p.with_hist_cap(sc.hist_cap)

@@ -276,22 +276,15 @@ def _settle_progress(sc):
 
 
 def _load_bed(path, sc):
-    import numpy as np
-    from .state import Particles
+    from .bed import read_bed
+    from .checkpoint import StateError
     f = Path(path) / "bed.npz"
     if not f.is_file():
         raise CliError(f"--bed {path}: no bed.npz (make one with `ooc-dem prepare`)")
     try:
-        with np.load(f) as z:
-            bed = Particles(**{k: z[k] for k in z.files})
-    except Exception as e:
-        raise CliError(f"--bed {path}: unreadable bed.npz ({type(e).__name__})") from None
-    from .checkpoint import StateError, check_bed
-    try:
-        check_bed(bed, f"--bed {path}", sc)   # what a store holding it would be refused for
+        return read_bed(f, sc, "--bed")   # what a store holding it would be refused for
     except StateError as e:
         raise CliError(str(e)) from None
-    return bed
 
 
 def _run_options(args):

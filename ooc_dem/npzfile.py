@@ -27,10 +27,20 @@ def _npy_header(f, where: str, error):
     return tuple(shape), dtype, f.tell()
 
 
-def read_npz_members(path, want: dict, n: int | None, error) -> dict[str, np.ndarray]:
+def _row_fits(shape: tuple, tail: tuple) -> bool:
+    return len(shape) == 1 + len(tail) and all(
+        s in t if isinstance(t, range) else s == t for s, t in zip(shape[1:], tail))
+
+
+def _dim(t) -> str:
+    return f"{t.start}..{t.stop - 1}" if isinstance(t, range) else str(t)
+
+
+def read_npz_members(path, want: dict, n: int | None, error, n_from: str = "") -> dict[str, np.ndarray]:
     """The members ``want`` names of the npz archive ``path``: name -> (row shape, a tuple, for
-    an array of n rows; None for one number; the allowed dtype kinds, e.g. "iuf"). Each
-    member's declared shape must be that (``n``: the rows expected, None when unknown) and
+    an array of n rows, where a ``range`` admits any size in it; None for one number; the
+    allowed dtype kinds, e.g. "iuf"). Each member's declared shape must be that (``n``: the
+    rows expected, None when unknown; ``n_from`` says where that number comes from) and
     its bytes those of its zip entry (stored, within the archive, when ``n`` is unknown), and
     all of them must fit in a quarter of this machine's memory, before any is read. Anything
     else raises ``error`` (one line)."""
@@ -53,13 +63,13 @@ def read_npz_members(path, want: dict, n: int | None, error) -> dict[str, np.nda
                     raise error(f"{where}: a compressed or truncated member of unknown length (refused)")
                 with zf.open(zi) as f:
                     shape, dtype, head = _npy_header(f, where, error)
-                ok = shape == () if tail is None else (len(shape) == 1 + len(tail) and shape[1:] == tail)
+                ok = shape == () if tail is None else _row_fits(shape, tail)
                 if not ok or dtype.kind not in kinds or dtype.itemsize > 8:
                     raise error(f"{where}: shape {shape} dtype {dtype.str}: expected "
-                                + ("a number" if tail is None else f"(rows{''.join(f', {t}' for t in tail)})")
+                                + ("a number" if tail is None else f"(rows{''.join(f', {_dim(t)}' for t in tail)})")
                                 + f" of kind {kinds!r}")
                 if tail is not None and n is not None and shape[0] != n:
-                    raise error(f"{where}: {shape[0]} rows, expected {n}")
+                    raise error(f"{where}: {shape[0]} rows, expected {n}" + (f" ({n_from})" if n_from else ""))
                 nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
                 if zi.file_size != head + nbytes:
                     raise error(f"{where}: declares {nbytes} bytes of data, its zip entry holds "
@@ -71,7 +81,23 @@ def read_npz_members(path, want: dict, n: int | None, error) -> dict[str, np.nda
                     found[k] = np.lib.format.read_array(f, allow_pickle=False)
     except error:
         raise
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error,
-            NotImplementedError) as e:
-        raise error(f"{path}: not a readable npz archive ({' '.join(str(e).split())[:160]})") from None
+    except _UNREADABLE as e:
+        raise _unreadable(path, e, error) from None
     return found
+
+
+_UNREADABLE = (ValueError, OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error,
+               NotImplementedError)
+
+
+def _unreadable(path, e: Exception, error) -> Exception:
+    return error(f"{path}: not a readable npz archive ({' '.join(str(e).split())[:160]})")
+
+
+def npz_member_names(path, error) -> list[str]:
+    """The array names of the npz archive ``path`` (from its zip directory; nothing inflated)."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return [m[:-4] for m in zf.namelist() if m.endswith(".npy")]
+    except _UNREADABLE as e:
+        raise _unreadable(path, e, error) from None

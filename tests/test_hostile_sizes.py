@@ -7,13 +7,15 @@ process and measures that process's peak RSS (``ooc_dem.memlimit.run_limited``):
 one line, and under 300 MB. tools/refusal_memory.py runs the same cases at the sizes of the
 reports (2^25 rows, 4 GB members and chunks, hist_cap 100000, id 3·10^8).
 """
+import os
+import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import one_line_error, zarr_epochs_as_directories
+from conftest import WHEEL_TEST, one_line_error, zarr_epochs_as_directories
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 import refusal_memory as rm  # noqa: E402
@@ -50,6 +52,13 @@ def test_an_initial_npz_member_of_deflated_zeros_is_refused_from_its_header(base
     cmd, needle = rm.make_npz_member(bases("npz_member"), tmp_path / "run", 1 << 30)
     assert (tmp_path / "run" / "initial.npz").stat().st_size < 8 << 20
     refused_in_little_memory(cmd, needle, "initial.npz")
+
+
+def test_animate_bounds_an_initial_npz_member_by_the_first_frames_disc_count(bases, tmp_path):
+    run = rm.copy_run(bases("npz_member"), tmp_path / "run")
+    rm.bomb_member(run / "initial.npz", "x", 1 << 30)
+    refused_in_little_memory(rm.cli("animate", run, "--out", tmp_path / "f.gif", "--no-progress"),
+                             "'x'", "134217728 rows, expected 1500", "initial.npz")
 
 
 @pytest.mark.parametrize("layout", ["archive", "directory"])
@@ -107,3 +116,53 @@ def test_initial_npz_values_that_broke_the_figures_are_one_line_errors(bases, tm
         run = rm.copy_run(base, tmp_path / name.replace(" ", "-"))
         np.savez(run / "initial.npz", **arrays)
         refused_in_little_memory(rm.cli("report", run), needles[name], "initial.npz")
+
+
+# ----------------------------------------------------------------------------- beds
+
+BED_N = 300
+BED_SETS = ["--set", f"soil.n={BED_N}", *(a for s in WHEEL_TEST for a in ("--set", s))]
+
+
+@pytest.fixture(scope="module")
+def bomb_bed(tmp_path_factory):
+    """A bed.npz of BED_N discs whose 'r' member is 4 GB of deflated zeros (about 19 MB on
+    disk), its header true to them; the other members as a bed's."""
+    from ooc_dem.state import Particles
+    f = tmp_path_factory.mktemp("bomb-bed") / "bed.npz"
+    p = Particles.empty(BED_N, 2)
+    p.id[:] = np.arange(BED_N)
+    np.savez(f, **p.arrays())
+    rm.bomb_member(f, "r", 4 << 30)
+    assert f.stat().st_size < 32 << 20
+    return f
+
+
+def test_a_bed_member_of_deflated_zeros_is_refused_from_its_header(bomb_bed, tmp_path):
+    bed = tmp_path / "bed"
+    bed.mkdir()
+    shutil.copy(bomb_bed, bed / "bed.npz")
+    out = tmp_path / "run"
+    line = refused_in_little_memory(rm.cli("run", "quick", *BED_SETS, "--bed", bed, "--out", out, "--steps", 2,
+                                           "--no-progress", "--no-figures"), "--bed", "'r'", f"soil.n = {BED_N}")
+    assert "536870912 rows" in line
+    assert not (out / "MANIFEST.json").exists()
+
+
+def test_a_bed_cache_entry_of_deflated_zeros_is_rebuilt_with_a_warning(bomb_bed, tmp_path):
+    """The cache entry is refused from its header (never inflated), settled again and
+    cached again; the run says so in one warning line."""
+    from ooc_dem.scenario import load_scenario
+    sc = load_scenario("quick", BED_SETS[1::2])
+    entry = tmp_path / "cache" / "beds" / f"{sc.bed_hash()}.v2.npz"
+    entry.parent.mkdir(parents=True)
+    shutil.copy(bomb_bed, entry)
+    r, lines = rm.measure(rm.cli("run", "quick", *BED_SETS, "--out", tmp_path / "run", "--steps", 2,
+                                 "--no-progress", "--no-figures"),
+                          env=dict(os.environ, OOC_DEM_CACHE=str(tmp_path / "cache")))
+    assert r.returncode == 0, r.stderr[-2000:]
+    warnings = [ln for ln in lines if "warning" in ln]
+    assert len(warnings) == 1 and "'r'" in warnings[0] and "rebuilding" in warnings[0], r.stderr
+    assert r.peak_rss_bytes < 1e9, r.peak_rss_bytes     # 4.3 GB when the member was inflated
+    with np.load(entry) as z:
+        assert z["r"].shape == (BED_N,) and (z["r"] > 0).all()

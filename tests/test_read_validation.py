@@ -179,3 +179,23 @@ def test_a_refused_cache_entry_is_rebuilt_with_a_warning(prepared_bed, tmp_path)
     assert len(warnings) == 1 and "soil.n = 300" in warnings[0] and "rebuilding" in warnings[0], cp.stderr
     with np.load(entry) as z, np.load(prepared_bed / "bed" / "bed.npz") as bed:
         assert np.array_equal(z["pos"], bed["pos"])   # the same bed, settled again
+
+
+def test_a_format_1_bed_at_another_capacity_reads_as_the_bed_it_stores(prepared_bed, tmp_path):
+    """The bed reader takes what older engines wrote: format-1 component arrays, another
+    history capacity, deflated members."""
+    from ooc_dem.bed import read_bed
+    from ooc_dem.scenario import load_scenario
+    with np.load(prepared_bed / "bed" / "bed.npz") as z:
+        a = {k: z[k] for k in z.files}
+    wider = {k: np.concatenate([v, np.zeros((len(v), 4) + v.shape[2:], v.dtype)], axis=1)
+             for k, v in a.items() if k.startswith("hist_") and k != "hist_n"}
+    v1 = {k: v for k, v in a.items() if k not in ("pos", "vel", "spin", "hist_s", "hist_m")}
+    v1.update(hist_id=wider["hist_id"], x=a["pos"][:, 0], y=a["pos"][:, 1], vx=a["vel"][:, 0], vy=a["vel"][:, 1],
+              w=a["spin"][:, 0], hist_ft=wider["hist_s"][..., 0], hist_mr=wider["hist_m"][..., 0])
+    np.savez_compressed(tmp_path / "bed.npz", **v1)
+    p = read_bed(tmp_path / "bed.npz", load_scenario("quick", SMALL[1::2]), "--bed")
+    assert p.hist_cap == a["hist_id"].shape[1] + 4
+    for k in ("id", "pos", "vel", "spin", "r", "mass", "mat", "hist_n"):
+        assert np.array_equal(getattr(p, k), a[k]), k
+    assert np.array_equal(p.hist_s, wider["hist_s"]) and np.array_equal(p.hist_m, wider["hist_m"])

@@ -107,17 +107,22 @@ def make_frame_rows(base: Path, dest: Path, rows: int):
 def make_npz_member(base: Path, dest: Path, nbytes: int):
     """initial.npz whose 'x' member is nbytes of deflated zeros (float64), its header true."""
     copy_run(base, dest)
-    src = dest / "initial.npz"
+    bomb_member(dest / "initial.npz", "x", nbytes)
+    return cli("report", dest), "'x'"
+
+
+def bomb_member(npz: Path, member: str, nbytes: int) -> None:
+    """Replace the member ``member`` of the archive ``npz`` by nbytes of deflated zeros
+    (float64, one row a number), its .npy header true to them; the other members kept."""
     hdr = _npy_header((nbytes // 8,), np.float64)
     data, size, crc = deflated_zeros(nbytes, hdr)
-    tmp = dest / "initial.npz.new"
-    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zout:
+    tmp = npz.with_name(npz.name + ".new")
+    with zipfile.ZipFile(npz) as zin, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as zout:
         for zi in zin.infolist():
-            if zi.filename != "x.npy":
+            if zi.filename != f"{member}.npy":
                 zout.writestr(zi, zin.read(zi))
-        _raw_entry(zout, "x.npy", data, size, crc)
-    os.replace(tmp, src)
-    return cli("report", dest), "'x'"
+        _raw_entry(zout, f"{member}.npy", data, size, crc)
+    os.replace(tmp, npz)
 
 
 def _npy_header(shape, dtype) -> bytes:

@@ -478,6 +478,7 @@ def _check_ranges(sc: Scenario) -> None:
         if sc.physics.gravity <= 0:
             raise ScenarioError("physics.gravity = 0: a wheel needs gravity > 0 (its mass is load / g)")
     _check_repose(sc)
+    _check_tile(sc)
     o = sc.output
     if o.steady_end < o.steady_start:
         raise ScenarioError(f"output.steady_end = {o.steady_end!r}: must be >= output.steady_start ({o.steady_start!r})")
@@ -493,6 +494,23 @@ def _check_ranges(sc: Scenario) -> None:
             f"physics.dt = {dt!r}: above the stability limit {crit:.3e} s of the stiffest contact "
             f"({stiffest} on the lightest disc (soil.r_min, soil.density, physics.thickness) with "
             f"physics.contacts_per_disc contacts: dt_crit = (2/w)(sqrt(1+z^2)-z)); use dt <= {crit:.3e}")
+
+
+def _check_tile(sc: Scenario) -> None:
+    """A tiled bed is settled as the scenario of one tile (bed.tile_scenario: bed.tile discs in
+    bin.length / tiles along x); that scenario must hold too, or `run` would refuse, naming a
+    bin the user never wrote, what `check` accepted."""
+    if not 0 < sc.bed.tile < sc.soil.n:
+        return
+    from .bed import tile_scenario, tile_size
+    try:
+        tile_scenario(sc)
+    except ScenarioError as e:
+        length, width = tile_size(sc)
+        size = f"{length:.3g} m long" + (f", {width:.3g} m wide" if sc.dim == 3 else "")
+        raise ScenarioError(f"bed.tile = {sc.bed.tile}: the bed is settled in tiles of {sc.bed.tile} "
+                            f"of the soil.n = {sc.soil.n} discs, {size}, and such a tile is refused "
+                            f"({e}); raise bed.tile") from None
 
 
 def _check_repose(sc: Scenario) -> None:

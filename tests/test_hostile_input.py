@@ -137,7 +137,8 @@ EXTREME_RUNS = [
     (["--set", "wheel.travel_time=1e308"], "wheel.travel_time"),
     (["--set", "output.series_interval=1e308"], "output.series_interval"),
     (["--set", "soil.density=1e308"], "soil.density"),
-    (["--set", "physics.thickness=1e-200"], "soil.r_min"),   # the lightest disc's mass underflows
+    (["--set", "physics.thickness=1e-200"], "physics.thickness"),   # below the shortest length
+    (["--set", "soil.density=5e-324"], "soil.r_min"),          # the lightest disc's mass underflows
     (["--set", "soil.n=" + "1" * 5000], "soil.n"),             # beyond Python's int-string limit
     (["--set", "soil.seed=0x" + "f" * 5000], "soil.seed"),     # hex ints have no digit limit
     (["--duration", "1e308"], "--duration"),
@@ -148,6 +149,18 @@ EXTREME_RUNS = [
 def test_extreme_numbers_one_line(args, needle, tmp_path):
     cp = run_cli("run", "quick", *args, "--out", tmp_path / "o", "--no-progress", timeout=120)
     one_line_error(cp, needle)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("scenario", ["quick", "quick-3d"])
+def test_a_tile_narrower_than_a_disc_is_refused_alike_by_check_and_run(scenario, tmp_path):
+    """bed.tile = 1 passed `check`; `run` then refused the tile's own scenario, naming a
+    bin.length the user never wrote. Both refuse it now, in the same line, naming bed.tile."""
+    args = [scenario, "--set", "bed.tile=1"]
+    checked = one_line_error(run_cli("check", *args, timeout=120), "bed.tile = 1", "bin.length")
+    ran = one_line_error(run_cli("run", *args, "--out", tmp_path / "o", "--no-progress", timeout=120),
+                         "bed.tile = 1")
+    assert ran == checked
     assert not (tmp_path / "o").exists()
 
 

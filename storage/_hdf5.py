@@ -140,6 +140,11 @@ class Reader:
         self._objs[path] = obj
         return obj
 
+    def root_step(self):
+        """The step the file's writer recorded in its root attributes (None: none)."""
+        v = self.f.attrs.get("step")
+        return v.item() if isinstance(v, np.generic) else v
+
     def has_group(self, group: str) -> bool:
         return isinstance(self._get(group), _h5py().Group)
 

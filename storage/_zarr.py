@@ -226,6 +226,12 @@ def _member(adir: str, meta: dict, name: str) -> _Member:
     return _Member(shape, dtype, raw, name)
 
 
+def recorded_step(root: dict):
+    """The step a writer recorded in an epoch's root group document (None: none)."""
+    attributes = root.get("attributes")
+    return attributes.get("step") if isinstance(attributes, dict) else None
+
+
 class Reader:
     """Reads an epoch's zarr v3 hierarchy from its metadata documents directly (plain JSON
     files), falling back to the zarr library for arrays not in the writer's simple form."""
@@ -238,6 +244,7 @@ class Reader:
         meta = _read_json(os.path.join(path, "zarr.json"))
         if meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
             raise ValueError(f"{path}: not a zarr v3 group")
+        self._root_step = recorded_step(meta)
         self._zroot = None
         self._groups: dict[str, tuple | None] = {}
         self._touched: set[str] = set()
@@ -284,6 +291,10 @@ class Reader:
     def _members(self, group: str):
         gm = self._group_meta(group)
         return None if gm is None else gm[1]
+
+    def root_step(self):
+        """The step the epoch's writer recorded in its root attributes (None: none)."""
+        return self._root_step
 
     def has_group(self, group: str) -> bool:
         return self._group_meta(group) is not None

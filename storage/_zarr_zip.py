@@ -29,7 +29,7 @@ import numpy as np
 
 from ._confine import open_regular
 from ._util import ATTRS_KEY, FORMAT, drop_page_cache, new_digest, pread_into, remove_path
-from ._zarr import check_codecs
+from ._zarr import check_codecs, recorded_step
 
 EXT = "zip"
 IS_DIR = False
@@ -331,6 +331,7 @@ class Reader:
             meta = self._doc("zarr.json")
             if meta is None or meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
                 raise ValueError(f"{path}: not a zarr v3 group")
+            self._root_step = recorded_step(meta)
         except BaseException:
             os.close(self._fd)
             raise
@@ -424,6 +425,10 @@ class Reader:
                 raise ValueError(f"{self.path}: {group}: malformed group attributes")
             self._groups[group] = (attributes, members)
         return self._groups[group]
+
+    def root_step(self):
+        """The step the epoch's writer recorded in its root attributes (None: none)."""
+        return self._root_step
 
     def has_group(self, group: str) -> bool:
         return self._group_meta(group) is not None

@@ -652,6 +652,9 @@ class Store:
             r = self._place.open_reader(e)
         except Exception as ex:  # noqa: BLE001 - any failure to open is a problem to report
             return [f"{self._where(e)}: cannot open ({type(ex).__name__}: {ex})"]
+        own = _own_step_problem(self._place, r, self._where(e), e["step"])
+        if own:
+            problems.append(own)
         try:
             for g, arrays in groups:
                 try:
@@ -924,6 +927,23 @@ class EpochWriter:
 
 # ============================================================================ reader
 
+def _own_step_problem(place, r, where: str, step: int) -> str | None:
+    """The problem of a file of epoch `step` (its main file or a part, open as `r`) whose
+    writer recorded another step in it, or none: a file of another epoch put in its place
+    (its size and checksum in the manifest recomputed). One attribute, read once per open.
+    A memory store has no files to swap."""
+    if place.is_memory:
+        return None
+    try:
+        got = r.root_step()
+    except Exception as ex:  # noqa: BLE001 - a hostile attribute is a problem to report
+        return f"{where}: root attribute 'step' unreadable ({type(ex).__name__}: {ex})"
+    if type(got) is int and got == step:
+        return None
+    return (f"{where}: the file records step {_show(got)}, not the epoch's {step} (a file of "
+            f"another epoch)")
+
+
 class EpochReader:
     """Read access to one committed epoch."""
 
@@ -940,6 +960,10 @@ class EpochReader:
         except Exception as ex:  # noqa: BLE001
             raise StoreError(f"{self._where}: cannot open epoch {self.step} "
                              f"({type(ex).__name__}: {ex})") from ex
+        own = _own_step_problem(store._place, self._r, self._where, self.step)
+        if own:
+            self._r.close()
+            raise StoreError(own)
         self._part_readers: dict[int, object] = {}
         # each group's attrs as read once (JSON text, decoded afresh for every caller): an
         # epoch never changes while it is read, and a sweep asks for every group's x range
@@ -982,6 +1006,10 @@ class EpochReader:
             except Exception as ex:  # noqa: BLE001
                 raise StoreError(f"{self._store._where(sub)}: cannot open part {k} of epoch {self.step} "
                                  f"({type(ex).__name__}: {ex})") from ex
+            own = _own_step_problem(self._store._place, r, self._store._where(sub), self.step)
+            if own:
+                r.close()
+                raise StoreError(own)
             self._part_readers[k] = r
         return r
 

@@ -4,6 +4,7 @@ of 1e300, a mass of 5e-324) and counts against the scenario are refused before a
 `--bed` and from the cache go through the same validation (a refused cache entry is rebuilt,
 with a warning); a hostile manifest meta gives the API's own StateError; the disk-space estimate
 of a resume comes from the epoch it resumed from, never from a damaged entry."""
+import hashlib
 import json
 import shutil
 
@@ -12,7 +13,11 @@ import pytest
 
 import ooc_dem
 from conftest import WHEEL_TEST, one_line_error, run_cli
+from ooc_dem.checkpoint import open_epoch, record_rows
+from ooc_dem.decomposition import x_summary
 from ooc_dem.physics.layout import AX_X
+from ooc_dem.state import HIST_FIELDS
+from storage import StoreError, open_store
 from test_untrusted_state import (STEPS, _manifest, _replace, _tamper_current,  # noqa: F401
                                   base_run, run_copy)
 
@@ -111,6 +116,131 @@ def test_3d_material_index_beyond_the_table_is_refused(tmp_path):
     one_line_error(run_cli("checkpoint", "hash", out), "'mat'")
     with pytest.raises(ooc_dem.StateError, match="'mat'"):
         ooc_dem.open_run(out).state()
+
+
+# ----------------------------------------------------------------------------- disc counts
+
+def _commit_with_discs(run, edit):
+    """Commit, through the store's own writer, a copy of the current epoch (one step on) whose
+    first domain's record `edit` changed: every count, attribute (``n``, ``x_summary``), size
+    and checksum agrees with the new discs, so only a check against the scenario can tell."""
+    store = open_store(run)
+    try:
+        reader = open_epoch(store)
+        arrays, attrs = reader.read_globals()
+        step, groups = reader.step + 1, []
+        for d in reader.domains():
+            rec, dattrs = reader.read_domain(d), reader.domain_attrs(d)
+            if not groups:
+                rec = edit(rec)
+            if "n" in dattrs:
+                dattrs["n"] = len(rec["id"])
+            if "x_summary" in dattrs:
+                dattrs["x_summary"] = x_summary(rec["pos"][:, AX_X], dattrs["x_summary"]["length"])
+            groups.append((d, rec, dattrs))
+        reader.close()
+        w = store.begin_epoch(step)
+        for g in groups:
+            w.write_domain(*g)
+        w.write_globals(arrays, {**attrs, "step": step})
+        w.commit()
+    finally:
+        store.close()
+    return step
+
+
+def _delete_discs(rec, k=3):
+    """The record without its first k discs, and without the contacts others kept with them."""
+    gone = rec["id"][:k]
+    rec = record_rows(rec, np.arange(k, len(rec["id"])))
+    owner = np.repeat(np.arange(len(rec["id"])), rec["hist_n"].astype(np.intp))
+    keep = ~np.isin(rec["hist_id"], gone)
+    for name in HIST_FIELDS:
+        rec[name] = rec[name][keep]
+    rec["hist_n"] = np.bincount(owner[keep], minlength=len(rec["id"])).astype(rec["hist_n"].dtype)
+    return rec
+
+
+def _add_disc(rec):
+    """The record with a copy of its first disc (its contact history too) under a fresh id."""
+    rec = record_rows(rec, np.r_[np.arange(len(rec["id"])), 0])
+    rec["id"][-1] = rec["id"].max() + 1
+    return rec
+
+
+@pytest.fixture(scope="module")
+def run_3d_zarr(tmp_path_factory):
+    out = tmp_path_factory.mktemp("zarr3d") / "run"
+    run_cli("run", "quick-3d", "--backend", "zarr", "--out", out, "--steps", 10, "--checkpoint-every", 5,
+            "--no-progress", "--no-figures", check=True)
+    return out
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("edit", [_delete_discs, _add_disc], ids=["deleted", "added"])
+def test_a_consistent_change_of_the_disc_count_is_refused(base_run, run_3d_zarr, tmp_path, dim, edit):
+    """Spheres deleted (with the contacts others kept with them) or one added (a copy under a
+    fresh id), the epoch otherwise consistent and committed by the store itself: refused
+    against the scenario's soil.n by resume and hash (2D: quick, HDF5; 3D: quick-3d, zarr)."""
+    run = tmp_path / "run"
+    shutil.copytree(base_run if dim == 2 else run_3d_zarr, run)
+    step = _commit_with_discs(run, edit)
+    assert run_cli("checkpoint", "verify", run).returncode == 0   # the store finds nothing wrong
+    line = one_line_error(run_cli("checkpoint", "hash", run), f"epoch {step} holds", "soil.n")
+    one_line_error(run_cli("resume", run, "--steps", step + 10, "--no-progress", "--no-figures"), line)
+
+
+# ----------------------------------------------------------------------------- MPI parts
+
+def _resign(store, entry, rel):
+    """Record file `rel` (the main file or a part of manifest entry `entry`) at its size and
+    checksum as they now are."""
+    data = (store / rel).read_bytes()
+    for f in entry["files"] + [f for p in entry.get("parts", ()) for f in p["files"]]:
+        if f["path"] == rel:
+            f.pop("xxh3_128", None)
+            f["size"], f["sha256"] = len(data), hashlib.sha256(data).hexdigest()
+
+
+def test_a_part_of_another_epoch_is_refused_naming_the_part(tmp_path):
+    """An MPI run's epoch is a main file and one part per rank; each file records its epoch's
+    step. Part 1 of the previous epoch copied over the current one's (the manifest's size,
+    checksum and domain entries made to match it) is refused by verify, hash, export and
+    resume in one line naming the part, and by a reader that skips verification (as the
+    ranks' do) when it opens the part."""
+    from test_mpi import run_mpi
+    run = tmp_path / "mpi"
+    run_mpi(2, "run", "quick", "--mode", "mpi", "--steps", 20, "--checkpoint-every", 10, "--out", run,
+            "--no-progress", "--no-figures")
+    m = _manifest(run)
+    cur, prev = m["current"], m["previous"]
+    assert cur["parts"] and prev["parts"]
+    part = cur["parts"][0]["path"]
+    shutil.copyfile(run / prev["parts"][0]["path"], run / part)
+    _resign(run, cur, part)
+    for d, info in cur["domains"].items():
+        if info.get("part") == 1:
+            cur["domains"][d] = prev["domains"][d]
+    m["previous"] = None   # else the previous epoch, intact, would be used instead
+    (run / "MANIFEST.json").write_text(json.dumps(m))
+    needle = f"{part.rpartition('/')[2]}: the file records step {prev['step']}"
+    cp = run_cli("checkpoint", "verify", run)
+    assert cp.returncode == 2 and needle in cp.stdout, (cp.stdout, cp.stderr)
+    one_line_error(run_cli("checkpoint", "hash", run), needle)
+    out = tmp_path / "e.csv"
+    one_line_error(run_cli("checkpoint", "export", run, "--out", out), needle)
+    assert not out.exists()
+    one_line_error(run_cli("resume", run, "--steps", 30, "--no-progress", "--no-figures"), needle)
+    one_line_error(run_mpi(2, "resume", run, "--steps", 30, "--no-progress", "--no-figures", check=False),
+                   needle)
+    store = open_store(run, repair=False)
+    try:
+        with store.read_epoch(verify=False) as reader:
+            d = next(int(d) for d, info in cur["domains"].items() if info.get("part") == 1)
+            with pytest.raises(StoreError, match=needle.replace(".", r"\.")):
+                reader.read_domain(d)
+    finally:
+        store.close()
 
 
 # ----------------------------------------------------------------------------- beds

@@ -459,8 +459,8 @@ def checked_groups(reader, where: str, dim: int | None = 2, hist_cap: int | None
         dattrs = reader.domain_attrs(d)
         if not isinstance(dattrs, dict):
             raise StateError(f"{at}: attributes are not an object")
-        for key in ("xmin", "xmax"):
-            v = dattrs.get(key, 0.0)
+        for key in ("xmin", "xmax"):   # every writer records them: the sweeps' reads depend on them
+            v = dattrs.get(key)
             if type(v) not in (int, float) or not math.isfinite(v):
                 raise StateError(f"{at}: attribute {key!r} = {show(v)}: must be a finite number")
         if "n" in dattrs and dattrs["n"] != len(rec["id"]):

@@ -1013,7 +1013,9 @@ def _edit_array(world: World, ed: dict):
             if ed["kind"] == "delete":
                 del g[name]
             else:
-                new = _semantic(g[name][()], ed["kind"], ed.get("rows", [0.0]))
+                old = g[name][()]
+                new = _semantic(old, ed["kind"], ed.get("rows", [0.0]))
+                ed["noop"] = _same_array(old, new)
                 del g[name]
                 g.create_dataset(name, data=new)
         if ed.get("update_meta"):
@@ -1035,6 +1037,7 @@ def _edit_array(world: World, ed: dict):
                 old = np.frombuffer(chunk.read_bytes(), dtype=dt).reshape(meta["shape"]) if chunk.exists() \
                     else np.zeros(meta["shape"], dt)
                 new = _semantic(old, ed["kind"], ed.get("rows", [0.0]))
+                ed["noop"] = _same_array(old, new)
                 if new.ndim != old.ndim:
                     shutil.rmtree(adir / "c", ignore_errors=True)
                     chunk = adir / "c" / "/".join(["0"] * max(1, new.ndim))
@@ -1595,6 +1598,8 @@ class Fuzzer:
             self.inapplicable[key] = self.inapplicable.get(key, 0) + 1
             self._finish(root, fails, t0)
             return fails
+        if any(ed.get("noop") for ed in case.get("edits", ())):
+            case = _without_noop_expectations(case)
         argv = [str(a) for a in case["argv"]]
         cmd, sub = _command_of(argv)
         if cmd == "check" and cmd not in self.commands:
@@ -2487,6 +2492,22 @@ def invalid_current(edits) -> bool:
     return False
 
 
+def _same_array(old, new) -> bool:
+    """Whether an array edit changed nothing (e.g. "longer" or "nan" on a domain holding no
+    disc): the epoch then holds the intact state, whatever the edit's kind says."""
+    return old.dtype == new.dtype and old.shape == new.shape and old.tobytes() == new.tobytes()
+
+
+def _without_noop_expectations(case: dict) -> dict:
+    """The case's expectations as if its edits that changed nothing had not been made."""
+    real = [ed for ed in case["edits"] if not ed.get("noop")]
+    if invalid_current(real):
+        return case
+    expect = {k: v for k, v in case.get("expect", {}).items()
+              if k not in ("same_bits_as_intact", "hash_fallback", "export_fallback")}
+    return dict(case, expect=expect)
+
+
 def _epoch_expect(case: dict) -> dict:
     """`checkpoint verify` must not accept an epoch whose bytes changed without a checksum fix;
     `resume` of a detectably invalid current epoch must refuse or fall back (same final bits)."""
@@ -2781,6 +2802,15 @@ def _known_cases() -> dict:
                                         "recompute": False},
                                        M(["current", "files", 0, "size"], 10 ** 18)], base,
                      expect={"same_bits_as_intact": True}))
+    # a domain's attributes replaced (no n, xmin, xmax): an out-of-core resume read the group
+    # as empty and committed an epoch short of its discs; an array edit that changes nothing
+    # (a domain holding no disc) leaves the intact state
+    DA = lambda which, dom, value: {"op": "attrs", "which": which, "group": "domain", "dom": dom,  # noqa: E731
+                                    "value": value}
+    ep += [_c("epoch", resume, [DA("current", 5, '{"step": 1e308}')], "zarr"),
+           _c("epoch", resume, [{"op": "flip", "which": "current", "file": 187, "offsets": [0.0, 0.6],
+                                 "xors": [88, 188], "recompute": False},
+                                DA("previous", 3, '{"engine": {"domains": 100000}}')], "zarr")]
     # an absurd finite value that `check` accepts crashes `run`
     cli += [_c("cli", ["run", "quick-3d", "--set", "wheel.width=1e-300", "--steps", "1", "--out", "out/r", *RUN_TAIL]),
             _c("cli", ["check", "quick-3d", "--set", "wheel.width=1e-300"])]
@@ -2800,6 +2830,7 @@ def _known_cases() -> dict:
     ep3.append(_c("epoch3d", resume, [big_id], "zarr_3d", expect={"size_bound": True}))
     ep += [_c("epoch", resume, [big_id], "zarr", expect={"size_bound": True}),
            dict(_c("epoch", resume, [big_id], "ddm", expect={"size_bound": True}), heavy=True)]
+    ep3.append(_c("epoch3d", hash_, [A("spin", "longer") | {"dom": 5}], "zarr_3d"))
     ep3 = [_epoch_expect(c) for c in ep3]
     # beds: `run --bed` and the bed cache load beds without the store's validation
     B = lambda name, kind, where="bed": {"op": "npz_array", "file": where, "name": name, "kind": kind, "rows": [0.0]}  # noqa: E731

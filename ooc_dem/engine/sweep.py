@@ -51,6 +51,9 @@ class RamEpochs:
     def domain_attrs(self, d):
         return self.current[d][1]
 
+    def domain_len(self, d) -> int:
+        return len(self.current[d][0])
+
     def domain_particles(self, d) -> Particles:
         return self.current[d][0]
 
@@ -76,8 +79,10 @@ def _read_rows(src, d, lo: float, hi: float) -> dict | None:
     first whose running minimum of the rest is at or above hi. The range is read and
     filtered exactly, so any row order is read correctly (x-sorted groups of older stores
     give the exact slice)."""
+    # the count the store checked against the group's arrays, not an attribute (an edited
+    # attribute would drop the group's discs)
+    n = src.domain_len(d)
     attrs = src.domain_attrs(d)
-    n = int(attrs.get("n", 0))
     if n == 0 or attrs["xmax"] < lo or attrs["xmin"] >= hi:
         return None
     x = src.read_domain(d, ["pos"])["pos"][:, AX_X]
@@ -304,7 +309,7 @@ class SlabSweep:
 
     def n_discs(self) -> int:
         src = self._source()
-        return sum(int(src.domain_attrs(d).get("n", 0)) for d in src.domains())
+        return sum(src.domain_len(d) for d in src.domains())
 
     def write_domains(self, writer) -> None:
         src = self._source()
@@ -575,7 +580,7 @@ class OocEngine(SlabSweep):
                   part_sink=part_sink, redecompositions=redecompositions)
         eng._store_reader = open_epoch(store, reader.step)
         eng.committed_step = int(reader.step)
-        eng._n = sum(int(reader.domain_attrs(d).get("n", 0)) for d in reader.domains())
+        eng._n = sum(reader.domain_len(d) for d in reader.domains())
         return eng
 
     def _stage(self, d, q: Particles, attrs):

@@ -2038,10 +2038,9 @@ OTHER_CMDS = [["report", "run"], ["compare", "run", "run2"]]
 STORE_CMDS = READ_CMDS + WRITE_CMDS + WRITE_CMDS + OTHER_CMDS
 
 
-def scenario_keys() -> list[str]:
-    """section.key of every scenario value, from ooc_dem.scenario's dataclasses."""
+def scenario_values(sc) -> list[tuple[str, object]]:
+    """(section.key, value) of every value of a scenario, from ooc_dem.scenario's dataclasses."""
     import dataclasses
-    from ooc_dem.scenario import Scenario
     out = []
 
     def walk(obj, prefix):
@@ -2050,9 +2049,15 @@ def scenario_keys() -> list[str]:
             if dataclasses.is_dataclass(v):
                 walk(v, f"{prefix}{f.name}.")
             else:
-                out.append(f"{prefix}{f.name}")
-    walk(Scenario(), "")
+                out.append((f"{prefix}{f.name}", v))
+    walk(sc, "")
     return out
+
+
+def scenario_keys() -> list[str]:
+    """section.key of every scenario value."""
+    from ooc_dem.scenario import Scenario
+    return [k for k, _ in scenario_values(Scenario())]
 
 
 def build_strategies():

@@ -54,17 +54,7 @@ def _fuzzing():
 
 def numeric_keys(sc) -> list[tuple[str, type]]:
     """(dotted key, int or float) of every numeric value of a scenario (booleans excluded)."""
-    out = []
-
-    def walk(obj, prefix):
-        for f in dataclasses.fields(obj):
-            v = getattr(obj, f.name)
-            if dataclasses.is_dataclass(v):
-                walk(v, f"{prefix}{f.name}.")
-            elif type(v) in (int, float):
-                out.append((prefix + f.name, type(v)))
-    walk(sc, "")
-    return out
+    return [(k, type(v)) for k, v in _fuzzing().scenario_values(sc) if type(v) in (int, float)]
 
 
 def cases(scenarios, only_keys=None) -> list[dict]:

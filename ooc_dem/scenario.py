@@ -496,13 +496,50 @@ def _check_ranges(sc: Scenario) -> None:
             f"physics.contacts_per_disc contacts: dt_crit = (2/w)(sqrt(1+z^2)-z)); use dt <= {crit:.3e}")
 
 
+def tile_grid(sc: Scenario) -> tuple[int, int]:
+    """(tiles along x, tiles across z) of a tiled bed (2D: across = 1)."""
+    tiles = -(-sc.soil.n // sc.bed.tile)
+    across = sc.bed.tiles_across if sc.dim == 3 else 1
+    return -(-tiles // across), across
+
+
+def tile_share(extent: float, n: int) -> float:
+    """extent / n without the division's rounding noise: 0.6 / 6 is 0.09999999999999999,
+    which would make the tile of a 0.6 m bin of 6 tiles another scenario (another settled
+    tile) than the 0.1 m tile of a 0.2 m bin of 2. The shortest 15-digit value is taken
+    when n times it gives the extent back to within 2 ulp; otherwise (1 / 3) the quotient
+    itself."""
+    share = extent / n
+    tidy = float(f"{share:.15g}")
+    return tidy if abs(tidy * n - extent) <= 2.0 * math.ulp(extent) else share
+
+
+def tile_size(sc: Scenario) -> tuple[float, float]:
+    """(length, width) of one tile of a tiled bed (2D: width is the bin's, unused)."""
+    nx, nz = tile_grid(sc)
+    return tile_share(sc.bin.length, nx), (tile_share(sc.bin.width, nz) if sc.dim == 3 else sc.bin.width)
+
+
+def tile_scenario(sc: Scenario) -> Scenario:
+    """The scenario one tile of a tiled bed is settled as: bed.tile discs in its share of the bin."""
+    d = sc.to_dict()
+    tile_len, tile_wid = tile_size(sc)
+    d["soil"]["n"] = sc.bed.tile
+    d["bin"]["length"] = tile_len
+    if sc.dim == 3:
+        d["bin"]["width"] = tile_wid
+        d["bed"]["tiles_across"] = 1
+    d["bed"]["tile"] = 0
+    d["wheel"]["enabled"] = False
+    return scenario_from_dict(d)
+
+
 def _check_tile(sc: Scenario) -> None:
-    """A tiled bed is settled as the scenario of one tile (bed.tile_scenario: bed.tile discs in
+    """A tiled bed is settled as the scenario of one tile (tile_scenario: bed.tile discs in
     bin.length / tiles along x); that scenario must hold too, or `run` would refuse, naming a
     bin the user never wrote, what `check` accepted."""
     if not 0 < sc.bed.tile < sc.soil.n:
         return
-    from .bed import tile_scenario, tile_size
     try:
         tile_scenario(sc)
     except ScenarioError as e:

@@ -50,7 +50,7 @@ BED100K_150_V1 = "d336a4b2c1a003284f51bd03a3e5b6b545a522e81604891b85968fbed24953
 
 QUICK_6000 = "mset-v2:8d035f96a334b194dd624440d9f8680d01e4f76707314e512140928c0af2c0ee"
 PAPER2008_7000 = "mset-v2:b2bf3778513e76d392dde7a28e417b6b6a34ca4e052f9cf9fd7cf10006c3b6ae"
-# bed-100k's tile was 8.6 m / 86 = 0.09999999999999999 m long until bed.tile_share took the
+# bed-100k's tile was 8.6 m / 86 = 0.09999999999999999 m long until scenario.tile_share took the
 # division's rounding noise away: it is now the 0.1 m tile of bed-1000000 (the same settled
 # tile), so its bits changed by a bed, not by the kernel (before: mset-v2:b096e188…b25e0)
 BED100K_150 = "mset-v2:bd623b5985dec3c4272d35d05f00dd4ac42e8453687dabfdb73cb01c4e9d443e"

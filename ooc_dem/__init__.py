@@ -67,7 +67,7 @@ _LAZY = {
     "StoreError": "storage",
 }
 
-__all__ = ["__version__", *_LAZY]
+__all__ = ["__version__", *_LAZY]  # noqa: PLE0604  (the keys of _LAZY: strings)
 
 
 def __getattr__(name):

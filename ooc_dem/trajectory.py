@@ -162,7 +162,6 @@ def _is_count(a) -> bool:
 def _check_frame_file(f, path, step: int | None = None) -> dict:
     """The header and datasets of one frame file, as ooc-dem writes them (untrusted input);
     returns its header (dim, frame_every_steps, dt, scenario_hash, step, time, wheel_state, rows)."""
-    h5py = _h5py()
     attrs = f.attrs
     fmt = attrs.get("format")
     if not isinstance(fmt, str) or fmt != FORMAT_NAME:   # an array attribute compares element-wise
@@ -456,7 +455,6 @@ class TrajectoryWriter:
 
 def _check_legacy_layout(f, path) -> None:
     """The attributes and datasets of a trajectory, as ooc-dem writes them (untrusted input)."""
-    h5py = _h5py()
     attrs = f.attrs
     fmt = attrs.get("format")
     if not isinstance(fmt, str) or fmt != FORMAT_NAME:   # an array attribute compares element-wise
@@ -476,7 +474,7 @@ def _check_legacy_layout(f, path) -> None:
     if not isinstance(dt, (float, np.floating)) or not (0.0 < float(dt) < 1.0):
         raise TrajectoryError(f"{path}: attribute 'dt' = {dt!r} is not a time step")
     for k, tail in _tails(dim).items():
-        ds = _checked_dataset(f, k, tail, path)
+        _checked_dataset(f, k, tail, path)
 
 
 def _check_legacy_index(f, path, F: int) -> dict[str, np.ndarray]:

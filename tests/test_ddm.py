@@ -103,7 +103,6 @@ def test_random_decomposition_equals_monolithic(cuts, block):
 def test_migrating_disc_keeps_its_contact_history():
     """A disc sliding on the floor crosses a slab boundary: its loaded tangential spring survives."""
     sc = load_scenario("bed-1200", ["physics.gravity=9.8"])
-    model = Model.from_scenario(sc)
     r = 0.002
     p = Particles.new(np.array([[0.05, r - 2e-6]]), np.array([r]), 2650.0, 0.1)
     p.vel[:, AX_X][:] = 0.05  # sliding: friction at the Coulomb limit

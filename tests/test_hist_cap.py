@@ -66,7 +66,6 @@ def test_the_capacity_comes_from_the_dimension_or_the_scenario():
 def test_a_run_resumes_with_the_capacity_it_was_written_with(tmp_path):
     """A store whose meta records a larger capacity (2D runs were written with 12) resumes
     with it, to the same bits as a run that never stopped."""
-    import json
     from ooc_dem.engine.run import Simulation, RunOptions, resume_simulation
     from storage import open_store
     sc = load_scenario("quick", SETS)

@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 
 import ooc_dem
-from conftest import WHEEL_TEST, one_line_error, run_cli
+from conftest import BASE_RUN_STEPS as STEPS, WHEEL_TEST, one_line_error, run_cli
 from ooc_dem.checkpoint import open_epoch, record_rows
 from ooc_dem.decomposition import x_summary
 from ooc_dem.physics.layout import AX_X
 from ooc_dem.state import HIST_FIELDS
 from storage import StoreError, open_store
-from test_untrusted_state import (STEPS, _manifest, _replace, _tamper_current,  # noqa: F401
-                                  base_run, run_copy)
+from test_untrusted_state import _manifest, _replace, _tamper_current
 
 D0 = "domains/d0000"
 

@@ -14,27 +14,9 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import WHEEL_TEST, one_line_error, run_cli
+from conftest import BASE_RUN_STEPS as STEPS, WHEEL_TEST, one_line_error, run_cli
 from ooc_dem.physics.layout import AX_X
 
-STEPS = 40
-CKPT = 20
-
-
-@pytest.fixture(scope="module")
-def base_run(tmp_path_factory):
-    """A finished wheel run (hdf5, monolithic) with a current and a previous epoch."""
-    out = tmp_path_factory.mktemp("base") / "run"
-    run_cli("run", "quick", "--out", out, "--steps", STEPS, "--checkpoint-every", CKPT,
-            "--no-progress", *sum((["--set", s] for s in WHEEL_TEST), []), check=True)
-    return out
-
-
-@pytest.fixture
-def run_copy(base_run, tmp_path):
-    dst = tmp_path / "run"
-    shutil.copytree(base_run, dst, symlinks=True)
-    return dst
 
 
 def _manifest(store: Path) -> dict:

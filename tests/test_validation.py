@@ -30,7 +30,7 @@ from ooc_dem.physics.contact import KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT, conta
 from ooc_dem.physics.forces import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, WG_SIZE
 from ooc_dem.physics.integrate import WC_SIZE
 from ooc_dem.state import Particles
-from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
+from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
 
 G = 9.81
 R = 0.01

@@ -21,7 +21,7 @@ from conftest import committed_step, run_cli
 import ooc_dem
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.physics.layout import (ID_LUG0, ID_RIM, REC_FX, REC_FY, REC_NC, REC_TQ, WS_SIZE,
-                                    WS_WZ, WS_X, WS_Y)
+                                    WS_X, WS_Y)
 from ooc_dem.scenario import ScenarioError, load_scenario
 from ooc_dem.state import Particles
 

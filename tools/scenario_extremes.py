@@ -22,7 +22,6 @@ Exit status 1 on any failure.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib.util
 import json
 import os

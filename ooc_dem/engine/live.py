@@ -238,7 +238,9 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                     flags[F_DONE] = K
                     continue
                 rec = recbuf[sw * K:] if j == wslab else norec
-                k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,
+                # not a global here: sweeps_kernel binds the dimension's one-thread step
+                # under this name in each compiled twin (physics.twins.serial_twin)
+                k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,  # noqa: F821
                                          flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0,
                                          all_stable[:n] if keep_rows else roles, every_disc)
                 flags[F_DONE] = k

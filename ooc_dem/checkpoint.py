@@ -467,8 +467,7 @@ def checked_groups(reader, where: str, dim: int | None = 2, hist_cap: int | None
             raise StateError(f"{at}: attribute 'n' = {show(dattrs['n'])}, the domain holds "
                              f"{len(rec['id'])} discs")
         x = rec["pos"][:, AX_X]   # in any row order: halo reads filter their candidate rows by x
-        if len(x) and (x.min() < dattrs.get("xmin", -math.inf)
-                       or x.max() > dattrs.get("xmax", math.inf)):
+        if len(x) and (x.min() < dattrs["xmin"] or x.max() > dattrs["xmax"]):
             raise StateError(f"{at}: discs outside the domain's stored x range")
         summary = dattrs.get("x_summary")   # absent in stores written before groups kept x summaries
         if summary is not None:

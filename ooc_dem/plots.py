@@ -641,13 +641,10 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
 
 def _initial_z(path, n: int):
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
-    from .npzfile import read_npz_members
-    try:
-        a = read_npz_members(path, {"z": ((), "iuf")}, n, RunFileError)["z"]
-    except RunFileError as e:
-        if str(e) == f"{path}: no array 'z'":
-            return None
-        raise
+    from .npzfile import npz_member_names, read_npz_members
+    if "z" not in npz_member_names(path, RunFileError):
+        return None
+    a = read_npz_members(path, {"z": ((), "iuf")}, n, RunFileError)["z"]
     if not np.isfinite(a).all():
         raise RunFileError(f"{path}: 'z' must be a 1-D finite numeric array of {n} entries")
     return a.astype(np.float64)

@@ -364,10 +364,6 @@ class TrajectoryWriter:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
 
-    def _row_bytes(self) -> int:
-        return sum(_DTYPES[k].itemsize * int(np.prod(_tails(self.dim)[k], dtype=np.int64))
-                   for k in ROW_FIELDS)
-
     def _begin(self, step: int) -> None:
         self._discard()
         if not 0 <= step <= MAX_STEP:
@@ -375,7 +371,7 @@ class TrajectoryWriter:
         target = self.folder / frame_name(step)
         # the whole frame is refused up front when it cannot fit (one line, nothing written);
         # a failure while writing is the guard's (writeguard), raised as an OSError
-        check_room(target, self.n * self._row_bytes() + H5_OVERHEAD)
+        check_room(target, self.n * _row_bytes(self.dim) + H5_OVERHEAD)
         tmp = new_temp(target)
         try:
             f, guard = create_h5(tmp, exclusive=False)

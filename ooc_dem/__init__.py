@@ -21,7 +21,7 @@ resume(path, steps=None, until=None, progress=False, figures=False) -> RunResult
     Continue from the last committed epoch, as ``ooc-dem resume``.
 open_run(path) -> RunResult
     The results of an existing run directory.
-open_store(path) -> storage.Store
+open_store(path) -> ooc_dem.storage.Store
     A run's store, read-only (epochs, verify, read_epoch).
 
 Classes
@@ -49,7 +49,7 @@ from .heap import bound_heap as _bound_heap  # noqa: E402
 
 _bound_heap()
 
-# name -> module that defines it (relative to this package; "storage" is the sibling package)
+# name -> module that defines it (relative to this package)
 _LAZY = {
     "load_scenario": ".api",
     "run": ".api",
@@ -64,7 +64,7 @@ _LAZY = {
     "StateError": ".checkpoint",
     "BedError": ".bed",
     "RunFileError": ".plots",
-    "StoreError": "storage",
+    "StoreError": ".storage",
 }
 
 __all__ = ["__version__", *_LAZY]  # noqa: PLE0604  (the keys of _LAZY: strings)

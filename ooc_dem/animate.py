@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from storage.writeguard import check_room
+from ooc_dem.storage.writeguard import check_room
 
 from .plots import LAYER_COLOURS, _load_scenario, read_initial, run_file
 from .trajectory import Trajectory, TrajectoryError, wheel_outline

@@ -374,5 +374,5 @@ def open_store(path):
 
     Raises StoreError if ``path`` is not an ooc-dem store (one line naming the problem).
     """
-    from storage import open_store as _open
+    from ooc_dem.storage import open_store as _open
     return _open(path, repair=False)

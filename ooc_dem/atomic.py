@@ -13,7 +13,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from storage.writeguard import check_room
+from ooc_dem.storage.writeguard import check_room
 
 
 def new_temp(path) -> Path:

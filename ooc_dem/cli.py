@@ -428,7 +428,7 @@ def _checkpoint_verify(store, args) -> int:
 
 
 def _checkpoint_prune(args) -> int:
-    from storage import open_store
+    from ooc_dem.storage import open_store
     with open_store(args.store, repair=False) as looking:
         live = _live_writers(looking)
     if live:
@@ -497,7 +497,7 @@ def _warn_fallback(store) -> None:
 
 def cmd_checkpoint(args):
     from .checkpoint import hash_epoch, open_epoch, stored_layout, validate_globals
-    from storage import open_store
+    from ooc_dem.storage import open_store
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
     # read-only: no repair (a running writer's temporary epoch must not be deleted under it)
@@ -646,7 +646,7 @@ def main(argv=None) -> int:
     from .plots import RunFileError
     known = (CliError, ScenarioError, RunError, EngineError, BedError, StateError, RunFileError)
     try:
-        from storage import StoreError
+        from ooc_dem.storage import StoreError
         known = known + (StoreError,)
     except ImportError:
         pass

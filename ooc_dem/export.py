@@ -41,7 +41,7 @@ from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
-from storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
+from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
 
 from .atomic import new_temp
 from .checkpoint import StateError, check_unique_sorted, validate_globals

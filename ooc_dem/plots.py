@@ -246,7 +246,7 @@ def _has_store(out: Path) -> bool:
     """A store to read the final state from: on disk, or a memory store of this process."""
     if os.path.lexists(out / "MANIFEST.json"):
         return True
-    from storage import StoreError, open_store
+    from ooc_dem.storage import StoreError, open_store
     try:
         open_store(out, repair=False).close()
     except StoreError:
@@ -262,7 +262,7 @@ def _read_final(out: Path):
 
 def _read_final_particles(out: Path):
     """(Particles, wheel_state) of the last committed epoch of the run's store."""
-    from storage import open_store
+    from ooc_dem.storage import open_store
     from .checkpoint import read_epoch_particles
     store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
     try:

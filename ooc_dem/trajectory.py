@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
+from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
 
 from .atomic import new_temp
 from .physics.layout import WS_SIZE, axes, spin_width

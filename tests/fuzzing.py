@@ -250,7 +250,7 @@ def _api_main(argv) -> int:
             raise SystemExit(f"@api: unknown {what!r}")
     except Exception as e:  # noqa: BLE001
         mod = type(e).__module__ or ""
-        if not (mod.startswith("ooc_dem") or mod.startswith("storage")):
+        if not mod.startswith("ooc_dem"):
             raise
         print(" ".join(str(e).split()) or type(e).__name__, file=sys.stderr)
         return 2
@@ -1394,7 +1394,7 @@ def failure_class(rec: dict, err: str | None = None) -> str:
     if "Traceback" in err:
         frames = re.findall(r'File "([^"]+)", line \d+, in (\S+)', err)
         own = [f"{Path(f).parent.name}/{Path(f).name}:{fn}" for f, fn in frames
-               if ("ooc_dem" in f or "storage" in f) and "fuzzing.py" not in f]
+               if "ooc_dem" in f and "fuzzing.py" not in f]
         last = [ln for ln in err.strip().splitlines() if ln and not ln.startswith(" ")][-1:]
         exc = rec.get("exc") or (last[0].split(":")[0] if last else "?")
         where = f"{exc} at {own[-1] if own else (frames[-1][1] if frames else '?')}"

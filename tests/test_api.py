@@ -241,7 +241,7 @@ def test_open_store_is_read_only(short_run):
         with pytest.raises(ooc_dem.StoreError):
             store.prune(1)
         after = _tree(short_run.path)
-        from storage import open_store as open_for_writing
+        from ooc_dem.storage import open_store as open_for_writing
         writer = open_for_writing(short_run.path, repair=True)   # no lock held by the reader
         writer.close()
     assert after == before
@@ -294,7 +294,7 @@ def test_memory_backend_and_bare_bed(tmp_path):
     assert len(res.series) == 0 and "slip" in res.series.dtype.names
     st = res.state()
     assert np.array_equal(st["id"], np.arange(1000))
-    from storage import drop_memory_store
+    from ooc_dem.storage import drop_memory_store
     drop_memory_store(res.path)
 
 

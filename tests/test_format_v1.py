@@ -128,7 +128,7 @@ def test_v1_epoch_reads_rows_as_v2(runs):
     """The adapter (checkpoint.V1Epoch) serves partial reads (rows of pos, CSR entries of
     hist_s) exactly as a format-2 epoch would."""
     from ooc_dem.checkpoint import V1Epoch, open_epoch
-    from storage import open_store
+    from ooc_dem.storage import open_store
     full, v1, _ = runs
     s1, s2 = open_store(v1, repair=False), open_store(full, repair=False)
     try:

@@ -67,7 +67,7 @@ def test_a_run_resumes_with_the_capacity_it_was_written_with(tmp_path):
     """A store whose meta records a larger capacity (2D runs were written with 12) resumes
     with it, to the same bits as a run that never stopped."""
     from ooc_dem.engine.run import Simulation, RunOptions, resume_simulation
-    from storage import open_store
+    from ooc_dem.storage import open_store
     sc = load_scenario("quick", SETS)
     bed = settled_bed(sc)
     out = tmp_path / "run"

@@ -12,10 +12,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _source_packages() -> set[str]:
-    """Every importable package of the checkout: a directory of ooc_dem/ or storage/ with an
+    """Every importable package of the checkout: a directory of ooc_dem/ with an
     __init__.py."""
     return {".".join(p.parent.relative_to(REPO).parts)
-            for top in ("ooc_dem", "storage") for p in (REPO / top).rglob("__init__.py")}
+            for p in (REPO / "ooc_dem").rglob("__init__.py")}
 
 
 def test_the_wheel_holds_every_package_and_its_console_script_runs(tmp_path):

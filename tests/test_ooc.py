@@ -13,7 +13,7 @@ from ooc_dem.decomposition import group_order
 from ooc_dem.engine.run import RunOptions, Simulation, read_all_particles
 from ooc_dem.scenario import load_scenario
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
-from storage import open_store
+from ooc_dem.storage import open_store
 
 from conftest import assert_same_state
 
@@ -186,7 +186,7 @@ def test_streamed_hash_equals_in_memory_hash(bare, tmp_path, id_cap, monkeypatch
 _RSS_PER_GROUP = r'''
 import json, sys
 import psutil
-import storage
+from ooc_dem import storage
 from ooc_dem.engine.run import RunOptions, Simulation
 from ooc_dem.scenario import load_scenario
 out, groups = sys.argv[1], int(sys.argv[2])

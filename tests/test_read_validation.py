@@ -17,7 +17,7 @@ from ooc_dem.checkpoint import open_epoch, record_rows
 from ooc_dem.decomposition import x_summary
 from ooc_dem.physics.layout import AX_X
 from ooc_dem.state import HIST_FIELDS
-from storage import StoreError, open_store
+from ooc_dem.storage import StoreError, open_store
 from test_untrusted_state import _manifest, _replace, _tamper_current
 
 D0 = "domains/d0000"

@@ -32,7 +32,7 @@ from ooc_dem import export
 from ooc_dem.engine.sweep import RamEpochs, group_of, x_histogram
 from ooc_dem.physics.layout import AX_X
 from ooc_dem.state import Particles, state_hash
-from storage import create_store, open_store
+from ooc_dem.storage import create_store, open_store
 
 LENGTH = 1.0
 CELL = 0.01   # the groups' memory-order cell (any positive size gives the same hashes)

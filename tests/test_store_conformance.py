@@ -16,10 +16,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-import storage
+from ooc_dem import storage
 from conftest import zip_without
-from storage import StoreError, create_store, drop_memory_store, open_store
-from storage._util import gather_rows, write_error
+from ooc_dem.storage import StoreError, create_store, drop_memory_store, open_store
+from ooc_dem.storage._util import gather_rows, write_error
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 BACKENDS = ["hdf5", "zarr", "memory"]
@@ -444,7 +444,7 @@ def test_prune(spath, backend):
 def _corrupt(spath, backend, how):
     """Damage epoch 2's domain data; return the name expected in the problem message."""
     if backend == "memory":
-        from storage import _memory
+        from ooc_dem.storage import _memory
         b = _memory._REGISTRY[spath]
         e = json.loads(b.manifest_json)["current"]["path"]
         grp = b.epochs[e]
@@ -521,7 +521,7 @@ def test_both_epochs_corrupt_raises(spath, backend):
     s.close()
     _corrupt(spath, backend, "flip")
     if backend == "memory":
-        from storage import _memory
+        from ooc_dem.storage import _memory
         b = _memory._REGISTRY[spath]
         prev = json.loads(b.manifest_json)["previous"]["path"]
         b.epochs[prev]["domains/d0001"]["arrays"]["ids"][0] = -7
@@ -679,7 +679,7 @@ def test_drop_page_cache_never_raises(tmp_path):
 def test_start_writeback_never_raises_nor_blocks(tmp_path):
     """The write-back hint on a file, a directory, a missing path, and a FIFO (opened
     non-blocking: a FIFO with no writer would otherwise hang the writer)."""
-    from storage._util import start_writeback
+    from ooc_dem.storage._util import start_writeback
     f = tmp_path / "f"
     f.write_bytes(b"x" * 100000)
     fifo = tmp_path / "fifo"
@@ -754,7 +754,7 @@ _DISK_FULL_CHILD = textwrap.dedent("""
     import os, resource, signal, sys
     sys.path.insert(0, {repo!r})
     import numpy as np, h5py, zarr
-    import storage
+    from ooc_dem import storage
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     s = storage.create_store({path!r}, {backend!r}, {{"run": "disk-full"}})
     w = s.begin_epoch(1)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import one_line_error, run_cli
-from storage import StoreError, create_store, open_store
+from ooc_dem.storage import StoreError, create_store, open_store
 
 
 def _fill(mnt, leave: int):

@@ -311,8 +311,8 @@ def test_a_planted_lock_file_is_never_written_through(pristine, tmp_path, kind):
 def test_lock_file_is_part_of_the_store(tmp_path):
     """In one process: a second writer is refused, readers are not; closing releases; a
     directory holding only the lock file counts as empty."""
-    from storage import StoreError, create_store, open_store
-    from storage._disk import classify
+    from ooc_dem.storage import StoreError, create_store, open_store
+    from ooc_dem.storage._disk import classify
     p = tmp_path / "s"
     s = create_store(p, "hdf5", {"k": 1})
     assert (p / ".ooc-dem.lock").is_file()
@@ -475,7 +475,7 @@ def test_hostile_manifest_files_give_one_line(pristine, tmp_path, case):
 def test_memory_store_manifest_is_validated_too():
     """The memory backend has nothing to confine, but its manifest is checked the same way."""
     import numpy as np
-    from storage import StoreError, _memory, create_store, drop_memory_store, open_store
+    from ooc_dem.storage import StoreError, _memory, create_store, drop_memory_store, open_store
     key = "mem://hostile"
     s = create_store(key, "memory", {})
     w = s.begin_epoch(3)

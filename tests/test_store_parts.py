@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import zarr
 
-from storage import StoreError, create_store, open_store
+from ooc_dem.storage import StoreError, create_store, open_store
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -23,7 +23,7 @@ ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 _CHILD = r"""
 import json, sys
 import numpy as np
-from storage import write_part
+from ooc_dem.storage import write_part
 path, step, basename, part, spec = sys.argv[1], int(sys.argv[2]), sys.argv[3], int(sys.argv[4]), json.loads(sys.argv[5])
 doms = [(int(d), {"x": np.arange(n, dtype=np.float64) + 100 * int(d)}, {"d": int(d)}) for d, n in spec.items()]
 print(json.dumps(write_part(path, step, basename, part, doms)))

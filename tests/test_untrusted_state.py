@@ -243,7 +243,7 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     it; a directory holding anything else stays refused."""
     from ooc_dem.engine.run import RunOptions, Simulation
     from ooc_dem.scenario import load_scenario
-    from storage import create_store
+    from ooc_dem.storage import create_store
     sc = load_scenario("quick", WHEEL_TEST)
     out = tmp_path / "run"
     sim = Simulation(sc, out, RunOptions(steps=20, progress=False, figures=False))
@@ -256,7 +256,7 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     (out / "notes.txt").write_text("mine")          # a user's file: the directory is not ours
     one_line_error(run_cli(*args), "not empty")
     (out / "notes.txt").unlink()
-    from storage import open_store
+    from ooc_dem.storage import open_store
     with open_store(out):                          # a live run still setting up holds the store
         one_line_error(run_cli(*args), "another process is writing this store")
     cp = run_cli(*args)

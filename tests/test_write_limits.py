@@ -29,7 +29,7 @@ STEPS = ["--steps", "100", "--checkpoint-every", "50", "--set", "output.snapshot
 # the CLI with every check before writing switched off (the names each writer calls)
 _NO_PRECHECK = """
 import sys
-import storage.writeguard as wg, storage.store as st, ooc_dem.export as ex, ooc_dem.trajectory as tr
+import ooc_dem.storage.writeguard as wg, ooc_dem.storage.store as st, ooc_dem.export as ex, ooc_dem.trajectory as tr
 import ooc_dem.animate as an, ooc_dem.atomic as at
 none = lambda *a, **k: None
 wg.check_room = ex.check_room = tr.check_room = an.check_room = at.check_room = none

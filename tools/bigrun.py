@@ -52,7 +52,7 @@ def child(a) -> dict:
     from ooc_dem.engine import stepper, sweep
     from ooc_dem.engine.run import RunOptions, Simulation
     from ooc_dem.scenario import load_scenario
-    import storage
+    from ooc_dem import storage
     sc = load_scenario(f"bed-{a.discs}", ["decomposition.policy=equal"])
     opts = RunOptions(mode="ooc", backend=a.backend, domains=a.domains, block=a.block,
                       steps=a.sweeps * a.block, memory=a.memory, progress=False, figures=False)

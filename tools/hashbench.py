@@ -2,7 +2,7 @@
 one timed pass over the current epoch; prints JSON. Usage: python tools/hashbench.py STORE"""
 import json, time, sys
 from ooc_dem.checkpoint import hash_epoch, open_epoch
-from storage import open_store
+from ooc_dem.storage import open_store
 store = open_store(sys.argv[1], repair=False)
 with open_epoch(store) as r:
     hash_epoch(r)   # warm-up (JIT, page cache)

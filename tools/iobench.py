@@ -115,7 +115,7 @@ def _bed_groups(name, domains):
 
 def epoch(args) -> list[dict]:
     import numpy as np
-    from storage import create_store
+    from ooc_dem.storage import create_store
     groups = _bed_groups(args.bed or f"bed-{args.n}", args.domains)
     args.n = sum(len(g["id"]) for g in groups)
     raw = sum(a.nbytes for g in groups for a in g.values())
@@ -179,7 +179,7 @@ def main():
     args = ap.parse_args()
 
     def compressions_for(backend, for_sweep=False):
-        import storage
+        from ooc_dem import storage
         have = ["none"] + list(getattr(storage, "COMPRESSIONS", {}).get(backend, ()))
         if args.compressions == "all":
             return have

@@ -37,7 +37,7 @@ def _model(run: Path, skin: float | None = None):
 def last_epoch(run: Path):
     """(particles, wheel state, step) of the run's last committed epoch, read once."""
     from ooc_dem.checkpoint import read_all_particles
-    from storage.store import open_store
+    from ooc_dem.storage.store import open_store
     model = _model(run)   # its dimension and history capacity
     with open_store(run) as store:
         reader = store.read_epoch(None)
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     if not (a.run / "scenario.toml").is_file():
         print(f"skin_scan: {a.run}: not a run store (no scenario.toml)", file=sys.stderr)
         return 2
-    from storage import StoreError
+    from ooc_dem.storage import StoreError
     best: dict[float, dict] = {}
     times: dict[float, list] = {s: [] for s in skins}
     try:

@@ -435,7 +435,7 @@ class MpiEngine:
                 if not isinstance(part, str):
                     writer.add_part(part)   # from here on, an abort removes it too
             if failed:
-                from storage import StoreError
+                from ooc_dem.storage import StoreError
                 raise StoreError(failed[0])
             writer.write_globals(arrays, attrs)
             writer.commit(durable=durable)
@@ -475,7 +475,7 @@ class MpiEngine:
         store = None
         try:
             if reader is None and mine:
-                from storage import open_store
+                from ooc_dem.storage import open_store
                 from ..checkpoint import open_epoch
                 store = open_store(path, repair=False)
                 reader = open_epoch(store, step, verify=False)
@@ -517,7 +517,7 @@ class MpiEngine:
             for d, rec, attrs in groups:
                 writer.write_domain(d, rec, attrs)
         elif groups:
-            from storage import StoreError, write_part
+            from ooc_dem.storage import StoreError, write_part
             try:
                 part = write_part(path, step, basename, self._part_number(), groups, durable)
             except StoreError as e:
@@ -960,7 +960,7 @@ class MpiOocEngine(OocEngine):
 
     def _open_source(self, step: int) -> None:
         """Ranks > 0: the committed epoch `step`, read-only (rank 0 verified it)."""
-        from storage import open_store
+        from ooc_dem.storage import open_store
         if self._store_reader is not None:
             if self._store_reader.step == step:
                 return
@@ -1011,7 +1011,7 @@ class MpiOocEngine(OocEngine):
             for d, rec, attrs in groups():
                 self._writer.write_domain(d, rec, attrs)
         elif hi_d > lo_d:
-            from storage import StoreError, write_part
+            from ooc_dem.storage import StoreError, write_part
             owners = [r for r in range(1, self.R) if self.starts[r + 1] > self.starts[r]]
             try:
                 part = write_part(self.path, step0 + k, basename, owners.index(self.rank) + 1, groups())
@@ -1027,7 +1027,7 @@ class MpiOocEngine(OocEngine):
                 self._writer.add_part(p)
         failed = [f for _p, f, _o, _r in got if f]
         if failed:
-            from storage import StoreError
+            from ooc_dem.storage import StoreError
             raise StoreError(failed[0])
         owned_total = sum(o for _p, _f, o, _r in got)
         if self._n is not None and owned_total != self._n:

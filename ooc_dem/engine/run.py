@@ -196,7 +196,7 @@ def machine_memory() -> int:
 
 
 def _check_compression(opts: RunOptions) -> None:
-    from storage import COMPRESSIONS
+    from ooc_dem.storage import COMPRESSIONS
     have = COMPRESSIONS.get(opts.backend, ())
     if opts.compression is not None and opts.compression not in have:
         raise RunError(f"--compression {show(opts.compression)}: the {opts.backend} backend has "
@@ -303,7 +303,7 @@ def _stopped_before_first_commit(out: Path) -> bool:
     set-up files. `run --out` may start afresh there (create_store replaces the store and
     refuses if a live writer holds it); anything else in the directory makes it a user's.
     """
-    from storage import StoreError, open_store, store_owns
+    from ooc_dem.storage import StoreError, open_store, store_owns
     try:
         store = open_store(out, repair=False)
     except StoreError:
@@ -374,7 +374,7 @@ class Simulation:
     def start(self, bed: Particles | None = None, streamed: bool = False) -> None:
         """Create the store and the initial epoch. ``streamed``: an out-of-core run of a
         tiled bare bed writes its bed into the store tile by tile (never the whole bed in RAM)."""
-        from storage import StoreError, create_store
+        from ooc_dem.storage import StoreError, create_store
         if self.out.exists() and any(self.out.iterdir()) and not _stopped_before_first_commit(self.out):
             raise RunError(f"--out {self.out}: directory exists and is not empty (use a new directory, "
                            f"or `ooc-dem resume {self.out}` to continue a run)")
@@ -409,7 +409,7 @@ class Simulation:
         self._start_trajectory()
 
     def _start_streamed(self) -> None:
-        from storage import StoreError, create_store
+        from ooc_dem.storage import StoreError, create_store
         from ..bed import tiled_bed_parts
         parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
         band = wheel_footprint(self.sc)
@@ -534,7 +534,7 @@ class Simulation:
 
     # ------------------------------------------------------------ checkpoint
     def commit(self) -> None:
-        from storage import StoreError
+        from ooc_dem.storage import StoreError
         attrs = {"step": self.step, "time": self.step * self.sc.physics.dt, "surface": self.surface,
                  "scenario_hash": self.sc.hash(), "mode": self.opts.mode,
                  "wall_time": self.wall_time, "redecompositions": self.redecompositions,
@@ -637,7 +637,7 @@ class Simulation:
 
     def state_hash(self) -> str:
         from ..checkpoint import hash_epoch, state_bounds
-        from storage import open_store
+        from ooc_dem.storage import open_store
         store = open_store(self.out, repair=False)   # read-only: this run holds the write lock
         reader = open_epoch(store)
         # streamed and validated as read: never the whole state in RAM
@@ -696,7 +696,7 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     (summary, series, figures) were not all written - a kill after the last commit -
     they are written first, from the committed state.
     """
-    from storage import StoreError, open_store
+    from ooc_dem.storage import StoreError, open_store
     path = Path(path)
     try:
         store = open_store(path)
@@ -720,7 +720,7 @@ SWITCHABLE_MODES = (("ddm", "mpi"), ("ooc", "mpi-ooc"))
 def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
             mode: str | None = None) -> "Simulation | None":
     """resume_simulation's work on an open store (None: the run was already finished)."""
-    from storage import StoreError
+    from ooc_dem.storage import StoreError
     from ..checkpoint import StateError, stored_layout, stored_scenario, validate_epoch
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":

@@ -45,7 +45,7 @@ __version__ = "0.1.0"
 # threshold is fixed for the whole process (heap.py), so that every freed large array
 # is given back instead of kept in a heap glibc carves the next ones from (a monolithic
 # bed-1000000 kept ~55 B/disc of its set-up's freed arrays). Costs ~6 ms.
-from .heap import bound_heap as _bound_heap  # noqa: E402
+from .engine.heap import bound_heap as _bound_heap  # noqa: E402
 
 _bound_heap()
 
@@ -57,13 +57,13 @@ _LAZY = {
     "open_run": ".api",
     "open_store": ".api",
     "RunResult": ".api",
-    "Scenario": ".scenario",
-    "ScenarioError": ".scenario",
-    "RunError": ".engine.run",
+    "Scenario": ".model.scenario",
+    "ScenarioError": ".model.scenario",
+    "RunError": ".app.run",
     "EngineError": ".engine.stepper",
-    "StateError": ".checkpoint",
-    "BedError": ".bed",
-    "RunFileError": ".plots",
+    "StateError": ".model.checkpoint",
+    "BedError": ".app.bed",
+    "RunFileError": ".app.plots",
     "StoreError": ".storage",
 }
 

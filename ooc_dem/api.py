@@ -29,7 +29,7 @@ def _override_items(overrides, prefix: str = ""):
     written as TOML (the CLI parses ``--set`` values as TOML), so they are parsed, coerced and
     range-checked by the same code as ``--set``.
     """
-    from .scenario import ScenarioError, show, toml_string
+    from .model.scenario import ScenarioError, show, toml_string
     for key, value in overrides.items():
         if not isinstance(key, str):
             raise ScenarioError(f"overrides key {show(key)}: must be a string such as 'wheel.slip'")
@@ -75,7 +75,7 @@ def load_scenario(name_or_path, overrides=None):
         Unknown scenario, unreadable file, unknown key, wrong type or out-of-range value; the
         message is one line naming the key, the value and what is allowed.
     """
-    from .scenario import ScenarioError, load_scenario as _load
+    from .model.scenario import ScenarioError, load_scenario as _load
     if overrides is None:
         items = []
     elif isinstance(overrides, Mapping):
@@ -98,10 +98,10 @@ def load_scenario(name_or_path, overrides=None):
 
 
 def _scenario(scenario, overrides):
-    from .scenario import Scenario
+    from .model.scenario import Scenario
     if isinstance(scenario, Scenario):
         if overrides:
-            from .scenario import ScenarioError
+            from .model.scenario import ScenarioError
             raise ScenarioError("overrides: give them to load_scenario(); run() takes them only "
                                 "with a scenario name or file")
         return scenario
@@ -139,7 +139,7 @@ class RunResult:
 
         Raises RunFileError if the run has no (valid) summary (not finished)."""
         if self._summary is None:
-            from .plots import read_summary
+            from .app.plots import read_summary
             self._summary = read_summary(self.path)
         return self._summary
 
@@ -153,8 +153,8 @@ class RunResult:
         Raises RunFileError if the file is unreadable or not ooc-dem's."""
         if self._series is None:
             import numpy as np
-            from .metrics import SERIES_COLUMNS
-            from .plots import read_series, run_file
+            from .app.metrics import SERIES_COLUMNS
+            from .app.plots import read_series, run_file
             f = run_file(self.path, "series.csv")
             cols = read_series(f) if f is not None else {c: np.zeros(0) for c in SERIES_COLUMNS}
             names = list(cols)
@@ -196,7 +196,7 @@ class RunResult:
             The run wrote no trajectory, or the file is unreadable or not ooc-dem's
             (a ``RunFileError``).
         """
-        from .trajectory import Trajectory
+        from .app.trajectory import Trajectory
         return Trajectory.of_run(self.path)
 
     def epochs(self) -> list[int]:
@@ -227,7 +227,7 @@ class RunResult:
         StateError
             The epoch's checksums pass but it holds a state this engine could not have written.
         """
-        from .checkpoint import read_epoch_particles
+        from .model.checkpoint import read_epoch_particles
         with open_store(self.path) as store:
             particles, _, _ = read_epoch_particles(store, str(self.path), epoch)
         return dict(particles.arrays())
@@ -287,9 +287,9 @@ def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None
         With the one-line message the CLI would print. The store is released on any error or
         KeyboardInterrupt: the last committed epoch is kept and ``resume(out)`` continues.
     """
-    from .engine.run import RunOptions, Simulation
+    from .app.run import RunOptions, Simulation
     if steps is not None and duration is not None:
-        from .engine.run import RunError
+        from .app.run import RunError
         raise RunError("steps and duration: give one of them, not both")
     sc = _scenario(scenario, overrides)
     out = Path(out) if out is not None else Path("runs") / sc.name
@@ -300,7 +300,7 @@ def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None
     prepared = None
     if bed is not None:
         from .cli import CliError, _load_bed
-        from .engine.run import RunError
+        from .app.run import RunError
         try:
             prepared = _load_bed(bed, sc)
         except CliError as e:   # the CLI's checks of a prepared bed, raised as a RunError
@@ -339,7 +339,7 @@ def resume(path, steps: int | None = None, until: float | None = None, progress:
     RunError, StoreError, StateError, ScenarioError
         Not a run, another process writes it, damaged store, ... (one-line message).
     """
-    from .engine.run import RunError, resume_simulation
+    from .app.run import RunError, resume_simulation
     if steps is not None and until is not None:
         raise RunError("steps and until: give one of them, not both")
     sim = resume_simulation(path, steps=steps, until=until, progress=progress, figures=figures)
@@ -359,7 +359,7 @@ def open_run(path) -> RunResult:
     documented there if the directory is not a (finished) run."""
     p = Path(path)
     if not p.is_dir():
-        from .plots import RunFileError
+        from .app.plots import RunFileError
         raise RunFileError(f"{p}: not a directory")
     return RunResult(p)
 

@@ -42,14 +42,14 @@ def _nonneg_int(text):
 
 
 def _show(text) -> str:
-    from .scenario import show
+    from .model.scenario import show
     return show(text, 40)
 
 
 def _count(lo: int, hi: int):
     """An integer flag in [lo, hi]; integral scientific notation (1e6) is accepted."""
     from decimal import Decimal, InvalidOperation
-    from .scenario import big
+    from .model.scenario import big
 
     def parse(text):
         allowed = f"an integer in [{lo}, {big(hi)}]" if hi >= 10**6 else f"an integer in [{lo}, {hi}]"
@@ -70,7 +70,7 @@ def _count(lo: int, hi: int):
 
 def _size(text):
     """A memory size: 2GB, 1.5G, 512MiB, 300MB or bytes."""
-    from .memlimit import parse_size
+    from .engine.memlimit import parse_size
     try:
         return parse_size(text)
     except ValueError as e:
@@ -88,7 +88,7 @@ def _positive_float(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
+    from .model.scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
     p = _Parser(prog="ooc-dem", description="Out-of-core 2D DEM of soil-wheel interaction "
                 "(serial domain decomposition, bit-identical modes).")
     from . import __version__
@@ -223,12 +223,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _load(args):
-    from .scenario import load_scenario
+    from .model.scenario import load_scenario
     return load_scenario(args.scenario, args.set)
 
 
 def cmd_scenarios(args):
-    from .scenario import builtin_names, load_scenario
+    from .model.scenario import builtin_names, load_scenario
     for name in builtin_names():
         if name == "bed-N":
             print("bed-N        bare bed of N discs (e.g. bed-7000, bed-100k, bed-1m), tiled from `bed`")
@@ -244,8 +244,8 @@ def cmd_scenarios(args):
 
 def cmd_prepare(args):
     import numpy as np
-    from .bed import settled_bed, surface_height, wheel_footprint
-    from .engine.run import check_bed_memory
+    from .app.bed import settled_bed, surface_height, wheel_footprint
+    from .app.run import check_bed_memory
     sc = _load(args)
     check_bed_memory(sc)   # before the bed is allocated
     out = Path(args.out)
@@ -276,8 +276,8 @@ def _settle_progress(sc):
 
 
 def _load_bed(path, sc):
-    from .bed import read_bed
-    from .checkpoint import StateError
+    from .app.bed import read_bed
+    from .model.checkpoint import StateError
     f = Path(path) / "bed.npz"
     if not f.is_file():
         raise CliError(f"--bed {path}: no bed.npz (make one with `ooc-dem prepare`)")
@@ -288,7 +288,7 @@ def _load_bed(path, sc):
 
 
 def _run_options(args):
-    from .engine.run import RunOptions
+    from .app.run import RunOptions
     return RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
                       steps=args.steps, duration=args.duration, checkpoint_every=args.checkpoint_every,
                       durable=getattr(args, "durable", False),
@@ -300,7 +300,7 @@ def _run_options(args):
 
 
 def cmd_run(args):
-    from .engine.run import Simulation
+    from .app.run import Simulation
     sc = _load(args)
     out = args.out or os.path.join("runs", sc.name)
     sim = Simulation(sc, out, _run_options(args))   # plans and checks everything (ooc-dem check)
@@ -319,7 +319,7 @@ def cmd_run(args):
 
 def cmd_check(args):
     """`run`'s validation and planning (Simulation's own plan_run), without a run."""
-    from .engine.run import plan_run
+    from .app.run import plan_run
     sc = _load(args)
     plan = plan_run(sc, _run_options(args))
     print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict()}, indent=2))
@@ -327,7 +327,7 @@ def cmd_check(args):
 
 
 def _print_run_result(summary, out):
-    from .plots import print_table
+    from .app.plots import print_table
     if "slip" in summary:
         print(print_table(summary))
     print(f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
@@ -337,7 +337,7 @@ def _print_run_result(summary, out):
 
 
 def cmd_resume(args):
-    from .engine.run import resume_simulation
+    from .app.run import resume_simulation
     sim = resume_simulation(args.store, steps=args.steps, until=args.until,
                             progress=not args.no_progress, figures=not args.no_figures, mode=args.mode)
     if sim is None:
@@ -462,8 +462,8 @@ def _checkpoint_prune(args) -> int:
 
 
 def _checkpoint_export(store, args) -> int:
-    from .checkpoint import StateError
-    from .export import ExportError, check_targets, export_snapshot, infer_format, output_files, read_snapshot
+    from .model.checkpoint import StateError
+    from .app.export import ExportError, check_targets, export_snapshot, infer_format, output_files, read_snapshot
     fmt = args.format or infer_format(args.out)
     if fmt is None:
         raise CliError(f"--out {args.out}: cannot tell the format from the suffix; give --format "
@@ -471,7 +471,7 @@ def _checkpoint_export(store, args) -> int:
     out = Path(args.out)
     try:
         check_targets(output_files(fmt, out), out)   # before reading anything
-        from .checkpoint import open_epoch, stored_layout, validate_epoch
+        from .model.checkpoint import open_epoch, stored_layout, validate_epoch
         dim, cap, bounds = stored_layout(store.meta or {}, args.store)
         reader = open_epoch(store, args.epoch)
         try:
@@ -496,7 +496,7 @@ def _warn_fallback(store) -> None:
 
 
 def cmd_checkpoint(args):
-    from .checkpoint import hash_epoch, open_epoch, stored_layout, validate_globals
+    from .model.checkpoint import hash_epoch, open_epoch, stored_layout, validate_globals
     from ooc_dem.storage import open_store
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
@@ -535,9 +535,9 @@ def cmd_checkpoint(args):
 
 
 def cmd_export_trajectory(args):
-    from .export import ExportError
-    from .plots import _load_scenario
-    from .trajectory import Trajectory, write_xdmf
+    from .app.export import ExportError
+    from .app.plots import _load_scenario
+    from .app.trajectory import Trajectory, write_xdmf
     with Trajectory.of_run(args.run) as traj:
         try:
             out = write_xdmf(traj, args.out, _load_scenario(Path(args.run)))
@@ -550,8 +550,8 @@ def cmd_export_trajectory(args):
 
 
 def cmd_animate(args):
-    from .animate import animate
-    from .export import ExportError
+    from .app.animate import animate
+    from .app.export import ExportError
     try:
         out, n = animate(args.run, args.out, fps=args.fps, progress=not args.no_progress)
     except ExportError as e:
@@ -561,7 +561,7 @@ def cmd_animate(args):
 
 
 def cmd_report(args):
-    from .plots import make_figures, print_table, read_summary
+    from .app.plots import make_figures, print_table, read_summary
     out = Path(args.store)
     summary = read_summary(out)   # validated: a hostile or foreign file is a one-line error
     if "slip" in summary:
@@ -575,13 +575,13 @@ def cmd_report(args):
 
 
 def cmd_compare(args):
-    from .compare import compare_runs
+    from .app.compare import compare_runs
     print(compare_runs(args.a, args.b))
     return 0
 
 
 def cmd_sweep(args):
-    from .sweep_slip import run_slip_sweep
+    from .app.sweep_slip import run_slip_sweep
     try:
         slips = [float(s) for s in args.slips.split(",") if s.strip()]
     except ValueError:
@@ -594,7 +594,7 @@ def cmd_sweep(args):
 
 
 def cmd_profile(args):
-    from .profiling import MODES, profile
+    from .app.profiling import MODES, profile
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in MODES]
     if not modes or bad:
@@ -603,8 +603,8 @@ def cmd_profile(args):
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise CliError(f"--out {out}: directory exists and is not empty")
-    from .memlimit import MemoryLimitError
-    from .profiling import OomKilled
+    from .engine.memlimit import MemoryLimitError
+    from .app.profiling import OomKilled
     try:
         doc = profile(args.scenario, modes, out, overrides=args.set, backend=args.backend,
                       domains=args.domains, block=args.block, steps=args.steps,
@@ -638,12 +638,12 @@ COMMANDS = {"check": cmd_check, "profile": cmd_profile, "run": cmd_run, "prepare
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    from .bed import BedError
-    from .engine.run import RunError
+    from .app.bed import BedError
+    from .app.run import RunError
     from .engine.stepper import EngineError
-    from .scenario import ScenarioError
-    from .checkpoint import StateError
-    from .plots import RunFileError
+    from .model.scenario import ScenarioError
+    from .model.checkpoint import StateError
+    from .app.plots import RunFileError
     known = (CliError, ScenarioError, RunError, EngineError, BedError, StateError, RunFileError)
     try:
         from ooc_dem.storage import StoreError

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from ooc_dem.scenario import load_scenario
+from ooc_dem.model.scenario import load_scenario
 
 # a short wheel run on the quick rig: 0.1 s of settling, 0.4 s of travel
 WHEEL_TEST = ["wheel.settle_time=0.1", "wheel.travel_time=0.4", "wheel.drawbar_ramp=0.1",
@@ -82,7 +82,7 @@ def run_copy(base_run, tmp_path):
 
 def state_arrays(p):
     """Every state array of a Particles set, sorted by id, history slots beyond the count zeroed."""
-    from ooc_dem.state import clean_history
+    from ooc_dem.model.state import clean_history
     q = p.sorted_by_id()
     clean_history(q)
     return q.arrays()

@@ -128,7 +128,7 @@ def _worker_main() -> int:
 
     def call(argv, cwd, env=None, fsize=None):
         from ooc_dem.cli import main
-        from ooc_dem.profiling import reset_peak
+        from ooc_dem.app.profiling import reset_peak
         os.chdir(cwd)
         if argv and argv[0] == API_PREFIX:
             main = _api_main                 # the Python API, judged by the same exit rules
@@ -242,7 +242,7 @@ def _api_main(argv) -> int:
         elif what == "summary":
             open_run(path).summary  # noqa: B018
         elif what == "trajectory":
-            from ooc_dem.trajectory import Trajectory
+            from ooc_dem.app.trajectory import Trajectory
             with Trajectory.of_run(path) as t:
                 for i in range(len(t)):
                     t[i]
@@ -2039,7 +2039,7 @@ STORE_CMDS = READ_CMDS + WRITE_CMDS + WRITE_CMDS + OTHER_CMDS
 
 
 def scenario_values(sc) -> list[tuple[str, object]]:
-    """(section.key, value) of every value of a scenario, from ooc_dem.scenario's dataclasses."""
+    """(section.key, value) of every value of a scenario, from ooc_dem.model.scenario's dataclasses."""
     import dataclasses
     out = []
 
@@ -2056,7 +2056,7 @@ def scenario_values(sc) -> list[tuple[str, object]]:
 
 def scenario_keys() -> list[str]:
     """section.key of every scenario value."""
-    from ooc_dem.scenario import Scenario
+    from ooc_dem.model.scenario import Scenario
     return [k for k, _ in scenario_values(Scenario())]
 
 

@@ -1,5 +1,5 @@
 """The memory budget (``--memory``) and the planner's byte model against real runs, and runs
-under a hard memory limit (a memory cgroup made by ooc_dem.memlimit).
+under a hard memory limit (a memory cgroup made by ooc_dem.engine.memlimit).
 
 Every measurement is a real ``ooc-dem`` subprocess; its peak RSS is the kernel's (wait4's
 ru_maxrss and /proc VmHWM of the command itself, memlimit.run_limited)."""
@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from ooc_dem.engine import budget
-from ooc_dem.engine.run import RunError, RunOptions, plan_run
-from ooc_dem.memlimit import _own_cgroup, parse_size, run_limited
-from ooc_dem.scenario import load_scenario
+from ooc_dem.app.run import RunError, RunOptions, plan_run
+from ooc_dem.engine.memlimit import _own_cgroup, parse_size, run_limited
+from ooc_dem.model.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}

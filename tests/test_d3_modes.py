@@ -24,14 +24,14 @@ import pytest
 from conftest import assert_same_state, committed_step, run_cli
 
 import ooc_dem
-from ooc_dem.bed import initial_fill
-from ooc_dem.checkpoint import hash_particles
+from ooc_dem.app.bed import initial_fill
+from ooc_dem.model.checkpoint import hash_particles
 from ooc_dem.engine import stepper as stp
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.engine.sweep import sweep_run
 from ooc_dem.physics.layout import AX_Y
-from ooc_dem.scenario import load_scenario
-from ooc_dem.state import Particles
+from ooc_dem.model.scenario import load_scenario
+from ooc_dem.model.state import Particles
 
 STEPS = 400
 FILL = ["soil.n=1200", "bin.length=0.06", "bin.width=0.04"]
@@ -171,8 +171,8 @@ def test_tile_share_takes_the_division_noise_away():
     """A bin n tiles across gives the tile of the base bin (0.6 m / 6 is the 0.1 m tile of
     0.2 m / 2, the same settled tile), so that a domain study compares the same soil; a
     share that is not a short decimal stays the quotient."""
-    from ooc_dem.scenario import tile_scenario, tile_share
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import tile_scenario, tile_share
+    from ooc_dem.model.scenario import load_scenario
     assert 0.6 / 6 != 0.1 and tile_share(0.6, 6) == 0.1
     assert tile_share(8.6, 86) == 0.1 and tile_share(0.2, 2) == 0.1
     assert tile_share(1.0, 3) == 1.0 / 3

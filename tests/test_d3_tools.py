@@ -12,8 +12,8 @@ import pytest
 
 import ooc_dem
 from ooc_dem import cli
-from ooc_dem.checkpoint import hash_particles
-from ooc_dem.state import Particles
+from ooc_dem.model.checkpoint import hash_particles
+from ooc_dem.model.state import Particles
 
 
 @pytest.fixture(scope="module")
@@ -118,8 +118,8 @@ def test_domain_sensitivity_runs_share_the_tile_under_the_wheel(capsys):
     import importlib.util
     from pathlib import Path
 
-    from ooc_dem.scenario import tile_grid, tile_scenario
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import tile_grid, tile_scenario
+    from ooc_dem.model.scenario import load_scenario
     path = Path(__file__).resolve().parents[1] / "tools" / "domain_sensitivity.py"
     spec = importlib.util.spec_from_file_location("domain_sensitivity", path)
     tool = importlib.util.module_from_spec(spec)

@@ -4,13 +4,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ooc_dem.bed import initial_fill, settled_bed
-from ooc_dem.engine.run import place_wheel
+from ooc_dem.app.bed import initial_fill, settled_bed
+from ooc_dem.app.run import place_wheel
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.engine.sweep import sweep_run
 from ooc_dem.physics.forces import ID_WALL_BOTTOM
-from ooc_dem.scenario import load_scenario
-from ooc_dem.state import Particles
+from ooc_dem.model.scenario import load_scenario
+from ooc_dem.model.state import Particles
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
 from conftest import assert_same_state, run_cli
@@ -137,7 +137,7 @@ def test_compiled_sweeps_give_the_monolithic_bits(threads):
     sub-domains side by side on the threads: the engine must take that path and keep
     the bits."""
     import numba
-    from ooc_dem.state import state_hash
+    from ooc_dem.model.state import state_hash
     sc = load_scenario("quick", ["wheel.settle_time=0.0", "wheel.drop_gap=0.0",
                                  "wheel.omega=5.0", "decomposition.margin=0.001"])
     bed = settled_bed(sc)
@@ -182,7 +182,7 @@ def test_sweeps_after_the_first_call_go_straight_to_the_compiled_overload(bare_b
     list of sub-domains (live.LiveDomains._compiled: typing costs an MPI block ~5 %). The
     overload must be found (else the saving is silently lost), and calls one sweep at a
     time through it keep the monolithic bits."""
-    from ooc_dem.decomposition import XHistogram, equal_bounds
+    from ooc_dem.model.decomposition import XHistogram, equal_bounds
     from ooc_dem.engine.live import LiveDomains, sweeps_kernel
     from ooc_dem.physics.layout import WS_SIZE
     sc, bed = bare_bed
@@ -208,7 +208,7 @@ def test_fresh_local_sets_refuse_a_refresh(bare_bed):
     """A refresh before the first sweep of fresh local sets would write springs back from
     pair lists never built (it wiped the histories: found when MPI blocks asked for one);
     run_sweeps refuses it in one line, and takes it after a sweep."""
-    from ooc_dem.decomposition import XHistogram, equal_bounds
+    from ooc_dem.model.decomposition import XHistogram, equal_bounds
     from ooc_dem.engine.live import LiveDomains
     from ooc_dem.engine.stepper import EngineError
     from ooc_dem.physics.layout import WS_SIZE

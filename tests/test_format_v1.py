@@ -19,7 +19,7 @@ import pytest
 
 from conftest import WHEEL_TEST, run_cli
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
-from ooc_dem.state import V1_ARRAYS
+from ooc_dem.model.state import V1_ARRAYS
 
 STEPS = 40
 CKPT = 20
@@ -127,7 +127,7 @@ def test_v1_store_resumes_to_the_v2_bits(runs):
 def test_v1_epoch_reads_rows_as_v2(runs):
     """The adapter (checkpoint.V1Epoch) serves partial reads (rows of pos, CSR entries of
     hist_s) exactly as a format-2 epoch would."""
-    from ooc_dem.checkpoint import V1Epoch, open_epoch
+    from ooc_dem.model.checkpoint import V1Epoch, open_epoch
     from ooc_dem.storage import open_store
     full, v1, _ = runs
     s1, s2 = open_store(v1, repair=False), open_store(full, repair=False)

@@ -6,12 +6,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ooc_dem.bed import settled_bed
-from ooc_dem.checkpoint import particles_to_record, record_to_particles
-from ooc_dem.engine.run import place_wheel
+from ooc_dem.app.bed import settled_bed
+from ooc_dem.model.checkpoint import particles_to_record, record_to_particles
+from ooc_dem.app.run import place_wheel
 from ooc_dem.engine.stepper import DomainStepper, EngineError, Model
-from ooc_dem.scenario import load_scenario
-from ooc_dem.state import HIST_CAP, HIST_CAP_BY_DIM, bytes_per_disc, fields, state_hash
+from ooc_dem.model.scenario import load_scenario
+from ooc_dem.model.state import HIST_CAP, HIST_CAP_BY_DIM, bytes_per_disc, fields, state_hash
 
 SETS = ["wheel.settle_time=0.0", "wheel.drop_gap=0.0", "wheel.control=slip", "wheel.slip=0.2"]
 
@@ -66,7 +66,7 @@ def test_the_capacity_comes_from_the_dimension_or_the_scenario():
 def test_a_run_resumes_with_the_capacity_it_was_written_with(tmp_path):
     """A store whose meta records a larger capacity (2D runs were written with 12) resumes
     with it, to the same bits as a run that never stopped."""
-    from ooc_dem.engine.run import Simulation, RunOptions, resume_simulation
+    from ooc_dem.app.run import Simulation, RunOptions, resume_simulation
     from ooc_dem.storage import open_store
     sc = load_scenario("quick", SETS)
     bed = settled_bed(sc)

@@ -18,7 +18,7 @@ import pytest
 from conftest import WHEEL_TEST, one_line_error, run_cli
 
 from ooc_dem import cli
-from ooc_dem.scenario import Scenario, dict_to_toml
+from ooc_dem.model.scenario import Scenario, dict_to_toml
 
 EMOJI = "r\U0001F600n"
 MAX_STEPS = 10**10   # the documented maximum step count
@@ -69,9 +69,9 @@ def test_step_count_beyond_the_maximum_is_refused_by_the_flag(tmp_path):
 def test_series_buffer_is_sized_by_the_rows_kept_not_the_step_count(monkeypatch):
     """--steps 1e9 must not allocate 1e9 / steps_per_row rows up front; the grown buffer gives
     the same bits as one sized for the whole run."""
-    from ooc_dem import metrics
+    from ooc_dem.app import metrics
     from ooc_dem.engine.stepper import N_REC, REC_T, REC_X, REC_VX, REC_WZ, REC_FX, REC_Y
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     sc = load_scenario("quick", ["output.series_interval=1e-5"])   # one row per step
     assert metrics.WheelMetrics(sc, 0.05, 10**9).rows.nbytes < 1 << 20
     rng = np.random.default_rng(3)

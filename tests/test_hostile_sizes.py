@@ -3,7 +3,7 @@
 Each test copies a tiny run, makes one of its files declare a size far beyond what it holds
 (trajectory frame rows, an npz member, a zarr chunk's inflated size, the manifest's history
 capacity) or names a codec ooc-dem does not write, runs the command a user would in a fresh
-process and measures that process's peak RSS (``ooc_dem.memlimit.run_limited``): exit 2,
+process and measures that process's peak RSS (``ooc_dem.engine.memlimit.run_limited``): exit 2,
 one line, and under 300 MB. tools/refusal_memory.py runs the same cases at the sizes of the
 reports (2^25 rows, 4 GB members and chunks, hist_cap 100000, id 3·10^8).
 """
@@ -128,7 +128,7 @@ BED_SETS = ["--set", f"soil.n={BED_N}", *(a for s in WHEEL_TEST for a in ("--set
 def bomb_bed(tmp_path_factory):
     """A bed.npz of BED_N discs whose 'r' member is 4 GB of deflated zeros (about 19 MB on
     disk), its header true to them; the other members as a bed's."""
-    from ooc_dem.state import Particles
+    from ooc_dem.model.state import Particles
     f = tmp_path_factory.mktemp("bomb-bed") / "bed.npz"
     p = Particles.empty(BED_N, 2)
     p.id[:] = np.arange(BED_N)
@@ -152,7 +152,7 @@ def test_a_bed_member_of_deflated_zeros_is_refused_from_its_header(bomb_bed, tmp
 def test_a_bed_cache_entry_of_deflated_zeros_is_rebuilt_with_a_warning(bomb_bed, tmp_path):
     """The cache entry is refused from its header (never inflated), settled again and
     cached again; the run says so in one warning line."""
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     sc = load_scenario("quick", BED_SETS[1::2])
     entry = tmp_path / "cache" / "beds" / f"{sc.bed_hash()}.v2.npz"
     entry.parent.mkdir(parents=True)

@@ -2,7 +2,7 @@
 BEFORE the kernel layer was rebuilt (pair rows + per-disc CSR gather). A change of the
 kernels that keeps the bits keeps these hashes; a change that alters them must say why.
 
-The hash's version 2 changed the hash, not the states: version 2 (``mset-v2:``, ooc_dem/statehash.py,
+The hash's version 2 changed the hash, not the states: version 2 (``mset-v2:``, ooc_dem/model/statehash.py,
 a multiset hash that streams) replaced version 1 (SHA-256 of the state sorted by id). The
 version-2 values below are the new hash of the SAME states: each case's run was repeated
 with the code of 2a1c594 (version 1), its summary and `checkpoint hash` gave the version-1

@@ -1,7 +1,7 @@
-"""The allowed import direction (README "Module map"): physics -> state -> engine ->
-application, storage independent. A module may import its own layer and the layers
-below it, never one above; storage imports nothing of ooc_dem. Read from the source
-with ast, so a new upward import fails here before it makes a circle."""
+"""The allowed import direction, read from the folders: physics -> model -> engine -> app
+(ooc_dem/app/ and the entry points cli.py and api.py), storage independent. A module may
+import its own layer and the layers below it, never one above; storage imports nothing of
+the rest. Read from the source with ast, so a new upward import fails here before it makes a circle."""
 from __future__ import annotations
 
 import ast
@@ -11,23 +11,26 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-ORDER = ["physics", "state", "engine", "application"]
-STATE = {"ooc_dem.state", "ooc_dem.statehash", "ooc_dem.checkpoint", "ooc_dem.scenario", "ooc_dem.decomposition",
-         "ooc_dem.fields", "ooc_dem.atomic", "ooc_dem.heap", "ooc_dem.npzfile"}
-ENGINE = {"ooc_dem.engine", "ooc_dem.engine.stepper", "ooc_dem.engine.live", "ooc_dem.engine.sweep",
-          "ooc_dem.engine.interface", "ooc_dem.engine.monolithic", "ooc_dem.bed"}
+# the layers are the package's folders, lowest first; the modules at the top of the package
+# (the command line, the Python API, the package's __init__) are the application's entry points
+ORDER = ["physics", "model", "engine", "app"]
+INDEPENDENT = "storage"     # below everything, and imports nothing of the rest
 
 
 def layer(module: str) -> str:
-    if module == "ooc_dem.storage" or module.startswith("ooc_dem.storage."):
-        return "storage"
-    if module.startswith("ooc_dem.physics"):
-        return "physics"
-    if module in STATE:
-        return "state"
-    if module in ENGINE:
-        return "engine"
-    return "application"    # engine.run (the Simulation), metrics, plots, export, cli, api, ...
+    parts = module.split(".")
+    if len(parts) > 1 and parts[1] in (*ORDER, INDEPENDENT):
+        return parts[1]
+    return "app"
+
+
+def test_every_module_lives_in_a_layer_folder():
+    top = sorted(f.stem for f in ROOT.joinpath("ooc_dem").glob("*.py"))
+    assert top == ["__init__", "api", "cli"], top
+    # packages of code (scenarios/ holds the built-in scenarios' TOML files, no code)
+    folders = sorted(d.name for d in ROOT.joinpath("ooc_dem").iterdir()
+                     if d.is_dir() and any(f.name != "__init__.py" for f in d.glob("*.py")))
+    assert folders == sorted([*ORDER, INDEPENDENT]), folders
 
 
 def imports():
@@ -64,12 +67,12 @@ def test_no_import_goes_up_a_layer():
     bad = []
     for mod, dep in imports():
         lm, ld = layer(mod), layer(dep)
-        if lm == "storage":
-            if ld != "storage":
-                bad.append(f"{mod} -> {dep} (storage knows nothing of ooc_dem)")
-        elif ld != "storage" and ORDER.index(ld) > ORDER.index(lm):
+        if lm == INDEPENDENT:
+            if ld != INDEPENDENT:
+                bad.append(f"{mod} -> {dep} (storage knows nothing of the rest of ooc_dem)")
+        elif ld != INDEPENDENT and ORDER.index(ld) > ORDER.index(lm):
             bad.append(f"{mod} ({lm}) -> {dep} ({ld})")
-        elif lm == "physics" and ld == "storage":
+        elif lm == "physics" and ld == INDEPENDENT:
             bad.append(f"{mod} -> {dep} (physics knows nothing of storage)")
     assert not bad, "imports against the module map:\n" + "\n".join(bad)
 
@@ -143,7 +146,7 @@ def test_cycle_finder_finds_a_circle():
 
 def test_no_import_cycle():
     graph = import_graph()
-    assert graph["ooc_dem.engine.run"] and graph["ooc_dem.plots"], "import graph not read"
+    assert graph["ooc_dem.app.run"] and graph["ooc_dem.app.plots"], "import graph not read"
     cycle = find_cycle(graph)
     assert cycle is None, "import circle: " + " -> ".join(cycle)
 
@@ -171,7 +174,7 @@ def test_no_private_storage_names_outside_storage():
 def test_the_engines_and_the_run_loop_dispatch_on_no_attribute():
     """The run loop asks an engine nothing but the Engine protocol: no hasattr / getattr."""
     bad = []
-    for rel in ("ooc_dem/engine/run.py", "ooc_dem/engine/sweep.py", "ooc_dem/engine/monolithic.py",
+    for rel in ("ooc_dem/app/run.py", "ooc_dem/engine/sweep.py", "ooc_dem/engine/monolithic.py",
                 "ooc_dem/engine/interface.py"):
         for node in ast.walk(ast.parse(ROOT.joinpath(rel).read_text())):
             if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
@@ -183,8 +186,8 @@ def test_the_engines_and_the_run_loop_dispatch_on_no_attribute():
 @pytest.fixture(scope="module")
 def tiny_runs(tmp_path_factory):
     """A four-step run of a 300-disc bed in each mode; (mode, engine, simulation)."""
-    from ooc_dem.engine.run import RunOptions, Simulation
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.app.run import RunOptions, Simulation
+    from ooc_dem.model.scenario import load_scenario
     sc = load_scenario("bed-300", ["decomposition.policy=equal"])
     runs = []
     for mode in ("monolithic", "ddm", "ooc"):
@@ -201,7 +204,7 @@ def tiny_runs(tmp_path_factory):
 def test_every_engine_satisfies_the_protocol(tiny_runs):
     from ooc_dem.engine.interface import Engine
     from ooc_dem.engine.monolithic import MonolithicEngine
-    from ooc_dem.engine.run import Simulation
+    from ooc_dem.app.run import Simulation
     from ooc_dem.engine.sweep import DdmEngine, OocEngine
     classes = {"monolithic": MonolithicEngine, "ddm": DdmEngine, "ooc": OocEngine}
     # the protocol's members: its methods and properties, and its annotated attributes

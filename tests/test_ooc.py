@@ -7,11 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from ooc_dem.bed import settled_bed
-from ooc_dem.checkpoint import particles_to_record, record_rows, records_to_particles
-from ooc_dem.decomposition import group_order
-from ooc_dem.engine.run import RunOptions, Simulation, read_all_particles
-from ooc_dem.scenario import load_scenario
+from ooc_dem.app.bed import settled_bed
+from ooc_dem.model.checkpoint import particles_to_record, record_rows, records_to_particles
+from ooc_dem.model.decomposition import group_order
+from ooc_dem.app.run import RunOptions, Simulation, read_all_particles
+from ooc_dem.model.scenario import load_scenario
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 from ooc_dem.storage import open_store
 
@@ -108,7 +108,7 @@ def test_io_overlap_gives_the_same_bits(wheel, bare, tmp_path, backend):
     sc, bed, (ref_summary, ref_p, _, _) = bare
     summary, p, _, _ = run(sc, tmp_path / "b", bed, 60, mode="ooc", backend=backend, domains=16, block=10,
                            io_overlap=True)
-    from ooc_dem.engine.run import resume_simulation
+    from ooc_dem.app.run import resume_simulation
     sim = resume_simulation(tmp_path / "b", steps=100, progress=False, figures=False)
     assert sim.engine.io_overlap
     summary = sim.run()
@@ -166,8 +166,8 @@ def test_streamed_hash_equals_in_memory_hash(bare, tmp_path, id_cap, monkeypatch
     """`checkpoint hash` streams an epoch group by group (their lane sums added; the ids
     checked unique in ranges of at most max(id_cap, 2 x a group) ids): it must be the hash
     of all the discs gathered in RAM, history included."""
-    from ooc_dem import checkpoint
-    from ooc_dem.checkpoint import hash_epoch, hash_particles
+    from ooc_dem.model import checkpoint
+    from ooc_dem.model.checkpoint import hash_epoch, hash_particles
     if id_cap is not None:
         monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", id_cap)
     sc, bed, _ = bare
@@ -187,8 +187,8 @@ _RSS_PER_GROUP = r'''
 import json, sys
 import psutil
 from ooc_dem import storage
-from ooc_dem.engine.run import RunOptions, Simulation
-from ooc_dem.scenario import load_scenario
+from ooc_dem.app.run import RunOptions, Simulation
+from ooc_dem.model.scenario import load_scenario
 out, groups = sys.argv[1], int(sys.argv[2])
 proc, after_stage = psutil.Process(), []
 write_domain = storage.EpochWriter.write_domain

@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ooc_dem.bed import initial_fill
+from ooc_dem.app.bed import initial_fill
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.physics.layout import AX_X, AX_Y, AX_Z
-from ooc_dem.scenario import load_scenario
-from ooc_dem.state import Particles
+from ooc_dem.model.scenario import load_scenario
+from ooc_dem.model.state import Particles
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("peers_lammps", ROOT / "tools" / "peers" / "lammps.py")

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from ooc_dem.fields import displacements, gridded_displacement, layer_index
-from ooc_dem.plots import make_figures, print_table, read_series, sweep_plot
-from ooc_dem.scenario import load_scenario
+from ooc_dem.model.fields import displacements, gridded_displacement, layer_index
+from ooc_dem.app.plots import make_figures, print_table, read_series, sweep_plot
+from ooc_dem.model.scenario import load_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SERIES_HEADER = ("t [s],t_travel [s],x [m],y [m],vx [m/s],omega [rad/s],slip [-],net_traction [N],"

@@ -3,7 +3,7 @@ import json
 
 
 from conftest import run_cli
-from ooc_dem.state import bytes_per_disc
+from ooc_dem.model.state import bytes_per_disc
 
 
 def test_profile_report(tmp_path):

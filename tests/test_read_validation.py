@@ -13,10 +13,10 @@ import pytest
 
 import ooc_dem
 from conftest import BASE_RUN_STEPS as STEPS, WHEEL_TEST, one_line_error, run_cli
-from ooc_dem.checkpoint import open_epoch, record_rows
-from ooc_dem.decomposition import x_summary
+from ooc_dem.model.checkpoint import open_epoch, record_rows
+from ooc_dem.model.decomposition import x_summary
 from ooc_dem.physics.layout import AX_X
-from ooc_dem.state import HIST_FIELDS
+from ooc_dem.model.state import HIST_FIELDS
 from ooc_dem.storage import StoreError, open_store
 from test_untrusted_state import _manifest, _replace, _tamper_current
 
@@ -313,8 +313,8 @@ def test_a_refused_cache_entry_is_rebuilt_with_a_warning(prepared_bed, tmp_path)
 def test_a_format_1_bed_at_another_capacity_reads_as_the_bed_it_stores(prepared_bed, tmp_path):
     """The bed reader takes what older engines wrote: format-1 component arrays, another
     history capacity, deflated members."""
-    from ooc_dem.bed import read_bed
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.app.bed import read_bed
+    from ooc_dem.model.scenario import load_scenario
     with np.load(prepared_bed / "bed" / "bed.npz") as z:
         a = {k: z[k] for k in z.files}
     wider = {k: np.concatenate([v, np.zeros((len(v), 4) + v.shape[2:], v.dtype)], axis=1)

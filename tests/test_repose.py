@@ -13,8 +13,8 @@ import pytest
 
 import ooc_dem
 from ooc_dem.physics.layout import AX_X, AX_Y, AX_Z
-from ooc_dem.repose import REPOSE_FIGURE, ReposeError, measure
-from ooc_dem.scenario import ScenarioError, load_scenario
+from ooc_dem.app.repose import REPOSE_FIGURE, ReposeError, measure
+from ooc_dem.model.scenario import ScenarioError, load_scenario
 
 D = 0.0045   # sphere diameter of repose3d's soil (mean of r 2.0-2.5 mm)
 

@@ -25,13 +25,13 @@ import pytest
 import xxhash
 
 from conftest import one_line_error, run_cli
-from ooc_dem import checkpoint, statehash
-from ooc_dem.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record, validate_epoch
-from ooc_dem.decomposition import XHistogram, equal_bounds, x_summary
-from ooc_dem import export
+from ooc_dem.model import checkpoint, statehash
+from ooc_dem.model.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record, validate_epoch
+from ooc_dem.model.decomposition import XHistogram, equal_bounds, x_summary
+from ooc_dem.app import export
 from ooc_dem.engine.sweep import RamEpochs, group_of, x_histogram
 from ooc_dem.physics.layout import AX_X
-from ooc_dem.state import Particles, state_hash
+from ooc_dem.model.state import Particles, state_hash
 from ooc_dem.storage import create_store, open_store
 
 LENGTH = 1.0
@@ -371,8 +371,8 @@ def test_resume_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
     4 and 16 groups of 3000 discs give tracemalloc peaks within 1.5x (a per-disc array of
     the whole bed would make them 4x). The resumed runs then finish to the uninterrupted
     runs' hashes."""
-    from ooc_dem.engine.run import RunOptions, Simulation, resume_simulation
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.app.run import RunOptions, Simulation, resume_simulation
+    from ooc_dem.model.scenario import load_scenario
     monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", 0)
     peaks, hashes = {}, {}
     for groups in (4, 16):

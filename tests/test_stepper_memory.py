@@ -6,9 +6,9 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from ooc_dem.bed import settled_bed
+from ooc_dem.app.bed import settled_bed
 from ooc_dem.engine.stepper import PAIR_HEADROOM, DomainStepper, Model
-from ooc_dem.scenario import load_scenario
+from ooc_dem.model.scenario import load_scenario
 
 from conftest import assert_same_state
 

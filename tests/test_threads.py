@@ -2,9 +2,9 @@
 import numba
 import numpy as np
 
-from ooc_dem.bed import settled_bed
+from ooc_dem.app.bed import settled_bed
 from ooc_dem.engine.stepper import DomainStepper, Model
-from ooc_dem.scenario import load_scenario
+from ooc_dem.model.scenario import load_scenario
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
 from conftest import assert_same_state
@@ -36,7 +36,7 @@ def test_one_and_two_threads_bit_identical():
 
 def test_wheel_run_thread_independent():
     """The wheel's forces are summed canonically: same wheel records with 1 and 2 threads."""
-    from ooc_dem.engine.run import place_wheel
+    from ooc_dem.app.run import place_wheel
     sc = load_scenario("quick", ["wheel.settle_time=0.0", "wheel.drawbar_ramp=0.0"])
     bed = settled_bed(sc)
     ws = place_wheel(sc, bed)

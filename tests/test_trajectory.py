@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from conftest import one_line_error, run_cli
-from ooc_dem.trajectory import (ROW_FIELDS, TRAJECTORY_DIR, TRAJECTORY_FILE, Trajectory, TrajectoryWriter,
+from ooc_dem.app.trajectory import (ROW_FIELDS, TRAJECTORY_DIR, TRAJECTORY_FILE, Trajectory, TrajectoryWriter,
                                 frame_name, wheel_outline)
 
 STEPS = 600
@@ -232,7 +232,7 @@ def test_xdmf_time_series_reads_in_vtk(tmp_path, runs):
     """export-trajectory: an XDMF temporal collection that vtkXdmfReader reads at every time:
     1500 disc points with their arrays from the frame files, and the wheel outline polygon."""
     vtk = pytest.importorskip("vtk")
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     run = runs["ooc"]
     out = tmp_path / "traj.xdmf"
     cp = run_cli("export-trajectory", run, "--out", out, check=True)

@@ -241,8 +241,8 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     """The state a kill (or a full disk) leaves before the first commit: the store created with
     no committed epoch, and the run's set-up files. `resume` names the way out; `run --out` takes
     it; a directory holding anything else stays refused."""
-    from ooc_dem.engine.run import RunOptions, Simulation
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.app.run import RunOptions, Simulation
+    from ooc_dem.model.scenario import load_scenario
     from ooc_dem.storage import create_store
     sc = load_scenario("quick", WHEEL_TEST)
     out = tmp_path / "run"

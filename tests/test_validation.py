@@ -29,7 +29,7 @@ from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.physics.contact import KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT, contact_force
 from ooc_dem.physics.forces import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, WG_SIZE
 from ooc_dem.physics.integrate import WC_SIZE
-from ooc_dem.state import Particles
+from ooc_dem.model.state import Particles
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
 
 G = 9.81
@@ -768,8 +768,8 @@ def all_contacts(p: Particles, model: Model):
 
 @pytest.fixture(scope="module", params=[0.0, 0.5], ids=["frictionless-walls", "walls-mu0.5"])
 def settled(request):
-    from ooc_dem.bed import settled_bed
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.app.bed import settled_bed
+    from ooc_dem.model.scenario import load_scenario
     sc = load_scenario("quick", ["soil.n=300", "bin.length=0.12", "wheel.enabled=false",
                                  f"contact.soil_wall.friction={request.param}"])
     p = settled_bed(sc)

@@ -95,9 +95,9 @@ def test_sweep_drawbar_pull_increases_with_slip(tmp_path):
 def test_windows_of_a_run_stopped_early_say_what_they_cover():
     """`--duration` shorter than the travel: the windows end where the records do, not at
     the scenario's travel_time (the table's header and summary.json would claim 0–2 s)."""
-    from ooc_dem.metrics import WheelMetrics
+    from ooc_dem.app.metrics import WheelMetrics
     from ooc_dem.physics.layout import N_REC, REC_T, REC_X
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     sc = load_scenario("quick")
     dt = sc.physics.dt
     steps = int(round((sc.wheel.settle_time + 0.5) / dt))   # 0.5 s of the 2 s travel

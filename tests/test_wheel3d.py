@@ -22,8 +22,8 @@ import ooc_dem
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.physics.layout import (ID_LUG0, ID_RIM, REC_FX, REC_FY, REC_NC, REC_TQ, WS_SIZE,
                                     WS_X, WS_Y)
-from ooc_dem.scenario import ScenarioError, load_scenario
-from ooc_dem.state import Particles
+from ooc_dem.model.scenario import ScenarioError, load_scenario
+from ooc_dem.model.state import Particles
 
 R = 0.1
 Z0 = 0.06     # quick-3d: bin width 0.12, wheel width 0.06 centred at mid-width
@@ -237,7 +237,7 @@ def test_sinkage_surface_is_the_bed_top_under_the_wheel_not_the_highest_sphere_a
     """The 3D surface (sinkage's zero) is the mean of the local tops in the wheel's band:
     a ridge outside the band (soil heaped at a side wall) does not raise it, and a bed
     part that starts away from x = 0 (streamed beds) gets its own columns."""
-    from ooc_dem.bed import surface_height, wheel_footprint
+    from ooc_dem.app.bed import surface_height, wheel_footprint
     sc = load_scenario("paper2008-3d")
     lo, hi = wheel_footprint(sc)
     assert np.allclose((lo, hi), (0.05, 0.15), rtol=0, atol=1e-15)
@@ -265,7 +265,7 @@ def test_a_run_with_the_wheel_sigkilled_mid_roll_resumes_to_the_same_bits(runs, 
     import subprocess
     import sys
     import time
-    from ooc_dem.plots import figure_files
+    from ooc_dem.app.plots import figure_files
     out = tmp_path / "killed"
     sets = [a for kv in WHEEL3D for a in ("--set", kv)]
     proc = subprocess.Popen([sys.executable, "-m", "ooc_dem.cli", "run", "quick-3d", *sets,

@@ -29,8 +29,8 @@ STEPS = ["--steps", "100", "--checkpoint-every", "50", "--set", "output.snapshot
 # the CLI with every check before writing switched off (the names each writer calls)
 _NO_PRECHECK = """
 import sys
-import ooc_dem.storage.writeguard as wg, ooc_dem.storage.store as st, ooc_dem.export as ex, ooc_dem.trajectory as tr
-import ooc_dem.animate as an, ooc_dem.atomic as at
+import ooc_dem.storage.writeguard as wg, ooc_dem.storage.store as st, ooc_dem.app.export as ex, ooc_dem.app.trajectory as tr
+import ooc_dem.app.animate as an, ooc_dem.storage.atomic as at
 none = lambda *a, **k: None
 wg.check_room = ex.check_room = tr.check_room = an.check_room = at.check_room = none
 st.shortfall = none
@@ -169,8 +169,8 @@ def test_trajectory_frames_under_every_file_size_limit(tmp_path):
     code = """
 import sys, numpy as np
 {patch}
-from ooc_dem.scenario import load_scenario
-from ooc_dem.trajectory import TrajectoryWriter
+from ooc_dem.model.scenario import load_scenario
+from ooc_dem.app.trajectory import TrajectoryWriter
 sc = load_scenario("quick", overrides=["output.snapshot_interval=0.0005"])
 n = 1500
 w = TrajectoryWriter.create({out}, sc, 2, n)
@@ -189,7 +189,7 @@ except OSError as e:
         limit, precheck = args
         out = tmp_path / f"run-{limit}-{precheck}"
         out.mkdir()
-        patch = "" if precheck else "import ooc_dem.trajectory as tr; tr.check_room = lambda *a, **k: None"
+        patch = "" if precheck else "import ooc_dem.app.trajectory as tr; tr.check_room = lambda *a, **k: None"
         src = code.format(patch=patch, out=repr(str(out)))
         cp = limited([sys.executable, "-c", src], limit)
         assert_clean_outcome(cp, out)

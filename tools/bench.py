@@ -29,10 +29,10 @@ def one(n: int, steps: int, threads: int, warmup: int, family: str = "bed",
     import numba
     numba.set_num_threads(threads)
     import numpy as np
-    from ooc_dem.bed import settled_bed
-    from ooc_dem.memlimit import own_peak_rss_bytes
+    from ooc_dem.app.bed import settled_bed
+    from ooc_dem.engine.memlimit import own_peak_rss_bytes
     from ooc_dem.engine.stepper import DomainStepper, Model
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     t0 = time.time()
     sc = load_scenario(f"{family}-{n}", overrides)
     bed = settled_bed(sc)

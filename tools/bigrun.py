@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """A large out-of-core run, measured: a 2D bare bed streamed straight into the store, S sweeps
 of K steps, then `checkpoint hash` and `checkpoint verify`, each optionally under a hard
-memory limit (a memory cgroup, ooc_dem.memlimit). Prints one JSON object.
+memory limit (a memory cgroup, ooc_dem.engine.memlimit). Prints one JSON object.
 
     python tools/bigrun.py --discs 2000000 --sweeps 3 --block 20 --memory 1.5GB \\
         --memory-limit 2GB --out /work/big/run
@@ -50,8 +50,8 @@ def _timed(owner, name, bucket, key):
 def child(a) -> dict:
     """The run, in this process (under the parent's memory limit)."""
     from ooc_dem.engine import stepper, sweep
-    from ooc_dem.engine.run import RunOptions, Simulation
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.app.run import RunOptions, Simulation
+    from ooc_dem.model.scenario import load_scenario
     from ooc_dem import storage
     sc = load_scenario(f"bed-{a.discs}", ["decomposition.policy=equal"])
     opts = RunOptions(mode="ooc", backend=a.backend, domains=a.domains, block=a.block,
@@ -101,7 +101,7 @@ def child(a) -> dict:
 
 
 def _limited(cmd, limit, env):
-    from ooc_dem.memlimit import run_limited
+    from ooc_dem.engine.memlimit import run_limited
     res = run_limited(cmd, limit, env=env, interval=0.2)
     d = res.as_dict()
     if res.oom_killed:
@@ -157,7 +157,7 @@ def main():
     ap.add_argument("--keep", action="store_true", help="keep the store afterwards")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
-    from ooc_dem.memlimit import parse_size
+    from ooc_dem.engine.memlimit import parse_size
     if a.child:
         a.memory = parse_size(a.memory) if a.memory else None
         print(json.dumps(child(a)))

@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     numba.set_num_threads(a.threads)
     import numpy as np
     from numba import njit
-    from ooc_dem.checkpoint import read_all_particles
+    from ooc_dem.model.checkpoint import read_all_particles
     from ooc_dem.engine import live
     from ooc_dem.engine.monolithic import MonolithicEngine
     from ooc_dem.engine.stepper import Model
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     from ooc_dem.physics import kernels
     from ooc_dem.physics.forces import ROLE_STABLE
     from ooc_dem.physics.layout import WHEEL_RECORD
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     from ooc_dem.storage.store import open_store
 
     sc = load_scenario(str(Path(a.run) / "scenario.toml"))

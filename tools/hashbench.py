@@ -1,7 +1,7 @@
 """Throughput of the canonical state hash (`checkpoint hash`) on a store: one warm-up, then
 one timed pass over the current epoch; prints JSON. Usage: python tools/hashbench.py STORE"""
 import json, time, sys
-from ooc_dem.checkpoint import hash_epoch, open_epoch
+from ooc_dem.model.checkpoint import hash_epoch, open_epoch
 from ooc_dem.storage import open_store
 store = open_store(sys.argv[1], repair=False)
 with open_epoch(store) as r:

@@ -126,8 +126,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from ooc_dem.api import load_scenario
     from ooc_dem.engine.stepper import wheel_z0
-    from ooc_dem.trajectory import Trajectory, TrajectoryError
-    from ooc_dem.scenario import ScenarioError
+    from ooc_dem.app.trajectory import Trajectory, TrajectoryError
+    from ooc_dem.model.scenario import ScenarioError
     run = Path(a.run)
     try:
         fractions = [float(p) for p in a.fractions.split(",")]

@@ -103,10 +103,10 @@ def sweep(args, counter) -> list[dict]:
 
 def _bed_groups(name, domains):
     import numpy as np
-    from ooc_dem.bed import settled_bed
-    from ooc_dem.checkpoint import particles_to_record
+    from ooc_dem.app.bed import settled_bed
+    from ooc_dem.model.checkpoint import particles_to_record
     from ooc_dem.physics.layout import AX_X
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     bed = settled_bed(load_scenario(name))
     order = np.argsort(bed.pos[:, AX_X], kind="stable")
     parts = np.array_split(order, domains)

@@ -56,10 +56,10 @@ def _phase_loops(produce, gather_integrate, is3d: bool):
 
 def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     import numpy as np
-    from ooc_dem.bed import settled_bed
-    from ooc_dem.memlimit import own_peak_rss_bytes
+    from ooc_dem.app.bed import settled_bed
+    from ooc_dem.engine.memlimit import own_peak_rss_bytes
     from ooc_dem.engine.stepper import DomainStepper, Model
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     sc = load_scenario(f"{family}-{n}", law_overrides(family, law))
     bed = settled_bed(sc)
     rss0 = own_peak_rss_bytes()

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Peak RSS of monolithic and out-of-core runs against N (bare beds), with fitted slopes.
 
-Each (mode, N) runs in a fresh subprocess (ooc_dem.profiling) after JIT warm-up;
+Each (mode, N) runs in a fresh subprocess (ooc_dem.app.profiling) after JIT warm-up;
 the peak is measured from just before the scenario is set up (so the bed and
 store setup count), above the post-warm-up baseline. The slope of peak-above-
 baseline against N (least squares) is the memory cost per disc of each mode.
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from ooc_dem.profiling import run_child  # noqa: E402
+from ooc_dem.app.profiling import run_child  # noqa: E402
 
 
 def main():

@@ -181,7 +181,7 @@ def main(argv=None) -> int:
         return 0
     from ooc_dem.engine.mpi import row_words
     from ooc_dem.engine.stepper import Model
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     report = {"tool": "tools/mpiscale.py", "pingpong": pp, "scenarios": []}
     cases = []
     for item in a.scenarios.split(","):

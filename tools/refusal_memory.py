@@ -5,7 +5,7 @@ Each case copies a small run, makes one of its files declare a hostile size (a t
 frame of 2^25 rows in 110 KB, an ``initial.npz`` member of 4 GB of deflated zeros, a zarr
 epoch whose chunk inflates to 4 GB, a manifest ``meta.hist_cap`` of 100000, a serial-DDM
 store holding the disc id 3·10^8), runs the command a user would in a fresh process and
-measures its peak RSS (``ooc_dem.memlimit.run_limited``: the child's own ``ru_maxrss``).
+measures its peak RSS (``ooc_dem.engine.memlimit.run_limited``: the child's own ``ru_maxrss``).
 A refusal must be exit 2, one line, well under 300 MB; the DDM store with a large id is
 valid and must resume in the memory of its discs, not of its largest id. Prints JSON.
 
@@ -31,7 +31,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from ooc_dem.memlimit import run_limited  # noqa: E402
+from ooc_dem.engine.memlimit import run_limited  # noqa: E402
 
 PIECE = 64 << 20        # bytes of zeros compressed at a time
 # the sizes of the reproductions (tests/test_hostile_sizes.py uses smaller ones)

@@ -57,7 +57,7 @@ def numeric_keys(sc) -> list[tuple[str, type]]:
 
 
 def cases(scenarios, only_keys=None) -> list[dict]:
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     got = []
     for name in scenarios:
         for key, typ in numeric_keys(load_scenario(name)):
@@ -163,8 +163,8 @@ def _short_settle(sc, p, progress=None):
 def _worker() -> int:
     sys.path.insert(0, str(ROOT))
     if os.environ.get("OOC_DEM_EXTREMES_SHORT_SETTLE"):
-        import ooc_dem.bed
-        ooc_dem.bed.settle = _short_settle
+        import ooc_dem.app.bed
+        ooc_dem.app.bed.settle = _short_settle
     return _fuzzing()._worker_main()
 
 

@@ -29,14 +29,14 @@ import numpy as np
 def _model(run: Path, skin: float | None = None):
     """The run's own scenario (with bed.skin set unless skin is None), as the kernels' model."""
     from ooc_dem.engine.stepper import Model
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     overrides = [] if skin is None else [f"bed.skin={skin}"]
     return Model.from_scenario(load_scenario(str(run / "scenario.toml"), overrides))
 
 
 def last_epoch(run: Path):
     """(particles, wheel state, step) of the run's last committed epoch, read once."""
-    from ooc_dem.checkpoint import read_all_particles
+    from ooc_dem.model.checkpoint import read_all_particles
     from ooc_dem.storage.store import open_store
     model = _model(run)   # its dimension and history capacity
     with open_store(run) as store:
@@ -51,7 +51,7 @@ def last_epoch(run: Path):
 
 def one(run: Path, epoch, skin: float, steps: int) -> dict:
     from ooc_dem.engine.monolithic import MonolithicEngine
-    from ooc_dem.state import state_hash
+    from ooc_dem.model.state import state_hash
     base, ws, step0 = epoch
     model = _model(run, skin)
     particles = base.take(np.arange(len(base)))   # a copy: the engine advances it in place

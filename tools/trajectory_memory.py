@@ -45,8 +45,8 @@ def main():
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--work", required=True)
     a = ap.parse_args()
-    from ooc_dem.scenario import load_scenario
-    from ooc_dem.trajectory import TrajectoryWriter
+    from ooc_dem.model.scenario import load_scenario
+    from ooc_dem.app.trajectory import TrajectoryWriter
     work = Path(a.work)
     run = work / "run"
     run.mkdir(parents=True, exist_ok=True)

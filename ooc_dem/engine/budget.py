@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..state import bytes_per_disc
+from ..model.state import bytes_per_disc
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,7 @@ def fmt_bytes(n: float) -> str:
 
 def parse_memory(text: str) -> int:
     """A memory size from the command line: '2GB', '1.5G', '512MiB', '300MB', '2e9' (bytes)."""
-    from ..memlimit import parse_size
+    from .memlimit import parse_size
     return parse_size(text)
 
 

@@ -1,6 +1,6 @@
 """The one interface of the three engines (monolithic, serial DDM, out-of-core).
 
-The run loop (``engine/run.py``, ``Simulation``) drives an engine through these members
+The run loop (``app/run.py``, ``Simulation``) drives an engine through these members
 only; it never asks which class it holds. An engine is given what it needs when it is
 made (scenario, model, options, the store, callbacks) and never reaches back into the
 simulation that made it.
@@ -11,7 +11,7 @@ from typing import Callable, Iterable, Iterator, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..state import Particles
+from ..model.state import Particles
 
 
 @runtime_checkable

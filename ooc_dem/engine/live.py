@@ -30,13 +30,13 @@ import numpy as np
 from numba import njit, prange
 from numba.typed import List
 
-from ..decomposition import group_order
+from ..model.decomposition import group_order
 from ..physics import layout as L
 from ..physics.forces import (ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, ROLE_STABLE,
                               sync_history_serial)
 from ..physics.layout import AX_X, ERR_BODY_CAPACITY, ERR_PAIR_CAPACITY, WHEEL_RECORD, record
 from ..physics.twins import serial_twin
-from ..state import Particles
+from ..model.state import Particles
 from .stepper import N_REC, DomainStepper, EngineError, Model
 
 

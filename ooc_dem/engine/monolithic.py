@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checkpoint import particles_to_record
+from ..model.checkpoint import particles_to_record
 from ..physics.layout import AX_X
-from ..state import Particles
+from ..model.state import Particles
 from .interface import write_epoch
 from .stepper import DomainStepper, Model
 

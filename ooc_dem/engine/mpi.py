@@ -55,14 +55,14 @@ import time
 import numpy as np
 from numba import njit
 
-from ..checkpoint import record_to_particles
-from ..decomposition import XHistogram, owner, wheel_slab_index, wheel_slab_ok
+from ..model.checkpoint import record_to_particles
+from ..model.decomposition import XHistogram, owner, wheel_slab_index, wheel_slab_ok
 from ..physics.layout import AX_X, WS_SIZE, WS_X
-from ..state import Particles, fields
+from ..model.state import Particles, fields
 from .interface import write_epoch
 from .live import SWEEPS_REBUILD, LiveDomains
 from .stepper import N_REC, EngineError, Model
-from ..checkpoint import open_epoch
+from ..model.checkpoint import open_epoch
 from .sweep import OocEngine, slab_bounds
 
 # the environment a launcher gives each process: (world size, rank) variable names
@@ -476,7 +476,7 @@ class MpiEngine:
         try:
             if reader is None and mine:
                 from ooc_dem.storage import open_store
-                from ..checkpoint import open_epoch
+                from ..model.checkpoint import open_epoch
                 store = open_store(path, repair=False)
                 reader = open_epoch(store, step, verify=False)
             parts = [record_to_particles(reader.read_domain(d), m.hist_cap) for d in mine]
@@ -822,7 +822,7 @@ def receive_command(comm):
 
 def worker_loop(comm) -> None:
     """Ranks other than 0: run rank 0's commands until it says stop."""
-    from ..scenario import scenario_from_toml
+    from ..model.scenario import scenario_from_toml
     eng = None
     while True:
         name, args = receive_command(comm)

@@ -31,7 +31,7 @@ from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFL
                               WG_R, WG_SIZE, WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD,
                               WHEEL_STATE, WS_SIZE, ZN, ZR, ZT, Bodies, Forces, KernelParams,
                               Pairs, discs_of, record, spin_width)
-from ..state import Particles, default_hist_cap
+from ..model.state import Particles, default_hist_cap
 
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
 PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
@@ -94,7 +94,7 @@ class Model:
         pair, the box of floor, end walls and side walls (z = 0, bin.width), and the wheel
         (the 2D records; its width and lateral centre z0 span the rim and the lugs)."""
         from ..physics.d3 import layout as L3
-        from ..scenario import contact_table_3d
+        from ..model.scenario import contact_table_3d
         table = contact_table_3d(sc)
         cp = np.ascontiguousarray(table).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES,
                                                                   L3.N_FIELDS).copy()

@@ -21,13 +21,13 @@ from typing import Callable
 
 import numpy as np
 
-from ..checkpoint import (open_epoch, particles_to_record, record_rows, record_to_particles,
+from ..model.checkpoint import (open_epoch, particles_to_record, record_rows, record_to_particles,
                           records_to_particles)
-from ..decomposition import (XHistogram, equal_bounds, group_order, owner, summary_ok, wheel_bounds,
+from ..model.decomposition import (XHistogram, equal_bounds, group_order, owner, summary_ok, wheel_bounds,
                              wheel_slab_index, wheel_slab_ok, x_summary)
 from ..physics.layout import AX_X, WS_X
-from ..state import DISC_FIELDS, HIST_FIELDS
-from ..state import Particles
+from ..model.state import DISC_FIELDS, HIST_FIELDS
+from ..model.state import Particles
 from .interface import write_epoch
 from .live import SWEEPS_REBUILD, LiveDomains, sweeps_kernel
 from .stepper import N_REC, DomainStepper, EngineError, Model

@@ -44,7 +44,7 @@ On-disk layout
   bytes-fit-in-files check allows a compressed epoch at most 64x its files' bytes.
 * ``format_version``: this code writes 2 and reads 1 and 2. The package never interprets
   array names; the version (``EpochReader.format_version``: the epoch entry's, else the
-  manifest's) tells the application how to read them (ooc_dem.checkpoint.open_epoch reads
+  manifest's) tells the application how to read them (ooc_dem.model.checkpoint.open_epoch reads
   a version-1 epoch's 2D component arrays as version 2). A commit into a version-1 store
   moves the manifest to version 2 and stamps the older entries with their version.
 * Paths in the manifest are relative to STORE and use "/". "files" lists the HDF5

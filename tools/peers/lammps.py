@@ -280,7 +280,7 @@ def overrides_3d(law: str) -> list[str]:
     """Scenario overrides of bed3d that make both contact pairs use ``law`` with bed3d's own
     values (linear: the soil-wall parameters; hertz: the soil's E, nu, restitution), rolling
     resistance off on both pairs (module doc)."""
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     base = load_scenario("bed3d")
     ss, sw = base.contact.soil_soil, base.contact.soil_wall
     ov = [f"contact.{p}.{k}=0" for p in ("soil_soil", "soil_wall")
@@ -384,7 +384,7 @@ def map_law_3d(sc, info: dict) -> dict:
     """LAMMPS ``granular`` coefficients of the kernel's soil-soil and soil-wall records
     (scenario.contact_table_3d), mapped exactly per contact (module doc)."""
     from ooc_dem.physics.d3 import layout as L3
-    from ooc_dem.scenario import contact_table_3d
+    from ooc_dem.model.scenario import contact_table_3d
     cp = contact_table_3d(sc)
     out = {}
     for name, (ta, tb), pair, where in (
@@ -700,8 +700,8 @@ def export_case(sc, bed, info: dict, outdir: Path, warmup: int, steps: int, extr
 
 def export_bed(n: int, overrides: list[str], info: dict, outdir: Path, warmup: int, steps: int,
                family: str = "bed"):
-    from ooc_dem.bed import settled_bed
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.app.bed import settled_bed
+    from ooc_dem.model.scenario import load_scenario
     sc = load_scenario(f"{family}-{n}", overrides)
     t = time.time()
     bed = settled_bed(sc)
@@ -742,7 +742,7 @@ def main(argv=None):
         print(json.dumps(ours_child(a.ours, a.steps, a.threads, a.warmup, a.set, family)))
         return
     sys.path.insert(0, str(ROOT))
-    from ooc_dem.scenario import load_scenario
+    from ooc_dem.model.scenario import load_scenario
     if family == "bed3d":
         laws = [w.strip() for w in a.law.split(",") if w.strip()]
         bad = [w for w in laws if w not in LAWS_3D]

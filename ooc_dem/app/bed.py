@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .engine.stepper import DomainStepper, Model
-from .physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
-from .scenario import (MAX_STEPS, Scenario, ScenarioError, scenario_from_dict, tile_grid,
+from ..engine.stepper import DomainStepper, Model
+from ..physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
+from ..model.scenario import (MAX_STEPS, Scenario, ScenarioError, scenario_from_dict, tile_grid,
                        tile_scenario)
-from .state import Particles
+from ..model.state import Particles
 
 
 class BedError(RuntimeError):
@@ -71,7 +71,7 @@ def initial_fill(sc: Scenario) -> Particles:
 def initial_fill_3d(sc: Scenario) -> Particles:
     """Loose random fill of the 3D box: a jittered cubic grid of pitch 2.2 r_max, layer by
     layer bottom up (x fastest, then z), with a little random horizontal motion."""
-    from .physics.layout import AX_Z
+    from ..physics.layout import AX_Z
     s = sc.soil
     rng = np.random.default_rng(s.seed)
     pitch = 2.2 * s.r_max
@@ -143,7 +143,7 @@ def wheel_footprint(sc: Scenario) -> tuple[float, float] | None:
     in 2D or without a wheel (the whole bed is under the wheel's width)."""
     if sc.dim != 3 or not sc.wheel.enabled:
         return None
-    from .engine.stepper import wheel_z0
+    from ..engine.stepper import wheel_z0
     z0, half = wheel_z0(sc), 0.5 * sc.wheel.width
     return (z0 - half, z0 + half)
 
@@ -177,7 +177,7 @@ def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:
 def column_scenario(sc: Scenario) -> Scenario:
     """The scenario the repose column is settled in: the square box of side 2 column_radius
     around the column, filled with scenario.repose_fill's count of spheres."""
-    from .scenario import repose_fill
+    from ..model.scenario import repose_fill
     d = sc.to_dict()
     side = 2.0 * sc.repose.column_radius
     d["bin"]["length"] = d["bin"]["width"] = side
@@ -194,8 +194,8 @@ def settled_column(sc: Scenario, progress=None) -> Particles:
     those the soil.n lowest, ids renumbered 0..n-1 in their old order (so every history
     stays sorted by partner id). Contacts with the box's four side walls are dropped (those
     walls are gone), as are contacts with cut spheres; the floor's are kept (it stays)."""
-    from .physics.d3.layout import ID_WALL_BOTTOM
-    from .physics.layout import AX_Z
+    from ..physics.d3.layout import ID_WALL_BOTTOM
+    from ..physics.layout import AX_Z
     csc = column_scenario(sc)
     col, _ = settle(csc, initial_fill(csc), progress)
     col = _zero_motion(col).sorted_by_id()
@@ -252,10 +252,10 @@ def read_bed(path, sc: Scenario, label: str) -> Particles:
     convert to the state's without loss, and the bed must pass ``check_bed``. A format-1 bed
     (x, y, vx, vy, w, hist_ft, hist_mr) is read as such and converted. Anything else raises
     StateError, one line starting with ``label`` and the file."""
-    from .checkpoint import StateError, check_bed
-    from .npzfile import npz_member_names, read_npz_members
-    from .scenario import MAX_HIST_CAP
-    from .state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
+    from ..model.checkpoint import StateError, check_bed
+    from ..storage.npzfile import npz_member_names, read_npz_members
+    from ..model.scenario import MAX_HIST_CAP
+    from ..model.state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
     where = f"{label} {path}"
     dtypes = dict(FIELD_DTYPES)
     want = {}
@@ -291,7 +291,7 @@ def _cached(sc: Scenario, build, progress=None) -> Particles:
     # loads: Particles converts it (state.upgrade_v1)
     beds = cache_dir() / "beds"
     path = beds / f"{sc.bed_hash()}.v2.npz"
-    from .checkpoint import StateError
+    from ..model.checkpoint import StateError
     for f in (path, beds / f"{sc.bed_hash()}.npz"):
         if f.is_file():
             try:
@@ -375,7 +375,7 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
 def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, right_inner: bool,
                    tile_len: float) -> Particles:
     """One tile copy at offset 0 with tile-local ids (shifted per copy by the caller)."""
-    from .physics.forces import ID_WALL_LEFT, ID_WALL_RIGHT
+    from ..physics.forces import ID_WALL_LEFT, ID_WALL_RIGHT
     q = tile.take(np.flatnonzero(keep))
     if mirrored:
         # a reflection in x: x -> L - x, vx -> -vx, and (2D) the spin about z reverses
@@ -414,9 +414,9 @@ def _tiled_bed_parts_3d(sc: Scenario, progress, use_cache: bool, tiles_per_part:
     """tiled_bed_parts in 3D: tile columns along x (each ``bed.tiles_across`` tiles across z),
     a few columns at a time, in x order. Tile (kx, kz) is number k = kx * nz + kz, mirrored
     in x when kx is odd and in z when kz is odd; sphere ids are k * n_tile + the tile's id."""
-    from .physics.d3.layout import (ID_WALL_BACK, ID_WALL_FRONT, ID_WALL_LEFT,
+    from ..physics.d3.layout import (ID_WALL_BACK, ID_WALL_FRONT, ID_WALL_LEFT,
                                     ID_WALL_RIGHT)
-    from .physics.layout import AX_Z
+    from ..physics.layout import AX_Z
     tsc = tile_scenario(sc)
     tile = settled_bed(tsc, progress, use_cache).sorted_by_id()
     n_tile = len(tile)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, axes,  # noqa: F401
+from ..physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, axes,  # noqa: F401
                              hist_widths, spin_width)
 
 # default contact-history capacity C per dimension (the model's ``hist_cap``; scenario key
@@ -230,7 +230,7 @@ class Particles:
 
 
 def state_hash(p: Particles, wheel: np.ndarray | None, step: int) -> str:
-    """The canonical state hash (``ooc_dem.statehash``: a multiset hash of per-disc digests)."""
+    """The canonical state hash (``ooc_dem.model.statehash``: a multiset hash of per-disc digests)."""
     from .statehash import hash_records
     used = np.arange(p.hist_cap)[None, :] < p.hist_n[:, None]
     rec = {k: getattr(p, k) for k in DISC_FIELDS}

@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_replacing
-from .physics.layout import AX_X, AX_Y, AX_Z
+from ..storage.atomic import write_replacing
+from ..physics.layout import AX_X, AX_Y, AX_Z
 
 REPOSE_FIGURE = "repose.png"
 MIN_FLANK_BINS = 3       # bins a sector's flank needs for a line fit

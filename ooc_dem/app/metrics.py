@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .engine.stepper import (REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y, REC_DB)
+from ..engine.stepper import (REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y, REC_DB)
 
 SERIES_COLUMNS = ("t", "t_travel", "x", "y", "vx", "omega", "slip", "net_traction",
                   "vertical_force", "torque", "gross_traction", "sinkage", "drawbar")

@@ -76,8 +76,8 @@ class RssSampler(threading.Thread):
 def _warm_up(mode: str, backend: str, tmp: Path, dim: int = 2) -> None:
     """Run a tiny bed (of the measured run's dimension) through the same code path so every
     kernel is compiled or loaded."""
-    from .engine.run import RunOptions, Simulation
-    from .scenario import load_scenario
+    from .run import RunOptions, Simulation
+    from ..model.scenario import load_scenario
     if dim == 3:
         sc = load_scenario("bed3d", ["soil.n=300", "bed.tile=0", "decomposition.policy=equal"])
     else:
@@ -93,9 +93,9 @@ def child(args) -> dict:
     """One mode, measured in this (fresh) process."""
     import shutil
     import tempfile
-    from .engine.run import RunOptions, Simulation
-    from .scenario import load_scenario
-    from .state import BYTES_PER_DISC, bytes_per_disc
+    from .run import RunOptions, Simulation
+    from ..model.scenario import load_scenario
+    from ..model.state import BYTES_PER_DISC, bytes_per_disc
     t_import = rss_bytes()
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -161,7 +161,7 @@ def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains
               memory_limit: int | None = None) -> dict:
     """One mode in a fresh subprocess; with ``memory_limit`` (bytes) under a hard limit (a memory
     cgroup made for it, memlimit.py), its RSS and the cgroup's usage sampled over the whole run."""
-    cmd = [sys.executable, "-m", "ooc_dem.profiling", "--child", scenario, "--mode", mode,
+    cmd = [sys.executable, "-m", "ooc_dem.app.profiling", "--child", scenario, "--mode", mode,
            "--backend", backend, "--steps", str(steps), "--work", str(work), "--interval", str(interval)]
     for s in overrides:
         cmd += ["--set", s]
@@ -180,7 +180,7 @@ def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains
             last = (cp.stderr.strip().splitlines() or ["(no output)"])[-1]
             raise RuntimeError(f"profiling child for mode {mode} failed: {last}")
         return json.loads(cp.stdout.strip().splitlines()[-1])
-    from .memlimit import run_limited
+    from ..engine.memlimit import run_limited
     lim = run_limited(cmd, memory_limit, env=env, interval=min(interval, 0.1))
     limited = {**lim.as_dict(), "limit_rss_series": lim.samples}
     if lim.oom_killed:

@@ -11,7 +11,7 @@ its initial layer. These functions compute what such figures need:
   grid over the initial positions (Lagrangian: a cell holds the discs that
   *started* in it), for quiver plots.
 
-No plotting here; see ``ooc_dem.plots``.
+No plotting here; see ``ooc_dem.app.plots``.
 """
 from __future__ import annotations
 

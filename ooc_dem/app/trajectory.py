@@ -39,8 +39,8 @@ import numpy as np
 
 from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
 
-from .atomic import new_temp
-from .physics.layout import WS_SIZE, axes, spin_width
+from ..storage.atomic import new_temp
+from ..physics.layout import WS_SIZE, axes, spin_width
 from .plots import RunFileError, _one_line, run_file
 
 TRAJECTORY_DIR = "trajectory"

@@ -224,7 +224,7 @@ class Scenario:
     @property
     def gravity_vector(self) -> tuple[float, ...]:
         """Gravity as a dim-vector along -y (physics.layout.AX_Y)."""
-        from .physics.layout import AX_Y
+        from ..physics.layout import AX_Y
         g = [0.0] * self.dim
         g[AX_Y] = -self.physics.gravity
         return tuple(g)
@@ -676,7 +676,7 @@ def contact_params_3d(pair: ContactPair) -> tuple:
     """The 3D kernels' CONTACT_PARAMS tuple of a scenario contact section (physics.d3.layout):
     linear with the 2D keys, or Hertz-Mindlin with both surfaces of youngs_modulus and
     poisson_ratio, damping from restitution."""
-    from .physics.d3 import layout as L3
+    from ..physics.d3 import layout as L3
     if pair.law == "hertz":
         return L3.hertz_params(pair.youngs_modulus, pair.poisson_ratio, pair.restitution,
                                mu=pair.friction, mur=pair.rolling_friction, zr=pair.rolling_damping,
@@ -687,7 +687,7 @@ def contact_params_3d(pair: ContactPair) -> tuple:
 
 def contact_table_3d(sc: Scenario):
     """CONTACT_PARAMS table [type_a, type_b] of a 3D scenario (soil-soil, soil-wall, soil-wheel)."""
-    from .physics.d3 import layout as L3
+    from ..physics.d3 import layout as L3
     c = sc.contact
     return L3.contact_table({(L3.T_SOIL, L3.T_SOIL): contact_params_3d(c.soil_soil),
                              (L3.T_WALL, L3.T_SOIL): contact_params_3d(c.soil_wall),
@@ -700,8 +700,8 @@ def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
     named is the stiffness of the pair and mode that sets it."""
     import warnings
 
-    from .physics.d3 import layout as L3
-    from .physics.d3.timestep import critical_dt
+    from ..physics.d3 import layout as L3
+    from ..physics.d3.timestep import critical_dt
     s = sc.soil
     cp = contact_table_3d(sc)
     worst, which = math.inf, "none"

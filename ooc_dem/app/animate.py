@@ -39,7 +39,7 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
     """Render the run's trajectory to ``out`` (.mp4 or .gif; default ``default_out``).
     Returns (the file, the number of frames)."""
     from .export import ExportError, check_targets
-    from .fields import layer_index
+    from ..model.fields import layer_index
     from .plots import _n_layers, _pyplot
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else default_out(run_dir)

@@ -12,7 +12,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .atomic import write_replacing
+from ..storage.atomic import write_replacing
 
 
 def run_summary(*, scenario: str, scenario_hash: str, mode: str, backend: str, steps: int,

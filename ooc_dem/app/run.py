@@ -14,19 +14,19 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..bed import settled_bed, surface_height, wheel_footprint
-from ..checkpoint import FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, read_all_particles
+from .bed import settled_bed, surface_height, wheel_footprint
+from ..model.checkpoint import FORMAT_VERSION, SUPPORTED_VERSIONS, open_epoch, read_all_particles
 from ..physics.layout import REC_X, WS_SIZE, WS_X, WS_Y
-from ..scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, big, critical_time_step, show,
+from ..model.scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, big, critical_time_step, show,
                         steps_for_duration)
-from ..metrics import N_SERIES
-from ..outputs import complete_outputs, run_summary, write_outputs
+from .metrics import N_SERIES
+from .outputs import complete_outputs, run_summary, write_outputs
 from ..physics.layout import AX_X, AX_Y, AX_Z
-from ..state import Particles
-from . import budget
-from .interface import Engine
-from .monolithic import MonolithicEngine
-from .stepper import EngineError, Model
+from ..model.state import Particles
+from ..engine import budget
+from ..engine.interface import Engine
+from ..engine.monolithic import MonolithicEngine
+from ..engine.stepper import EngineError, Model
 
 MODES = ("monolithic", "ddm", "ooc", "mpi", "mpi-ooc")
 # the out-of-core modes: one slab and its halo resident (mpi-ooc: on each rank)
@@ -63,7 +63,7 @@ def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
     x, y = bed.pos[:, AX_X], bed.pos[:, AX_Y]
     under = np.abs(x - w.x0) < w.lug_tip_radius + sc.soil.r_max
     if sc.dim == 3:
-        from .stepper import wheel_z0
+        from ..engine.stepper import wheel_z0
         under &= np.abs(bed.pos[:, AX_Z] - wheel_z0(sc)) < 0.5 * w.width + sc.soil.r_max
     top = float((y[under] + bed.r[under]).max()) if under.any() else float((y + bed.r).max())
     ws[WS_X] = w.x0
@@ -143,7 +143,7 @@ def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
 
 def _block_for(sc: Scenario, opts: RunOptions, domains: int) -> int:
     """K exactly as the sweep will choose it for D sub-domains (its own rule, not a copy)."""
-    from .sweep import DdmEngine, OocEngine
+    from ..engine.sweep import DdmEngine, OocEngine
     engine = OocEngine if opts.mode in OOC_MODES else DdmEngine
     return opts.block or engine.default_block(sc, domains)
 
@@ -347,7 +347,7 @@ class Simulation:
         self.surface = 0.0
         self.wall_time = 0.0
         # trajectory frames (trajectory.py): every frame_every steps, 0 = none
-        from ..trajectory import frame_every
+        from .trajectory import frame_every
         self.frame_every = frame_every(sc)
         self.frames = None
 
@@ -402,7 +402,7 @@ class Simulation:
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:
-            from ..metrics import WheelMetrics
+            from .metrics import WheelMetrics
             self.metrics = WheelMetrics(self.sc, self.surface, self.steps)
         self.step = 0
         self.commit()
@@ -410,7 +410,7 @@ class Simulation:
 
     def _start_streamed(self) -> None:
         from ooc_dem.storage import StoreError, create_store
-        from ..bed import tiled_bed_parts
+        from .bed import tiled_bed_parts
         parts = lambda: tiled_bed_parts(self.sc, tiles_per_part=8)
         band = wheel_footprint(self.sc)
         surf = []
@@ -440,7 +440,7 @@ class Simulation:
     def _start_trajectory(self, resumed: bool = False) -> None:
         """Open the trajectory (new, or continued after the resumed step) and write the
         frame of the current step if one belongs there."""
-        from ..trajectory import TrajectoryWriter
+        from .trajectory import TrajectoryWriter
         if not self.frame_every:
             return
         if resumed:
@@ -463,7 +463,7 @@ class Simulation:
     def _write_frame(self, parts_written: bool) -> None:
         """Commit the frame of the current step; ``parts_written``: the engine wrote its parts
         already (out-of-core, through ``_frame_part_writer``)."""
-        from ..trajectory import ROW_FIELDS
+        from .trajectory import ROW_FIELDS
         t = self.step * self.sc.physics.dt
         ws = np.asarray(self.engine.wheel_state, np.float64)
         if parts_written:
@@ -475,9 +475,9 @@ class Simulation:
     def _ooc_engine_class(self):
         """Out-of-core in one process, or on MPI ranks (each streaming its own slabs)."""
         if self.opts.mode == "mpi-ooc":
-            from .mpi import MpiOocEngine
+            from ..engine.mpi import MpiOocEngine
             return MpiOocEngine
-        from .sweep import OocEngine
+        from ..engine.sweep import OocEngine
         return OocEngine
 
     def _with_io_options(self, engine):
@@ -489,10 +489,10 @@ class Simulation:
         if self.opts.mode == "monolithic":
             return MonolithicEngine(particles, ws, self.model, store=self.store)
         if self.opts.mode == "mpi":   # ranks own slab ranges (engine/mpi.py)
-            from .mpi import MpiEngine
+            from ..engine.mpi import MpiEngine
             return MpiEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
                                     block=self.plan.block, store=self.store)
-        from .sweep import DdmEngine
+        from ..engine.sweep import DdmEngine
         if self.opts.mode == "ddm":
             return DdmEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
                                     block=self.plan.block, store=self.store)
@@ -509,10 +509,10 @@ class Simulation:
             return MonolithicEngine(particles, ws, self.model, store=self.store,
                                     redecompositions=redecompositions)
         if self.opts.mode == "mpi":
-            from .mpi import MpiEngine
+            from ..engine.mpi import MpiEngine
             return MpiEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
-        from .sweep import DdmEngine
+        from ..engine.sweep import DdmEngine
         if self.opts.mode == "ddm":
             return DdmEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
@@ -610,7 +610,7 @@ class Simulation:
         (``outputs.py``: each under a temporary name, renamed when complete)."""
         results = dict(self.metrics.summary()) if self.metrics is not None else {}
         if self.sc.repose.enabled:   # the angle-of-repose test (docs/reference/repose3d.md)
-            from ..repose import heap_outputs
+            from .repose import heap_outputs
             # in id order: every mode (and the state read back) gives the same bits; the
             # figure is written before summary.json, so a summary means both are there
             p = self.engine.particles().sorted_by_id()
@@ -625,8 +625,8 @@ class Simulation:
 
     def complete_outputs(self) -> list[str]:
         """After the last commit: write whichever outputs a kill left unwritten; return their names."""
-        from ..plots import figure_files
-        from ..repose import REPOSE_FIGURE
+        from .plots import figure_files
+        from .repose import REPOSE_FIGURE
         repose = (REPOSE_FIGURE,) if self.opts.figures and self.sc.repose.enabled else ()
         figures = figure_files(self.sc) if self.opts.figures and self.metrics is not None else ()
         return complete_outputs(self.out, self.step, self.finish, series=self.metrics is not None,
@@ -636,7 +636,7 @@ class Simulation:
         return self.engine.n_discs()
 
     def state_hash(self) -> str:
-        from ..checkpoint import hash_epoch, state_bounds
+        from ..model.checkpoint import hash_epoch, state_bounds
         from ooc_dem.storage import open_store
         store = open_store(self.out, repair=False)   # read-only: this run holds the write lock
         reader = open_epoch(store)
@@ -721,7 +721,7 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
             mode: str | None = None) -> "Simulation | None":
     """resume_simulation's work on an open store (None: the run was already finished)."""
     from ooc_dem.storage import StoreError
-    from ..checkpoint import StateError, stored_layout, stored_scenario, validate_epoch
+    from ..model.checkpoint import StateError, stored_layout, stored_scenario, validate_epoch
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":
         raise RunError(f"{path}: not an ooc-dem run store")
@@ -769,7 +769,7 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
     sim.wall_time = float(attrs.get("wall_time", 0.0))
     try:
         if sc.wheel.enabled:
-            from ..metrics import WheelMetrics
+            from .metrics import WheelMetrics
             sim.metrics = WheelMetrics(sc, sim.surface, max(total, step))
             try:
                 sim.metrics.load_state(arrays)
@@ -786,7 +786,7 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
     # the trajectory continues from the resumed step: later frames dropped, this one written
     # if a kill came between the epoch's commit and the frame's
     if sim.frame_every:
-        from ..trajectory import TrajectoryError
+        from .trajectory import TrajectoryError
         try:
             sim._start_trajectory(resumed=True)
         except TrajectoryError as e:

@@ -8,8 +8,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .engine.run import RunError, RunOptions, Simulation
-from .scenario import load_scenario
+from .run import RunError, RunOptions, Simulation
+from ..model.scenario import load_scenario
 
 CSV_NAME = "drawbar_pull_slip.csv"
 

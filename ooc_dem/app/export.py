@@ -43,10 +43,10 @@ import numpy as np
 
 from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
 
-from .atomic import new_temp
-from .checkpoint import StateError, check_unique_sorted, validate_globals
-from .physics.layout import AXIS_NAMES, WS_NAMES, axes, spin_width
-from .state import FIELD_DTYPES
+from ..storage.atomic import new_temp
+from ..model.checkpoint import StateError, check_unique_sorted, validate_globals
+from ..physics.layout import AXIS_NAMES, WS_NAMES, axes, spin_width
+from ..model.state import FIELD_DTYPES
 
 STORE_MANIFEST = "MANIFEST.json"   # its presence marks a directory as an ooc-dem store
 

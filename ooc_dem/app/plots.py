@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_replacing
+from ..storage.atomic import write_replacing
 
-from .fields import displacements, gridded_displacement, layer_index
-from .physics.layout import AX_X, AX_Y, AX_Z, WS_THETA, WS_X, WS_Y
+from ..model.fields import displacements, gridded_displacement, layer_index
+from ..physics.layout import AX_X, AX_Y, AX_Z, WS_THETA, WS_X, WS_Y
 
 LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
 DPI = 150
@@ -200,7 +200,7 @@ def read_initial(path, n: int | None = None, sc=None) -> tuple:
     written, sizes read from its headers before anything is allocated (``n``: the run's disc
     count when known), distinct ids, finite positions, radii > 0 and a surface above the
     floor, within the scenario's bin (``sc``) or MAX_INITIAL_COORD."""
-    from .npzfile import read_npz_members
+    from ..storage.npzfile import read_npz_members
     want = {"id": ((), "iu"), "x": ((), "iuf"), "y": ((), "iuf"), "r": ((), "iuf"), "surface": (None, "iuf")}
     a = read_npz_members(path, want, n, RunFileError)
     if len(a["id"]) != len(a["x"]) or len(a["y"]) != len(a["x"]) or len(a["r"]) != len(a["x"]):
@@ -233,7 +233,7 @@ def _load_scenario(out: Path):
     f = run_file(out, "scenario.toml")
     if f is None:
         return None
-    from .scenario import ScenarioError, scenario_from_toml
+    from ..model.scenario import ScenarioError, scenario_from_toml
     if f.stat().st_size > MAX_SCENARIO_BYTES:
         raise RunFileError(f"{f}: too large for a scenario")
     try:
@@ -263,7 +263,7 @@ def _read_final(out: Path):
 def _read_final_particles(out: Path):
     """(Particles, wheel_state) of the last committed epoch of the run's store."""
     from ooc_dem.storage import open_store
-    from .checkpoint import read_epoch_particles
+    from ..model.checkpoint import read_epoch_particles
     store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
     try:
         p, arrays, _ = read_epoch_particles(store, str(out))
@@ -591,7 +591,7 @@ def make_figures(out_dir, final=None) -> list[Path]:
 def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
     """The 3D views of a run (module doc). init: (id, x, y, r, surface) and z of the
     initial bed; final_p: the final Particles."""
-    from .engine.stepper import wheel_z0
+    from ..engine.stepper import wheel_z0
     from .views3d import (LATERAL_FIGURE, MIDWIDTH_FIGURE, RUT_FIGURE, WHEEL_MESH, _grid, _match,
                           lateral_map, surface_map, write_wheel_vtk)
     out = Path(out)
@@ -641,7 +641,7 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
 
 def _initial_z(path, n: int):
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
-    from .npzfile import npz_member_names, read_npz_members
+    from ..storage.npzfile import npz_member_names, read_npz_members
     if "z" not in npz_member_names(path, RunFileError):
         return None
     a = read_npz_members(path, {"z": ((), "iuf")}, n, RunFileError)["z"]

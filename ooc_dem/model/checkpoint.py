@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .physics.layout import AX_X, WS_SIZE
+from ..physics.layout import AX_X, WS_SIZE
 from . import statehash
 from .decomposition import x_summary
 from .scenario import show
@@ -44,9 +44,9 @@ _POSITIVE_FIELDS = ("r", "mass", "inertia")
 def material_count(dim: int) -> int:
     """The materials a disc may name: the rows of the contact table (``Model.cp``)."""
     if dim == 3:
-        from .physics.d3.layout import N_TYPES
+        from ..physics.d3.layout import N_TYPES
         return N_TYPES
-    from .physics.layout import N_TYPES
+    from ..physics.layout import N_TYPES
     return N_TYPES
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .physics.layout import WS_THETA, WS_X, WS_Y
+from ..physics.layout import WS_THETA, WS_X, WS_Y
 
 MIDWIDTH_FIGURE = "deformation_midwidth.png"
 RUT_FIGURE = "rut.png"
@@ -33,7 +33,7 @@ def wheel_mesh(sc, ws, segments: int = RIM_SEGMENTS) -> tuple[np.ndarray, list[l
     cylinder (segments quads, two end-cap polygons) and each lug as a closed box from R to
     the lug tip, lug_thickness thick, across the wheel's width (the plates the kernels use,
     without their rounded edges)."""
-    from .engine.stepper import wheel_z0
+    from ..engine.stepper import wheel_z0
     w = sc.wheel
     X, Y, th = float(ws[WS_X]), float(ws[WS_Y]), float(ws[WS_THETA])
     z0 = wheel_z0(sc)
@@ -68,7 +68,7 @@ def wheel_mesh(sc, ws, segments: int = RIM_SEGMENTS) -> tuple[np.ndarray, list[l
 
 def write_wheel_vtk(path, sc, ws) -> Path:
     """The wheel mesh (``wheel_mesh``) as a legacy ASCII VTK polydata file (atomic)."""
-    from .atomic import write_replacing
+    from ..storage.atomic import write_replacing
     pts, polys = wheel_mesh(sc, ws)
     lines = ["# vtk DataFile Version 3.0", f"ooc-dem wheel of {sc.name}", "ASCII",
              "DATASET POLYDATA", f"POINTS {len(pts)} double"]

@@ -136,6 +136,19 @@ class Particles:
     (``fields(dim, cap)``); D and C are read from the arrays given."""
 
     __slots__ = ALL_FIELDS
+    # the fields, declared for readers and type checkers (the slots above make them)
+    id: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    spin: np.ndarray
+    r: np.ndarray
+    mass: np.ndarray
+    inertia: np.ndarray
+    mat: np.ndarray
+    hist_n: np.ndarray
+    hist_id: np.ndarray
+    hist_s: np.ndarray
+    hist_m: np.ndarray
 
     def __init__(self, **arrays):
         arrays = upgrade_v1(arrays)

@@ -24,6 +24,7 @@ import contextlib
 import os
 import re
 import stat
+from collections.abc import Iterable
 
 from ._util import EPOCH_DIR, StoreError, new_digest
 
@@ -38,7 +39,7 @@ _OPEN_FLAGS = (os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBL
                | getattr(os, "O_CLOEXEC", 0))
 
 
-def _short(v) -> str:
+def _short(v: object) -> str:
     """A value from a store as a message may show it: short, and never an int-to-decimal
     conversion past Python's digit limit (which raises)."""
     if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 200:
@@ -47,8 +48,8 @@ def _short(v) -> str:
     return r if len(r) <= 80 else r[:77] + "..."
 
 
-def rel_parts(value, what: str) -> list[str]:
-    """The parts of a relative "/"-separated path read from a store, or StoreError."""
+def rel_path(value: object, what: str) -> str:
+    """A relative "/"-separated path read from a store, checked, or StoreError."""
     if not isinstance(value, str):
         raise StoreError(f"{what}: path must be a string, got {type(value).__name__}")
     if not value or "\0" in value or value.startswith("/"):
@@ -59,15 +60,21 @@ def rel_parts(value, what: str) -> list[str]:
             raise StoreError(f"{what}: path {_short(value)} has a forbidden part {_short(p)} "
                              f"(parts are non-empty names of letters, digits and _ . + -, "
                              f"not . or ..)")
-    return parts
+    return value
 
 
-def epoch_path(value, exts, step: int, what: str, part: int | None = None) -> str:
+def rel_parts(value: object, what: str) -> list[str]:
+    """The parts of a relative "/"-separated path read from a store, or StoreError."""
+    return rel_path(value, what).split("/")
+
+
+def epoch_path(value: object, exts: str | Iterable[str], step: int, what: str, part: int | None = None) -> str:
     """Check an epoch path: exactly "epochs/<name>", <name> an epoch name with one of the
     extensions `exts` (a str or a tuple of them) for `step`; of part `part` of an epoch
     (its ".p<part>"), or of an epoch's main file (no part) when `part` is None."""
     exts = (exts,) if isinstance(exts, str) else tuple(exts)
-    parts = rel_parts(value, what)
+    path = rel_path(value, what)
+    parts = path.split("/")
     name = parts[-1]
     m = _EPOCH_NAME_RE.match(name)
     if len(parts) != 2 or parts[0] != EPOCH_DIR or m is None or m.group(4) not in exts:
@@ -79,17 +86,17 @@ def epoch_path(value, exts, step: int, what: str, part: int | None = None) -> st
     if got != part:
         raise StoreError(f"{what}: path {_short(value)} is "
                          + (f"not part {part} of its epoch" if part is not None else "a part, not an epoch"))
-    return value
+    return path
 
 
-def file_path(value, epoch: str, inside: bool, what: str) -> str:
+def file_path(value: object, epoch: str, inside: bool, what: str) -> str:
     """Check a file entry of epoch `epoch`: strictly below it (inside=True) or the epoch itself."""
-    rel_parts(value, what)
-    if inside and not value.startswith(epoch + "/"):
-        raise StoreError(f"{what}: file {_short(value)} is not inside its epoch {epoch}")
-    if not inside and value != epoch:
-        raise StoreError(f"{what}: file {_short(value)} is not the epoch file {epoch}")
-    return value
+    path = rel_path(value, what)
+    if inside and not path.startswith(epoch + "/"):
+        raise StoreError(f"{what}: file {_short(path)} is not inside its epoch {epoch}")
+    if not inside and path != epoch:
+        raise StoreError(f"{what}: file {_short(path)} is not the epoch file {epoch}")
+    return path
 
 
 class Resolver:

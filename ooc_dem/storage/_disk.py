@@ -8,30 +8,33 @@ from __future__ import annotations
 
 import os
 import stat
+from typing import Literal
 
 from . import _hdf5, _zarr, _zarr_zip
 from ._confine import Resolver, digest_regular, read_regular
 from ._util import (EPOCH_DIR, EPOCH_NAME_RE, FORMAT, LOCK_FILE, MANIFEST, MANIFEST_TMP,
-                    MAX_MANIFEST_BYTES, TMP_NAME_RE, StoreError, drop_page_cache, file_checksum,
-                    file_entries, fsync_path, parse_json, remove_path, to_json, write_error)
+                    MAX_MANIFEST_BYTES, TMP_NAME_RE, EpochFormat, FormatReader, FormatWriter, JSONObject,
+                    StoreError, drop_page_cache, file_checksum, file_entries, fsync_path, parse_json,
+                    remove_path, to_json, write_error)
 
 # what each backend writes, and every epoch format it reads (by the epoch name's extension):
 # zarr epochs were directories before (``_zarr``, ~20 files and directories per group),
 # one zip archive per epoch since (``_zarr_zip``); both are read
-FORMATS = {"hdf5": _hdf5, "zarr": _zarr_zip}
-READ_FORMATS = {"hdf5": {_hdf5.EXT: _hdf5}, "zarr": {_zarr_zip.EXT: _zarr_zip, _zarr.EXT: _zarr}}
+FORMATS: dict[str, EpochFormat] = {"hdf5": _hdf5, "zarr": _zarr_zip}
+READ_FORMATS: dict[str, dict[str, EpochFormat]] = {"hdf5": {_hdf5.EXT: _hdf5},
+                                                   "zarr": {_zarr_zip.EXT: _zarr_zip, _zarr.EXT: _zarr}}
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 
 
 class ManifestUnreadable(StoreError):
     """MANIFEST.json is missing, not a regular file, too big or not valid JSON."""
 
-    def __init__(self, mpath: str, reason: str):
+    def __init__(self, mpath: str, reason: str) -> None:
         self.reason = reason
         super().__init__(f"{mpath}: MANIFEST.json missing or unreadable ({reason})")
 
 
-def read_manifest_file(mpath: str):
+def read_manifest_file(mpath: str) -> object:
     """The parsed JSON of a MANIFEST.json: a regular file of at most MAX_MANIFEST_BYTES."""
     try:
         return parse_json(read_regular(mpath, MAX_MANIFEST_BYTES), mpath)
@@ -90,7 +93,8 @@ def wipe(root: str) -> None:
 def _walk_epoch(base: str) -> tuple[dict[str, str], list[str]]:
     """Regular files under an epoch directory (rel "/"-path -> path) and problems (symbolic
     links, other special files), without following any symbolic link."""
-    files, problems = {}, []
+    files: dict[str, str] = {}
+    problems: list[str] = []
     stack = [("", base)]
     while stack:
         rel, d = stack.pop()
@@ -114,9 +118,9 @@ def _walk_epoch(base: str) -> tuple[dict[str, str], list[str]]:
 
 
 class Place:
-    is_memory = False
+    is_memory: Literal[False] = False
 
-    def __init__(self, root: str, backend: str):
+    def __init__(self, root: str, backend: str) -> None:
         self.root = root
         self.backend = backend
         self.fmt = FORMATS[backend]
@@ -126,10 +130,10 @@ class Place:
         self.resolver = Resolver(root)
 
     # ------------------------------------------------------------------ manifest
-    def read_manifest(self):
+    def read_manifest(self) -> object:
         return read_manifest_file(self.mpath)
 
-    def write_manifest(self, m: dict, durable: bool = False) -> None:
+    def write_manifest(self, m: JSONObject, durable: bool = False) -> None:
         data = to_json(m, f"{self.mpath}: manifest", indent=1).encode()
         tmp = os.path.join(self.root, MANIFEST_TMP)
         try:
@@ -152,17 +156,17 @@ class Place:
     def tmp_name(self, basename: str) -> str:
         return os.path.join(self.edir, f"{basename}.tmp-{os.getpid()}")
 
-    def fmt_of(self, path: str):
+    def fmt_of(self, path: str) -> EpochFormat:
         """The format module of an epoch (by its name's extension; the writer's if unknown)."""
         return self._read_fmts.get(path.rpartition(".")[2], self.fmt)
 
-    def new_writer(self, step: int, basename: str, compression=None):
+    def new_writer(self, step: int, basename: str, compression: str | None = None) -> FormatWriter:
         tmp = self.tmp_name(basename)
         remove_path(tmp)                         # leftover of an earlier process with our pid
         os.makedirs(self.edir, exist_ok=True)
         return self.fmt.Writer(tmp, step, compression)
 
-    def publish(self, writer, basename: str, durable: bool) -> tuple[str, list[dict]]:
+    def publish(self, writer: FormatWriter, basename: str, durable: bool) -> tuple[str, list[JSONObject]]:
         """Finish the temporary epoch, rename it into place; return (rel path, file list)."""
         tmp = self.tmp_name(basename)
         try:
@@ -196,13 +200,13 @@ class Place:
             remove_path(tmp)
             raise write_error(final, e) from e
 
-    def _epoch(self, entry) -> str:
+    def _epoch(self, entry: JSONObject) -> str:
         return self.resolver.path(entry["path"], f"{self.root}: epoch {entry['step']}")
 
-    def exists(self, entry) -> bool:
+    def exists(self, entry: JSONObject) -> bool:
         return os.path.lexists(self._epoch(entry))
 
-    def remove_epoch(self, entry) -> None:
+    def remove_epoch(self, entry: JSONObject) -> None:
         """Delete an epoch the manifest named: a direct child of the real epochs/ directory
         (checked again here, just before deleting; a symbolic link is unlinked, not followed)."""
         self.resolver.check_epoch_dir()
@@ -225,14 +229,14 @@ class Place:
             return f"{base}: not a regular file"
         return None
 
-    def open_reader(self, entry):
+    def open_reader(self, entry: JSONObject) -> FormatReader:
         base = self._epoch(entry)
         bad = self._check_epoch_kind(base)
         if bad:
             raise StoreError(bad)
         return self.fmt_of(base).Reader(base)
 
-    def size_problems(self, entry) -> list[str]:
+    def size_problems(self, entry: JSONObject) -> list[str]:
         """Missing, special or wrong-sized files of an epoch (metadata only, no data read)."""
         base = self._epoch(entry)
         bad = self._check_epoch_kind(base)
@@ -256,7 +260,7 @@ class Place:
                 problems.append(f"{p}: size {st.st_size} != recorded {f['size']}")
         return problems
 
-    def check_files(self, entry) -> list[str]:
+    def check_files(self, entry: JSONObject) -> list[str]:
         """Sizes and checksums of every listed file, which must be all the epoch's files."""
         base = self._epoch(entry)
         bad = self._check_epoch_kind(base)
@@ -284,11 +288,11 @@ class Place:
         return problems
 
     # ------------------------------------------------------------------ leftovers
-    def leftovers(self, m: dict) -> list[tuple[str, int | None]]:
+    def leftovers(self, m: JSONObject) -> list[tuple[str, int | None]]:
         """(path, writer pid or None) of what an interrupted write leaves: MANIFEST.json.tmp,
         ``*.tmp-<pid>`` epochs and epoch files the manifest does not name. Only direct
         children of the real epochs/ directory with names of ours are considered."""
-        out = []
+        out: list[tuple[str, int | None]] = []
         tmp = os.path.join(self.root, MANIFEST_TMP)
         if os.path.lexists(tmp):
             out.append((tmp, None))
@@ -304,7 +308,7 @@ class Place:
                 out.append((os.path.join(self.edir, n), None))
         return out
 
-    def repair(self, m: dict) -> list[str]:
+    def repair(self, m: JSONObject) -> list[str]:
         """Delete the leftovers (the caller holds the store's write lock); return what went."""
         self.resolver.check_epoch_dir()
         removed = []

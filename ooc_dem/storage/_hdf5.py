@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+from numpy.typing import DTypeLike, NDArray
 
 from . import writeguard
-from ._util import ATTRS_KEY, FORMAT, drop_page_cache, file_digest, fsync_path, remove_path, start_writeback
+from ._util import (ATTRS_KEY, FORMAT, attrs_text, drop_page_cache, file_digest, fsync_path, remove_path,
+                    start_writeback)
+
+if TYPE_CHECKING:
+    import h5py
 
 EXT = "h5"
 IS_DIR = False
@@ -14,11 +21,12 @@ _RDCC_NBYTES = 1 << 20
 # only the chunks it touches; the chunk cache above holds one)
 CHUNK_BYTES = 1 << 20
 # name -> h5py create_dataset keywords (built-in filters only: every h5py reads them)
-FILTERS = {"gzip": {"compression": "gzip", "compression_opts": 4, "shuffle": True},
-           "lzf": {"compression": "lzf", "shuffle": True}}
+FILTERS: dict[str, dict[str, Any]] = {
+    "gzip": {"compression": "gzip", "compression_opts": 4, "shuffle": True},
+    "lzf": {"compression": "lzf", "shuffle": True}}
 
 
-def _h5py():
+def _h5py() -> Any:     # h5py: no type information
     import h5py
     return h5py
 
@@ -30,37 +38,47 @@ def _h5py():
 _MDC_BYTES = 1 << 20
 
 
-def _open(path, mode):
-    """Open `path` for reading ("r"), or create it ("w-") through a write guard: returns
-    (file, guard), guard None when reading (see writeguard: a failed write must never reach
-    HDF5, which crashes the process after one)."""
-    # no file locking (stores live on network/scratch filesystems), small chunk cache, no SWMR
-    guard = None
-    if mode == "r":
-        f = _h5py().File(path, mode, locking=False, rdcc_nbytes=_RDCC_NBYTES)
-    else:
-        f, guard = writeguard.create_h5(path, locking=False, rdcc_nbytes=_RDCC_NBYTES)
+# Files are opened with no file locking (stores live on network/scratch filesystems), a small
+# chunk cache and no SWMR.
+
+def _small_metadata_cache(f: h5py.File) -> h5py.File:
     cfg = f.id.get_mdc_config()
     cfg.set_initial_size = True
     cfg.initial_size = cfg.max_size = _MDC_BYTES
     cfg.min_size = min(cfg.min_size, _MDC_BYTES)
     f.id.set_mdc_config(cfg)
-    return f, guard
+    return f
+
+
+def _open_read(path: str) -> h5py.File:
+    return _small_metadata_cache(_h5py().File(path, "r", locking=False, rdcc_nbytes=_RDCC_NBYTES))
+
+
+def _create(path: str) -> tuple[h5py.File, writeguard.GuardedFile]:
+    """Create `path` ("w-") through a write guard (see writeguard: a failed write must never
+    reach HDF5, which crashes the process after one)."""
+    f, guard = writeguard.create_h5(path, locking=False, rdcc_nbytes=_RDCC_NBYTES)
+    return _small_metadata_cache(f), guard
 
 
 class Writer:
     """Writes one epoch into the file `path` (a temporary name, renamed by the caller)."""
 
-    def __init__(self, path: str, step: int, compression: str | None = None):
+    def __init__(self, path: str, step: int, compression: str | None = None) -> None:
         if compression is not None and compression not in FILTERS:
             raise ValueError(f"unknown HDF5 compression {compression!r}")
         self.path = path
-        self.filters = FILTERS.get(compression)
-        self.f = None
-        self.f, self._guard = _open(path, "w-")
+        self.filters = None if compression is None else FILTERS[compression]
+        self.f: h5py.File | None = None
+        self.f, self._guard = _create(path)
         self.f.attrs["ooc_dem_format"] = FORMAT
         self.f.attrs["step"] = np.int64(step)
         self.f.create_group("domains")
+
+    def _file(self) -> h5py.File:
+        if self.f is None:
+            raise ValueError(f"{self.path}: the epoch file is closed")
+        return self.f
 
     def _check_room(self, nbytes: int) -> None:
         """Refuse a group that cannot fit before writing it (an OSError, which the store
@@ -69,10 +87,11 @@ class Writer:
         need = int(nbytes) + 8192   # datasets plus headroom for HDF5 object headers
         writeguard.check_room(self.path, need, os.path.getsize(self.path) + need)
 
-    def write_group(self, group: str, arrays: dict[str, np.ndarray], attrs_json: str) -> None:
-        self.f.flush()
+    def write_group(self, group: str, arrays: dict[str, NDArray[Any]], attrs_json: str) -> None:
+        f = self._file()
+        f.flush()
         self._check_room(sum(np.asarray(a).nbytes for a in arrays.values()) + len(attrs_json))
-        g = self.f.create_group(group)
+        g = f.create_group(group)
         g.attrs[ATTRS_KEY] = attrs_json
         for name, a in arrays.items():
             if self.filters is None or a.ndim == 0 or a.size == 0:
@@ -81,7 +100,7 @@ class Writer:
             row = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
             rows = int(min(a.shape[0], max(1, CHUNK_BYTES // max(1, row))))
             g.create_dataset(name, data=a, chunks=(rows,) + a.shape[1:], **self.filters)
-        self.f.flush()
+        f.flush()
         self._guard.check()
         # written back now, dropped once the commit has read the file's checksum (finish)
         start_writeback(self.path)
@@ -106,13 +125,13 @@ class Writer:
 
 
 class Reader:
-    def __init__(self, path: str):
+    def __init__(self, path: str) -> None:
         self.path = path
-        self._objs = {}            # path -> object of one group, checked once (see _get)
-        self._objs_group = None
-        self.f = _open(path, "r")[0]
+        self._objs: dict[str, Any] = {}     # path -> object of one group, checked once (see _get)
+        self._objs_group: str | None = None
+        self.f: h5py.File | None = _open_read(path)
 
-    def _get(self, path: str):
+    def _get(self, path: str) -> Any:
         """The object at `path`, following hard links only: a soft or external link, or a
         dataset whose data lives in other files (external storage, virtual datasets), would
         make a hostile epoch file read outside the store."""
@@ -140,36 +159,35 @@ class Reader:
         self._objs[path] = obj
         return obj
 
-    def root_step(self):
+    def root_step(self) -> object:
         """The step the file's writer recorded in its root attributes (None: none)."""
+        if self.f is None:
+            raise ValueError(f"{self.path}: the epoch file is closed")
         v = self.f.attrs.get("step")
         return v.item() if isinstance(v, np.generic) else v
 
     def has_group(self, group: str) -> bool:
         return isinstance(self._get(group), _h5py().Group)
 
-    def array_info(self, group: str, name: str):
+    def array_info(self, group: str, name: str) -> tuple[tuple[int, ...], np.dtype[Any]] | None:
         obj = self._get(f"{group}/{name}")
         if not isinstance(obj, _h5py().Dataset):
             return None
         return tuple(obj.shape), obj.dtype
 
-    def attrs_json(self, group: str):
+    def attrs_json(self, group: str) -> str | None:
         g = self._get(group)
         if g is None:
             raise KeyError(f"group /{group} missing")
-        v = g.attrs.get(ATTRS_KEY)
-        if isinstance(v, bytes):
-            v = v.decode()
-        return v
+        return attrs_text(g.attrs.get(ATTRS_KEY))
 
-    def _ds(self, group, name):
+    def _ds(self, group: str, name: str) -> Any:
         obj = self._get(f"{group}/{name}")
         if not isinstance(obj, _h5py().Dataset):
             raise KeyError(f"dataset /{group}/{name} missing")
         return obj
 
-    def read_full(self, group, name, shape, dtype) -> np.ndarray:
+    def read_full(self, group: str, name: str, shape: tuple[int, ...], dtype: DTypeLike) -> NDArray[Any]:
         ds = self._ds(group, name)
         if tuple(ds.shape) != tuple(shape):
             raise ValueError(f"dataset /{group}/{name} has shape {ds.shape}, manifest says {tuple(shape)}")
@@ -180,7 +198,7 @@ class Reader:
             ds.read_direct(out)
         return out
 
-    def read_range(self, group, name, start, stop, out) -> None:
+    def read_range(self, group: str, name: str, start: int, stop: int, out: NDArray[Any]) -> None:
         if stop > start:
             self._ds(group, name).read_direct(out, np.s_[start:stop], np.s_[0:stop - start])
 

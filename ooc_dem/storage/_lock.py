@@ -88,7 +88,7 @@ class StoreLock:
         if fd is not None:
             os.close(fd)      # closing the last fd of the description drops the flock
 
-    def __del__(self):        # a Store dropped without close() must not keep the store locked
+    def __del__(self) -> None:    # a Store dropped without close() must not keep the store locked
         self.release()
 
 

@@ -9,9 +9,14 @@ import json
 import os
 import re
 import shutil
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Protocol, TypeAlias
 
 import numpy as np
+from numpy.typing import DTypeLike, NDArray
+
+if TYPE_CHECKING:
+    from _typeshed import ReadableBuffer
 
 FORMAT = "ooc-dem-store"
 FORMAT_VERSION = 2                 # written; what the arrays mean is the application's business
@@ -59,6 +64,84 @@ class StoreError(Exception):
     """Storage failure; the message names the path and what is wrong (one line)."""
 
 
+# --------------------------------------------------------------------------- types
+
+StrPath: TypeAlias = "str | os.PathLike[str]"
+# a JSON object as parsed (a manifest, an epoch entry, a file entry, a metadata document);
+# its values are whatever the JSON held: the validating code checks each before use
+JSONObject: TypeAlias = "dict[str, Any]"
+# how an array's rows were asked for, normalised (normalize_rows): all, a range, or indices
+Rows: TypeAlias = "tuple[int, int] | NDArray[np.int64] | None"
+
+
+class Digest(Protocol):
+    """A hash object of one of ``DIGESTS`` (hashlib's or xxhash's)."""
+
+    def update(self, data: ReadableBuffer, /) -> None: ...
+
+    def hexdigest(self) -> str: ...
+
+
+class GroupReader(Protocol):
+    """An open epoch of any backend, read group by group (memory, HDF5, zarr)."""
+
+    def has_group(self, group: str) -> bool: ...
+
+    def array_info(self, group: str, name: str) -> tuple[tuple[int, ...], np.dtype[Any]] | None: ...
+
+    def attrs_json(self, group: str) -> str | None: ...
+
+    def read_full(self, group: str, name: str, shape: tuple[int, ...], dtype: DTypeLike) -> NDArray[Any]: ...
+
+    def read_range(self, group: str, name: str, start: int, stop: int, out: NDArray[Any]) -> None: ...
+
+    def after_read(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class FormatReader(GroupReader, Protocol):
+    """An open epoch file (or directory) of an on-disk format."""
+
+    def root_step(self) -> object: ...
+
+
+class FormatWriter(Protocol):
+    """An epoch being written in an on-disk format, under its temporary name."""
+
+    def write_group(self, group: str, arrays: dict[str, NDArray[Any]], attrs_json: str) -> None: ...
+
+    def finish(self, durable: bool) -> list[tuple[str, int, str]]: ...
+
+    def abort(self) -> None: ...
+
+
+class EpochFormat(Protocol):
+    """An on-disk epoch format: the modules ``_hdf5``, ``_zarr_zip`` and ``_zarr``."""
+
+    @property
+    def EXT(self) -> str: ...
+
+    @property
+    def IS_DIR(self) -> bool: ...
+
+    @property
+    def Writer(self) -> Callable[[str, int, str | None], FormatWriter]: ...
+
+    @property
+    def Reader(self) -> Callable[[str], FormatReader]: ...
+
+
+def attrs_text(v: object) -> str | None:
+    """A group's attrs as its file holds them: JSON text (bytes are decoded), None if absent.
+    Anything else is refused as json.loads would refuse it."""
+    if isinstance(v, bytes):
+        v = v.decode()
+    if v is None or isinstance(v, str):
+        return v
+    raise TypeError(f"the JSON object must be str, bytes or bytearray, not {type(v).__name__}")
+
+
 def epoch_basename(step: int, ext: str, rev: int = 0) -> str:
     return f"e{step:012d}" + (f".r{rev}" if rev else "") + f".{ext}"
 
@@ -84,7 +167,7 @@ def is_disk_full(exc: BaseException) -> bool:
     return bool(_DISK_FULL_TEXT.search(str(exc)))
 
 
-def write_error(path, exc: BaseException) -> StoreError:
+def write_error(path: StrPath, exc: BaseException) -> StoreError:
     """StoreError for a failed write of `path` (disk full is named as such)."""
     detail = " ".join(str(exc).split()) or type(exc).__name__
     m = re.search(r"errno = (\d+), error message = '([^']*)'", detail)   # HDF5's verbose form
@@ -99,7 +182,7 @@ def write_error(path, exc: BaseException) -> StoreError:
 
 # --------------------------------------------------------------------------- JSON
 
-def _json_default(o):
+def _json_default(o: object) -> object:
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):
@@ -107,18 +190,18 @@ def _json_default(o):
     raise TypeError(f"object of type {type(o).__name__} is not JSON serialisable")
 
 
-def to_json(obj, what: str, indent=None) -> str:
+def to_json(obj: object, what: str, indent: int | None = None) -> str:
     try:
         return json.dumps(obj, default=_json_default, indent=indent)
     except (TypeError, ValueError) as e:
         raise StoreError(f"{what}: not JSON-serialisable ({e})") from None
 
 
-def json_roundtrip(obj, what: str):
+def json_roundtrip(obj: object, what: str) -> Any:
     return json.loads(to_json(obj, what))
 
 
-def json_depth(obj) -> int:
+def json_depth(obj: object) -> int:
     """Nesting depth of a JSON value (0 for a scalar), without recursion."""
     depth, stack = 0, [(obj, 1)]
     while stack:
@@ -131,7 +214,7 @@ def json_depth(obj) -> int:
     return depth
 
 
-def parse_json(data: bytes, what: str):
+def parse_json(data: bytes, what: str) -> object:
     """json.loads for untrusted bytes: every failure (bad syntax, bad UTF-8, nesting that
     exhausts the recursion limit, over-long integers) is a one-line StoreError."""
     try:
@@ -147,18 +230,18 @@ def parse_json(data: bytes, what: str):
 
 # --------------------------------------------------------------------------- arrays
 
-def check_array_name(name, where: str) -> str:
+def check_array_name(name: object, where: str) -> str:
     if not isinstance(name, str) or not ARRAY_NAME_RE.match(name) or name in _RESERVED_NAMES:
         raise StoreError(f"{where}: invalid array name {name!r} "
                          f"(letters, digits, _ . + -; not starting with . or -)")
     return name
 
 
-def prepare_arrays(arrays, where: str, min_ndim: int) -> dict[str, np.ndarray]:
+def prepare_arrays(arrays: object, where: str, min_ndim: int) -> dict[str, NDArray[Any]]:
     """Validate names/dtypes; return C-contiguous native-byte-order arrays."""
     if not isinstance(arrays, Mapping):
         raise StoreError(f"{where}: arrays must be a dict name -> numpy array")
-    out = {}
+    out: dict[str, NDArray[Any]] = {}
     for name, a in arrays.items():
         check_array_name(name, where)
         a = np.asarray(a)
@@ -172,11 +255,11 @@ def prepare_arrays(arrays, where: str, min_ndim: int) -> dict[str, np.ndarray]:
     return out
 
 
-def array_meta(arrays: dict[str, np.ndarray]) -> dict:
+def array_meta(arrays: dict[str, NDArray[Any]]) -> dict[str, list[Any]]:
     return {n: [list(a.shape), a.dtype.str] for n, a in arrays.items()}
 
 
-def normalize_rows(rows, n: int, where: str):
+def normalize_rows(rows: object, n: int, where: str) -> Rows:
     """None -> None; slice -> (start, stop) if step 1; otherwise a 1-D int64 index array."""
     if rows is None:
         return None
@@ -199,7 +282,8 @@ def normalize_rows(rows, n: int, where: str):
     return idx
 
 
-def gather_rows(read_range, idx: np.ndarray, shape, dtype, window_bytes: int = 1 << 20):
+def gather_rows(read_range: Callable[[int, int, NDArray[Any]], object], idx: NDArray[np.int64],
+                shape: tuple[int, ...], dtype: DTypeLike, window_bytes: int = 1 << 20) -> NDArray[Any]:
     """Read rows `idx` using read_range(start, stop, out_view) over windows of nearby rows.
 
     Only the rows spanned by each window are read (windows are at most
@@ -208,7 +292,7 @@ def gather_rows(read_range, idx: np.ndarray, shape, dtype, window_bytes: int = 1
     out = np.empty((idx.size,) + tuple(shape[1:]), dtype=dtype)
     if idx.size == 0:
         return out
-    order = None
+    order: NDArray[np.intp] | None = None
     if np.any(idx[1:] < idx[:-1]):
         order = np.argsort(idx, kind="stable")
         idx = idx[order]
@@ -216,7 +300,7 @@ def gather_rows(read_range, idx: np.ndarray, shape, dtype, window_bytes: int = 1
     max_span = max(1, window_bytes // row_bytes)
     i = 0
     m = idx.size
-    buf = None
+    buf: NDArray[Any] | None = None
     while i < m:
         start = int(idx[i])
         j = int(np.searchsorted(idx, start + max_span, side="left"))
@@ -239,7 +323,7 @@ def gather_rows(read_range, idx: np.ndarray, shape, dtype, window_bytes: int = 1
 
 # --------------------------------------------------------------------------- files
 
-def drop_page_cache(path, sync: bool = False) -> None:
+def drop_page_cache(path: StrPath, sync: bool = False) -> None:
     """Ask the kernel to drop cached pages of `path` (a file, or every file under a directory).
 
     Uses posix_fadvise(POSIX_FADV_DONTNEED); dirty pages cannot be dropped until
@@ -268,7 +352,7 @@ def drop_page_cache(path, sync: bool = False) -> None:
         os.close(fd)
 
 
-def _sync_file_range():
+def _sync_file_range() -> Callable[[int, int, int, int], int] | None:
     """libc's sync_file_range (Linux), or None."""
     import ctypes
     try:
@@ -283,7 +367,7 @@ _SYNC_FILE_RANGE = _sync_file_range()
 _SYNC_FILE_RANGE_WRITE = 2
 
 
-def start_writeback(path) -> None:
+def start_writeback(path: StrPath) -> None:
     """Start writing a file's dirty pages to disk without waiting and without dropping them
     (sync_file_range SYNC_FILE_RANGE_WRITE): dirty pages never pile up, and the file is
     still in the page cache when its checksum is read back at the commit, which then drops
@@ -302,7 +386,7 @@ def start_writeback(path) -> None:
         os.close(fd)
 
 
-def new_digest(name: str = DIGEST):
+def new_digest(name: str = DIGEST) -> Digest:
     """A fresh hash object of checksum `name` (one of ``DIGESTS``)."""
     if name == "xxh3_128":
         import xxhash
@@ -310,20 +394,20 @@ def new_digest(name: str = DIGEST):
     return hashlib.new(name)
 
 
-def bytes_digest(raw, name: str = DIGEST) -> str:
+def bytes_digest(raw: ReadableBuffer, name: str = DIGEST) -> str:
     """Hex digest `name` of bytes already in memory."""
     h = new_digest(name)
     h.update(raw)
     return h.hexdigest()
 
 
-def show(v) -> str:
+def show(v: object) -> str:
     """A value from a manifest for a one-line message (short, whatever it is)."""
     r = repr(v)
     return r if len(r) <= 60 else r[:57] + "..."
 
 
-def file_checksum(entry: Mapping, what: str) -> tuple[str, str]:
+def file_checksum(entry: Mapping[str, object], what: str) -> tuple[str, str]:
     """(digest name, hex) of a manifest file entry: exactly one of ``DIGESTS``' keys, its
     value that digest's hex length in lowercase; StoreError otherwise (hostile manifests)."""
     names = [k for k in DIGESTS if k in entry]
@@ -337,14 +421,14 @@ def file_checksum(entry: Mapping, what: str) -> tuple[str, str]:
     return name, hexv
 
 
-def file_entries(rel: str, inner) -> list[dict]:
+def file_entries(rel: str, inner: Iterable[tuple[str, int, str]]) -> list[JSONObject]:
     """Manifest file entries of an epoch at `rel` from its writer's [(relpath inside, size,
     digest)] ("" = the epoch is the file itself)."""
     return [{"path": rel if r == "" else f"{rel}/{r}", "size": size, DIGEST: digest}
             for r, size, digest in inner]
 
 
-def file_digest(path, drop_cache: bool = True, name: str = DIGEST) -> tuple[int, str]:
+def file_digest(path: StrPath, drop_cache: bool = True, name: str = DIGEST) -> tuple[int, str]:
     """(size, hex digest `name`) of a file's bytes."""
     h = new_digest(name)
     size = 0
@@ -363,7 +447,7 @@ def file_digest(path, drop_cache: bool = True, name: str = DIGEST) -> tuple[int,
     return size, h.hexdigest()
 
 
-def fsync_path(path) -> None:
+def fsync_path(path: StrPath) -> None:
     fd = os.open(os.fspath(path), os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -371,7 +455,7 @@ def fsync_path(path) -> None:
         os.close(fd)
 
 
-def fsync_tree(path) -> None:
+def fsync_tree(path: StrPath) -> None:
     """fsync every file and directory under `path` (bottom-up), then `path` itself."""
     for root, dirs, files in os.walk(path, topdown=False):
         for f in files:
@@ -379,7 +463,7 @@ def fsync_tree(path) -> None:
         fsync_path(root)
 
 
-def remove_path(path) -> None:
+def remove_path(path: StrPath) -> None:
     """Remove a file or a directory tree; missing is fine."""
     try:
         if os.path.isdir(path) and not os.path.islink(path):
@@ -390,9 +474,9 @@ def remove_path(path) -> None:
         pass
 
 
-def pread_into(fd: int, out: np.ndarray, offset: int, what: str) -> None:
+def pread_into(fd: int, out: NDArray[Any], offset: int, what: str) -> None:
     """Fill the C-contiguous array `out` with bytes read at `offset`."""
-    mv = memoryview(out.reshape(-1).view(np.uint8)) if out.size else memoryview(b"")
+    mv = out.reshape(-1).view(np.uint8).data if out.size else memoryview(b"")
     done = 0
     total = len(mv)
     while done < total:

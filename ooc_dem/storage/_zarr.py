@@ -8,23 +8,23 @@ from __future__ import annotations
 import json
 import os
 import sys
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import DTypeLike, NDArray
 
 from ._confine import open_regular, read_regular
-from ._util import (ATTRS_KEY, FORMAT, StoreError, bytes_digest, drop_page_cache, file_digest,
-                    fsync_tree, parse_json, pread_into, remove_path)
+from ._util import (ATTRS_KEY, FORMAT, JSONObject, StoreError, attrs_text, bytes_digest, drop_page_cache,
+                    file_digest, fsync_tree, parse_json, pread_into, remove_path)
+
+if TYPE_CHECKING:
+    import zarr
+    from zarr.types import AnyArray
 
 EXT = "zarr"
 IS_DIR = True
 # a zarr metadata document of ours is a few hundred bytes; bigger ones are not read
 _MAX_DOC_BYTES = 1 << 20
-
-
-def _zarr():
-    import zarr
-    from zarr.storage import LocalStore
-    return zarr, LocalStore
 
 
 def walk_files(root: str) -> list[str]:
@@ -45,7 +45,7 @@ def _array_metadata(a: np.ndarray) -> bytes:
     """The zarr v3 array metadata zarr 3.x writes for an uncompressed one-chunk array."""
     kind = a.dtype.kind
     fill = False if kind == "b" else (0.0 if kind == "f" else 0)
-    bytes_codec = {"name": "bytes"}
+    bytes_codec: JSONObject = {"name": "bytes"}
     if a.dtype.itemsize > 1:
         bytes_codec["configuration"] = {"endian": "little"}
     meta = {
@@ -64,7 +64,7 @@ def _array_metadata(a: np.ndarray) -> bytes:
     return json.dumps(meta, indent=2).encode()
 
 
-def _write_file(path: str, data: bytes, hashed: dict, rel: str) -> None:
+def _write_file(path: str, data: bytes, hashed: dict[str, tuple[int, int, str]], rel: str) -> None:
     """Write a new file; remember (size, mtime, digest) so it is not read back to be hashed."""
     with open(path, "xb") as f:
         f.write(data)
@@ -76,17 +76,17 @@ def _write_file(path: str, data: bytes, hashed: dict, rel: str) -> None:
 class Writer:
     """Writes one epoch into the directory `path` (a temporary name, renamed by the caller)."""
 
-    def __init__(self, path: str, step: int, compression: str | None = None):
+    def __init__(self, path: str, step: int, compression: str | None = None) -> None:
         if compression is not None:
             raise ValueError("the zarr directory layout is written uncompressed only")
         self.path = path
         self._hashed: dict[str, tuple[int, int, str]] = {}   # rel -> (size, mtime_ns, digest)
-        self._zgroups = None                                  # zarr handles, only for fallbacks
+        self._zgroups: zarr.Group | None = None               # zarr handles, only for fallbacks
         os.makedirs(path)                                     # a new directory, as zarr's "w-"
         self._write_group_doc("", {"ooc_dem_format": FORMAT, "step": int(step)})
         self._write_group_doc("domains", {})
 
-    def _write_group_doc(self, group: str, attributes: dict) -> None:
+    def _write_group_doc(self, group: str, attributes: JSONObject) -> None:
         """A zarr v3 group: its directory and metadata document (what zarr 3.x writes)."""
         gdir = os.path.join(self.path, *group.split("/")) if group else self.path
         if group:
@@ -98,13 +98,17 @@ class Writer:
     def _group(self, group: str, attrs_json: str) -> None:
         self._write_group_doc(group, {ATTRS_KEY: attrs_json})
 
-    def _zarr_group(self, group: str):
-        zarr, LocalStore = _zarr()
+    def _zarr_group(self, group: str) -> zarr.Group:
+        import zarr
+        from zarr.storage import LocalStore
         if self._zgroups is None:
             self._zgroups = zarr.open_group(store=LocalStore(self.path), mode="r+", zarr_format=3)
-        return self._zgroups[group]
+        node = self._zgroups[group]
+        if not isinstance(node, zarr.Group):
+            raise ValueError(f"{self.path}: {group}: not a group")
+        return node
 
-    def write_group(self, group: str, arrays: dict[str, np.ndarray], attrs_json: str) -> None:
+    def write_group(self, group: str, arrays: dict[str, NDArray[Any]], attrs_json: str) -> None:
         self._group(group, attrs_json)
         gdir = os.path.join(self.path, *group.split("/"))
         for name, a in arrays.items():
@@ -125,7 +129,7 @@ class Writer:
         for rel in walk_files(gdir):
             self._hash(f"{group}/{rel}")
 
-    def _write_raw(self, gdir: str, rel: str, name: str, a: np.ndarray) -> None:
+    def _write_raw(self, gdir: str, rel: str, name: str, a: NDArray[Any]) -> None:
         adir = os.path.join(gdir, name)
         os.mkdir(adir)
         _write_file(os.path.join(adir, "zarr.json"), _array_metadata(a), self._hashed, f"{rel}/zarr.json")
@@ -162,11 +166,11 @@ class _Member:
     """An array of an epoch group: shape, dtype, and its chunk file when it can be read raw."""
     __slots__ = ("shape", "dtype", "raw", "name")
 
-    def __init__(self, shape, dtype, raw, name):
+    def __init__(self, shape: tuple[int, ...], dtype: np.dtype[Any], raw: str | None, name: str) -> None:
         self.shape, self.dtype, self.raw, self.name = shape, dtype, raw, name
 
 
-def _read_json(path: str) -> dict:
+def _read_json(path: str) -> JSONObject:
     """A metadata document of an epoch (untrusted): a small regular file holding a JSON object."""
     try:
         doc = parse_json(read_regular(path, _MAX_DOC_BYTES), path)
@@ -179,7 +183,7 @@ def _read_json(path: str) -> dict:
     return doc
 
 
-def check_codecs(meta: dict, where: str, compressors=()) -> None:
+def check_codecs(meta: JSONObject, where: str, compressors: tuple[str, ...] = ()) -> None:
     """Refuse (ValueError) an array document whose codecs are not the writer's: ``bytes``
     (little or big endian), then at most one of ``compressors``, no storage transformer. Read
     before the zarr library sees the array: an unknown codec could inflate a small chunk
@@ -201,7 +205,7 @@ def check_codecs(meta: dict, where: str, compressors=()) -> None:
         raise ValueError(f"{where}: storage transformers are not written by ooc-dem (refused)")
 
 
-def _member(adir: str, meta: dict, name: str) -> _Member:
+def _member(adir: str, meta: JSONObject, name: str) -> _Member:
     """Parse array metadata; `raw` is the chunk path for an uncompressed one-chunk array in
     native byte order (what the writer produces), else None (read through zarr)."""
     shape, dtype = meta.get("shape"), meta.get("data_type")
@@ -211,7 +215,7 @@ def _member(adir: str, meta: dict, name: str) -> _Member:
     check_codecs(meta, adir)
     shape = tuple(shape)
     dtype = np.dtype(dtype)
-    raw = None
+    raw: str | None = None
     codecs = meta.get("codecs") or []
     grid = meta.get("chunk_grid") or {}
     cke = meta.get("chunk_key_encoding") or {}
@@ -226,7 +230,7 @@ def _member(adir: str, meta: dict, name: str) -> _Member:
     return _Member(shape, dtype, raw, name)
 
 
-def recorded_step(root: dict):
+def recorded_step(root: JSONObject) -> object:
     """The step a writer recorded in an epoch's root group document (None: none)."""
     attributes = root.get("attributes")
     return attributes.get("step") if isinstance(attributes, dict) else None
@@ -236,7 +240,7 @@ class Reader:
     """Reads an epoch's zarr v3 hierarchy from its metadata documents directly (plain JSON
     files), falling back to the zarr library for arrays not in the writer's simple form."""
 
-    def __init__(self, path: str):
+    def __init__(self, path: str) -> None:
         self.path = path
         if not os.path.isdir(path):
             raise FileNotFoundError(f"{path}: epoch directory missing")
@@ -245,18 +249,19 @@ class Reader:
         if meta.get("zarr_format") != 3 or meta.get("node_type") != "group":
             raise ValueError(f"{path}: not a zarr v3 group")
         self._root_step = recorded_step(meta)
-        self._zroot = None
-        self._groups: dict[str, tuple | None] = {}
+        self._zroot: zarr.Group | None = None
+        self._groups: dict[str, tuple[JSONObject, dict[str, _Member]] | None] = {}
         self._touched: set[str] = set()
 
-    def _zarr_root(self):
+    def _zarr_root(self) -> zarr.Group:
         if self._zroot is None:
-            zarr, LocalStore = _zarr()
+            import zarr
+            from zarr.storage import LocalStore
             self._zroot = zarr.open_group(store=LocalStore(self.path, read_only=True), mode="r",
                                           zarr_format=3, use_consolidated=False)
         return self._zroot
 
-    def _group_meta(self, group: str):
+    def _group_meta(self, group: str) -> tuple[JSONObject, dict[str, _Member]] | None:
         """(group attributes, name -> _Member), read once; None if no such group."""
         if group not in self._groups:
             gdir = os.path.join(self.path, *group.split("/"))
@@ -269,7 +274,7 @@ class Reader:
                 return None
             if os.path.realpath(gdir) != os.path.join(self._real, *group.split("/")):
                 raise ValueError(f"{gdir}: reached through a symbolic link (not allowed)")
-            members = {}
+            members: dict[str, _Member] = {}
             for name in sorted(os.listdir(gdir)):
                 adir = os.path.join(gdir, name)
                 mpath = os.path.join(adir, "zarr.json")
@@ -288,38 +293,42 @@ class Reader:
             self._groups[group] = (attributes, members)
         return self._groups[group]
 
-    def _members(self, group: str):
+    def _members(self, group: str) -> dict[str, _Member] | None:
         gm = self._group_meta(group)
         return None if gm is None else gm[1]
 
-    def root_step(self):
+    def root_step(self) -> object:
         """The step the epoch's writer recorded in its root attributes (None: none)."""
         return self._root_step
 
     def has_group(self, group: str) -> bool:
         return self._group_meta(group) is not None
 
-    def array_info(self, group: str, name: str):
+    def array_info(self, group: str, name: str) -> tuple[tuple[int, ...], np.dtype[Any]] | None:
         a = (self._members(group) or {}).get(name)
         return None if a is None else (tuple(a.shape), a.dtype)
 
-    def attrs_json(self, group: str):
+    def attrs_json(self, group: str) -> str | None:
         gm = self._group_meta(group)
         if gm is None:
             raise KeyError(f"group {group} missing")
-        return gm[0].get(ATTRS_KEY)
+        return attrs_text(gm[0].get(ATTRS_KEY))
 
-    def _array(self, group, name):
+    def _array(self, group: str, name: str) -> tuple[_Member, str | None]:
         """(member, chunk file path or None if the raw fast path does not apply)."""
         a = (self._members(group) or {}).get(name)
         if a is None:
             raise KeyError(f"array {group}/{name} missing")
         return a, a.raw
 
-    def _via_zarr(self, a: _Member):
-        return self._zarr_root()[a.name]
+    def _via_zarr(self, a: _Member) -> AnyArray:
+        import zarr
+        node = self._zarr_root()[a.name]
+        if not isinstance(node, zarr.Array):
+            raise ValueError(f"{self.path}: {a.name}: not an array")
+        return node
 
-    def _pread(self, raw, what, out, offset):
+    def _pread(self, raw: str, what: str, out: NDArray[Any], offset: int) -> None:
         try:
             fd = open_regular(raw)     # a regular file (no link, no FIFO): reads are bounded
         except StoreError as e:
@@ -332,7 +341,7 @@ class Reader:
             os.close(fd)
         self._touched.add(raw)
 
-    def read_full(self, group, name, shape, dtype) -> np.ndarray:
+    def read_full(self, group: str, name: str, shape: tuple[int, ...], dtype: DTypeLike) -> NDArray[Any]:
         a, raw = self._array(group, name)
         if tuple(a.shape) != tuple(shape):
             raise ValueError(f"array {group}/{name} has shape {a.shape}, manifest says {tuple(shape)}")
@@ -345,7 +354,7 @@ class Reader:
             out[...] = self._via_zarr(a)[...]
         return out
 
-    def read_range(self, group, name, start, stop, out) -> None:
+    def read_range(self, group: str, name: str, start: int, stop: int, out: NDArray[Any]) -> None:
         if stop <= start or out.size == 0:
             return
         a, raw = self._array(group, name)

@@ -19,17 +19,27 @@ descriptors, no seeking back), so its checksum is computed as it is written.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import struct
 import sys
 import zipfile
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+from numpy.typing import DTypeLike, NDArray
 
 from ._confine import open_regular
-from ._util import ATTRS_KEY, FORMAT, drop_page_cache, new_digest, pread_into, remove_path
+from ._util import (ATTRS_KEY, FORMAT, JSONObject, attrs_text, drop_page_cache, new_digest, pread_into,
+                    remove_path)
 from ._zarr import check_codecs, recorded_step
+
+if TYPE_CHECKING:
+    import zarr
+    from _typeshed import ReadableBuffer
+    from zarr.types import AnyArray
 
 EXT = "zip"
 IS_DIR = False
@@ -47,26 +57,38 @@ _ZIP_TIME = (1980, 1, 1, 0, 0, 0)      # fixed: the same state gives the same by
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 _LOCAL_HEADER = struct.Struct("<4s2B4HL2L2H")   # zip local file header, 30 bytes
 
-# name -> (zarr v3 codec document after "bytes", numcodecs codec factory)
-CODECS = {
-    "zstd": ({"name": "zstd", "configuration": {"level": 3, "checksum": False}},
-             lambda: _numcodecs().Zstd(level=3)),
-    "blosc": (None, lambda: _numcodecs().Blosc(cname="lz4", clevel=5,
-                                                shuffle=_numcodecs().Blosc.SHUFFLE)),
-}
+
+class _Codec(Protocol):
+    """A numcodecs codec (what this module calls of one)."""
+
+    def encode(self, buf: NDArray[Any], /) -> bytes: ...
+
+    def decode(self, buf: bytes, /, out: NDArray[Any]) -> object: ...
 
 
-def _numcodecs():
+def _numcodecs() -> Any:     # numcodecs: no type information
     import numcodecs
     return numcodecs
 
 
-def _blosc_doc(itemsize: int) -> dict:
+def _zstd_doc(itemsize: int) -> JSONObject:
+    return {"name": "zstd", "configuration": {"level": 3, "checksum": False}}
+
+
+def _blosc_doc(itemsize: int) -> JSONObject:
     return {"name": "blosc", "configuration": {"typesize": int(itemsize), "cname": "lz4",
                                                "clevel": 5, "shuffle": "shuffle", "blocksize": 0}}
 
 
-def _fill(dtype: np.dtype):
+# name -> (zarr v3 codec document after "bytes", for an itemsize; numcodecs codec factory)
+CODECS: dict[str, tuple[Callable[[int], JSONObject], Callable[[], _Codec]]] = {
+    "zstd": (_zstd_doc, lambda: _numcodecs().Zstd(level=3)),
+    "blosc": (_blosc_doc, lambda: _numcodecs().Blosc(cname="lz4", clevel=5,
+                                                      shuffle=_numcodecs().Blosc.SHUFFLE)),
+}
+
+
+def _fill(dtype: np.dtype[Any]) -> bool | int | float | list[float]:
     if dtype.kind == "b":
         return False
     if dtype.kind == "c":
@@ -78,28 +100,26 @@ def _chunk_key(prefix: str, index: int, ndim: int) -> str:
     return f"{prefix}/c" if ndim == 0 else f"{prefix}/c/" + "/".join([str(index)] + ["0"] * (ndim - 1))
 
 
-def _chunk_rows(a: np.ndarray, compressed: bool) -> int:
+def _chunk_rows(a: NDArray[Any], compressed: bool) -> int:
     """Rows per chunk: all of them uncompressed (one chunk: row ranges by offset), else
     about CHUNK_BYTES' worth."""
     if a.ndim == 0:
         return 1
-    n = max(1, a.shape[0])
+    n: int = max(1, a.shape[0])
     if not compressed:
         return n
     row = max(1, a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64)))
     return int(min(n, max(1, CHUNK_BYTES // row)))
 
 
-def _array_doc(a: np.ndarray, rows: int, codec: str | None) -> bytes:
+def _array_doc(a: NDArray[Any], rows: int, codec: str | None) -> bytes:
     """The zarr v3 array metadata zarr 3.x writes for this array, chunking and codecs."""
-    bytes_codec = {"name": "bytes"}
+    bytes_codec: JSONObject = {"name": "bytes"}
     if a.dtype.itemsize > 1:
         bytes_codec["configuration"] = {"endian": "little"}
     codecs = [bytes_codec]
-    if codec == "blosc":
-        codecs.append(_blosc_doc(a.dtype.itemsize))
-    elif codec is not None:
-        codecs.append(CODECS[codec][0])
+    if codec is not None:
+        codecs.append(CODECS[codec][0](a.dtype.itemsize))
     chunk_shape = [] if a.ndim == 0 else [rows] + [max(1, s) for s in a.shape[1:]]
     meta = {
         "shape": list(a.shape),
@@ -116,7 +136,7 @@ def _array_doc(a: np.ndarray, rows: int, codec: str | None) -> bytes:
     return json.dumps(meta, indent=2).encode()
 
 
-def _group_doc(attributes: dict) -> bytes:
+def _group_doc(attributes: JSONObject) -> bytes:
     return json.dumps({"attributes": attributes, "zarr_format": 3, "node_type": "group"},
                       indent=2).encode()
 
@@ -125,12 +145,12 @@ class _HashingStream:
     """The epoch file as zipfile sees it: write-only, never seeked (so zipfile writes data
     descriptors instead of patching headers), hashed as written."""
 
-    def __init__(self, f):
+    def __init__(self, f: io.BufferedWriter) -> None:
         self._f = f
         self.digest = new_digest()
         self.pos = 0
 
-    def write(self, b) -> int:
+    def write(self, b: ReadableBuffer) -> int:
         n = self._f.write(b)
         self.digest.update(b)
         self.pos += len(b) if isinstance(b, (bytes, bytearray)) else memoryview(b).nbytes
@@ -142,11 +162,15 @@ class _HashingStream:
     def flush(self) -> None:
         self._f.flush()
 
+    def close(self) -> None:
+        """Nothing: the epoch file is the Writer's to close (zipfile never closes a stream it
+        was given; its type asks for the method)."""
+
 
 class Writer:
     """Writes one epoch into the file `path` (a temporary name, renamed by the caller)."""
 
-    def __init__(self, path: str, step: int, compression: str | None = None):
+    def __init__(self, path: str, step: int, compression: str | None = None) -> None:
         if compression is not None and compression not in CODECS:
             raise ValueError(f"unknown zarr compression {compression!r}")
         self.path = path
@@ -156,40 +180,45 @@ class Writer:
         self._f = open(fd, "wb")
         try:
             self._stream = _HashingStream(self._f)
-            self._zip = zipfile.ZipFile(self._stream, "w", zipfile.ZIP_STORED, allowZip64=True)
+            self._zip: zipfile.ZipFile | None = zipfile.ZipFile(self._stream, "w", zipfile.ZIP_STORED, allowZip64=True)
             self._put("zarr.json", _group_doc({"ooc_dem_format": FORMAT, "step": int(step)}))
             self._put("domains/zarr.json", _group_doc({}))
         except BaseException:
             self._f.close()
             raise
 
-    def _put(self, key: str, data) -> None:
+    def _zipfile(self) -> zipfile.ZipFile:
+        if self._zip is None:
+            raise ValueError(f"{self.path}: the epoch archive is closed")
+        return self._zip
+
+    def _put(self, key: str, data: bytes | NDArray[Any]) -> None:
         zi = zipfile.ZipInfo(key, date_time=_ZIP_TIME)
         zi.compress_type = zipfile.ZIP_STORED
         zi.external_attr = 0o644 << 16
-        mv = memoryview(data).cast("B") if not isinstance(data, bytes) else data
+        mv = data.data.cast("B") if not isinstance(data, bytes) else data
         # the size is known up front: zipfile then chooses zip64 headers only when needed
         zi.file_size = len(mv)
-        with self._zip.open(zi, "w", force_zip64=len(mv) > 0x7FFFFFFF) as dest:
+        with self._zipfile().open(zi, "w", force_zip64=len(mv) > 0x7FFFFFFF) as dest:
             dest.write(mv)
 
-    def write_group(self, group: str, arrays: dict[str, np.ndarray], attrs_json: str) -> None:
+    def write_group(self, group: str, arrays: dict[str, NDArray[Any]], attrs_json: str) -> None:
         self._put(f"{group}/zarr.json", _group_doc({ATTRS_KEY: attrs_json}))
         for name, a in arrays.items():
             self._write_array(f"{group}/{name}", a)
         self._f.flush()
         drop_page_cache(self.path)           # starts write-back, drops clean pages
 
-    def _write_array(self, prefix: str, a: np.ndarray) -> None:
-        compressed = self._encoder is not None
-        rows = _chunk_rows(a, compressed)
+    def _write_array(self, prefix: str, a: NDArray[Any]) -> None:
+        encoder = self._encoder
+        rows = _chunk_rows(a, encoder is not None)
         self._put(f"{prefix}/zarr.json", _array_doc(a, rows, self.codec))
         if a.size == 0:
             return                      # zarr: an absent chunk is the fill value, nothing to store
         data = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
         if a.ndim == 0:
             data = data.reshape(1)
-        if not compressed:
+        if encoder is None:
             self._put(_chunk_key(prefix, 0, a.ndim), data)
             return
         n = data.shape[0]
@@ -199,11 +228,11 @@ class Writer:
                 pad = np.zeros((rows,) + data.shape[1:], data.dtype)
                 pad[:len(part)] = part
                 part = pad
-            self._put(_chunk_key(prefix, i, a.ndim), self._encoder.encode(part))
+            self._put(_chunk_key(prefix, i, a.ndim), encoder.encode(part))
 
     def finish(self, durable: bool) -> list[tuple[str, int, str]]:
         """Close the archive and return [("", size, digest)] (the epoch is this one file)."""
-        zf, self._zip = self._zip, None
+        zf, self._zip = self._zipfile(), None
         zf.close()
         self._f.flush()
         if durable:
@@ -249,21 +278,22 @@ class _Member:
     ``rows`` rows); ``direct`` False: read through the zarr library."""
     __slots__ = ("shape", "dtype", "direct", "codec", "rows", "key")
 
-    def __init__(self, shape, dtype, direct, codec, rows, key):
+    def __init__(self, shape: tuple[int, ...], dtype: np.dtype[Any], direct: bool, codec: str | None,
+                 rows: int, key: str) -> None:
         self.shape, self.dtype, self.direct, self.codec, self.rows, self.key = \
             shape, dtype, direct, codec, rows, key
 
 
-def _member(key: str, meta: dict) -> _Member:
-    shape, dtype = meta.get("shape"), meta.get("data_type")
+def _member(key: str, meta: JSONObject) -> _Member:
+    shape, data_type = meta.get("shape"), meta.get("data_type")
     if not (isinstance(shape, list) and all(type(v) is int and v >= 0 for v in shape)
-            and isinstance(dtype, str)):
+            and isinstance(data_type, str)):
         raise ValueError(f"{key}: malformed array metadata (shape, data_type)")
     shape = tuple(shape)
     try:
-        dtype = np.dtype(dtype)
+        dtype = np.dtype(data_type)
     except TypeError:
-        raise ValueError(f"{key}: unknown data_type {dtype[:40]!r}") from None
+        raise ValueError(f"{key}: unknown data_type {data_type[:40]!r}") from None
     check_codecs(meta, key, tuple(CODECS))
     codecs = meta["codecs"]
     grid = meta.get("chunk_grid") or {}
@@ -285,7 +315,7 @@ def _member(key: str, meta: dict) -> _Member:
         # compressed chunks are decoded here only, where a chunk's declared size is checked
         # before it is inflated; zarr would inflate any size
         raise ValueError(f"{key}: compressed array not in the writer's chunking (refused)")
-    if not simple:
+    if not simple or not isinstance(chunk_shape, list):
         return _Member(shape, dtype, False, None, 0, key)
     rows = chunk_shape[0] if shape else 1
     if len(codecs) == 1 and (not shape or rows == max(1, shape[0])):
@@ -299,7 +329,7 @@ class Reader:
     """Reads an epoch archive: its central directory and metadata documents directly, chunk
     bytes by pread at their offsets; arrays not in the writer's forms through zarr."""
 
-    def __init__(self, path: str):
+    def __init__(self, path: str) -> None:
         self.path = path
         self._fd = open_regular(path)     # a regular file (not a link, FIFO...): reads are bounded
         try:
@@ -320,7 +350,7 @@ class Reader:
             starts = sorted({zi.header_offset for zi in infos} | {central})
             nxt = {a: b for a, b in zip(starts, starts[1:])}
             self._ends = {zi.filename: nxt.get(zi.header_offset, central) for zi in infos}
-            self._spans: dict[str, tuple[int, np.ndarray]] = {}
+            self._spans: dict[str, tuple[int, NDArray[np.uint8]]] = {}
             # group -> names of its members (keys "<group>/<name>/zarr.json"), built once
             self._children: dict[str, list[str]] = {}
             for key in self._entries:
@@ -335,9 +365,9 @@ class Reader:
         except BaseException:
             os.close(self._fd)
             raise
-        self._zroot = None
-        self._groups: dict[str, tuple | None] = {}
-        self._decoders: dict[str, object] = {}
+        self._zroot: zarr.Group | None = None
+        self._groups: dict[str, tuple[JSONObject, dict[str, _Member]] | None] = {}
+        self._decoders: dict[str, _Codec] = {}
 
     # ------------------------------------------------------------------ entries
     def _data_offset(self, key: str) -> tuple[int, int]:
@@ -369,7 +399,7 @@ class Reader:
         self._pread(buf, off, f"{self.path}: {key}")
         return buf.tobytes()
 
-    def _pread(self, out: np.ndarray, offset: int, what: str) -> None:
+    def _pread(self, out: NDArray[Any], offset: int, what: str) -> None:
         """Bytes at `offset` into `out`: from a group span read before if it holds them."""
         n = out.nbytes
         for lo, buf in self._spans.values():
@@ -394,7 +424,7 @@ class Reader:
         pread_into(self._fd, buf, lo, f"{self.path}: {group}")
         self._spans[group] = (lo, buf)
 
-    def _doc(self, key: str):
+    def _doc(self, key: str) -> JSONObject | None:
         if key not in self._entries:
             return None
         try:
@@ -406,7 +436,7 @@ class Reader:
         return doc
 
     # ------------------------------------------------------------------ hierarchy
-    def _group_meta(self, group: str):
+    def _group_meta(self, group: str) -> tuple[JSONObject, dict[str, _Member]] | None:
         """(group attributes, name -> _Member), read once; None if no such group."""
         if group not in self._groups:
             if f"{group}/zarr.json" in self._entries:
@@ -415,10 +445,10 @@ class Reader:
             if meta is None or meta.get("node_type") != "group":
                 self._groups[group] = None
                 return None
-            members = {}
+            members: dict[str, _Member] = {}
             for name in sorted(self._children.get(group, ())):
                 am = self._doc(f"{group}/{name}/zarr.json")
-                if am.get("node_type") == "array":
+                if am is not None and am.get("node_type") == "array":
                     members[name] = _member(f"{group}/{name}", am)
             attributes = meta.get("attributes") or {}
             if not isinstance(attributes, dict):
@@ -426,32 +456,32 @@ class Reader:
             self._groups[group] = (attributes, members)
         return self._groups[group]
 
-    def root_step(self):
+    def root_step(self) -> object:
         """The step the epoch's writer recorded in its root attributes (None: none)."""
         return self._root_step
 
     def has_group(self, group: str) -> bool:
         return self._group_meta(group) is not None
 
-    def array_info(self, group: str, name: str):
+    def array_info(self, group: str, name: str) -> tuple[tuple[int, ...], np.dtype[Any]] | None:
         gm = self._group_meta(group)
         a = None if gm is None else gm[1].get(name)
         return None if a is None else (tuple(a.shape), a.dtype)
 
-    def attrs_json(self, group: str):
+    def attrs_json(self, group: str) -> str | None:
         gm = self._group_meta(group)
         if gm is None:
             raise KeyError(f"group {group} missing")
-        return gm[0].get(ATTRS_KEY)
+        return attrs_text(gm[0].get(ATTRS_KEY))
 
-    def _array(self, group, name) -> _Member:
+    def _array(self, group: str, name: str) -> _Member:
         gm = self._group_meta(group)
         a = None if gm is None else gm[1].get(name)
         if a is None:
             raise KeyError(f"array {group}/{name} missing")
         return a
 
-    def _via_zarr(self, a: _Member):
+    def _via_zarr(self, a: _Member) -> AnyArray:
         if a.codec is not None:   # bounded decoding only (_read_rows)
             raise ValueError(f"{self.path}: {a.key}: compressed array of dtype {a.dtype.str}, "
                              f"not the one expected")
@@ -460,10 +490,13 @@ class Reader:
             from zarr.storage import ZipStore
             self._zroot = zarr.open_group(store=ZipStore(self.path, mode="r"), mode="r",
                                           zarr_format=3, use_consolidated=False)
-        return self._zroot[a.key]
+        node = self._zroot[a.key]
+        if not isinstance(node, zarr.Array):
+            raise ValueError(f"{self.path}: {a.key}: not an array")
+        return node
 
     # ------------------------------------------------------------------ data
-    def _read_rows(self, a: _Member, start: int, stop: int, out: np.ndarray) -> None:
+    def _read_rows(self, a: _Member, start: int, stop: int, out: NDArray[Any]) -> None:
         """Rows [start, stop) of a directly readable array into `out` (C-contiguous)."""
         ndim = len(a.shape)
         if a.codec is None:
@@ -503,7 +536,7 @@ class Reader:
             lo, hi = max(start, i * rows), min(stop, (i + 1) * rows)
             flat_out[lo - start:hi - start] = buf[lo - i * rows:hi - i * rows]
 
-    def read_full(self, group, name, shape, dtype) -> np.ndarray:
+    def read_full(self, group: str, name: str, shape: tuple[int, ...], dtype: DTypeLike) -> NDArray[Any]:
         a = self._array(group, name)
         if tuple(a.shape) != tuple(shape):
             raise ValueError(f"array {group}/{name} has shape {a.shape}, manifest says {tuple(shape)}")
@@ -516,7 +549,7 @@ class Reader:
             out[...] = self._via_zarr(a)[...]
         return out
 
-    def read_range(self, group, name, start, stop, out) -> None:
+    def read_range(self, group: str, name: str, start: int, stop: int, out: NDArray[Any]) -> None:
         if stop <= start or out.size == 0:
             return
         a = self._array(group, name)
@@ -536,6 +569,6 @@ class Reader:
         self._groups.clear()
         self._spans.clear()
         self._zroot = None
-        fd, self._fd = self._fd, None
-        if fd is not None:
+        fd, self._fd = self._fd, -1
+        if fd >= 0:
             os.close(fd)

@@ -11,12 +11,13 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 from ooc_dem.storage.writeguard import check_room
 
 
-def new_temp(path) -> Path:
+def new_temp(path: str | os.PathLike[str]) -> Path:
     """A new, empty temporary file beside `path`, with an ordinary file's permissions."""
     path = Path(path)
     fd, name = tempfile.mkstemp(prefix=f"{path.name}.tmp-", dir=path.parent)
@@ -29,7 +30,7 @@ def new_temp(path) -> Path:
     return Path(name)
 
 
-def write_replacing(path, write, need: int = 0) -> None:
+def write_replacing(path: str | os.PathLike[str], write: Callable[[Path], object], need: int = 0) -> None:
     """Call ``write(temporary_path)``, then rename the temporary over `path`. `need`: the
     bytes it will write, about (OSError ENOSPC/EFBIG before anything is written when they
     cannot fit: storage.writeguard.check_room)."""

@@ -7,11 +7,17 @@ from __future__ import annotations
 import os
 import zipfile
 import zlib
+from collections.abc import Mapping
+from typing import IO, Any, TypeAlias
 
 import numpy as np
+from numpy.typing import NDArray
+
+# a row shape: one entry per dimension after the rows, a size or a range of allowed sizes
+RowShape: TypeAlias = "tuple[int | range, ...]"
 
 
-def _npy_header(f, where: str, error):
+def _npy_header(f: IO[bytes], where: str, error: type[Exception]) -> tuple[tuple[int, ...], np.dtype[Any], int]:
     """(shape, dtype, header bytes) of the .npy stream f, from its header only."""
     fmt = np.lib.format
     version = fmt.read_magic(f)
@@ -27,16 +33,17 @@ def _npy_header(f, where: str, error):
     return tuple(shape), dtype, f.tell()
 
 
-def _row_fits(shape: tuple, tail: tuple) -> bool:
+def _row_fits(shape: tuple[int, ...], tail: RowShape) -> bool:
     return len(shape) == 1 + len(tail) and all(
         s in t if isinstance(t, range) else s == t for s, t in zip(shape[1:], tail))
 
 
-def _dim(t) -> str:
+def _dim(t: int | range) -> str:
     return f"{t.start}..{t.stop - 1}" if isinstance(t, range) else str(t)
 
 
-def read_npz_members(path, want: dict, n: int | None, error, n_from: str = "") -> dict[str, np.ndarray]:
+def read_npz_members(path: str | os.PathLike[str], want: Mapping[str, tuple[RowShape | None, str]], n: int | None,
+                     error: type[Exception], n_from: str = "") -> dict[str, NDArray[Any]]:
     """The members ``want`` names of the npz archive ``path``: name -> (row shape, a tuple, for
     an array of n rows, where a ``range`` admits any size in it; None for one number; the
     allowed dtype kinds, e.g. "iuf"). Each member's declared shape must be that (``n``: the
@@ -45,7 +52,8 @@ def read_npz_members(path, want: dict, n: int | None, error, n_from: str = "") -
     all of them must fit in a quarter of this machine's memory, before any is read. Anything
     else raises ``error`` (one line)."""
     import psutil
-    found, budget = {}, psutil.virtual_memory().total // 4
+    found: dict[str, NDArray[Any]] = {}
+    budget: int = psutil.virtual_memory().total // 4
     size = os.stat(path).st_size
     try:
         with zipfile.ZipFile(path) as zf:
@@ -90,11 +98,11 @@ _UNREADABLE = (ValueError, OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZ
                NotImplementedError)
 
 
-def _unreadable(path, e: Exception, error) -> Exception:
+def _unreadable(path: str | os.PathLike[str], e: Exception, error: type[Exception]) -> Exception:
     return error(f"{path}: not a readable npz archive ({' '.join(str(e).split())[:160]})")
 
 
-def npz_member_names(path, error) -> list[str]:
+def npz_member_names(path: str | os.PathLike[str], error: type[Exception]) -> list[str]:
     """The array names of the npz archive ``path`` (from its zip directory; nothing inflated)."""
     try:
         with zipfile.ZipFile(path) as zf:

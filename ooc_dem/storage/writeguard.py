@@ -20,6 +20,11 @@ import errno
 import io
 import os
 import resource
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import h5py
+    from _typeshed import ReadableBuffer, WriteableBuffer
 
 # HDF5 superblock, object headers and B-trees over the raw data (20-30 kB measured for a
 # trajectory frame or an export)
@@ -39,7 +44,7 @@ def file_size_limit() -> int | None:
     return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
-def shortfall(directory, need: int, largest_file: int | None = None) -> tuple[int, str] | None:
+def shortfall(directory: str | os.PathLike[str], need: int, largest_file: int | None = None) -> tuple[int, str] | None:
     """None if `need` bytes fit in `directory`'s file system and no single file of
     `largest_file` bytes (default: `need`) exceeds the file-size limit; else (errno, the
     reason, e.g. "needs about 1.2 MB, 0.3 MB free on its file system")."""
@@ -55,7 +60,7 @@ def shortfall(directory, need: int, largest_file: int | None = None) -> tuple[in
     return None
 
 
-def check_room(path, need: int, largest_file: int | None = None) -> None:
+def check_room(path: str | os.PathLike[str], need: int, largest_file: int | None = None) -> None:
     """Raise OSError(ENOSPC or EFBIG, reason, path) if `need` bytes cannot be written beside
     `path` (see ``shortfall``)."""
     parent = os.path.dirname(os.path.abspath(os.fspath(path)))
@@ -68,7 +73,7 @@ class GuardedFile(io.RawIOBase):
     """An unbuffered read/write file for h5py's ``fileobj`` driver that never fails a write
     towards HDF5 (see the module docstring): the first OSError is kept in ``error``."""
 
-    def __init__(self, path, truncate: bool):
+    def __init__(self, path: str | os.PathLike[str], truncate: bool) -> None:
         super().__init__()
         self.name = os.fspath(path)
         flags = os.O_RDWR | os.O_CLOEXEC | (os.O_TRUNC if truncate else os.O_CREAT | os.O_EXCL)
@@ -78,24 +83,24 @@ class GuardedFile(io.RawIOBase):
         self._late: list[tuple[int, bytes]] = []    # writes after the failure, in order
         self.error: OSError | None = None
 
-    def readable(self):
+    def readable(self) -> bool:
         return True
 
-    def writable(self):
+    def writable(self) -> bool:
         return True
 
-    def seekable(self):
+    def seekable(self) -> bool:
         return True
 
-    def seek(self, offset, whence=io.SEEK_SET):
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
         base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._eof}[whence]
         self._pos = max(0, base + offset)
         return self._pos
 
-    def tell(self):
+    def tell(self) -> int:
         return self._pos
 
-    def readinto(self, b):
+    def readinto(self, b: WriteableBuffer) -> int:
         view = memoryview(b).cast("B")
         n = max(0, min(len(view), self._eof - self._pos))
         got = 0
@@ -113,7 +118,7 @@ class GuardedFile(io.RawIOBase):
         self._pos += n
         return n
 
-    def write(self, b):
+    def write(self, b: ReadableBuffer) -> int:
         view = memoryview(b).cast("B")
         n = len(view)
         done = 0
@@ -128,7 +133,7 @@ class GuardedFile(io.RawIOBase):
         self._eof = max(self._eof, self._pos)
         return n
 
-    def truncate(self, size=None):
+    def truncate(self, size: int | None = None) -> int:
         size = self._pos if size is None else int(size)
         if self.error is None:
             try:
@@ -138,7 +143,7 @@ class GuardedFile(io.RawIOBase):
         self._eof = size
         return size
 
-    def flush(self):
+    def flush(self) -> None:
         pass
 
     def check(self) -> None:
@@ -147,14 +152,15 @@ class GuardedFile(io.RawIOBase):
         if e is not None:
             raise OSError(e.errno, e.strerror or str(e), self.name)
 
-    def close(self):
+    def close(self) -> None:
         if self._fd >= 0:
             fd, self._fd = self._fd, -1
             os.close(fd)
         super().close()
 
 
-def create_h5(path, exclusive: bool = True, **kwargs):
+def create_h5(path: str | os.PathLike[str], exclusive: bool = True,
+              **kwargs: Any) -> tuple[h5py.File, GuardedFile]:
     """(h5py.File, GuardedFile) writing `path`: created (exclusive) or, with
     exclusive=False, an existing file truncated. kwargs go to h5py.File."""
     import h5py
@@ -167,7 +173,7 @@ def create_h5(path, exclusive: bool = True, **kwargs):
     return f, guard
 
 
-def close_h5(f, guard: GuardedFile) -> None:
+def close_h5(f: h5py.File | None, guard: GuardedFile) -> None:
     """Close an HDF5 file of ``create_h5``; raise the first write error, if any."""
     try:
         if f is not None:

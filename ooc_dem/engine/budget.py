@@ -116,7 +116,7 @@ def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: 
         phases = {"slab": m.ooc_fixed + slabs * n * m.resident * slab_fraction(sc, mode, domains, block),
                   "setup": n * (m.streamed_setup if streamed else m.ooc_setup),
                   "hash": n * m.final_hash + min(n, HASH_CHUNK) * m.hash_chunk}
-        top = max(phases, key=phases.get)
+        top = max(phases, key=phases.__getitem__)
         parts[top] = phases[top]
     if backend == "memory":
         parts["memory_store"] = 3 * n * m.state   # the in-process store: current, previous, being written

@@ -15,7 +15,7 @@ No plotting here; see ``ooc_dem.app.plots``.
 """
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -74,7 +74,8 @@ def displacements(initial_id, initial_x, initial_y, final_id, final_x, final_y):
     return dx, dy
 
 
-class DisplacementGrid(NamedTuple):
+@dataclass(frozen=True)
+class DisplacementGrid:
     """Mean displacement per grid cell; 2D arrays of shape (ny, nx).
 
     ``x``, ``y``: cell centres; ``u``, ``v``: mean displacement of the discs that

@@ -9,8 +9,11 @@ physics.layout (AX_X, AX_Y, AX_Z).
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ..physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, axes,  # noqa: F401
                              hist_widths, spin_width)
@@ -102,13 +105,13 @@ V1_ARRAYS: dict[str, tuple[str, ...]] = {
     "hist_m": ("hist_mr",)}
 
 
-def is_v1(names) -> bool:
+def is_v1(names: Iterable[str]) -> bool:
     """Whether a set of array names is a format-1 state/record (and not format 2)."""
     names = set(names)
     return "pos" not in names and "x" in names
 
 
-def upgrade_v1(arrays: dict) -> dict:
+def upgrade_v1(arrays: dict[str, Any]) -> dict[str, Any]:
     """Arrays named as in format 1 (x, y, vx, vy, w, hist_ft, hist_mr) -> format-2 arrays
     (pos, vel, spin, hist_s, hist_m); format-2 arrays pass unchanged. Works for a state's
     arrays ((N,) -> (N, k); (N, C) -> (N, C, k)) and a store record's ((E,) -> (E, k))."""
@@ -121,12 +124,12 @@ def upgrade_v1(arrays: dict) -> dict:
     return out
 
 
-def stack_v1(name: str, parts) -> np.ndarray:
+def stack_v1(name: str, parts: Iterable[ArrayLike]) -> NDArray[Any]:
     """The format-2 array ``name`` from its format-1 component arrays (V1_ARRAYS[name])."""
-    parts = [np.asarray(a) for a in parts]
-    if len({(a.shape, a.dtype.str) for a in parts}) != 1:
+    arrays = [np.asarray(a) for a in parts]
+    if len({(a.shape, a.dtype.str) for a in arrays}) != 1:
         raise ValueError(f"format-1 arrays {', '.join(V1_ARRAYS[name])} differ in shape or dtype")
-    return np.stack(parts, axis=-1)
+    return np.stack(arrays, axis=-1)
 
 
 class Particles:
@@ -150,7 +153,7 @@ class Particles:
     hist_s: np.ndarray
     hist_m: np.ndarray
 
-    def __init__(self, **arrays):
+    def __init__(self, **arrays: ArrayLike) -> None:
         arrays = upgrade_v1(arrays)
         pos = np.asarray(arrays["pos"])
         hid = np.asarray(arrays["hist_id"])
@@ -171,7 +174,8 @@ class Particles:
         return cls(**{k: np.zeros((n,) + tail, dt) for k, (dt, tail) in fields(dim, hist_cap).items()})
 
     @classmethod
-    def new(cls, pos, r, density, thickness, mat=None, ids=None, hist_cap: int | None = None) -> "Particles":
+    def new(cls, pos: ArrayLike, r: ArrayLike, density: float, thickness: float, mat: ArrayLike | None = None,
+            ids: ArrayLike | None = None, hist_cap: int | None = None) -> "Particles":
         """Particles at rest at pos (N, D) with radii r; mass from the density (2D: discs are
         cylinders of length ``thickness``; 3D: spheres)."""
         pos = np.asarray(pos, np.float64)
@@ -204,10 +208,10 @@ class Particles:
     def arrays(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in ALL_FIELDS}
 
-    def take(self, idx) -> "Particles":
+    def take(self, idx: NDArray[np.integer[Any]] | NDArray[np.bool_] | slice) -> "Particles":
         return Particles(**{k: v[idx] for k, v in self.arrays().items()})
 
-    def permute_inplace(self, perm) -> "Particles":
+    def permute_inplace(self, perm: NDArray[np.integer[Any]]) -> "Particles":
         """Reorder every array in place (one array-sized temporary at a time, never a second state)."""
         for k in ALL_FIELDS:
             a = getattr(self, k)

@@ -13,8 +13,18 @@ from __future__ import annotations
 
 import numbers
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import numpy as np
+    import pandas as pd
+    from numpy.typing import NDArray
+
+    from .app.trajectory import Trajectory
+    from .model.scenario import Scenario
+    from .storage import Store
 
 __all__ = ["load_scenario", "run", "resume", "open_run", "open_store", "RunResult"]
 
@@ -22,7 +32,7 @@ __all__ = ["load_scenario", "run", "resume", "open_run", "open_store", "RunResul
 # ------------------------------------------------------------------ scenarios
 
 
-def _override_items(overrides, prefix: str = ""):
+def _override_items(overrides: Mapping[Any, object], prefix: str = "") -> Iterator[str]:
     """``section.key=value`` items (the text ``--set`` takes) from a mapping of overrides.
 
     ``{"wheel.slip": 0.3}`` and ``{"wheel": {"slip": 0.3}}`` give ``wheel.slip=0.3``; values are
@@ -52,7 +62,8 @@ def _override_items(overrides, prefix: str = ""):
         yield f"{full}={text}"
 
 
-def load_scenario(name_or_path, overrides=None):
+def load_scenario(name_or_path: str | os.PathLike[str],
+                  overrides: Mapping[str, object] | Iterable[str] | None = None) -> Scenario:
     """Load and validate a scenario: a built-in name or the path of a TOML file.
 
     Parameters
@@ -97,7 +108,8 @@ def load_scenario(name_or_path, overrides=None):
         raise
 
 
-def _scenario(scenario, overrides):
+def _scenario(scenario: Scenario | str | os.PathLike[str],
+              overrides: Mapping[str, object] | Iterable[str] | None) -> Scenario:
     from .model.scenario import Scenario
     if isinstance(scenario, Scenario):
         if overrides:
@@ -124,27 +136,30 @@ class RunResult:
     (``open_run(path)``).
     """
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
-        self._summary = None
-        self._series = None
+        self._summary: dict[str, Any] | None = None
+        self._series: NDArray[np.void] | None = None
 
     def __repr__(self) -> str:
         return f"RunResult({str(self.path)!r})"
 
     @property
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """``summary.json`` as a dict: ``slip``, ``net_traction``, ... (each with its ``unit``,
         ``whole_travel`` and ``steady`` windows), ``steps``, ``state_hash``, ``wall_time_s``.
 
         Raises RunFileError if the run has no (valid) summary (not finished)."""
         if self._summary is None:
-            from .app.plots import read_summary
-            self._summary = read_summary(self.path)
+            from .app.plots import RunFileError, read_summary
+            summary = read_summary(self.path)
+            if summary is None:   # read_summary raises for a finished run's missing summary
+                raise RunFileError(f"{self.path}: no summary.json (not a finished ooc-dem run)")
+            self._summary = summary
         return self._summary
 
     @property
-    def series(self):
+    def series(self) -> NDArray[np.void]:
         """``series.csv`` as a NumPy structured array, one field per column (``t``, ``t_travel``,
         ``x``, ``y``, ``vx``, ``omega``, ``slip``, ``net_traction``, ``vertical_force``,
         ``torque``, ``gross_traction``, ``sinkage``, ``drawbar``; SI units as in the CSV header).
@@ -165,7 +180,7 @@ class RunResult:
             self._series = arr
         return self._series
 
-    def series_frame(self):
+    def series_frame(self) -> pd.DataFrame:
         """The series as a ``pandas.DataFrame`` (ImportError naming pandas if it is not installed)."""
         try:
             import pandas as pd
@@ -177,7 +192,7 @@ class RunResult:
 
     to_pandas = series_frame
 
-    def trajectory(self):
+    def trajectory(self) -> Trajectory:
         """The run's trajectory frames (``output.snapshot_interval``), read from
         ``trajectory/`` (one HDF5 file a frame) one at a time.
 
@@ -204,7 +219,7 @@ class RunResult:
         with open_store(self.path) as store:
             return store.epochs()
 
-    def state(self, epoch: int | None = None) -> dict:
+    def state(self, epoch: int | None = None) -> dict[str, NDArray[Any]]:
         """The discs of one committed epoch as a dict of NumPy arrays, sorted by disc id.
 
         Parameters
@@ -236,11 +251,12 @@ class RunResult:
 # ----------------------------------------------------------------------- runs
 
 
-def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None,
-        block: int | None = None, backend: str = "hdf5", steps: int | None = None,
-        duration: float | None = None, progress: bool = False, *, overrides=None,
+def run(scenario: Scenario | str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
+        mode: str = "monolithic", domains: int | None = None, block: int | None = None,
+        backend: str = "hdf5", steps: int | None = None, duration: float | None = None,
+        progress: bool = False, *, overrides: Mapping[str, object] | Iterable[str] | None = None,
         checkpoint_every: int | None = None, durable: bool = False, figures: bool = False,
-        bed=None, compression: str | None = None) -> RunResult:
+        bed: str | os.PathLike[str] | None = None, compression: str | None = None) -> RunResult:
     """Run a scenario to the end, as ``ooc-dem run`` does, and return its ``RunResult``.
 
     Parameters
@@ -313,8 +329,8 @@ def run(scenario, out=None, mode: str = "monolithic", domains: int | None = None
     return RunResult(out)
 
 
-def resume(path, steps: int | None = None, until: float | None = None, progress: bool = False,
-           figures: bool = False) -> RunResult:
+def resume(path: str | os.PathLike[str], steps: int | None = None, until: float | None = None,
+           progress: bool = False, figures: bool = False) -> RunResult:
     """Continue a killed (or finished) run from its last committed epoch, as ``ooc-dem resume``.
 
     The resumed run ends with the same bits as one that was never interrupted.
@@ -352,7 +368,7 @@ def resume(path, steps: int | None = None, until: float | None = None, progress:
     return RunResult(path)
 
 
-def open_run(path) -> RunResult:
+def open_run(path: str | os.PathLike[str]) -> RunResult:
     """The ``RunResult`` of an existing run directory (e.g. one made by ``ooc-dem run``).
 
     Nothing is read until asked for; ``summary``, ``series`` and ``state()`` raise as
@@ -364,7 +380,7 @@ def open_run(path) -> RunResult:
     return RunResult(p)
 
 
-def open_store(path):
+def open_store(path: str | os.PathLike[str]) -> Store:
     """Open a run's store read-only (``storage.Store``): no lock, nothing deleted or written.
 
     Works while a run writes it. Use as a context manager, or ``close()`` it. Useful calls:

@@ -10,32 +10,40 @@ no ffmpeg needed. The file is written under a temporary name and renamed when co
 """
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ooc_dem.storage.writeguard import check_room
 
 from .plots import LAYER_COLOURS, _load_scenario, read_initial, run_file
 from .trajectory import Trajectory, TrajectoryError, wheel_outline
 
+if TYPE_CHECKING:
+    from imageio.core.format import Format
+
 FORMATS = (".mp4", ".gif")
 MAX_FPS = 120
 WIDTH_PX = 1280
 
 
-def default_out(run_dir) -> Path:
+def default_out(run_dir: str | os.PathLike[str]) -> Path:
     """RUN.mp4 beside the run directory (never inside the store)."""
     run_dir = Path(run_dir).resolve()
     return run_dir.parent / f"{run_dir.name}.mp4"
 
 
-def _slip(ws, radius: float) -> float | None:
+def _slip(ws: NDArray[np.float64], radius: float) -> float | None:
     rolled = -float(ws[5]) * radius      # wz < 0: the wheel turns clockwise, driving +x
     return 1.0 - float(ws[2]) / rolled if rolled > 1e-12 else None
 
 
-def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[Path, int]:
+def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None, fps: int = 20,
+            progress: bool = False) -> tuple[Path, int]:
     """Render the run's trajectory to ``out`` (.mp4 or .gif; default ``default_out``).
     Returns (the file, the number of frames)."""
     from .export import ExportError, check_targets
@@ -112,6 +120,7 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
 
         def write(tmp: Path) -> int:
             nonlocal coll
+            writer: _Ffmpeg | Format.Writer
             if ext == ".mp4":
                 writer = _Ffmpeg(tmp, (W, H), fps)
             else:
@@ -122,7 +131,7 @@ def animate(run_dir, out=None, fps: int = 20, progress: bool = False) -> tuple[P
             try:
                 for fr in traj:   # one frame at a time
                     ids, pos, r = fr["id"], fr["pos"], fr["r"]
-                    if coll is None or len(ids) != len(coll.get_offsets()):
+                    if coll is None or len(ids) != len(np.asarray(coll.get_offsets())):
                         if coll is not None:
                             coll.remove()
                         at = np.clip(np.searchsorted(ids0, ids), 0, max(len(ids0) - 1, 0))
@@ -182,7 +191,7 @@ class _Ffmpeg:
     status is checked, so a film it could not finish (a full disk, the file-size limit) is
     an error instead of a truncated file."""
 
-    def __init__(self, path: Path, size: tuple[int, int], fps: int):
+    def __init__(self, path: Path, size: tuple[int, int], fps: int) -> None:
         import subprocess
         import threading
         import imageio_ffmpeg
@@ -192,18 +201,21 @@ class _Ffmpeg:
                "-f", "mp4", str(path)]
         self.p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
                                   stderr=subprocess.PIPE, start_new_session=True)
+        if self.p.stdin is None or self.p.stderr is None:    # both are pipes (PIPE above)
+            raise OSError("the encoder's stdin and stderr are not pipes")
+        self._stdin, stderr = self.p.stdin, self.p.stderr
         self._err = b""
         self._broken = False
 
-        def drain():    # its messages, kept short: the last one names the failure
-            for line in self.p.stderr:
+        def drain() -> None:    # its messages, kept short: the last one names the failure
+            for line in stderr:
                 self._err = (self._err + line)[-4096:]
         self._t = threading.Thread(target=drain, daemon=True)
         self._t.start()
 
-    def append_data(self, img: np.ndarray) -> None:
+    def append_data(self, img: NDArray[np.uint8]) -> None:
         try:
-            self.p.stdin.write(memoryview(np.ascontiguousarray(img)).cast("B"))
+            self._stdin.write(np.ascontiguousarray(img).data.cast("B"))
         except (BrokenPipeError, ValueError):
             self._broken = True      # the encoder stopped: close() says why
             self.close()
@@ -213,7 +225,7 @@ class _Ffmpeg:
         our own is being reported): stop the encoder, raise nothing."""
         if self.p.returncode is None:
             try:
-                self.p.stdin.close()
+                self._stdin.close()
             except OSError:
                 self._broken = True
             if not ok:
@@ -233,7 +245,7 @@ class _Ffmpeg:
         raise OSError(f"the encoder failed (ffmpeg {status}{why})")
 
 
-def _write_replacing_suffixed(out: Path, write) -> int:
+def _write_replacing_suffixed(out: Path, write: Callable[[Path], int]) -> int:
     """atomic.write_replacing with a temporary that keeps the suffix (the encoders pick the
     format from it): created exclusively beside ``out``, renamed over it when complete."""
     import contextlib

@@ -21,15 +21,24 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..engine.stepper import DomainStepper, Model
 from ..physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
 from ..model.scenario import (MAX_STEPS, Scenario, ScenarioError, scenario_from_dict, tile_grid,
                        tile_scenario)
 from ..model.state import Particles
+
+if TYPE_CHECKING:
+    from ..storage.npzfile import RowShape
+
+# called as the bed settles: (simulated time in s, mean speed in m/s)
+SettleProgress: TypeAlias = "Callable[[float, float], object]"
 
 
 class BedError(RuntimeError):
@@ -148,7 +157,7 @@ def wheel_footprint(sc: Scenario) -> tuple[float, float] | None:
     return (z0 - half, z0 + half)
 
 
-def settle(sc: Scenario, p: Particles, progress=None) -> tuple[Particles, int]:
+def settle(sc: Scenario, p: Particles, progress: SettleProgress | None = None) -> tuple[Particles, int]:
     """Deposit under gravity until the mean speed < settle_speed. Returns (bed, steps)."""
     model = Model.from_scenario(sc).without_wheel()
     stepper = DomainStepper(p, model)
@@ -186,7 +195,7 @@ def column_scenario(sc: Scenario) -> Scenario:
     return scenario_from_dict(d)
 
 
-def settled_column(sc: Scenario, progress=None) -> Particles:
+def settled_column(sc: Scenario, progress: SettleProgress | None = None) -> Particles:
     """The repose test's column at rest on the floor of sc's bin, centred (module doc).
 
     Settled in ``column_scenario``'s box, the spheres whose centres lie within
@@ -245,7 +254,7 @@ def cache_dir() -> Path:
     return Path(root)
 
 
-def read_bed(path, sc: Scenario, label: str) -> Particles:
+def read_bed(path: str | os.PathLike[str], sc: Scenario, label: str) -> Particles:
     """A bed file (``prepare``'s bed.npz, a bed-cache entry) read as untrusted input: every
     member's size is read from its header and held against the scenario's soil.n (and a
     history capacity of at most MAX_HIST_CAP) before anything is inflated, its dtype must
@@ -258,10 +267,11 @@ def read_bed(path, sc: Scenario, label: str) -> Particles:
     from ..model.state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
     where = f"{label} {path}"
     dtypes = dict(FIELD_DTYPES)
-    want = {}
-    for k, tail in field_tails(sc.dim, 0).items():
+    want: dict[str, tuple[RowShape, str]] = {}
+    for k, shape in field_tails(sc.dim, 0).items():
+        tail: RowShape = shape
         if k in HIST_FIELDS:     # a bed's capacity is its own, not the scenario's
-            tail = (range(MAX_HIST_CAP + 1),) + tail[1:]
+            tail = (range(MAX_HIST_CAP + 1),) + shape[1:]
         want[k] = (tail, "iu" if FIELD_DTYPES[k].kind in "iu" else "iuf")
     try:
         if is_v1(npz_member_names(path, StateError)):
@@ -285,7 +295,8 @@ def read_bed(path, sc: Scenario, label: str) -> Particles:
     return p
 
 
-def _cached(sc: Scenario, build, progress=None) -> Particles:
+def _cached(sc: Scenario, build: Callable[[SettleProgress | None], Particles],
+            progress: SettleProgress | None = None) -> Particles:
     # format-2 beds (pos, vel, ...) under their own name, so that an engine of format 1
     # sharing the cache never sees (and deletes) them; a format-1 cache (x, y, ...) still
     # loads: Particles converts it (state.upgrade_v1)
@@ -307,12 +318,12 @@ def _cached(sc: Scenario, build, progress=None) -> Particles:
     p = build(progress)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-    np.savez(tmp, **p.arrays())
+    np.savez(tmp, allow_pickle=False, **p.arrays())   # numeric arrays: nothing to pickle
     os.replace(tmp, path)
     return p
 
 
-def settled_bed(sc: Scenario, progress=None, use_cache: bool = True) -> Particles:
+def settled_bed(sc: Scenario, progress: SettleProgress | None = None, use_cache: bool = True) -> Particles:
     """The settled bed of a scenario (sorted by id), cached on disk by its bed hash."""
     if sc.bed.tile > 0 and sc.soil.n > sc.bed.tile:
         # filled part by part into one allocation (no list of parts plus a concatenated copy)
@@ -324,7 +335,7 @@ def settled_bed(sc: Scenario, progress=None, use_cache: bool = True) -> Particle
             at += len(part)
         return bed
 
-    def build(progress):
+    def build(progress: SettleProgress | None) -> Particles:
         if sc.repose.enabled:
             return settled_column(sc, progress)
         bed, _ = settle(sc, initial_fill(sc), progress)
@@ -333,7 +344,8 @@ def settled_bed(sc: Scenario, progress=None, use_cache: bool = True) -> Particle
     return _cached(sc, build, progress) if use_cache else build(progress)
 
 
-def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_per_part: int = 1):
+def tiled_bed_parts(sc: Scenario, progress: SettleProgress | None = None, use_cache: bool = True,
+                    tiles_per_part: int = 1) -> Iterator[Particles]:
     """Yield the bed in x order, a few tiles at a time (never the whole bed in RAM).
 
     Every other tile is mirrored, so that across each seam a disc that touched the
@@ -353,7 +365,7 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
     ntiles = -(-n_total // n_tile)
     extra = ntiles * n_tile - n_total
     top_first = np.argsort(-(tile.pos[:, AX_Y] + tile.r), kind="stable")
-    templates: dict = {}
+    templates: dict[tuple[int, bool, bool, bool], Particles] = {}
     for start in range(0, ntiles, tiles_per_part):
         parts = []
         for k in range(start, min(ntiles, start + tiles_per_part)):
@@ -372,10 +384,10 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
         yield Particles.concat(parts)
 
 
-def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, right_inner: bool,
+def _tile_template(tile: Particles, keep: NDArray[np.bool_], mirrored: bool, left_inner: bool, right_inner: bool,
                    tile_len: float) -> Particles:
     """One tile copy at offset 0 with tile-local ids (shifted per copy by the caller)."""
-    from ..physics.forces import ID_WALL_LEFT, ID_WALL_RIGHT
+    from ..physics.layout import ID_WALL_LEFT, ID_WALL_RIGHT
     q = tile.take(np.flatnonzero(keep))
     if mirrored:
         # a reflection in x: x -> L - x, vx -> -vx, and (2D) the spin about z reverses
@@ -410,7 +422,8 @@ def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, righ
     return q
 
 
-def _tiled_bed_parts_3d(sc: Scenario, progress, use_cache: bool, tiles_per_part: int):
+def _tiled_bed_parts_3d(sc: Scenario, progress: SettleProgress | None, use_cache: bool,
+                        tiles_per_part: int) -> Iterator[Particles]:
     """tiled_bed_parts in 3D: tile columns along x (each ``bed.tiles_across`` tiles across z),
     a few columns at a time, in x order. Tile (kx, kz) is number k = kx * nz + kz, mirrored
     in x when kx is odd and in z when kz is odd; sphere ids are k * n_tile + the tile's id."""
@@ -427,7 +440,7 @@ def _tiled_bed_parts_3d(sc: Scenario, progress, use_cache: bool, tiles_per_part:
     top_first = np.argsort(-(tile.pos[:, AX_Y] + tile.r), kind="stable")
     swap = {ID_WALL_LEFT: ID_WALL_RIGHT, ID_WALL_RIGHT: ID_WALL_LEFT,
             ID_WALL_FRONT: ID_WALL_BACK, ID_WALL_BACK: ID_WALL_FRONT}
-    templates: dict = {}
+    templates: dict[tuple[int, bool, bool, bool, bool, bool, bool], Particles] = {}
     for start in range(0, nx, max(1, tiles_per_part // nz)):
         parts = []
         for kx in range(start, min(nx, start + max(1, tiles_per_part // nz))):

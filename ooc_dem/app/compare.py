@@ -1,19 +1,29 @@
 """`ooc-dem compare A B`: Table-3-style comparison of two runs and their final states."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import Any
 
-from .plots import read_summary
+from .plots import RunFileError, read_summary
 
 
-def compare_runs(a, b) -> str:
-    sa, sb = read_summary(Path(a)), read_summary(Path(b))   # validated (hostile files: one-line errors)
+def _summary(run: str | os.PathLike[str]) -> dict[str, Any]:
+    """A finished run's summary, validated (hostile files: one-line errors)."""
+    s = read_summary(Path(run))
+    if s is None:   # read_summary raises for a missing summary of a finished run; never None
+        raise RunFileError(f"{run}: no summary.json (not a finished ooc-dem run)")
+    return s
 
-    def val(s, key, win="whole_travel"):
+
+def compare_runs(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> str:
+    sa, sb = _summary(a), _summary(b)
+
+    def val(s: dict[str, Any], key: str, win: str = "whole_travel") -> Any:
         v = s.get(key)
         return v.get(win, {}).get("value") if isinstance(v, dict) else v
 
-    def label(s):
+    def label(s: dict[str, Any]) -> str:
         e = s.get("engine", {})
         extra = f", D={e['domains']}, K={e.get('block', '?')}" if "domains" in e else ""
         return f"{s.get('mode')}{extra}"

@@ -11,11 +11,17 @@ the steps were grouped into blocks (modes and restarts give the same bits).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
-from ..engine.stepper import (REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y, REC_DB)
+from ..physics.layout import REC_DB, REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y
+
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
 
 SERIES_COLUMNS = ("t", "t_travel", "x", "y", "vx", "omega", "slip", "net_traction",
                   "vertical_force", "torque", "gross_traction", "sinkage", "drawbar")
@@ -36,7 +42,9 @@ N_WACC = 9
 
 
 @njit(cache=True)
-def _accumulate(rec, steps_per_row, step0, iacc, rows, nrows, wacc, windows, surface, radius, omega):
+def _accumulate(rec: NDArray[np.float64], steps_per_row: int, step0: int, iacc: NDArray[np.float64],
+                rows: NDArray[np.float64], nrows: NDArray[np.int64], wacc: NDArray[np.float64],
+                windows: NDArray[np.float64], surface: float, radius: float, omega: float) -> None:
     """Fold per-step records into interval rows and window sums (sequentially)."""
     for s in range(rec.shape[0]):
         t = rec[s, REC_T]
@@ -86,7 +94,7 @@ def _accumulate(rec, steps_per_row, step0, iacc, rows, nrows, wacc, windows, sur
 class WheelMetrics:
     """Time series and window averages of the wheel's performance."""
 
-    def __init__(self, sc, surface: float, total_steps: int):
+    def __init__(self, sc: Scenario, surface: float, total_steps: int) -> None:
         self.sc = sc
         self.surface = float(surface)
         dt = sc.physics.dt
@@ -105,7 +113,7 @@ class WheelMetrics:
         ])
         self.wacc = np.zeros((len(self.windows), N_WACC))
 
-    def add(self, rec: np.ndarray, step0: int) -> None:
+    def add(self, rec: NDArray[np.float64], step0: int) -> None:
         if len(rec) == 0:
             return
         self._reserve(int(self.nrows[0]) + len(rec) // self.steps_per_row + 1)
@@ -123,12 +131,12 @@ class WheelMetrics:
         self.rows = grown
 
     # ---- persistence (checkpoint) ----------------------------------------
-    def state_arrays(self) -> dict[str, np.ndarray]:
+    def state_arrays(self) -> dict[str, NDArray[np.float64]]:
         n = int(self.nrows[0])
         return {"metrics_iacc": self.iacc.copy(), "metrics_wacc": self.wacc.copy(),
                 "metrics_rows": self.rows[:n].copy()}
 
-    def load_state(self, arrays: dict[str, np.ndarray]) -> None:
+    def load_state(self, arrays: Mapping[str, NDArray[Any]]) -> None:
         self.iacc[:] = arrays["metrics_iacc"]
         self.wacc[:] = arrays["metrics_wacc"]
         rows = arrays["metrics_rows"]
@@ -137,12 +145,12 @@ class WheelMetrics:
         self.nrows[0] = len(rows)
 
     # ---- results -----------------------------------------------------------
-    def series(self) -> np.ndarray:
+    def series(self) -> NDArray[np.float64]:
         rows = self.rows[: int(self.nrows[0])].copy()
         rows[:, S_T_TRAVEL] = rows[:, S_T] - self.sc.wheel.settle_time
         return rows
 
-    def _window(self, k: int) -> dict:
+    def _window(self, k: int) -> dict[str, Any]:
         a = self.wacc[k]
         w = self.sc.wheel
         n = a[W_N]
@@ -171,15 +179,15 @@ class WheelMetrics:
             "travel_distance": float(dist),
         }
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         whole, steady, static = self._window(0), self._window(1), self._window(2)
 
-        def q(key, unit):
+        def q(key: str, unit: str) -> dict[str, Any]:
             return {"unit": unit,
                     "whole_travel": {"value": whole.get(key), "window_s": whole.get("window_s")},
                     "steady": {"value": steady.get(key), "window_s": steady.get("window_s")}}
 
-        out = {
+        out: dict[str, Any] = {
             "time_origin": "start of travel (end of the wheel's settling)",
             "slip": q("slip", "-"),
             "net_traction": q("net_traction", "N"),

@@ -7,20 +7,22 @@ the last commit) writes whichever a kill left unwritten.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..storage.atomic import write_replacing
 
 
 def run_summary(*, scenario: str, scenario_hash: str, mode: str, backend: str, steps: int,
-                dt: float, wall_time: float, n_discs: int, engine: dict, results: dict,
-                state_hash: str) -> dict:
+                dt: float, wall_time: float, n_discs: int, engine: dict[str, Any], results: dict[str, Any],
+                state_hash: str) -> dict[str, Any]:
     """summary.json's content, keys in the order the file shows them: the run, the
     engine's info, the results (wheel metrics, the repose heap) and the final state's hash."""
-    summary = {"scenario": scenario, "scenario_hash": scenario_hash, "mode": mode,
+    summary: dict[str, Any] = {"scenario": scenario, "scenario_hash": scenario_hash, "mode": mode,
                "backend": backend, "steps": steps, "simulated_time_s": steps * dt,
                "wall_time_s": round(wall_time, 3), "n_discs": n_discs, "engine": engine}
     summary.update(results)
@@ -28,7 +30,7 @@ def run_summary(*, scenario: str, scenario_hash: str, mode: str, backend: str, s
     return summary
 
 
-def write_outputs(out: Path, summary: dict, series: np.ndarray | None, figures: bool) -> None:
+def write_outputs(out: Path, summary: dict[str, Any], series: NDArray[np.float64] | None, figures: bool) -> None:
     """series.csv (if there is a series), summary.json, then the figures (if asked)."""
     out = Path(out)
     if series is not None:
@@ -40,7 +42,7 @@ def write_outputs(out: Path, summary: dict, series: np.ndarray | None, figures: 
 
 
 def complete_outputs(out: Path, step: int, write_all: Callable[[], None], *, series: bool,
-                     figures: Sequence[str] = (), summary_figures=()) -> list[str]:
+                     figures: Sequence[str] = (), summary_figures: Sequence[str] = ()) -> list[str]:
     """After the last commit at ``step``: write whichever outputs a kill left unwritten
     (``write_all`` writes them all); return their names. ``series``: the run has a
     series.csv; ``figures``: the files ``make_figures`` writes for the run, relative to
@@ -67,7 +69,7 @@ def write_text_atomic(path: Path, text: str) -> None:
     write_replacing(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
-def write_series_csv(path: Path, rows: np.ndarray) -> None:
+def write_series_csv(path: Path, rows: NDArray[np.float64]) -> None:
     from .metrics import SERIES_COLUMNS, SERIES_UNITS
     header = ",".join(f"{c} [{u}]" for c, u in zip(SERIES_COLUMNS, SERIES_UNITS))
     write_replacing(path, lambda tmp: np.savetxt(tmp, rows, delimiter=",", header=header, comments="",

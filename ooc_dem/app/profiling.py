@@ -16,9 +16,14 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import argparse
 
 MODES = ("monolithic", "ddm", "ooc")
 
@@ -55,19 +60,19 @@ def reset_peak() -> bool:
 class RssSampler(threading.Thread):
     """Samples VmRSS every `interval` seconds in a background thread."""
 
-    def __init__(self, interval: float = 0.05):
+    def __init__(self, interval: float = 0.05) -> None:
         super().__init__(daemon=True)
         self.interval = interval
         self.t0 = time.perf_counter()
         self.samples: list[tuple[float, int]] = []
         self._halt = threading.Event()
 
-    def run(self):
+    def run(self) -> None:
         while not self._halt.is_set():
             self.samples.append((time.perf_counter() - self.t0, rss_bytes()))
             self._halt.wait(self.interval)
 
-    def stop(self):
+    def stop(self) -> None:
         self._halt.set()
         self.join()
         self.samples.append((time.perf_counter() - self.t0, rss_bytes()))
@@ -89,7 +94,7 @@ def _warm_up(mode: str, backend: str, tmp: Path, dim: int = 2) -> None:
     sim.run()
 
 
-def child(args) -> dict:
+def child(args: argparse.Namespace) -> dict[str, Any]:
     """One mode, measured in this (fresh) process."""
     import shutil
     import tempfile
@@ -151,14 +156,15 @@ def child(args) -> dict:
 class OomKilled(RuntimeError):
     """A profiled mode was killed by its hard memory limit (message is one line)."""
 
-    def __init__(self, message: str, result: dict):
+    def __init__(self, message: str, result: dict[str, Any]) -> None:
         super().__init__(message)
         self.result = result
 
 
-def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains=None, block=None,
-              steps=20, work: Path, interval=0.05, keep=False, threads=None,
-              memory_limit: int | None = None) -> dict:
+def run_child(scenario: str, mode: str, *, overrides: Sequence[str] = (), backend: str = "hdf5",
+              domains: int | None = None, block: int | None = None, steps: int = 20, work: Path,
+              interval: float = 0.05, keep: bool = False, threads: int | None = None,
+              memory_limit: int | None = None) -> dict[str, Any]:
     """One mode in a fresh subprocess; with ``memory_limit`` (bytes) under a hard limit (a memory
     cgroup made for it, memlimit.py), its RSS and the cgroup's usage sampled over the whole run."""
     cmd = [sys.executable, "-m", "ooc_dem.app.profiling", "--child", scenario, "--mode", mode,
@@ -179,7 +185,8 @@ def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains
         if cp.returncode != 0:
             last = (cp.stderr.strip().splitlines() or ["(no output)"])[-1]
             raise RuntimeError(f"profiling child for mode {mode} failed: {last}")
-        return json.loads(cp.stdout.strip().splitlines()[-1])
+        measured: dict[str, Any] = json.loads(cp.stdout.strip().splitlines()[-1])
+        return measured
     from ..engine.memlimit import run_limited
     lim = run_limited(cmd, memory_limit, env=env, interval=min(interval, 0.1))
     limited = {**lim.as_dict(), "limit_rss_series": lim.samples}
@@ -188,17 +195,17 @@ def run_child(scenario: str, mode: str, *, overrides=(), backend="hdf5", domains
     if lim.returncode != 0:
         last = (lim.stderr.strip().splitlines() or ["(no output)"])[-1]
         raise RuntimeError(f"profiling child for mode {mode} failed (exit {lim.returncode}): {last}")
-    res = json.loads(lim.stdout.strip().splitlines()[-1])
+    res: dict[str, Any] = json.loads(lim.stdout.strip().splitlines()[-1])
     # the whole process's peak, seen from outside (imports and warm-up included)
     res["memory_limit"] = {k: v for k, v in limited.items() if k != "returncode"}
     return res
 
 
-def report(results: list[dict], out: Path) -> dict:
+def report(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
     """Write memory.json, memory.md and memory.png; returns the JSON document."""
     out.mkdir(parents=True, exist_ok=True)
     mono = next((r for r in results if r["mode"] == "monolithic"), None)
-    doc = {"runs": results}
+    doc: dict[str, Any] = {"runs": results}
     if mono:
         for r in results:
             r["peak_ratio_to_monolithic"] = r["peak_rss_bytes"] / mono["peak_rss_bytes"]
@@ -238,11 +245,12 @@ def report(results: list[dict], out: Path) -> dict:
     return doc
 
 
-def profile(scenario: str, modes, out: Path, overrides=(), backend="hdf5", domains=None, block=None,
-            steps=20, memory_limit: int | None = None) -> dict:
+def profile(scenario: str, modes: Iterable[str], out: Path, overrides: Sequence[str] = (), backend: str = "hdf5",
+            domains: int | None = None, block: int | None = None, steps: int = 20,
+            memory_limit: int | None = None) -> dict[str, Any]:
     """Each mode in a fresh subprocess (under ``memory_limit`` bytes, a hard cgroup limit, if
     given). A mode killed by the limit raises OomKilled after memory.json records it."""
-    results = []
+    results: list[dict[str, Any]] = []
     for m in modes:
         try:
             results.append(run_child(scenario, m, overrides=overrides, backend=backend, domains=domains,
@@ -266,7 +274,7 @@ def profile(scenario: str, modes, out: Path, overrides=(), backend="hdf5", domai
     return report(results, out)
 
 
-def _main():
+def _main() -> None:
     import argparse
     ap = argparse.ArgumentParser()
     ap.add_argument("--child", action="store_true")

@@ -31,13 +31,19 @@ Method (``measure``), on the final positions and radii only:
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ..storage.atomic import write_replacing
 from ..physics.layout import AX_X, AX_Y, AX_Z
+
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
 
 REPOSE_FIGURE = "repose.png"
 MIN_FLANK_BINS = 3       # bins a sector's flank needs for a line fit
@@ -48,7 +54,8 @@ class ReposeError(ValueError):
     """The heap has no measurable flank (message is one line)."""
 
 
-def _check(pos, r, sectors: int, bin_width: float, fit_low: float, fit_high: float):
+def _check(pos: ArrayLike, r: ArrayLike, sectors: int, bin_width: float, fit_low: float,
+           fit_high: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     pos = np.asarray(pos, np.float64)
     r = np.asarray(r, np.float64)
     if pos.ndim != 2 or pos.shape[1] != 3 or r.shape != (len(pos),):
@@ -66,7 +73,8 @@ def _check(pos, r, sectors: int, bin_width: float, fit_low: float, fit_high: flo
     return pos, r
 
 
-def surface_profiles(pos, r, sectors: int, bin_width: float):
+def surface_profiles(pos: NDArray[np.float64], r: NDArray[np.float64], sectors: int, bin_width: float
+                     ) -> tuple[float, tuple[float, float], NDArray[np.float64], NDArray[np.float64]]:
     """(H, centre (x, z), profile rho (sectors, K), profile height (sectors, K)) (module doc,
     step 2); NaN where a sector's bin is empty."""
     top = pos[:, AX_Y] + r
@@ -97,7 +105,7 @@ def surface_profiles(pos, r, sectors: int, bin_width: float):
     return height, (cx, cz), prof_r.reshape(sectors, nbins), prof_h.reshape(sectors, nbins)
 
 
-def fit_flank(rho, h, lo: float, hi: float):
+def fit_flank(rho: NDArray[np.float64], h: NDArray[np.float64], lo: float, hi: float) -> dict[str, Any] | None:
     """Least-squares line through one sector's flank (module doc, step 3): dict of the
     fit, or None when fewer than MIN_FLANK_BINS bins qualify."""
     ok = np.isfinite(h)
@@ -118,8 +126,8 @@ def fit_flank(rho, h, lo: float, hi: float):
             "r_squared": float(1.0 - np.sum(resid ** 2) / ss) if ss > 0 else 1.0}
 
 
-def measure(pos, r, sectors: int = 8, bin_width: float = 0.005, fit_low: float = 0.2,
-            fit_high: float = 0.8) -> dict:
+def measure(pos: ArrayLike, r: ArrayLike, sectors: int = 8, bin_width: float = 0.005, fit_low: float = 0.2,
+            fit_high: float = 0.8) -> dict[str, Any]:
     """The heap's angle of repose (module doc) as a JSON-ready dict; ReposeError when fewer
     than half the sectors have a flank to fit."""
     pos, r = _check(pos, r, sectors, bin_width, fit_low, fit_high)
@@ -154,7 +162,8 @@ def measure(pos, r, sectors: int = 8, bin_width: float = 0.005, fit_low: float =
     }
 
 
-def heap_outputs(out, sc, pos, r, vel, figures: bool = True) -> dict:
+def heap_outputs(out: str | os.PathLike[str], sc: Scenario, pos: NDArray[np.float64], r: NDArray[np.float64],
+                 vel: NDArray[np.float64], figures: bool = True) -> dict[str, Any]:
     """summary.json's ``repose`` entry of a finished repose run, and figures/repose.png.
 
     Never raises for the heap's shape: an unmeasurable heap gives ``angle_deg`` null and
@@ -162,11 +171,12 @@ def heap_outputs(out, sc, pos, r, vel, figures: bool = True) -> dict:
     rp = sc.repose
     d_mean = float(2.0 * np.mean(r))
     speed = np.sqrt(np.einsum("ij,ij->i", vel, vel))
-    entry = {"unit": "deg", "friction": sc.contact.soil_soil.friction,
+    entry: dict[str, Any] = {"unit": "deg", "friction": sc.contact.soil_soil.friction,
              "rolling_friction": sc.contact.soil_soil.rolling_friction,
              "column_radius_m": rp.column_radius, "n_spheres": int(len(r)),
              "mean_diameter_m": d_mean, "mean_speed_m_s": float(speed.mean()),
              "max_speed_m_s": float(speed.max())}
+    m: dict[str, Any] | None
     try:
         m = measure(pos, r, rp.sectors, rp.bin_width, rp.fit_low, rp.fit_high)
     except ReposeError as e:
@@ -182,7 +192,8 @@ def heap_outputs(out, sc, pos, r, vel, figures: bool = True) -> dict:
     return entry
 
 
-def repose_figure(pos, r, m: dict | None, entry: dict, path: Path) -> Path:
+def repose_figure(pos: NDArray[np.float64], r: NDArray[np.float64], m: dict[str, Any] | None,
+                  entry: dict[str, Any], path: Path) -> Path:
     """Side view (every sphere at its distance from the heap's axis; the per-sector
     surface profiles; each sector's fitted flank line; the fit band) and top view."""
     import matplotlib

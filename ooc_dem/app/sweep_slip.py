@@ -7,14 +7,18 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from .run import RunError, RunOptions, Simulation
-from ..model.scenario import load_scenario
+from ..model.scenario import Scenario, load_scenario
+
+if TYPE_CHECKING:
+    from mpi4py import MPI
 
 CSV_NAME = "drawbar_pull_slip.csv"
 
 
-def steady_window_problem(sc) -> str | None:
+def steady_window_problem(sc: Scenario) -> str | None:
     """Why the steady window (whose mean net traction is the drawbar pull) holds no step, or None."""
     o, w = sc.output, sc.wheel
     end = min(o.steady_end, w.travel_time)
@@ -25,14 +29,19 @@ def steady_window_problem(sc) -> str | None:
     return None
 
 
+def _steady(summary: dict[str, Any], key: str) -> Any:
+    """A run summary's steady-window mean of ``key``."""
+    return summary[key]["steady"]["value"]
+
+
 def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out: Path,
-                   progress: bool = True, comm=None) -> list[dict] | None:
+                   progress: bool = True, comm: MPI.Comm | None = None) -> list[dict[str, Any]] | None:
     """The curve, one run per slip. With ``comm`` (an MPI communicator: ``mpiexec -n R
     ooc-dem sweep``) the runs fan out over the ranks (run i on rank i mod R, each the same
     monolithic run as in one process, so the same bits); rank 0 gathers the rows and
     writes the curve, the others return None."""
     rank, ranks = (comm.Get_rank(), comm.Get_size()) if comm is not None else (0, 1)
-    problem = None
+    problem: str | None = None
     if rank == 0 and out.exists() and any(out.iterdir()):
         problem = f"--out {out}: directory exists and is not empty"
     if comm is not None:
@@ -55,7 +64,8 @@ def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out:
         out.mkdir(parents=True, exist_ok=True)
     if comm is not None:
         comm.Barrier()
-    mine, failure = {}, None
+    mine: dict[int, dict[str, Any]] = {}
+    failure: str | None = None
     for i in range(rank, len(slips), ranks):
         try:
             summary = sims[i].run()
@@ -64,15 +74,16 @@ def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out:
             if comm is None:
                 raise
             break
-        st = lambda k: summary[k]["steady"]["value"]
-        mine[i] = {"slip": slips[i], "drawbar_pull": st("net_traction"), "gross_traction": st("gross_traction"),
-                   "sinkage": st("sinkage"), "vertical_force": st("vertical_force")}
+        mine[i] = {"slip": slips[i], "drawbar_pull": _steady(summary, "net_traction"),
+                   "gross_traction": _steady(summary, "gross_traction"), "sinkage": _steady(summary, "sinkage"),
+                   "vertical_force": _steady(summary, "vertical_force")}
         r = mine[i]
         print(f"slip {r['slip']:.3f}: drawbar pull {r['drawbar_pull']:.3f} N, "
               f"gross traction {r['gross_traction']:.3f} N, sinkage {1e3 * r['sinkage']:.1f} mm"
               + (f" (rank {rank})" if ranks > 1 else ""), flush=True)
-    parts = comm.gather((mine, failure), root=0) if comm is not None else [(mine, failure)]
-    if rank != 0:
+    parts: list[tuple[dict[int, dict[str, Any]], str | None]] | None = (
+        comm.gather((mine, failure), root=0) if comm is not None else [(mine, failure)])
+    if rank != 0 or parts is None:   # gather gives the list on rank 0 only
         return None
     failures = [f for _, f in parts if f]
     if failures:

@@ -15,11 +15,17 @@
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..physics.layout import WS_THETA, WS_X, WS_Y
+
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
 
 MIDWIDTH_FIGURE = "deformation_midwidth.png"
 RUT_FIGURE = "rut.png"
@@ -28,7 +34,8 @@ WHEEL_MESH = "wheel.vtk"
 RIM_SEGMENTS = 72
 
 
-def wheel_mesh(sc, ws, segments: int = RIM_SEGMENTS) -> tuple[np.ndarray, list[list[int]]]:
+def wheel_mesh(sc: Scenario, ws: NDArray[np.float64],
+               segments: int = RIM_SEGMENTS) -> tuple[NDArray[np.float64], list[list[int]]]:
     """(points (P, 3), polygons as point-index lists) of the wheel at state ws: the rim
     cylinder (segments quads, two end-cap polygons) and each lug as a closed box from R to
     the lug tip, lug_thickness thick, across the wheel's width (the plates the kernels use,
@@ -66,7 +73,7 @@ def wheel_mesh(sc, ws, segments: int = RIM_SEGMENTS) -> tuple[np.ndarray, list[l
     return np.array(pts, np.float64), polys
 
 
-def write_wheel_vtk(path, sc, ws) -> Path:
+def write_wheel_vtk(path: str | os.PathLike[str], sc: Scenario, ws: NDArray[np.float64]) -> Path:
     """The wheel mesh (``wheel_mesh``) as a legacy ASCII VTK polydata file (atomic)."""
     from ..storage.atomic import write_replacing
     pts, polys = wheel_mesh(sc, ws)
@@ -81,19 +88,21 @@ def write_wheel_vtk(path, sc, ws) -> Path:
     return path
 
 
-def _grid(sc):
+def _grid(sc: Scenario) -> tuple[float, int, int]:
     cell = 2.0 * sc.soil.r_max
     nx = max(1, int(sc.bin.length / cell))
     nz = max(1, int(sc.bin.width / cell))
     return cell, nx, nz
 
 
-def _cells(x, z, cell, nx, nz):
+def _cells(x: NDArray[np.float64], z: NDArray[np.float64], cell: float, nx: int,
+           nz: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     return (np.clip((x / cell).astype(np.int64), 0, nx - 1),
             np.clip((z / cell).astype(np.int64), 0, nz - 1))
 
 
-def surface_map(sc, x, y, z, r) -> np.ndarray:
+def surface_map(sc: Scenario, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64],
+                r: NDArray[np.float64]) -> NDArray[np.float64]:
     """Top of the bed (max y + r) per x-z cell of 2 r_max (nan where a cell is empty)."""
     cell, nx, nz = _grid(sc)
     ix, iz = _cells(x, z, cell, nx, nz)
@@ -103,7 +112,8 @@ def surface_map(sc, x, y, z, r) -> np.ndarray:
     return top
 
 
-def lateral_map(sc, x0, z0, dz) -> np.ndarray:
+def lateral_map(sc: Scenario, x0: NDArray[np.float64], z0: NDArray[np.float64],
+                dz: NDArray[np.float64]) -> NDArray[np.float64]:
     """Mean lateral displacement per x-z cell of the spheres' initial position (nan: empty)."""
     cell, nx, nz = _grid(sc)
     ix, iz = _cells(x0, z0, cell, nx, nz)
@@ -115,7 +125,7 @@ def lateral_map(sc, x0, z0, dz) -> np.ndarray:
         return np.where(c > 0, s / np.maximum(c, 1.0), np.nan)
 
 
-def _match(iid, fid):
+def _match(iid: NDArray[np.int64], fid: NDArray[np.int64]) -> NDArray[np.intp]:
     """Index into the initial arrays of each final id (all ids are in both)."""
     order = np.argsort(iid, kind="stable")
     return order[np.clip(np.searchsorted(iid[order], fid), 0, len(iid) - 1)]

@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     from ooc_dem.physics.forces import ROLE_STABLE
     from ooc_dem.physics.layout import WHEEL_RECORD
     from ooc_dem.model.scenario import load_scenario
-    from ooc_dem.storage.store import open_store
+    from ooc_dem.storage import open_store
 
     sc = load_scenario(str(Path(a.run) / "scenario.toml"))
     model = Model.from_scenario(sc)

@@ -37,7 +37,7 @@ def _model(run: Path, skin: float | None = None):
 def last_epoch(run: Path):
     """(particles, wheel state, step) of the run's last committed epoch, read once."""
     from ooc_dem.model.checkpoint import read_all_particles
-    from ooc_dem.storage.store import open_store
+    from ooc_dem.storage import open_store
     model = _model(run)   # its dimension and history capacity
     with open_store(run) as store:
         reader = store.read_epoch(None)

@@ -179,9 +179,12 @@ written (and before a sweep is computed). Index arrays are read in windows of
 nearby rows (at most 1 MiB wide), never the whole array.
 """
 
+from ._manifest import BACKENDS, COMPRESSIONS
 from ._util import StoreError, drop_page_cache
-from .store import (BACKENDS, COMPRESSIONS, EpochInfo, EpochReader, EpochWriter, Leftover, Problem,
-                    Store, create_store, drop_memory_store, open_store, store_owns, write_part)
+from .epoch import EpochReader, EpochWriter
+from .parts import write_part
+from .store import (EpochInfo, Leftover, Problem, Store, create_store, drop_memory_store, open_store,
+                    store_owns)
 
 __all__ = [
     "BACKENDS",

@@ -1,0 +1,331 @@
+"""EpochWriter and EpochReader: one epoch of a store, written under temporary names and
+published by ``EpochWriter.commit``, or read back once committed (``Store.begin_epoch`` and
+``Store.read_epoch`` make them)."""
+
+from __future__ import annotations
+
+import json
+import operator
+import os
+from collections.abc import Mapping
+
+import numpy as np
+
+from ._manifest import files_of
+from ._util import (EPOCH_DIR, FORMAT_VERSION, GLOBALS_GROUP, MAX_PARTS, StoreError, array_meta,
+                    domain_group, gather_rows, normalize_rows, part_basename, prepare_arrays,
+                    remove_path, to_json, write_error)
+from ._util import TMP_NAME_RE as _TMP_RE
+from ._util import show as _show
+
+_IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
+
+
+class EpochWriter:
+    """Writes one epoch under temporary names; commit() publishes it atomically."""
+
+    def __init__(self, store, step: int, basename: str):
+        self._store = store
+        self.step = step
+        self._basename = basename
+        self._domains: dict[str, dict] = {}
+        self._globals: dict | None = None
+        self._parts: dict[int, dict] = {}
+        self._state = "open"
+        self._tmp = store._place.tmp_name(basename)
+        try:
+            self._w = store._place.new_writer(step, basename, store.compression)
+        except (OSError, RuntimeError) as e:
+            self._state = "aborted"
+            if not store._place.is_memory:
+                remove_path(self._tmp)
+            raise write_error(self._tmp, e) from e
+
+    def __repr__(self):
+        return f"EpochWriter({self._store.path!r}, step={self.step}, state={self._state})"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if self._state == "open":   # exception, or left without commit(): discard the epoch
+            self.abort()
+        return False
+
+    def _check_open(self):
+        if self._state != "open":
+            raise StoreError(f"{self._store.path}: epoch {self.step} writer is {self._state}")
+
+    def _write(self, group: str, arrays, attrs_json: str):
+        try:
+            self._w.write_group(group, arrays, attrs_json)
+        except (OSError, RuntimeError) as e:
+            self.abort()
+            raise write_error(self._tmp, e) from e
+        except BaseException:
+            self.abort()
+            raise
+
+    def write_domain(self, d: int, arrays: dict, attrs: dict | None = None) -> None:
+        """Write sub-domain `d` (once per d): arrays of >= 1 dimension, JSON-able attrs."""
+        self._check_open()
+        try:
+            d = operator.index(d)
+        except TypeError:
+            raise StoreError(f"{self._store.path}: domain id must be an int, got {d!r}") from None
+        where = f"{self._store.path}: epoch {self.step} domain {d}"
+        if d < 0:
+            raise StoreError(f"{where}: domain id must be >= 0")
+        if str(d) in self._domains:
+            raise StoreError(f"{where}: already written in this epoch")
+        if attrs is not None and not isinstance(attrs, Mapping):
+            raise StoreError(f"{where}: attrs must be a dict")
+        arrs = prepare_arrays(arrays, where, min_ndim=1)
+        attrs_json = to_json(dict(attrs or {}), f"{where} attrs")
+        self._write(domain_group(d), arrs, attrs_json)
+        first = next(iter(arrs.values()), None)
+        self._domains[str(d)] = {"n": 0 if first is None else int(first.shape[0]),
+                                 "arrays": array_meta(arrs)}
+
+    @property
+    def basename(self) -> str:
+        """The epoch's file name: the processes that write its parts name them after it
+        (``write_part(..., writer.basename, k, ...)``)."""
+        return self._basename
+
+    def add_part(self, part: dict) -> None:
+        """Phase 1 of a parts' commit: part ``part["part"]`` (what ``write_part`` returned in
+        another process, complete on disk under its temporary name) is in this epoch. It is
+        published with the epoch by commit(), and removed if the epoch is aborted."""
+        self._check_open()
+        where = f"{self._store.path}: epoch {self.step}"
+        if self._store._place.is_memory:
+            raise StoreError(f"{where}: a memory store keeps no parts (one process holds it)")
+        k = part.get("part")
+        if type(k) is not int or not 1 <= k <= MAX_PARTS or k in self._parts:
+            raise StoreError(f"{where}: part {_show(k)} is not a new part number (1 to {MAX_PARTS})")
+        name = part_basename(self._basename, k)
+        tmp = part.get("tmp", "")
+        m = _TMP_RE.match(os.path.basename(tmp)) if isinstance(tmp, str) else None
+        if part.get("path") != f"{EPOCH_DIR}/{name}" or m is None or m.group(1) != name \
+                or os.path.dirname(tmp) != self._store._place.edir:
+            raise StoreError(f"{where}: part {k} was not written as part {k} of this epoch ({name})")
+        self._parts[k] = part   # its tmp is ours to remove from now on (abort)
+        for d, info in part["domains"].items():
+            if d in self._domains:
+                self.abort()
+                raise StoreError(f"{where} domain {d}: written twice (part {k} and another)")
+            self._domains[d] = {**info, "part": k}
+
+    def write_globals(self, arrays: dict, attrs: dict | None = None) -> None:
+        """Write the global state (once): arrays of any shape, including 0-d."""
+        self._check_open()
+        where = f"{self._store.path}: epoch {self.step} globals"
+        if self._globals is not None:
+            raise StoreError(f"{where}: already written in this epoch")
+        if attrs is not None and not isinstance(attrs, Mapping):
+            raise StoreError(f"{where}: attrs must be a dict")
+        arrs = prepare_arrays(arrays, where, min_ndim=0)
+        attrs_json = to_json(dict(attrs or {}), f"{where} attrs")
+        self._write(GLOBALS_GROUP, arrs, attrs_json)
+        self._globals = {"arrays": array_meta(arrs)}
+
+    def commit(self, durable: bool = False) -> None:
+        """Publish the epoch: it becomes current; the old current becomes previous."""
+        self._check_open()
+        self._store._check_open()
+        self._state = "committing"
+        try:
+            self._store._commit(self, durable)
+        except BaseException:
+            self._state = "aborted"
+            try:
+                self._w.abort()
+            except Exception:  # noqa: BLE001
+                pass
+            for part in self._parts.values():
+                remove_path(part["tmp"])
+            raise
+        self._state = "committed"
+
+    def abort(self) -> None:
+        """Discard everything written, parts included (idempotent)."""
+        if self._state in ("aborted", "committed"):
+            return
+        self._state = "aborted"
+        try:
+            self._w.abort()
+        except Exception:  # noqa: BLE001
+            pass
+        for part in self._parts.values():
+            remove_path(part["tmp"])
+
+
+# ============================================================================ reader
+
+def own_step_problem(place, r, where: str, step: int) -> str | None:
+    """The problem of a file of epoch `step` (its main file or a part, open as `r`) whose
+    writer recorded another step in it, or none: a file of another epoch put in its place
+    (its size and checksum in the manifest recomputed). One attribute, read once per open.
+    A memory store has no files to swap."""
+    if place.is_memory:
+        return None
+    try:
+        got = r.root_step()
+    except Exception as ex:  # noqa: BLE001 - a hostile attribute is a problem to report
+        return f"{where}: root attribute 'step' unreadable ({type(ex).__name__}: {ex})"
+    if type(got) is int and got == step:
+        return None
+    return (f"{where}: the file records step {_show(got)}, not the epoch's {step} (a file of "
+            f"another epoch)")
+
+
+class EpochReader:
+    """Read access to one committed epoch."""
+
+    def __init__(self, store, entry: dict):
+        self._store = store
+        self._e = entry
+        self.step: int = entry["step"]
+        self._where = store._where(entry)
+        # the format the epoch was written in (its entry's, else the manifest's)
+        self.format_version: int = entry.get("format_version",
+                                             store._m.get("format_version", FORMAT_VERSION))
+        try:
+            self._r = store._place.open_reader(entry)
+        except Exception as ex:  # noqa: BLE001
+            raise StoreError(f"{self._where}: cannot open epoch {self.step} "
+                             f"({type(ex).__name__}: {ex})") from ex
+        own = own_step_problem(store._place, self._r, self._where, self.step)
+        if own:
+            self._r.close()
+            raise StoreError(own)
+        self._part_readers: dict[int, object] = {}
+        # each group's attrs as read once (JSON text, decoded afresh for every caller): an
+        # epoch never changes while it is read, and a sweep asks for every group's x range
+        # once per slab (D^2 lookups: 62 500 HDF5 attribute reads took half of a sweep at D = 250)
+        self._attrs_json: dict[str, str | None] = {}
+        store._readers.add(self)
+
+    def __repr__(self):
+        return f"EpochReader({self._where!r}, step={self.step})"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    def _dom(self, d) -> dict:
+        info = self._e["domains"].get(str(operator.index(d)))
+        if info is None:
+            raise StoreError(f"{self._where}: epoch {self.step} has no domain {d} "
+                             f"(has {self.domains()})")
+        return info
+
+    def _check(self):
+        if self._r is None:
+            raise StoreError(f"{self._where}: reader is closed")
+
+    def _reader(self, d=None):
+        """The reader of the file that holds domain d (None: the globals' file)."""
+        self._check()
+        k = 0 if d is None else self._dom(d).get("part", 0)
+        if k == 0:
+            return self._r
+        r = self._part_readers.get(k)
+        if r is None:
+            sub = files_of(self._e)[k]
+            try:
+                r = self._store._place.open_reader(sub)
+            except Exception as ex:  # noqa: BLE001
+                raise StoreError(f"{self._store._where(sub)}: cannot open part {k} of epoch {self.step} "
+                                 f"({type(ex).__name__}: {ex})") from ex
+            own = own_step_problem(self._store._place, r, self._store._where(sub), self.step)
+            if own:
+                r.close()
+                raise StoreError(own)
+            self._part_readers[k] = r
+        return r
+
+    def domains(self) -> list[int]:
+        return sorted(int(k) for k in self._e["domains"])
+
+    def domain_len(self, d: int) -> int:
+        return int(self._dom(d)["n"])
+
+    def domain_arrays(self, d: int) -> dict[str, tuple[tuple, np.dtype]]:
+        """name -> (shape, dtype) of the arrays of domain d (from the manifest, no I/O)."""
+        return {n: (tuple(s), np.dtype(t)) for n, (s, t) in self._dom(d)["arrays"].items()}
+
+    def _attrs(self, g: str, r=None) -> dict:
+        self._check()
+        r = self._r if r is None else r
+        try:
+            if g not in self._attrs_json:   # a group's name is unique across the epoch's files
+                self._attrs_json[g] = r.attrs_json(g)
+            a = self._attrs_json[g]
+            return json.loads(a) if a is not None else {}
+        except Exception as ex:  # noqa: BLE001
+            raise StoreError(f"{self._where}: attrs of /{g} unreadable ({type(ex).__name__}: {ex})") from ex
+
+    def domain_attrs(self, d: int) -> dict:
+        return self._attrs(domain_group(operator.index(d)), self._reader(d))
+
+    def _read(self, g: str, arrays: dict, names, rows, r=None) -> dict[str, np.ndarray]:
+        self._check()
+        reader = self._r if r is None else r
+        if names is None:
+            names = list(arrays)
+        elif isinstance(names, str):
+            raise StoreError(f"{self._where}: names must be a list of array names, not a str")
+        out = {}
+        try:
+            for n in names:
+                if n not in arrays:
+                    raise StoreError(f"{self._where}: epoch {self.step} /{g} has no array {n!r} "
+                                     f"(has {list(arrays)})")
+                shape, dtype = tuple(arrays[n][0]), np.dtype(arrays[n][1])
+                if rows is None:
+                    out[n] = reader.read_full(g, n, shape, dtype)
+                    continue
+                if not shape:
+                    raise StoreError(f"{self._where}: /{g}/{n} is 0-d; rows do not apply")
+                sel = normalize_rows(rows, shape[0], f"{self._where}: /{g}/{n}")
+                if isinstance(sel, tuple):
+                    a = np.empty((sel[1] - sel[0],) + shape[1:], dtype=dtype)
+                    reader.read_range(g, n, sel[0], sel[1], a)
+                else:
+                    a = gather_rows(lambda s, e, o: reader.read_range(g, n, s, e, o),
+                                    sel, shape, dtype)
+                out[n] = a
+        except StoreError:
+            raise
+        except _IO_ERRORS as ex:
+            raise StoreError(f"{self._where}: epoch {self.step} /{g}: read failed "
+                             f"({type(ex).__name__}: {ex})") from ex
+        finally:
+            reader.after_read()
+        return out
+
+    def read_domain(self, d: int, names: list[str] | None = None,
+                    rows: slice | np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Arrays of domain d (all, or `names`); `rows` reads only those rows (first axis)."""
+        info = self._dom(d)
+        return self._read(domain_group(operator.index(d)), info["arrays"], names, rows, self._reader(d))
+
+    def read_globals(self) -> tuple[dict[str, np.ndarray], dict]:
+        g = self._e.get("globals")
+        if g is None:
+            return {}, {}
+        return self._read(GLOBALS_GROUP, g["arrays"], None, None), self._attrs(GLOBALS_GROUP)
+
+    def close(self) -> None:
+        r, self._r = self._r, None
+        parts, self._part_readers = list(getattr(self, "_part_readers", {}).values()), {}
+        for x in ([r] if r is not None else []) + parts:
+            try:
+                x.close()
+            except Exception:  # noqa: BLE001
+                pass

@@ -39,7 +39,7 @@ def _override_items(overrides: Mapping[Any, object], prefix: str = "") -> Iterat
     written as TOML (the CLI parses ``--set`` values as TOML), so they are parsed, coerced and
     range-checked by the same code as ``--set``.
     """
-    from .model.scenario import ScenarioError, show, toml_string
+    from .model.schema import ScenarioError, show, toml_string
     for key, value in overrides.items():
         if not isinstance(key, str):
             raise ScenarioError(f"overrides key {show(key)}: must be a string such as 'wheel.slip'")

@@ -171,7 +171,7 @@ def test_tile_share_takes_the_division_noise_away():
     """A bin n tiles across gives the tile of the base bin (0.6 m / 6 is the 0.1 m tile of
     0.2 m / 2, the same settled tile), so that a domain study compares the same soil; a
     share that is not a short decimal stays the quotient."""
-    from ooc_dem.model.scenario import tile_scenario, tile_share
+    from ooc_dem.model.scenario_check import tile_scenario, tile_share
     from ooc_dem.model.scenario import load_scenario
     assert 0.6 / 6 != 0.1 and tile_share(0.6, 6) == 0.1
     assert tile_share(8.6, 86) == 0.1 and tile_share(0.2, 2) == 0.1

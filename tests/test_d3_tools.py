@@ -118,7 +118,7 @@ def test_domain_sensitivity_runs_share_the_tile_under_the_wheel(capsys):
     import importlib.util
     from pathlib import Path
 
-    from ooc_dem.model.scenario import tile_grid, tile_scenario
+    from ooc_dem.model.scenario_check import tile_grid, tile_scenario
     from ooc_dem.model.scenario import load_scenario
     path = Path(__file__).resolve().parents[1] / "tools" / "domain_sensitivity.py"
     spec = importlib.util.spec_from_file_location("domain_sensitivity", path)

@@ -18,7 +18,7 @@ import pytest
 from conftest import WHEEL_TEST, one_line_error, run_cli
 
 from ooc_dem import cli
-from ooc_dem.model.scenario import Scenario, dict_to_toml
+from ooc_dem.model.schema import Scenario, dict_to_toml
 
 EMOJI = "r\U0001F600n"
 MAX_STEPS = 10**10   # the documented maximum step count

@@ -55,7 +55,7 @@ def configurations(across: list[int], along: list[int]) -> list[tuple[str, int, 
 def run_settings(sc, settings: list[str], seed: int, n_across: int, n_along: int) -> list[str]:
     """The --set values of one run: the base scenario ``sc`` (with ``settings``) on a bin
     n_across x n_along of its tiles, seeded with ``seed``, monolithic, no snapshots."""
-    from ooc_dem.model.scenario import tile_size
+    from ooc_dem.model.scenario_check import tile_size
     tile_len, tile_wid = tile_size(sc)
     return [*settings, f"soil.seed={seed}", f"bed.tiles_across={n_across}",
             f"bin.width={n_across * tile_wid:.15g}", f"bin.length={n_along * tile_len:.15g}",
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
               f"wheel stands on the base's kind of seam; got {bad}" if bad else
               "domain_sensitivity: tiles along must be >= 1", file=sys.stderr)
         return 2
-    from ooc_dem.model.scenario import tile_size
+    from ooc_dem.model.scenario_check import tile_size
     from ooc_dem.model.scenario import ScenarioError, load_scenario
     try:   # the settings checked here, once, rather than by every run
         sc = load_scenario(a.scenario, a.set)

@@ -30,8 +30,8 @@ from numpy.typing import NDArray
 
 from ..engine.stepper import DomainStepper, Model
 from ..physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
-from ..model.scenario import (MAX_STEPS, Scenario, ScenarioError, scenario_from_dict, tile_grid,
-                       tile_scenario)
+from ..model.scenario_check import scenario_from_dict, tile_grid, tile_scenario
+from ..model.schema import MAX_STEPS, Scenario, ScenarioError
 from ..model.state import Particles
 
 if TYPE_CHECKING:
@@ -186,7 +186,7 @@ def settle(sc: Scenario, p: Particles, progress: SettleProgress | None = None) -
 def column_scenario(sc: Scenario) -> Scenario:
     """The scenario the repose column is settled in: the square box of side 2 column_radius
     around the column, filled with scenario.repose_fill's count of spheres."""
-    from ..model.scenario import repose_fill
+    from ..model.scenario_check import repose_fill
     d = sc.to_dict()
     side = 2.0 * sc.repose.column_radius
     d["bin"]["length"] = d["bin"]["width"] = side
@@ -263,7 +263,7 @@ def read_bed(path: str | os.PathLike[str], sc: Scenario, label: str) -> Particle
     StateError, one line starting with ``label`` and the file."""
     from ..model.checkpoint import StateError, check_bed
     from ..storage.npzfile import npz_member_names, read_npz_members
-    from ..model.scenario import MAX_HIST_CAP
+    from ..model.schema import MAX_HIST_CAP
     from ..model.state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
     where = f"{label} {path}"
     dtypes = dict(FIELD_DTYPES)

@@ -377,7 +377,7 @@ def stored_layout(meta: dict, where: str, sc=None) -> tuple[int, int, StateBound
     one; without a scenario no StateBounds). A run keeps the capacity it was written with
     when that is larger (runs written when 2D's default was 12 may hold discs with more than
     today's 8 contacts), up to the scenario's maximum."""
-    from .scenario import MAX_HIST_CAP
+    from .schema import MAX_HIST_CAP
     if not isinstance(meta, dict):
         raise StateError(f"{where}: store meta is not an object")
     dim = meta.get("dim", 2)   # format 1 was 2D only

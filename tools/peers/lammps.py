@@ -384,7 +384,7 @@ def map_law_3d(sc, info: dict) -> dict:
     """LAMMPS ``granular`` coefficients of the kernel's soil-soil and soil-wall records
     (scenario.contact_table_3d), mapped exactly per contact (module doc)."""
     from ooc_dem.physics.d3 import layout as L3
-    from ooc_dem.model.scenario import contact_table_3d
+    from ooc_dem.model.scenario_check import contact_table_3d
     cp = contact_table_3d(sc)
     out = {}
     for name, (ta, tb), pair, where in (

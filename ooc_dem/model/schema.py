@@ -1,0 +1,334 @@
+"""The scenario's schema: its sections as frozen dataclasses with their defaults, the
+Scenario with its hashes, the limits every value is checked against, ScenarioError and the
+helpers of its one-line messages, and the TOML a scenario is stored as.
+
+Checking the values is model/scenario_check.py's, loading them model/scenario.py's.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import re
+from dataclasses import dataclass
+from typing import Any
+
+
+class ScenarioError(ValueError):
+    """A scenario value, file or override is invalid (message is one line)."""
+
+
+# Every step count a run derives (from durations, --steps, --duration, --until) is at most
+# this: 1e10 steps is 2000 x paper2008's 4.6 M steps, months of wall time at any size, so a
+# larger count is a typo; it also keeps every step number far inside int64 in the kernels.
+MAX_STEPS = 10**10
+# bounds of decomposition.domains / --domains and decomposition.block / --block
+MAX_DOMAINS = 4096
+MAX_BLOCK = 10000
+# bound of physics.history_capacity (and of a stored run's capacity read on resume): a
+# particle's history is this many slots in RAM, so a typo must not allocate gigabytes
+MAX_HIST_CAP = 64
+# scenario.name becomes the default output directory runs/<name>: one safe path component
+NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,99}")
+NAME_ALLOWED = "1-100 letters, digits and _ . + - (not starting with . + or -; it names runs/<name>)"
+MAX_TEXT = 10_000          # characters of a string value (descriptions end up in every manifest)
+MAX_SCENARIO_FILE = 1 << 20  # bytes of a scenario TOML file
+
+
+def show(value: Any, limit: int = 60) -> str:
+    """A value as it may appear in a one-line message: never recursive, never long,
+    never an int-to-decimal conversion past Python's digit limit."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return repr(value) if value.bit_length() <= 200 else f"<an integer of {value.bit_length()} bits>"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        r = repr(value)
+        return r if len(r) <= limit else r[: limit - 4] + "...'"
+    if isinstance(value, dict):
+        return "<a table>"
+    if isinstance(value, list):
+        return "<an array>"
+    return f"<a {type(value).__name__}>"
+
+
+def show_key(key: str) -> str:
+    """A key as it may appear in a one-line message (a plain key as itself)."""
+    return key if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", key) else show(key, 40)
+
+
+def big(n: int) -> str:
+    """A large round count as people write it: 1e10, 2e9."""
+    return f"{n:.0e}".replace("e+0", "e").replace("e+", "e")
+
+
+def steps_for_duration(seconds: float, dt: float, what: str) -> int:
+    """round(seconds / dt), refused (naming ``what``) unless finite and at most MAX_STEPS."""
+    n = seconds / dt   # float division: inf on overflow, never an exception (dt > 0)
+    if not (0.0 <= n <= MAX_STEPS):
+        raise ScenarioError(f"{what}: {show(seconds)} s at physics.dt = {dt!r} s is {n:.3g} steps, "
+                            f"more than the maximum {big(MAX_STEPS)}")
+    return int(round(n))
+
+
+# ---------------------------------------------------------------- sections
+
+
+@dataclass(frozen=True)
+class Meta:
+    name: str = "unnamed"
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Physics:
+    gravity: float = 9.80          # m/s^2, acts in -y
+    thickness: float = 0.10        # m, discs are cylinders of this length
+    dt: float = 1.0e-5             # s
+    contacts_per_disc: float = 4.0  # used for the critical-step estimate
+    dim: int = 2                   # 2: discs in the x-y plane; 3: spheres (z across the bin)
+    impact_speed: float = 1.0      # m/s, largest expected impact speed (3D Hertz time-step check)
+    history_capacity: int = 0      # contacts a particle may hold (0: 8 in 2D, 12 in 3D; never a result bit)
+
+
+@dataclass(frozen=True)
+class Bin:
+    length: float = 0.60           # m
+    height: float = 0.40           # m, top of the neighbour grid (open top)
+    width: float = 0.10            # m, across the bin (z; 3D only: side walls at z = 0 and width)
+
+
+@dataclass(frozen=True)
+class Soil:
+    n: int = 6986
+    r_min: float = 0.0018
+    r_max: float = 0.0022
+    density: float = 2650.0
+    seed: int = 2008
+
+
+@dataclass(frozen=True)
+class Bed:
+    settle_speed: float = 1.0e-4   # m/s, mean speed that ends deposition
+    max_settle_time: float = 5.0   # s, refuse beds that never settle
+    tile: int = 0                  # >0: build the bed by tiling a settled tile of this many discs
+    skin: float = 0.0006           # m, Verlet skin of the neighbour lists
+    tiles_across: int = 1          # 3D tiled beds: tiles across the width (z)
+
+
+@dataclass(frozen=True)
+class ContactPair:
+    kn: float = 2.0e5
+    ks: float = 2.0e5 / 3.0
+    damping_n: float = 1.0         # ratio of critical, normal
+    damping_t: float = 1.0         # ratio of critical, tangential
+    friction: float = 0.5
+    rolling_friction: float = 0.0  # limit mu_r * r_eff * Fn
+    rolling_damping: float = 0.0   # ratio of critical, rolling
+    law: str = "linear"            # "linear" (kn, ks, damping_*) or "hertz" (3D: Hertz-Mindlin)
+    youngs_modulus: float = 1.0e7  # Pa, hertz: both surfaces of the pair
+    poisson_ratio: float = 0.3     # hertz
+    restitution: float = 0.5       # hertz: coefficient of restitution (sets the damping)
+
+
+@dataclass(frozen=True)
+class Contacts:
+    soil_soil: ContactPair = ContactPair(rolling_friction=0.10, rolling_damping=0.3)
+    soil_wall: ContactPair = ContactPair()
+    soil_wheel: ContactPair = ContactPair(friction=0.4)
+
+
+@dataclass(frozen=True)
+class Wheel:
+    enabled: bool = True
+    radius: float = 0.100
+    width: float = 0.100
+    load: float = 19.6             # N, dead weight (mass = load / g)
+    n_lugs: int = 18
+    lug_tip_radius: float = 0.110  # m, outermost point of a lug
+    lug_thickness: float = 0.002   # m, capsule diameter
+    x0: float = 0.15               # m, initial centre
+    drop_gap: float = 0.002        # m, gap between lug tips and the surface at placement
+    omega: float = 0.138           # rad/s, clockwise, drives in +x
+    control: str = "drawbar"       # "drawbar" (free x) or "slip" (prescribed forward speed)
+    drawbar_load: float = 10.0     # N, opposes travel
+    drawbar_ramp: float = 1.0      # s
+    slip: float = 0.0              # prescribed slip when control = "slip"
+    settle_time: float = 1.0       # s, omega = 0, x held
+    travel_time: float = 45.0      # s
+    z0: float = 0.0                # m, 3D: lateral centre of the wheel (0: the bin's mid-width)
+
+
+@dataclass(frozen=True)
+class Output:
+    series_interval: float = 0.01  # s, time-series row interval (means over it)
+    steady_start: float = 9.6      # s of travel
+    steady_end: float = 45.0       # s of travel
+    run_steps: int = 0             # bare beds: default step count of `run`
+    snapshot_interval: float = 0.0  # s, trajectory frame interval (RUN/trajectory/); 0 = none
+
+
+@dataclass(frozen=True)
+class Decomposition:
+    policy: str = "wheel"          # "wheel" (paper) or "equal"
+    domains: int = 6
+    block: int = 1                 # temporal blocking K (steps per epoch)
+    margin: float = 0.01           # m, wheel slab margin beyond the lug tips
+
+
+@dataclass(frozen=True)
+class Repose:
+    """Angle-of-repose test (3D, docs/reference/repose3d.md): the settled column of
+    ``soil.n`` spheres, a cylinder of ``column_radius`` standing on the floor at the bin's
+    centre, is released at step 0; its heap's flank angle is measured at the end."""
+    enabled: bool = False
+    column_radius: float = 0.02    # m, radius of the released column
+    fit_low: float = 0.2           # flank fit from this fraction of the heap height ...
+    fit_high: float = 0.8          # ... to this one
+    sectors: int = 8               # azimuthal sectors, one profile and one fit each
+    bin_width: float = 0.005       # m, radial bins of the surface profile
+
+
+@dataclass(frozen=True)
+class Scenario:
+    scenario: Meta = Meta()
+    physics: Physics = Physics()
+    bin: Bin = Bin()
+    soil: Soil = Soil()
+    bed: Bed = Bed()
+    contact: Contacts = Contacts()
+    wheel: Wheel = Wheel()
+    output: Output = Output()
+    decomposition: Decomposition = Decomposition()
+    repose: Repose = Repose()
+
+    # ---- derived values
+    @property
+    def name(self) -> str:
+        return self.scenario.name
+
+    @property
+    def dim(self) -> int:
+        """Dimension of the model (physics.dim: 2, discs in the x-y plane; 3, spheres)."""
+        return self.physics.dim
+
+    @property
+    def hist_cap(self) -> int:
+        """Contact-history capacity per particle (physics.history_capacity, else the
+        dimension's default: state.HIST_CAP_BY_DIM)."""
+        from .state import default_hist_cap
+        return self.physics.history_capacity or default_hist_cap(self.dim)
+
+    @property
+    def gravity_vector(self) -> tuple[float, ...]:
+        """Gravity as a dim-vector along -y (physics.layout.AX_Y)."""
+        from ..physics.layout import AX_Y
+        g = [0.0] * self.dim
+        g[AX_Y] = -self.physics.gravity
+        return tuple(g)
+
+    @property
+    def wheel_mass(self) -> float:
+        return self.wheel.load / self.physics.gravity
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def to_toml(self) -> str:
+        return dict_to_toml(self.to_dict())
+
+    def _hash_dict(self) -> dict:
+        """to_dict() without the keys added for 3D while they hold their defaults (so a 2D
+        scenario keeps the hash and bed cache name it had before they existed)."""
+        d = self.to_dict()
+        for (sec, key), default in _HASH_NEUTRAL.items():
+            if d[sec].get(key) == default:
+                del d[sec][key]
+        for pair in d["contact"].values():
+            for key, default in _PAIR_HASH_NEUTRAL.items():
+                if pair.get(key) == default:
+                    del pair[key]
+        if d["repose"] == dataclasses.asdict(Repose()):   # added with repose3d
+            del d["repose"]
+        return d
+
+    def hash(self) -> str:
+        """SHA-256 of the physics-relevant content (output settings excluded)."""
+        d = self._hash_dict()
+        d.pop("output", None)
+        d["scenario"].pop("description", None)
+        # how the heap is measured is not what it does: only the other [repose] keys count,
+        # and only when one of them is not at its default
+        physical = lambda rp: {k: v for k, v in rp.items() if k not in REPOSE_MEASUREMENT_KEYS}
+        rp = physical(d.pop("repose", {}))
+        if rp and rp != physical(dataclasses.asdict(Repose())):
+            d["repose"] = rp
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+    def bed_hash(self) -> str:
+        """Hash of what determines the settled bed (cache key)."""
+        d = self._hash_dict()
+        keep = {k: d[k] for k in ("physics", "bin", "soil", "bed")}
+        keep["contact"] = d["contact"]
+        if self.repose.enabled:   # the settled column is cut to this radius
+            keep["repose"] = {"column_radius": self.repose.column_radius}
+        return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:16]
+
+
+# keys whose default value is left out of the hashes (added with the 3D engine)
+_HASH_NEUTRAL = {("physics", "dim"): 2, ("physics", "impact_speed"): 1.0, ("bin", "width"): 0.10,
+                 ("bed", "tiles_across"): 1, ("physics", "history_capacity"): 0,
+                 ("wheel", "z0"): 0.0}
+_PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3,
+                      "restitution": 0.5}
+LAWS = ("linear", "hertz")
+REPOSE_MEASUREMENT_KEYS = ("fit_low", "fit_high", "sectors", "bin_width")
+
+
+def toml_string(text: str) -> str:
+    """A TOML basic string for any text: quote, backslash and control characters escaped,
+    everything else written as itself (UTF-8). JSON's \\uD83D surrogate pairs are not TOML."""
+    out = ['"']
+    for ch in text:
+        code = ord(ch)
+        if ch == '"':
+            out.append('\\"')
+        elif ch == "\\":
+            out.append("\\\\")
+        elif code < 0x20 or code == 0x7F:
+            out.append(f"\\u{code:04X}")
+        else:
+            out.append(ch)
+    out.append('"')
+    return "".join(out)
+
+
+def dict_to_toml(d: dict) -> str:
+    """Minimal TOML writer for the scenario tree (tables of scalars)."""
+    lines: list[str] = []
+
+    def scalar(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, float):
+            return repr(v)
+        if isinstance(v, int):
+            return str(v)
+        return toml_string(str(v))
+
+    def emit(prefix, table):
+        scal = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        subs = {k: v for k, v in table.items() if isinstance(v, dict)}
+        if prefix and scal:
+            lines.append(f"[{prefix}]")
+        for k, v in scal.items():
+            lines.append(f"{k} = {scalar(v)}")
+        if scal:
+            lines.append("")
+        for k, v in subs.items():
+            emit(f"{prefix}.{k}" if prefix else k, v)
+
+    emit("", d)
+    return "\n".join(lines)

@@ -63,7 +63,7 @@ _LAZY = {
     "EngineError": ".engine.stepper",
     "StateError": ".model.checkpoint",
     "BedError": ".app.bed",
-    "RunFileError": ".app.plots",
+    "RunFileError": ".app.runfiles",
     "StoreError": ".storage",
 }
 

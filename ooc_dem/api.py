@@ -151,7 +151,7 @@ class RunResult:
 
         Raises RunFileError if the run has no (valid) summary (not finished)."""
         if self._summary is None:
-            from .app.plots import RunFileError, read_summary
+            from .app.runfiles import RunFileError, read_summary
             summary = read_summary(self.path)
             if summary is None:   # read_summary raises for a finished run's missing summary
                 raise RunFileError(f"{self.path}: no summary.json (not a finished ooc-dem run)")
@@ -169,7 +169,7 @@ class RunResult:
         if self._series is None:
             import numpy as np
             from .app.metrics import SERIES_COLUMNS
-            from .app.plots import read_series, run_file
+            from .app.runfiles import read_series, run_file
             f = run_file(self.path, "series.csv")
             cols = read_series(f) if f is not None else {c: np.zeros(0) for c in SERIES_COLUMNS}
             names = list(cols)
@@ -375,7 +375,7 @@ def open_run(path: str | os.PathLike[str]) -> RunResult:
     documented there if the directory is not a (finished) run."""
     p = Path(path)
     if not p.is_dir():
-        from .app.plots import RunFileError
+        from .app.runfiles import RunFileError
         raise RunFileError(f"{p}: not a directory")
     return RunResult(p)
 

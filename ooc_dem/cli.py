@@ -536,11 +536,11 @@ def cmd_checkpoint(args):
 
 def cmd_export_trajectory(args):
     from .app.export import ExportError
-    from .app.plots import _load_scenario
+    from .app.runfiles import read_run_scenario
     from .app.trajectory import Trajectory, write_xdmf
     with Trajectory.of_run(args.run) as traj:
         try:
-            out = write_xdmf(traj, args.out, _load_scenario(Path(args.run)))
+            out = write_xdmf(traj, args.out, read_run_scenario(Path(args.run)))
         except ExportError as e:
             raise CliError(str(e)) from None
         n, t = len(traj), (float(traj.times[-1]) if len(traj) else 0.0)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from ooc_dem.model.fields import displacements, gridded_displacement, layer_index
-from ooc_dem.app.plots import make_figures, print_table, read_series, sweep_plot
+from ooc_dem.app.plots import make_figures, print_table, sweep_plot
+from ooc_dem.app.runfiles import read_series
 from ooc_dem.model.scenario import load_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -20,7 +20,8 @@ from numpy.typing import NDArray
 
 from ooc_dem.storage.writeguard import check_room
 
-from .plots import LAYER_COLOURS, _load_scenario, read_initial, run_file
+from .plots import LAYER_COLOURS
+from .runfiles import read_initial, read_run_scenario, run_file
 from .trajectory import Trajectory, TrajectoryError, wheel_outline
 
 if TYPE_CHECKING:
@@ -70,7 +71,7 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
             raise TrajectoryError(f"{traj.path}: no committed frame")
         if traj.dim != 2:
             raise TrajectoryError(f"{traj.path}: {traj.dim}D frames: animate draws 2D runs only")
-        sc = _load_scenario(run_dir)
+        sc = read_run_scenario(run_dir)
         first = traj[0]
         x0, y0, r0 = first["pos"][:, 0], first["pos"][:, 1], first["r"]
         init = run_file(run_dir, "initial.npz")

@@ -5,7 +5,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .plots import RunFileError, read_summary
+from .runfiles import RunFileError, read_summary
 
 
 def _summary(run: str | os.PathLike[str]) -> dict[str, Any]:

@@ -8,15 +8,14 @@
 * ``sweep_plot(csv, png)`` draws a drawbar-pull--slip curve.
 
 Everything runs headless (Agg backend); discs are drawn at their true radii with
-one ``EllipseCollection``, so ~10^4 discs render in about a second.
+one ``EllipseCollection``, so ~10^4 discs render in about a second. The run's files are
+read through runfiles.py (validated: a run directory is untrusted input).
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import stat
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,9 @@ from ..storage.atomic import write_replacing
 
 from ..model.fields import displacements, gridded_displacement, layer_index
 from ..physics.layout import AX_X, AX_Y, AX_Z, WS_THETA, WS_X, WS_Y
+from .runfiles import (RunFileError, has_store, read_csv, read_final, read_final_particles, read_initial,
+                       read_initial_z, read_run_scenario, read_series, read_summary, run_file, summary_value,
+                       summary_window)
 
 LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
 DPI = 150
@@ -38,239 +40,6 @@ def _pyplot():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt
-
-
-class RunFileError(ValueError):
-    """A file of a run directory is missing, unreadable or not what ooc-dem writes (one line)."""
-
-
-MAX_SUMMARY_BYTES = 16 << 20   # summary.json is a few kB; anything this big is not ours
-MAX_SCENARIO_BYTES = 1 << 20
-MAX_HEADER_CHARS = 4096
-SERIES_NEEDED = ("slip", "net_traction", "gross_traction", "torque", "sinkage")   # the series figure's
-INITIAL_ARRAYS = ("id", "x", "y", "r", "surface")
-
-
-def run_file(out, name: str, required: bool = False) -> Path | None:
-    """``out/name`` if it is a regular file inside ``out`` (a symlink may not lead outside the run
-    directory, and a FIFO or device is never opened); None if absent and not required."""
-    out = Path(out)
-    f = out / name
-    if not os.path.lexists(f):
-        if required:
-            raise RunFileError(f"{out}: no {name} (not a finished ooc-dem run)")
-        return None
-    try:
-        real = f.resolve(strict=True)
-        inside = real.is_relative_to(out.resolve(strict=True))
-        regular = stat.S_ISREG(os.stat(real).st_mode)
-    except (OSError, RuntimeError) as e:   # dangling or looping symlink
-        raise RunFileError(f"{f}: unreadable ({_one_line(e)})") from None
-    if not inside:
-        raise RunFileError(f"{f}: leads outside the run directory (refused)")
-    if not regular:
-        raise RunFileError(f"{f}: not a regular file")
-    return f
-
-
-def _one_line(e) -> str:
-    text = " ".join(str(e).split()) or type(e).__name__
-    return text if len(text) <= 160 else text[:157] + "..."
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-# what Simulation.finish writes; `report` and `compare` need all of it
-SUMMARY_FIELDS = {"scenario": str, "scenario_hash": str, "mode": str, "backend": str, "steps": int,
-                  "simulated_time_s": _is_number, "wall_time_s": _is_number, "n_discs": int,
-                  "engine": dict, "state_hash": str}
-WHEEL_QUANTITIES = ("slip", "net_traction", "gross_traction", "torque", "vertical_force",
-                    "travel_distance", "sinkage", "motion_resistance")
-WINDOWS = ("whole_travel", "steady", "static")
-
-
-def _type_ok(v, want) -> bool:
-    if want is int:
-        return isinstance(v, int) and not isinstance(v, bool)
-    if isinstance(want, type):
-        return isinstance(v, want)
-    return want(v)
-
-
-def validate_summary(summary, f, complete: bool = True) -> dict:
-    """``summary`` as Simulation.finish writes it, or RunFileError naming ``f`` and the key.
-    ``complete``: every key finish writes must be there (not only well-typed when present)."""
-    if not isinstance(summary, dict):
-        raise RunFileError(f"{f}: not a JSON object")
-    for key, want in SUMMARY_FIELDS.items():
-        if key not in summary:
-            if complete:
-                raise RunFileError(f"{f}: missing key {key!r}")
-            continue
-        if not _type_ok(summary[key], want):
-            raise RunFileError(f"{f}: {key!r} has the wrong type ({type(summary[key]).__name__})")
-    engine = summary.get("engine", {})
-    for key in ("domains", "block"):
-        if key in engine and not _type_ok(engine[key], int):
-            raise RunFileError(f"{f}: 'engine.{key}' must be an integer")
-    wheel = "slip" in summary
-    for q in WHEEL_QUANTITIES:
-        if q not in summary:
-            if wheel and complete:
-                raise RunFileError(f"{f}: missing key {q!r} (a wheel run's summary has it)")
-            continue
-        entry = summary[q]
-        if not isinstance(entry, dict):
-            raise RunFileError(f"{f}: {q!r} must be an object")
-        for win in WINDOWS:
-            if win not in entry:
-                continue
-            w = entry[win]
-            where = f"{q}.{win}"
-            if not isinstance(w, dict):
-                raise RunFileError(f"{f}: {where!r} must be an object")
-            if w.get("value") is not None and not _is_number(w["value"]):
-                raise RunFileError(f"{f}: '{where}.value' must be a number or null")
-            ws = w.get("window_s")
-            if ws is not None and not (isinstance(ws, list) and len(ws) == 2 and all(map(_is_number, ws))):
-                raise RunFileError(f"{f}: '{where}.window_s' must be [start, end] in s or null")
-    surf = summary.get("surface_height")
-    if surf is not None and not (isinstance(surf, dict) and (surf.get("value") is None or _is_number(surf["value"]))):
-        raise RunFileError(f"{f}: 'surface_height' must be an object with a numeric value")
-    return summary
-
-
-def read_summary(out, complete: bool = True) -> dict | None:
-    """The run's ``summary.json``, validated (None if absent and not ``complete``)."""
-    f = run_file(out, "summary.json", required=complete)
-    if f is None:
-        return None
-    if f.stat().st_size > MAX_SUMMARY_BYTES:
-        raise RunFileError(f"{f}: {f.stat().st_size} bytes, too large for a summary "
-                           f"(at most {MAX_SUMMARY_BYTES})")
-    try:
-        summary = json.loads(f.read_bytes())
-    except (ValueError, RecursionError) as e:   # bad JSON or UTF-8, nesting, digit limit
-        raise RunFileError(f"{f}: not valid JSON ({_one_line(e)})") from None
-    return validate_summary(summary, f, complete)
-
-
-def _read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
-    """Columns of a comma-separated file with a one-line header; ``name [unit]`` -> ``name``."""
-    path = Path(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            header = f.readline(MAX_HEADER_CHARS).strip()
-        names = [h.strip().split(" [")[0].strip() for h in header.split(",")]
-        missing = [n for n in needed if n not in names]
-        if not header or missing:
-            raise RunFileError(f"{path}: header has no column {(missing or needed or ['(any)'])[0]!r} "
-                               f"(not a series written by ooc-dem)")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")   # "input contained no data": a header-only file is valid
-            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8")
-    except RunFileError:
-        raise
-    except (ValueError, UnicodeDecodeError, OSError) as e:
-        raise RunFileError(f"{path}: not a numeric CSV table ({_one_line(e)})") from None
-    if data.size == 0:
-        data = np.zeros((0, len(names)))
-    if data.shape[1] != len(names):
-        raise RunFileError(f"{path}: header has {len(names)} columns, rows have {data.shape[1]}")
-    return {n: data[:, k] for k, n in enumerate(names)}
-
-
-def read_series(path) -> dict[str, np.ndarray]:
-    """``series.csv`` as a dict of column arrays keyed by name without unit (``t_travel``, ``slip``...)."""
-    cols = _read_csv(path, SERIES_NEEDED)
-    if "t_travel" not in cols and "t" not in cols:
-        raise RunFileError(f"{path}: header has no column 't_travel' or 't'")
-    return cols
-
-
-# |coordinate|, radius and surface height [m] an initial bed may hold when no scenario gives
-# the bin (far beyond any bed; it keeps the figures' extents finite)
-MAX_INITIAL_COORD = 1e6
-
-
-def read_initial(path, n: int | None = None, sc=None) -> tuple:
-    """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as
-    written, sizes read from its headers before anything is allocated (``n``: the run's disc
-    count when known), distinct ids, finite positions, radii > 0 and a surface above the
-    floor, within the scenario's bin (``sc``) or MAX_INITIAL_COORD."""
-    from ..storage.npzfile import read_npz_members
-    want = {"id": ((), "iu"), "x": ((), "iuf"), "y": ((), "iuf"), "r": ((), "iuf"), "surface": (None, "iuf")}
-    a = read_npz_members(path, want, n, RunFileError)
-    if len(a["id"]) != len(a["x"]) or len(a["y"]) != len(a["x"]) or len(a["r"]) != len(a["x"]):
-        raise RunFileError(f"{path}: 'id', 'x', 'y' and 'r' differ in length")
-    iid = a["id"].astype(np.int64)
-    x, y, r = (a[k].astype(np.float64) for k in ("x", "y", "r"))
-    surface = float(a["surface"])
-    if len(np.unique(iid)) != len(iid):
-        raise RunFileError(f"{path}: 'id' holds a disc id twice")
-    reach = MAX_INITIAL_COORD if sc is None else 10.0 * max(sc.bin.length, sc.bin.height)
-    for k, v in (("x", x), ("y", y)):
-        if not (np.isfinite(v).all() and (np.abs(v) <= reach).all()):
-            raise RunFileError(f"{path}: {k!r} holds values that are not finite or beyond {reach:g} m")
-    if not (np.isfinite(r).all() and (r > 0).all() and (r <= reach).all()):
-        raise RunFileError(f"{path}: 'r' must be radii in (0, {reach:g}] m")
-    if not 0.0 < surface <= reach:
-        raise RunFileError(f"{path}: 'surface' = {surface!r} is not a height in (0, {reach:g}] m")
-    return iid, x, y, r, surface
-
-
-def _window(summary: dict | None, key: str, name: str):
-    try:
-        w = summary[key][name]["window_s"]
-        return (float(w[0]), float(w[1])) if w is not None else None
-    except (KeyError, TypeError, IndexError):
-        return None
-
-
-def _load_scenario(out: Path):
-    f = run_file(out, "scenario.toml")
-    if f is None:
-        return None
-    from ..model.scenario import ScenarioError, scenario_from_toml
-    if f.stat().st_size > MAX_SCENARIO_BYTES:
-        raise RunFileError(f"{f}: too large for a scenario")
-    try:
-        return scenario_from_toml(f.read_text(encoding="utf-8"))
-    except (ScenarioError, UnicodeDecodeError) as e:
-        raise RunFileError(f"{f}: not a valid scenario ({_one_line(e)})") from None
-
-
-def _has_store(out: Path) -> bool:
-    """A store to read the final state from: on disk, or a memory store of this process."""
-    if os.path.lexists(out / "MANIFEST.json"):
-        return True
-    from ooc_dem.storage import StoreError, open_store
-    try:
-        open_store(out, repair=False).close()
-    except StoreError:
-        return False
-    return True
-
-
-def _read_final(out: Path):
-    """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
-    p, ws = _read_final_particles(out)
-    return p.id.copy(), p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.r.copy(), ws
-
-
-def _read_final_particles(out: Path):
-    """(Particles, wheel_state) of the last committed epoch of the run's store."""
-    from ooc_dem.storage import open_store
-    from ..model.checkpoint import read_epoch_particles
-    store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
-    try:
-        p, arrays, _ = read_epoch_particles(store, str(out))
-        ws = np.asarray(arrays["wheel_state"], dtype=np.float64).copy()
-    finally:
-        store.close()
-    return p, ws
 
 
 def _discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=1, alpha=None):
@@ -340,7 +109,7 @@ def _save(fig, path: Path) -> Path:
 def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
     plt = _pyplot()
     t = series.get("t_travel", series.get("t"))
-    steady = _window(summary, "slip", "steady")
+    steady = summary_window(summary, "slip", "steady")
     if steady is None and sc is not None:
         steady = (sc.output.steady_start, min(sc.output.steady_end, sc.wheel.travel_time))
     fig, axes = plt.subplots(4, 1, sharex=True, figsize=(9, 9.5), constrained_layout=True)
@@ -348,7 +117,7 @@ def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
 
     a_slip.plot(t, series["slip"], color="C0", lw=1.0)
     a_slip.set_ylabel("slip s [-]")
-    ws = _summary_value(summary, "slip", "steady")
+    ws = summary_value(summary, "slip", "steady")
     if ws is not None and math.isfinite(ws):
         a_slip.axhline(ws, color="C0", ls=":", lw=1.0, label=f"steady mean {ws:.3f}")
 
@@ -382,14 +151,6 @@ def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
         title += f"  (shaded: steady window {steady[0]:g}–{steady[1]:g} s)"
     fig.suptitle(title, fontsize=11)
     return _save(fig, path)
-
-
-def _summary_value(summary, key, name):
-    try:
-        v = summary[key][name]["value"]
-        return None if v is None else float(v)
-    except (KeyError, TypeError, ValueError):
-        return None
 
 
 def _placement(sc, x, y, r):
@@ -560,7 +321,7 @@ def make_figures(out_dir, final=None) -> list[Path]:
         # a symlink here would send the figures (and their replacement) anywhere
         raise RunFileError(f"{fig_dir}: not a directory of the run (a symlink or a file; refused)")
     fig_dir.mkdir(parents=True, exist_ok=True)
-    sc = _load_scenario(out)
+    sc = read_run_scenario(out)
     summary = read_summary(out, complete=False)
     series_file = run_file(out, "series.csv")
     series = read_series(series_file) if series_file is not None else None
@@ -568,22 +329,22 @@ def make_figures(out_dir, final=None) -> list[Path]:
     if series is not None:
         written.append(_series_figure(series, summary, sc, fig_dir / SERIES_FIGURE))
     initial_file = run_file(out, "initial.npz")
-    if initial_file is not None and final is None and not _has_store(out):
+    if initial_file is not None and final is None and not has_store(out):
         # a `--backend memory` run's store lived only in its process: no final state to draw
         initial_file = None
     if initial_file is not None:
         if final is None:
-            final = _read_final(out)
+            final = read_final(out)
         init = read_initial(initial_file, len(final[0]), sc)
         fid, fx, fy, fr, ws = final
         final = (np.asarray(fid, np.int64), np.asarray(fx, np.float64), np.asarray(fy, np.float64),
                  np.asarray(fr, np.float64), None if ws is None else np.asarray(ws, np.float64))
         written.append(_deformation_figure(init, final, sc, series, fig_dir / DEFORMATION_FIGURE))
         written.append(_displacement_figure(init, final, sc, series, fig_dir / DISPLACEMENT_FIGURE))
-        init_z = _initial_z(initial_file, len(init[0]))
+        init_z = read_initial_z(initial_file, len(init[0]))
         if sc is not None and sc.dim == 3 and sc.wheel.enabled and init_z is not None:
             # the 3D wheel's own views: mid-width slice, rut, lateral flow, wheel mesh
-            p, ws = _read_final_particles(out)
+            p, ws = read_final_particles(out)
             written += _views_3d(out, sc, (init, init_z), p, ws, series)
     return written
 
@@ -639,17 +400,6 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
     return written
 
 
-def _initial_z(path, n: int):
-    """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
-    from ..storage.npzfile import npz_member_names, read_npz_members
-    if "z" not in npz_member_names(path, RunFileError):
-        return None
-    a = read_npz_members(path, {"z": ((), "iuf")}, n, RunFileError)["z"]
-    if not np.isfinite(a).all():
-        raise RunFileError(f"{path}: 'z' must be a 1-D finite numeric array of {n} entries")
-    return a.astype(np.float64)
-
-
 # ------------------------------------------------------------------ tables
 
 # Nakashima (2008) Table 3, without DDM, whole 45 s of travel
@@ -668,7 +418,7 @@ def print_table(summary: dict, reference: dict | None = None) -> str:
     cols = ("whole_travel", "steady")
     heads = []
     for c in cols:
-        w = _window(summary, "slip", c) or _window(summary, "net_traction", c)
+        w = summary_window(summary, "slip", c) or summary_window(summary, "net_traction", c)
         label = "whole travel" if c == "whole_travel" else "steady"
         heads.append(f"{label} {w[0]:g}–{w[1]:g} s" if w else label)
     if reference is None:
@@ -691,16 +441,16 @@ def print_table(summary: dict, reference: dict | None = None) -> str:
             ("motion resistance (N)", "motion_resistance", 1.0, 3),
             ("torque (N m)", "torque", 1.0, 4))
     for label, key, scale, digits in spec:
-        row = [label] + [fmt(_summary_value(summary, key, c), scale, digits) for c in cols]
+        row = [label] + [fmt(summary_value(summary, key, c), scale, digits) for c in cols]
         if reference:
             row.append(fmt(reference.get(key), 1.0, digits))
         rows.append(row)
-    static = _summary_value(summary, "sinkage", "static")
+    static = summary_value(summary, "sinkage", "static")
     row = ["static sinkage (mm)", fmt(static, 1e3, 1), ""]
     if reference:
         row.append("—")
     rows.append(row)
-    row = ["travelling sinkage (mm)"] + [fmt(_summary_value(summary, "sinkage", c), 1e3, 1) for c in cols]
+    row = ["travelling sinkage (mm)"] + [fmt(summary_value(summary, "sinkage", c), 1e3, 1) for c in cols]
     if reference:
         row.append("—")
     rows.append(row)
@@ -721,7 +471,7 @@ def print_table(summary: dict, reference: dict | None = None) -> str:
     title = f"Wheel performance — {name}" + (f" ({extra})" if extra else "")
     out = [title, line(header), "  ".join("-" * w for w in widths)] + [line(r) for r in rows]
     notes = ["windows in s of travel (0 = end of the wheel's settling); motion resistance = gross − net"]
-    sw = _window(summary, "sinkage", "static")
+    sw = summary_window(summary, "sinkage", "static")
     if static is not None:
         notes.append("static sinkage: mean at the end of settling (ω = 0)"
                      + (f", t = {sw[0]:g}–{sw[1]:g} s" if sw else ""))
@@ -741,7 +491,7 @@ def sweep_plot(csv_path, png_path) -> Path:
     are accepted.
     """
     plt = _pyplot()
-    cols = _read_csv(csv_path, ("slip", "drawbar_pull"))
+    cols = read_csv(csv_path, ("slip", "drawbar_pull"))
     order = np.argsort(cols["slip"], kind="stable")
     s = cols["slip"][order]
     has_sink = "sinkage" in cols
@@ -765,3 +515,4 @@ def sweep_plot(csv_path, png_path) -> Path:
     png_path = Path(png_path)
     png_path.parent.mkdir(parents=True, exist_ok=True)
     return _save(fig, png_path)
+

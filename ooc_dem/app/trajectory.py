@@ -41,7 +41,7 @@ from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room, close_h5, create
 
 from ..storage.atomic import new_temp
 from ..physics.layout import WS_SIZE, axes, spin_width
-from .plots import RunFileError, _one_line, run_file
+from .runfiles import RunFileError, one_line, run_file
 
 TRAJECTORY_DIR = "trajectory"
 TRAJECTORY_FILE = "trajectory.h5"        # format version 1 (read, and migrated on resume)
@@ -122,7 +122,7 @@ def _scan(folder: Path) -> tuple[dict[int, Path], list[Path]]:
     try:
         entries = list(os.scandir(folder))
     except OSError as e:
-        raise TrajectoryError(f"{folder}: unreadable ({_one_line(e)})") from None
+        raise TrajectoryError(f"{folder}: unreadable ({one_line(e)})") from None
     if len(entries) > MAX_FRAMES:
         raise TrajectoryError(f"{folder}: {len(entries)} entries (refused)")
     for e in entries:
@@ -215,7 +215,7 @@ def _open_frame(path, step: int | None = None):
     try:
         f = h5py.File(path, "r")
     except (OSError, ValueError) as e:
-        raise TrajectoryError(f"{path}: not a readable HDF5 file ({_one_line(e)})") from None
+        raise TrajectoryError(f"{path}: not a readable HDF5 file ({one_line(e)})") from None
     try:
         head = _check_frame_file(f, path, step)
     except BaseException:
@@ -305,7 +305,7 @@ class TrajectoryWriter:
             except TrajectoryError as e:
                 aside = p.with_name(p.name + ".damaged")
                 os.replace(p, aside)
-                print(f"ooc-dem: warning: {_one_line(e)}; kept as {aside.name}", file=sys.stderr)
+                print(f"ooc-dem: warning: {one_line(e)}; kept as {aside.name}", file=sys.stderr)
                 continue
             w.steps.append(s)
         if not w.steps and step > 0:
@@ -342,7 +342,7 @@ class TrajectoryWriter:
                         fr = old[i]
                         self.write_frame(fr["step"], fr["time"], fr["wheel_state"], [fr])
         except RunFileError as e:
-            print(f"ooc-dem: warning: {_one_line(e)}; the trajectory continues in {self.folder} "
+            print(f"ooc-dem: warning: {one_line(e)}; the trajectory continues in {self.folder} "
                   f"without its frames", file=sys.stderr)
 
     def last_step(self) -> int | None:
@@ -552,7 +552,7 @@ class Trajectory:
         try:
             self.f = h5py.File(path, "r")
         except (OSError, ValueError) as e:
-            raise TrajectoryError(f"{path}: not a readable HDF5 file ({_one_line(e)})") from None
+            raise TrajectoryError(f"{path}: not a readable HDF5 file ({one_line(e)})") from None
         try:
             _check_legacy_layout(self.f, path)
             self.n_frames = int(self.f.attrs["frames"])

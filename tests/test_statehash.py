@@ -28,7 +28,7 @@ from conftest import one_line_error, run_cli
 from ooc_dem.model import checkpoint, statehash
 from ooc_dem.model.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record, validate_epoch
 from ooc_dem.model.decomposition import XHistogram, equal_bounds, x_summary
-from ooc_dem.app import export
+from ooc_dem.app import export, export_formats
 from ooc_dem.engine.sweep import RamEpochs, group_of, x_histogram
 from ooc_dem.physics.layout import AX_X
 from ooc_dem.model.state import Particles, state_hash
@@ -173,7 +173,7 @@ def test_export_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
     """4 and 16 groups of 3000 discs, ids scattered over every group, exported in slices of
     500 rows with a 256 kB merge buffer: the peaks stay within 1.5x (the whole bed sorted in
     RAM, as before, makes them ~4x), and the CSV is the whole state in id order, bit for bit."""
-    monkeypatch.setattr(export, "_ROWS_PER_WRITE", 500)
+    monkeypatch.setattr(export_formats, "_ROWS_PER_WRITE", 500)
     peaks = {}
     for groups in (4, 16):
         p = _write_store(tmp_path / f"s{groups}", groups, 3000)

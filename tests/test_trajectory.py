@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from conftest import one_line_error, run_cli
-from ooc_dem.app.trajectory import (ROW_FIELDS, TRAJECTORY_DIR, TRAJECTORY_FILE, Trajectory, TrajectoryWriter,
-                                frame_name, wheel_outline)
+from ooc_dem.app.trajectory import (ROW_FIELDS, TRAJECTORY_FILE, Trajectory, TrajectoryWriter, frame_name,
+                                wheel_outline)
+from ooc_dem.app.trajectory_format import TRAJECTORY_DIR
 
 STEPS = 600
 # 123 steps: a multiple neither of the block K = 10 nor of the epoch interval (250): the frame

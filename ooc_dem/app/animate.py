@@ -47,7 +47,7 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
             progress: bool = False) -> tuple[Path, int]:
     """Render the run's trajectory to ``out`` (.mp4 or .gif; default ``default_out``).
     Returns (the file, the number of frames)."""
-    from .export import ExportError, check_targets
+    from .outfile import ExportError, check_targets
     from ..model.fields import layer_index
     from .plots import _n_layers, _pyplot
     run_dir = Path(run_dir)

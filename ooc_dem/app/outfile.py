@@ -1,0 +1,97 @@
+"""Writing an output file safely (exports, trajectory XDMF, films): the target checks
+(``check_targets``: never a directory, device, FIFO or symlink, never inside an ooc-dem store)
+and ``AtomicFile`` (written under a temporary name, renamed into place when complete). A
+failure is an ``ExportError`` with one line naming the file."""
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+from ..storage.atomic import new_temp
+
+STORE_MANIFEST = "MANIFEST.json"   # its presence marks a directory as an ooc-dem store
+
+
+class ExportError(Exception):
+    """An export cannot be written (one-line message)."""
+
+
+def check_targets(files: list[Path], out: Path) -> None:
+    """Refuse to write anywhere but a new path or an existing regular file outside every store.
+
+    An export replaces its targets, so a target that is a directory, a device, a FIFO or a
+    symlink, or that lies inside an ooc-dem store (a directory holding MANIFEST.json, at any
+    depth above the target), is refused: an export must never replace a store's manifest or
+    epochs, nor a system file such as /dev/null.
+    """
+    for f in files:
+        try:
+            st = os.lstat(f)
+        except FileNotFoundError:
+            st = None
+        except OSError as e:
+            raise ExportError(f"--out {out}: cannot inspect {f} ({e.strerror})") from None
+        if st is not None and not stat.S_ISREG(st.st_mode):
+            kind = "a directory" if stat.S_ISDIR(st.st_mode) else (
+                "a symlink" if stat.S_ISLNK(st.st_mode) else "not a regular file")
+            raise ExportError(f"--out {out}: {f} is {kind} (give a new file name or a regular file)")
+        parent = f.parent.resolve()
+        if not parent.is_dir():
+            raise ExportError(f"--out {out}: directory {f.parent} does not exist")
+        for d in (parent, *parent.parents):
+            if (d / STORE_MANIFEST).exists():
+                raise ExportError(f"--out {out}: {f} would be inside the ooc-dem store {d} "
+                                  f"(write exports outside any store)")
+
+
+class AtomicFile:
+    """Open `path` for writing under a temporary name; renamed into place on success.
+
+    The temporary comes from ``atomic.new_temp`` (exclusive, unpredictable name).
+    """
+
+    def __init__(self, path: Path, mode: str = "w"):
+        self.path = Path(path)
+        self.mode = mode
+        self.tmp = None
+        self.f = None
+
+    def __enter__(self):
+        try:
+            self.tmp = new_temp(self.path)
+            self.f = open(self.tmp, self.mode, encoding=None if "b" in self.mode else "ascii",
+                          newline=None if "b" in self.mode else "\n")
+        except OSError as e:
+            if self.tmp is not None:
+                remove_file(self.tmp)
+            raise ExportError(write_failure(self.path, e)) from None
+        return self.f
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            self.f.close()
+            if exc_type is None:
+                os.replace(self.tmp, self.path)
+        except OSError as e:
+            remove_file(self.tmp)
+            raise ExportError(write_failure(self.path, e)) from None
+        if exc_type is not None:
+            remove_file(self.tmp)
+            if issubclass(exc_type, OSError):
+                raise ExportError(write_failure(self.path, exc)) from None
+        return False
+
+
+def remove_file(p) -> None:
+    """Unlink `p` if it is there."""
+    try:
+        os.unlink(p)
+    except FileNotFoundError:
+        pass
+
+
+def write_failure(path, e: BaseException) -> str:
+    """The one-line message of an OSError `e` writing `path`."""
+    detail = getattr(e, "strerror", None) or " ".join(str(e).split()) or type(e).__name__
+    return f"{path}: cannot write ({detail})"

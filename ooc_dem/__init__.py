@@ -32,8 +32,8 @@ Scenario: the frozen, validated scenario dataclass.
 
 Exceptions (every message is one line, as the CLI prints it)
 ----------
-ScenarioError (a ValueError), RunError, StoreError, StateError (a ValueError), EngineError,
-BedError, RunFileError (a ValueError).
+OocDemError, the base of them all: ScenarioError (a ValueError), RunError, StoreError,
+StateError (a ValueError), EngineError, BedError, RunFileError (a ValueError).
 
 Names are imported on first use, so ``import ooc_dem`` stays cheap. The full reference is
 docs/api.md in the repository (generated from these docstrings by tools/gen_api_docs.py).
@@ -57,6 +57,7 @@ _LAZY = {
     "open_run": ".api",
     "open_store": ".api",
     "RunResult": ".api",
+    "OocDemError": ".errors",
     "Scenario": ".model.scenario",
     "ScenarioError": ".model.scenario",
     "RunError": ".app.run",

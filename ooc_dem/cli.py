@@ -7,11 +7,13 @@ import os
 import sys
 from pathlib import Path
 
+from .errors import OocDemError
+
 EXIT_USAGE = 2
 EXIT_OOM = 137      # a profiled run killed by its --memory-limit (128 + SIGKILL, as a shell reports it)
 
 
-class CliError(Exception):
+class CliError(OocDemError):
     pass
 
 
@@ -638,18 +640,7 @@ COMMANDS = {"check": cmd_check, "profile": cmd_profile, "run": cmd_run, "prepare
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    from .app.bed import BedError
-    from .app.run import RunError
-    from .engine.stepper import EngineError
-    from .model.scenario import ScenarioError
-    from .model.checkpoint import StateError
-    from .app.plots import RunFileError
-    known = (CliError, ScenarioError, RunError, EngineError, BedError, StateError, RunFileError)
-    try:
-        from ooc_dem.storage import StoreError
-        known = known + (StoreError,)
-    except ImportError:
-        pass
+    known = OocDemError   # every error for the user: its one-line message, exit 2
     if args.command in ("run", "resume"):
         from .engine.mpi import launched, run_ranks
         if launched()[0] > 1:   # under mpiexec: rank 0 runs the command, the others serve it

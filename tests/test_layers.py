@@ -1,7 +1,8 @@
 """The allowed import direction, read from the folders: physics -> model -> engine -> app
-(ooc_dem/app/ and the entry points cli.py and api.py), storage independent. A module may
-import its own layer and the layers below it, never one above; storage imports nothing of
-the rest. Read from the source with ast, so a new upward import fails here before it makes a circle."""
+(ooc_dem/app/ and the entry points cli.py and api.py), storage independent, and below them
+all ooc_dem/errors.py (the exceptions' base). A module may import its own layer and the
+layers below it, never one above; storage imports nothing of the rest but the errors' base.
+Read from the source with ast, so a new upward import fails here before it makes a circle."""
 from __future__ import annotations
 
 import ast
@@ -15,9 +16,14 @@ ROOT = Path(__file__).resolve().parents[1]
 # (the command line, the Python API, the package's __init__) are the application's entry points
 ORDER = ["physics", "model", "engine", "app"]
 INDEPENDENT = "storage"     # below everything, and imports nothing of the rest
+# the base of every error for the user: importable from every layer, storage included; it
+# imports nothing of ooc_dem
+BASE = "ooc_dem.errors"
 
 
 def layer(module: str) -> str:
+    if module == BASE:
+        return "base"
     parts = module.split(".")
     if len(parts) > 1 and parts[1] in (*ORDER, INDEPENDENT):
         return parts[1]
@@ -26,7 +32,7 @@ def layer(module: str) -> str:
 
 def test_every_module_lives_in_a_layer_folder():
     top = sorted(f.stem for f in ROOT.joinpath("ooc_dem").glob("*.py"))
-    assert top == ["__init__", "api", "cli"], top
+    assert top == ["__init__", "api", "cli", "errors"], top
     # packages of code (scenarios/ holds the built-in scenarios' TOML files, no code)
     folders = sorted(d.name for d in ROOT.joinpath("ooc_dem").iterdir()
                      if d.is_dir() and any(f.name != "__init__.py" for f in d.glob("*.py")))
@@ -67,7 +73,11 @@ def test_no_import_goes_up_a_layer():
     bad = []
     for mod, dep in imports():
         lm, ld = layer(mod), layer(dep)
-        if lm == INDEPENDENT:
+        if lm == "base":
+            bad.append(f"{mod} -> {dep} (the errors' base imports nothing of ooc_dem)")
+        elif ld == "base":
+            continue
+        elif lm == INDEPENDENT:
             if ld != INDEPENDENT:
                 bad.append(f"{mod} -> {dep} (storage knows nothing of the rest of ooc_dem)")
         elif ld != INDEPENDENT and ORDER.index(ld) > ORDER.index(lm):

@@ -17,8 +17,8 @@ OUT = ROOT / "docs" / "api.md"
 
 FUNCTIONS = ("load_scenario", "run", "resume", "open_run", "open_store")
 CLASSES = ("RunResult",)
-EXCEPTIONS = ("ScenarioError", "RunError", "StoreError", "StateError", "EngineError", "BedError",
-              "RunFileError")
+EXCEPTIONS = ("OocDemError", "ScenarioError", "RunError", "StoreError", "StateError", "EngineError",
+              "BedError", "RunFileError")
 # for an exception class without a docstring of its own
 FALLBACK = {"BedError": "The soil bed cannot be generated or settled (e.g. it does not settle within "
                         "bed.max_settle_time); one-line message."}

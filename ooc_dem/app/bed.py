@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..engine.stepper import DomainStepper, Model
+from ..errors import OocDemError
 from ..physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
 from ..model.scenario_check import scenario_from_dict, tile_grid, tile_scenario
 from ..model.schema import MAX_STEPS, Scenario, ScenarioError
@@ -41,7 +42,7 @@ if TYPE_CHECKING:
 SettleProgress: TypeAlias = "Callable[[float, float], object]"
 
 
-class BedError(RuntimeError):
+class BedError(OocDemError, RuntimeError):
     pass
 
 

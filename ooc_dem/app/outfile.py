@@ -8,12 +8,13 @@ import os
 import stat
 from pathlib import Path
 
+from ..errors import OocDemError
 from ..storage.atomic import new_temp
 
 STORE_MANIFEST = "MANIFEST.json"   # its presence marks a directory as an ooc-dem store
 
 
-class ExportError(Exception):
+class ExportError(OocDemError):
     """An export cannot be written (one-line message)."""
 
 

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..errors import OocDemError
+
 if TYPE_CHECKING:
     import argparse
 
@@ -153,7 +155,7 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     return res
 
 
-class OomKilled(RuntimeError):
+class OomKilled(OocDemError, RuntimeError):
     """A profiled mode was killed by its hard memory limit (message is one line)."""
 
     def __init__(self, message: str, result: dict[str, Any]) -> None:

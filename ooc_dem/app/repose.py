@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..errors import OocDemError
 from ..storage.atomic import write_replacing
 from ..physics.layout import AX_X, AX_Y, AX_Z
 
@@ -50,7 +51,7 @@ MIN_FLANK_BINS = 3       # bins a sector's flank needs for a line fit
 MIN_SECTORS_FRACTION = 0.5   # fitted sectors needed (of all) for an angle
 
 
-class ReposeError(ValueError):
+class ReposeError(OocDemError, ValueError):
     """The heap has no measurable flank (message is one line)."""
 
 

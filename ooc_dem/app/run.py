@@ -27,6 +27,7 @@ from ..engine import budget
 from ..engine.interface import Engine
 from ..engine.monolithic import MonolithicEngine
 from ..engine.stepper import EngineError, Model
+from ..errors import OocDemError
 
 MODES = ("monolithic", "ddm", "ooc", "mpi", "mpi-ooc")
 # the out-of-core modes: one slab and its halo resident (mpi-ooc: on each rank)
@@ -34,7 +35,7 @@ OOC_MODES = ("ooc", "mpi-ooc")
 BACKENDS = ("hdf5", "zarr", "memory")
 
 
-class RunError(RuntimeError):
+class RunError(OocDemError, RuntimeError):
     """A run cannot start or continue (message is one line)."""
 
 

@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import OocDemError
 from ..physics.layout import AX_X, AX_Y
 
 
-class RunFileError(ValueError):
+class RunFileError(OocDemError, ValueError):
     """A file of a run directory is missing, unreadable or not what ooc-dem writes (one line)."""
 
 

@@ -37,10 +37,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..errors import OocDemError
+
 CGROUP_ROOT = Path("/sys/fs/cgroup")
 
 
-class MemoryLimitError(RuntimeError):
+class MemoryLimitError(OocDemError, RuntimeError):
     """No memory cgroup can be made here (message is one line)."""
 
 

@@ -32,12 +32,13 @@ from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFL
                               WHEEL_STATE, WS_SIZE, ZN, ZR, ZT, Bodies, Forces, KernelParams,
                               Pairs, discs_of, record, spin_width)
 from ..model.state import Particles, default_hist_cap
+from ..errors import OocDemError
 
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
 PAIR_HEADROOM = 1.05  # pair list capacity = pairs counted at a build x this (+64)
 
 
-class EngineError(RuntimeError):
+class EngineError(OocDemError, RuntimeError):
     """A run cannot continue (capacity overflow, unstable state)."""
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import OocDemError
 from ..physics.layout import AX_X, WS_SIZE
 from . import statehash
 from .decomposition import x_summary
@@ -27,7 +28,7 @@ FORMAT_VERSION = 2
 SUPPORTED_VERSIONS = (1, 2)
 
 
-class StateError(ValueError):
+class StateError(OocDemError, ValueError):
     """A stored state is not one this engine could have written (one-line message).
 
     A store is untrusted input: an epoch whose checksums pass may still have been

@@ -13,8 +13,10 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from ..errors import OocDemError
 
-class ScenarioError(ValueError):
+
+class ScenarioError(OocDemError, ValueError):
     """A scenario value, file or override is invalid (message is one line)."""
 
 

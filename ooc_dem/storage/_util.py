@@ -18,6 +18,8 @@ from numpy.typing import DTypeLike, NDArray
 if TYPE_CHECKING:
     from _typeshed import ReadableBuffer
 
+from ..errors import OocDemError
+
 FORMAT = "ooc-dem-store"
 FORMAT_VERSION = 2                 # written; what the arrays mean is the application's business
 SUPPORTED_VERSIONS = (1, 2)        # read: an epoch records the version it was written in
@@ -60,7 +62,7 @@ _DISK_FULL_TEXT = re.compile(
     % "|".join(str(e) for e in sorted(_DISK_FULL_ERRNOS)))
 
 
-class StoreError(Exception):
+class StoreError(OocDemError):
     """Storage failure; the message names the path and what is wrong (one line)."""
 
 

@@ -21,8 +21,11 @@ from ._util import show as _show
 _IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
 
 
+# ============================================================================ writer
+
 class EpochWriter:
-    """Writes one epoch under temporary names; commit() publishes it atomically."""
+    """Writes one epoch of ``store`` (the Store that began it) under temporary names;
+    commit() publishes it atomically."""
 
     def __init__(self, store, step: int, basename: str):
         self._store = store
@@ -181,7 +184,7 @@ def own_step_problem(place, r, where: str, step: int) -> str | None:
 
 
 class EpochReader:
-    """Read access to one committed epoch."""
+    """Read access to one committed epoch (its manifest ``entry``) of ``store``."""
 
     def __init__(self, store, entry: dict):
         self._store = store

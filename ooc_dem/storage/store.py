@@ -4,8 +4,8 @@ create_store and open_store make one. See the package docstring for layout and g
 from __future__ import annotations
 
 import copy
-import json
 import dataclasses
+import json
 import operator
 import os
 import weakref
@@ -21,6 +21,7 @@ from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, GLOBALS_GROUP, LOCK_FILE,
                     write_error)
 from .epoch import EpochReader, EpochWriter, own_step_problem
 from .writeguard import shortfall
+
 
 # ============================================================================ open / create
 

@@ -7,13 +7,21 @@ from __future__ import annotations
 import datetime as _dt
 import os
 import re
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from . import _confine
-from ._util import (EPOCH_DIR, FORMAT, MANIFEST, MAX_PARTS, SUPPORTED_VERSIONS, StoreError,
-                    check_array_name, file_checksum, part_basename)
+from ._util import (EPOCH_DIR, FORMAT, MANIFEST, MAX_PARTS, SUPPORTED_VERSIONS, JSONObject, StoreError,
+                    StrPath, check_array_name, file_checksum, part_basename)
 from ._util import show as _show
+
+if TYPE_CHECKING:
+    from . import _disk, _memory
+
+# where a store's manifest and epochs are: a store directory or a memory store's backing
+Place: TypeAlias = "_disk.Place | _memory.Place"
 
 BACKENDS = ("hdf5", "zarr", "memory")
 # the extension of the epochs a backend writes, and of those it reads (zarr: one zip archive
@@ -42,7 +50,7 @@ def now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def store_key(path) -> str:
+def store_key(path: StrPath) -> str:
     """The store's path as a str (also a memory store's name)."""
     try:
         return os.fspath(path)
@@ -50,19 +58,19 @@ def store_key(path) -> str:
         raise StoreError(f"{path!r}: store path must be a str or os.PathLike") from None
 
 
-def _int(v, what: str, lo: int = 0, hi: int = MAX_INT64) -> int:
+def _int(v: object, what: str, lo: int = 0, hi: int = MAX_INT64) -> int:
     if type(v) is not int or not lo <= v <= hi:      # (bool is an int subclass: refused)
         raise StoreError(f"{what}: must be an integer in [{lo}, {hi}], got {_show(v)}")
     return v
 
 
-def _dict(v, what: str) -> dict:
+def _dict(v: object, what: str) -> JSONObject:
     if not isinstance(v, dict):
         raise StoreError(f"{what}: malformed (must be a JSON object, got {_show(v)})")
     return v
 
 
-def _check_arrays(arrays, what: str, min_ndim: int) -> int:
+def _check_arrays(arrays: object, what: str, min_ndim: int) -> int:
     """Check {name: [shape, dtype]}; return the bytes the arrays need."""
     nbytes = 0
     for name, spec in _dict(arrays, what).items():
@@ -94,10 +102,10 @@ def _check_arrays(arrays, what: str, min_ndim: int) -> int:
     return nbytes
 
 
-def _check_entry(e, role: str, where: str, place, ext) -> None:
+def _check_entry(entry: object, role: str, where: str, place: Place, ext: Sequence[str]) -> None:
     """Check one epoch entry of a manifest, confining its paths (see _confine)."""
     what = f"{where}/{MANIFEST}: {role} epoch"
-    e = _dict(e, what)
+    e = _dict(entry, what)
     step = _int(e.get("step"), f"{what} step")
     if "format_version" in e:
         v = e["format_version"]
@@ -111,9 +119,10 @@ def _check_entry(e, role: str, where: str, place, ext) -> None:
     comp = e.get("compression")
     if comp is not None and (not isinstance(comp, str) or comp not in COMPRESSIONS[place.backend]):
         raise StoreError(f"{what}: unknown compression {_show(comp)}")
-    seen, stored = set(), 0
+    seen: set[str] = set()
+    stored = 0
 
-    def check_files(epoch, files, what):
+    def check_files(epoch: str, files: list[object], what: str) -> None:
         nonlocal stored
         inside = place.is_memory or place.fmt_of(epoch).IS_DIR
         listed = 0
@@ -177,7 +186,8 @@ def _check_entry(e, role: str, where: str, place, ext) -> None:
         place.resolver.path(epoch, what)
 
 
-def validate_manifest(m, where: str, backends, place_for):
+def validate_manifest(m: object, where: str, backends: Sequence[str],
+                      place_for: Callable[[str], Place]) -> tuple[JSONObject, Place]:
     """Check everything later code relies on, so that it can trust the manifest's entries.
 
     `place_for(backend)` gives the place whose paths the entries must resolve in.
@@ -226,7 +236,7 @@ def validate_manifest(m, where: str, backends, place_for):
 
 
 
-def files_of(e: dict) -> list[dict]:
+def files_of(e: JSONObject) -> list[JSONObject]:
     """The epoch's main file(s) and every part's, each as an entry of its own (the Place's
     checks, sizes and deletion work on one path with its files)."""
     return [e] + [{"step": e["step"], "path": p["path"], "files": p["files"]} for p in e.get("parts", ())]

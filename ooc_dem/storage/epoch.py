@@ -7,18 +7,28 @@ from __future__ import annotations
 import json
 import operator
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias
 
 import numpy as np
+from numpy.typing import NDArray
 
+from . import _memory
 from ._manifest import files_of
-from ._util import (EPOCH_DIR, FORMAT_VERSION, GLOBALS_GROUP, MAX_PARTS, StoreError, array_meta,
+from ._util import (EPOCH_DIR, FORMAT_VERSION, GLOBALS_GROUP, MAX_PARTS, FormatReader, FormatWriter,
+                    JSONObject, StoreError, array_meta,
                     domain_group, gather_rows, normalize_rows, part_basename, prepare_arrays,
                     remove_path, to_json, write_error)
 from ._util import TMP_NAME_RE as _TMP_RE
 from ._util import show as _show
 
+if TYPE_CHECKING:
+    from .store import Store
+
 _IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
+
+# an open epoch file of a disk store, or a memory store's epoch
+EpochFile: TypeAlias = "FormatReader | _memory.Reader"
 
 
 # ============================================================================ writer
@@ -27,39 +37,39 @@ class EpochWriter:
     """Writes one epoch of ``store`` (the Store that began it) under temporary names;
     commit() publishes it atomically."""
 
-    def __init__(self, store, step: int, basename: str):
+    def __init__(self, store: Store, step: int, basename: str):
         self._store = store
         self.step = step
         self._basename = basename
-        self._domains: dict[str, dict] = {}
-        self._globals: dict | None = None
-        self._parts: dict[int, dict] = {}
+        self._domains: dict[str, JSONObject] = {}
+        self._globals: JSONObject | None = None
+        self._parts: dict[int, JSONObject] = {}
         self._state = "open"
         self._tmp = store._place.tmp_name(basename)
         try:
-            self._w = store._place.new_writer(step, basename, store.compression)
+            self._w: FormatWriter | _memory.Writer = store._place.new_writer(step, basename, store.compression)
         except (OSError, RuntimeError) as e:
             self._state = "aborted"
             if not store._place.is_memory:
                 remove_path(self._tmp)
             raise write_error(self._tmp, e) from e
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"EpochWriter({self._store.path!r}, step={self.step}, state={self._state})"
 
-    def __enter__(self):
+    def __enter__(self) -> EpochWriter:
         return self
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, *exc: object) -> Literal[False]:
         if self._state == "open":   # exception, or left without commit(): discard the epoch
             self.abort()
         return False
 
-    def _check_open(self):
+    def _check_open(self) -> None:
         if self._state != "open":
             raise StoreError(f"{self._store.path}: epoch {self.step} writer is {self._state}")
 
-    def _write(self, group: str, arrays, attrs_json: str):
+    def _write(self, group: str, arrays: dict[str, NDArray[Any]], attrs_json: str) -> None:
         try:
             self._w.write_group(group, arrays, attrs_json)
         except (OSError, RuntimeError) as e:
@@ -69,7 +79,7 @@ class EpochWriter:
             self.abort()
             raise
 
-    def write_domain(self, d: int, arrays: dict, attrs: dict | None = None) -> None:
+    def write_domain(self, d: int, arrays: Mapping[str, object], attrs: Mapping[str, object] | None = None) -> None:
         """Write sub-domain `d` (once per d): arrays of >= 1 dimension, JSON-able attrs."""
         self._check_open()
         try:
@@ -96,13 +106,14 @@ class EpochWriter:
         (``write_part(..., writer.basename, k, ...)``)."""
         return self._basename
 
-    def add_part(self, part: dict) -> None:
+    def add_part(self, part: JSONObject) -> None:
         """Phase 1 of a parts' commit: part ``part["part"]`` (what ``write_part`` returned in
         another process, complete on disk under its temporary name) is in this epoch. It is
         published with the epoch by commit(), and removed if the epoch is aborted."""
         self._check_open()
         where = f"{self._store.path}: epoch {self.step}"
-        if self._store._place.is_memory:
+        place = self._store._place
+        if place.is_memory:
             raise StoreError(f"{where}: a memory store keeps no parts (one process holds it)")
         k = part.get("part")
         if type(k) is not int or not 1 <= k <= MAX_PARTS or k in self._parts:
@@ -111,7 +122,7 @@ class EpochWriter:
         tmp = part.get("tmp", "")
         m = _TMP_RE.match(os.path.basename(tmp)) if isinstance(tmp, str) else None
         if part.get("path") != f"{EPOCH_DIR}/{name}" or m is None or m.group(1) != name \
-                or os.path.dirname(tmp) != self._store._place.edir:
+                or os.path.dirname(tmp) != place.edir:
             raise StoreError(f"{where}: part {k} was not written as part {k} of this epoch ({name})")
         self._parts[k] = part   # its tmp is ours to remove from now on (abort)
         for d, info in part["domains"].items():
@@ -120,7 +131,7 @@ class EpochWriter:
                 raise StoreError(f"{where} domain {d}: written twice (part {k} and another)")
             self._domains[d] = {**info, "part": k}
 
-    def write_globals(self, arrays: dict, attrs: dict | None = None) -> None:
+    def write_globals(self, arrays: Mapping[str, object], attrs: Mapping[str, object] | None = None) -> None:
         """Write the global state (once): arrays of any shape, including 0-d."""
         self._check_open()
         where = f"{self._store.path}: epoch {self.step} globals"
@@ -166,12 +177,12 @@ class EpochWriter:
 
 # ============================================================================ reader
 
-def own_step_problem(place, r, where: str, step: int) -> str | None:
+def own_step_problem(r: EpochFile, where: str, step: int) -> str | None:
     """The problem of a file of epoch `step` (its main file or a part, open as `r`) whose
     writer recorded another step in it, or none: a file of another epoch put in its place
     (its size and checksum in the manifest recomputed). One attribute, read once per open.
     A memory store has no files to swap."""
-    if place.is_memory:
+    if isinstance(r, _memory.Reader):
         return None
     try:
         got = r.root_step()
@@ -186,57 +197,59 @@ def own_step_problem(place, r, where: str, step: int) -> str | None:
 class EpochReader:
     """Read access to one committed epoch (its manifest ``entry``) of ``store``."""
 
-    def __init__(self, store, entry: dict):
+    def __init__(self, store: Store, entry: JSONObject):
         self._store = store
         self._e = entry
         self.step: int = entry["step"]
         self._where = store._where(entry)
+        self._r: EpochFile | None
         # the format the epoch was written in (its entry's, else the manifest's)
-        self.format_version: int = entry.get("format_version",
-                                             store._m.get("format_version", FORMAT_VERSION))
+        store_version: int = store._m.get("format_version", FORMAT_VERSION)
+        self.format_version: int = entry.get("format_version", store_version)
         try:
             self._r = store._place.open_reader(entry)
         except Exception as ex:  # noqa: BLE001
             raise StoreError(f"{self._where}: cannot open epoch {self.step} "
                              f"({type(ex).__name__}: {ex})") from ex
-        own = own_step_problem(store._place, self._r, self._where, self.step)
+        own = own_step_problem(self._r, self._where, self.step)
         if own:
             self._r.close()
             raise StoreError(own)
-        self._part_readers: dict[int, object] = {}
+        self._part_readers: dict[int, EpochFile] = {}
         # each group's attrs as read once (JSON text, decoded afresh for every caller): an
         # epoch never changes while it is read, and a sweep asks for every group's x range
         # once per slab (D^2 lookups: 62 500 HDF5 attribute reads took half of a sweep at D = 250)
         self._attrs_json: dict[str, str | None] = {}
         store._readers.add(self)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"EpochReader({self._where!r}, step={self.step})"
 
-    def __enter__(self):
+    def __enter__(self) -> EpochReader:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> Literal[False]:
         self.close()
         return False
 
-    def _dom(self, d) -> dict:
-        info = self._e["domains"].get(str(operator.index(d)))
+    def _dom(self, d: int) -> JSONObject:
+        info: JSONObject | None = self._e["domains"].get(str(operator.index(d)))
         if info is None:
             raise StoreError(f"{self._where}: epoch {self.step} has no domain {d} "
                              f"(has {self.domains()})")
         return info
 
-    def _check(self):
+    def _check(self) -> EpochFile:
         if self._r is None:
             raise StoreError(f"{self._where}: reader is closed")
+        return self._r
 
-    def _reader(self, d=None):
+    def _reader(self, d: int | None = None) -> EpochFile:
         """The reader of the file that holds domain d (None: the globals' file)."""
-        self._check()
+        main = self._check()
         k = 0 if d is None else self._dom(d).get("part", 0)
         if k == 0:
-            return self._r
+            return main
         r = self._part_readers.get(k)
         if r is None:
             sub = files_of(self._e)[k]
@@ -245,7 +258,7 @@ class EpochReader:
             except Exception as ex:  # noqa: BLE001
                 raise StoreError(f"{self._store._where(sub)}: cannot open part {k} of epoch {self.step} "
                                  f"({type(ex).__name__}: {ex})") from ex
-            own = own_step_problem(self._store._place, r, self._store._where(sub), self.step)
+            own = own_step_problem(r, self._store._where(sub), self.step)
             if own:
                 r.close()
                 raise StoreError(own)
@@ -258,13 +271,13 @@ class EpochReader:
     def domain_len(self, d: int) -> int:
         return int(self._dom(d)["n"])
 
-    def domain_arrays(self, d: int) -> dict[str, tuple[tuple, np.dtype]]:
+    def domain_arrays(self, d: int) -> dict[str, tuple[tuple[int, ...], np.dtype[Any]]]:
         """name -> (shape, dtype) of the arrays of domain d (from the manifest, no I/O)."""
         return {n: (tuple(s), np.dtype(t)) for n, (s, t) in self._dom(d)["arrays"].items()}
 
-    def _attrs(self, g: str, r=None) -> dict:
-        self._check()
-        r = self._r if r is None else r
+    def _attrs(self, g: str, r: EpochFile | None = None) -> JSONObject:
+        main = self._check()
+        r = main if r is None else r
         try:
             if g not in self._attrs_json:   # a group's name is unique across the epoch's files
                 self._attrs_json[g] = r.attrs_json(g)
@@ -273,17 +286,18 @@ class EpochReader:
         except Exception as ex:  # noqa: BLE001
             raise StoreError(f"{self._where}: attrs of /{g} unreadable ({type(ex).__name__}: {ex})") from ex
 
-    def domain_attrs(self, d: int) -> dict:
+    def domain_attrs(self, d: int) -> JSONObject:
         return self._attrs(domain_group(operator.index(d)), self._reader(d))
 
-    def _read(self, g: str, arrays: dict, names, rows, r=None) -> dict[str, np.ndarray]:
-        self._check()
-        reader = self._r if r is None else r
+    def _read(self, g: str, arrays: JSONObject, names: Iterable[str] | None, rows: object,
+              r: EpochFile | None = None) -> dict[str, NDArray[Any]]:
+        main = self._check()
+        reader = main if r is None else r
         if names is None:
             names = list(arrays)
         elif isinstance(names, str):
             raise StoreError(f"{self._where}: names must be a list of array names, not a str")
-        out = {}
+        out: dict[str, NDArray[Any]] = {}
         try:
             for n in names:
                 if n not in arrays:
@@ -296,9 +310,10 @@ class EpochReader:
                 if not shape:
                     raise StoreError(f"{self._where}: /{g}/{n} is 0-d; rows do not apply")
                 sel = normalize_rows(rows, shape[0], f"{self._where}: /{g}/{n}")
-                if isinstance(sel, tuple):
-                    a = np.empty((sel[1] - sel[0],) + shape[1:], dtype=dtype)
-                    reader.read_range(g, n, sel[0], sel[1], a)
+                if sel is None or isinstance(sel, tuple):    # (None: every row)
+                    start, stop = (0, shape[0]) if sel is None else sel
+                    a = np.empty((stop - start,) + shape[1:], dtype=dtype)
+                    reader.read_range(g, n, start, stop, a)
                 else:
                     a = gather_rows(lambda s, e, o: reader.read_range(g, n, s, e, o),
                                     sel, shape, dtype)
@@ -313,12 +328,12 @@ class EpochReader:
         return out
 
     def read_domain(self, d: int, names: list[str] | None = None,
-                    rows: slice | np.ndarray | None = None) -> dict[str, np.ndarray]:
+                    rows: slice | NDArray[Any] | None = None) -> dict[str, NDArray[Any]]:
         """Arrays of domain d (all, or `names`); `rows` reads only those rows (first axis)."""
         info = self._dom(d)
         return self._read(domain_group(operator.index(d)), info["arrays"], names, rows, self._reader(d))
 
-    def read_globals(self) -> tuple[dict[str, np.ndarray], dict]:
+    def read_globals(self) -> tuple[dict[str, NDArray[Any]], JSONObject]:
         g = self._e.get("globals")
         if g is None:
             return {}, {}

@@ -5,16 +5,19 @@
 from __future__ import annotations
 
 import operator
+from collections.abc import Iterable, Mapping
 
 from ._manifest import EXT
-from ._util import (EPOCH_DIR, MAX_PARTS, StoreError, array_meta, domain_group, file_entries,
-                    part_basename, prepare_arrays, remove_path, to_json, write_error)
+from ._util import (EPOCH_DIR, MAX_PARTS, JSONObject, StoreError, StrPath, array_meta, domain_group,
+                    file_entries, part_basename, prepare_arrays, remove_path, to_json, write_error)
 from ._util import show as _show
 from . import _confine
 from .store import open_store
 
 
-def write_part(path, step: int, basename: str, part: int, domains, durable: bool = False) -> dict:
+def write_part(path: StrPath, step: int, basename: str, part: int,
+               domains: Iterable[tuple[int, Mapping[str, object], Mapping[str, object] | None]],
+               durable: bool = False) -> JSONObject:
     """Phase 1 of an epoch written by several processes (e.g. MPI ranks): this process
     writes part ``part`` (>= 1) of epoch ``basename`` (``EpochWriter.basename`` of the writer
     the store's owner holds) under a temporary name in the store's epochs/ directory, from
@@ -42,7 +45,7 @@ def write_part(path, step: int, basename: str, part: int, domains, durable: bool
         except (OSError, RuntimeError) as e:
             remove_path(tmp)
             raise write_error(tmp, e) from e
-        metas = {}
+        metas: dict[str, JSONObject] = {}
         try:
             for d, arrays, attrs in domains:
                 d = operator.index(d)

@@ -9,23 +9,25 @@ import json
 import operator
 import os
 import weakref
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from typing import Literal
 
 import numpy as np
 
 from . import _disk, _lock, _memory
-from ._manifest import (BACKENDS, COMPRESSIONS, EXT, MAX_INT64, files_of, now, store_key,
+from ._manifest import (BACKENDS, COMPRESSIONS, EXT, MAX_INT64, Place, files_of, now, store_key,
                         validate_manifest)
 from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, GLOBALS_GROUP, LOCK_FILE, MANIFEST, MANIFEST_TMP,
-                    MAX_JSON_DEPTH, StoreError, domain_group, epoch_basename, json_depth, json_roundtrip,
-                    write_error)
+                    MAX_JSON_DEPTH, JSONObject, StoreError, StrPath, domain_group, epoch_basename,
+                    json_depth, json_roundtrip, write_error)
 from .epoch import EpochReader, EpochWriter, own_step_problem
 from .writeguard import shortfall
 
 
 # ============================================================================ open / create
 
-def create_store(path, backend: str, meta: dict, compression: str | None = None) -> "Store":
+def create_store(path: StrPath, backend: str, meta: Mapping[str, object],
+                 compression: str | None = None) -> "Store":
     """Create a new, empty store at `path` and hold its write lock until closed.
 
     An existing ooc-dem store at `path` is replaced (its manifest and epochs are
@@ -52,10 +54,10 @@ def create_store(path, backend: str, meta: dict, compression: str | None = None)
         raise StoreError(f"{key}: meta nested deeper than {MAX_JSON_DEPTH - 1} levels")
     if backend == "memory":
         backing = _memory.Backing()
-        place = _memory.Place(key, backing)
-        place.write_manifest(manifest)
+        mem = _memory.Place(key, backing)
+        mem.write_manifest(manifest)
         _memory._REGISTRY[key] = backing
-        return Store(place, key, manifest)
+        return Store(mem, key, manifest)
     kind, why = _disk.classify(key)
     if kind == "foreign":
         raise StoreError(f"{key}: refusing to create a store here: path exists and is not an "
@@ -86,7 +88,7 @@ def create_store(path, backend: str, meta: dict, compression: str | None = None)
 
 
 
-def open_store(path, repair: bool = True) -> "Store":
+def open_store(path: StrPath, repair: bool = True) -> "Store":
     """Open an existing store.
 
     repair=True opens it for writing: takes the store's write lock (StoreError if another
@@ -96,21 +98,21 @@ def open_store(path, repair: bool = True) -> "Store":
     key = store_key(path)
     backing = _memory._REGISTRY.get(key)
     if backing is not None:
-        place = _memory.Place(key, backing)
-        m, _ = validate_manifest(place.read_manifest(), key, ("memory",), lambda _b: place)
-        store = Store(place, key, m, writable=repair)
+        mem = _memory.Place(key, backing)
+        m, _ = validate_manifest(mem.read_manifest(), key, ("memory",), lambda _b: mem)
+        store = Store(mem, key, m, writable=repair)
         if repair:
-            store.repaired = place.repair(m)
+            store.repaired = mem.repair(m)
         return store
     if key.startswith("mem://"):
         raise StoreError(f"{key}: no such memory store in this process")
-    _kind, info = _classify_existing(key)
-    m, place = validate_manifest(info, key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
+    m, place = validate_manifest(_classify_existing(key), key, ("hdf5", "zarr"),
+                                 lambda b: _disk.Place(key, b))
     if not repair:
         return Store(place, key, m, writable=False)
     lock = _lock.StoreLock(key)   # only now: a store refused above is left exactly as it was
     try:
-        _kind, info = _classify_existing(key)   # again: a writer may have committed meanwhile
+        info = _classify_existing(key)   # again: a writer may have committed meanwhile
         m, place = validate_manifest(info, key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
         store = Store(place, key, m, lock)
         try:
@@ -123,7 +125,8 @@ def open_store(path, repair: bool = True) -> "Store":
     return store
 
 
-def _classify_existing(key: str) -> tuple[str, dict]:
+def _classify_existing(key: str) -> object:
+    """The manifest of the store at `key` (for validate_manifest to check), or StoreError."""
     kind, info = _disk.classify(key)
     if kind == "absent":
         raise StoreError(f"{key}: no such store (path does not exist)")
@@ -131,10 +134,10 @@ def _classify_existing(key: str) -> tuple[str, dict]:
         raise StoreError(f"{key}: not an ooc-dem store ({info or 'empty directory'})")
     if kind == "damaged":
         raise StoreError(f"{key}: MANIFEST.json missing or unreadable ({info})")
-    return kind, info
+    return info
 
 
-def drop_memory_store(path) -> bool:
+def drop_memory_store(path: StrPath) -> bool:
     """Forget a memory store (frees its arrays). Returns whether it existed."""
     return _memory._REGISTRY.pop(store_key(path), None) is not None
 
@@ -148,7 +151,7 @@ class Problem(str):
 
     step: int | None
 
-    def __new__(cls, message: str, step: int | None = None):
+    def __new__(cls, message: str, step: int | None = None) -> Problem:
         problem = super().__new__(cls, message)
         problem.step = step
         return problem
@@ -191,49 +194,50 @@ def _pid_running(pid: int) -> bool:
 class Store:
     """A run's epochs. See the package docstring for layout and guarantees."""
 
-    def __init__(self, place, path: str, manifest: dict, lock=None, writable: bool = True):
-        self._place = place
+    def __init__(self, place: Place, path: str, manifest: JSONObject, lock: _lock.StoreLock | None = None,
+                 writable: bool = True):
+        self._place: Place = place
         self.path = path
-        self.backend = manifest["backend"]
+        self.backend: str = manifest["backend"]
         self._m = manifest
         self.warnings: list[str] = []     # e.g. fallback to the previous epoch
         self.repaired: list[str] = []     # what open_store(repair=True) deleted
         self._verified: set[str] = set()  # epoch paths known good (written or verified here)
         self._writer: EpochWriter | None = None
-        self._readers: weakref.WeakSet = weakref.WeakSet()
+        self._readers: weakref.WeakSet[EpochReader] = weakref.WeakSet()
         self._closed = False
         self._lock = lock                 # the store's write lock (disk stores open for writing)
         self.writable = writable
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"Store({self.path!r}, backend={self.backend!r}, current={self.current()})"
 
-    def __enter__(self):
+    def __enter__(self) -> Store:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> Literal[False]:
         self.close()
         return False
 
     @property
-    def meta(self) -> dict:
+    def meta(self) -> JSONObject:
         return copy.deepcopy(self._m["meta"])
 
-    def _check_open(self):
+    def _check_open(self) -> None:
         if self._closed:
             raise StoreError(f"{self.path}: store is closed")
 
-    def _check_writable(self):
+    def _check_writable(self) -> None:
         self._check_open()
         if not self.writable:
             raise StoreError(f"{self.path}: store was opened read-only (repair=False); open it "
                              f"with repair=True to write")
 
-    def _entries(self) -> list[dict]:
+    def _entries(self) -> list[JSONObject]:
         """previous, current (those present in the manifest), oldest first."""
         return [e for e in (self._m["previous"], self._m["current"]) if e is not None]
 
-    def _entry(self, step: int) -> dict:
+    def _entry(self, step: int) -> JSONObject:
         for e in self._entries():
             if e["step"] == step:
                 return e
@@ -247,17 +251,17 @@ class Store:
 
     def current(self) -> int | None:
         cur = self._m["current"]
-        return None if cur is None else cur["step"]
+        return None if cur is None else int(cur["step"])
 
-    def manifest(self, fresh: bool = False) -> dict:
+    def manifest(self, fresh: bool = False) -> JSONObject:
         """A copy of the (validated) manifest; fresh=True reads it again from the store, e.g. to
         see what a run writing the store has committed since this Store was opened."""
         self._check_open()
         if not fresh:
             return copy.deepcopy(self._m)
         backends = ("memory",) if self._place.is_memory else ("hdf5", "zarr")
-        m, _ = validate_manifest(self._place.read_manifest(), self.path, backends,
-                                  lambda _b: self._place)
+        place = self._place
+        m, _ = validate_manifest(place.read_manifest(), self.path, backends, lambda _b: place)
         return m
 
     def list_epochs(self) -> list[EpochInfo]:
@@ -272,7 +276,7 @@ class Store:
                                      tuple(p for x in subs for p in self._place.size_problems(x))))
         return out
 
-    def leftovers(self, manifest: dict | None = None) -> list[Leftover]:
+    def leftovers(self, manifest: JSONObject | None = None) -> list[Leftover]:
         """Temporaries and unnamed epoch files (what open_store(repair=True) would delete).
 
         `manifest` (from ``manifest(fresh=True)``) judges "unnamed" by what is committed now
@@ -288,7 +292,7 @@ class Store:
         self._check_open()
         if self._place.is_memory:
             return []
-        pids = {x.pid for x in self.leftovers() if x.running}
+        pids = {x.pid for x in self.leftovers() if x.running and x.pid is not None}
         holder = None if self._lock is not None else _lock.live_writer(self.path)
         if holder is not None:
             pids.add(holder)
@@ -363,10 +367,16 @@ class Store:
     def _commit(self, w: "EpochWriter", durable: bool) -> None:
         if sorted(w._parts) != list(range(1, len(w._parts) + 1)):
             raise StoreError(f"{self.path}: epoch {w.step} has parts {sorted(w._parts)}, not 1 to {len(w._parts)}")
-        rel, files = self._place.publish(w._w, w._basename, durable)
-        entry = {"step": w.step, "path": rel, "files": files, "domains": w._domains,
+        place, writer = self._place, w._w      # the writer place.new_writer made
+        if place.is_memory and isinstance(writer, _memory.Writer):
+            rel, files = place.publish(writer, w._basename, durable)
+        elif not place.is_memory and not isinstance(writer, _memory.Writer):
+            rel, files = place.publish(writer, w._basename, durable)
+        else:
+            raise StoreError(f"{self.path}: epoch {w.step} was begun in another kind of store")
+        entry: JSONObject = {"step": w.step, "path": rel, "files": files, "domains": w._domains,
                  "globals": w._globals, "committed_at": now(), "format_version": FORMAT_VERSION}
-        if w._parts:
+        if w._parts and not self._place.is_memory:   # (add_part refuses parts of a memory store)
             # phase 2 of the parts' commit: every part is complete (its writer finished it and
             # reported its checksums); they take their names, then the manifest names them all
             entry["parts"] = []
@@ -413,7 +423,7 @@ class Store:
                     self.warnings.append(f"{self.path}: could not delete old epoch {e['path']}: {ex}")
 
     # ------------------------------------------------------------------ reading / checking
-    def _problems(self, e: dict, structure_if_damaged: bool = True) -> list[str]:
+    def _problems(self, e: JSONObject, structure_if_damaged: bool = True) -> list[str]:
         """Checksums of every listed file, then groups/arrays named by the manifest.
 
         With structure_if_damaged=False, files that failed their checksums are not
@@ -431,14 +441,14 @@ class Store:
             problems += self._group_problems(x, groups)
         return problems
 
-    def _group_problems(self, e: dict, groups) -> list[str]:
+    def _group_problems(self, e: JSONObject, groups: Iterable[tuple[str, JSONObject]]) -> list[str]:
         """Groups, arrays (shape, dtype) and attrs of one epoch file as the manifest names them."""
         problems = []
         try:
             r = self._place.open_reader(e)
         except Exception as ex:  # noqa: BLE001 - any failure to open is a problem to report
             return [f"{self._where(e)}: cannot open ({type(ex).__name__}: {ex})"]
-        own = own_step_problem(self._place, r, self._where(e), e["step"])
+        own = own_step_problem(r, self._where(e), e["step"])
         if own:
             problems.append(own)
         try:
@@ -469,7 +479,7 @@ class Store:
                 pass
         return problems
 
-    def _where(self, e) -> str:
+    def _where(self, e: JSONObject) -> str:
         if self._place.is_memory:
             return f"{self.path}/{e['path']}"
         return os.path.join(self.path, e["path"])
@@ -523,7 +533,7 @@ class Store:
         raise StoreError(f"{self.path}: epoch {cur['step']} is corrupt ({bad[0]}) and there is no "
                          f"previous epoch")
 
-    def _bad(self, e) -> list[str]:
+    def _bad(self, e: JSONObject) -> list[str]:
         if e["path"] in self._verified:
             return []
         p = self._problems(e, structure_if_damaged=False)
@@ -531,7 +541,7 @@ class Store:
             self._verified.add(e["path"])
         return p
 
-    def _ensure_ok(self, e) -> None:
+    def _ensure_ok(self, e: JSONObject) -> None:
         bad = self._bad(e)
         if bad:
             raise StoreError(f"{self.path}: epoch {e['step']} is corrupt ({bad[0]})")
@@ -570,7 +580,7 @@ class Store:
 
 
 
-def store_owns(root, name: str) -> bool:
+def store_owns(root: StrPath, name: str) -> bool:
     """Whether the entry `name` directly inside store directory `root` is the store's own
     (its manifest, a manifest temporary, the epochs directory or the lock file)."""
     return name in (MANIFEST, EPOCH_DIR, LOCK_FILE) or name.startswith(MANIFEST_TMP)

@@ -116,7 +116,7 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
                               f"({e.strerror})") from None
 
     runs_file, runs, dim = temp(), [], None     # runs: (first record, count)
-    lo = {"id": None, "mat": None}
+    lo: dict[str, int | None] = {"id": None, "mat": None}
     hi = dict(lo)
     try:
         start = 0
@@ -125,8 +125,9 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
             if len(rec):
                 for k in lo:
                     a, b = rec[k].min(), rec[k].max()
-                    lo[k] = int(a) if lo[k] is None else min(lo[k], int(a))
-                    hi[k] = int(b) if hi[k] is None else max(hi[k], int(b))
+                    low, high = lo[k], hi[k]
+                    lo[k] = int(a) if low is None else min(low, int(a))
+                    hi[k] = int(b) if high is None else max(high, int(b))
                 _spill(runs_file, rec, workdir)
                 runs.append((start, len(rec)))
                 start += len(rec)

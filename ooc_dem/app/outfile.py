@@ -7,6 +7,8 @@ from __future__ import annotations
 import os
 import stat
 from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Literal
 
 from ..errors import OocDemError
 from ..storage.atomic import new_temp
@@ -55,10 +57,10 @@ class AtomicFile:
     def __init__(self, path: Path, mode: str = "w"):
         self.path = Path(path)
         self.mode = mode
-        self.tmp = None
-        self.f = None
+        self.tmp: Path | None = None
+        self.f: IO[Any] | None = None
 
-    def __enter__(self):
+    def __enter__(self) -> IO[Any]:
         try:
             self.tmp = new_temp(self.path)
             self.f = open(self.tmp, self.mode, encoding=None if "b" in self.mode else "ascii",
@@ -69,17 +71,21 @@ class AtomicFile:
             raise ExportError(write_failure(self.path, e)) from None
         return self.f
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> Literal[False]:
+        f, tmp = self.f, self.tmp
+        if f is None or tmp is None:     # never entered
+            return False
         try:
-            self.f.close()
+            f.close()
             if exc_type is None:
-                os.replace(self.tmp, self.path)
+                os.replace(tmp, self.path)
         except OSError as e:
-            remove_file(self.tmp)
+            remove_file(tmp)
             raise ExportError(write_failure(self.path, e)) from None
         if exc_type is not None:
-            remove_file(self.tmp)
-            if issubclass(exc_type, OSError):
+            remove_file(tmp)
+            if isinstance(exc, OSError):
                 raise ExportError(write_failure(self.path, exc)) from None
         return False
 

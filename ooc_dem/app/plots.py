@@ -17,6 +17,7 @@ import math
 import os
 import stat
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +36,8 @@ DPI = 150
 # ------------------------------------------------------------------ helpers
 
 
-def _pyplot():
+def _pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend (no display), imported when first needed."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -108,7 +110,7 @@ def _save(fig, path: Path) -> Path:
 
 def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
     plt = _pyplot()
-    t = series.get("t_travel", series.get("t"))
+    t = series["t_travel"] if "t_travel" in series else series["t"]   # read_series: one is there
     steady = summary_window(summary, "slip", "steady")
     if steady is None and sc is not None:
         steady = (sc.output.steady_start, min(sc.output.steady_end, sc.wheel.travel_time))
@@ -301,7 +303,8 @@ FIGURE_NAMES = (SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE)
 def figure_files(sc) -> tuple[str, ...]:
     """The files ``make_figures`` writes for a wheel run of scenario sc, relative to its
     directory (3D adds the mid-width slice, rut and lateral-flow views and the wheel mesh)."""
-    names, beside = FIGURE_NAMES, ()
+    names: tuple[str, ...] = FIGURE_NAMES
+    beside: tuple[str, ...] = ()
     if sc.dim == 3:
         from .views3d import LATERAL_FIGURE, MIDWIDTH_FIGURE, RUT_FIGURE, WHEEL_MESH
         names, beside = names + (MIDWIDTH_FIGURE, RUT_FIGURE, LATERAL_FIGURE), (WHEEL_MESH,)

@@ -14,6 +14,7 @@ import os
 import stat
 import warnings
 from pathlib import Path
+from typing import Literal, overload
 
 import numpy as np
 
@@ -124,7 +125,15 @@ def validate_summary(summary, f, complete: bool = True) -> dict:
     return summary
 
 
-def read_summary(out, complete: bool = True) -> dict | None:
+@overload
+def read_summary(out: str | os.PathLike[str], complete: Literal[True] = ...) -> dict: ...
+
+
+@overload
+def read_summary(out: str | os.PathLike[str], complete: bool) -> dict | None: ...
+
+
+def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict | None:
     """The run's ``summary.json``, validated (None if absent and not ``complete``)."""
     f = run_file(out, "summary.json", required=complete)
     if f is None:
@@ -203,8 +212,10 @@ def read_initial(path, n: int | None = None, sc=None) -> tuple:
     return iid, x, y, r, surface
 
 
-def summary_window(summary: dict | None, key: str, name: str):
+def summary_window(summary: dict | None, key: str, name: str) -> tuple[float, float] | None:
     """(start, end) in s of window ``name`` of quantity ``key`` of a summary (None if absent)."""
+    if summary is None:
+        return None
     try:
         w = summary[key][name]["window_s"]
         return (float(w[0]), float(w[1])) if w is not None else None

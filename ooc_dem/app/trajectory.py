@@ -32,10 +32,11 @@ import contextlib
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
+from ooc_dem.storage.writeguard import H5_OVERHEAD, GuardedFile, check_room, close_h5, create_h5
 
 from ..storage.atomic import new_temp
 from ..physics.layout import axes, spin_width
@@ -73,8 +74,9 @@ class TrajectoryWriter:
                        "frame_every_steps": every, "dt": float(sc.physics.dt),
                        "scenario_hash": sc.hash(), "n_discs": n}
         self.steps: list[int] = []        # the published frames' steps, rising
-        self._pending_step = None
-        self._tmp = None                  # the pending frame's temporary (path, h5py file)
+        self._pending_step: int | None = None
+        # the pending frame's temporary (path, h5py file, its guard); set with _pending_step
+        self._tmp: tuple[Path, Any, GuardedFile] | None = None
 
     @property
     def committed(self) -> int:
@@ -173,7 +175,7 @@ class TrajectoryWriter:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
 
-    def _begin(self, step: int) -> None:
+    def _begin(self, step: int) -> tuple[Path, Any, GuardedFile]:
         self._discard()
         if not 0 <= step <= MAX_STEP:
             raise TrajectoryError(f"step {step}: out of the frame names' range")
@@ -196,14 +198,19 @@ class TrajectoryWriter:
             tail = row_tails(self.dim)[k]
             f.create_dataset(k, shape=(0, *tail), maxshape=(None, *tail), dtype=DTYPES[k],
                              chunks=(chunk, *tail))
+        return self._tmp
+
+    def _frame(self, step: int) -> tuple[Path, Any, GuardedFile]:
+        """The temporary of the frame at ``step``: a new frame drops any unfinished one."""
+        if self._pending_step != step or self._tmp is None:
+            return self._begin(step)
+        return self._tmp
 
     def write_part(self, step: int, arrays) -> None:
         """Append discs of the frame at ``step`` to its temporary file: ``arrays`` has id, pos,
         vel, spin, r, mat (a ``Particles`` or a store record)."""
         get = (lambda k: getattr(arrays, k)) if not isinstance(arrays, dict) else arrays.__getitem__
-        if self._pending_step != step:   # a new frame: drop any unfinished one
-            self._begin(step)
-        _, f, guard = self._tmp
+        _, f, guard = self._frame(step)
         ids = np.asarray(get("id"))
         m = len(ids)
         if m == 0:
@@ -222,9 +229,7 @@ class TrajectoryWriter:
     def end(self, step: int, time: float, wheel_state) -> None:
         """Publish the frame at ``step`` (its rows written by write_part): its step, time and
         wheel state, close, (fsync,) rename into place (, fsync the folder)."""
-        if self._pending_step != step:
-            self._begin(step)
-        tmp, f, guard = self._tmp
+        tmp, f, guard = self._frame(step)
         try:
             f.attrs["step"] = int(step)
             f.attrs["time"] = float(time)
@@ -263,21 +268,22 @@ def wheel_outline(x: float, y: float, theta: float, radius: float, n_lugs: int, 
     ``lug_tip_radius``) as an outward notch; a plain circle of 72 points without lugs."""
     n = int(n_lugs)
     if n <= 0 or lug_tip_radius <= radius:
-        phi = theta + np.linspace(0.0, 2.0 * np.pi, 72, endpoint=False)
-        return np.column_stack([x + radius * np.cos(phi), y + radius * np.sin(phi)])
+        circle = theta + np.linspace(0.0, 2.0 * np.pi, 72, endpoint=False)
+        return np.column_stack([x + radius * np.cos(circle), y + radius * np.sin(circle)])
     half = 0.5 * lug_thickness
     a = float(np.arcsin(min(1.0, half / radius)))
     b = float(np.arcsin(min(1.0, half / lug_tip_radius)))
     step = 2.0 * np.pi / n
-    rr, aa = [], []
+    radii: list[float] = []
+    angles: list[float] = []
     for k in range(n):
         phi = theta + k * step
-        rr += [radius, lug_tip_radius, lug_tip_radius, radius]
-        aa += [phi - a, phi - b, phi + b, phi + a]
+        radii += [radius, lug_tip_radius, lug_tip_radius, radius]
+        angles += [phi - a, phi - b, phi + b, phi + a]
         gap = np.linspace(phi + a, phi + step - a, arc_points + 2)[1:-1]
-        rr += [radius] * len(gap)
-        aa += list(gap)
-    rr, aa = np.asarray(rr), np.asarray(aa)
+        radii += [radius] * len(gap)
+        angles += list(gap)
+    rr, aa = np.asarray(radii), np.asarray(angles)
     return np.column_stack([x + rr * np.cos(aa), y + rr * np.sin(aa)])
 
 
@@ -309,10 +315,10 @@ def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
                               f"cannot refer to it)")
         return rel
 
-    if not len(traj):
+    dim = traj.dim
+    if not len(traj) or dim is None:
         raise ExportError(f"{traj.path}: no published frame yet")
     rels = [rel_of(i) for i in range(len(traj))]
-    dim = traj.dim
     D, R = len(axes(dim)), spin_width(dim)
     geo = "XY" if D == 2 else "XYZ"
     num = {"id": ('Int', 8), "pos": ('Float', 8), "vel": ('Float', 8), "spin": ('Float', 8),

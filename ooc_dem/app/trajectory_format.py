@@ -7,6 +7,7 @@ import os
 import re
 import stat
 from pathlib import Path
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -23,7 +24,7 @@ TEMP_RE = re.compile(r"frame-[0-9]{12}\.h5\.tmp-[A-Za-z0-9_]{1,64}")
 MAX_STEP = 10 ** 12 - 1
 ROW_FIELDS = ("id", "pos", "vel", "spin", "r", "mat")
 INDEX_FIELDS = ("frame_step", "frame_time", "frame_start", "frame_rows", "wheel_state")
-DTYPES = {"id": np.dtype("<i8"), "pos": np.dtype("<f8"), "vel": np.dtype("<f8"),
+DTYPES: dict[str, np.dtype[Any]] = {"id": np.dtype("<i8"), "pos": np.dtype("<f8"), "vel": np.dtype("<f8"),
           "spin": np.dtype("<f8"), "r": np.dtype("<f8"), "mat": np.dtype("<i4"),
           "frame_step": np.dtype("<i8"), "frame_time": np.dtype("<f8"),
           "frame_start": np.dtype("<i8"), "frame_rows": np.dtype("<i8"),
@@ -63,7 +64,15 @@ def h5py_module():
     return h5py
 
 
-def trajectory_folder(out, create: bool) -> Path | None:
+@overload
+def trajectory_folder(out: str | os.PathLike[str], create: Literal[True]) -> Path: ...
+
+
+@overload
+def trajectory_folder(out: str | os.PathLike[str], create: bool) -> Path | None: ...
+
+
+def trajectory_folder(out: str | os.PathLike[str], create: bool) -> Path | None:
     """``out/trajectory`` as a real directory of the run (a symlink or other file there is
     refused); None if absent and not ``create``."""
     d = Path(out) / TRAJECTORY_DIR
@@ -82,21 +91,22 @@ def scan_frames(folder: Path) -> tuple[dict[int, Path], list[Path]]:
     """The published frame files of ``folder`` by step, and the leftover temporaries of our
     own name pattern (regular files only); other names are ignored. A frame name that is
     not a regular file (a symlink, a directory, a FIFO) is refused."""
-    frames, temps = {}, []
+    frames: dict[int, Path] = {}
+    temps: list[Path] = []
     try:
         entries = list(os.scandir(folder))
     except OSError as e:
         raise TrajectoryError(f"{folder}: unreadable ({one_line(e)})") from None
     if len(entries) > MAX_FRAMES:
         raise TrajectoryError(f"{folder}: {len(entries)} entries (refused)")
-    for e in entries:
-        m = FRAME_RE.fullmatch(e.name)
+    for entry in entries:
+        m = FRAME_RE.fullmatch(entry.name)
         if m:
-            if not e.is_file(follow_symlinks=False):
-                raise TrajectoryError(f"{folder / e.name}: not a regular file (refused)")
-            frames[int(m.group(1))] = folder / e.name
-        elif TEMP_RE.fullmatch(e.name) and e.is_file(follow_symlinks=False):
-            temps.append(folder / e.name)
+            if not entry.is_file(follow_symlinks=False):
+                raise TrajectoryError(f"{folder / entry.name}: not a regular file (refused)")
+            frames[int(m.group(1))] = folder / entry.name
+        elif TEMP_RE.fullmatch(entry.name) and entry.is_file(follow_symlinks=False):
+            temps.append(folder / entry.name)
     return dict(sorted(frames.items())), temps
 
 
@@ -157,13 +167,11 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
             or not np.isfinite(ws).all()):
         raise TrajectoryError(f"{path}: attribute 'wheel_state' is not {WS_SIZE} finite float64 numbers")
     h = str(attrs.get("scenario_hash", ""))
-    rows = None
-    for k in ROW_FIELDS:
-        tail = row_tails(dim)[k]
-        ds = checked_dataset(f, k, tail, path)
-        if rows is None:
-            rows = ds.shape[0]
-        elif ds.shape[0] != rows:
+    tails = row_tails(dim)
+    rows: int = checked_dataset(f, ROW_FIELDS[0], tails[ROW_FIELDS[0]], path).shape[0]   # 'id'
+    for k in ROW_FIELDS[1:]:
+        ds = checked_dataset(f, k, tails[k], path)
+        if ds.shape[0] != rows:
             raise TrajectoryError(f"{path}: dataset {k!r} has {ds.shape[0]} rows, 'id' has {rows}")
     if rows > MAX_ROWS:
         raise TrajectoryError(f"{path}: {rows} rows (refused)")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -89,7 +90,7 @@ class Trajectory:
     def _open_folder(self, folder: Path) -> None:
         frames, _ = scan_frames(folder)
         self.files = list(frames.values())
-        heads = []
+        heads: list[dict[str, Any]] = []
         for s, p in frames.items():
             f, head = open_frame(p, s)
             f.close()
@@ -174,7 +175,7 @@ class Trajectory:
 
     def file_rows(self, i: int) -> int:
         """The number of rows of the row datasets in ``file(i)``."""
-        return self.f["id"].shape[0] if self.files is None else self.rows(i)[1]
+        return self._legacy_file()["id"].shape[0] if self.files is None else self.rows(i)[1]
 
     def __getitem__(self, i: int) -> dict:
         if not -self.n_frames <= i < self.n_frames:
@@ -182,7 +183,8 @@ class Trajectory:
         i %= self.n_frames
         a, m = self.rows(i)
         if self.files is None:
-            out = {k: self.f[k][a:a + m] for k in ROW_FIELDS}
+            legacy = self._legacy_file()
+            out = {k: legacy[k][a:a + m] for k in ROW_FIELDS}
         else:
             f, head = open_frame(self.files[i], int(self.steps[i]))
             try:
@@ -208,6 +210,12 @@ class Trajectory:
     def __iter__(self):
         for i in range(self.n_frames):
             yield self[i]
+
+    def _legacy_file(self) -> Any:
+        """The open version-1 file (a trajectory without ``files``)."""
+        if self.f is None:
+            raise TrajectoryError(f"{self.path}: the trajectory is closed")
+        return self.f
 
     def close(self) -> None:
         if self.f is not None:

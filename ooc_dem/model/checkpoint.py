@@ -462,7 +462,7 @@ def checked_groups(reader, where: str, dim: int | None = 2, hist_cap: int | None
             raise StateError(f"{at}: attributes are not an object")
         for key in ("xmin", "xmax"):   # every writer records them: the sweeps' reads depend on them
             v = dattrs.get(key)
-            if type(v) not in (int, float) or not math.isfinite(v):
+            if not (type(v) is int or type(v) is float) or not math.isfinite(v):
                 raise StateError(f"{at}: attribute {key!r} = {show(v)}: must be a finite number")
         if "n" in dattrs and dattrs["n"] != len(rec["id"]):
             raise StateError(f"{at}: attribute 'n' = {show(dattrs['n'])}, the domain holds "

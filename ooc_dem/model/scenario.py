@@ -42,6 +42,14 @@ def _builtin_text(name: str) -> str | None:
     return None
 
 
+def _builtin_dict(name: str) -> dict:
+    """A built-in scenario the package must hold (the beds tiles are cut from), parsed."""
+    text = _builtin_text(name)
+    if text is None:
+        raise ScenarioError(f"built-in scenario {name!r} is missing from the installed package")
+    return tomllib.loads(text)
+
+
 def _parse_count(text: str) -> int | None:
     """N of ``bed-N``: a positive whole number, optionally with a k or m suffix (``100k``, ``1.5m``)."""
     t = text.lower().replace("_", "")
@@ -66,7 +74,7 @@ def bed_scenario_dict(n: int) -> dict:
 
     The bin is as deep as paper2008's bed; its length grows with n.
     """
-    base = tomllib.loads(_builtin_text("bed"))
+    base = _builtin_dict("bed")
     tile = base["bed"]["tile"]
     tile_len = base["bin"]["length"]
     tiles = -(-n // tile)
@@ -79,7 +87,7 @@ def bed_scenario_dict(n: int) -> dict:
 def bed3d_scenario_dict(n: int) -> dict:
     """A bare 3D bed of n spheres with bed3d's soil, built from settled tiles:
     ``bed.tiles_across`` tiles across the width, the bin growing along x."""
-    base = tomllib.loads(_builtin_text("bed3d"))
+    base = _builtin_dict("bed3d")
     tile = base["bed"]["tile"]
     across = base["bed"]["tiles_across"]
     tile_len = base["bin"]["length"]

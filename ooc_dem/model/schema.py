@@ -249,8 +249,8 @@ class Scenario:
             if d[sec].get(key) == default:
                 del d[sec][key]
         for pair in d["contact"].values():
-            for key, default in _PAIR_HASH_NEUTRAL.items():
-                if pair.get(key) == default:
+            for key, neutral in _PAIR_HASH_NEUTRAL.items():
+                if pair.get(key) == neutral:
                     del pair[key]
         if d["repose"] == dataclasses.asdict(Repose()):   # added with repose3d
             del d["repose"]

@@ -375,7 +375,7 @@ def tiled_bed_parts(sc: Scenario, progress=None, use_cache: bool = True, tiles_p
 def _tile_template(tile: Particles, keep, mirrored: bool, left_inner: bool, right_inner: bool,
                    tile_len: float) -> Particles:
     """One tile copy at offset 0 with tile-local ids (shifted per copy by the caller)."""
-    from .physics.forces import ID_WALL_LEFT, ID_WALL_RIGHT
+    from .physics.layout import ID_WALL_LEFT, ID_WALL_RIGHT
     q = tile.take(np.flatnonzero(keep))
     if mirrored:
         # a reflection in x: x -> L - x, vx -> -vx, and (2D) the spin about z reverses

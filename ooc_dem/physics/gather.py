@@ -15,14 +15,12 @@ every dimension.
 import numpy as np
 from numba import prange
 
+from .axes import DIM, SPIN, vec
 from .chunks import N_CHUNKS, chunk_range
-from .layout import ERR_HIST_OVERFLOW
+from .layout import AX_X, ERR_HIST_OVERFLOW
 from .twins import Slot
 
-# ------------------------------------------ what each dimension binds (its axes and rows)
-DIM = Slot("DIM: the axes D of a position, velocity and force")
-SPIN = Slot("SPIN: the components R of a spin and a torque")
-vec = Slot("vec(v): the D entries of a vector, as a tuple")
+# ------------------------------------------------ what each dimension binds (its rows)
 no_force = Slot("no_force(): a particle's sums at zero: D force components, then R torque "
                 "components (a tuple)")
 add_body_row = Slot("add_body_row(sums, row): the sums plus a body row's force and torque")
@@ -51,9 +49,9 @@ def advance(i, s, pos, vel, spin, mass, inertia, g, dt, ref, force, torque, keep
         spin[i, a] += s[DIM + a] / inert * dt
     for a in range(DIM):
         pos[i, a] += vel[i, a] * dt
-    e = pos[i, 0] - ref[i, 0]
+    e = pos[i, AX_X] - ref[i, AX_X]
     dd = e * e
-    for a in range(1, DIM):
+    for a in range(AX_X + 1, DIM):
         e = pos[i, a] - ref[i, a]
         dd += e * e
     return dd

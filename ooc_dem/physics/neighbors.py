@@ -25,11 +25,11 @@ from types import SimpleNamespace
 import numpy as np
 from numba import njit, prange
 
+from .axes import DIM, vec
+from .layout import AX_X
 from .twins import Slot, bindings, no_parfors, serial_twin, slots_of, specialise
 
 # ----------------------------------------------- what each dimension binds (its geometry)
-DIM = Slot("DIM: the axes D of a position")
-vec = Slot("vec(v): the D entries of a vector, as a tuple")
 cell_of = Slot("cell_of(pos, i, lo, cell, ncx, ncy, ncz): particle i's cell (cx, cy, cz), "
                "clipped to the grid (cz = 0 in 2D)")
 order_key = Slot("order_key(pos, i, lo, cell): the int64 key of particle i's cell in the "
@@ -188,9 +188,9 @@ def scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
                     row = (zz * ncy + yy) * ncx
                     for q in range(cell_start[row + xlo], cell_start[row + xhi + 1]):
                         j = cell_list[q]
-                        e = pos[j, 0] - p[0]
+                        e = pos[j, AX_X] - p[AX_X]
                         d2 = e * e
-                        for a in range(1, DIM):
+                        for a in range(AX_X + 1, DIM):
                             e = pos[j, a] - p[a]
                             d2 += e * e
                         cut = ri + r[j] + skin

@@ -29,13 +29,12 @@ changing anything.
 import numpy as np
 from numba import njit, prange
 
+from .axes import DIM, SPIN
 from .chunks import N_CHUNKS, chunk_range, chunks_range
-from .layout import ERR_BODY_CAPACITY, LAW_BLOCK, LAW_ROW, N_TYPES
+from .layout import AX_X, ERR_BODY_CAPACITY, LAW_BLOCK, LAW_ROW, N_TYPES
 from .twins import Slot
 
 # ---------------------------------- what each dimension binds (its law, rows and bodies)
-DIM = Slot("DIM: the axes D of a position")
-SPIN = Slot("SPIN: the components R of a spin")
 LawIn = Slot("LawIn: the rows of a block's law inputs (IntEnum): dx (then the other axes' "
              "offsets), vrx (then the others), ra, rb, ma, mb, ia, ib, material")
 N_LAW_IN = Slot("N_LAW_IN: the rows of a block's law inputs")
@@ -69,6 +68,12 @@ def one_material(k, law_in, material_row):
 
 
 @njit(inline="always", cache=True)
+def effective(ma, mb, ia, ib, ra, rb):
+    """A pair's effective mass, inertia and radius (the block laws' arguments of the law)."""
+    return ma * mb / (ma + mb), ia * ib / (ia + ib), ra * rb / (ra + rb)
+
+
+@njit(inline="always", cache=True)
 def copy_pair_params(k, law_in, material_row, first_row, cp):
     """Each of a block's k pairs' parameters into its columns: the record of its material
     pair (row material_row: type_a * n_types + type_b) of the contact table cp, field by
@@ -90,10 +95,10 @@ def list_pair(law_in, k, pos, r, i, b):
     """Pair (i, b)'s offset pos[b] - pos[i] and radii into column k of a block; returns its
     contact flag (1: the pair touches; the test "d2 >= rs^2 or d2 == 0: no contact" as one
     flag)."""
-    e = pos[b, 0] - pos[i, 0]
+    e = pos[b, AX_X] - pos[i, AX_X]
     law_in[LawIn.dx, k] = e
     d2 = e * e
-    for a in range(1, DIM):
+    for a in range(AX_X + 1, DIM):
         e = pos[b, a] - pos[i, a]
         law_in[LawIn.dx + a, k] = e
         d2 += e * e

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from ..layout import HM_R, HS_T
-from ..produce import copy_pair_params
+from ..produce import copy_pair_params, effective
 from .contact import contact
 from .layout import N_TYPES, LawIn, LawOut, LawParams
 
@@ -33,10 +33,10 @@ def law_block(uniform):
     uniform: c0 is the CONTACT_PARAMS record of every pair of the block (one material
     pair), else each pair's parameters are in its LawIn columns (c0 is None).
 
-    One loop with no call and no early exit, so the compiler evaluates several pairs per
-    instruction (SIMD); each pair's arithmetic and its order are those of the pair evaluated
-    alone (the contact geometry and effective quantities, then contact's law; numba sets no
-    fast-math, so no operation is fused or reordered): its bits do not depend on the block."""
+    One loop with no early exit and no call left after inlining, so the compiler
+    evaluates several pairs per instruction (SIMD); each pair's arithmetic and its order
+    are those of the pair evaluated alone (numba sets no fast-math, so no operation is
+    fused or reordered): its bits do not depend on the block."""
 
     def block(k, law_in, law_out, dt, c0):
         dx_, dy_, vrx_, vry_ = law_in[LawIn.dx], law_in[LawIn.dy], law_in[LawIn.vrx], law_in[LawIn.vry]
@@ -56,18 +56,15 @@ def law_block(uniform):
             dy = dy_[t]
             ra = ra_[t]
             rb = rb_[t]
-            ma = ma_[t]
-            mb = mb_[t]
-            ia = ia_[t]
-            ib = ib_[t]
             d2 = dx * dx + dy * dy
             rs = ra + rb
             dd = math.sqrt(d2)
             nx = dx / dd
             ny = dy / dd
+            meff, ieff, reff = effective(ma_[t], mb_[t], ia_[t], ib_[t], ra, rb)
             fn, ft, s_new, mom, m_new = contact(
-                c, nx, ny, rs - dd, vrx_[t], vry_[t], wa_[t], wb_[t], ra, rb, ma * mb / (ma + mb),
-                ia * ib / (ia + ib), ra * rb / (ra + rb), s_old_[t], m_old_[t], dt)
+                c, nx, ny, rs - dd, vrx_[t], vry_[t], wa_[t], wb_[t], ra, rb, meff, ieff, reff,
+                s_old_[t], m_old_[t], dt)
             bx_[t] = fn * nx + ft * ny
             by_[t] = fn * ny - ft * nx
             ta_[t] = ra * ft - mom

@@ -17,7 +17,8 @@ import numpy as np
 from numba import njit, types
 from numba.extending import overload
 
-from ..produce import copy_pair_params
+from ..layout import AX_X, AX_Y, AX_Z
+from ..produce import copy_pair_params, effective
 from .contact import contact
 from .layout import (LAW_BLOCK, LAW_HERTZ, LAW_LINEAR, LAW_ROW, N_TYPES,  # noqa: F401
                      LawIn, LawOut, LawParams)
@@ -96,11 +97,8 @@ def law_block(fixed, uniform):
     record of every pair of the block (one material pair), else each pair's parameters
     are in its LawIn columns (c0 is None).
 
-    One loop with no call and no early exit, so the compiler evaluates several pairs per
-    instruction (SIMD); each pair's arithmetic and its order are those of a pair evaluated
-    alone (the contact geometry and effective quantities as produce computed them, then
-    contact's law; no fused or reordered operation), so its bits do not depend on the block.
-    Each variant is one dispatcher, compiled once per signature and cached (an @overload's
+    A loop the compiler runs on several pairs per instruction (SIMD), each pair's arithmetic
+    that of the pair evaluated alone, as the 2D one (d2.forces.law_block). Each variant is one dispatcher, compiled once per signature and cached (an @overload's
     implementation is compiled again for each typing context of its caller)."""
 
     def block(k, law_in, law_out, dt, rows, c0):
@@ -137,20 +135,17 @@ def law_block(fixed, uniform):
             dz = dz_[t]
             ra = ra_[t]
             rb = rb_[t]
-            ma = ma_[t]
-            mb = mb_[t]
-            ia = ia_[t]
-            ib = ib_[t]
             d2 = dx * dx + dy * dy + dz * dz
             rs = ra + rb
             dd = math.sqrt(d2)
             nx = dx / dd
             ny = dy / dd
             nz = dz / dd
+            meff, ieff, reff = effective(ma_[t], mb_[t], ia_[t], ib_[t], ra, rb)
             (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
                 c, nx, ny, nz, rs - dd, vrx_[t], vry_[t], vrz_[t], wax_[t], way_[t], waz_[t],
-                wbx_[t], wby_[t], wbz_[t], ra, rb, ma * mb / (ma + mb), ia * ib / (ia + ib),
-                ra * rb / (ra + rb), s_x_[t], s_y_[t], s_z_[t], m_x_[t], m_y_[t], m_z_[t], dt)
+                wbx_[t], wby_[t], wbz_[t], ra, rb, meff, ieff, reff, s_x_[t], s_y_[t], s_z_[t],
+                m_x_[t], m_y_[t], m_z_[t], dt)
             bx[t] = fn * nx - ftx
             by[t] = fn * ny - fty
             bz[t] = fn * nz - ftz
@@ -259,34 +254,34 @@ def springs_into_block(law_in, t, row, on_last):
 @njit(inline="always", cache=True)
 def springs_from_history(row, hist_s, hist_m, i, p):
     """A pair row's springs from entry p of sphere i's history."""
-    row.sx = hist_s[i, p, 0]
-    row.sy = hist_s[i, p, 1]
-    row.sz = hist_s[i, p, 2]
-    put_rolling(row, 0.0, 0.0, 0.0, hist_m[i, p, 0], hist_m[i, p, 1], hist_m[i, p, 2])
+    row.sx = hist_s[i, p, AX_X]
+    row.sy = hist_s[i, p, AX_Y]
+    row.sz = hist_s[i, p, AX_Z]
+    put_rolling(row, 0.0, 0.0, 0.0, hist_m[i, p, AX_X], hist_m[i, p, AX_Y], hist_m[i, p, AX_Z])
 
 
 @njit(inline="always", cache=True)
 def pair_springs_to_history(hist_s, hist_m, i, k, row):
     """Entry k of sphere i's springs from a pair row (zero rolling spring without the
     rolling parts)."""
-    hist_s[i, k, 0] = row.sx
-    hist_s[i, k, 1] = row.sy
-    hist_s[i, k, 2] = row.sz
+    hist_s[i, k, AX_X] = row.sx
+    hist_s[i, k, AX_Y] = row.sy
+    hist_s[i, k, AX_Z] = row.sz
     _, _, _, mx, my, mz = rolling_of(row)
-    hist_m[i, k, 0] = mx
-    hist_m[i, k, 1] = my
-    hist_m[i, k, 2] = mz
+    hist_m[i, k, AX_X] = mx
+    hist_m[i, k, AX_Y] = my
+    hist_m[i, k, AX_Z] = mz
 
 
 @njit(inline="always", cache=True)
 def body_springs_to_history(hist_s, hist_m, i, k, row):
     """Entry k of sphere i's springs from a body row."""
-    hist_s[i, k, 0] = row.sx
-    hist_s[i, k, 1] = row.sy
-    hist_s[i, k, 2] = row.sz
-    hist_m[i, k, 0] = row.mx
-    hist_m[i, k, 1] = row.my
-    hist_m[i, k, 2] = row.mz
+    hist_s[i, k, AX_X] = row.sx
+    hist_s[i, k, AX_Y] = row.sy
+    hist_s[i, k, AX_Z] = row.sz
+    hist_m[i, k, AX_X] = row.mx
+    hist_m[i, k, AX_Y] = row.my
+    hist_m[i, k, AX_Z] = row.mz
 
 
 # ------------------------------------------------------- a sphere's sums of its rows

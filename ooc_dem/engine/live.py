@@ -86,7 +86,7 @@ def _refresh_rows(lo, hi, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_
 def _own_range(lo, hi, x_lo, x_hi, ids, x, owner_row, owned, owned_before, role):
     """Rows lo..hi-1 of one sub-domain (slab x_lo <= x < x_hi): the last ownership kept in
     owned_before, ownership from x (owner_row of the owned discs set), each row's
-    forces.ROLE_* bits from the two (its ROLE_SHARED bit, fixed for the local sets, kept);
+    history.ROLE_* bits from the two (its ROLE_SHARED bit, fixed for the local sets, kept);
     returns how many are owned."""
     count = 0
     for r in range(lo, hi):
@@ -190,8 +190,8 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     steppers' empty pair lists).
 
     Contact histories: between sweeps a pair's springs live in its sub-domain's pair row
-    (forces.load_history / sync_history). role[r] (forces.ROLE_* bits) says which rows
-    are reloaded (a pair of two discs owned through two sweeps keeps its row: both were
+    (physics.history: load_history / sync_history). role[r] (history.ROLE_* bits) says
+    which rows are reloaded (a pair of two discs owned through two sweeps keeps its row: both were
     computed from their true states) and which discs' histories are written back: after
     each sweep only the owned discs another sub-domain has copies of (ROLE_SHARED: the
     next refresh copies them), and all owned discs on return.
@@ -205,7 +205,7 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     next refresh, and its own wall and wheel springs were made from its true state. A
     rebuild of a pair list reloads its rows from the discs' histories: all of the
     sub-domain's discs are written back from its rows first (their partners outside the
-    local set have no rows). all_stable: forces.ROLE_STABLE for every row (the roles
+    local set have no rows). all_stable: history.ROLE_STABLE for every row (the roles
     that make load_history keep every row). pieces, part: the rows in pieces for the
     parallel refresh and ownership (``row_pieces``) and their scratch (len(pieces), 2)."""
     status = SWEEPS_DONE
@@ -347,7 +347,7 @@ class LiveDomains:
         self.owner_row = np.full(len(self.uids), -1, np.int64)
         self.owned = np.zeros(len(self.p), np.bool_)
         self.owned_before = np.zeros(len(self.p), np.bool_)
-        # forces.ROLE_* of each row in the compiled sweeps: ROLE_SHARED (the row's disc has
+        # history.ROLE_* of each row in the compiled sweeps: ROLE_SHARED (the row's disc has
         # a copy in another sub-domain) is fixed for these local sets, the ownership bits
         # are set with the ownership
         self.role = np.zeros(len(self.p), np.int8)
@@ -388,7 +388,7 @@ class LiveDomains:
 
     def _own(self) -> None:
         """Ownership from x. A row owned before and now keeps ROLE_OWNED_BEFORE, so a pair
-        of two such rows keeps its pair row in the compiled sweeps (forces.load_history:
+        of two such rows keeps its pair row in the compiled sweeps (history.load_history:
         both were computed from their true states; nothing outside the sub-domain writes an
         owned row)."""
         p = self.p

@@ -10,6 +10,7 @@ import numpy as np
 
 from ooc_dem.engine.stepper import EngineError
 from ooc_dem.physics import d3
+from ooc_dem.physics.d3 import N_CHUNKS
 from ooc_dem.physics.layout import EVERY_PARTICLE, NO_CONE, index_dtype
 from ooc_dem.physics.d3.layout import (
     BODY_ROW,
@@ -120,7 +121,7 @@ class Sim:
         self._grow_pairs(0)
         nf = n if keep_forces else 0
         self.forces = Forces(np.zeros((nf, 3)), np.zeros((nf, 3)))
-        self.bodies = Bodies(np.zeros(d3.N_CHUNKS * 8, BODY_ROW), np.zeros(d3.N_CHUNKS, np.int64))
+        self.bodies = Bodies(np.zeros(N_CHUNKS * 8, BODY_ROW), np.zeros(N_CHUNKS, np.int64))
         self.err = np.zeros(N_ERR, np.int64)
         self._built = False
         self.rebuilds = 0

@@ -22,7 +22,7 @@ N = 1500
 def _table(law):
     """A material pair's CONTACT_PARAMS record (attribute access in both modes)."""
     if law == "2d":
-        from ooc_dem.physics import layout as L
+        from ooc_dem.physics.d2 import layout as L
         tab = np.zeros(1, L.CONTACT_PARAMS)
         tab[0] = (2.0e5, 2.0e5 / 3.0, 0.7, 0.5, 0.5, 0.1, 0.3)
         return np.rec.array(tab)[0]
@@ -66,7 +66,7 @@ def _inputs(law):
 def evaluate(law):
     """Every contact's outputs, flattened (whatever the JIT state of this process)."""
     if law == "2d":
-        from ooc_dem.physics.contact import contact
+        from ooc_dem.physics.d2.contact import contact
     else:
         from ooc_dem.physics.d3.contact import contact
     c = _table(law)

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 
 from ooc_dem.physics.d3 import layout as L
-from ooc_dem.physics.d3 import sim as S
+from support import sim3d as S
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 STEPS = 1000

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ooc_dem.physics.d3 import layout as L
-from ooc_dem.physics.d3.sim import Sim, make_spheres
+from support.sim3d import Sim, make_spheres
 from ooc_dem.physics.d3.timestep import hertz_duration
 
 E, NU, RHO, R = 1e7, 0.3, 1000.0, 0.01

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ooc_dem.physics.d3 import layout as L
-from ooc_dem.physics.d3.sim import Sim, make_spheres
+from support.sim3d import Sim, make_spheres
 from ooc_dem.physics.d3.timestep import hertz_duration
 
 E_AL, NU_AL, RHO_AL, R_AL = 3.8e11, 0.23, 4000.0, 0.010

@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from ooc_dem.physics.d3 import layout as L
-from ooc_dem.physics.d3.sim import EngineError, Sim, make_spheres
+from support.sim3d import EngineError, Sim, make_spheres
 from ooc_dem.physics.d3.timestep import (
     check_dt,
     critical_dt,

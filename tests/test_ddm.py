@@ -8,7 +8,7 @@ from ooc_dem.app.bed import initial_fill, settled_bed
 from ooc_dem.app.run import place_wheel
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.engine.sweep import sweep_run
-from ooc_dem.physics.forces import ID_WALL_BOTTOM
+from ooc_dem.physics.layout import ID_WALL_BOTTOM
 from ooc_dem.model.scenario import load_scenario
 from ooc_dem.model.state import Particles
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401

@@ -1,4 +1,4 @@
-"""The 2D pair law evaluated in blocks (physics.forces.law_block), as in 3D: the
+"""The 2D pair law evaluated in blocks (physics.d2.forces.law_block), as in 3D: the
 touching pairs' arguments are laid out as columns and one loop runs the law on them, which
 the compiler turns into SIMD code. The per-pair arithmetic must stay contact.contact's:
 every output of a block is compared, with np.array_equal, to the scalar law on the same pair
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from numba import njit
 
-from ooc_dem.physics import forces as F
-from ooc_dem.physics import layout as L
-from ooc_dem.physics.contact import contact
+from ooc_dem.physics.d2 import forces as F
+from ooc_dem.physics.d2 import layout as L
+from ooc_dem.physics.d2.contact import contact
 
 
 def _table():

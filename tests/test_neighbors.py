@@ -1,9 +1,9 @@
-"""The half pair list + CSR index (physics.neighbors in 2D, physics.d3.neighbors in 3D)
+"""The half pair list + CSR index (physics.d2.neighbors in 2D, physics.d3.neighbors in 3D)
 against brute force."""
 import numpy as np
 import pytest
 
-from ooc_dem.physics import neighbors as n2
+from ooc_dem.physics.d2 import neighbors as n2
 from ooc_dem.physics.d3 import neighbors as n3
 
 BUILDS = {"2d": n2.build_pairs, "2d-serial": n2.build_pairs_serial, "3d": n3.build_pairs}

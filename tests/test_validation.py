@@ -26,9 +26,9 @@ import numpy as np
 import pytest
 
 from ooc_dem.engine.stepper import DomainStepper, Model
-from ooc_dem.physics.contact import KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT, contact_force
-from ooc_dem.physics.forces import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, WG_SIZE
-from ooc_dem.physics.integrate import WC_SIZE
+from ooc_dem.physics.d2.contact import KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT, contact_force
+from ooc_dem.physics.layout import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, WG_SIZE
+from ooc_dem.physics.layout import WC_SIZE
 from ooc_dem.model.state import Particles
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
 

@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     from ooc_dem.engine.stepper import Model
     from ooc_dem.engine.sweep import DdmEngine
     from ooc_dem.physics import kernels
-    from ooc_dem.physics.forces import ROLE_STABLE
+    from ooc_dem.physics.history import ROLE_STABLE
     from ooc_dem.physics.layout import WHEEL_RECORD
     from ooc_dem.model.scenario import load_scenario
     from ooc_dem.storage import open_store

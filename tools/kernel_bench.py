@@ -35,21 +35,20 @@ def law_overrides(family: str, law: str) -> list[str]:
     return NO_ROLLING
 
 
-def _phase_loops(produce, gather_integrate, is3d: bool):
-    """Compiled loops of k steps: produce only, and produce + gather_integrate, with the
-    trailing arguments run_steps gives them (2D: rows made afresh, pairs_done False)."""
+def _phase_loops(produce, gather_integrate):
+    """Compiled loops of k steps: produce only, and produce + gather_integrate, as run_steps
+    calls them."""
     from numba import njit
-    ptail = () if is3d else (False,)
 
     @njit
     def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
         for _ in range(k):
-            produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, *ptail)
+            produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err)
 
     @njit
     def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, force, torque, gravity, part):
         for _ in range(k):
-            produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err, *ptail)
+            produce(0, n, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err)
             gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err)
     return p_loop, pg_loop
 
@@ -66,23 +65,20 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     st = DomainStepper(bed, Model.from_scenario(sc))
     del bed
     st.advance(0, warmup)
-    kern = st.kern
-    package = kern.run_steps.py_func.__module__.rsplit(".", 1)[0]
-    forces_mod = sys.modules[package + ".forces"]
-    neighbors_mod = sys.modules[package + ".neighbors"]
+    kern = st.kern   # the dimension's physics.KernelModule: its phases too
     kp, d, pl, bd, forces, ws, err = st.kernel_args()
-    part = np.zeros(forces_mod.N_CHUNKS)
+    part = np.zeros(kern.N_CHUNKS)
     # the phases as run_steps calls them on a whole bed: the pairs' springs held in the pair
     # rows from load_history to sync_history (a role of length 0: every particle)
     every = np.zeros(0, np.int8)
     load = (n, d, pl, every)
     sync = (n, d, pl, err, every, 0)
-    forces_mod.load_history(*load)
+    kern.load_history(*load)
     from ooc_dem.physics.layout import LUG_DIRECTION
     lugdir = np.zeros(max(1, int(kp.wg[0]["nlugs"])), LUG_DIRECTION)   # a bare bed: no wheel
     # timed inside compiled loops: a call from Python types its record arguments each time
     # (~8 ms, more than a whole step of a small bed); produce alone, then produce + gather
-    p_loop, pg_loop = _phase_loops(forces_mod.produce, forces_mod.gather_integrate, family == "bed3d")
+    p_loop, pg_loop = _phase_loops(kern.produce, kern.gather_integrate)
     args = (n, d, pl, bd, kp.cp, kp.walls, kp.wg, ws, lugdir, kp.dt, err)
     gargs = (forces.force, forces.torque, kp.gravity, part)
     p_loop(1, *args)
@@ -94,7 +90,7 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     w2, c2 = time.perf_counter(), time.process_time()
     tp, cp_ = w1 - w0, c1 - c0
     tg, cg = (w2 - w1) - tp, (c2 - c1) - cp_
-    forces_mod.sync_history(*sync)
+    kern.sync_history(*sync)
     if err.any():
         raise SystemExit(f"kernel error flags {err.tolist()}")
     # one neighbour build (cell binning, half list, CSR index) per particle, best of 3;
@@ -102,7 +98,7 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     tb = float("inf")
     for _ in range(3):
         w0 = time.perf_counter()
-        neighbors_mod.build_pairs(d.pos, d.r, d.gid, n, kp.skin, pl.half_off, pl.pair_b, pl.pair_a,
+        kern.build_pairs(d.pos, d.r, d.gid, n, kp.skin, pl.half_off, pl.pair_b, pl.pair_a,
                                   pl.inc_off, pl.inc_k, pl.ref)
         tb = min(tb, time.perf_counter() - w0)
     st._built = False

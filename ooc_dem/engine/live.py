@@ -32,10 +32,9 @@ from numba.typed import List
 
 from ..model.decomposition import group_order
 from ..physics import layout as L
-from ..physics.forces import (ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, ROLE_STABLE,
-                              sync_history_serial)
+from ..physics.history import ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, ROLE_STABLE
 from ..physics.layout import AX_X, ERR_BODY_CAPACITY, ERR_PAIR_CAPACITY, WHEEL_RECORD, record
-from ..physics.twins import serial_twin
+from ..physics.twins import Slot, serial_twin
 from ..model.state import Particles
 from .stepper import N_REC, DomainStepper, EngineError, Model
 
@@ -87,7 +86,7 @@ def _refresh_rows(lo, hi, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_
 def _own_range(lo, hi, x_lo, x_hi, ids, x, owner_row, owned, owned_before, role):
     """Rows lo..hi-1 of one sub-domain (slab x_lo <= x < x_hi): the last ownership kept in
     owned_before, ownership from x (owner_row of the owned discs set), each row's
-    forces.ROLE_* bits from the two (its ROLE_SHARED bit, fixed for the local sets, kept);
+    history.ROLE_* bits from the two (its ROLE_SHARED bit, fixed for the local sets, kept);
     returns how many are owned."""
     count = 0
     for r in range(lo, hi):
@@ -164,6 +163,11 @@ F_DONE, F_REBUILD, F_PAIRS_DONE, F_REBUILDS = range(4)
 # how run_sweeps stopped
 SWEEPS_DONE, SWEEPS_REBUILD, SWEEPS_WHEEL, SWEEPS_DOMAIN, SWEEPS_OWNERSHIP = range(5)
 
+# the dimension's one-thread step and write-back: sweeps_kernel binds them in each compiled
+# twin of _run_sweeps (physics.twins)
+run_steps_serial = Slot("the dimension's one-thread run_steps (physics.KernelModule)")
+sync_history_serial = Slot("the dimension's one-thread sync_history (physics.KernelModule)")
+
 
 def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, recbuf, norec,
                 ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built, off, ref,
@@ -186,8 +190,8 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     steppers' empty pair lists).
 
     Contact histories: between sweeps a pair's springs live in its sub-domain's pair row
-    (forces.load_history / sync_history). role[r] (forces.ROLE_* bits) says which rows
-    are reloaded (a pair of two discs owned through two sweeps keeps its row: both were
+    (physics.history: load_history / sync_history). role[r] (history.ROLE_* bits) says
+    which rows are reloaded (a pair of two discs owned through two sweeps keeps its row: both were
     computed from their true states) and which discs' histories are written back: after
     each sweep only the owned discs another sub-domain has copies of (ROLE_SHARED: the
     next refresh copies them), and all owned discs on return.
@@ -201,7 +205,7 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     next refresh, and its own wall and wheel springs were made from its true state. A
     rebuild of a pair list reloads its rows from the discs' histories: all of the
     sub-domain's discs are written back from its rows first (their partners outside the
-    local set have no rows). all_stable: forces.ROLE_STABLE for every row (the roles
+    local set have no rows). all_stable: history.ROLE_STABLE for every row (the roles
     that make load_history keep every row). pieces, part: the rows in pieces for the
     parallel refresh and ownership (``row_pieces``) and their scratch (len(pieces), 2)."""
     status = SWEEPS_DONE
@@ -238,9 +242,7 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                     flags[F_DONE] = K
                     continue
                 rec = recbuf[sw * K:] if j == wslab else norec
-                # not a global here: sweeps_kernel binds the dimension's one-thread step
-                # under this name in each compiled twin (physics.twins.serial_twin)
-                k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,  # noqa: F821
+                k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,
                                          flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0,
                                          all_stable[:n] if keep_rows else roles, every_disc)
                 flags[F_DONE] = k
@@ -292,16 +294,12 @@ _SWEEPS = {}
 
 
 def sweeps_kernel(kern):
-    """The compiled sweeps for one dimension's step kernels (None when the kernel module
-    has no one-thread step: the sweep then advances the sub-domains one call each): its
+    """The compiled sweeps for one dimension's step kernels (a physics.KernelModule): its
     one-thread step, and its write-back of the rows' springs (``sync_history_serial``)."""
-    step = getattr(kern, "run_steps_serial", None)
-    if step is None:
-        return None
     if kern.__name__ not in _SWEEPS:
         name = "run_sweeps_" + kern.__name__.rsplit(".", 1)[-1]
         _SWEEPS[kern.__name__] = serial_twin(_run_sweeps, name, parallel=True,
-                                             run_steps_serial=step,
+                                             run_steps_serial=kern.run_steps_serial,
                                              sync_history_serial=kern.sync_history_serial)
     return _SWEEPS[kern.__name__]
 
@@ -349,7 +347,7 @@ class LiveDomains:
         self.owner_row = np.full(len(self.uids), -1, np.int64)
         self.owned = np.zeros(len(self.p), np.bool_)
         self.owned_before = np.zeros(len(self.p), np.bool_)
-        # forces.ROLE_* of each row in the compiled sweeps: ROLE_SHARED (the row's disc has
+        # history.ROLE_* of each row in the compiled sweeps: ROLE_SHARED (the row's disc has
         # a copy in another sub-domain) is fixed for these local sets, the ownership bits
         # are set with the ownership
         self.role = np.zeros(len(self.p), np.int8)
@@ -390,7 +388,7 @@ class LiveDomains:
 
     def _own(self) -> None:
         """Ownership from x. A row owned before and now keeps ROLE_OWNED_BEFORE, so a pair
-        of two such rows keeps its pair row in the compiled sweeps (forces.load_history:
+        of two such rows keeps its pair row in the compiled sweeps (history.load_history:
         both were computed from their true states; nothing outside the sub-domain writes an
         owned row)."""
         p = self.p
@@ -491,9 +489,9 @@ class LiveDomains:
         lists are not built (a refresh would write springs back from them)."""
         if refresh_first and not self._swept:
             raise EngineError("serial DDM: a refresh asked of local sets that have not been swept")
-        run = sweeps_kernel(self.steppers[0].kern) if self.steppers else None
-        if run is None:
-            raise EngineError("serial DDM: the step kernels have no one-thread twin")
+        if not self.steppers:
+            raise EngineError("serial DDM: no sub-domain to sweep")
+        run = sweeps_kernel(self.steppers[0].kern)
         recbuf = np.zeros((nsweeps * K, N_REC))
         norec = np.zeros(1, WHEEL_RECORD)
         for st, fl in zip(self.steppers, self.flags):
@@ -579,9 +577,10 @@ class LiveDomains:
 
     @property
     def compiled(self) -> bool:
-        """The step kernels have a one-thread twin, so whole sweeps run in one compiled call
-        (``run_sweeps``); else each sub-domain is advanced by its own stepper (``advance``)."""
-        return bool(self.steppers) and sweeps_kernel(self.steppers[0].kern) is not None
+        """Whole sweeps run in one compiled call (``run_sweeps``: every kernel module has a
+        one-thread step); else (no sub-domain) each is advanced by its own stepper
+        (``advance``)."""
+        return bool(self.steppers)
 
     def advance(self, step0: int, k: int):
         """Every advanced sub-domain K steps in place, each with its own stepper; returns

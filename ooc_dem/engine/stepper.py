@@ -1,10 +1,11 @@
 """THE per-domain step, shared by every execution mode.
 
-The step itself is a per-dimension kernel module (``physics.kernels(model.dim)``: 2D is
-``physics.d2``), entry point ``run_steps``: wheel controls, ``forces.produce`` (one row
-per contact), ``forces.gather_integrate`` (each disc sums its rows in ascending partner-id
-order and is advanced), the wheel's reaction summed in ascending disc id, the wheel's
-leapfrog, and a rebuild of the half pair list when some disc has moved half the skin.
+The step itself is the dimension's kernel module (``physics.kernels(model.dim)``, a
+``physics.KernelModule``), entry point ``run_steps`` (``physics.step``, written once and
+compiled per dimension): wheel controls, ``produce`` (one row per contact),
+``gather_integrate`` (each disc sums its rows in ascending partner-id order and is
+advanced), the wheel's reaction summed in ascending disc id, the wheel's leapfrog, and a
+rebuild of the half pair list when some disc has moved half the skin.
 
 ``DomainStepper`` holds one set of discs (the whole bin in monolithic mode; a
 sub-domain plus its halo in DDM and out-of-core) and advances all of them K
@@ -21,15 +22,15 @@ import numpy as np
 
 from ..physics import kernels
 from ..physics import layout as L
-from ..physics.forces import N_CHUNKS
-from ..physics.layout import (CONTACT_PARAMS, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW,  # noqa: F401
-                              ERR_PAIR_CAPACITY, KN, KS, MU, MUR, N_ERR, N_FIELDS, N_REC,
+from ..physics.d2.layout import CONTACT_PARAMS, N_FIELDS, WALLS
+from ..physics.layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW,  # noqa: F401
+                              ERR_PAIR_CAPACITY, N_ERR, N_REC,
                               REC_COLUMNS, REC_DB, REC_FX, REC_FY, REC_NC, REC_T, REC_THETA,
-                              REC_TQ, REC_VX, REC_VY, REC_WZ, REC_X, REC_Y, WALLS, WC_DRAWBAR,
+                              REC_TQ, REC_VX, REC_VY, REC_WZ, REC_X, REC_Y, WC_DRAWBAR,
                               WC_OMEGA, WC_RAMP, WC_SETTLE, WC_SIZE, WC_SLIP, WC_SLIPMODE,
                               WG_CAP, WG_ENABLED, WG_LUG_IN, WG_LUG_OUT, WG_MASS, WG_NLUGS,
                               WG_R, WG_SIZE, WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD,
-                              WHEEL_STATE, WS_SIZE, ZN, ZR, ZT, Bodies, Forces, KernelParams,
+                              WHEEL_STATE, WS_SIZE, Bodies, Forces, KernelParams,
                               Pairs, discs_of, record, spin_width)
 from ..model.state import Particles, default_hist_cap
 from ..errors import OocDemError
@@ -113,10 +114,8 @@ class Model:
 
     def layouts(self):
         """(CONTACT_PARAMS, WALLS) record dtypes of this model's dimension."""
-        if self.dim == 3:
-            from ..physics.d3 import layout as L3
-            return L3.CONTACT_PARAMS, L3.WALLS
-        return CONTACT_PARAMS, WALLS
+        kern = self.kernels()
+        return kern.CONTACT_PARAMS, kern.WALLS
 
     def records(self):
         """(cp, walls, wg, wc) as record views (no copies) for the kernels."""
@@ -197,12 +196,10 @@ class DomainStepper:
             raise EngineError(f"particles with a contact-history capacity of {particles.hist_cap} "
                               f"handed to a model of capacity {model.hist_cap}")
         self.kern = model.kernels()
-        # row layouts of this dimension's kernels (physics.d3 names its own; d2 uses layout's)
-        # (a kernel module with pair_row_layout picks its row from the contact table)
-        row_of = getattr(self.kern, "pair_row_layout", None)
-        self._pair_row = (row_of(model.records()[0]) if row_of is not None
-                          else getattr(self.kern, "PAIR_ROW", L.PAIR_ROW))
-        self._body_row = getattr(self.kern, "BODY_ROW", L.BODY_ROW)
+        # row layouts of this dimension's kernels (physics.KernelModule): the pair row of
+        # this contact table (3D leaves the rolling parts out without rolling resistance)
+        self._pair_row = self.kern.pair_row_layout(model.records()[0])
+        self._body_row = self.kern.BODY_ROW
         if reorder and len(particles) > 1:
             perm = self.kern.spatial_order(particles.pos, len(particles), 2 * model.r_max + model.skin)
             particles.permute_inplace(perm)  # the caller's discs, reordered: no second copy
@@ -219,9 +216,9 @@ class DomainStepper:
         nf = n if keep_forces else 0
         self._forces = Forces(np.zeros((nf, model.dim)), np.zeros((nf, spin_width(model.dim))))
         self.keep_forces = keep_forces
-        chunks = getattr(self.kern, "N_CHUNKS", N_CHUNKS)
+        chunks = self.kern.N_CHUNKS
         self.bodies = Bodies(np.zeros(chunks * 8, self._body_row), np.zeros(chunks, np.int64))
-        self.err = np.zeros(getattr(self.kern, "N_ERR", N_ERR), np.int64)
+        self.err = np.zeros(self.kern.N_ERR, np.int64)
         self._built = False
         self._pairs_done = False
         self.rebuilds = 0

@@ -8,9 +8,11 @@ change, and no kernel indexes a column by number. The ``*_X``-style integer
 constants are the same layouts as column positions, for code that handles the flat
 arrays outside the kernels (stores, metrics, plots).
 
+The records every dimension shares live here; a dimension's own (its contact parameters,
+walls, contact rows and law-block columns) live in its package (``d2.layout``,
+``d3.layout``).
+
 Records:
-- ``CONTACT_PARAMS``  contact parameters of one material pair, table cp[type_a, type_b]
-- ``WALLS``           the bin's walls
 - ``WHEEL_GEOMETRY``  rigid wheel with capsule lugs
 - ``WHEEL_STATE``     wheel kinematics (``wz`` is the spin about the axle z, clockwise
                       negative; export.py writes these names)
@@ -18,13 +20,12 @@ Records:
 - ``WHEEL_RECORD``    one row per step of a wheel run
 - ``LUG_DIRECTION``   unit vector of one lug at the current wheel angle
 - ``ERRORS``          kernel error flags
-- ``PAIR_ROW``        one disc-disc contact of a step (phase 1 -> phase 2)
-- ``BODY_ROW``        one disc-wall / disc-wheel-part contact of a step
-- ``LawIn`` / ``LawOut`` the columns of a block of pairs for the block law
+- the kernels' argument records (named tuples of arrays): ``Discs``, ``Pairs``,
+  ``Bodies``, ``Forces``, ``KernelParams``
 """
 from __future__ import annotations
 
-from enum import IntEnum
+from collections import namedtuple
 
 import numpy as np
 
@@ -83,7 +84,8 @@ HS_T = 0
 HM_R = 0
 
 
-def _dtype(names, kind=F8):
+def record_dtype(names, kind=F8):
+    """A record of the named fields, all of one kind (float64 by default)."""
     return np.dtype([(n, kind) for n in names])
 
 
@@ -103,92 +105,68 @@ def record(flat: np.ndarray, dtype: np.dtype) -> np.ndarray:
     return v.reshape(v.shape[:-1]) if a.ndim > 1 else v
 
 
-# ----------------------------------------------------------- contact parameters
-CONTACT_PARAMS = _dtype(("kn", "ks", "zn", "zt", "mu", "mur", "zr"))
-KN, KS, ZN, ZT, MU, MUR, ZR = range(7)
-N_FIELDS = len(CONTACT_PARAMS.names)
-# material types of the contact table: soil discs, walls, wheel
+# ----------------------------------------------------------- material types
+# material types of the contact table cp[type_a, type_b] (each dimension's CONTACT_PARAMS):
+# soil particles, walls, wheel
 T_SOIL, T_WALL, T_WHEEL = 0, 1, 2
 N_TYPES = 3
 
-# ------------------------------------------------------------------- walls
-WALLS = _dtype(("length", "left", "right", "bottom"))
-WALL_LENGTH, WALL_LEFT, WALL_RIGHT, WALL_BOTTOM = range(4)
-
 # -------------------------------------------------------------------- wheel
 # width, z0: the wheel's extent across the bin, centred on z = z0 (3D only; 2D ignores them)
-WHEEL_GEOMETRY = _dtype(("enabled", "radius", "lug_in", "lug_out", "cap", "nlugs", "mass",
+WHEEL_GEOMETRY = record_dtype(("enabled", "radius", "lug_in", "lug_out", "cap", "nlugs", "mass",
                          "width", "z0"))
 WG_ENABLED, WG_R, WG_LUG_IN, WG_LUG_OUT, WG_CAP, WG_NLUGS, WG_MASS, WG_WIDTH, WG_Z0 = range(9)
 WG_SIZE = len(WHEEL_GEOMETRY.names)
 
-WHEEL_STATE = _dtype(("x", "y", "vx", "vy", "theta", "wz"))
+WHEEL_STATE = record_dtype(("x", "y", "vx", "vy", "theta", "wz"))
 WS_NAMES = WHEEL_STATE.names
 WS_X, WS_Y, WS_VX, WS_VY, WS_THETA, WS_WZ = range(6)
 WS_SIZE = len(WS_NAMES)
 
-WHEEL_CONTROLS = _dtype(("settle", "omega", "slipmode", "drawbar", "ramp", "slip"))
+WHEEL_CONTROLS = record_dtype(("settle", "omega", "slipmode", "drawbar", "ramp", "slip"))
 WC_SETTLE, WC_OMEGA, WC_SLIPMODE, WC_DRAWBAR, WC_RAMP, WC_SLIP = range(6)
 WC_SIZE = len(WHEEL_CONTROLS.names)
 
-WHEEL_RECORD = _dtype(("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar",
+WHEEL_RECORD = record_dtype(("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar",
                        "contacts"))
 REC_COLUMNS = WHEEL_RECORD.names
 (REC_T, REC_X, REC_Y, REC_VX, REC_VY, REC_WZ, REC_THETA, REC_FX, REC_FY, REC_TQ, REC_DB,
  REC_NC) = range(12)
 N_REC = len(REC_COLUMNS)
 
-# unit vector of each lug at the current wheel angle (forces.lug_directions)
-LUG_DIRECTION = _dtype(("ux", "uy"))
+# unit vector of each lug at the current wheel angle (wheel.lug_directions)
+LUG_DIRECTION = record_dtype(("ux", "uy"))
 
 # ------------------------------------------------------------------- errors
-ERRORS = _dtype(("hist_overflow", "pair_capacity", "body_capacity"), "<i8")
+ERRORS = record_dtype(("hist_overflow", "pair_capacity", "body_capacity"), "<i8")
 ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_BODY_CAPACITY = range(3)
 N_ERR = len(ERRORS.names)
 # kept for importers of the old name (the neighbour list has no fixed cap any more)
 ERR_NBR_OVERFLOW = ERR_PAIR_CAPACITY
 
-# ---------------------------------------------------------------- contact rows
-# partner ids of the bodies (negative, so they sort before every disc)
+# ------------------------------------------------------------- partner ids
+# partner ids of the bodies (negative, so they sort before every particle): the wheel's
+# parts and the walls both dimensions have (3D adds its side walls, d3.layout)
 ID_LUG0 = -1000        # lug k has id ID_LUG0 + k
 ID_RIM = -100
 ID_WALL_RIGHT = -3
 ID_WALL_LEFT = -2
 ID_WALL_BOTTOM = -1
 
-# one disc-disc pair (a = lower global id, b = higher) evaluated once: the force on b
-# is (bx, by), a gets the exact negation; ta / tb are the torque terms of a / b
-# (r_a ft - M, r_b ft + M); s, m the pair's new tangential and rolling springs
-PAIR_ROW = _dtype(("bx", "by", "ta", "tb", "s", "m"))
-# one disc-body contact (the body is always the lower id): disc row index, body id,
-# force and torque on the disc, new springs, and the torque on the wheel about its
-# centre (wheel parts only; the wheel's force is (-bx, -by))
-BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8"), ("bx", F8), ("by", F8), ("tq", F8),
-                     ("s", F8), ("m", F8), ("wt", F8)])
-
 # ------------------------------------------------------------ law blocks
-# The touching disc pairs are evaluated in blocks (forces.law_block), as in 3D: a block's
-# law inputs and results are rows of two (fields, LAW_ROW) arrays (structure of arrays), so
-# the compiler runs the law on several pairs at once (SIMD), each pair's arithmetic that of
-# the pair evaluated alone. LawIn: what the law needs of a touching pair (the centres'
-# offset b - a, relative velocity of b, spins, radii, masses, inertias, the springs of the
-# last step), its material pair in the contact table (type_a * N_TYPES + type_b) and that
-# pair's parameters (CONTACT_PARAMS fields in their order; filled only for a block of
-# several material pairs); LawOut: the pair row's fields (PAIR_ROW).
-LawIn = IntEnum("LawIn", ("dx", "dy", "vrx", "vry", "wa", "wb", "ra", "rb", "ma", "mb", "ia", "ib",
-                          "s_old", "m_old", "material") + CONTACT_PARAMS.names, start=0)
-LawOut = IntEnum("LawOut", PAIR_ROW.names, start=0)
-N_LAW_IN = len(LawIn)
-N_LAW_OUT = len(LawOut)
-# pairs a block holds; its rows are padded by a cache line (rows 2 KiB apart would put a
-# pair's fields in two sets of the L1 cache, evicting each other)
+# The touching pairs are evaluated in blocks (physics.produce): a block's law inputs and
+# results are rows of two (fields, LAW_ROW) arrays (structure of arrays, each dimension's
+# LawIn / LawOut), so the compiler runs the law on several pairs at once (SIMD), each
+# pair's arithmetic that of the pair evaluated alone. LAW_BLOCK: pairs a block holds (a
+# thread's block columns stay in its core's L2; 128 measured no different at 100k); its
+# rows are padded by a cache line (rows 2 KiB apart would put a pair's fields in two sets
+# of the L1 cache, evicting each other)
 LAW_BLOCK = 256
 LAW_ROW = LAW_BLOCK + 8
 
 
 # ------------------------------------------------------- kernel argument records
 # (named tuples of arrays: numba compiles them; every field is a view, never a copy)
-from collections import namedtuple  # noqa: E402
 
 # the discs of one domain (views of a state.Particles): pos/vel (N, D), spin (N, R),
 # hist_id (N, C), hist_s (N, C, S), hist_m (N, C, M)
@@ -199,14 +177,12 @@ Discs = namedtuple("Discs", ["pos", "vel", "spin", "r", "mass", "inertia", "mat"
 KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc"])
 # per-particle contact force (N, D) and torque (N, R) of the last step; length 0 when not kept
 Forces = namedtuple("Forces", ["force", "torque"])
-# half pair list + CSR index (neighbors.build_pairs), the build positions, and the
+# half pair list + CSR index (physics.neighbors: build_pairs), the build positions, and the
 # pairs' rows of the current step (slot = position in pair_b; on[k] = in contact)
 # (ref: the positions (N, D) at the last build)
 Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "ref", "on", "rows"])
-# body rows of the current step: N_CHUNKS buffers of equal capacity, count[c] used
+# body rows of the current step: chunks.N_CHUNKS buffers of equal capacity, count[c] used
 Bodies = namedtuple("Bodies", ["rows", "count"])
-# one material pair's parameters as scalars (a block law's pair of several material pairs)
-LawParams = namedtuple("LawParams", CONTACT_PARAMS.names)
 
 
 def discs_of(p) -> Discs:

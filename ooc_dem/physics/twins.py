@@ -1,14 +1,18 @@
-"""Serial twins of parallel kernels (numba, no I/O).
+"""Compiled variants of one Python source (numba, no I/O).
 
-Serial DDM runs its sub-domains side by side, one per thread, inside one compiled call;
-each sub-domain's step must then run on its own thread, not launch a parallel region of
-its own. ``serial_twin`` compiles the same Python source a second time, without
-``parallel`` (``prange`` becomes ``range``) and with the kernels it calls replaced by
-their own serial twins. The arithmetic is the same source, so the bits are the same.
+The step machinery is written once (``physics.step``, ``produce``, ``gather``, ``history``,
+``neighbors``) and compiled once per dimension: the names a template leaves to the
+dimension (its contact law, rows, bodies and cell geometry) are ``Slot``s, and
+``specialise`` compiles the template's Python source again under a new name with those
+names bound to the dimension's kernels. Serial twins use the same mechanism: serial DDM
+runs its sub-domains side by side, one per thread, inside one compiled call; each
+sub-domain's step must then run on its own thread, not launch a parallel region of its
+own, so it is compiled again without ``parallel`` (``prange`` becomes ``range``) and with
+the kernels it calls replaced by their own serial twins. Every variant is the same
+source, so the arithmetic and the bits are the same.
 """
 from __future__ import annotations
 
-import sys
 import types
 import warnings
 
@@ -38,38 +42,62 @@ def no_parfors() -> ParallelOptions:
     return ParallelOptions(dict(NO_PARFORS))
 
 
-def serial_twin(kernel, name: str, parallel: bool = False, **callees):
-    """njit(cache=True) of ``kernel``'s Python function under ``name``, its global names
-    in ``callees`` (kernel name -> serial twin) rebound. ``kernel`` is a numba dispatcher
-    or a plain function; the twin caches under its own name. ``parallel``: compile the
-    twin itself with prange (a driver whose callees are serial twins)."""
+class Slot:
+    """A name a template leaves to each dimension, bound by ``specialise``; ``doc`` says
+    what the dimension puts there. A template that still holds one is never compiled."""
+
+    def __init__(self, doc: str):
+        self.doc = doc
+
+    def __repr__(self) -> str:
+        return f"Slot({self.doc!r})"
+
+
+def slots_of(module) -> dict[str, Slot]:
+    """The Slots a template module leaves open, by name."""
+    return {k: v for k, v in vars(module).items() if isinstance(v, Slot)}
+
+
+def bindings(names, *modules) -> dict:
+    """Each of ``names`` from the first of ``modules`` that has it (a dimension's kernels
+    and constants, for ``specialise``); raises TypeError when one is missing or two of
+    the modules give it different objects."""
+    bind = {}
+    for name in names:
+        found = {id(getattr(m, name)): getattr(m, name) for m in modules if hasattr(m, name)}
+        if len(found) != 1:
+            where = ", ".join(m.__name__ for m in modules)
+            raise TypeError(f"{name}: {'missing from' if not found else 'ambiguous in'} {where}")
+        bind[name] = next(iter(found.values()))
+    return bind
+
+
+def specialise(kernel, name: str, bind: dict | None = None, **options):
+    """njit(cache=True, **options) of ``kernel``'s Python function under ``name``, the global
+    names it uses that ``bind`` holds rebound to them. ``kernel`` is a plain function (a
+    template) or a numba dispatcher; the variant caches under its own name. Raises
+    TypeError when a Slot the function uses is left unbound."""
     py = getattr(kernel, "py_func", kernel)
+    used = set(py.__code__.co_names)
     g = dict(py.__globals__)
-    for k in callees:
-        if k not in py.__code__.co_names:
-            raise KeyError(f"serial_twin({py.__name__}): it does not call {k!r}")
-    g.update(callees)
+    g.update({k: v for k, v in (bind or {}).items() if k in used})
+    open_ = sorted(k for k in used if isinstance(g.get(k), Slot))
+    if open_:
+        raise TypeError(f"specialise({py.__name__} as {name}): unbound {', '.join(open_)}")
     f = types.FunctionType(py.__code__, g, name, py.__defaults__, py.__closure__)
     f.__qualname__ = name
     f.__module__ = py.__module__
-    f.__doc__ = f"Serial twin of {py.__name__} (physics.twins)."
-    return njit(cache=True, parallel=True if parallel else no_parfors())(f)
+    f.__doc__ = py.__doc__
+    return njit(cache=True, **options)(f)
 
 
-def step_twin(run_steps):
-    """The one-thread twin ``run_steps_serial`` of a dimension's step: ``run_steps`` with the
-    phases it calls (produce, gather_integrate, build_pairs, sync_history, load_history)
-    replaced by their serial twins, each found beside its phase as ``<phase>_serial`` (the
-    same convention in 2D and 3D). Serial DDM's compiled sweeps run it on each sub-domain
-    (engine.live)."""
-    g = getattr(run_steps, "py_func", run_steps).__globals__
-    callees = {}
-    for phase in STEP_PHASES:
-        kernel = g[phase]
-        home = sys.modules[getattr(kernel, "py_func", kernel).__module__]
-        callees[phase] = getattr(home, phase + "_serial")
-    return serial_twin(run_steps, "run_steps_serial", **callees)
-
-
-# what a step calls that runs in parallel (step_twin)
-STEP_PHASES = ("produce", "gather_integrate", "build_pairs", "sync_history", "load_history")
+def serial_twin(kernel, name: str, parallel: bool = False, **callees):
+    """``specialise`` of ``kernel`` under ``name`` with its global names in ``callees``
+    (kernel name -> serial twin) rebound, compiled without a parallel region
+    (``no_parfors``). ``parallel``: compile the twin itself with prange (a driver whose
+    callees are serial twins)."""
+    py = getattr(kernel, "py_func", kernel)
+    for k in callees:
+        if k not in py.__code__.co_names:
+            raise KeyError(f"serial_twin({py.__name__}): it does not call {k!r}")
+    return specialise(kernel, name, callees, parallel=True if parallel else no_parfors())

@@ -1,13 +1,25 @@
 """The 3D step kernels (spheres; x = travel, y = vertical, z = across the bin): the
-per-dimension entry points the engine calls (``physics.kernels(3)``), ``run_steps`` (and
-its one-thread twin ``run_steps_serial``, with ``sync_history_serial`` for serial DDM's
-compiled sweeps) and ``spatial_order``, and the row layouts the engine sizes its buffers with (``PAIR_ROW``
-or ``pair_row_layout(cp)``, ``BODY_ROW``, ``N_ERR``, ``N_CHUNKS``). Modules: layout, contact law, neighbours,
-forces, step, time step, and a thin test driver (sim)."""
-from .forces import N_CHUNKS  # noqa: F401
-from .layout import (BODY_ROW, CONTACT_PARAMS, N_ERR, PAIR_ROW,  # noqa: F401
-                     WALLS, pair_row_layout)
-from .forces import sync_history_serial  # noqa: F401  (serial DDM's write-back, engine.live)
-from .step import run_steps, run_steps_serial, spatial_order  # noqa: F401
+dimension's kernel module (``physics.kernels(3)``; its names are
+``physics.KernelModule``'s).
 
-DIM = 3
+The step machinery is ``physics``'s, written once (``physics.step``); this package holds
+only what is 3D's own and binds it there: the records (``layout``: the contact table
+with a law per material pair, the box's walls, the pair rows with or without the
+rolling parts, ``pair_row_layout(cp)``), the contact laws (``contact``: linear and
+Hertz-Mindlin), the pair law on blocks and what a 3D contact row holds (``forces``),
+the walls' and the wheel's contact geometry (``bodies``), the cell geometry of the
+neighbour build (``neighbors``), and the time-step check of its laws (``timestep``).
+"""
+import sys
+
+from .. import check_kernel_module
+from ..chunks import N_CHUNKS  # noqa: F401
+from ..layout import N_ERR  # noqa: F401
+from ..step import instantiate
+from . import bodies, forces, layout, neighbors
+from .layout import BODY_ROW, CONTACT_PARAMS, DIM, PAIR_ROW, WALLS, pair_row_layout  # noqa: F401
+from .neighbors import build_pairs, spatial_order  # noqa: F401
+
+# the phases, run_steps and their one-thread twins (physics.step.instantiate)
+globals().update(vars(instantiate("d3", layout, forces, bodies, neighbors)))
+check_kernel_module(sys.modules[__name__])

@@ -1,8 +1,9 @@
-"""Named layouts of the 3D kernels' records (spheres; the one definition for d3).
+"""Named layouts of the 3D kernels' own records (spheres; x = travel, y = vertical,
+z = across the bin); the records both dimensions share are ``physics.layout``'s.
 
-Mirrors ``ooc_dem.physics.layout`` (2D): every packed vector is a structured dtype,
-kernels read and write by field name through record views (``record(flat, DTYPE)``),
-no kernel indexes a column by number.
+As there, every packed vector is a structured dtype, kernels read and write by field
+name through record views (``record(flat, DTYPE)``), no kernel indexes a column by
+number.
 
 Records:
 - ``CONTACT_PARAMS``  one material pair, table cp[type_a, type_b]; ``law`` selects
@@ -16,7 +17,6 @@ Records:
                       records (the wheel's axle is along z in both dimensions; 3D reads
                       the geometry's width and z0: rim cylinder and lug plates span
                       z0 - width/2 .. z0 + width/2)
-- ``ERRORS``          kernel error flags
 - ``PAIR_ROW_ROLLING`` / ``PAIR_ROW_SLIDING``  one sphere-sphere contact of a step
                       (phase 1 -> phase 2), with / without the rolling parts
                       (``pair_row_layout(cp)`` picks one from the contact table)
@@ -35,13 +35,20 @@ from enum import IntEnum
 
 import numpy as np
 
-from ..layout import WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE, record  # noqa: F401
+# the records both dimensions share (physics.layout): the wheel's, the error flags, the
+# material types, the law blocks' sizes, the partner ids of the wheel's parts and of the
+# walls 2D has too
+from ..layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY,  # noqa: F401
+                      ERRORS, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT,
+                      LAW_BLOCK, LAW_ROW, N_ERR, N_TYPES, T_SOIL, T_WALL, T_WHEEL,
+                      WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE, record,
+                      record_dtype)
+from ..layout import Bodies, Discs, Forces, KernelParams, Pairs  # noqa: F401
 
 F8 = "<f8"
 
-
-def _dtype(names, kind=F8):
-    return np.dtype([(n, kind) for n in names])
+DIM = 3    # axes x (travel), y (vertical), z (across the bin)
+SPIN = 3   # the spin about x, y and z
 
 
 # ----------------------------------------------------------- contact parameters
@@ -52,27 +59,17 @@ LAW_HERTZ = 1
 # which is what makes the restitution of the Tsuji law exactly the target e
 # (validation-3d.md section 3; clamped, e = 0.3 gives 0.397). Friction and rolling
 # limits use max(Fn, 0).
-CONTACT_PARAMS = _dtype(("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr",
+CONTACT_PARAMS = record_dtype(("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr",
                          "estar", "gstar", "beta", "no_tension"))
 N_FIELDS = len(CONTACT_PARAMS.names)
-T_SOIL, T_WALL, T_WHEEL = 0, 1, 2
-N_TYPES = 3
 
 # ------------------------------------------------------------------- walls
-WALLS = _dtype(("length", "width", "left", "right", "bottom", "front", "back"))
-
-# ------------------------------------------------------------------- errors
-ERRORS = _dtype(("hist_overflow", "pair_capacity", "body_capacity"), "<i8")
-ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_BODY_CAPACITY = range(3)
-N_ERR = len(ERRORS.names)
+WALLS = record_dtype(("length", "width", "left", "right", "bottom", "front", "back"))
 
 # -------------------------------------------------------------- partner ids
+# the side walls (the end walls, the floor and the wheel's parts have the ids of 2D)
 ID_WALL_BACK = -5
 ID_WALL_FRONT = -4
-ID_WALL_RIGHT = -3
-ID_WALL_LEFT = -2
-ID_WALL_BOTTOM = -1
-from ..layout import ID_LUG0, ID_RIM  # noqa: E402,F401  (the wheel's parts, as in 2D)
 
 # history widths of the 3D law (tangential spring force, rolling spring moment)
 S_WIDTH = 3
@@ -87,9 +84,9 @@ M_WIDTH = 3
 # rolling spring (m*). Without rolling resistance in the contact table (every mur = 0)
 # the moment and rolling spring are exactly zero: the row then leaves them out
 # (PAIR_ROW_SLIDING, 72 bytes against 120), the kernels read them as zeros.
-PAIR_ROW_ROLLING = _dtype(("bx", "by", "bz", "cx", "cy", "cz", "mox", "moy", "moz",
+PAIR_ROW_ROLLING = record_dtype(("bx", "by", "bz", "cx", "cy", "cz", "mox", "moy", "moz",
                            "sx", "sy", "sz", "mx", "my", "mz"))
-PAIR_ROW_SLIDING = _dtype(("bx", "by", "bz", "cx", "cy", "cz", "sx", "sy", "sz"))
+PAIR_ROW_SLIDING = record_dtype(("bx", "by", "bz", "cx", "cy", "cz", "sx", "sy", "sz"))
 PAIR_ROW = PAIR_ROW_ROLLING   # the general layout (any contact table)
 
 
@@ -130,11 +127,10 @@ BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8")]
                                          "sx", "sy", "sz", "mx", "my", "mz", "wt")])
 
 # ------------------------------------------------------- kernel argument records
-# the shared named tuples of physics.layout (one definition for every dimension):
-# Discs (pos/vel/spin (N, 3), hist_s/hist_m (N, C, 3)), Pairs (ref: build positions
-# (N, 3)), Bodies (rows: BODY_ROW of this module), KernelParams (cp: CONTACT_PARAMS and
-# walls: WALLS of this module; gravity (3,)), Forces (force, torque (N, 3))
-from ..layout import Bodies, Discs, Forces, KernelParams, Pairs  # noqa: F401
+# the shared named tuples of physics.layout: Discs (pos/vel/spin (N, 3), hist_s/hist_m
+# (N, C, 3)), Pairs (ref: build positions (N, 3)), Bodies (rows: BODY_ROW of this module),
+# KernelParams (cp: CONTACT_PARAMS and walls: WALLS of this module; gravity (3,)), Forces
+# (force, torque (N, 3))
 
 
 # ------------------------------------------------------- parameter helpers

@@ -1,6 +1,6 @@
-"""A thin Python driver of the 3D kernels for tests (to be replaced by the generic
-engine): sphere arrays with the spec-generic field names, ``run_steps`` in blocks,
-capacity growth, error flags turned into exceptions."""
+"""A thin Python driver of the 3D kernels for tests: sphere arrays with the spec-generic
+field names, ``run_steps`` in blocks, capacity growth, error flags turned into the
+engine's exception (``engine.stepper.EngineError``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
@@ -8,8 +8,11 @@ from dataclasses import dataclass, fields
 import numba
 import numpy as np
 
-from .forces import N_CHUNKS
-from .layout import (
+from ooc_dem.engine.stepper import EngineError
+from ooc_dem.physics import d3
+from ooc_dem.physics.d3 import N_CHUNKS
+from ooc_dem.physics.layout import EVERY_PARTICLE, NO_CONE, index_dtype
+from ooc_dem.physics.d3.layout import (
     BODY_ROW,
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,
@@ -28,15 +31,9 @@ from .layout import (
     KernelParams,
     Pairs,
 )
-from ..layout import EVERY_PARTICLE, NO_CONE, index_dtype
-from .step import run_steps, spatial_order
 
 SERIAL_BELOW = 3000   # spheres; below this the driver runs on one thread (same bits)
 PAIR_HEADROOM = 1.05
-
-
-class EngineError(RuntimeError):
-    """A run cannot continue (history overflow, unstable state)."""
 
 
 @dataclass
@@ -106,7 +103,7 @@ class Sim:
         if skin is None:
             skin = 0.2 * float(spheres.r.max()) if n else 0.0
         if reorder and n > 1:
-            perm = spatial_order(spheres.pos, n, 2 * spheres.r.max() + skin)
+            perm = d3.spatial_order(spheres.pos, n, 2 * spheres.r.max() + skin)
             for f in fields(spheres):
                 getattr(spheres, f.name)[...] = getattr(spheres, f.name)[perm]
         self.s = spheres
@@ -159,7 +156,7 @@ class Sim:
         while True:
             pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k,
                        self.ref, self.on, self.rows)
-            k, rb = run_steps(nsteps - done, self.step, self.kp, d, pl, self.bodies,
+            k, rb = d3.run_steps(nsteps - done, self.step, self.kp, d, pl, self.bodies,
                               self.forces, self.ws, self.err, self.rec, not self._built, False,
                               EVERY_PARTICLE, NO_CONE)
             done += k

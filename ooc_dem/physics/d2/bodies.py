@@ -1,0 +1,181 @@
+"""A disc's contacts with the bodies (numba, no I/O): the bin's walls (floor y = 0, end
+walls x = 0 and x = length) and the wheel's rim (a circle of radius R about the axle)
+and lugs (capsules of radius cap along each lug's direction from lug_in to lug_out),
+made into body rows (``layout.BODY_ROW``) for ``physics.produce``.
+
+Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM,
+right wall -3, left -2, bottom -1; a disc's rows in that ascending order), with the
+disc's springs from its history (zero for a new contact). A wheel row also holds the
+torque on the wheel about its centre (the wheel's force is (-bx, -by)).
+"""
+import math
+
+from numba import njit
+
+from ..history import lookup
+from ..layout import (AX_X, AX_Y, HM_R, HS_T, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT,
+                      ID_WALL_RIGHT, SP_Z, T_WALL, T_WHEEL)
+from ..wheel import lug_axis_offset
+from .contact import contact
+
+
+@njit(inline="always", cache=True)
+def _springs(hist_id, hist_s, hist_m, i, hn, p, pid):
+    """Disc i's springs with body pid from its history (zero for a new contact); returns
+    (p, s, m), p the advanced merge pointer."""
+    p, found = lookup(hist_id, i, hn, p, pid)
+    if found:
+        return p, hist_s[i, p, HS_T], hist_m[i, p, HM_R]
+    return p, 0.0, 0.0
+
+
+@njit(inline="always", cache=True)
+def _body_row(body, at, i, pid, bx, by, tq, s, m, wt):
+    row = body[at]
+    row.disc = i
+    row.pid = pid
+    row.bx = bx
+    row.by = by
+    row.tq = tq
+    row.s = s
+    row.m = m
+    row.wt = wt
+
+
+@njit(inline="always", cache=True)
+def _wheel_row(body, bat, bend, i, pid, fn, ft, s, mom, m, nx, ny, qx, qy, ri):
+    """Body row bat of a disc-wheel-part contact (normal n, force fn n - ft t on the disc,
+    rolling moment mom): the disc's force and torque, the springs, and the torque on the
+    wheel about its centre from the reaction at (qx, qy) off it. Returns (next row, full)."""
+    bx = fn * nx + ft * ny
+    by = fn * ny - ft * nx
+    if bat < bend:
+        _body_row(body, bat, i, pid, bx, by, ri * ft + mom, s, m, qx * (-by) - qy * (-bx) - mom)
+        return bat + 1, False
+    return bat, True
+
+
+@njit(inline="always", cache=True)
+def body_scene(walls, wg, ws):
+    """The walls' and the wheel's geometry this step (body_rows' scene): the bin's length
+    and which walls there are; whether there is a wheel, its radius, lugs, mass, centre,
+    velocity and spin, and its reach (the farthest point of a lug or the rim)."""
+    wl = walls[0]
+    g = wg[0]
+    s0 = ws[0]
+    R = g.radius
+    reach = g.lug_out + g.cap
+    if R > reach:
+        reach = R
+    return (wl.length, wl.left > 0.5, wl.right > 0.5, wl.bottom > 0.5, g.enabled > 0.5, R,
+            g.lug_in, g.lug_out, g.cap, int(g.nlugs), g.mass, s0.x, s0.y, s0.vx, s0.vy, s0.wz,
+            reach)
+
+
+@njit(inline="always", cache=True)
+def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
+    """Disc i's rows with the wheel's lugs and rim, then the walls, from body row bat on
+    (bend: its chunk's end). Returns (the next row, whether a row did not fit)."""
+    (length, has_left, has_right, has_bottom, wheel_on, R, lug_in, lug_out, cap_r, nlugs, wmass,
+     X, Y, VX, VY, WZ, reach) = scene
+    pos = d.pos
+    xi = pos[i, AX_X]
+    yi = pos[i, AX_Y]
+    ri = d.r[i]
+    # most discs touch neither a wall nor the wheel: test that on the position first
+    # (ri > t is exactly a wall's own test ri - t > 0, and the wheel's test is the one
+    # below, so no contact is skipped or added)
+    near_wall = ((has_right and ri > length - xi) or (has_left and ri > xi)
+                 or (has_bottom and ri > yi))
+    dxw = xi - X
+    dyw = yi - Y
+    d2 = dxw * dxw + dyw * dyw
+    near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri)
+    full = False
+    if not (near_wall or near_wheel):
+        return bat, full
+    vxi = d.vel[i, AX_X]
+    vyi = d.vel[i, AX_Y]
+    wi = d.spin[i, SP_Z]
+    mi = d.mass[i]
+    ii = d.inertia[i]
+    ti = d.mat[i]
+    hist_id, hist_s, hist_m = d.hist_id, d.hist_s, d.hist_m
+    hn = d.hist_n[i]
+    p = 0
+    # ------------------------------------------------------ wheel
+    if near_wheel:
+        meff = mi * wmass / (mi + wmass)
+        for lug in range(nlugs):
+            ux = lugdir[lug].ux
+            uy = lugdir[lug].uy
+            sproj = lug_axis_offset(dxw, dyw, ux, uy, lug_in, lug_out)
+            px = X + sproj * ux
+            py = Y + sproj * uy
+            ddx = xi - px
+            ddy = yi - py
+            dd = math.sqrt(ddx * ddx + ddy * ddy)
+            delta = cap_r + ri - dd
+            if delta > 0.0 and dd > 0.0:
+                pid = ID_LUG0 + lug
+                p, s_old, m_old = _springs(hist_id, hist_s, hist_m, i, hn, p, pid)
+                nx = ddx / dd
+                ny = ddy / dd
+                # velocity of the lug point p: V + Wz x (p - C)
+                vax = VX - WZ * (py - Y)
+                vay = VY + WZ * (px - X)
+                fn, ft, s_new, mom, m_new = contact(
+                    cp[T_WHEEL, ti], nx, ny, delta, vxi - vax, vyi - vay, WZ, wi, cap_r,
+                    ri, meff, ii, ri, s_old, m_old, dt)
+                # reaction on the wheel at q = p + cap_r n, about the centre
+                bat, over = _wheel_row(body, bat, bend, i, pid, fn, ft, s_new, mom, m_new, nx,
+                                       ny, px + cap_r * nx - X, py + cap_r * ny - Y, ri)
+                full = full or over
+        dw = math.sqrt(d2)
+        delta = R + ri - dw
+        if delta > 0.0 and dw > 0.0:
+            p, s_old, m_old = _springs(hist_id, hist_s, hist_m, i, hn, p, ID_RIM)
+            nx = dxw / dw
+            ny = dyw / dw
+            fn, ft, s_new, mom, m_new = contact(
+                cp[T_WHEEL, ti], nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri,
+                meff, ii, ri, s_old, m_old, dt)
+            bat, over = _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom, m_new, nx,
+                                   ny, R * nx, R * ny, ri)
+            full = full or over
+    # ------------------------------------------------------ walls
+    for wall in range(3 if near_wall else 0):
+        # ascending ids: right (-3), left (-2), bottom (-1)
+        if wall == 0:
+            if not has_right:
+                continue
+            delta = ri - (length - xi)
+            nx = -1.0
+            ny = 0.0
+            pid = ID_WALL_RIGHT
+        elif wall == 1:
+            if not has_left:
+                continue
+            delta = ri - xi
+            nx = 1.0
+            ny = 0.0
+            pid = ID_WALL_LEFT
+        else:
+            if not has_bottom:
+                continue
+            delta = ri - yi
+            nx = 0.0
+            ny = 1.0
+            pid = ID_WALL_BOTTOM
+        if delta > 0.0:
+            p, s_old, m_old = _springs(hist_id, hist_s, hist_m, i, hn, p, pid)
+            fn, ft, s_new, mom, m_new = contact(
+                cp[T_WALL, ti], nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri,
+                mi, ii, ri, s_old, m_old, dt)
+            if bat < bend:
+                _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx,
+                          ri * ft + mom, s_new, m_new, 0.0)
+                bat += 1
+            else:
+                full = True
+    return bat, full

@@ -64,11 +64,11 @@ def child(a) -> dict:
     sweeps = []
     begin = sweep.OocEngine.sweep
 
-    def timed_sweep(self, step0, k):
+    def timed_sweep(self, step0, k, frame=None):
         for key in now:
             now[key] = 0.0
         t = time.perf_counter()
-        rec = begin(self, step0, k)
+        rec = begin(self, step0, k, frame)
         wall = time.perf_counter() - t
         sweeps.append({"step": step0 + k, "wall_s": round(wall, 3),
                        **{f"{key}_s": round(v, 3) for key, v in now.items()},

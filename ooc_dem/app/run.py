@@ -325,6 +325,18 @@ def default_checkpoint_every(sc: Scenario, steps: int) -> int:
     return max(1, steps)
 
 
+class FrameParts:
+    """The parts of the trajectory frame at ``step``, as an engine writes them during an
+    advance (``engine.interface.FrameParts``)."""
+
+    def __init__(self, frames, step: int):
+        self.frames = frames
+        self.step = step
+
+    def write_part(self, part: dict) -> None:
+        self.frames.write_part(self.step, part)
+
+
 class Simulation:
     """A scenario run in one mode, writing its store, series, summary and figures into ``out``."""
 
@@ -429,8 +441,7 @@ class Simulation:
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._with_io_options(self._ooc_engine_class().create_streamed(
             self.sc, self.model, parts, np.zeros(WS_SIZE), domains=self.plan.domains, block=self.plan.block,
-            store=self.store, commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer,
-            observe=part_surface))
+            store=self.store, observe=part_surface))
         self.surface = float(np.mean(surf))
         self.step = 0
         self.commit()
@@ -452,17 +463,16 @@ class Simulation:
         if self.frames.due(self.step):
             self._write_frame(parts_written=False)
 
-    def _frame_part_writer(self, step: int):
-        """The function that writes one part of the frame due at ``step`` (None: no frame is
-        due then); out-of-core sweeps hand it each slab's owned discs as they pass."""
-        frames = self.frames
-        if frames is None or not frames.due(step):
+    def _frame_parts(self, step: int) -> "FrameParts | None":
+        """Where an engine that writes frame parts puts the discs of the frame due at
+        ``step`` (None: no frame is due then, or the engine writes none)."""
+        if self.frames is None or not self.engine.writes_frame_parts or not self.frames.due(step):
             return None
-        return lambda part: frames.write_part(step, part)
+        return FrameParts(self.frames, step)
 
     def _write_frame(self, parts_written: bool) -> None:
         """Commit the frame of the current step; ``parts_written``: the engine wrote its parts
-        already (out-of-core, through ``_frame_part_writer``)."""
+        during the advance (out-of-core, into ``_frame_parts``)."""
         from .trajectory import ROW_FIELDS
         t = self.step * self.sc.physics.dt
         ws = np.asarray(self.engine.wheel_state, np.float64)
@@ -497,8 +507,7 @@ class Simulation:
             return DdmEngine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
                                     block=self.plan.block, store=self.store)
         return self._with_io_options(self._ooc_engine_class().create(
-            self.sc, self.model, particles, ws, domains=self.plan.domains, block=self.plan.block, store=self.store,
-            commit_sweep=self._commit_sweep, part_sink=self._frame_part_writer))
+            self.sc, self.model, particles, ws, domains=self.plan.domains, block=self.plan.block, store=self.store))
 
     def _reopen_engine(self, reader, arrays: dict, attrs: dict) -> Engine:
         """The engine continuing from the committed epoch ``reader`` reads (checked)."""
@@ -517,8 +526,8 @@ class Simulation:
             return DdmEngine.reopen(self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
                                     redecompositions=redecompositions)
         return self._with_io_options(self._ooc_engine_class().reopen(
-            self.sc, self.model, reader, ws, attrs["engine"], store=self.store, commit_sweep=self._commit_sweep,
-            part_sink=self._frame_part_writer, redecompositions=redecompositions))
+            self.sc, self.model, reader, ws, attrs["engine"], store=self.store,
+            redecompositions=redecompositions))
 
     def _bed_progress(self):
         if not self.opts.progress:
@@ -553,12 +562,6 @@ class Simulation:
         if self.metrics is not None:
             self.metrics.add(rec, step0)
 
-    def _commit_sweep(self, rec, step0: int, k: int) -> None:
-        """An out-of-core sweep has written epoch step0 + k: fold its records, commit it."""
-        self.fold(rec, step0)
-        self.step = step0 + k
-        self.commit()
-
     # ------------------------------------------------------------------- run
     def run(self) -> dict:
         if self.engine is None:
@@ -576,18 +579,23 @@ class Simulation:
                               if self.frames is not None else self.steps)
                 n = min(self.steps, next_ckpt, next_frame, self.step + chunk_pref) - self.step
                 step0 = self.step
-                rec = self.engine.advance(step0, n)
-                if not self.engine.folds_records:
-                    self.fold(rec, step0)
+                frame = self._frame_parts(step0 + n)
+                rec = self.engine.advance(step0, n, frame)
+                self.fold(rec, step0)
                 self.step = step0 + n
                 self.wall_time = time.time() - t_start
                 post = {}
                 if self.sc.wheel.enabled and len(rec):
                     post["x"] = f"{rec[-1, REC_X]:.4f}"
                 bar.update(self.step, n, **post)
+                # out-of-core: the advance wrote this step's epoch; committed first (the next
+                # sweep reads it, and a frame is published only after its epoch)
+                committed = self.engine.epoch_each_advance
+                if committed:
+                    self.commit()
                 if self.frames is not None and self.frames.due(self.step):
-                    self._write_frame(parts_written=self.engine.writes_frame_parts)
-                if self.step % self.checkpoint_every == 0 or self.step == self.steps:
+                    self._write_frame(parts_written=frame is not None)
+                if not committed and (self.step % self.checkpoint_every == 0 or self.step == self.steps):
                     self.commit()
         except EngineError as e:
             raise RunError(f"{e} (last committed epoch kept in {self.out})") from None

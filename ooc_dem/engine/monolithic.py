@@ -16,7 +16,7 @@ class MonolithicEngine:
 
     name = "monolithic"
     preferred_chunk = 2000
-    folds_records = False
+    epoch_each_advance = False
     writes_frame_parts = False
 
     def __init__(self, particles: Particles, wheel_state: np.ndarray, model: Model, store=None,
@@ -31,7 +31,7 @@ class MonolithicEngine:
     def default_block(cls, sc, domains: int) -> int:
         return 1
 
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+    def advance(self, step0: int, nsteps: int, frame=None) -> np.ndarray:
         return self.stepper.advance(step0, nsteps)
 
     @property

@@ -294,7 +294,7 @@ class MpiEngine:
     block step; on rank 0 also the engine interface ``Simulation`` drives."""
 
     name = "mpi"
-    folds_records = False
+    epoch_each_advance = False
     writes_frame_parts = False
 
     def __init__(self, sc, model: Model, block: int, domains: int, comm, redecompositions=None):
@@ -388,7 +388,7 @@ class MpiEngine:
         return out
 
     # -------------------------------------------------- rank 0: engine interface
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+    def advance(self, step0: int, nsteps: int, frame=None) -> np.ndarray:
         return self._call("advance", (int(step0), int(nsteps)))
 
     @property
@@ -905,9 +905,9 @@ class MpiOocEngine(OocEngine):
     writes_frame_parts = False   # frames stream the committed epoch's groups on rank 0
 
     def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds, *, store=None,
-                 commit_sweep=None, part_sink=None, redecompositions=(), comm=None, path=None):
-        super().__init__(sc, model, wheel_state, block, bounds, store=store, commit_sweep=commit_sweep,
-                         part_sink=None, redecompositions=redecompositions)
+                 io_overlap: bool = False, redecompositions=(), comm=None, path=None):
+        super().__init__(sc, model, wheel_state, block, bounds, store=store, io_overlap=io_overlap,
+                         redecompositions=redecompositions)
         self.comm = comm if comm is not None else world()
         self.rank, self.R = self.comm.Get_rank(), self.comm.Get_size()
         self.path = str(path if path is not None else store.path)
@@ -930,8 +930,8 @@ class MpiOocEngine(OocEngine):
 
     @classmethod
     def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, commit_sweep, part_sink=None, redecompositions=()) -> "MpiOocEngine":
-        eng = super().reopen(sc, model, reader, wheel_state, engine_attrs, store=store, commit_sweep=commit_sweep,
+               store, io_overlap: bool = False, redecompositions=()) -> "MpiOocEngine":
+        eng = super().reopen(sc, model, reader, wheel_state, engine_attrs, store=store, io_overlap=io_overlap,
                              redecompositions=redecompositions)
         eng._announce()
         return eng
@@ -942,10 +942,10 @@ class MpiOocEngine(OocEngine):
         if first:   # the initial epoch (written by rank 0 alone) is in: the ranks join
             self._announce()
 
-    def sweep(self, step0: int, k: int) -> np.ndarray:
-        """Rank 0: every rank sweeps its slabs of the committed epoch into the next one."""
-        writer = self.store.begin_epoch(step0 + k)
-        self._writer = writer
+    def sweep(self, step0: int, k: int, frame=None) -> np.ndarray:
+        """Rank 0: every rank sweeps its slabs of the committed epoch into the next one
+        (left open for ``commit``; frames are written from the committed epoch)."""
+        writer = self._begin_epoch(step0 + k)
         try:
             return self._call("sweep_ranks", (int(step0), int(k), int(self.committed_step), writer.basename,
                                               self.ws.copy()))
@@ -1034,7 +1034,6 @@ class MpiOocEngine(OocEngine):
             raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
                               f"(bounds {self.bounds.tolist()}): decomposition error")
         self._note_resident([x for _p, _f, _o, r in got for x in r])
-        self.commit_sweep(rec_wheel, step0, k)
         return rec_wheel
 
     def _share_sweep_wheel(self, wslab: int, done: dict, k: int) -> np.ndarray:

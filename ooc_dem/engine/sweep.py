@@ -17,8 +17,6 @@ two share: the slabs, the block K and halo, the wheel's slab and re-decompositio
 """
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
 from ..model.checkpoint import (open_epoch, particles_to_record, record_rows, record_to_particles,
@@ -212,7 +210,7 @@ class SlabSweep:
     ``_x_histogram``) and how a sweep runs."""
 
     name = ""
-    folds_records = False
+    epoch_each_advance = False
     writes_frame_parts = False
 
     def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds,
@@ -393,7 +391,7 @@ class DdmEngine(SlabSweep):
     def _bounds_changed(self) -> None:
         self._live = None
 
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+    def advance(self, step0: int, nsteps: int, frame=None) -> np.ndarray:
         recs = []
         s = step0
         end = step0 + nsteps
@@ -491,28 +489,26 @@ class OocEngine(SlabSweep):
     """Out-of-core: each sweep reads the committed epoch slab by slab from the store and
     writes the next one; only one slab and its halo are ever resident.
 
-    ``commit_sweep(records, step0, k)`` is called once a sweep has written every slab of
-    epoch step0 + k: it folds the sweep's wheel records and commits that epoch (through
-    ``commit``), so the records are folded here, not by the run loop. ``part_sink(step)``
-    (optional) gives the function that writes one part of a trajectory frame due at
-    ``step``, or None when no frame is due: each slab's owned discs go to it as the sweep
-    passes."""
+    One ``advance`` is one sweep (``preferred_chunk`` = K): it leaves the epoch it wrote
+    open and returns the sweep's wheel records; the run loop folds them and commits the
+    epoch (``commit``, with its globals) before the next sweep reads it. A trajectory
+    frame due at the sweep's end gets each slab's owned discs (``advance``'s ``frame``)
+    as the sweep passes them."""
 
     name = "ooc"
-    folds_records = True
+    epoch_each_advance = True
     writes_frame_parts = True
 
     def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds, *,
-                 store, commit_sweep: Callable[[np.ndarray, int, int], None],
-                 part_sink: Callable[[int], Callable | None] | None = None, redecompositions=()):
+                 store, io_overlap: bool = False, redecompositions=()):
         super().__init__(sc, model, wheel_state, block, bounds, redecompositions)
         self.store = store
-        self.commit_sweep = commit_sweep
-        self.part_sink = part_sink
+        self.preferred_chunk = self.K   # one sweep an advance: the next reads its epoch
         self._writer = None         # the epoch being written
         self._store_reader = None   # the current committed epoch
         self.committed_step = None
-        self.io_overlap = False     # read ahead and write behind in threads (``_slabs``)
+        # read ahead and write behind in threads (``_slabs``)
+        self.io_overlap = bool(io_overlap)
         self._pairs_per_disc = 0.0  # candidate pairs per resident disc of the last slab
 
     @classmethod
@@ -523,26 +519,24 @@ class OocEngine(SlabSweep):
 
     @classmethod
     def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *,
-               domains: int, block: int, store, commit_sweep, part_sink=None,
+               domains: int, block: int, store, io_overlap: bool = False,
                bounds=None) -> "OocEngine":
         """Split the discs into `domains` slabs by the scenario's policy (or at `bounds`)
         and write them as the store's first epoch (committed by the first ``commit``)."""
-        eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store,
-                  commit_sweep=commit_sweep, part_sink=part_sink)
+        eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store, io_overlap=io_overlap)
         eng._writer = store.begin_epoch(0)
         eng._populate(particles, domains, bounds)
         return eng
 
     @classmethod
     def create_streamed(cls, sc, model: Model, parts, wheel_state: np.ndarray, *, domains: int,
-                        block: int, store, commit_sweep, part_sink=None, observe=None) -> "OocEngine":
+                        block: int, store, io_overlap: bool = False, observe=None) -> "OocEngine":
         """Start from a bed produced in x-ordered parts (``parts()`` yields them), never
         holding the whole bed: pass 1 counts the discs in x bins (for the bounds) and hands
         each part to ``observe`` (the caller's own per-part summaries, so that no third pass
         is needed), pass 2 writes each sub-domain's group as soon as no later part can add
         to it."""
-        eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store,
-                  commit_sweep=commit_sweep, part_sink=part_sink)
+        eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store, io_overlap=io_overlap)
         eng.D = domains
         hist = XHistogram(sc.bin.length)
         for part in parts():
@@ -573,11 +567,11 @@ class OocEngine(SlabSweep):
 
     @classmethod
     def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, commit_sweep, part_sink=None, redecompositions=()) -> "OocEngine":
+               store, io_overlap: bool = False, redecompositions=()) -> "OocEngine":
         """Continue from the committed epoch `reader` reads (its step is the engine's)."""
         K, bounds = cls._stored_geometry(engine_attrs)
-        eng = cls(sc, model, wheel_state, K, bounds, store=store, commit_sweep=commit_sweep,
-                  part_sink=part_sink, redecompositions=redecompositions)
+        eng = cls(sc, model, wheel_state, K, bounds, store=store, io_overlap=io_overlap,
+                  redecompositions=redecompositions)
         eng._store_reader = open_epoch(store, reader.step)
         eng.committed_step = int(reader.step)
         eng._n = sum(reader.domain_len(d) for d in reader.domains())
@@ -596,10 +590,11 @@ class OocEngine(SlabSweep):
         return self._store_reader
 
     def commit(self, step: int, arrays: dict, attrs: dict, durable: bool = False) -> None:
-        """Finish the epoch being written (globals + manifest commit)."""
-        if self.committed_step == step:
-            return  # the sweep that reached this step committed it already
+        """Finish the epoch the last sweep (or the set-up) wrote: its globals, then the
+        manifest commit."""
         writer, self._writer = self._writer, None
+        if writer is None:
+            raise RuntimeError(f"out-of-core commit of step {step} without an epoch being written")
         try:
             writer.write_globals(arrays, attrs)
             writer.commit(durable=durable)
@@ -611,25 +606,30 @@ class OocEngine(SlabSweep):
             self._store_reader.close()
         self._store_reader = open_epoch(self.store)
 
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
-        recs = []
-        s = step0
-        end = step0 + nsteps
-        while s < end:
-            k = min(self.K, end - s)
-            recs.append(self.sweep(s, k))
-            s += k
-        return np.concatenate(recs) if recs else np.zeros((0, N_REC))
+    def advance(self, step0: int, nsteps: int, frame=None) -> np.ndarray:
+        """One sweep of nsteps steps (1 to K: the halo is sized for K); its epoch is left
+        open for ``commit``."""
+        if not 1 <= nsteps <= self.K:
+            raise ValueError(f"out-of-core advance of {nsteps} steps: one sweep is 1 to K = {self.K} "
+                             f"steps (its epoch is committed before the next sweep reads it)")
+        return self.sweep(step0, nsteps, frame)
 
-    def sweep(self, step0: int, k: int) -> np.ndarray:
-        """Advance every slab k <= K steps (the halo is sized for K): each slab rebuilt from
-        epoch e, advanced, its owned discs written to e+1; then e+1 is committed."""
+    def _begin_epoch(self, step: int):
+        """The writer of epoch ``step``, once the previous one is committed (a sweep reads it)."""
+        if self._writer is not None:
+            raise RuntimeError(f"out-of-core sweep to step {step} before the last epoch was committed")
+        self._writer = self.store.begin_epoch(step)
+        return self._writer
+
+    def sweep(self, step0: int, k: int, frame=None) -> np.ndarray:
+        """Advance every slab k <= K steps: each slab rebuilt from epoch e, advanced, its
+        owned discs written to e+1 (and to ``frame``, if given); e+1 stays open."""
         self._step = step0
         wslab = self._wheel_check()
         src = self._source()
-        self._writer = self.store.begin_epoch(step0 + k)
+        self._begin_epoch(step0 + k)
         try:
-            return self._sweep_domains(src, step0, k, wslab)
+            return self._sweep_domains(src, step0, k, wslab, frame)
         except BaseException:
             if self._writer is not None:
                 self._writer.abort()
@@ -708,18 +708,16 @@ class OocEngine(SlabSweep):
             if written is not None:
                 written.result()
 
-    def _sweep_domains(self, src, step0: int, k: int, wslab: int) -> np.ndarray:
+    def _sweep_domains(self, src, step0: int, k: int, wslab: int, frame=None) -> np.ndarray:
         rec_wheel = np.zeros((0, N_REC))
         new_ws = self.ws
         resident = []
         owned_total = 0
-        # trajectory: a frame at the sweep's end gets each slab's owned discs as it passes
-        write_part = self.part_sink(step0 + k) if self.part_sink is not None else None
 
         def stage(d, local, owned):
             group = self._stage_owned(d, local, owned)
-            if write_part is not None:
-                write_part(group)
+            if frame is not None:   # a frame due at the sweep's end: each slab's part as it passes
+                frame.write_part(group)
 
         for d, n_owned, rec, ws, n_local in self._slabs(src, step0, k, wslab, stage):
             resident.append(n_local)
@@ -731,8 +729,6 @@ class OocEngine(SlabSweep):
                               f"(bounds {self.bounds.tolist()}): decomposition error")
         self.ws = new_ws
         self._note_resident(resident)
-        # the epoch is complete: fold the wheel records, then commit it (every sweep)
-        self.commit_sweep(rec_wheel, step0, k)
         return rec_wheel
 
     def particles(self) -> Particles:

@@ -343,6 +343,12 @@ class MpiEngine:
 
     # ------------------------------------------------------------ rank 0: set-up
     @classmethod
+    def default_block(cls, sc, domains: int) -> int:
+        """Serial DDM's K (the epochs are serial DDM's)."""
+        from .sweep import DdmEngine
+        return DdmEngine.default_block(sc, domains)
+
+    @classmethod
     def _open(cls, sc, model: Model, block: int, domains: int, store, redecompositions=()) -> "MpiEngine":
         comm = world()
         eng = cls(sc, model, block, domains, comm, redecompositions)

@@ -17,6 +17,8 @@ two share: the slabs, the block K and halo, the wheel's slab and re-decompositio
 """
 from __future__ import annotations
 
+from typing import Iterable
+
 import numpy as np
 
 from ..model.checkpoint import (open_epoch, particles_to_record, record_rows, record_to_particles,
@@ -529,20 +531,17 @@ class OocEngine(SlabSweep):
         return eng
 
     @classmethod
-    def create_streamed(cls, sc, model: Model, parts, wheel_state: np.ndarray, *, domains: int,
-                        block: int, store, io_overlap: bool = False, observe=None) -> "OocEngine":
-        """Start from a bed produced in x-ordered parts (``parts()`` yields them), never
-        holding the whole bed: pass 1 counts the discs in x bins (for the bounds) and hands
-        each part to ``observe`` (the caller's own per-part summaries, so that no third pass
-        is needed), pass 2 writes each sub-domain's group as soon as no later part can add
-        to it."""
+    def create_streamed(cls, sc, model: Model, parts: Iterable[Particles], wheel_state: np.ndarray, *,
+                        domains: int, block: int, store, io_overlap: bool = False) -> "OocEngine":
+        """Start from a bed produced in x-ordered parts (``parts``, iterated twice: each
+        pass produces them again), never holding the whole bed: pass 1 counts the discs in
+        x bins (for the bounds), pass 2 writes each sub-domain's group as soon as no later
+        part can add to it."""
         eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store, io_overlap=io_overlap)
         eng.D = domains
         hist = XHistogram(sc.bin.length)
-        for part in parts():
+        for part in parts:
             hist.add_x(part.pos[:, AX_X])
-            if observe is not None:
-                observe(part)
         eng._n = hist.n
         eng.bounds = eng.decompose(hist, step=0)
         eng._writer = store.begin_epoch(0)
@@ -555,7 +554,7 @@ class OocEngine(SlabSweep):
                     eng._stage(d, *group_of(Particles.concat(pending.pop(d)), None, model.order_cell))
                     written.add(d)
 
-        for part in parts():
+        for part in parts:
             flush(float(part.pos[:, AX_X].min()))
             g = owner(eng.bounds, part.pos[:, AX_X])
             for d in np.unique(g):

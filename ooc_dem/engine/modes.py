@@ -55,7 +55,7 @@ def _ddm() -> type:
 
 
 def _ooc() -> type:
-    from .sweep import OocEngine
+    from .ooc import OocEngine
     return OocEngine
 
 

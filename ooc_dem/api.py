@@ -303,9 +303,10 @@ def run(scenario: Scenario | str | os.PathLike[str], out: str | os.PathLike[str]
         With the one-line message the CLI would print. The store is released on any error or
         KeyboardInterrupt: the last committed epoch is kept and ``resume(out)`` continues.
     """
-    from .app.run import RunOptions, Simulation
+    from .app.plan import RunOptions
+    from .app.run import Simulation
     if steps is not None and duration is not None:
-        from .app.run import RunError
+        from .app.plan import RunError
         raise RunError("steps and duration: give one of them, not both")
     sc = _scenario(scenario, overrides)
     out = Path(out) if out is not None else Path("runs") / sc.name
@@ -315,10 +316,11 @@ def run(scenario: Scenario | str | os.PathLike[str], out: str | os.PathLike[str]
     sim = Simulation(sc, out, opts)   # plans and checks everything before a file is written
     prepared = None
     if bed is not None:
-        from .cli import CliError, _load_bed
-        from .app.run import RunError
+        from .app.cli_commands import load_bed
+        from .app.cli_parser import CliError
+        from .app.plan import RunError
         try:
-            prepared = _load_bed(bed, sc)
+            prepared = load_bed(bed, sc)
         except CliError as e:   # the CLI's checks of a prepared bed, raised as a RunError
             raise RunError(str(e).replace("--bed ", "bed ", 1)) from None
     try:
@@ -355,7 +357,8 @@ def resume(path: str | os.PathLike[str], steps: int | None = None, until: float 
     RunError, StoreError, StateError, ScenarioError
         Not a run, another process writes it, damaged store, ... (one-line message).
     """
-    from .app.run import RunError, resume_simulation
+    from .app.plan import RunError
+    from .app.run import resume_simulation
     if steps is not None and until is not None:
         raise RunError("steps and until: give one of them, not both")
     sim = resume_simulation(path, steps=steps, until=until, progress=progress, figures=figures)

@@ -181,15 +181,88 @@ def test_no_private_storage_names_outside_storage():
     assert not bad, "private storage names used outside ooc_dem/storage/:\n" + "\n".join(bad)
 
 
+# the run loop, its planning and resume, the engines, their interface and the mode registry
+DISPATCH_FREE = ("ooc_dem/app/run.py", "ooc_dem/app/plan.py", "ooc_dem/app/resume.py",
+                 "ooc_dem/engine/sweep.py", "ooc_dem/engine/ooc.py", "ooc_dem/engine/monolithic.py",
+                 "ooc_dem/engine/interface.py", "ooc_dem/engine/modes.py", "ooc_dem/engine/budget.py",
+                 "ooc_dem/engine/mpi/*.py")
+
+
 def test_the_engines_and_the_run_loop_dispatch_on_no_attribute():
-    """The run loop asks an engine nothing but the Engine protocol: no hasattr / getattr."""
+    """The run loop asks an engine nothing but the Engine protocol, and the MPI ranks run the
+    operations of an engine's table: no hasattr / getattr."""
+    files = sorted({f for pattern in DISPATCH_FREE for f in ROOT.glob(pattern)})
+    assert len(files) > len(DISPATCH_FREE), files
     bad = []
-    for rel in ("ooc_dem/app/run.py", "ooc_dem/engine/sweep.py", "ooc_dem/engine/monolithic.py",
-                "ooc_dem/engine/interface.py"):
-        for node in ast.walk(ast.parse(ROOT.joinpath(rel).read_text())):
+    for f in files:
+        rel = f.relative_to(ROOT)
+        for node in ast.walk(ast.parse(f.read_text())):
             if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
                     and node.func.id in ("hasattr", "getattr")):
                 bad.append(f"{rel}:{node.lineno}: {node.func.id}")
+    assert not bad, "\n".join(bad)
+
+
+def is_app_code(f) -> bool:
+    """Whether the callable f is the application's: a function or method defined in an
+    application module, or a method bound to an object of one."""
+    owner = getattr(f, "__self__", None)
+    modules = [getattr(f, "__module__", None) or "",
+               type(owner).__module__ if owner is not None else ""]
+    return any(layer(m) == "app" for m in modules if m.startswith("ooc_dem"))
+
+
+def test_app_code_is_recognised():
+    from ooc_dem.app.run import Simulation
+    from ooc_dem.engine.sweep import SlabSweep
+    from ooc_dem.app.run import FrameParts
+    assert is_app_code(Simulation.commit) and is_app_code(FrameParts(None, 0).write_part)
+    assert not is_app_code(lambda: None)
+    assert not is_app_code(SlabSweep.info) and not is_app_code(print)
+
+
+def test_no_engine_takes_a_callback():
+    """Engines are given data, never the application's functions: no parameter of an
+    engine's constructors is annotated Callable or has a callable default."""
+    from ooc_dem.engine.modes import MODES
+    bad, seen = [], 0
+    for mode in MODES.values():
+        cls = mode.engine
+        for name in ("__init__", "create", "create_streamed", "reopen", "on_worker"):
+            f = inspect.getattr_static(cls, name, None)
+            if f is None or f is object.__init__:
+                continue
+            f = f.__func__ if isinstance(f, classmethod) else f
+            for p in inspect.signature(f).parameters.values():
+                seen += 1
+                callable_default = p.default is not p.empty and callable(p.default)
+                if "Callable" in str(p.annotation) or callable_default:
+                    bad.append(f"{cls.__name__}.{name}({p.name})")
+    assert seen > 50 and not bad, bad
+
+
+def test_the_modes_are_listed_once():
+    """The modes are named in one registry (engine/modes.py): elsewhere in the package no
+    tuple, list or set of mode names, and no comparison of a mode with a mode's name (the
+    code asks the registry's capabilities)."""
+    from ooc_dem.engine.modes import MODES
+    names = set(MODES)
+    bad = []
+    for name, f in _module_files("ooc_dem"):
+        if name == "ooc_dem.engine.modes":
+            continue
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+                listed = [e.value for e in node.elts if isinstance(e, ast.Constant) and e.value in names]
+                if len(listed) >= 2:
+                    bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: {listed}")
+            elif isinstance(node, ast.Compare):
+                left = node.left
+                is_mode = (isinstance(left, ast.Name) and left.id == "mode") or \
+                          (isinstance(left, ast.Attribute) and left.attr == "mode")
+                named = [c.value for c in node.comparators if isinstance(c, ast.Constant) and c.value in names]
+                if is_mode and named:
+                    bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: mode compared with {named}")
     assert not bad, "\n".join(bad)
 
 
@@ -215,11 +288,12 @@ def test_every_engine_satisfies_the_protocol(tiny_runs):
     from ooc_dem.engine.interface import Engine
     from ooc_dem.engine.monolithic import MonolithicEngine
     from ooc_dem.app.run import Simulation
-    from ooc_dem.engine.sweep import DdmEngine, OocEngine
+    from ooc_dem.engine.ooc import OocEngine
+    from ooc_dem.engine.sweep import DdmEngine
     classes = {"monolithic": MonolithicEngine, "ddm": DdmEngine, "ooc": OocEngine}
     # the protocol's members: its methods and properties, and its annotated attributes
     members = sorted({m for m in [*vars(Engine), *Engine.__annotations__] if not m.startswith("_")})
-    assert {"advance", "commit", "info", "wheel_state", "folds_records"} <= set(members)
+    assert {"advance", "commit", "info", "wheel_state", "epoch_each_advance"} <= set(members)
     hashes = set()
     for mode, engine, sim, summary in tiny_runs:
         assert type(engine) is classes[mode] and engine.name == mode
@@ -230,8 +304,13 @@ def test_every_engine_satisfies_the_protocol(tiny_runs):
             if inspect.isfunction(want):
                 got = inspect.signature(getattr(type(engine), m))
                 assert list(got.parameters) == list(inspect.signature(want).parameters), (mode, m)
-        # an engine holds what it was given, never the simulation that made it
+        # an engine holds what it was given, never the simulation that made it, nor any
+        # function of the application (a bound method of one of its objects, a closure):
+        # engines never call back into the application
         assert not any(isinstance(v, Simulation) for v in vars(engine).values()), mode
+        held = [(k, v) for k, v in vars(engine).items()
+                if callable(v) and not isinstance(v, type) and is_app_code(v)]
+        assert not held, (mode, held)
         assert summary["n_discs"] == 300 and summary["steps"] == 4
         hashes.add(summary["state_hash"])
     assert len(hashes) == 1, "the three engines must give the same bits"

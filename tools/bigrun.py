@@ -49,7 +49,7 @@ def _timed(owner, name, bucket, key):
 
 def child(a) -> dict:
     """The run, in this process (under the parent's memory limit)."""
-    from ooc_dem.engine import stepper, sweep
+    from ooc_dem.engine import ooc, stepper
     from ooc_dem.app.run import RunOptions, Simulation
     from ooc_dem.model.scenario import load_scenario
     from ooc_dem import storage
@@ -58,17 +58,17 @@ def child(a) -> dict:
                       steps=a.sweeps * a.block, memory=a.memory, progress=False, figures=False)
     sim = Simulation(sc, a.out, opts)
     now = {"read": 0.0, "compute": 0.0, "write": 0.0}
-    _timed(sweep, "_read_rows", now, "read")
+    _timed(ooc, "_read_rows", now, "read")
     _timed(stepper.DomainStepper, "__init__", now, "compute")   # its neighbour lists
     _timed(stepper.DomainStepper, "advance", now, "compute")
     sweeps = []
-    begin = sweep.OocEngine.sweep
+    begin = ooc.OocEngine.sweep
 
-    def timed_sweep(self, step0, k):
+    def timed_sweep(self, step0, k, frame=None):
         for key in now:
             now[key] = 0.0
         t = time.perf_counter()
-        rec = begin(self, step0, k)
+        rec = begin(self, step0, k, frame)
         wall = time.perf_counter() - t
         sweeps.append({"step": step0 + k, "wall_s": round(wall, 3),
                        **{f"{key}_s": round(v, 3) for key, v in now.items()},
@@ -76,7 +76,7 @@ def child(a) -> dict:
                        # ordering the owned discs by cell and gathering them into a record
                        "other_s": round(wall - sum(now.values()), 3)})
         return rec
-    sweep.OocEngine.sweep = timed_sweep
+    ooc.OocEngine.sweep = timed_sweep
     # the epoch writer (storage's public one, in front of every backend): writing the
     # groups and the commit
     for name in ("write_domain", "commit"):

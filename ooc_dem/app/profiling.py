@@ -22,12 +22,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..engine.modes import MODES, mode_names
 from ..errors import OocDemError
 
 if TYPE_CHECKING:
     import argparse
 
-MODES = ("monolithic", "ddm", "ooc")
+# the modes a profile runs: those of one process (the MPI modes run under mpiexec)
+PROFILED_MODES = mode_names(lambda m: not m.mpi)
 
 
 def _status_kb(field: str) -> int:
@@ -135,7 +137,7 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     n = summary["n_discs"]
     eng = summary["engine"]
     res = {
-        "mode": args.mode, "backend": args.backend if args.mode == "ooc" else None,
+        "mode": args.mode, "backend": args.backend if MODES[args.mode].out_of_core else None,
         "scenario": sc.name, "n_discs": n, "steps": steps,
         "domains": eng.get("domains"), "block": eng.get("block"),
         "rss_after_imports_bytes": t_import, "baseline_rss_bytes": baseline,
@@ -281,7 +283,7 @@ def _main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--child", action="store_true")
     ap.add_argument("scenario")
-    ap.add_argument("--mode", choices=MODES)
+    ap.add_argument("--mode", choices=PROFILED_MODES)
     ap.add_argument("--backend", default="hdf5")
     ap.add_argument("--domains", type=int)
     ap.add_argument("--block", type=int)

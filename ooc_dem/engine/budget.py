@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..model.state import bytes_per_disc
+from .modes import MODES
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,7 @@ def hop(sc) -> float:
 def slab_fraction(sc, mode: str, domains: int, block: int) -> float:
     """The share of the bed one sub-domain holds with its halo strips: out-of-core's halo
     is K hops (sweep.py), serial DDM's K + 1 (live.py)."""
-    hops = block if mode == "ooc" else block + 1
+    hops = block if MODES[mode].out_of_core else block + 1
     return min(1.0, 1.0 / domains + 2.0 * hops * hop(sc) / sc.bin.length)
 
 
@@ -102,13 +103,12 @@ def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: 
     rank 0, which sets up the first epoch alone and streams its slabs as out-of-core does).
     ``slabs``: out-of-core slabs resident at once (3 with --io-overlap: one read ahead, one
     computing, one being written)."""
-    mode = "ooc" if mode == "mpi-ooc" else mode
     m = byte_model(sc.dim)
     n = sc.soil.n
     parts = {"baseline": m.baseline}
-    if mode == "monolithic":
+    if not MODES[mode].decomposes:
         parts["state"] = n * m.monolithic
-    elif mode in ("ddm", "mpi"):   # mpi: rank 0 holds the bed at the start (first cut)
+    elif not MODES[mode].out_of_core:   # mpi: rank 0 holds the bed at the start (first cut)
         halo = slab_fraction(sc, mode, domains, block) - 1.0 / domains
         parts["state"] = n * (m.resident * (1.0 + domains * halo) + m.state)
     else:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.checkpoint import particles_to_record
+from ..model.checkpoint import particles_to_record, read_all_particles
 from ..physics.layout import AX_X
 from ..model.state import Particles
 from .interface import write_epoch
@@ -16,7 +16,7 @@ class MonolithicEngine:
 
     name = "monolithic"
     preferred_chunk = 2000
-    folds_records = False
+    epoch_each_advance = False
     writes_frame_parts = False
 
     def __init__(self, particles: Particles, wheel_state: np.ndarray, model: Model, store=None,
@@ -31,7 +31,20 @@ class MonolithicEngine:
     def default_block(cls, sc, domains: int) -> int:
         return 1
 
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+    @classmethod
+    def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *, domains: int = 1,
+               block: int = 1, store=None) -> "MonolithicEngine":
+        """The whole bed as one domain (one sub-domain, one step a block)."""
+        return cls(particles, wheel_state, model, store=store)
+
+    @classmethod
+    def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs=None, *, store,
+               redecompositions=()) -> "MonolithicEngine":
+        """Continue from the committed epoch ``reader`` reads: all of its groups in RAM."""
+        particles = read_all_particles(reader, model.dim, model.hist_cap)
+        return cls(particles, wheel_state, model, store=store, redecompositions=redecompositions)
+
+    def advance(self, step0: int, nsteps: int, frame=None) -> np.ndarray:
         return self.stepper.advance(step0, nsteps)
 
     @property

@@ -7,9 +7,9 @@ owned discs are kept. Ownership is by position: a disc belongs to the slab holdi
 x at the start of the sweep, so migration needs no bookkeeping, and its contact
 history travels with it.
 
-``OocEngine`` (out-of-core) runs the sweep over an HDF5 or zarr store: for each slab in
-turn it loads the slab and its halo from epoch e, advances them, writes the owned discs
-into epoch e+1 and drops everything; every sweep commits an epoch. ``DdmEngine``
+``OocEngine`` (out-of-core, ``ooc.py``) runs the sweep over an HDF5 or zarr store: for
+each slab in turn it loads the slab and its halo from epoch e, advances them, writes the
+owned discs into epoch e+1 and drops everything; every sweep writes an epoch. ``DdmEngine``
 (serial DDM) runs the same sweep over epochs held in RAM, with its sub-domains kept
 alive between sweeps (``live.LiveDomains``: same bits, no per-sweep rebuilding), and
 copies its state into the store only when the run commits. ``SlabSweep`` holds what the
@@ -17,12 +17,9 @@ two share: the slabs, the block K and halo, the wheel's slab and re-decompositio
 """
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
-from ..model.checkpoint import (open_epoch, particles_to_record, record_rows, record_to_particles,
-                          records_to_particles)
+from ..model.checkpoint import particles_to_record, record_rows, record_to_particles
 from ..model.decomposition import (XHistogram, equal_bounds, group_order, owner, summary_ok, wheel_bounds,
                              wheel_slab_index, wheel_slab_ok, x_summary)
 from ..physics.layout import AX_X, WS_X
@@ -30,7 +27,7 @@ from ..model.state import DISC_FIELDS, HIST_FIELDS
 from ..model.state import Particles
 from .interface import write_epoch
 from .live import SWEEPS_REBUILD, LiveDomains, sweeps_kernel
-from .stepper import N_REC, DomainStepper, EngineError, Model
+from .stepper import N_REC, Model
 
 
 class RamEpochs:
@@ -212,7 +209,7 @@ class SlabSweep:
     ``_x_histogram``) and how a sweep runs."""
 
     name = ""
-    folds_records = False
+    epoch_each_advance = False
     writes_frame_parts = False
 
     def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds,
@@ -393,7 +390,7 @@ class DdmEngine(SlabSweep):
     def _bounds_changed(self) -> None:
         self._live = None
 
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
+    def advance(self, step0: int, nsteps: int, frame=None) -> np.ndarray:
         recs = []
         s = step0
         end = step0 + nsteps
@@ -485,267 +482,6 @@ class DdmEngine(SlabSweep):
 
     def info(self) -> dict:
         return {**super().info(), "local_set_builds": self.live_builds}
-
-
-class OocEngine(SlabSweep):
-    """Out-of-core: each sweep reads the committed epoch slab by slab from the store and
-    writes the next one; only one slab and its halo are ever resident.
-
-    ``commit_sweep(records, step0, k)`` is called once a sweep has written every slab of
-    epoch step0 + k: it folds the sweep's wheel records and commits that epoch (through
-    ``commit``), so the records are folded here, not by the run loop. ``part_sink(step)``
-    (optional) gives the function that writes one part of a trajectory frame due at
-    ``step``, or None when no frame is due: each slab's owned discs go to it as the sweep
-    passes."""
-
-    name = "ooc"
-    folds_records = True
-    writes_frame_parts = True
-
-    def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds, *,
-                 store, commit_sweep: Callable[[np.ndarray, int, int], None],
-                 part_sink: Callable[[int], Callable | None] | None = None, redecompositions=()):
-        super().__init__(sc, model, wheel_state, block, bounds, redecompositions)
-        self.store = store
-        self.commit_sweep = commit_sweep
-        self.part_sink = part_sink
-        self._writer = None         # the epoch being written
-        self._store_reader = None   # the current committed epoch
-        self.committed_step = None
-        self.io_overlap = False     # read ahead and write behind in threads (``_slabs``)
-        self._pairs_per_disc = 0.0  # candidate pairs per resident disc of the last slab
-
-    @classmethod
-    def default_block(cls, sc, domains: int) -> int:
-        """K without --block: chosen from the geometry (``auto_block``), at least the
-        scenario's."""
-        return max(sc.decomposition.block, auto_block(sc, domains, sc.bin.length))
-
-    @classmethod
-    def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *,
-               domains: int, block: int, store, commit_sweep, part_sink=None,
-               bounds=None) -> "OocEngine":
-        """Split the discs into `domains` slabs by the scenario's policy (or at `bounds`)
-        and write them as the store's first epoch (committed by the first ``commit``)."""
-        eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store,
-                  commit_sweep=commit_sweep, part_sink=part_sink)
-        eng._writer = store.begin_epoch(0)
-        eng._populate(particles, domains, bounds)
-        return eng
-
-    @classmethod
-    def create_streamed(cls, sc, model: Model, parts, wheel_state: np.ndarray, *, domains: int,
-                        block: int, store, commit_sweep, part_sink=None, observe=None) -> "OocEngine":
-        """Start from a bed produced in x-ordered parts (``parts()`` yields them), never
-        holding the whole bed: pass 1 counts the discs in x bins (for the bounds) and hands
-        each part to ``observe`` (the caller's own per-part summaries, so that no third pass
-        is needed), pass 2 writes each sub-domain's group as soon as no later part can add
-        to it."""
-        eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store,
-                  commit_sweep=commit_sweep, part_sink=part_sink)
-        eng.D = domains
-        hist = XHistogram(sc.bin.length)
-        for part in parts():
-            hist.add_x(part.pos[:, AX_X])
-            if observe is not None:
-                observe(part)
-        eng._n = hist.n
-        eng.bounds = eng.decompose(hist, step=0)
-        eng._writer = store.begin_epoch(0)
-        pending: dict[int, list] = {d: [] for d in range(eng.D)}
-        written = set()
-
-        def flush(upto: float):
-            for d in range(eng.D):
-                if d not in written and eng.bounds[d + 1] <= upto:
-                    eng._stage(d, *group_of(Particles.concat(pending.pop(d)), None, model.order_cell))
-                    written.add(d)
-
-        for part in parts():
-            flush(float(part.pos[:, AX_X].min()))
-            g = owner(eng.bounds, part.pos[:, AX_X])
-            for d in np.unique(g):
-                if int(d) in written:
-                    raise RuntimeError("bed parts are not in x order")
-                pending[int(d)].append(part.take(np.flatnonzero(g == d)))
-        flush(np.inf)
-        return eng
-
-    @classmethod
-    def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, commit_sweep, part_sink=None, redecompositions=()) -> "OocEngine":
-        """Continue from the committed epoch `reader` reads (its step is the engine's)."""
-        K, bounds = cls._stored_geometry(engine_attrs)
-        eng = cls(sc, model, wheel_state, K, bounds, store=store, commit_sweep=commit_sweep,
-                  part_sink=part_sink, redecompositions=redecompositions)
-        eng._store_reader = open_epoch(store, reader.step)
-        eng.committed_step = int(reader.step)
-        eng._n = sum(reader.domain_len(d) for d in reader.domains())
-        return eng
-
-    def _stage(self, d, q: Particles, attrs):
-        self._write_group(d, particles_to_record(q), self._summarised(q, attrs))
-
-    def _write_group(self, d: int, rec: dict, attrs: dict) -> None:
-        """Write group d (a store record and its attrs) into the epoch being written."""
-        if self._writer is None:
-            raise RuntimeError("out-of-core sweep without an open epoch writer")
-        self._writer.write_domain(d, rec, attrs)
-
-    def _source(self):
-        return self._store_reader
-
-    def commit(self, step: int, arrays: dict, attrs: dict, durable: bool = False) -> None:
-        """Finish the epoch being written (globals + manifest commit)."""
-        if self.committed_step == step:
-            return  # the sweep that reached this step committed it already
-        writer, self._writer = self._writer, None
-        try:
-            writer.write_globals(arrays, attrs)
-            writer.commit(durable=durable)
-        except BaseException:
-            writer.abort()
-            raise
-        self.committed_step = step
-        if self._store_reader is not None:
-            self._store_reader.close()
-        self._store_reader = open_epoch(self.store)
-
-    def advance(self, step0: int, nsteps: int) -> np.ndarray:
-        recs = []
-        s = step0
-        end = step0 + nsteps
-        while s < end:
-            k = min(self.K, end - s)
-            recs.append(self.sweep(s, k))
-            s += k
-        return np.concatenate(recs) if recs else np.zeros((0, N_REC))
-
-    def sweep(self, step0: int, k: int) -> np.ndarray:
-        """Advance every slab k <= K steps (the halo is sized for K): each slab rebuilt from
-        epoch e, advanced, its owned discs written to e+1; then e+1 is committed."""
-        self._step = step0
-        wslab = self._wheel_check()
-        src = self._source()
-        self._writer = self.store.begin_epoch(step0 + k)
-        try:
-            return self._sweep_domains(src, step0, k, wslab)
-        except BaseException:
-            if self._writer is not None:
-                self._writer.abort()
-                self._writer = None
-            raise
-
-    def _read_slab(self, src, d: int) -> Particles:
-        """Slab d's discs and its halo from epoch ``src``: the strips of its groups, in x
-        order, read as records and filled into one state. The strips are cell-ordered
-        (group_order), so the slab is already in the kernels' cache-friendly order: no
-        spatial re-sort."""
-        lo, hi = self.bounds[d], self.bounds[d + 1]
-        pieces = [q for g in src.domains()
-                  if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
-        return records_to_particles(pieces, self.model.hist_cap, self.model.dim)
-
-    def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int, local=None):
-        """Slab d of the sweep: its discs and halo (``local``, else read from epoch ``src``),
-        advanced k steps; (the advanced local set, the rows of its owned discs, the wheel
-        records, the wheel state after (the slab of the wheel only, else None))."""
-        lo, hi = self.bounds[d], self.bounds[d + 1]
-        if local is None:
-            local = self._read_slab(src, d)
-        # the list sized from the last slab's pairs per disc: one neighbour build, not two
-        hint = int(self._pairs_per_disc * len(local))
-        if d == wslab:
-            st = DomainStepper(local, self.model, self.ws, reorder=False, pairs_hint=hint)
-        else:
-            st = DomainStepper(local, self.model_nowheel, None, reorder=False, pairs_hint=hint)
-        owned = np.flatnonzero((st.p.pos[:, AX_X] >= lo) & (st.p.pos[:, AX_X] < hi))
-        cone = cone_spans(st.p.pos[:, AX_X], lo, hi, self.hop, k)
-        rec = st.advance(step0, k, cone) if len(local) else np.zeros((0, N_REC))
-        if len(local):
-            self._pairs_per_disc = st.pairs / len(local)
-        return st.p, owned, rec, (st.ws.copy() if d == wslab else None)
-
-    def _owned_group(self, local: Particles, owned: np.ndarray) -> tuple[dict, dict]:
-        """A slab's owned discs (rows `owned` of its advanced local set) as an epoch group
-        (``group_record``)."""
-        return group_record(local, owned, self.model.order_cell, self.sc.bin.length)
-
-    def _stage_owned(self, d: int, local: Particles, owned: np.ndarray) -> dict:
-        """Write slab d's owned discs as group d of the epoch being written; returns the
-        group's record."""
-        rec, attrs = self._owned_group(local, owned)
-        self._write_group(d, rec, attrs)
-        return rec
-
-    def _slabs(self, src, step0: int, k: int, wslab: int, stage):
-        """Every slab in turn (``_advance_slab``), each result passed to ``stage(d, local,
-        owned)``; yields (d, owned count, rec, ws, resident). With ``io_overlap`` the reads
-        of slab d + 1 and the staging (gather and write) of slab d - 1 run in two threads
-        while slab d computes (the kernel releases the GIL): the same slabs, read and
-        written in the same order, so the same bits; up to three slabs are resident
-        instead of one."""
-        if not self.io_overlap:
-            for d in range(self.D):
-                local, owned, rec, ws = self._advance_slab(src, d, step0, k, wslab)
-                stage(d, local, owned)
-                yield d, len(owned), rec, ws, len(local)
-            return
-        from concurrent.futures import ThreadPoolExecutor
-        with ThreadPoolExecutor(1, "ooc-read") as reads, ThreadPoolExecutor(1, "ooc-write") as writes:
-            ahead = reads.submit(self._read_slab, src, 0)
-            written = None
-            for d in range(self.D):
-                local = ahead.result()
-                if d + 1 < self.D:
-                    ahead = reads.submit(self._read_slab, src, d + 1)
-                local, owned, rec, ws = self._advance_slab(src, d, step0, k, wslab, local)
-                if written is not None:
-                    written.result()       # one write in flight: memory stays three slabs
-                written = writes.submit(stage, d, local, owned)
-                yield d, len(owned), rec, ws, len(local)
-                del local
-            if written is not None:
-                written.result()
-
-    def _sweep_domains(self, src, step0: int, k: int, wslab: int) -> np.ndarray:
-        rec_wheel = np.zeros((0, N_REC))
-        new_ws = self.ws
-        resident = []
-        owned_total = 0
-        # trajectory: a frame at the sweep's end gets each slab's owned discs as it passes
-        write_part = self.part_sink(step0 + k) if self.part_sink is not None else None
-
-        def stage(d, local, owned):
-            group = self._stage_owned(d, local, owned)
-            if write_part is not None:
-                write_part(group)
-
-        for d, n_owned, rec, ws, n_local in self._slabs(src, step0, k, wslab, stage):
-            resident.append(n_local)
-            if d == wslab:
-                rec_wheel, new_ws = rec, ws
-            owned_total += n_owned
-        if self._n is not None and owned_total != self._n:
-            raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
-                              f"(bounds {self.bounds.tolist()}): decomposition error")
-        self.ws = new_ws
-        self._note_resident(resident)
-        # the epoch is complete: fold the wheel records, then commit it (every sweep)
-        self.commit_sweep(rec_wheel, step0, k)
-        return rec_wheel
-
-    def particles(self) -> Particles:
-        src = self._source()
-        m = self.model
-        return Particles.concat([record_to_particles(src.read_domain(d), m.hist_cap)
-                                 for d in src.domains()], m.dim, m.hist_cap)
-
-    def state_parts(self, names=()):
-        """Each group of the committed epoch in turn (never the whole bed)."""
-        src = self._source()
-        for d in src.domains():
-            yield src.read_domain(d, list(names))
 
 
 def sweep_run(sc, particles: Particles, wheel_state, steps: int, bounds=None, domains=None, block=1,

@@ -111,13 +111,27 @@ def _import_nodes(name, f):
                 yield node, a.name, []
 
 
+def _type_only_imports(f) -> set[int]:
+    """ids of the import nodes under `if TYPE_CHECKING:` (read by a type checker, never run)."""
+    out = set()
+    for node in ast.walk(ast.parse(f.read_text())):
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            out.update((type(n).__name__, n.lineno) for b in node.body for n in ast.walk(b)
+                       if isinstance(n, (ast.Import, ast.ImportFrom)))
+    return out
+
+
 def import_graph() -> dict[str, set[str]]:
     """ooc_dem module -> the ooc_dem modules it imports, at module level or inside a
-    function alike (a lazy import is still an import: it only hides a circle)."""
+    function alike (a lazy import is still an import: it only hides a circle); an import
+    for the type checker only (under TYPE_CHECKING) never runs, so it makes no circle."""
     modules = dict(_module_files("ooc_dem"))
     graph = {m: set() for m in modules}
     for name, f in modules.items():
-        for _, mod, names in _import_nodes(name, f):
+        type_only = _type_only_imports(f)
+        for node, mod, names in _import_nodes(name, f):
+            if (type(node).__name__, node.lineno) in type_only:
+                continue
             # `from package import module` imports the module (and the package's __init__,
             # which is a circle only where the package's own modules do it)
             submodules = [f"{mod}.{n}" for n in names if f"{mod}.{n}" in modules]

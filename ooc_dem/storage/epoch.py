@@ -8,7 +8,7 @@ import json
 import operator
 import os
 from collections.abc import Iterable, Mapping
-from typing import TYPE_CHECKING, Any, Literal, TypeAlias
+from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,7 +23,28 @@ from ._util import TMP_NAME_RE as _TMP_RE
 from ._util import show as _show
 
 if TYPE_CHECKING:
-    from .store import Store
+    import weakref
+
+    from ._manifest import Place
+
+
+class OwningStore(Protocol):
+    """What an epoch's writer and reader use of the Store that made them (store.py's Store;
+    a protocol here: the store imports this module)."""
+
+    path: str
+    _place: Place
+    _m: JSONObject
+    _readers: weakref.WeakSet[EpochReader]
+
+    @property
+    def compression(self) -> str | None: ...
+
+    def _check_open(self) -> None: ...
+
+    def _commit(self, w: EpochWriter, durable: bool) -> None: ...
+
+    def _where(self, e: JSONObject) -> str: ...
 
 _IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
 
@@ -37,7 +58,7 @@ class EpochWriter:
     """Writes one epoch of ``store`` (the Store that began it) under temporary names;
     commit() publishes it atomically."""
 
-    def __init__(self, store: Store, step: int, basename: str):
+    def __init__(self, store: OwningStore, step: int, basename: str):
         self._store = store
         self.step = step
         self._basename = basename
@@ -197,7 +218,7 @@ def own_step_problem(r: EpochFile, where: str, step: int) -> str | None:
 class EpochReader:
     """Read access to one committed epoch (its manifest ``entry``) of ``store``."""
 
-    def __init__(self, store: Store, entry: JSONObject):
+    def __init__(self, store: OwningStore, entry: JSONObject):
         self._store = store
         self._e = entry
         self.step: int = entry["step"]

@@ -18,17 +18,17 @@ from numba import prange
 from .axes import DIM, SPIN, vec
 from .chunks import N_CHUNKS, chunk_range
 from .layout import AX_X, ERR_HIST_OVERFLOW
-from .twins import Slot
+from .twins import slot
 
 # ------------------------------------------------ what each dimension binds (its rows)
-no_force = Slot("no_force(): a particle's sums at zero: D force components, then R torque "
+no_force = slot("no_force(): a particle's sums at zero: D force components, then R torque "
                 "components (a tuple)")
-add_body_row = Slot("add_body_row(sums, row): the sums plus a body row's force and torque")
-add_pair_as_b = Slot("add_pair_as_b(sums, row, w, r): the sums plus a pair row weighted by w "
+add_body_row = slot("add_body_row(sums, row): the sums plus a body row's force and torque")
+add_pair_as_b = slot("add_pair_as_b(sums, row, w, r): the sums plus a pair row weighted by w "
                      "(its contact flag), the particle its b (the higher id) of lever arm r")
-add_pair_as_a = Slot("add_pair_as_a(sums, row, w, r): the same for the particle as a (the "
+add_pair_as_a = slot("add_pair_as_a(sums, row, w, r): the same for the particle as a (the "
                      "lower id)")
-body_springs_to_history = Slot("body_springs_to_history(hist_s, hist_m, i, k, row): entry k "
+body_springs_to_history = slot("body_springs_to_history(hist_s, hist_m, i, k, row): entry k "
                                "of particle i's springs from a body row")
 
 

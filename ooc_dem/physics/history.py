@@ -15,16 +15,16 @@ from numba import njit, prange
 
 from .chunks import N_CHUNKS, chunk_range
 from .layout import ERR_HIST_OVERFLOW
-from .twins import Slot
+from .twins import slot
 
 # owned in this sweep, owned in the last sweep too, copied in another sub-domain too
 ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED = 1, 2, 4
 ROLE_STABLE = ROLE_OWNED | ROLE_OWNED_BEFORE
 
 # ------------------------------------------------- what each dimension binds (its rows)
-springs_from_history = Slot("springs_from_history(row, hist_s, hist_m, i, p): the pair row's "
+springs_from_history = slot("springs_from_history(row, hist_s, hist_m, i, p): the pair row's "
                             "springs from entry p of particle i's history")
-pair_springs_to_history = Slot("pair_springs_to_history(hist_s, hist_m, i, k, row): entry k "
+pair_springs_to_history = slot("pair_springs_to_history(hist_s, hist_m, i, k, row): entry k "
                                "of particle i's springs from a pair row")
 
 

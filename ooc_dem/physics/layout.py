@@ -26,6 +26,8 @@ Records:
 from __future__ import annotations
 
 from collections import namedtuple
+from enum import IntEnum
+from typing import Any
 
 import numpy as np
 
@@ -84,13 +86,31 @@ HS_T = 0
 HM_R = 0
 
 
+def field_indices(name: str, names: tuple[str, ...]) -> Any:
+    """An IntEnum of the given names numbered from 0: the columns of a block of law rows.
+    (The names are computed, so a type checker cannot list the members: typed Any.)"""
+    return IntEnum(name, names, start=0)
+
+
+def field_tuple(name: str, names: tuple[str, ...]) -> Any:
+    """A namedtuple type of the given (computed) field names."""
+    return namedtuple(name, names)
+
+
 def record_dtype(names, kind=F8):
     """A record of the named fields, all of one kind (float64 by default)."""
     return np.dtype([(n, kind) for n in names])
 
 
+def field_names(dt: np.dtype) -> tuple[str, ...]:
+    """The fields of a record dtype (ValueError for a plain dtype)."""
+    if dt.names is None:
+        raise ValueError(f"{dt} is not a record dtype")
+    return dt.names
+
+
 def _index(dt: np.dtype) -> dict[str, int]:
-    return {n: k for k, n in enumerate(dt.names)}
+    return {n: k for k, n in enumerate(field_names(dt))}
 
 
 def record(flat: np.ndarray, dtype: np.dtype) -> np.ndarray:
@@ -99,8 +119,9 @@ def record(flat: np.ndarray, dtype: np.dtype) -> np.ndarray:
     a = np.ascontiguousarray(flat)
     if a is not flat and flat.size:
         raise ValueError("record(): the flat array must be C-contiguous (a view would be lost)")
-    if a.shape[-1] != len(dtype.names):
-        raise ValueError(f"record(): last axis {a.shape[-1]} != {len(dtype.names)} fields of {dtype}")
+    n_fields = len(field_names(dtype))
+    if a.shape[-1] != n_fields:
+        raise ValueError(f"record(): last axis {a.shape[-1]} != {n_fields} fields of {dtype}")
     v = a.view(dtype)
     return v.reshape(v.shape[:-1]) if a.ndim > 1 else v
 

@@ -27,14 +27,14 @@ from numba import njit, prange
 
 from .axes import DIM, vec
 from .layout import AX_X
-from .twins import Slot, bindings, no_parfors, serial_twin, slots_of, specialise
+from .twins import slot, bindings, no_parfors, serial_twin, slots_of, specialise
 
 # ----------------------------------------------- what each dimension binds (its geometry)
-cell_of = Slot("cell_of(pos, i, lo, cell, ncx, ncy, ncz): particle i's cell (cx, cy, cz), "
+cell_of = slot("cell_of(pos, i, lo, cell, ncx, ncy, ncz): particle i's cell (cx, cy, cz), "
                "clipped to the grid (cz = 0 in 2D)")
-order_key = Slot("order_key(pos, i, lo, cell): the int64 key of particle i's cell in the "
+order_key = slot("order_key(pos, i, lo, cell): the int64 key of particle i's cell in the "
                  "memory order (lo: the lowest coordinate of each axis)")
-GRID_CELLS = Slot("GRID_CELLS: a grid of n particles has at most GRID_CELLS n + 64 cells")
+GRID_CELLS = slot("GRID_CELLS: a grid of n particles has at most GRID_CELLS n + 64 cells")
 
 # particles a chunk of the scan runs through with one pair of candidate buffers
 SCAN_CHUNK = 256

@@ -32,25 +32,25 @@ from numba import njit, prange
 from .axes import DIM, SPIN
 from .chunks import N_CHUNKS, chunk_range, chunks_range
 from .layout import AX_X, ERR_BODY_CAPACITY, LAW_BLOCK, LAW_ROW, N_TYPES
-from .twins import Slot
+from .twins import slot
 
 # ---------------------------------- what each dimension binds (its law, rows and bodies)
-LawIn = Slot("LawIn: the rows of a block's law inputs (IntEnum): dx (then the other axes' "
+LawIn = slot("LawIn: the rows of a block's law inputs (IntEnum): dx (then the other axes' "
              "offsets), vrx (then the others), ra, rb, ma, mb, ia, ib, material")
-N_LAW_IN = Slot("N_LAW_IN: the rows of a block's law inputs")
-N_LAW_OUT = Slot("N_LAW_OUT: the rows of a block's law results")
-LAW_IN_WA = Slot("LAW_IN_WA: the LawIn row of a's first spin component (SPIN rows)")
-LAW_IN_WB = Slot("LAW_IN_WB: the LawIn row of b's first spin component (SPIN rows)")
-CHUNKS_PER_GROUP = Slot("CHUNKS_PER_GROUP: chunks whose pairs share one set of block "
+N_LAW_IN = slot("N_LAW_IN: the rows of a block's law inputs")
+N_LAW_OUT = slot("N_LAW_OUT: the rows of a block's law results")
+LAW_IN_WA = slot("LAW_IN_WA: the LawIn row of a's first spin component (SPIN rows)")
+LAW_IN_WB = slot("LAW_IN_WB: the LawIn row of b's first spin component (SPIN rows)")
+CHUNKS_PER_GROUP = slot("CHUNKS_PER_GROUP: chunks whose pairs share one set of block "
                         "columns (allocated once a group)")
-springs_into_block = Slot("springs_into_block(law_in, t, row, on_last): pair t's springs of "
+springs_into_block = slot("springs_into_block(law_in, t, row, on_last): pair t's springs of "
                           "the last step, its row's if on_last else zero")
-block_law = Slot("block_law(k, law_in, law_out, dt, rows, cp, uniform): the law on a filled "
+block_law = slot("block_law(k, law_in, law_out, dt, rows, cp, uniform): the law on a filled "
                  "block of k pairs (uniform: one material pair)")
-put_pair_rows = Slot("put_pair_rows(k, slot, law_out, rows): a block's results into their rows")
-body_scene = Slot("body_scene(walls, wg, ws): the walls' and the wheel's geometry this step, "
+put_pair_rows = slot("put_pair_rows(k, slot, law_out, rows): a block's results into their rows")
+body_scene = slot("body_scene(walls, wg, ws): the walls' and the wheel's geometry this step, "
                   "as a tuple")
-body_rows = Slot("body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt): particle i's rows "
+body_rows = slot("body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt): particle i's rows "
                  "with the walls and the wheel from body row bat on (bend: the chunk's end); "
                  "returns (next row, whether one did not fit)")
 

@@ -22,15 +22,15 @@ import numpy as np
 from . import gather, history, produce as produce_mod
 from .chunks import N_CHUNKS
 from .layout import AX_Y, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, LUG_DIRECTION
-from .twins import Slot, bindings, no_parfors, slots_of, specialise
+from .twins import slot, bindings, no_parfors, slots_of, specialise
 from .wheel import apply_wheel_controls, lug_directions, record_and_integrate_wheel, wheel_reaction
 
 # the dimension's phases (instantiate binds them)
-produce = Slot("produce: the dimension's phase 1 (physics.produce)")
-gather_integrate = Slot("gather_integrate: the dimension's phase 2 (physics.gather)")
-load_history = Slot("load_history: the dimension's (physics.history)")
-sync_history = Slot("sync_history: the dimension's (physics.history)")
-build_pairs = Slot("build_pairs: the dimension's neighbour build (physics.neighbors)")
+produce = slot("produce: the dimension's phase 1 (physics.produce)")
+gather_integrate = slot("gather_integrate: the dimension's phase 2 (physics.gather)")
+load_history = slot("load_history: the dimension's (physics.history)")
+sync_history = slot("sync_history: the dimension's (physics.history)")
+build_pairs = slot("build_pairs: the dimension's neighbour build (physics.neighbors)")
 
 
 def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role,
@@ -140,11 +140,11 @@ def instantiate(name: str, *modules) -> SimpleNamespace:
               gather.advance):
         par[t.__name__] = specialise(t, f"{t.__name__}_{name}", par, inline="always")
     ser = dict(par)
-    for t in (history.load_history, history.sync_history, gather.gather_integrate,
-              produce_mod.produce):
-        par[t.__name__] = specialise(t, f"{t.__name__}_{name}", par, parallel=True)
-        ser[t.__name__] = specialise(t, f"{t.__name__}_{name}_serial", ser,
-                                     parallel=no_parfors())
+    for phase in (history.load_history, history.sync_history, gather.gather_integrate,
+                  produce_mod.produce):
+        par[phase.__name__] = specialise(phase, f"{phase.__name__}_{name}", par, parallel=True)
+        ser[phase.__name__] = specialise(phase, f"{phase.__name__}_{name}_serial", ser,
+                                         parallel=no_parfors())
     build = bindings(("build_pairs", "build_pairs_serial"), *modules)
     par["build_pairs"] = build["build_pairs"]
     ser["build_pairs"] = build["build_pairs_serial"]

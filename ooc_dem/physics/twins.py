@@ -14,6 +14,7 @@ source, so the arithmetic and the bits are the same.
 from __future__ import annotations
 
 import types
+from typing import Any
 import warnings
 
 from numba import njit
@@ -51,6 +52,12 @@ class Slot:
 
     def __repr__(self) -> str:
         return f"Slot({self.doc!r})"
+
+
+def slot(doc: str) -> Any:
+    """A template's open name: a Slot, typed Any because each dimension binds there a kernel,
+    a constant or a record type of its own."""
+    return Slot(doc)
 
 
 def slots_of(module) -> dict[str, Slot]:

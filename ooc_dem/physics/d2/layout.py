@@ -10,13 +10,11 @@ Records:
 """
 from __future__ import annotations
 
-from collections import namedtuple
-from enum import IntEnum
 
 import numpy as np
 
 # the law blocks' sizes and the material types are the same in both dimensions
-from ..layout import LAW_BLOCK, LAW_ROW, N_TYPES, record_dtype  # noqa: F401
+from ..layout import LAW_BLOCK, LAW_ROW, N_TYPES, field_indices, field_tuple, record_dtype  # noqa: F401
 
 F8 = "<f8"
 
@@ -57,10 +55,10 @@ def pair_row_layout(cp) -> np.dtype:
 # the contact table (type_a * N_TYPES + type_b) and that pair's parameters
 # (CONTACT_PARAMS fields in their order; filled only for a block of several material
 # pairs); LawOut: the pair row's fields (PAIR_ROW).
-LawIn = IntEnum("LawIn", ("dx", "dy", "vrx", "vry", "wa", "wb", "ra", "rb", "ma", "mb", "ia", "ib",
-                          "s_old", "m_old", "material") + CONTACT_PARAMS.names, start=0)
-LawOut = IntEnum("LawOut", PAIR_ROW.names, start=0)
+LawIn = field_indices("LawIn", ("dx", "dy", "vrx", "vry", "wa", "wb", "ra", "rb", "ma", "mb", "ia", "ib",
+                          "s_old", "m_old", "material") + CONTACT_PARAMS.names)
+LawOut = field_indices("LawOut", PAIR_ROW.names)
 N_LAW_IN = len(LawIn)
 N_LAW_OUT = len(LawOut)
 # one material pair's parameters as scalars (a block law's pair of several material pairs)
-LawParams = namedtuple("LawParams", CONTACT_PARAMS.names)
+LawParams = field_tuple("LawParams", CONTACT_PARAMS.names)

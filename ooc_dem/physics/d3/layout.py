@@ -30,8 +30,6 @@ parts have the 2D ids (lug k: ID_LUG0 + k = -1000 + k, rim ID_RIM = -100), below
 from __future__ import annotations
 
 import math
-from collections import namedtuple
-from enum import IntEnum
 
 import numpy as np
 
@@ -43,7 +41,7 @@ from ..layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY,  
                       LAW_BLOCK, LAW_ROW, N_ERR, N_TYPES, T_SOIL, T_WALL, T_WHEEL,
                       WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE, record,
                       record_dtype)
-from ..layout import Bodies, Discs, Forces, KernelParams, Pairs  # noqa: F401
+from ..layout import Bodies, Discs, Forces, KernelParams, Pairs, field_indices, field_tuple  # noqa: F401
 
 F8 = "<f8"
 
@@ -106,16 +104,16 @@ def pair_row_layout(cp) -> np.dtype:
 # table (type_a * N_TYPES + type_b) and that pair's parameters (the CONTACT_PARAMS fields,
 # in their order; filled only for a block of several material pairs: an indexed load in
 # the loop would stop the SIMD); LawOut: the pair row's fields (PAIR_ROW_ROLLING).
-LawIn = IntEnum("LawIn", ("dx", "dy", "dz", "vrx", "vry", "vrz", "wax", "way", "waz",
+LawIn = field_indices("LawIn", ("dx", "dy", "dz", "vrx", "vry", "vrz", "wax", "way", "waz",
                           "wbx", "wby", "wbz", "ra", "rb", "ma", "mb", "ia", "ib",
                           "s_x", "s_y", "s_z", "m_x", "m_y", "m_z", "material")
-                + CONTACT_PARAMS.names, start=0)
-LawOut = IntEnum("LawOut", PAIR_ROW_ROLLING.names, start=0)
+                + CONTACT_PARAMS.names)
+LawOut = field_indices("LawOut", PAIR_ROW_ROLLING.names)
 N_LAW_IN = len(LawIn)
 N_LAW_OUT = len(LawOut)
 # one material pair's parameters as scalars (the fields of CONTACT_PARAMS): what the law
 # reads from a table record
-LawParams = namedtuple("LawParams", CONTACT_PARAMS.names)
+LawParams = field_tuple("LawParams", CONTACT_PARAMS.names)
 
 
 # one sphere-wall or sphere-wheel-part contact (the body is always a): sphere row index,

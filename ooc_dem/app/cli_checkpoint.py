@@ -170,7 +170,7 @@ def cmd_checkpoint(args):
         layout = stored_layout(store.meta or {}, args.store) if args.ckpt_command == "hash" else None
         reader = open_epoch(store, args.epoch)
         try:
-            if args.ckpt_command == "hash":
+            if layout is not None:   # hash (its layout read above)
                 # streamed and validated as read: a store larger than RAM hashes too
                 out = hash_epoch(reader, args.store, *layout)
             else:  # inspect

@@ -6,8 +6,13 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from .cli_parser import EXIT_OOM, CliError
+
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
+    from ..model.state import Particles
 
 
 def _load(args):
@@ -41,7 +46,8 @@ def cmd_prepare(args):
         raise CliError(f"--out {out}: directory exists and is not empty")
     bed = settled_bed(sc, progress=None if args.no_progress else _settle_progress(sc))
     out.mkdir(parents=True, exist_ok=True)
-    np.savez(out / "bed.npz", **bed.arrays())
+    columns: dict[str, Any] = bed.arrays()   # Any: savez's stub would match a column to allow_pickle
+    np.savez(out / "bed.npz", **columns)
     (out / "scenario.toml").write_text(sc.to_toml(), encoding="utf-8")
     surf = surface_height(bed, sc.bin.length, sc.soil.r_max, across=wheel_footprint(sc))
     info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf,
@@ -63,7 +69,7 @@ def _settle_progress(sc):
     return cb
 
 
-def load_bed(path, sc):
+def load_bed(path: str | os.PathLike[str], sc: Scenario) -> Particles:
     from .bed import read_bed
     from ..model.checkpoint import StateError
     f = Path(path) / "bed.npz"
@@ -95,6 +101,8 @@ def cmd_run(args):
     if sim.opts.memory is not None:
         from ..engine.budget import fmt_bytes
         p = sim.plan
+        # the plan records the --memory it was sized for
+        assert p.memory_budget_bytes is not None, "a --memory plan without its budget"
         print(f"ooc-dem: memory budget {fmt_bytes(p.memory_budget_bytes)}: {p.mode} with D = {p.domains} "
               f"sub-domain{'s' if p.domains > 1 else ''}, K = {p.block} step{'s' if p.block > 1 else ''} per "
               f"sweep; expected peak {fmt_bytes(p.memory_bytes)}", file=sys.stderr, flush=True)

@@ -41,7 +41,7 @@ def write_outputs(out: Path, summary: dict[str, Any], series: NDArray[np.float64
         make_figures(out)
 
 
-def complete_outputs(out: Path, step: int, write_all: Callable[[], None], *, series: bool,
+def complete_outputs(out: Path, step: int, write_all: Callable[[], object], *, series: bool,
                      figures: Sequence[str] = (), summary_figures: Sequence[str] = ()) -> list[str]:
     """After the last commit at ``step``: write whichever outputs a kill left unwritten
     (``write_all`` writes them all); return their names. ``series``: the run has a

@@ -142,15 +142,17 @@ def _budgeted(sc: Scenario, opts: RunOptions, steps: int, streamed: bool) -> tup
     """--memory: out-of-core takes the fewest sub-domains (the largest slab) whose slab, halo
     and I/O buffers fit, and K as the sweep chooses it for them; a --domains or --block given
     too is kept. Other modes only check the budget."""
-    if opts.memory is not None and not opts.memory >= 1:
-        raise RunError(f"--memory {show(opts.memory)}: must be a positive size such as 2GB")
+    memory = opts.memory
+    assert memory is not None, "only a run given --memory is budgeted"
+    if not memory >= 1:
+        raise RunError(f"--memory {show(memory)}: must be a positive size such as 2GB")
     if not MODES[opts.mode].out_of_core or opts.domains is not None:
         return _domains_and_block(sc, opts)
     block_of = lambda D: _block_for(sc, opts, D)
-    got = budget.choose_decomposition(sc, opts.memory, block_of, max_domains(sc), opts.backend, streamed,
+    got = budget.choose_decomposition(sc, memory, block_of, max_domains(sc), opts.backend, streamed,
                                       _series_bytes(sc, steps), _slabs(opts))
     if got is None:
-        raise RunError(budget.smallest_fit_message(sc, opts.memory, block_of, max_domains(sc), opts.backend,
+        raise RunError(budget.smallest_fit_message(sc, memory, block_of, max_domains(sc), opts.backend,
                                                    streamed, _series_bytes(sc, steps), _slabs(opts)))
     return got[0], got[1]
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from ..engine.modes import MODES, switching_families
 from ..model.checkpoint import SUPPORTED_VERSIONS, open_epoch
@@ -26,7 +27,8 @@ def _stored_run_options(meta: dict, path) -> dict:
     stored = meta.get("run")
     if not isinstance(stored, dict):
         raise RunError(f"{path}: store meta has no run options (not written by `ooc-dem run`)")
-    run = {key: stored.get(key) for key in _RUN_OPTION_TYPES}
+    # each value's type is checked just below
+    run: dict[str, Any] = {key: stored.get(key) for key in _RUN_OPTION_TYPES}
     for key, types in _RUN_OPTION_TYPES.items():
         if type(run[key]) not in types:
             raise RunError(f"{path}: stored run option {key!r} = {show(run[key])} has the wrong type "
@@ -97,7 +99,7 @@ def stored_run(store, path: Path, steps: int | None, until: float | None, progre
 class ResumeEpoch:
     """The store's last intact epoch, validated: its reader (open: the caller closes it),
     the history capacity its states were written with, and its globals."""
-    reader: object
+    reader: Any   # a store's epoch reader, or a format-1 one seen through V1Epoch (open_epoch)
     hist_cap: int
     arrays: dict
     attrs: dict

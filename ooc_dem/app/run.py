@@ -13,6 +13,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +30,12 @@ from .bed import settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
 from .plan import RunError, RunOptions, plan_run, streamable
 from .resume import check_engine_attrs, open_resume_epoch, stored_run
+
+if TYPE_CHECKING:
+    from ooc_dem.storage.store import Store
+
+    from .metrics import WheelMetrics
+    from .trajectory import TrajectoryWriter
 
 __all__ = ["FrameParts", "RunError", "RunOptions", "Simulation", "StreamedBed", "place_wheel", "plan_run",
            "resume_simulation"]
@@ -110,14 +117,15 @@ class StreamedBed:
 
     def __iter__(self):
         from .bed import tiled_bed_parts
-        first = self.surfaces is None
-        if first:
-            self.surfaces = []
+        # the first pass measures: its list is filled as the parts go by
+        measured: list[float] | None = [] if self.surfaces is None else None
+        if measured is not None:
+            self.surfaces = measured
         band = wheel_footprint(self.sc)
         for p in tiled_bed_parts(self.sc, tiles_per_part=8):
-            if first:
+            if measured is not None:
                 x0 = p.pos[:, AX_X].min()
-                self.surfaces.append(surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max,
+                measured.append(surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max,
                                                     x_origin=x0, across=band))
             yield p
 
@@ -150,21 +158,26 @@ class Simulation:
         self.model = Model.from_scenario(sc)
         self.steps = self.plan.steps
         self.checkpoint_every = self.plan.checkpoint_every
-        self.store = None
+        self.store: Store | None = None
         self.engine: Engine | None = None
-        self.metrics = None
+        self.metrics: WheelMetrics | None = None
         self.step = 0
         self.surface = 0.0
         self.wall_time = 0.0
         # trajectory frames (trajectory.py): every frame_every steps, 0 = none
         from .trajectory import frame_every
         self.frame_every = frame_every(sc)
-        self.frames = None
+        self.frames: TrajectoryWriter | None = None
 
     @property
     def redecompositions(self) -> list:
         """Every decomposition the engine has chosen ({"step", "bounds"}), stored with each epoch."""
         return self.engine.redecompositions if self.engine is not None else []
+
+    def _engine(self) -> Engine:
+        """The engine, which start or a resume has made before anything else uses it."""
+        assert self.engine is not None, "the run is started or resumed first"
+        return self.engine
 
     # ------------------------------------------------------------------ setup
     def _meta(self) -> dict:
@@ -206,7 +219,7 @@ class Simulation:
         # a memory store lives in this process only; the run's other outputs still go to --out
         self.out.mkdir(parents=True, exist_ok=True)
         # initial.npz keeps the 2D users' column names (x, y: layout.AXIS_NAMES)
-        extra = {"z": bed.pos[:, AX_Z]} if bed.dim == 3 else {}   # 3D: the slice and rut views
+        extra: dict[str, Any] = {"z": bed.pos[:, AX_Z]} if bed.dim == 3 else {}   # 3D: the slice and rut views
         np.savez(self.out / "initial.npz", id=bed.id, x=bed.pos[:, AX_X], y=bed.pos[:, AX_Y],
                  r=bed.r, surface=np.float64(self.surface), **extra)
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
@@ -231,6 +244,8 @@ class Simulation:
         self.engine = self.mode.engine.create_streamed(
             self.sc, self.model, bed, np.zeros(WS_SIZE), domains=self.plan.domains, block=self.plan.block,
             store=self.store, **self._engine_options())
+        # create_streamed passed over the bed once: its surfaces are measured
+        assert bed.surfaces is not None, "the streamed bed was not passed over"
         self.surface = float(np.mean(bed.surfaces))
         self.step = 0
         self.commit()
@@ -249,13 +264,13 @@ class Simulation:
         else:
             self.frames = TrajectoryWriter.create(self.out, self.sc, self.model.dim, self.n_discs(),
                                                  durable=self.opts.durable)
-        if self.frames.due(self.step):
+        if self.frames is not None and self.frames.due(self.step):
             self._write_frame(parts_written=False)
 
     def _frame_parts(self, step: int) -> "FrameParts | None":
         """Where an engine that writes frame parts puts the discs of the frame due at
         ``step`` (None: no frame is due then, or the engine writes none)."""
-        if self.frames is None or not self.engine.writes_frame_parts or not self.frames.due(step):
+        if self.frames is None or not self._engine().writes_frame_parts or not self.frames.due(step):
             return None
         return FrameParts(self.frames, step)
 
@@ -263,13 +278,15 @@ class Simulation:
         """Commit the frame of the current step; ``parts_written``: the engine wrote its parts
         during the advance (out-of-core, into ``_frame_parts``)."""
         from .trajectory import ROW_FIELDS
+        # only called for a due frame, so the trajectory is open
+        assert self.frames is not None, "no trajectory open"
         t = self.step * self.sc.physics.dt
-        ws = np.asarray(self.engine.wheel_state, np.float64)
+        ws = np.asarray(self._engine().wheel_state, np.float64)
         if parts_written:
             self.frames.end(self.step, t, ws)
         else:
             # one part at a time (out-of-core: each group of the committed epoch; never the whole bed)
-            self.frames.write_frame(self.step, t, ws, self.engine.state_parts(ROW_FIELDS))
+            self.frames.write_frame(self.step, t, ws, self._engine().state_parts(ROW_FIELDS))
 
     def _engine_options(self) -> dict:
         """The run's options the mode's engine takes besides its geometry (out-of-core:
@@ -298,9 +315,9 @@ class Simulation:
         at = f"{where}: epoch {epoch.reader.step}"
         if self.sc.wheel.enabled:
             from .metrics import WheelMetrics
-            self.metrics = WheelMetrics(self.sc, self.surface, max(self.steps, self.step))
+            metrics = self.metrics = WheelMetrics(self.sc, self.surface, max(self.steps, self.step))
             try:
-                self.metrics.load_state(epoch.arrays)
+                metrics.load_state(epoch.arrays)
             except (KeyError, ValueError) as e:   # missing or mis-shaped accumulators
                 raise RunError(f"{at}: stored wheel metrics unusable "
                                f"({type(e).__name__}: {' '.join(str(e).split())})") from None
@@ -327,12 +344,13 @@ class Simulation:
                  "scenario_hash": self.sc.hash(), "mode": self.opts.mode,
                  "wall_time": self.wall_time, "redecompositions": self.redecompositions,
                  "format_version": FORMAT_VERSION, "engine_version": __version__}
-        attrs["engine"] = self.engine.info()
-        arrays = {"wheel_state": np.asarray(self.engine.wheel_state, np.float64).copy()}
+        engine = self._engine()
+        attrs["engine"] = engine.info()
+        arrays = {"wheel_state": np.asarray(engine.wheel_state, np.float64).copy()}
         if self.metrics is not None:
             arrays.update(self.metrics.state_arrays())
         try:
-            self.engine.commit(self.step, arrays, attrs, self.opts.durable)
+            engine.commit(self.step, arrays, attrs, self.opts.durable)
         except StoreError as e:
             raise RunError(str(e)) from None
 
@@ -345,9 +363,10 @@ class Simulation:
     def run(self) -> dict:
         if self.engine is None:
             self.start()
+        engine = self._engine()
         dt = self.sc.physics.dt
         bar = Progress(self.opts.progress, self.steps - self.step, dt, f"{self.sc.name} [{self.opts.mode}]")
-        chunk_pref = self.engine.preferred_chunk
+        chunk_pref = engine.preferred_chunk
         t_start = time.time() - self.wall_time
         try:
             while self.step < self.steps:
@@ -359,7 +378,7 @@ class Simulation:
                 n = min(self.steps, next_ckpt, next_frame, self.step + chunk_pref) - self.step
                 step0 = self.step
                 frame = self._frame_parts(step0 + n)
-                rec = self.engine.advance(step0, n, frame)
+                rec = engine.advance(step0, n, frame)
                 self.fold(rec, step0)
                 self.step = step0 + n
                 self.wall_time = time.time() - t_start
@@ -369,7 +388,7 @@ class Simulation:
                 bar.update(self.step, n, **post)
                 # out-of-core: the advance wrote this step's epoch; committed first (the next
                 # sweep reads it, and a frame is published only after its epoch)
-                committed = self.engine.epoch_each_advance
+                committed = engine.epoch_each_advance
                 if committed:
                     self.commit()
                 if self.frames is not None and self.frames.due(self.step):
@@ -400,11 +419,11 @@ class Simulation:
             from .repose import heap_outputs
             # in id order: every mode (and the state read back) gives the same bits; the
             # figure is written before summary.json, so a summary means both are there
-            p = self.engine.particles().sorted_by_id()
+            p = self._engine().particles().sorted_by_id()
             results["repose"] = heap_outputs(self.out, self.sc, p.pos, p.r, p.vel, self.opts.figures)
         summary = run_summary(scenario=self.sc.name, scenario_hash=self.sc.hash(), mode=self.opts.mode,
                               backend=self.opts.backend, steps=self.step, dt=self.sc.physics.dt,
-                              wall_time=self.wall_time, n_discs=self.n_discs(), engine=self.engine.info(),
+                              wall_time=self.wall_time, n_discs=self.n_discs(), engine=self._engine().info(),
                               results=results, state_hash=self.state_hash())
         write_outputs(self.out, summary, self.metrics.series() if self.metrics is not None else None,
                       figures=self.opts.figures and self.metrics is not None)
@@ -420,7 +439,7 @@ class Simulation:
                                 figures=figures, summary_figures=repose)
 
     def n_discs(self) -> int:
-        return self.engine.n_discs()
+        return self._engine().n_discs()
 
     def state_hash(self) -> str:
         from ..model.checkpoint import hash_epoch, state_bounds

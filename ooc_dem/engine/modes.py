@@ -14,7 +14,7 @@ and also ``create_streamed`` (a bed that never is whole in RAM).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 
 @dataclass(frozen=True)
@@ -32,11 +32,12 @@ class Mode:
     #: modes whose epochs are one another's (the same groups and bounds): a resume may
     #: switch between the modes of one family
     family: str
-    _load: Callable[[], type] = field(repr=False, compare=False)
+    _load: Callable[[], Any] = field(repr=False, compare=False)
 
     @property
-    def engine(self) -> type:
-        """The engine class (``engine.interface.Engine``)."""
+    def engine(self) -> Any:
+        """The engine class (``engine.interface.Engine``); typed Any: its factories
+        (create, reopen, create_streamed) are classmethods whose options differ by mode."""
         return self._load()
 
     def switches_to(self, other: "Mode") -> bool:

@@ -2,7 +2,7 @@
 slab and its halo in RAM at a time; the epochs are the store's, written a sweep at a time."""
 from __future__ import annotations
 
-from typing import Iterable
+from typing import TYPE_CHECKING, Iterable, Self
 
 import numpy as np
 
@@ -13,6 +13,9 @@ from ..physics.layout import AX_X
 from .stepper import N_REC, DomainStepper, EngineError, Model
 from . import sweep
 from .sweep import SlabSweep, _read_rows, auto_block, group_of, group_record
+
+if TYPE_CHECKING:
+    from ..storage.epoch import EpochWriter
 
 
 class OocEngine(SlabSweep):
@@ -34,9 +37,9 @@ class OocEngine(SlabSweep):
         super().__init__(sc, model, wheel_state, block, bounds, redecompositions)
         self.store = store
         self.preferred_chunk = self.K   # one sweep an advance: the next reads its epoch
-        self._writer = None         # the epoch being written
+        self._writer: EpochWriter | None = None   # the epoch being written
         self._store_reader = None   # the current committed epoch
-        self.committed_step = None
+        self.committed_step: int | None = None
         # read ahead and write behind in threads (``_slabs``)
         self.io_overlap = bool(io_overlap)
         self._pairs_per_disc = 0.0  # candidate pairs per resident disc of the last slab
@@ -50,7 +53,7 @@ class OocEngine(SlabSweep):
     @classmethod
     def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *,
                domains: int, block: int, store, io_overlap: bool = False,
-               bounds=None) -> "OocEngine":
+               bounds=None) -> Self:
         """Split the discs into `domains` slabs by the scenario's policy (or at `bounds`)
         and write them as the store's first epoch (committed by the first ``commit``)."""
         eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store, io_overlap=io_overlap)
@@ -60,7 +63,7 @@ class OocEngine(SlabSweep):
 
     @classmethod
     def create_streamed(cls, sc, model: Model, parts: Iterable[Particles], wheel_state: np.ndarray, *,
-                        domains: int, block: int, store, io_overlap: bool = False) -> "OocEngine":
+                        domains: int, block: int, store, io_overlap: bool = False) -> Self:
         """Start from a bed produced in x-ordered parts (``parts``, iterated twice: each
         pass produces them again), never holding the whole bed: pass 1 counts the discs in
         x bins (for the bounds), pass 2 writes each sub-domain's group as soon as no later
@@ -94,7 +97,7 @@ class OocEngine(SlabSweep):
 
     @classmethod
     def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, io_overlap: bool = False, redecompositions=()) -> "OocEngine":
+               store, io_overlap: bool = False, redecompositions=()) -> Self:
         """Continue from the committed epoch `reader` reads (its step is the engine's)."""
         K, bounds = cls._stored_geometry(engine_attrs)
         eng = cls(sc, model, wheel_state, K, bounds, store=store, io_overlap=io_overlap,

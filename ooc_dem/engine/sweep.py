@@ -226,7 +226,7 @@ class SlabSweep:
         self.resident_max = 0
         self.resident_last: list[int] = []
         self.resident_first: list[int] | None = None
-        self._n = None
+        self._n: int | None = None
         self._step = 0
         # a contact hop: at most 2 r_max plus the motion the skin allows
         self.hop = 2.0 * sc.soil.r_max + sc.bed.skin

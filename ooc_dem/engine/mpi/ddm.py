@@ -2,6 +2,8 @@
 refresh across ranks an exchange of disc rows once per block (see the package's docstring)."""
 from __future__ import annotations
 
+from typing import Any, Callable, ClassVar
+
 import numpy as np
 
 from ...model.checkpoint import record_to_particles
@@ -59,7 +61,7 @@ class MpiEngine:
         self._tick = 0
         self.moved = 0.0   # the largest x move of any disc since the local sets were built
         self._fresh = False
-        self._pairs = None   # the exchange's (dest, source) pairs for the current ranges
+        self._pairs: list[tuple[int, int]] | None = None   # the exchange's (dest, source) pairs for the current ranges
         self.wslab = -1
         self.n = 0
         self.redecompositions = list(redecompositions or ())
@@ -246,10 +248,10 @@ class MpiEngine:
             for j, d in enumerate(self.glob):
                 if d >= 0:
                     groups.append((int(d), *self._group(live.p.take(live.owned_rows(j)))))
-        part = None
+        part: dict[str, Any] | str | None = None   # what write_part returned, or its error
         if self.rank == 0:
-            for d, rec, attrs in groups:
-                writer.write_domain(d, rec, attrs)
+            for domain, rec, attrs in groups:
+                writer.write_domain(domain, rec, attrs)
         elif groups:
             from ooc_dem.storage import StoreError, write_part
             try:
@@ -259,7 +261,7 @@ class MpiEngine:
         got = self.comm.gather(part, root=0)
         return None if self.rank != 0 else [x for x in got[1:] if x is not None]
 
-    def _op_gather(self) -> list[Particles]:
+    def _op_gather(self) -> list[Particles] | None:
         """Rank 0 gets each sub-domain's owned discs (ownership at the start of the last
         sweep, as serial DDM's epoch groups); the others None."""
         mine = {}
@@ -282,7 +284,7 @@ class MpiEngine:
         return groups
 
     #: the collective operations by the name rank 0 sends (``comm.collective``)
-    OPS = {"start": _op_start, "start_from_store": _op_start_from_store, "advance": _op_advance,
+    OPS: ClassVar[dict[str, Callable[..., Any]]] = {"start": _op_start, "start_from_store": _op_start_from_store, "advance": _op_advance,
            "write_parts": _op_write_parts, "gather": _op_gather}
 
     # ----------------------------------------------------------------- the block
@@ -394,15 +396,17 @@ class MpiEngine:
         posted first, then each message is received at its probed size (no count message),
         so a block costs one latency, not two per partner."""
         from mpi4py import MPI
+        pairs = self._pairs
+        assert pairs is not None, "the pairs are chosen before the first exchange (_refresh_ghosts)"
         reqs = []
-        for (dest, _), send in zip(self._pairs, sends):
+        for (dest, _), send in zip(pairs, sends):
             if dest != MPI.PROC_NULL:
                 reqs.append(self.comm.Isend([send, MPI.DOUBLE], dest=dest, tag=12))
                 self.messages += 1
                 self.halo_rows_sent += len(send)
         got = []
         status = MPI.Status()
-        for i, (_, source) in enumerate(self._pairs):
+        for i, (_, source) in enumerate(pairs):
             if source == MPI.PROC_NULL:
                 got.append(self._recv[i][:0])
                 continue
@@ -456,7 +460,7 @@ class MpiEngine:
         self.glob = np.zeros(0, np.int64)
         if (self.owner == self.rank).any():
             lb, self.glob = rank_segments(self.owner, self.bounds, self.rank)
-            at = np.flatnonzero(self.glob == self.wslab) if self.wslab >= 0 else []
+            at = np.flatnonzero(self.glob == self.wslab) if self.wslab >= 0 else np.zeros(0, np.intp)
             wl = int(at[0]) if len(at) else -1
             real = self.glob >= 0   # the ghosts: copies of the other ranks' discs
             self.live = LiveDomains(local, lb, self.halo, self.membership_skin, self.model,
@@ -482,16 +486,17 @@ class MpiEngine:
         follows refreshes the halo rows of this rank's sub-domains from their owners' rows
         and takes ownership from x (``live._run_sweeps``' refresh_first)."""
         live = self.live
-        if self._pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
-            self._pairs = self._partners(self.window)
-            self._send = [np.empty((0, self.words)) for _ in self._pairs]
-            self._recv = [np.empty((0, self.words)) for _ in self._pairs]
+        pairs = self._pairs
+        if pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
+            pairs = self._pairs = self._partners(self.window)
+            self._send = [np.empty((0, self.words)) for _ in pairs]
+            self._recv = [np.empty((0, self.words)) for _ in pairs]
         self._tick += 1
         if live is not None:
             p = live.p
             owned_rows = live.owned_active_rows()
             sends = []
-            for i, (dest, _) in enumerate(self._pairs):
+            for i, (dest, _) in enumerate(pairs):
                 rows = (near_rows(owned_rows, p.pos[:, AX_X], self._intervals(dest), self.window)
                         if dest >= 0 else np.zeros(0, np.int64))
                 self._send[i] = room(self._send[i], len(rows))

@@ -1,6 +1,8 @@
 """``MpiOocEngine`` (``--mode mpi-ooc``): out-of-core with each rank streaming its own slabs."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Self
+
 import numpy as np
 
 from ...model.checkpoint import open_epoch
@@ -9,6 +11,10 @@ from ..stepper import N_REC, EngineError, Model
 from ..ooc import OocEngine
 from .comm import announce, broadcast_wheel, collective, world
 from .shares import rank_starts
+
+if TYPE_CHECKING:
+    from ...model.decomposition import XHistogram
+    from ooc_dem.storage.store import Store
 
 
 class MpiOocEngine(OocEngine):
@@ -34,9 +40,9 @@ class MpiOocEngine(OocEngine):
         self.comm = comm if comm is not None else world()
         self.rank, self.R = self.comm.Get_rank(), self.comm.Get_size()
         self.path = str(path if path is not None else store.path)
-        self._ro_store = None        # ranks > 0: the store opened read-only
+        self._ro_store: Store | None = None   # ranks > 0: the store opened read-only
         self.starts = np.zeros(self.R + 1, np.int64)
-        self._epoch_hist = None      # (step, x histogram) of the epoch the sweeps read
+        self._epoch_hist: tuple[int, XHistogram] | None = None   # (step, x histogram) of the epoch the sweeps read
 
     def _announce(self) -> None:
         """Rank 0: the other ranks make their engine like this one (same geometry)."""
@@ -58,7 +64,7 @@ class MpiOocEngine(OocEngine):
 
     @classmethod
     def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, io_overlap: bool = False, redecompositions=()) -> "MpiOocEngine":
+               store, io_overlap: bool = False, redecompositions=()) -> Self:
         eng = super().reopen(sc, model, reader, wheel_state, engine_attrs, store=store, io_overlap=io_overlap,
                              redecompositions=redecompositions)
         eng._announce()
@@ -74,6 +80,8 @@ class MpiOocEngine(OocEngine):
         """Rank 0: every rank sweeps its slabs of the committed epoch into the next one
         (left open for ``commit``; frames are written from the committed epoch)."""
         writer = self._begin_epoch(step0 + k)
+        # the initial epoch is committed when the engine is made: a sweep reads the last one
+        assert self.committed_step is not None, "a sweep before the initial epoch's commit"
         try:
             return collective(self, "sweep_ranks", (int(step0), int(k), int(self.committed_step), writer.basename,
                                               self.ws.copy()))
@@ -122,7 +130,7 @@ class MpiOocEngine(OocEngine):
         src = self._source()
         self.starts = self._share_out()
         lo_d, hi_d = int(self.starts[self.rank]), int(self.starts[self.rank + 1])
-        done = {"owned": 0, "resident": [], "rec": np.zeros((0, N_REC)), "ws": None}
+        done: dict[str, Any] = {"owned": 0, "resident": [], "rec": np.zeros((0, N_REC)), "ws": None}
 
         def groups():
             for d in range(lo_d, hi_d):
@@ -137,7 +145,7 @@ class MpiOocEngine(OocEngine):
         part, failure = None, None
         if self.rank == 0:
             for d, rec, attrs in groups():
-                self._writer.write_domain(d, rec, attrs)
+                self._write_group(d, rec, attrs)
         elif hi_d > lo_d:
             from ooc_dem.storage import StoreError, write_part
             owners = [r for r in range(1, self.R) if self.starts[r + 1] > self.starts[r]]
@@ -150,9 +158,11 @@ class MpiOocEngine(OocEngine):
         rec_wheel = self._share_sweep_wheel(wslab, done, k)
         if self.rank != 0:
             return None
+        writer = self._writer
+        assert writer is not None, "rank 0 opened the epoch (sweep) before the ranks swept"
         for p, _f, _o, _r in got:
             if p is not None:
-                self._writer.add_part(p)
+                writer.add_part(p)
         failed = [f for _p, f, _o, _r in got if f]
         if failed:
             from ooc_dem.storage import StoreError
@@ -165,7 +175,7 @@ class MpiOocEngine(OocEngine):
         return rec_wheel
 
     #: the collective operations by the name rank 0 sends (``comm.collective``)
-    OPS = {"sweep_ranks": _op_sweep_ranks}
+    OPS: ClassVar[dict[str, Callable[..., Any]]] = {"sweep_ranks": _op_sweep_ranks}
 
     def _share_sweep_wheel(self, wslab: int, done: dict, k: int) -> np.ndarray:
         """The wheel's rank broadcasts its new state and the sweep's wheel records."""

@@ -24,6 +24,7 @@ def worker_loop(comm) -> None:
             kind, made_with = args
             eng = _ENGINES[kind].on_worker(comm, *made_with)
             continue
+        assert eng is not None, "rank 0 makes the engine before any of its ops"
         eng.OPS[name](eng, *args)
 
 

@@ -59,7 +59,7 @@ def rank_domains(counts: np.ndarray, ranks: int) -> np.ndarray:
 def rank_intervals(owner: np.ndarray, bounds: np.ndarray, r: int) -> np.ndarray:
     """The x intervals [lo, hi) rank r owns (its runs of neighbouring sub-domains, merged),
     shape (k, 2); empty for a rank without sub-domains."""
-    out = []
+    out: list[list[np.intp]] = []
     for d in np.flatnonzero(owner == r):
         if out and out[-1][1] == d:
             out[-1][1] = d + 1
@@ -72,7 +72,8 @@ def rank_segments(owner: np.ndarray, bounds: np.ndarray, r: int) -> tuple[np.nda
     """Rank r's local decomposition: (segment bounds, the global sub-domain of each segment
     or -1). Its own sub-domains are segments as they are; each run of other ranks'
     sub-domains between them (and beyond them) is one *ghost* segment."""
-    lb, glob = [-np.inf], []
+    lb: list[float] = [-np.inf]
+    glob: list[int] = []
     for d in range(len(owner)):
         if owner[d] != r and glob and glob[-1] < 0:
             lb[-1] = bounds[d + 1]   # the ghost before grows

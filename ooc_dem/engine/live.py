@@ -25,6 +25,8 @@ within the halo), or when the bounds or the wheel's slab change.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 from numba import njit, prange
@@ -34,7 +36,7 @@ from ..model.decomposition import group_order
 from ..physics import layout as L
 from ..physics.history import ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, ROLE_STABLE
 from ..physics.layout import AX_X, ERR_BODY_CAPACITY, ERR_PAIR_CAPACITY, WHEEL_RECORD, record
-from ..physics.twins import Slot, serial_twin
+from ..physics.twins import serial_twin, slot
 from ..model.state import Particles
 from .stepper import N_REC, DomainStepper, EngineError, Model
 
@@ -151,7 +153,7 @@ def refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id, 
         d = pieces[t, 2]
         part[t, 0] = _own_range(pieces[t, 0], pieces[t, 1], bounds[d], bounds[d + 1], ids, x,
                                 owner_row, owned, owned_before, role)
-    count = 0
+    count = np.int64(0)
     for t in range(n):
         count += np.int64(part[t, 0])   # a count of at most `size` rows: exact as a float
     return moved, count
@@ -165,8 +167,8 @@ SWEEPS_DONE, SWEEPS_REBUILD, SWEEPS_WHEEL, SWEEPS_DOMAIN, SWEEPS_OWNERSHIP = ran
 
 # the dimension's one-thread step and write-back: sweeps_kernel binds them in each compiled
 # twin of _run_sweeps (physics.twins)
-run_steps_serial = Slot("the dimension's one-thread run_steps (physics.KernelModule)")
-sync_history_serial = Slot("the dimension's one-thread sync_history (physics.KernelModule)")
+run_steps_serial = slot("the dimension's one-thread run_steps (physics.KernelModule)")
+sync_history_serial = slot("the dimension's one-thread sync_history (physics.KernelModule)")
 
 
 def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, recbuf, norec,
@@ -290,7 +292,7 @@ def _append(items, item):
     items.append(item)
 
 
-_SWEEPS = {}
+_SWEEPS: dict[str, Any] = {}   # the compiled sweeps by kernel module (numba dispatchers)
 
 
 def sweeps_kernel(kern):
@@ -378,7 +380,8 @@ class LiveDomains:
         # the refresh and the ownership share the rows between the threads in pieces
         self._pieces = row_pieces(self.off)
         self._part = np.zeros((len(self._pieces), 2))
-        self._doms, self._doms_key = None, None
+        self._doms: Any = None   # a numba typed List (_domain_list)
+        self._doms_key: tuple[tuple[int, int, int], ...] | None = None
         self._entry = (None, None)   # (list of sub-domains, the compiled sweeps for it: _compiled)
         self._swept = False          # a sweep has run on these local sets (run_sweeps' refresh_first)
         self._own()
@@ -435,7 +438,7 @@ class LiveDomains:
         runs = [j for j in range(self.D) if self.active[j]]
         nl = max(1, min(numba.get_num_threads(), len(runs)))
         load = [0] * nl
-        lanes = [[] for _ in range(nl)]
+        lanes: list[list[int]] = [[] for _ in range(nl)]
         for j in sorted(runs, key=lambda j: -int(self.off[j + 1] - self.off[j])):
             lane = min(range(nl), key=lambda a: load[a])
             lanes[lane].append(j)

@@ -183,6 +183,13 @@ class DomainStepper:
     ``layout.PAIR_ROW`` (61 bytes, 5 % headroom); the wall/wheel rows of one step.
     Optionally (keep_forces) the last step's forces and torques."""
 
+    # the candidate pairs' arrays, made (and grown) by _grow_pairs
+    pair_b: np.ndarray
+    pair_a: np.ndarray
+    inc_k: np.ndarray
+    on: np.ndarray
+    rows: np.ndarray
+
     def __init__(self, particles: Particles, model: Model, wheel_state: np.ndarray | None = None,
                  reorder: bool = True, keep_forces: bool = False, pairs_hint: int = 0):
         """keep_forces: keep each step's contact forces and torques in ``force`` (N, D) and
@@ -228,7 +235,8 @@ class DomainStepper:
         rebuild follows, and the springs are in the discs' histories (written back before
         the build that overflowed), so old and new never need to coexist."""
         cap = int(npairs * PAIR_HEADROOM) + 64
-        self.pair_b = self.pair_a = self.inc_k = self.on = self.rows = None
+        released = np.zeros(0)
+        self.pair_b = self.pair_a = self.inc_k = self.on = self.rows = released
         self.pair_b = np.zeros(cap, self._idx)
         self.pair_a = np.zeros(cap, self._idx)
         self.inc_k = np.zeros(cap, self._idx)

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import ooc_dem
-from conftest import WHEEL_TEST, run_cli
+from support.cli import run_cli
+from support.runs import WHEEL_TEST
 
 ROOT = Path(__file__).resolve().parent.parent
 # a short wheel run (0.1 s settling, 0.4 s travel) as an overrides mapping

@@ -16,7 +16,8 @@ import pytest
 
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
-from conftest import one_line_error, run_cli, zip_without
+from support.cli import one_line_error, run_cli
+from support.stores import zip_without
 
 STEPS = 120
 CKPT = 30

@@ -3,7 +3,7 @@ import json
 
 import pytest
 
-from conftest import run_cli
+from support.cli import run_cli
 
 BAD_INPUTS = [
     (["run", "no-such-scenario"], "no-such-scenario"),

@@ -21,7 +21,9 @@ import time
 import numba
 import numpy as np
 import pytest
-from conftest import assert_same_state, committed_step, run_cli
+from support.cli import run_cli
+from support.state import assert_same_state
+from support.stores import committed_step
 
 import ooc_dem
 from ooc_dem.app.bed import initial_fill

@@ -13,7 +13,8 @@ from ooc_dem.model.scenario import load_scenario
 from ooc_dem.model.state import Particles
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
-from conftest import assert_same_state, run_cli
+from support.cli import run_cli
+from support.state import assert_same_state
 
 
 def mono(sc, p, ws, steps):

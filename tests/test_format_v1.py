@@ -17,7 +17,8 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import WHEEL_TEST, run_cli
+from support.cli import run_cli
+from support.runs import WHEEL_TEST
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
 from ooc_dem.model.state import V1_ARRAYS
 

@@ -1,7 +1,7 @@
 """Hostile input: every bad scenario value, flag or file is ONE line on stderr naming
 the offending key, flag or file, exit code 2, no traceback, nothing committed lost.
 
-Real `ooc-dem` subprocesses (conftest.run_cli), except the systematic sweep over every scenario
+Real `ooc-dem` subprocesses (support.cli.run_cli), except the systematic sweep over every scenario
 key, which calls the same `main()` in-process (hundreds of `check`s, no interpreter start each).
 """
 from __future__ import annotations
@@ -15,7 +15,8 @@ import numpy as np
 import psutil
 import pytest
 
-from conftest import WHEEL_TEST, one_line_error, run_cli
+from support.cli import one_line_error, run_cli
+from support.runs import WHEEL_TEST
 
 from ooc_dem import cli
 from ooc_dem.model.scenario import Scenario, dict_to_toml

@@ -37,7 +37,7 @@ import json
 
 import pytest
 
-from conftest import run_cli
+from support.cli import run_cli
 
 QUICK = ["wheel.control=slip", "wheel.slip=0.2", "wheel.omega=5.0", "wheel.settle_time=0.002",
          "wheel.drop_gap=0.0", "wheel.lug_tip_radius=0.104", "decomposition.margin=0.001"]

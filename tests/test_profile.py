@@ -2,7 +2,7 @@
 import json
 
 
-from conftest import run_cli
+from support.cli import run_cli
 from ooc_dem.model.state import bytes_per_disc
 
 

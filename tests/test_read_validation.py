@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import ooc_dem
-from conftest import BASE_RUN_STEPS as STEPS, WHEEL_TEST, one_line_error, run_cli
+from support.cli import one_line_error, run_cli
+from support.runs import BASE_RUN_STEPS as STEPS, WHEEL_TEST
 from ooc_dem.model.checkpoint import open_epoch, record_rows
 from ooc_dem.model.decomposition import x_summary
 from ooc_dem.physics.layout import AX_X

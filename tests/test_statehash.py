@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 import xxhash
 
-from conftest import one_line_error, run_cli
+from support.cli import one_line_error, run_cli
 from ooc_dem.model import checkpoint, statehash
 from ooc_dem.model.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record, validate_epoch
 from ooc_dem.model.decomposition import XHistogram, equal_bounds, x_summary

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from ooc_dem import storage
-from conftest import zip_without
+from support.stores import zip_without
 from ooc_dem.storage import StoreError, create_store, drop_memory_store, open_store
 from ooc_dem.storage._util import gather_rows, write_error
 

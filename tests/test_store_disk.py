@@ -9,7 +9,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import one_line_error, run_cli
+from support.cli import one_line_error, run_cli
 from ooc_dem.storage import StoreError, create_store, open_store
 
 

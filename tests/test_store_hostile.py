@@ -19,7 +19,8 @@ from pathlib import Path
 import h5py
 import pytest
 
-from conftest import one_line_error, run_cli, zarr_epochs_as_directories
+from support.cli import one_line_error, run_cli
+from support.stores import zarr_epochs_as_directories
 
 STEPS, CKPT = 20, 10                 # current epoch 20, previous epoch 10
 RESUME_MORE = ["--steps", "40", "--no-progress", "--no-figures"]   # commits 30 and 40

@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import one_line_error, run_cli
+from support.cli import one_line_error, run_cli
 from ooc_dem.app.trajectory import (ROW_FIELDS, TRAJECTORY_DIR, TRAJECTORY_FILE, Trajectory, TrajectoryWriter,
                                 frame_name, wheel_outline)
 

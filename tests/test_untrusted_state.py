@@ -14,7 +14,8 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import BASE_RUN_STEPS as STEPS, WHEEL_TEST, one_line_error, run_cli
+from support.cli import one_line_error, run_cli
+from support.runs import BASE_RUN_STEPS as STEPS, WHEEL_TEST
 from ooc_dem.physics.layout import AX_X
 
 

@@ -16,7 +16,8 @@ import math
 
 import numpy as np
 import pytest
-from conftest import committed_step, run_cli
+from support.cli import run_cli
+from support.stores import committed_step
 
 import ooc_dem
 from ooc_dem.engine.stepper import DomainStepper, Model

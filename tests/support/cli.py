@@ -8,7 +8,7 @@ environment variables, MPI, the console script, a command that runs a simulation
 and compiled kernels), or anything that would leave this process changed. ``cli_in_process``
 checks the last: a command that leaves the working directory, environment, umask, resource
 limits, signal handlers, numba's thread count, ``sys.path``, an open file or a thread behind
-fails the test that ran it.
+fails the test that ran it; so does one still running after its ``timeout``.
 """
 from __future__ import annotations
 
@@ -48,32 +48,42 @@ class CliResult:
     stderr: str
 
 
-def cli_in_process(*args, check=False) -> CliResult:
+class CliTimeout(BaseException):
+    """The in-process command ran past its timeout (a BaseException: the command's own
+    ``except Exception`` and ``except OSError`` must not turn it into a refusal)."""
+
+
+def cli_in_process(*args, check=False, timeout=900) -> CliResult:
     """Run `ooc-dem ...` in this interpreter: ``ooc_dem.cli.main`` with stdout and stderr captured
     (Python's streams and file descriptors 1 and 2), SystemExit turned into the exit code a
     process would give and an escaping exception into a traceback on stderr and exit code 1,
-    every warning a fresh interpreter would print written to stderr."""
+    every warning a fresh interpreter would print written to stderr. A command still running
+    after ``timeout`` seconds fails the test (at its next Python bytecode: SIGALRM)."""
     from ooc_dem import cli
     argv = [str(a) for a in args]
     before = _process_state()
-    with _captured() as out, warnings.catch_warnings(record=True) as caught, _argv([cli.__file__, *argv]):
-        # what a fresh interpreter hides by default; everything else it would print
-        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
-            warnings.filterwarnings("ignore", category=category)
-        try:
-            code = cli.main(argv)
-        except SystemExit as e:
-            code = e.code
-        except KeyboardInterrupt:
-            raise
-        except BaseException:   # what the interpreter would print before exiting 1
-            traceback.print_exc()
-            code = 1
-        if code is not None and not isinstance(code, int):
-            print(code, file=sys.stderr)
-            code = 1
-        for w in caught:
-            sys.stderr.write(warnings.formatwarning(w.message, w.category, w.filename, w.lineno, w.line))
+    try:
+        with _alarm(timeout, argv), _captured() as out, warnings.catch_warnings(record=True) as caught, \
+                _argv([cli.__file__, *argv]):
+            # what a fresh interpreter hides by default; everything else it would print
+            for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+                warnings.filterwarnings("ignore", category=category)
+            try:
+                code = cli.main(argv)
+            except SystemExit as e:
+                code = e.code
+            except (KeyboardInterrupt, CliTimeout):
+                raise
+            except BaseException:   # what the interpreter would print before exiting 1
+                traceback.print_exc()
+                code = 1
+            if code is not None and not isinstance(code, int):
+                print(code, file=sys.stderr)
+                code = 1
+            for w in caught:
+                sys.stderr.write(warnings.formatwarning(w.message, w.category, w.filename, w.lineno, w.line))
+    except CliTimeout as e:
+        pytest.fail(str(e))
     changed = _changes(before, _process_state())
     if changed:
         _restore(before)
@@ -99,6 +109,19 @@ def one_line_error(cp, *needles) -> str:
     for n in needles:
         assert n in lines[0], (n, lines[0])
     return lines[0]
+
+
+@contextlib.contextmanager
+def _alarm(timeout, argv):
+    def expired(signum, frame):
+        raise CliTimeout(f"in-process `ooc-dem {' '.join(argv)}` still running after {timeout} s")
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
 
 
 @contextlib.contextmanager
@@ -142,17 +165,17 @@ def _umask() -> int:
     return mask
 
 
-def _open_files() -> dict:
-    """This process's descriptors open on regular files (a store's lock or epoch left open)."""
-    fds = {}
+def _open_files() -> list[str]:
+    """The regular files this process holds open (a store's lock or epoch left open)."""
+    files = []
     for fd in os.listdir("/proc/self/fd"):
         try:
             target = os.readlink(f"/proc/self/fd/{fd}")
         except OSError:
             continue
         if target.startswith("/") and not target.startswith(("/dev/", "/proc/")):
-            fds[fd] = target
-    return fds
+            files.append(target)
+    return sorted(files)
 
 
 def _process_state() -> dict:
@@ -177,6 +200,8 @@ def _changes(before: dict, after: dict) -> list[str]:
             now = {k: v for k, v in now.items() if k not in was}
             if now:
                 changed.append(f"threads still running: {sorted(now.values())}")
+        elif what == "open files" and now != was:
+            changed.append(f"files left open: {sorted(set(now) - set(was)) or now}"[:400])
         elif isinstance(was, dict) and now != was:
             keys = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))
             changed.append(f"{what}: {', '.join(map(str, keys))[:300]}")
@@ -192,5 +217,8 @@ def _restore(state: dict) -> None:
     os.environ.update(state["environment"])
     os.umask(state["umask"])
     sys.path[:] = state["sys.path"]
+    for name, handler in state["signal handlers"].items():
+        if handler is not None and signal.getsignal(signal.Signals[name]) != handler:
+            signal.signal(signal.Signals[name], handler)
     if "numba threads" in state:
         sys.modules["numba"].set_num_threads(state["numba threads"])

@@ -118,7 +118,7 @@ def _worker_main() -> int:
     # warm up: imports and the JIT caches (not counted as cases)
     import numpy  # noqa: F401
     import ooc_dem.cli  # noqa: F401
-    from ooc_dem.engine import run  # noqa: F401
+    from ooc_dem.app import run  # noqa: F401
     req = json.loads(proto_in.readline())
     for argv, cwd in req.get("warmup", []):
         call(argv, cwd)

@@ -166,14 +166,16 @@ def _umask() -> int:
 
 
 def _open_files() -> list[str]:
-    """The regular files this process holds open (a store's lock or epoch left open)."""
+    """The regular files this process holds open (a store's lock or epoch left open); not those
+    of the Python installation (a library's cache: matplotlib keeps its fonts open)."""
+    installed = tuple({os.path.join(p, "") for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)})
     files = []
     for fd in os.listdir("/proc/self/fd"):
         try:
             target = os.readlink(f"/proc/self/fd/{fd}")
         except OSError:
             continue
-        if target.startswith("/") and not target.startswith(("/dev/", "/proc/")):
+        if target.startswith("/") and not target.startswith(("/dev/", "/proc/", *installed)):
             files.append(target)
     return sorted(files)
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import ooc_dem
-from conftest import WHEEL_TEST, run_cli
+from support.cli import cli_in_process, run_cli
+from support.runs import WHEEL_TEST
 
 ROOT = Path(__file__).resolve().parent.parent
 # a short wheel run (0.1 s settling, 0.4 s travel) as an overrides mapping
@@ -147,7 +148,7 @@ def test_override_errors_match_cli(key, value, text):
         ooc_dem.load_scenario("quick", {key: value})
     msg = str(ei.value)
     assert "\n" not in msg and key in msg
-    cp = run_cli("check", "quick", "--set", f"{key}={text}")
+    cp = cli_in_process("check", "quick", "--set", f"{key}={text}")
     assert cp.returncode == 2
     assert cp.stderr.strip() == f"ooc-dem: error: {msg}"
 

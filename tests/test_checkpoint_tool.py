@@ -16,7 +16,8 @@ import pytest
 
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
-from conftest import one_line_error, run_cli, zip_without
+from support.cli import cli_in_process, one_line_error, run_cli
+from support.stores import zip_without
 
 STEPS = 120
 CKPT = 30
@@ -32,7 +33,7 @@ def _run(out, *extra, scenario="bed-1200", steps=STEPS, ckpt=CKPT, **kw):
 
 
 def _hash(store):
-    return run_cli("checkpoint", "hash", store, check=True).stdout.strip()
+    return cli_in_process("checkpoint", "hash", store, check=True).stdout.strip()
 
 
 def _column(p, k):
@@ -104,7 +105,7 @@ def test_export_xdmf(pristine, tmp_path):
     store = pristine("hdf5")
     p, ws, step = _epoch_data(store)
     out = tmp_path / "snap.xdmf"
-    cp = run_cli("checkpoint", "export", store, "--format", "xdmf", "--out", out, check=True)
+    cp = cli_in_process("checkpoint", "export", store, "--format", "xdmf", "--out", out, check=True)
     assert "snap.h5" in cp.stdout
     n = len(p)
     with h5py.File(tmp_path / "snap.h5", "r") as f:
@@ -146,7 +147,7 @@ def test_export_xdmf_read_by_meshio(pristine, tmp_path):
     store = pristine("zarr")
     p, _, _ = _epoch_data(store)
     out = tmp_path / "snap.xdmf"
-    run_cli("checkpoint", "export", store, "--out", out, check=True)   # format from the suffix
+    cli_in_process("checkpoint", "export", store, "--out", out, check=True)   # format from the suffix
     # meshio 5.3 refuses Grid-centred attributes ("Unknown center 'Grid'") - the XDMF way to
     # give field data, read by ParaView/VTK; the rest of the file is read as written
     tree = ET.parse(out)
@@ -167,7 +168,7 @@ def test_export_csv_round_trip(wheel_store, tmp_path):
     p, ws, step = _epoch_data(store)
     assert ws[0] != 0 and ws[1] != 0
     out = tmp_path / "snap.csv"
-    run_cli("checkpoint", "export", store, "--format", "csv", "--out", out, check=True)
+    cli_in_process("checkpoint", "export", store, "--format", "csv", "--out", out, check=True)
     lines = out.read_text().splitlines()
     comments = [ln for ln in lines if ln.startswith("#")]
     rows = [ln for ln in lines if not ln.startswith("#")]
@@ -198,8 +199,8 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
     store = wheel_store
     p, ws, step = _epoch_data(store)
     vtk, vtp = tmp_path / "snap.vtk", tmp_path / "snap.vtp"
-    run_cli("checkpoint", "export", store, "--format", "vtk", "--out", vtk, check=True)
-    run_cli("checkpoint", "export", store, "--format", "vtk", "--out", vtp, "--epoch", step, check=True)
+    cli_in_process("checkpoint", "export", store, "--format", "vtk", "--out", vtk, check=True)
+    cli_in_process("checkpoint", "export", store, "--format", "vtk", "--out", vtp, "--epoch", step, check=True)
     pts, lines = _vtk_legacy_points(vtk)
     assert lines[0].startswith("# vtk DataFile") and "DATASET POLYDATA" in lines
     assert np.array_equal(pts[:, 0], p.pos[:, AX_X]) and np.array_equal(pts[:, 1], p.pos[:, AX_Y]) and not pts[:, 2].any()
@@ -227,12 +228,12 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
 
 def test_export_bad_arguments(reference, tmp_path):
     store, _ = reference
-    one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "snap.dat"), "--format")
-    one_line_error(run_cli("checkpoint", "export", store, "--format", "xdmf", "--out", tmp_path / "s.h5"),
-                    "s.h5")
-    one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "s.csv", "--epoch", "7"),
+    one_line_error(cli_in_process("checkpoint", "export", store, "--out", tmp_path / "snap.dat"), "--format")
+    one_line_error(cli_in_process("checkpoint", "export", store, "--format", "xdmf", "--out", tmp_path / "s.h5"),
+                   "s.h5")
+    one_line_error(cli_in_process("checkpoint", "export", store, "--out", tmp_path / "s.csv", "--epoch", "7"),
                     "epoch 7")
-    one_line_error(run_cli("checkpoint", "export", store, "--out", tmp_path / "nodir" / "s.csv"),
+    one_line_error(cli_in_process("checkpoint", "export", store, "--out", tmp_path / "nodir" / "s.csv"),
                     "does not exist")
     assert not list(tmp_path.iterdir())
 
@@ -243,20 +244,20 @@ def test_list_and_prune(pristine, tmp_path):
     store = tmp_path / "run"
     shutil.copytree(pristine("hdf5"), store)
     h = _hash(store)
-    cp = run_cli("checkpoint", "list", store, check=True)
+    cp = cli_in_process("checkpoint", "list", store, check=True)
     lines = cp.stdout.splitlines()
     assert len(lines) == 2 and "(previous)" in lines[0] and "(current)" in lines[1]
     assert "epoch        110" in lines[0] and "discs 1200" in lines[1]
-    cp = run_cli("checkpoint", "prune", store, "--keep", "2", check=True)
+    cp = cli_in_process("checkpoint", "prune", store, "--keep", "2", check=True)
     assert "nothing to remove" in cp.stdout
-    cp = run_cli("checkpoint", "prune", store, "--keep", "1", check=True)
+    cp = cli_in_process("checkpoint", "prune", store, "--keep", "1", check=True)
     assert "removed epoch 110" in cp.stdout and "kept epochs [120]" in cp.stdout
     assert sorted(os.listdir(store / "epochs")) == ["e000000000120.h5"]
-    cp = run_cli("checkpoint", "verify", store)
+    cp = cli_in_process("checkpoint", "verify", store)
     assert cp.returncode == 0 and "OK" in cp.stdout, cp.stdout + cp.stderr
     assert _hash(store) == h
-    assert len(run_cli("checkpoint", "list", store, check=True).stdout.splitlines()) == 1
-    one_line_error(run_cli("checkpoint", "prune", store, "--keep", "0"), "--keep")
+    assert len(cli_in_process("checkpoint", "list", store, check=True).stdout.splitlines()) == 1
+    one_line_error(cli_in_process("checkpoint", "prune", store, "--keep", "0"), "--keep")
 
 
 def test_prune_refuses_to_drop_the_fallback_of_a_damaged_epoch(pristine, tmp_path):
@@ -265,9 +266,9 @@ def test_prune_refuses_to_drop_the_fallback_of_a_damaged_epoch(pristine, tmp_pat
     cur, _ = _current_path(store)
     _flip_byte(cur)
     before = _tree(store)
-    one_line_error(run_cli("checkpoint", "prune", store, "--keep", "1"), "refusing to prune", "120")
+    one_line_error(cli_in_process("checkpoint", "prune", store, "--keep", "1"), "refusing to prune", "120")
     assert _tree(store) == before
-    cp = run_cli("checkpoint", "list", store, check=True)   # list still works on a damaged store
+    cp = cli_in_process("checkpoint", "list", store, check=True)   # list still works on a damaged store
     assert "(previous)" in cp.stdout and "(current)" in cp.stdout
 
 
@@ -355,7 +356,7 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
     shutil.copytree(pristine(backend), store)
     cur, prev = corrupt(store, backend, kind)
 
-    cp = run_cli("checkpoint", "verify", store)
+    cp = cli_in_process("checkpoint", "verify", store)
     if kind == "delete_manifest":
         one_line_error(cp, "MANIFEST.json missing")
     elif kind == "stray_tmp":
@@ -395,7 +396,7 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
     else:   # fell back to the previous epoch, said so, and recomputed the last sweep
         assert "using previous epoch 110" in cp.stderr, cp.stderr
     assert _hash(store) == ref_hash
-    cp = run_cli("checkpoint", "verify", store)
+    cp = cli_in_process("checkpoint", "verify", store)
     assert cp.returncode == 0 and "warning" not in cp.stdout, cp.stdout + cp.stderr
 
 
@@ -433,7 +434,7 @@ def test_full_disk_stops_cleanly_and_resumes(tmp_path):
     _, m = _current_path(out)
     assert 0 < m["current"]["step"] < FULL_STEPS, m["current"]["step"]
     assert not [n for n in os.listdir(out / "epochs") if ".tmp-" in n]
-    cp = run_cli("checkpoint", "verify", out)
+    cp = cli_in_process("checkpoint", "verify", out)
     assert cp.returncode == 0 and "OK" in cp.stdout, cp.stdout + cp.stderr
 
     cp = run_cli("resume", out, "--no-progress", "--no-figures")

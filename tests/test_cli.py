@@ -3,7 +3,7 @@ import json
 
 import pytest
 
-from conftest import run_cli
+from support.cli import cli_in_process, run_cli
 
 BAD_INPUTS = [
     (["run", "no-such-scenario"], "no-such-scenario"),
@@ -29,7 +29,7 @@ BAD_INPUTS = [
 
 @pytest.mark.parametrize("args,needle", BAD_INPUTS, ids=[" ".join(a) for a, _ in BAD_INPUTS])
 def test_bad_input_one_line_exit_2(args, needle, tmp_path):
-    cp = run_cli(*args)
+    cp = cli_in_process(*args)
     assert cp.returncode == 2, cp.stderr
     lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, cp.stderr
@@ -40,11 +40,11 @@ def test_bad_input_one_line_exit_2(args, needle, tmp_path):
 def test_bad_scenario_file(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[physics\ndt = 1")
-    cp = run_cli("run", bad)
+    cp = cli_in_process("run", bad)
     assert cp.returncode == 2 and "invalid TOML" in cp.stderr and len(cp.stderr.strip().splitlines()) == 1
     wrong = tmp_path / "wrong.toml"
     wrong.write_text("[physics]\ndt = \"soon\"\n")
-    cp = run_cli("run", wrong)
+    cp = cli_in_process("run", wrong)
     assert cp.returncode == 2 and "physics.dt" in cp.stderr
 
 
@@ -52,7 +52,7 @@ def test_out_dir_not_empty_is_refused_and_kept(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "precious.txt").write_text("keep me")
-    cp = run_cli("run", "bed-1000", "--out", out, "--steps", "10")
+    cp = cli_in_process("run", "bed-1000", "--out", out, "--steps", "10")
     assert cp.returncode == 2 and "not empty" in cp.stderr
     assert (out / "precious.txt").read_text() == "keep me"
 
@@ -62,13 +62,13 @@ def test_foreign_store_refused(tmp_path):
     d.mkdir()
     (d / "data.bin").write_bytes(b"\0" * 10)
     for cmd in (["checkpoint", "hash", d], ["resume", d], ["checkpoint", "verify", d]):
-        cp = run_cli(*cmd)
+        cp = cli_in_process(*cmd)
         assert cp.returncode == 2, cmd
         assert len(cp.stderr.strip().splitlines()) == 1 and "Traceback" not in cp.stderr
 
 
 def test_scenarios_lists_builtins():
-    cp = run_cli("scenarios", check=True)
+    cp = cli_in_process("scenarios", check=True)
     for name in ("paper2008", "quick", "bed-N"):
         assert name in cp.stdout
 
@@ -78,14 +78,14 @@ def test_bed_run_and_hash_reproducible(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     run_cli("run", "bed-1200", "--out", a, "--steps", "200", "--no-progress", check=True)
     run_cli("run", "bed-1200", "--out", b, "--steps", "200", "--no-progress", check=True)
-    ha = run_cli("checkpoint", "hash", a, check=True).stdout.strip()
-    hb = run_cli("checkpoint", "hash", b, check=True).stdout.strip()
+    ha = cli_in_process("checkpoint", "hash", a, check=True).stdout.strip()
+    hb = cli_in_process("checkpoint", "hash", b, check=True).stdout.strip()
     assert ha.startswith("mset-v2:") and len(ha) == 8 + 64 and ha == hb
     summary = json.loads((a / "summary.json").read_text())
     assert summary["steps"] == 200 and summary["n_discs"] == 1200 and summary["state_hash"] == ha
-    lst = run_cli("checkpoint", "list", a, check=True).stdout
+    lst = cli_in_process("checkpoint", "list", a, check=True).stdout
     assert "200" in lst
-    assert "OK" in run_cli("checkpoint", "verify", a, check=True).stdout
+    assert "OK" in cli_in_process("checkpoint", "verify", a, check=True).stdout
 
 
 def test_prepare_then_run_with_bed(tmp_path):
@@ -95,5 +95,5 @@ def test_prepare_then_run_with_bed(tmp_path):
     assert info["n_discs"] == 1200 and 0.08 < info["surface_height_m"] < 0.21  # two 0.1 m tiles, one nearly empty
     out = tmp_path / "run"
     run_cli("run", "bed-1200", "--bed", bed, "--out", out, "--steps", "50", "--no-progress", check=True)
-    cp = run_cli("run", "bed-2000", "--bed", bed, "--out", tmp_path / "x", "--steps", "5")
+    cp = cli_in_process("run", "bed-2000", "--bed", bed, "--out", tmp_path / "x", "--steps", "5")
     assert cp.returncode == 2 and "1200" in cp.stderr

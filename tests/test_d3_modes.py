@@ -21,7 +21,9 @@ import time
 import numba
 import numpy as np
 import pytest
-from conftest import assert_same_state, committed_step, run_cli
+from support.cli import cli_in_process, run_cli
+from support.state import assert_same_state
+from support.stores import committed_step
 
 import ooc_dem
 from ooc_dem.app.bed import initial_fill
@@ -161,7 +163,7 @@ def test_sigkill_then_resume_gives_the_same_bits(runs, tmp_path):
     assert proc.returncode == -9
     cp = run_cli("resume", out, "--no-progress", "--no-figures", check=True)
     assert f"state hash: {ref}" in cp.stdout
-    run_cli("checkpoint", "verify", out, check=True)
+    cli_in_process("checkpoint", "verify", out, check=True)
     a, b = ooc_dem.open_run(out).state(), runs["ooc-hdf5-10"].state()
     for k in a:
         assert np.array_equal(a[k], b[k]), k

@@ -13,7 +13,8 @@ from ooc_dem.model.scenario import load_scenario
 from ooc_dem.model.state import Particles
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
-from conftest import assert_same_state, run_cli
+from support.cli import cli_in_process, run_cli
+from support.state import assert_same_state
 
 
 def mono(sc, p, ws, steps):
@@ -124,10 +125,10 @@ def test_cli_ddm_and_compare(tmp_path):
     args = ["--steps", "150", "--no-progress", "--no-figures"]
     run_cli("run", "quick", "--out", a, *args, check=True)
     run_cli("run", "quick", "--out", b, "--mode", "ddm", "--domains", "4", *args, check=True)
-    ha = run_cli("checkpoint", "hash", a, check=True).stdout.strip()
-    hb = run_cli("checkpoint", "hash", b, check=True).stdout.strip()
+    ha = cli_in_process("checkpoint", "hash", a, check=True).stdout.strip()
+    hb = cli_in_process("checkpoint", "hash", b, check=True).stdout.strip()
     assert ha == hb
-    cmp = run_cli("compare", a, b, check=True).stdout
+    cmp = cli_in_process("compare", a, b, check=True).stdout
     assert "BIT-IDENTICAL" in cmp
 
 

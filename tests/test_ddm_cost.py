@@ -4,7 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import run_cli
+from support.cli import run_cli
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "ddm_cost.py"
 

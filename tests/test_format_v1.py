@@ -17,7 +17,8 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import WHEEL_TEST, run_cli
+from support.cli import cli_in_process, run_cli
+from support.runs import WHEEL_TEST
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
 from ooc_dem.model.state import V1_ARRAYS
 
@@ -79,7 +80,7 @@ def runs(tmp_path_factory):
     half = root / "half"
     run_cli("run", "quick", "--out", half, "--steps", CKPT, "--checkpoint-every", CKPT,
             "--no-progress", "--no-figures", *SETS, check=True)
-    h_half = run_cli("checkpoint", "hash", half, check=True).stdout.strip()
+    h_half = cli_in_process("checkpoint", "hash", half, check=True).stdout.strip()
     v1 = root / "v1"
     shutil.copytree(half, v1)
     to_v1(v1)
@@ -96,14 +97,14 @@ def test_the_fixture_is_format_1(runs):
 
 def test_v1_store_hashes_verifies_inspects_exports(runs, tmp_path):
     full, v1, h_half = runs
-    assert run_cli("checkpoint", "hash", v1, check=True).stdout.strip() == h_half
-    run_cli("checkpoint", "verify", v1, check=True)
-    info = json.loads(run_cli("checkpoint", "inspect", v1, check=True).stdout)
+    assert cli_in_process("checkpoint", "hash", v1, check=True).stdout.strip() == h_half
+    cli_in_process("checkpoint", "verify", v1, check=True)
+    info = json.loads(cli_in_process("checkpoint", "inspect", v1, check=True).stdout)
     assert info["step"] == CKPT and info["discs"] > 0
     out = tmp_path / "v1.csv"
-    run_cli("checkpoint", "export", v1, "--out", out, check=True)
+    cli_in_process("checkpoint", "export", v1, "--out", out, check=True)
     out2 = tmp_path / "v2.csv"
-    run_cli("checkpoint", "export", full, "--epoch", CKPT, "--out", out2, check=True)
+    cli_in_process("checkpoint", "export", full, "--epoch", CKPT, "--out", out2, check=True)
     lines1 = out.read_text().splitlines()
     lines2 = out2.read_text().splitlines()
     assert lines1[3] == "id,x,y,vx,vy,w,r,mass,mat"
@@ -121,7 +122,7 @@ def test_v1_store_resumes_to_the_v2_bits(runs):
     assert "pos" in m["current"]["domains"]["0"]["arrays"]
     if m["previous"] is not None and m["previous"]["step"] == CKPT:
         assert m["previous"]["format_version"] == 1      # ... its format-1 epoch stays named so
-    assert run_cli("checkpoint", "hash", v1, check=True).stdout.strip() == h_full
+    assert cli_in_process("checkpoint", "hash", v1, check=True).stdout.strip() == h_full
 
 
 def test_v1_epoch_reads_rows_as_v2(runs):

@@ -1,8 +1,10 @@
 """Hostile input: every bad scenario value, flag or file is ONE line on stderr naming
 the offending key, flag or file, exit code 2, no traceback, nothing committed lost.
 
-Real `ooc-dem` subprocesses (conftest.run_cli), except the systematic sweep over every scenario
-key, which calls the same `main()` in-process (hundreds of `check`s, no interpreter start each).
+Refusals run `ooc-dem` in-process (support.cli.cli_in_process: the same `main()`, no interpreter
+start each); real subprocesses (support.cli.run_cli) run the simulations and the refusals whose
+point is the process (a bed larger than memory). The systematic sweep over every scenario key
+calls `main()` directly (hundreds of `check`s).
 """
 from __future__ import annotations
 
@@ -15,7 +17,8 @@ import numpy as np
 import psutil
 import pytest
 
-from conftest import WHEEL_TEST, one_line_error, run_cli
+from support.cli import cli_in_process, one_line_error, run_cli
+from support.runs import WHEEL_TEST
 
 from ooc_dem import cli
 from ooc_dem.model.schema import Scenario, dict_to_toml
@@ -61,7 +64,7 @@ def finished_bed_run(tmp_path_factory):
 def test_step_count_beyond_the_maximum_is_refused_by_the_flag(tmp_path):
     # today `--steps 1000000000000000` sizes the series for every step up front (189 TiB)
     for steps in ("1000000000000000", "100000000000", "1e11", "1e30"):
-        cp = run_cli("run", "quick", "--steps", steps, "--out", tmp_path / "o", "--no-progress")
+        cp = cli_in_process("run", "quick", "--steps", steps, "--out", tmp_path / "o", "--no-progress")
         one_line_error(cp, "--steps", "1e10")
         assert not (tmp_path / "o").exists()
 
@@ -111,20 +114,20 @@ def test_bed_larger_than_memory_refused_before_allocating(tmp_path):
 
 
 def test_domains_and_block_flags_bounded_like_the_scenario(tmp_path):
-    one_line_error(run_cli("run", "quick", "--mode", "ddm", "--domains", "5000", "--out", tmp_path / "o",
-                           timeout=120), "--domains", "4096")
-    one_line_error(run_cli("run", "quick", "--mode", "ooc", "--block", "20000", "--out", tmp_path / "o",
-                           timeout=120), "--block", "10000")
+    one_line_error(cli_in_process("run", "quick", "--mode", "ddm", "--domains", "5000", "--out", tmp_path / "o",
+                                  timeout=120), "--domains", "4096")
+    one_line_error(cli_in_process("run", "quick", "--mode", "ooc", "--block", "20000", "--out", tmp_path / "o",
+                                  timeout=120), "--block", "10000")
 
 
 def test_more_domains_than_the_bed_holds_refused_naming_the_maximum(tmp_path):
     # 1500 discs in 0.4 m: at most 75 slabs of >= 20 discs (1000 took 110 s a step)
-    line = one_line_error(run_cli("run", "quick", "--mode", "ddm", "--domains", "1000",
-                                  "--out", tmp_path / "o", timeout=120), "--domains 1000", "at most 75")
-    one_line_error(run_cli("run", "quick", "--mode", "ooc", "--set", "decomposition.domains=500",
-                           "--out", tmp_path / "o", timeout=120), "decomposition.domains", "at most 75")
+    line = one_line_error(cli_in_process("run", "quick", "--mode", "ddm", "--domains", "1000",
+                                         "--out", tmp_path / "o", timeout=120), "--domains 1000", "at most 75")
+    one_line_error(cli_in_process("run", "quick", "--mode", "ooc", "--set", "decomposition.domains=500",
+                                  "--out", tmp_path / "o", timeout=120), "decomposition.domains", "at most 75")
     assert not (tmp_path / "o").exists(), line
-    plan = json.loads(run_cli("check", "quick", "--mode", "ddm", "--domains", "75", check=True).stdout)
+    plan = json.loads(cli_in_process("check", "quick", "--mode", "ddm", "--domains", "75", check=True).stdout)
     assert plan["domains"] == 75
 
 
@@ -147,7 +150,7 @@ EXTREME_RUNS = [
 
 @pytest.mark.parametrize("args,needle", EXTREME_RUNS, ids=[" ".join(a)[:40] for a, _ in EXTREME_RUNS])
 def test_extreme_numbers_one_line(args, needle, tmp_path):
-    cp = run_cli("run", "quick", *args, "--out", tmp_path / "o", "--no-progress", timeout=120)
+    cp = cli_in_process("run", "quick", *args, "--out", tmp_path / "o", "--no-progress", timeout=120)
     one_line_error(cp, needle)
     assert not (tmp_path / "o").exists()
 
@@ -157,8 +160,8 @@ def test_a_tile_narrower_than_a_disc_is_refused_alike_by_check_and_run(scenario,
     """bed.tile = 1 passed `check`; `run` then refused the tile's own scenario, naming a
     bin.length the user never wrote. Both refuse it now, in the same line, naming bed.tile."""
     args = [scenario, "--set", "bed.tile=1"]
-    checked = one_line_error(run_cli("check", *args, timeout=120), "bed.tile = 1", "bin.length")
-    ran = one_line_error(run_cli("run", *args, "--out", tmp_path / "o", "--no-progress", timeout=120),
+    checked = one_line_error(cli_in_process("check", *args, timeout=120), "bed.tile = 1", "bin.length")
+    ran = one_line_error(cli_in_process("run", *args, "--out", tmp_path / "o", "--no-progress", timeout=120),
                          "bed.tile = 1")
     assert ran == checked
     assert not (tmp_path / "o").exists()
@@ -166,41 +169,41 @@ def test_a_tile_narrower_than_a_disc_is_refused_alike_by_check_and_run(scenario,
 
 def test_bad_bed_counts(tmp_path):
     for name in ("bed-inf", "bed-nan", "bed-1e400", "bed-" + "9" * 5000, "bed-0", "bed--5", "bed-1e-5"):
-        one_line_error(run_cli("run", name, "--out", tmp_path / "o"), "bed-N needs a disc count")
+        one_line_error(cli_in_process("run", name, "--out", tmp_path / "o"), "bed-N needs a disc count")
     assert not (tmp_path / "o").exists()
 
 
 def test_resume_until_huge_keeps_the_store(finished_bed_run, tmp_path):
     store = tmp_path / "store"
     shutil.copytree(finished_bed_run, store)
-    before = run_cli("checkpoint", "hash", store, check=True).stdout
-    one_line_error(run_cli("resume", store, "--until", "1e308", "--no-progress"), "--until", "1e10")
-    one_line_error(run_cli("resume", store, "--steps", "1e30", "--no-progress"), "--steps")
-    assert run_cli("checkpoint", "hash", store, check=True).stdout == before
+    before = cli_in_process("checkpoint", "hash", store, check=True).stdout
+    one_line_error(cli_in_process("resume", store, "--until", "1e308", "--no-progress"), "--until", "1e10")
+    one_line_error(cli_in_process("resume", store, "--steps", "1e30", "--no-progress"), "--steps")
+    assert cli_in_process("checkpoint", "hash", store, check=True).stdout == before
 
 
 def test_deeply_nested_overrides_and_files(tmp_path):
     deep_key = "scenario.name." + ".".join(["a"] * 3000)
-    one_line_error(run_cli("run", "quick", "--set", f"{deep_key}=1", "--out", tmp_path / "o"), "--set")
-    one_line_error(run_cli("run", "quick", "--set", "a." * 3000 + "b=1", "--out", tmp_path / "o"), "--set")
-    one_line_error(run_cli("run", "quick", "--set", "scenario.name=" + "[" * 3000 + "]" * 3000,
+    one_line_error(cli_in_process("run", "quick", "--set", f"{deep_key}=1", "--out", tmp_path / "o"), "--set")
+    one_line_error(cli_in_process("run", "quick", "--set", "a." * 3000 + "b=1", "--out", tmp_path / "o"), "--set")
+    one_line_error(cli_in_process("run", "quick", "--set", "scenario.name=" + "[" * 3000 + "]" * 3000,
                            "--out", tmp_path / "o"), "scenario.name")
     for body in ("[scenario]\nname = " + "[" * 5000 + "]" * 5000 + "\n",
                  "[scenario]\nname = " + "{a = " * 3000 + "1" + "}" * 3000 + "\n",
                  "[soil]\nn = " + "7" * 5000 + "\n"):
         f = tmp_path / "deep.toml"
         f.write_text(body)
-        one_line_error(run_cli("run", f, "--out", tmp_path / "o"), str(f))
+        one_line_error(cli_in_process("run", f, "--out", tmp_path / "o"), str(f))
     f = tmp_path / "nested.toml"
     f.write_text("[scenario.name." + ".".join(["a"] * 3000) + "]\nx = 1\n")
-    one_line_error(run_cli("run", f, "--out", tmp_path / "o"), "scenario.name")
+    one_line_error(cli_in_process("run", f, "--out", tmp_path / "o"), "scenario.name")
     assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("name", [EMOJI, "../../x", ".hidden", "a/b", "tab\there", "x" * 101, ""])
 def test_scenario_name_is_one_safe_path_component(name, tmp_path):
-    cp = run_cli("run", "bed-1200", "--set", f"scenario.name={json.dumps(name)}", "--steps", "5",
-                 "--out", tmp_path / "o", "--no-progress")
+    cp = cli_in_process("run", "bed-1200", "--set", f"scenario.name={json.dumps(name)}", "--steps", "5",
+                        "--out", tmp_path / "o", "--no-progress")
     one_line_error(cp, "scenario.name")
     assert not (tmp_path / "o").exists()
 
@@ -330,7 +333,7 @@ def test_hostile_summary_json(command, wheel_run_copy, finished_wheel_run):
     for case, data in SUMMARY_CASES.items():
         _damage(wheel_run_copy, "summary.json", data)
         args = [wheel_run_copy] if command == "report" else [finished_wheel_run, wheel_run_copy]
-        one_line_error(run_cli(command, *args), "summary.json")
+        one_line_error(cli_in_process(command, *args), "summary.json")
 
 
 def _summary_with(run, edit):
@@ -356,14 +359,14 @@ WRONG_TYPES = {
 @pytest.mark.parametrize("case", list(WRONG_TYPES))
 def test_summary_with_wrong_types_or_missing_keys(case, wheel_run_copy, finished_wheel_run):
     _summary_with(wheel_run_copy, WRONG_TYPES[case])
-    one_line_error(run_cli("report", wheel_run_copy), "summary.json")
-    one_line_error(run_cli("compare", wheel_run_copy, finished_wheel_run), "summary.json")
+    one_line_error(cli_in_process("report", wheel_run_copy), "summary.json")
+    one_line_error(cli_in_process("compare", wheel_run_copy, finished_wheel_run), "summary.json")
 
 
 def test_huge_summary_json(wheel_run_copy):
     with open(wheel_run_copy / "summary.json", "w") as f:
         f.write('{"pad": "' + "x" * (20 << 20) + '"}')
-    one_line_error(run_cli("report", wheel_run_copy), "summary.json", "too large")
+    one_line_error(cli_in_process("report", wheel_run_copy), "summary.json", "too large")
 
 
 SERIES_CASES = {
@@ -379,7 +382,7 @@ SERIES_CASES = {
 def test_hostile_series_csv(case, wheel_run_copy):
     header = (wheel_run_copy / "series.csv").read_text().splitlines()[0]
     _damage(wheel_run_copy, "series.csv", SERIES_CASES[case](header))
-    one_line_error(run_cli("report", wheel_run_copy), "series.csv")
+    one_line_error(cli_in_process("report", wheel_run_copy), "series.csv")
 
 
 def _npz(path, **arrays):
@@ -407,7 +410,7 @@ def test_hostile_initial_npz(wheel_run_copy, tmp_path):
     for name, make in cases.items():
         f.unlink()
         make()
-        one_line_error(run_cli("report", wheel_run_copy), "initial.npz")
+        one_line_error(cli_in_process("report", wheel_run_copy), "initial.npz")
 
 
 def test_not_a_run_directory(tmp_path, finished_wheel_run):
@@ -425,8 +428,8 @@ def test_not_a_run_directory(tmp_path, finished_wheel_run):
     a_file = tmp_path / "file.txt"
     a_file.write_text("hello")
     for d in (foreign, empty, junk, a_file, tmp_path / "missing"):
-        one_line_error(run_cli("report", d), "summary.json")
-        one_line_error(run_cli("compare", finished_wheel_run, d), "summary.json")
+        one_line_error(cli_in_process("report", d), "summary.json")
+        one_line_error(cli_in_process("compare", finished_wheel_run, d), "summary.json")
 
 
 def test_report_reads_only_regular_files_inside_the_run(wheel_run_copy, tmp_path):
@@ -434,12 +437,12 @@ def test_report_reads_only_regular_files_inside_the_run(wheel_run_copy, tmp_path
     outside.write_text((wheel_run_copy / "summary.json").read_text())
     (wheel_run_copy / "summary.json").unlink()
     (wheel_run_copy / "summary.json").symlink_to(outside)
-    one_line_error(run_cli("report", wheel_run_copy), "summary.json", "outside")
+    one_line_error(cli_in_process("report", wheel_run_copy), "summary.json", "outside")
     (wheel_run_copy / "summary.json").unlink()
     (wheel_run_copy / "summary.json").write_text(outside.read_text())
     (wheel_run_copy / "series.csv").unlink()
     os.mkfifo(wheel_run_copy / "series.csv")   # opening it would block forever
-    one_line_error(run_cli("report", wheel_run_copy, timeout=60), "series.csv", "regular file")
+    one_line_error(cli_in_process("report", wheel_run_copy, timeout=60), "series.csv", "regular file")
 
 
 # ------------------------------------------------------------------ E. sweep window
@@ -450,7 +453,7 @@ def test_report_reads_only_regular_files_inside_the_run(wheel_run_copy, tmp_path
 def test_sweep_with_an_empty_steady_window_refused_before_running(window, tmp_path):
     out = tmp_path / "sweep"
     args = [a for kv in WHEEL_TEST + window for a in ("--set", kv)]
-    cp = run_cli("sweep", "quick", *args, "--slips", "0.1,0.2", "--out", out, "--no-progress", timeout=300)
+    cp = cli_in_process("sweep", "quick", *args, "--slips", "0.1,0.2", "--out", out, "--no-progress", timeout=300)
     one_line_error(cp, "output.steady_start", "holds no step")
     assert not out.exists()
 
@@ -458,7 +461,7 @@ def test_sweep_with_an_empty_steady_window_refused_before_running(window, tmp_pa
 def test_sweep_slips_sharing_a_directory_refused(tmp_path):
     out = tmp_path / "sweep"
     args = [a for kv in WHEEL_TEST for a in ("--set", kv)]
-    one_line_error(run_cli("sweep", "quick", *args, "--slips", "0.1,0.1001", "--out", out, timeout=300),
+    one_line_error(cli_in_process("sweep", "quick", *args, "--slips", "0.1,0.1001", "--out", out, timeout=300),
                    "--slips")
     assert not out.exists()
 
@@ -479,7 +482,7 @@ def test_memory_backend_run_writes_its_outputs(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["backend"] == "memory" and summary["steps"] == 300
     run_cli("report", out, check=True)                 # figures from the files that remain
-    one_line_error(run_cli("resume", out, "--no-progress"), str(out))
+    one_line_error(cli_in_process("resume", out, "--no-progress"), str(out))
 
 
 # ------------------------------------------------------------------ G. check
@@ -492,15 +495,15 @@ CHECK_KEYS = {"scenario", "scenario_hash", "mode", "backend", "n_discs", "steps"
 
 def test_check_prints_the_plan_and_writes_nothing(tmp_path):
     before = set(os.listdir("."))
-    cp = run_cli("check", "quick", "--mode", "ooc", "--domains", "6", "--steps", "1e3", check=True)
+    cp = cli_in_process("check", "quick", "--mode", "ooc", "--domains", "6", "--steps", "1e3", check=True)
     plan = json.loads(cp.stdout)
     assert set(plan) == CHECK_KEYS
     assert plan["steps"] == 1000 and plan["domains"] == 6 and plan["n_discs"] == 1500
     assert plan["block"] >= 1 and 0 < plan["dt_s"] <= plan["dt_critical_s"]
     assert 0 < plan["memory_bytes"] < plan["memory_available_bytes"]
-    plan = json.loads(run_cli("check", "paper2008", check=True).stdout)
+    plan = json.loads(cli_in_process("check", "paper2008", check=True).stdout)
     assert plan["steps"] == 4_600_000 and plan["domains"] == 1
-    plan = json.loads(run_cli("check", "bed-100k", "--mode", "ooc", "--duration", "0.01", check=True).stdout)
+    plan = json.loads(cli_in_process("check", "bed-100k", "--mode", "ooc", "--duration", "0.01", check=True).stdout)
     assert plan["steps"] == 1000 and plan["streamed_bed"] is True
     assert set(os.listdir(".")) == before and cp.stderr == ""
 
@@ -510,8 +513,8 @@ def test_check_prints_the_plan_and_writes_nothing(tmp_path):
     ["bed-2000000000"], ["quick", "--set", "scenario.name=../x"], ["quick", "--duration", "1e308"],
     ["no-such-scenario"], ["quick", "--backend", "tape"]])
 def test_check_refuses_exactly_what_run_refuses(args, tmp_path):
-    run = one_line_error(run_cli("run", *args, "--out", tmp_path / "o", timeout=120))
-    check = one_line_error(run_cli("check", *args, timeout=120))
+    run = one_line_error(cli_in_process("run", *args, "--out", tmp_path / "o", timeout=120))
+    check = one_line_error(cli_in_process("check", *args, timeout=120))
     assert check.replace("ooc-dem check", "ooc-dem run") == run
 
 

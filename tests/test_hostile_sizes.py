@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import WHEEL_TEST, one_line_error, zarr_epochs_as_directories
+from support.cli import one_line_error
+from support.runs import WHEEL_TEST
+from support.stores import zarr_epochs_as_directories
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 import refusal_memory as rm  # noqa: E402

@@ -37,7 +37,7 @@ import json
 
 import pytest
 
-from conftest import run_cli
+from support.cli import cli_in_process, run_cli
 
 QUICK = ["wheel.control=slip", "wheel.slip=0.2", "wheel.omega=5.0", "wheel.settle_time=0.002",
          "wheel.drop_gap=0.0", "wheel.lug_tip_radius=0.104", "decomposition.margin=0.001"]
@@ -114,5 +114,5 @@ def test_state_hash_unchanged(case, tmp_path):
     accepted = expected if isinstance(expected, tuple) else (expected,)
     assert summary["state_hash"] in accepted, f"{case}: the kernel's bits changed"
     if case == "quick-monolithic":
-        cp = run_cli("checkpoint", "hash", out, check=True)
+        cp = cli_in_process("checkpoint", "hash", out, check=True)
         assert cp.stdout.strip() == expected

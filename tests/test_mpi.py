@@ -13,7 +13,8 @@ import numpy as np
 import psutil
 import pytest
 
-from conftest import committed_step, one_line_error, run_cli
+from support.cli import one_line_error, run_cli
+from support.stores import committed_step
 
 # bed-600: 4 equal slabs; the wheel run: a fast slip-controlled wheel set down on the
 # quick bed, so that its slab is redefined within 600 steps (test_ddm's wheel case)

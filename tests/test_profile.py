@@ -2,7 +2,7 @@
 import json
 
 
-from conftest import run_cli
+from support.cli import cli_in_process, run_cli
 from ooc_dem.model.state import bytes_per_disc
 
 
@@ -31,7 +31,7 @@ def test_profile_report(tmp_path):
 
 
 def test_profile_bad_mode(tmp_path):
-    cp = run_cli("profile", "bed-6000", "--modes", "monolithic,turbo", "--out", tmp_path / "p")
+    cp = cli_in_process("profile", "bed-6000", "--modes", "monolithic,turbo", "--out", tmp_path / "p")
     assert cp.returncode == 2 and "--modes" in cp.stderr and len(cp.stderr.strip().splitlines()) == 1
 
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import ooc_dem
-from conftest import BASE_RUN_STEPS as STEPS, WHEEL_TEST, one_line_error, run_cli
+from support.cli import cli_in_process, one_line_error, run_cli
+from support.runs import BASE_RUN_STEPS as STEPS, WHEEL_TEST
 from ooc_dem.model.checkpoint import open_epoch, record_rows
 from ooc_dem.model.decomposition import x_summary
 from ooc_dem.physics.layout import AX_X
@@ -63,22 +64,22 @@ def test_hash_and_export_refuse_what_resume_refuses(run_copy, tmp_path, case):
     if case == "float32-positions":   # the manifest describes the array as it now is
         m["current"]["domains"]["0"]["arrays"]["pos"][1] = "<f4"
         (run_copy / "MANIFEST.json").write_text(json.dumps(m))
-    assert run_cli("checkpoint", "verify", run_copy).returncode == 0   # the checksums pass
-    one_line_error(run_cli("checkpoint", "hash", run_copy), needle)
+    assert cli_in_process("checkpoint", "verify", run_copy).returncode == 0   # the checksums pass
+    one_line_error(cli_in_process("checkpoint", "hash", run_copy), needle)
     out = tmp_path / "e.csv"
-    one_line_error(run_cli("checkpoint", "export", run_copy, "--out", out), needle)
+    one_line_error(cli_in_process("checkpoint", "export", run_copy, "--out", out), needle)
     assert not out.exists()
-    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
-                           "--no-figures"), needle)
+    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
+                                  "--no-figures"), needle)
 
 
 @pytest.mark.parametrize("field,index,value", [("vel", (0, 0), 1e300), ("mass", 0, 5e-324),
                                                ("pos", (0, AX_X), 1e12), ("spin", (0, 0), 1e300)])
 def test_finite_absurd_values_are_refused_naming_the_array(run_copy, field, index, value):
     _tamper_current(run_copy, _edit(field, index, value))
-    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
-                           "--no-figures"), f"'{field}'")
-    one_line_error(run_cli("checkpoint", "hash", run_copy), f"'{field}'")
+    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
+                                  "--no-figures"), f"'{field}'")
+    one_line_error(cli_in_process("checkpoint", "hash", run_copy), f"'{field}'")
 
 
 def test_disk_space_estimate_ignores_a_damaged_current_epochs_size(run_copy):
@@ -101,7 +102,7 @@ def test_hostile_meta_types_raise_the_packages_state_error(run_copy, key, value)
     (run_copy / "MANIFEST.json").write_text(json.dumps(m))
     with pytest.raises(ooc_dem.StateError, match=key):
         ooc_dem.open_run(run_copy).state()
-    one_line_error(run_cli("checkpoint", "hash", run_copy), key)
+    one_line_error(cli_in_process("checkpoint", "hash", run_copy), key)
 
 
 def test_3d_material_index_beyond_the_table_is_refused(tmp_path):
@@ -111,8 +112,8 @@ def test_3d_material_index_beyond_the_table_is_refused(tmp_path):
     run_cli("run", "quick-3d", "--out", out, "--steps", 10, "--checkpoint-every", 5,
             "--no-progress", "--no-figures", check=True)
     _tamper_current(out, _edit("mat", 0, 2 ** 31 - 1))
-    one_line_error(run_cli("resume", out, "--steps", 20, "--no-progress", "--no-figures"), "'mat'")
-    one_line_error(run_cli("checkpoint", "hash", out), "'mat'")
+    one_line_error(cli_in_process("resume", out, "--steps", 20, "--no-progress", "--no-figures"), "'mat'")
+    one_line_error(cli_in_process("checkpoint", "hash", out), "'mat'")
     with pytest.raises(ooc_dem.StateError, match="'mat'"):
         ooc_dem.open_run(out).state()
 
@@ -184,9 +185,9 @@ def test_a_consistent_change_of_the_disc_count_is_refused(base_run, run_3d_zarr,
     run = tmp_path / "run"
     shutil.copytree(base_run if dim == 2 else run_3d_zarr, run)
     step = _commit_with_discs(run, edit)
-    assert run_cli("checkpoint", "verify", run).returncode == 0   # the store finds nothing wrong
-    line = one_line_error(run_cli("checkpoint", "hash", run), f"epoch {step} holds", "soil.n")
-    one_line_error(run_cli("resume", run, "--steps", step + 10, "--no-progress", "--no-figures"), line)
+    assert cli_in_process("checkpoint", "verify", run).returncode == 0   # the store finds nothing wrong
+    line = one_line_error(cli_in_process("checkpoint", "hash", run), f"epoch {step} holds", "soil.n")
+    one_line_error(cli_in_process("resume", run, "--steps", step + 10, "--no-progress", "--no-figures"), line)
 
 
 # ----------------------------------------------------------------------------- MPI parts
@@ -223,13 +224,13 @@ def test_a_part_of_another_epoch_is_refused_naming_the_part(tmp_path):
     m["previous"] = None   # else the previous epoch, intact, would be used instead
     (run / "MANIFEST.json").write_text(json.dumps(m))
     needle = f"{part.rpartition('/')[2]}: the file records step {prev['step']}"
-    cp = run_cli("checkpoint", "verify", run)
+    cp = cli_in_process("checkpoint", "verify", run)
     assert cp.returncode == 2 and needle in cp.stdout, (cp.stdout, cp.stderr)
-    one_line_error(run_cli("checkpoint", "hash", run), needle)
+    one_line_error(cli_in_process("checkpoint", "hash", run), needle)
     out = tmp_path / "e.csv"
-    one_line_error(run_cli("checkpoint", "export", run, "--out", out), needle)
+    one_line_error(cli_in_process("checkpoint", "export", run, "--out", out), needle)
     assert not out.exists()
-    one_line_error(run_cli("resume", run, "--steps", 30, "--no-progress", "--no-figures"), needle)
+    one_line_error(cli_in_process("resume", run, "--steps", 30, "--no-progress", "--no-figures"), needle)
     one_line_error(run_mpi(2, "resume", run, "--steps", 30, "--no-progress", "--no-figures", check=False),
                    needle)
     store = open_store(run, repair=False)
@@ -287,8 +288,8 @@ def test_run_refuses_a_bad_bed_in_one_line(prepared_bed, tmp_path, case):
     edit, needle = BAD_BEDS[case]
     bed = _bed_with(prepared_bed / "bed", tmp_path / "bed", edit)
     out = tmp_path / "run"
-    one_line_error(run_cli("run", "quick", *SMALL, "--bed", bed, "--out", out, "--steps", 2,
-                           "--no-progress", "--no-figures"), "--bed", needle)
+    one_line_error(cli_in_process("run", "quick", *SMALL, "--bed", bed, "--out", out, "--steps", 2,
+                                  "--no-progress", "--no-figures"), "--bed", needle)
     assert not (out / "MANIFEST.json").exists()   # nothing committed from it
 
 

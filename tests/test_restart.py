@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import run_cli
+from support.cli import cli_in_process, run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,10 +79,10 @@ def test_most_kills_land_mid_run(torture):
 def test_resume_finished_run_is_noop(tmp_path):
     out = tmp_path / "run"
     run_cli("run", "bed-1200", "--out", out, "--steps", "30", "--no-progress", check=True)
-    h = run_cli("checkpoint", "hash", out, check=True).stdout.strip()
+    h = cli_in_process("checkpoint", "hash", out, check=True).stdout.strip()
     cp = run_cli("resume", out, "--no-progress")
     assert cp.returncode == 0 and "already finished" in cp.stdout
-    assert run_cli("checkpoint", "hash", out, check=True).stdout.strip() == h
+    assert cli_in_process("checkpoint", "hash", out, check=True).stdout.strip() == h
 
 
 @pytest.mark.parametrize("mode", [["--mode", "monolithic"], ["--mode", "ddm", "--domains", "3"]])
@@ -94,6 +94,6 @@ def test_resume_extends_run_to_same_bits(tmp_path, mode):
             "--no-progress", check=True)
     run_cli("resume", a, "--steps", "60", "--no-progress", check=True)
     run_cli("run", "bed-1200", "--out", b, "--steps", "60", "--no-progress", check=True)
-    ha = run_cli("checkpoint", "hash", a, check=True).stdout.strip()
-    hb = run_cli("checkpoint", "hash", b, check=True).stdout.strip()
+    ha = cli_in_process("checkpoint", "hash", a, check=True).stdout.strip()
+    hb = cli_in_process("checkpoint", "hash", b, check=True).stdout.strip()
     assert ha == hb

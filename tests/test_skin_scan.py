@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import run_cli
+from support.cli import run_cli
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "skin_scan.py"
 

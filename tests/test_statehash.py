@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 import xxhash
 
-from conftest import one_line_error, run_cli
+from support.cli import cli_in_process, one_line_error, run_cli
 from ooc_dem.model import checkpoint, statehash
 from ooc_dem.model.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record, validate_epoch
 from ooc_dem.model.decomposition import XHistogram, equal_bounds, x_summary
@@ -215,7 +215,7 @@ def test_export_refuses_an_id_held_by_two_groups(tmp_path):
     with open_epoch(open_store(str(tmp_path / "s"), repair=False)) as reader:
         with pytest.raises(checkpoint.StateError, match=f"disc id {int(p.id[0])} appears more than once"):
             export.read_snapshot(reader, "t", tmp_path)
-    cp = run_cli("checkpoint", "export", tmp_path / "s", "--out", tmp_path / "e.csv")
+    cp = cli_in_process("checkpoint", "export", tmp_path / "s", "--out", tmp_path / "e.csv")
     one_line_error(cp, "appears more than once")
     assert not (tmp_path / "e.csv").exists()
 
@@ -306,12 +306,12 @@ def test_store_without_summaries_resumes_to_the_same_bits(tmp_path):
     run_cli("run", "bed-1200", "--steps", 30, "--out", tmp_path / "part", *common, check=True)
     shutil.copytree(tmp_path / "part", tmp_path / "lie", symlinks=True)
     _strip_summaries(tmp_path / "part")
-    assert run_cli("checkpoint", "verify", tmp_path / "part").returncode == 0
+    assert cli_in_process("checkpoint", "verify", tmp_path / "part").returncode == 0
     run_cli("resume", tmp_path / "part", "--steps", 60, "--no-progress", "--no-figures", check=True)
     whole = json.loads((tmp_path / "whole" / "summary.json").read_text())
     part = json.loads((tmp_path / "part" / "summary.json").read_text())
     assert part["state_hash"] == whole["state_hash"]
-    assert part["state_hash"] == run_cli("checkpoint", "hash", tmp_path / "part", check=True).stdout.strip()
+    assert part["state_hash"] == cli_in_process("checkpoint", "hash", tmp_path / "part", check=True).stdout.strip()
 
     m = json.loads((tmp_path / "lie" / "MANIFEST.json").read_text())
     path = tmp_path / "lie" / m["current"]["path"]
@@ -329,7 +329,7 @@ def test_store_without_summaries_resumes_to_the_same_bits(tmp_path):
             e["size"], e["sha256"] = len(data), hashlib.sha256(data).hexdigest()
     m["previous"] = None
     (tmp_path / "lie" / "MANIFEST.json").write_text(json.dumps(m))
-    one_line_error(run_cli("resume", tmp_path / "lie", "--steps", 60, "--no-progress", "--no-figures"),
+    one_line_error(cli_in_process("resume", tmp_path / "lie", "--steps", 60, "--no-progress", "--no-figures"),
                    "x_summary")
 
 

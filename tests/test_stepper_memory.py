@@ -10,7 +10,7 @@ from ooc_dem.app.bed import settled_bed
 from ooc_dem.engine.stepper import PAIR_HEADROOM, DomainStepper, Model
 from ooc_dem.model.scenario import load_scenario
 
-from conftest import assert_same_state
+from support.state import assert_same_state
 
 LIST = ("pair_b", "pair_a", "inc_k", "on", "rows")
 

@@ -9,7 +9,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import one_line_error, run_cli
+from support.cli import cli_in_process, one_line_error, run_cli
 from ooc_dem.storage import StoreError, create_store, open_store
 
 
@@ -76,10 +76,10 @@ def test_out_of_core_run_on_a_full_disk_stops_cleanly_and_resumes(small_fs):
     assert not [n for n in epochs if ".tmp-" in n], epochs            # no torn epoch left
     m = json.loads((out / "MANIFEST.json").read_text())
     assert m["current"] is not None and 0 < m["current"]["step"] < 12
-    assert run_cli("checkpoint", "verify", out).returncode == 0
+    assert cli_in_process("checkpoint", "verify", out).returncode == 0
     subprocess.run(["mount", "-o", "remount,size=16m", str(mnt)], check=True)
     cp = run_cli("resume", out, "--no-progress", "--no-figures", timeout=300)
     assert cp.returncode == 0, cp.stderr
     m = json.loads((out / "MANIFEST.json").read_text())
     assert m["current"]["step"] == 12
-    assert run_cli("checkpoint", "verify", out).returncode == 0
+    assert cli_in_process("checkpoint", "verify", out).returncode == 0

@@ -3,7 +3,8 @@
 wrong state, or print a traceback.
 
 Each test takes a real store made by the CLI (a tiny run of the quick rig), edits it the
-way a hostile or careless party could, runs the CLI as a user would, and checks: exit 2
+way a hostile or careless party could, runs the CLI's `main()` on it (in this process; a real
+process for the runs that must finish, and for the writer whose lock is held), and checks: exit 2
 with exactly one line on stderr, no traceback, a `victim` directory beside the store
 untouched, and (where nothing may change) the store itself untouched.
 """
@@ -19,7 +20,8 @@ from pathlib import Path
 import h5py
 import pytest
 
-from conftest import one_line_error, run_cli, zarr_epochs_as_directories
+from support.cli import cli_in_process, one_line_error, run_cli
+from support.stores import zarr_epochs_as_directories
 
 STEPS, CKPT = 20, 10                 # current epoch 20, previous epoch 10
 RESUME_MORE = ["--steps", "40", "--no-progress", "--no-figures"]   # commits 30 and 40
@@ -86,10 +88,8 @@ def _edit(store, fn):
 
 
 def _cli(*args, timeout=HANG_TIMEOUT_S):
-    try:
-        return run_cli(*args, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"`ooc-dem {' '.join(map(str, args))}` hung (no answer in {timeout} s)")
+    """`ooc-dem ...` in this process (refusals and reads); one that hangs fails the test."""
+    return cli_in_process(*args, timeout=timeout)
 
 
 def _path_to_root(store) -> str:
@@ -247,7 +247,7 @@ def test_a_symlink_inside_a_zarr_epoch_is_a_verification_problem(pristine, tmp_p
     fails = [ln for ln in cp.stdout.splitlines() if ln.startswith("FAIL ")]
     assert any("epoch 20:" in ln and "symbolic link" in ln for ln in fails), cp.stdout
     one_line_error(cp, "problem(s) found", "falls back to epoch 10")
-    cp = _cli("resume", store, *RESUME_MORE)
+    cp = run_cli("resume", store, *RESUME_MORE, timeout=HANG_TIMEOUT_S)
     assert cp.returncode == 0 and "Traceback" not in cp.stderr, cp.stderr
     assert "using previous epoch 10" in cp.stderr, cp.stderr
     assert _snapshot(victim) == vbefore
@@ -290,7 +290,7 @@ def test_a_second_writer_is_refused_while_a_run_writes(pristine, tmp_path):
         proc.kill()
         proc.wait()
     step = _manifest(store)["current"]["step"]      # killed: the kernel dropped its lock
-    cp = _cli("resume", store, "--steps", step + CKPT, "--no-progress", "--no-figures")
+    cp = run_cli("resume", store, "--steps", step + CKPT, "--no-progress", "--no-figures", timeout=HANG_TIMEOUT_S)
     assert cp.returncode == 0, cp.stderr
     assert _manifest(store)["current"]["step"] == step + CKPT
 

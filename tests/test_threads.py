@@ -7,7 +7,7 @@ from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.model.scenario import load_scenario
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
-from conftest import assert_same_state
+from support.state import assert_same_state
 
 
 def _run(bed, sc, threads, steps=500):

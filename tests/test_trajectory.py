@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import one_line_error, run_cli
+from support.cli import cli_in_process, one_line_error, run_cli
 from ooc_dem.app.trajectory import (ROW_FIELDS, TRAJECTORY_FILE, Trajectory, TrajectoryWriter, frame_name,
                                 wheel_outline)
 from ooc_dem.app.trajectory_format import TRAJECTORY_DIR
@@ -53,7 +53,7 @@ def runs(tmp_path_factory):
 
 
 def _hash(run):
-    return run_cli("checkpoint", "hash", run, check=True).stdout.strip()
+    return cli_in_process("checkpoint", "hash", run, check=True).stdout.strip()
 
 
 def test_modes_write_the_same_frames(runs):
@@ -236,7 +236,7 @@ def test_xdmf_time_series_reads_in_vtk(tmp_path, runs):
     from ooc_dem.model.scenario import load_scenario
     run = runs["ooc"]
     out = tmp_path / "traj.xdmf"
-    cp = run_cli("export-trajectory", run, "--out", out, check=True)
+    cp = cli_in_process("export-trajectory", run, "--out", out, check=True)
     assert "5 frames" in cp.stdout
     assert out.stat().st_size < 200_000   # references, not a copy of the data
     sc = load_scenario("quick")
@@ -301,21 +301,21 @@ def test_api_trajectory(runs):
 def test_bad_input_is_one_line(tmp_path, runs):
     """No trajectory, a garbage or edited trajectory, an output inside the store, a bad
     suffix or key: exit 2 with one line."""
-    one_line_error(run_cli("animate", runs["noframes"], "--out", tmp_path / "a.gif"),
+    one_line_error(cli_in_process("animate", runs["noframes"], "--out", tmp_path / "a.gif"),
                    "no trajectory/", "snapshot_interval")
-    one_line_error(run_cli("export-trajectory", tmp_path / "nowhere", "--out", tmp_path / "a.xdmf"),
+    one_line_error(cli_in_process("export-trajectory", tmp_path / "nowhere", "--out", tmp_path / "a.xdmf"),
                    "not a run directory")
-    one_line_error(run_cli("export-trajectory", runs["ooc"], "--out", runs["ooc"] / "a.xdmf"),
+    one_line_error(cli_in_process("export-trajectory", runs["ooc"], "--out", runs["ooc"] / "a.xdmf"),
                    "inside the ooc-dem store")
-    one_line_error(run_cli("animate", runs["ooc"], "--out", tmp_path / "a.avi"), ".mp4 or .gif")
-    one_line_error(run_cli("export-trajectory", runs["ooc"], "--out", tmp_path / "a.txt"), ".xdmf")
-    one_line_error(run_cli("check", "quick", "--set", "output.snapshot_interval=-1"),
+    one_line_error(cli_in_process("animate", runs["ooc"], "--out", tmp_path / "a.avi"), ".mp4 or .gif")
+    one_line_error(cli_in_process("export-trajectory", runs["ooc"], "--out", tmp_path / "a.txt"), ".xdmf")
+    one_line_error(cli_in_process("check", "quick", "--set", "output.snapshot_interval=-1"),
                    "output.snapshot_interval")
     bad = tmp_path / "bad"
     (bad / TRAJECTORY_DIR).mkdir(parents=True)
     target = bad / TRAJECTORY_DIR / frame_name(123)
     target.write_bytes(b"\x89HDF\r\n\x1a\n" + os.urandom(2000))
-    one_line_error(run_cli("animate", bad, "--out", tmp_path / "b.gif"), "not a readable HDF5 file")
+    one_line_error(cli_in_process("animate", bad, "--out", tmp_path / "b.gif"), "not a readable HDF5 file")
     good = runs["monolithic"] / TRAJECTORY_DIR / frame_name(123)
     for edit, needle in ((lambda f: f.attrs.__setitem__("step", 99), "its name says 123"),
                          (lambda f: f.attrs.__setitem__("format", "x"), "not an ooc-dem trajectory"),
@@ -328,19 +328,19 @@ def test_bad_input_is_one_line(tmp_path, runs):
         target.write_bytes(good.read_bytes())
         with h5py.File(target, "r+") as f:
             edit(f)
-        one_line_error(run_cli("animate", bad, "--out", tmp_path / "c.gif", "--no-progress"), needle)
+        one_line_error(cli_in_process("animate", bad, "--out", tmp_path / "c.gif", "--no-progress"), needle)
     target.unlink()
     target.symlink_to(good)                            # a frame name that is a symlink
-    one_line_error(run_cli("export-trajectory", bad, "--out", tmp_path / "e.xdmf"), "not a regular file")
+    one_line_error(cli_in_process("export-trajectory", bad, "--out", tmp_path / "e.xdmf"), "not a regular file")
     link = tmp_path / "linked"
     link.mkdir()
     (link / TRAJECTORY_DIR).symlink_to(runs["monolithic"] / TRAJECTORY_DIR)
-    one_line_error(run_cli("export-trajectory", link, "--out", tmp_path / "d.xdmf"),
+    one_line_error(cli_in_process("export-trajectory", link, "--out", tmp_path / "d.xdmf"),
                    "not a directory")
     old = tmp_path / "old"
     old.mkdir()
     (old / TRAJECTORY_FILE).symlink_to(good)           # version 1 file: the old rule still holds
-    one_line_error(run_cli("export-trajectory", old, "--out", tmp_path / "f.xdmf"),
+    one_line_error(cli_in_process("export-trajectory", old, "--out", tmp_path / "f.xdmf"),
                    "outside the run directory")
 
 

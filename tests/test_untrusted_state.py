@@ -14,7 +14,8 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import BASE_RUN_STEPS as STEPS, WHEEL_TEST, one_line_error, run_cli
+from support.cli import cli_in_process, one_line_error, run_cli
+from support.runs import BASE_RUN_STEPS as STEPS, WHEEL_TEST
 from ooc_dem.physics.layout import AX_X
 
 
@@ -93,15 +94,15 @@ TAMPERED = {
 def test_consistently_tampered_epoch_is_refused(run_copy, case):
     edit, needle = TAMPERED[case]
     _tamper_current(run_copy, edit)
-    assert run_cli("checkpoint", "verify", run_copy).returncode == 0   # the checksums do pass
+    assert cli_in_process("checkpoint", "verify", run_copy).returncode == 0   # the checksums do pass
     before = (run_copy / "MANIFEST.json").read_bytes()
-    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
-                            "--no-figures"), needle)
+    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
+                                   "--no-figures"), needle)
     assert (run_copy / "MANIFEST.json").read_bytes() == before        # nothing committed over it
     if case in ("duplicate-ids", "globals-attrs-without-step", "wheel-state-nan", "hist_n-99"):
-        one_line_error(run_cli("checkpoint", "hash", run_copy))
+        one_line_error(cli_in_process("checkpoint", "hash", run_copy))
     if case in ("duplicate-ids", "globals-attrs-without-step", "wheel-state-nan"):
-        one_line_error(run_cli("checkpoint", "export", run_copy, "--out", run_copy.parent / "x.csv"))
+        one_line_error(cli_in_process("checkpoint", "export", run_copy, "--out", run_copy.parent / "x.csv"))
 
 
 def test_missing_globals_group_is_refused(run_copy):
@@ -110,7 +111,7 @@ def test_missing_globals_group_is_refused(run_copy):
     m = _tamper_current(run_copy, drop_globals)
     m["current"]["globals"] = None
     (run_copy / "MANIFEST.json").write_text(json.dumps(m))
-    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), "wheel_state")
+    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), "wheel_state")
 
 
 HOSTILE_META = {
@@ -129,7 +130,7 @@ def test_hostile_run_meta_is_refused(run_copy, case):
     m = _manifest(run_copy)
     edit(m["meta"])
     (run_copy / "MANIFEST.json").write_text(json.dumps(m))
-    one_line_error(run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), needle)
+    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress"), needle)
 
 
 def test_hostile_engine_attrs_are_refused(tmp_path):
@@ -144,13 +145,13 @@ def test_hostile_engine_attrs_are_refused(tmp_path):
         a["engine"]["bounds"] = ["left", 0.2]
         f["globals"].attrs["ooc_dem_attrs"] = json.dumps(a)
     _tamper_current(out, bad_bounds)
-    one_line_error(run_cli("resume", out, "--steps", 40, "--no-progress", "--no-figures"), "bounds")
+    one_line_error(cli_in_process("resume", out, "--steps", 40, "--no-progress", "--no-figures"), "bounds")
 
 
 # ------------------------------------------------------------------ export --out
 
 def _export(store, out, *extra):
-    return run_cli("checkpoint", "export", store, "--out", out, *extra)
+    return cli_in_process("checkpoint", "export", store, "--out", out, *extra)
 
 
 def test_export_never_replaces_store_files(run_copy):
@@ -166,7 +167,7 @@ def test_export_never_replaces_store_files(run_copy):
     before = cur.read_bytes()
     one_line_error(_export(run_copy, cur.with_suffix(".xdmf")), "store")
     assert cur.read_bytes() == before
-    assert run_cli("checkpoint", "verify", run_copy).returncode == 0
+    assert cli_in_process("checkpoint", "verify", run_copy).returncode == 0
 
 
 def test_export_refuses_what_is_not_a_regular_file(run_copy, tmp_path):
@@ -249,12 +250,12 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     sim = Simulation(sc, out, RunOptions(steps=20, progress=False, figures=False))
     create_store(out, "hdf5", sim._meta()).close()
     (out / "scenario.toml").write_text(sc.to_toml())
-    line = one_line_error(run_cli("resume", out, "--no-progress"), "no committed epoch")
+    line = one_line_error(cli_in_process("resume", out, "--no-progress"), "no committed epoch")
     assert f"--out {out}" in line and "ooc-dem run" in line
     args = ["run", "quick", "--out", out, "--steps", 20, "--no-progress", "--no-figures",
             *sum((["--set", s] for s in WHEEL_TEST), [])]
     (out / "notes.txt").write_text("mine")          # a user's file: the directory is not ours
-    one_line_error(run_cli(*args), "not empty")
+    one_line_error(cli_in_process(*args), "not empty")
     (out / "notes.txt").unlink()
     from ooc_dem.storage import open_store
     with open_store(out):                          # a live run still setting up holds the store

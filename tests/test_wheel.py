@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from conftest import WHEEL_TEST, run_cli
+from support.cli import run_cli
+from support.runs import WHEEL_TEST
 
 
 def _settings(extra=()):

@@ -16,7 +16,8 @@ import math
 
 import numpy as np
 import pytest
-from conftest import committed_step, run_cli
+from support.cli import cli_in_process, run_cli
+from support.stores import committed_step
 
 import ooc_dem
 from ooc_dem.engine.stepper import DomainStepper, Model
@@ -76,7 +77,7 @@ def test_wheel_must_fit_across_the_bin():
     with pytest.raises(ScenarioError) as e:
         load_scenario("quick-3d", ["wheel.z0=0.02"])
     assert "wheel.z0" in str(e.value) and "\n" not in str(e.value)
-    cp = run_cli("run", "quick-3d", "--set", "wheel.width=0.2", "--steps", "1")
+    cp = cli_in_process("run", "quick-3d", "--set", "wheel.width=0.2", "--steps", "1")
     assert cp.returncode == 2 and "wheel.z0" in cp.stderr and "Traceback" not in cp.stderr
 
 
@@ -298,4 +299,4 @@ def test_a_run_with_the_wheel_sigkilled_mid_roll_resumes_to_the_same_bits(runs, 
     assert cp.returncode == 0 and "missing outputs: figures" in cp.stdout, cp.stdout + cp.stderr
     for f in files:
         assert (out / f).is_file(), f
-    run_cli("checkpoint", "verify", out, check=True)
+    cli_in_process("checkpoint", "verify", out, check=True)

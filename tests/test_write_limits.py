@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import one_line_error
+from support.cli import one_line_error
 
 ROOT = Path(__file__).resolve().parents[1]
 # 1 KB, 8 KB, ... 2 MB: an epoch of `quick` is 250 kB, a frame 110 kB, its GIF 400 kB

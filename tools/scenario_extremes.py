@@ -9,7 +9,7 @@ accepts never crashes `run` -- each command ends with exit 0, or exit 2 and one 
 (never a traceback, a signal, a timeout or a memory blow-up). Floats get 0, 5e-324, 1e-300,
 1e-30, 1e30, 1e300 and 1.7e308; integers 0, 1, 2^31 and 2^62.
 
-Both commands run in one long-lived worker (tests/fuzzing.py's: captured stderr, a per-call
+Both commands run in one long-lived worker (tools/fuzzlib's: captured stderr, a per-call
 timeout, RLIMIT_AS of its warm size + 4 GiB and an RSS watch); a crash kills only the worker,
 which is restarted. The worker settles beds for a few steps only (`--full-settle` settles them
 as `run` does): a settle runs the step's kernels on the scenario's values, so what would crash
@@ -22,7 +22,6 @@ Exit status 1 on any failure.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import shutil
@@ -44,11 +43,8 @@ SHORT_SETTLE_STEPS = 20
 
 
 def _fuzzing():
-    spec = importlib.util.spec_from_file_location("fuzzing", ROOT / "tests" / "fuzzing.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["fuzzing"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    import fuzzlib   # beside this file (tools/ is the script's directory)
+    return fuzzlib
 
 
 def numeric_keys(sc) -> list[tuple[str, type]]:
@@ -92,14 +88,13 @@ def survey(scenarios, only_keys=None, full_settle=False, steps=STEPS) -> dict:
     if not full_settle:
         env["OOC_DEM_EXTREMES_SHORT_SETTLE"] = "1"
     os.environ.update(env)
-    # the worker is this script (--worker): fuzzing's worker with the short settle patched in
-    fz.__file__ = __file__
     # a run of each scenario on a bed of its own compiles the settle's and the run's kernels
     # (minutes for 3D) before the first case: else the first cases would time out on it
     run_args = (*RUN_ARGS, "--steps", str(steps))
     warm = [(["run", name, "--set", "soil.seed=1", *run_args, "--out", str(work / f"warm-{name}")], str(work))
             for name in scenarios]
-    worker = fz.Worker(warmup=warm, mem_bound=MEM_BOUND, errlog=work / "worker.err")
+    # the worker is this script (--worker): fuzzlib's worker with the short settle patched in
+    worker = fz.Worker(warmup=warm, mem_bound=MEM_BOUND, errlog=work / "worker.err", script=Path(__file__).resolve())
     todo = cases(scenarios, only_keys)
     counts = {"cases": len(todo), "check_refused": 0, "check_accepted": 0, "run_ok": 0, "run_refused": 0,
               "failures": 0, "worker_restarts": 0, "retried": 0}
@@ -165,7 +160,8 @@ def _worker() -> int:
     if os.environ.get("OOC_DEM_EXTREMES_SHORT_SETTLE"):
         import ooc_dem.app.bed
         ooc_dem.app.bed.settle = _short_settle
-    return _fuzzing()._worker_main()
+    from fuzzlib.worker import _worker_main
+    return _worker_main()
 
 
 def main(argv=None) -> int:

@@ -38,6 +38,7 @@ StateError (a ValueError), EngineError, BedError, RunFileError (a ValueError).
 Names are imported on first use, so ``import ooc_dem`` stays cheap. The full reference is
 docs/api.md in the repository (generated from these docstrings by tools/gen_api_docs.py).
 """
+
 __version__ = "0.1.0"
 
 # An ooc-dem process lives on a few arrays of one value per particle, made and freed
@@ -76,8 +77,10 @@ def __getattr__(name):
     if mod is None:
         raise AttributeError(f"module 'ooc_dem' has no attribute {name!r}")
     import importlib
-    value = getattr(importlib.import_module(mod, __name__) if mod.startswith(".")
-                    else importlib.import_module(mod), name)
+
+    value = getattr(
+        importlib.import_module(mod, __name__) if mod.startswith(".") else importlib.import_module(mod), name
+    )
     globals()[name] = value
     return value
 

@@ -9,6 +9,7 @@ validators), so a scenario, a run option or a store is accepted or refused exact
 Progress bars are off unless asked for (``progress=True``); figures are not drawn unless
 asked for (``figures=True``; ``ooc-dem report RUN`` draws them later).
 """
+
 from __future__ import annotations
 
 import numbers
@@ -40,6 +41,7 @@ def _override_items(overrides: Mapping[Any, object], prefix: str = "") -> Iterat
     range-checked by the same code as ``--set``.
     """
     from .model.schema import ScenarioError, show, toml_string
+
     for key, value in overrides.items():
         if not isinstance(key, str):
             raise ScenarioError(f"overrides key {show(key)}: must be a string such as 'wheel.slip'")
@@ -54,7 +56,7 @@ def _override_items(overrides: Mapping[Any, object], prefix: str = "") -> Iterat
         elif isinstance(value, numbers.Integral):
             text = str(int(value))
         elif isinstance(value, numbers.Real):
-            text = repr(float(value))   # inf and nan are TOML too: refused as "must be finite"
+            text = repr(float(value))  # inf and nan are TOML too: refused as "must be finite"
         elif isinstance(value, str):
             text = toml_string(value)
         else:
@@ -62,8 +64,9 @@ def _override_items(overrides: Mapping[Any, object], prefix: str = "") -> Iterat
         yield f"{full}={text}"
 
 
-def load_scenario(name_or_path: str | os.PathLike[str],
-                  overrides: Mapping[str, object] | Iterable[str] | None = None) -> Scenario:
+def load_scenario(
+    name_or_path: str | os.PathLike[str], overrides: Mapping[str, object] | Iterable[str] | None = None
+) -> Scenario:
     """Load and validate a scenario: a built-in name or the path of a TOML file.
 
     Parameters
@@ -87,13 +90,15 @@ def load_scenario(name_or_path: str | os.PathLike[str],
         message is one line naming the key, the value and what is allowed.
     """
     from .model.scenario import ScenarioError, load_scenario as _load
+
     if overrides is None:
         items = []
     elif isinstance(overrides, Mapping):
         items = list(_override_items(overrides))
     elif isinstance(overrides, (str, bytes)):
-        raise ScenarioError("overrides: must be a mapping such as {'wheel.slip': 0.3} or a list of "
-                            "'section.key=value' strings")
+        raise ScenarioError(
+            "overrides: must be a mapping such as {'wheel.slip': 0.3} or a list of 'section.key=value' strings"
+        )
     else:
         items = list(overrides)
         if not all(isinstance(i, str) for i in items):
@@ -103,19 +108,23 @@ def load_scenario(name_or_path: str | os.PathLike[str],
         return _load(source, items)
     except ScenarioError as e:
         msg = str(e)
-        if msg.startswith("--set "):   # the same message, naming this function's parameter
-            raise ScenarioError("override " + msg[len("--set "):]) from None
+        if msg.startswith("--set "):  # the same message, naming this function's parameter
+            raise ScenarioError("override " + msg[len("--set ") :]) from None
         raise
 
 
-def _scenario(scenario: Scenario | str | os.PathLike[str],
-              overrides: Mapping[str, object] | Iterable[str] | None) -> Scenario:
+def _scenario(
+    scenario: Scenario | str | os.PathLike[str], overrides: Mapping[str, object] | Iterable[str] | None
+) -> Scenario:
     from .model.scenario import Scenario
+
     if isinstance(scenario, Scenario):
         if overrides:
             from .model.scenario import ScenarioError
-            raise ScenarioError("overrides: give them to load_scenario(); run() takes them only "
-                                "with a scenario name or file")
+
+            raise ScenarioError(
+                "overrides: give them to load_scenario(); run() takes them only with a scenario name or file"
+            )
         return scenario
     return load_scenario(scenario, overrides)
 
@@ -152,8 +161,9 @@ class RunResult:
         Raises RunFileError if the run has no (valid) summary (not finished)."""
         if self._summary is None:
             from .app.runfiles import RunFileError, read_summary
+
             summary = read_summary(self.path)
-            if summary is None:   # read_summary raises for a finished run's missing summary
+            if summary is None:  # read_summary raises for a finished run's missing summary
                 raise RunFileError(f"{self.path}: no summary.json (not a finished ooc-dem run)")
             self._summary = summary
         return self._summary
@@ -170,6 +180,7 @@ class RunResult:
             import numpy as np
             from .app.metrics import SERIES_COLUMNS
             from .app.runfiles import read_series, run_file
+
             f = run_file(self.path, "series.csv")
             cols = read_series(f) if f is not None else {c: np.zeros(0) for c in SERIES_COLUMNS}
             names = list(cols)
@@ -185,9 +196,11 @@ class RunResult:
         try:
             import pandas as pd
         except ImportError:
-            raise ImportError("RunResult.series_frame() / to_pandas() needs pandas "
-                              "(pip install pandas); RunResult.series is the same table as a "
-                              "NumPy structured array") from None
+            raise ImportError(
+                "RunResult.series_frame() / to_pandas() needs pandas "
+                "(pip install pandas); RunResult.series is the same table as a "
+                "NumPy structured array"
+            ) from None
         return pd.DataFrame.from_records(self.series)
 
     to_pandas = series_frame
@@ -212,6 +225,7 @@ class RunResult:
             (a ``RunFileError``).
         """
         from .app.trajectory import Trajectory
+
         return Trajectory.of_run(self.path)
 
     def epochs(self) -> list[int]:
@@ -243,6 +257,7 @@ class RunResult:
             The epoch's checksums pass but it holds a state this engine could not have written.
         """
         from .model.checkpoint import read_epoch_particles
+
         with open_store(self.path) as store:
             particles, _, _ = read_epoch_particles(store, str(self.path), epoch)
         return dict(particles.arrays())
@@ -251,12 +266,24 @@ class RunResult:
 # ----------------------------------------------------------------------- runs
 
 
-def run(scenario: Scenario | str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
-        mode: str = "monolithic", domains: int | None = None, block: int | None = None,
-        backend: str = "hdf5", steps: int | None = None, duration: float | None = None,
-        progress: bool = False, *, overrides: Mapping[str, object] | Iterable[str] | None = None,
-        checkpoint_every: int | None = None, durable: bool = False, figures: bool = False,
-        bed: str | os.PathLike[str] | None = None, compression: str | None = None) -> RunResult:
+def run(
+    scenario: Scenario | str | os.PathLike[str],
+    out: str | os.PathLike[str] | None = None,
+    mode: str = "monolithic",
+    domains: int | None = None,
+    block: int | None = None,
+    backend: str = "hdf5",
+    steps: int | None = None,
+    duration: float | None = None,
+    progress: bool = False,
+    *,
+    overrides: Mapping[str, object] | Iterable[str] | None = None,
+    checkpoint_every: int | None = None,
+    durable: bool = False,
+    figures: bool = False,
+    bed: str | os.PathLike[str] | None = None,
+    compression: str | None = None,
+) -> RunResult:
     """Run a scenario to the end, as ``ooc-dem run`` does, and return its ``RunResult``.
 
     Parameters
@@ -305,34 +332,52 @@ def run(scenario: Scenario | str | os.PathLike[str], out: str | os.PathLike[str]
     """
     from .app.plan import RunOptions
     from .app.run import Simulation
+
     if steps is not None and duration is not None:
         from .app.plan import RunError
+
         raise RunError("steps and duration: give one of them, not both")
     sc = _scenario(scenario, overrides)
     out = Path(out) if out is not None else Path("runs") / sc.name
-    opts = RunOptions(mode=mode, backend=backend, domains=domains, block=block, steps=steps,
-                      duration=duration, checkpoint_every=checkpoint_every, durable=durable,
-                      progress=progress, figures=figures, compression=compression)
-    sim = Simulation(sc, out, opts)   # plans and checks everything before a file is written
+    opts = RunOptions(
+        mode=mode,
+        backend=backend,
+        domains=domains,
+        block=block,
+        steps=steps,
+        duration=duration,
+        checkpoint_every=checkpoint_every,
+        durable=durable,
+        progress=progress,
+        figures=figures,
+        compression=compression,
+    )
+    sim = Simulation(sc, out, opts)  # plans and checks everything before a file is written
     prepared = None
     if bed is not None:
         from .app.cli_commands import load_bed
         from .app.cli_parser import CliError
         from .app.plan import RunError
+
         try:
             prepared = load_bed(bed, sc)
-        except CliError as e:   # the CLI's checks of a prepared bed, raised as a RunError
+        except CliError as e:  # the CLI's checks of a prepared bed, raised as a RunError
             raise RunError(str(e).replace("--bed ", "bed ", 1)) from None
     try:
         sim.start(prepared, streamed=True)
         sim.run()
     finally:
-        sim.close()   # the write lock is released whatever happened
+        sim.close()  # the write lock is released whatever happened
     return RunResult(out)
 
 
-def resume(path: str | os.PathLike[str], steps: int | None = None, until: float | None = None,
-           progress: bool = False, figures: bool = False) -> RunResult:
+def resume(
+    path: str | os.PathLike[str],
+    steps: int | None = None,
+    until: float | None = None,
+    progress: bool = False,
+    figures: bool = False,
+) -> RunResult:
     """Continue a killed (or finished) run from its last committed epoch, as ``ooc-dem resume``.
 
     The resumed run ends with the same bits as one that was never interrupted.
@@ -359,6 +404,7 @@ def resume(path: str | os.PathLike[str], steps: int | None = None, until: float 
     """
     from .app.plan import RunError
     from .app.run import resume_simulation
+
     if steps is not None and until is not None:
         raise RunError("steps and until: give one of them, not both")
     sim = resume_simulation(path, steps=steps, until=until, progress=progress, figures=figures)
@@ -379,6 +425,7 @@ def open_run(path: str | os.PathLike[str]) -> RunResult:
     p = Path(path)
     if not p.is_dir():
         from .app.runfiles import RunFileError
+
         raise RunFileError(f"{p}: not a directory")
     return RunResult(p)
 
@@ -394,4 +441,5 @@ def open_store(path: str | os.PathLike[str]) -> Store:
     Raises StoreError if ``path`` is not an ooc-dem store (one line naming the problem).
     """
     from ooc_dem.storage import open_store as _open
+
     return _open(path, repair=False)

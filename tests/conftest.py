@@ -1,5 +1,6 @@
 """Shared fixtures: small scenarios, a finished base run, a small file system. The helpers the
 tests import live in tests/support (on the path through pyproject's pytest `pythonpath`)."""
+
 import shutil
 import subprocess
 
@@ -30,8 +31,19 @@ def base_run(tmp_path_factory):
     """A finished wheel run (hdf5, monolithic) with a current and a previous epoch (the
     untrusted-state tests edit copies of it: ``run_copy``)."""
     out = tmp_path_factory.mktemp("base") / "run"
-    run_cli("run", "quick", "--out", out, "--steps", BASE_RUN_STEPS,
-            "--checkpoint-every", BASE_RUN_CKPT, "--no-progress", *sum((["--set", s] for s in WHEEL_TEST), []), check=True)
+    run_cli(
+        "run",
+        "quick",
+        "--out",
+        out,
+        "--steps",
+        BASE_RUN_STEPS,
+        "--checkpoint-every",
+        BASE_RUN_CKPT,
+        "--no-progress",
+        *sum((["--set", s] for s in WHEEL_TEST), []),
+        check=True,
+    )
     return out
 
 
@@ -51,10 +63,12 @@ def small_fs(tmp_path):
     def mount(size: str):
         mnt = tmp_path / f"fs{len(mounted)}"
         mnt.mkdir()
-        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], check=True,
-                       capture_output=True)
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], check=True, capture_output=True
+        )
         mounted.append(mnt)
         return mnt
+
     yield mount
     for mnt in mounted:
         subprocess.run(["umount", "-l", str(mnt)], capture_output=True)

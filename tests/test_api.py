@@ -1,5 +1,6 @@
 """The Python API (`import ooc_dem`): the README's example run for real, overrides checked as
 `--set` is, resume equal to an uninterrupted run, typed errors, read-only stores, docs kept current."""
+
 import json
 import os
 import re
@@ -43,8 +44,9 @@ def test_readme_example_runs(tmp_path):
     code = readme_example()
     assert len(code.strip().splitlines()) <= 10, "the notebook example should stay ten lines"
     t0 = time.time()
-    cp = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=_env(), capture_output=True,
-                        text=True, timeout=600)
+    cp = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=600
+    )
     wall = time.time() - t0
     assert cp.returncode == 0, cp.stderr[-3000:]
     assert cp.stderr.strip() == "", f"the API printed on stderr (progress bar?): {cp.stderr[-2000:]}"
@@ -57,8 +59,8 @@ def test_readme_example_runs(tmp_path):
     run_dir = tmp_path / "runs" / "quick-short"
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["slip"]["whole_travel"]["value"] == pytest.approx(slip, rel=1e-12)
-    assert "(1500,)" in out   # every state array has one row per disc
-    assert "9 trajectory frames" in out   # t = 0, 0.05, ..., 0.4 s
+    assert "(1500,)" in out  # every state array has one row per disc
+    assert "9 trajectory frames" in out  # t = 0, 0.05, ..., 0.4 s
     print(f"README example: {wall:.1f} s")
 
 
@@ -86,14 +88,24 @@ def test_version_one_source():
 
 
 def test_import_is_cheap_and_help_is_useful():
-    code = ("import sys, pydoc, ooc_dem\n"
-            "heavy = [m for m in ('numpy', 'numba', 'h5py', 'zarr', 'matplotlib') if m in sys.modules]\n"
-            "assert not heavy, heavy\n"
-            "print(pydoc.render_doc(ooc_dem, renderer=pydoc.plaintext))\n")
+    code = (
+        "import sys, pydoc, ooc_dem\n"
+        "heavy = [m for m in ('numpy', 'numba', 'h5py', 'zarr', 'matplotlib') if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+        "print(pydoc.render_doc(ooc_dem, renderer=pydoc.plaintext))\n"
+    )
     cp = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True, timeout=300)
     assert cp.returncode == 0, cp.stderr[-2000:]
-    for name in ("load_scenario", "run(", "resume(", "open_store", "RunResult", "state(self, epoch",
-                 "ScenarioError", "StoreError"):
+    for name in (
+        "load_scenario",
+        "run(",
+        "resume(",
+        "open_store",
+        "RunResult",
+        "state(self, epoch",
+        "ScenarioError",
+        "StoreError",
+    ):
         assert name in cp.stdout, name
 
 
@@ -121,25 +133,45 @@ def test_api_docs_match_docstrings():
 
 
 def test_override_forms_agree():
-    flat = ooc_dem.load_scenario("quick", {"wheel.slip": 0.3, "contact.soil_soil.kn": 1.5e5,
-                                           "wheel.control": "slip", "wheel.n_lugs": 12,
-                                           "wheel.enabled": True})
-    nested = ooc_dem.load_scenario("quick", {"wheel": {"slip": 0.3, "control": "slip", "n_lugs": 12,
-                                                       "enabled": True},
-                                             "contact": {"soil_soil": {"kn": 1.5e5}}})
-    cli = ooc_dem.load_scenario("quick", ["wheel.slip=0.3", "contact.soil_soil.kn=1.5e5",
-                                          "wheel.control=slip", "wheel.n_lugs=12"])
+    flat = ooc_dem.load_scenario(
+        "quick",
+        {
+            "wheel.slip": 0.3,
+            "contact.soil_soil.kn": 1.5e5,
+            "wheel.control": "slip",
+            "wheel.n_lugs": 12,
+            "wheel.enabled": True,
+        },
+    )
+    nested = ooc_dem.load_scenario(
+        "quick",
+        {
+            "wheel": {"slip": 0.3, "control": "slip", "n_lugs": 12, "enabled": True},
+            "contact": {"soil_soil": {"kn": 1.5e5}},
+        },
+    )
+    cli = ooc_dem.load_scenario(
+        "quick", ["wheel.slip=0.3", "contact.soil_soil.kn=1.5e5", "wheel.control=slip", "wheel.n_lugs=12"]
+    )
     assert flat == nested == cli
     assert flat.wheel.slip == 0.3 and flat.contact.soil_soil.kn == 1.5e5 and flat.wheel.n_lugs == 12
-    assert ooc_dem.load_scenario(Path(ROOT / "ooc_dem" / "scenarios" / "quick.toml")).hash() == \
-        ooc_dem.load_scenario("quick").hash()
+    assert (
+        ooc_dem.load_scenario(Path(ROOT / "ooc_dem" / "scenarios" / "quick.toml")).hash()
+        == ooc_dem.load_scenario("quick").hash()
+    )
     assert ooc_dem.load_scenario("quick", {"soil.seed": np.int64(3)}).soil.seed == 3
 
 
 # the same value through --set and through overrides: the same one-line message
-SAME_AS_CLI = [("wheel.slip", 2.0, "2.0"), ("physics.dt", 1e-3, "1e-3"), ("soil.n", 12.5, "12.5"),
-               ("wheel.control", "teleport", "teleport"), ("soil.colour", 3, "3"),
-               ("physics.dt", "fast", "fast"), ("contact.soil_wall.friction", -0.2, "-0.2")]
+SAME_AS_CLI = [
+    ("wheel.slip", 2.0, "2.0"),
+    ("physics.dt", 1e-3, "1e-3"),
+    ("soil.n", 12.5, "12.5"),
+    ("wheel.control", "teleport", "teleport"),
+    ("soil.colour", 3, "3"),
+    ("physics.dt", "fast", "fast"),
+    ("contact.soil_wall.friction", -0.2, "-0.2"),
+]
 
 
 @pytest.mark.parametrize("key,value,text", SAME_AS_CLI, ids=[k for k, _, _ in SAME_AS_CLI])
@@ -153,18 +185,21 @@ def test_override_errors_match_cli(key, value, text):
     assert cp.stderr.strip() == f"ooc-dem: error: {msg}"
 
 
-@pytest.mark.parametrize("overrides,needle", [
-    ({"wheel.slip=1": 2}, "wheel.slip=1"),
-    ({"wheel": 3}, "wheel"),
-    ({"physicsdt": 1}, "physicsdt"),
-    ({"wheel.slip": [0.1]}, "wheel.slip"),
-    ({"wheel.slip": None}, "wheel.slip"),
-    ({"physics.dt": float("nan")}, "physics.dt"),
-    ({"physics.dt": float("inf")}, "physics.dt"),
-    ({3: 1}, "3"),
-    ("wheel.slip=0.3", "overrides"),
-    (["wheel.slip"], "wheel.slip"),
-])
+@pytest.mark.parametrize(
+    "overrides,needle",
+    [
+        ({"wheel.slip=1": 2}, "wheel.slip=1"),
+        ({"wheel": 3}, "wheel"),
+        ({"physicsdt": 1}, "physicsdt"),
+        ({"wheel.slip": [0.1]}, "wheel.slip"),
+        ({"wheel.slip": None}, "wheel.slip"),
+        ({"physics.dt": float("nan")}, "physics.dt"),
+        ({"physics.dt": float("inf")}, "physics.dt"),
+        ({3: 1}, "3"),
+        ("wheel.slip=0.3", "overrides"),
+        (["wheel.slip"], "wheel.slip"),
+    ],
+)
 def test_override_refusals_are_one_line(overrides, needle):
     with pytest.raises(ooc_dem.ScenarioError) as ei:
         ooc_dem.load_scenario("quick", overrides)
@@ -204,14 +239,14 @@ def test_run_result(short_run):
     assert reread.summary == res.summary
     for c in res.series.dtype.names:
         assert np.array_equal(reread.series[c], res.series[c], equal_nan=True), c
-    assert not (res.path / "figures").exists()   # figures only when asked for
+    assert not (res.path / "figures").exists()  # figures only when asked for
 
 
 def test_state_of_missing_epoch_raises(short_run):
     with pytest.raises(ooc_dem.StoreError, match=r"epoch 12345 is not in the manifest"):
         short_run.state(12345)
     with pytest.raises(ooc_dem.StoreError):
-        ooc_dem.open_run(short_run.path.parent).state()   # not a store
+        ooc_dem.open_run(short_run.path.parent).state()  # not a store
 
 
 def test_series_frame(short_run, monkeypatch):
@@ -219,14 +254,17 @@ def test_series_frame(short_run, monkeypatch):
     df = short_run.to_pandas()
     assert list(df.columns) == list(short_run.series.dtype.names) and len(df) == len(short_run.series)
     assert np.array_equal(df["t"].to_numpy(), short_run.series["t"])
-    monkeypatch.setitem(sys.modules, "pandas", None)   # as if pandas were not installed
+    monkeypatch.setitem(sys.modules, "pandas", None)  # as if pandas were not installed
     with pytest.raises(ImportError, match=r"pip install pandas"):
         short_run.to_pandas()
 
 
 def _tree(path: Path) -> dict:
-    return {str(p.relative_to(path)): (p.stat().st_size, p.stat().st_mtime_ns)
-            for p in sorted(path.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(path)): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in sorted(path.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_open_store_is_read_only(short_run):
@@ -243,7 +281,8 @@ def test_open_store_is_read_only(short_run):
             store.prune(1)
         after = _tree(short_run.path)
         from ooc_dem.storage import open_store as open_for_writing
-        writer = open_for_writing(short_run.path, repair=True)   # no lock held by the reader
+
+        writer = open_for_writing(short_run.path, repair=True)  # no lock held by the reader
         writer.close()
     assert after == before
     with pytest.raises(ooc_dem.StoreError):
@@ -252,8 +291,9 @@ def test_open_store_is_read_only(short_run):
 
 def test_resume_of_stopped_run_equals_uninterrupted(tmp_path):
     whole = ooc_dem.run("quick", out=tmp_path / "whole", overrides=SHORT, steps=4000, checkpoint_every=1000)
-    part = ooc_dem.run("quick", out=tmp_path / "part", mode="ddm", domains=3, overrides=SHORT, steps=1500,
-                       checkpoint_every=1000)
+    part = ooc_dem.run(
+        "quick", out=tmp_path / "part", mode="ddm", domains=3, overrides=SHORT, steps=1500, checkpoint_every=1000
+    )
     assert part.summary["steps"] == 1500
     resumed = ooc_dem.resume(part.path, steps=4000)
     assert resumed.summary["steps"] == 4000
@@ -264,7 +304,7 @@ def test_resume_of_stopped_run_equals_uninterrupted(tmp_path):
     assert whole.summary["state_hash"] == resumed.summary["state_hash"]
     for c in whole.series.dtype.names:
         assert np.array_equal(whole.series[c], resumed.series[c], equal_nan=True), c
-    again = ooc_dem.resume(part.path)   # finished: nothing to do, the same result
+    again = ooc_dem.resume(part.path)  # finished: nothing to do, the same result
     assert again.summary["state_hash"] == whole.summary["state_hash"]
 
 
@@ -296,6 +336,7 @@ def test_memory_backend_and_bare_bed(tmp_path):
     st = res.state()
     assert np.array_equal(st["id"], np.arange(1000))
     from ooc_dem.storage import drop_memory_store
+
     drop_memory_store(res.path)
 
 

@@ -1,6 +1,7 @@
 """`ooc-dem checkpoint`: export (XDMF + HDF5, VTK, CSV), list, prune and verify; corrupt stores and
 a full disk handled through the CLI: fall back to the previous epoch and finish with the same bits,
 or stop with one line (exit 2) - never resume from wrong data."""
+
 import os
 import resource
 import shutil
@@ -26,10 +27,28 @@ OOC = ["--mode", "ooc", "--domains", "3", "--block", "10"]
 
 
 def _run(out, *extra, scenario="bed-1200", steps=STEPS, ckpt=CKPT, **kw):
-    return subprocess.run([sys.executable, "-m", "ooc_dem.cli", "run", scenario, "--out", str(out),
-                           "--steps", str(steps), "--checkpoint-every", str(ckpt), "--no-progress",
-                           "--no-figures", *map(str, extra)], capture_output=True, text=True,
-                          timeout=600, **kw)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ooc_dem.cli",
+            "run",
+            scenario,
+            "--out",
+            str(out),
+            "--steps",
+            str(steps),
+            "--checkpoint-every",
+            str(ckpt),
+            "--no-progress",
+            "--no-figures",
+            *map(str, extra),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        **kw,
+    )
 
 
 def _hash(store):
@@ -38,8 +57,7 @@ def _hash(store):
 
 def _column(p, k):
     """The exported column k of p: the vectors' columns by axis (x, y, vx, vy, w), else the field."""
-    cols = {"x": p.pos[:, AX_X], "y": p.pos[:, AX_Y], "vx": p.vel[:, AX_X], "vy": p.vel[:, AX_Y],
-            "w": p.spin[:, SP_Z]}
+    cols = {"x": p.pos[:, AX_X], "y": p.pos[:, AX_Y], "vx": p.vel[:, AX_X], "vy": p.vel[:, AX_Y], "w": p.spin[:, SP_Z]}
     return cols[k] if k in cols else getattr(p, k)
 
 
@@ -47,6 +65,7 @@ def _epoch_data(store, step=None):
     """(Particles sorted by id, wheel_state, step) straight from the store."""
     from ooc_dem.app.run import read_all_particles
     from ooc_dem.storage import open_store
+
     with open_store(store, repair=False) as st:
         r = st.read_epoch(step)
         assert not st.warnings, st.warnings
@@ -58,6 +77,7 @@ def _epoch_data(store, step=None):
 
 def _current_path(store):
     import json
+
     m = json.loads((Path(store) / "MANIFEST.json").read_text())
     return Path(store) / m["current"]["path"], m
 
@@ -87,6 +107,7 @@ def pristine(tmp_path_factory):
             assert cp.returncode == 0, cp.stderr
             made[backend] = out
         return made[backend]
+
     return get
 
 
@@ -100,6 +121,7 @@ def wheel_store(tmp_path_factory):
 
 
 # ------------------------------------------------------------------ export
+
 
 def test_export_xdmf(pristine, tmp_path):
     store = pristine("hdf5")
@@ -143,11 +165,12 @@ def test_export_xdmf(pristine, tmp_path):
 
 def test_export_xdmf_read_by_meshio(pristine, tmp_path):
     meshio = pytest.importorskip(
-        "meshio", reason="meshio is not installed (pip install meshio): third-party XDMF read-back skipped")
+        "meshio", reason="meshio is not installed (pip install meshio): third-party XDMF read-back skipped"
+    )
     store = pristine("zarr")
     p, _, _ = _epoch_data(store)
     out = tmp_path / "snap.xdmf"
-    cli_in_process("checkpoint", "export", store, "--out", out, check=True)   # format from the suffix
+    cli_in_process("checkpoint", "export", store, "--out", out, check=True)  # format from the suffix
     # meshio 5.3 refuses Grid-centred attributes ("Unknown center 'Grid'") - the XDMF way to
     # give field data, read by ParaView/VTK; the rest of the file is read as written
     tree = ET.parse(out)
@@ -173,7 +196,7 @@ def test_export_csv_round_trip(wheel_store, tmp_path):
     comments = [ln for ln in lines if ln.startswith("#")]
     rows = [ln for ln in lines if not ln.startswith("#")]
     wheel = next(ln for ln in comments if ln.startswith("# wheel_state "))
-    vals = dict(kv.split("=") for kv in wheel[len("# wheel_state "):].split(","))
+    vals = dict(kv.split("=") for kv in wheel[len("# wheel_state ") :].split(","))
     assert [float(vals[k]) for k in ("x", "y", "vx", "vy", "theta", "wz")] == list(ws)
     assert any(f"step={step}" in ln for ln in comments)
     header = rows[0].split(",")
@@ -192,7 +215,7 @@ def _vtk_legacy_points(path):
     lines = path.read_text().splitlines()
     i = next(k for k, ln in enumerate(lines) if ln.startswith("POINTS "))
     n = int(lines[i].split()[1])
-    return np.array([[float(v) for v in ln.split()] for ln in lines[i + 1:i + 1 + n]]), lines
+    return np.array([[float(v) for v in ln.split()] for ln in lines[i + 1 : i + 1 + n]]), lines
 
 
 def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
@@ -203,7 +226,9 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
     cli_in_process("checkpoint", "export", store, "--format", "vtk", "--out", vtp, "--epoch", step, check=True)
     pts, lines = _vtk_legacy_points(vtk)
     assert lines[0].startswith("# vtk DataFile") and "DATASET POLYDATA" in lines
-    assert np.array_equal(pts[:, 0], p.pos[:, AX_X]) and np.array_equal(pts[:, 1], p.pos[:, AX_Y]) and not pts[:, 2].any()
+    assert (
+        np.array_equal(pts[:, 0], p.pos[:, AX_X]) and np.array_equal(pts[:, 1], p.pos[:, AX_Y]) and not pts[:, 2].any()
+    )
     assert f"VERTICES {len(p)} {2 * len(p)}" in lines
     assert lines[lines.index("wheel_x 1 1 double") + 1] == repr(float(ws[0]))
     piece = ET.parse(vtp).getroot().find("PolyData/Piece")
@@ -213,7 +238,7 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
     assert np.array_equal(np.array(radius.text.split(), float), p.r)
     field = {a.get("Name"): a.text for a in ET.parse(vtp).getroot().find("PolyData/FieldData")}
     assert int(field["step"]) == step and float(field["wheel_theta"]) == ws[4]
-    try:   # VTK itself, when installed (ParaView's readers)
+    try:  # VTK itself, when installed (ParaView's readers)
         from vtkmodules.util.numpy_support import vtk_to_numpy
         from vtkmodules.vtkIOLegacy import vtkPolyDataReader
         from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
@@ -229,16 +254,20 @@ def test_export_vtk_legacy_and_xml(wheel_store, tmp_path):
 def test_export_bad_arguments(reference, tmp_path):
     store, _ = reference
     one_line_error(cli_in_process("checkpoint", "export", store, "--out", tmp_path / "snap.dat"), "--format")
-    one_line_error(cli_in_process("checkpoint", "export", store, "--format", "xdmf", "--out", tmp_path / "s.h5"),
-                   "s.h5")
-    one_line_error(cli_in_process("checkpoint", "export", store, "--out", tmp_path / "s.csv", "--epoch", "7"),
-                    "epoch 7")
-    one_line_error(cli_in_process("checkpoint", "export", store, "--out", tmp_path / "nodir" / "s.csv"),
-                    "does not exist")
+    one_line_error(
+        cli_in_process("checkpoint", "export", store, "--format", "xdmf", "--out", tmp_path / "s.h5"), "s.h5"
+    )
+    one_line_error(
+        cli_in_process("checkpoint", "export", store, "--out", tmp_path / "s.csv", "--epoch", "7"), "epoch 7"
+    )
+    one_line_error(
+        cli_in_process("checkpoint", "export", store, "--out", tmp_path / "nodir" / "s.csv"), "does not exist"
+    )
     assert not list(tmp_path.iterdir())
 
 
 # ------------------------------------------------------------------ list, prune
+
 
 def test_list_and_prune(pristine, tmp_path):
     store = tmp_path / "run"
@@ -268,11 +297,12 @@ def test_prune_refuses_to_drop_the_fallback_of_a_damaged_epoch(pristine, tmp_pat
     before = _tree(store)
     one_line_error(cli_in_process("checkpoint", "prune", store, "--keep", "1"), "refusing to prune", "120")
     assert _tree(store) == before
-    cp = cli_in_process("checkpoint", "list", store, check=True)   # list still works on a damaged store
+    cp = cli_in_process("checkpoint", "list", store, check=True)  # list still works on a damaged store
     assert "(previous)" in cp.stdout and "(current)" in cp.stdout
 
 
 # ------------------------------------------------------------------ corruption
+
 
 def _flip_byte(path, where=0.5):
     size = os.path.getsize(path)
@@ -328,7 +358,7 @@ def corrupt(store, backend, kind):
             shutil.rmtree(cur / "domains" / "d0001")
     elif kind == "delete_manifest":
         os.unlink(Path(store) / "MANIFEST.json")
-    elif kind == "stray_tmp":   # left by a killed writer (pid 123, or another pid that is not running)
+    elif kind == "stray_tmp":  # left by a killed writer (pid 123, or another pid that is not running)
         pid = 123 if not _running(123) else _dead_pid()
         e = Path(store) / "epochs"
         (e / f"e000000000130.{'h5' if backend == 'hdf5' else 'zarr'}.tmp-{pid}").write_bytes(b"\0" * 999)
@@ -344,8 +374,12 @@ def corrupt(store, backend, kind):
 
 
 KINDS = ["truncate", "flip", "delete_group", "delete_manifest", "stray_tmp", "both_epochs"]
-PROBLEM = {"truncate": "truncated", "flip": "xxh3_128 mismatch", "delete_group": None,
-           "both_epochs": "xxh3_128 mismatch"}
+PROBLEM = {
+    "truncate": "truncated",
+    "flip": "xxh3_128 mismatch",
+    "delete_group": None,
+    "both_epochs": "xxh3_128 mismatch",
+}
 
 
 @pytest.mark.parametrize("backend", ["hdf5", "zarr"])
@@ -374,12 +408,13 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
             assert any(PROBLEM[kind] in ln for ln in fails), cp.stdout
         if kind == "delete_group":
             assert any("d0001" in ln for ln in fails), cp.stdout
-        one_line_error(cp, "problem(s) found", "no intact epoch" if kind == "both_epochs"
-                        else "falls back to epoch 110")
+        one_line_error(
+            cp, "problem(s) found", "no intact epoch" if kind == "both_epochs" else "falls back to epoch 110"
+        )
 
     before = _tree(store)
     cp = run_cli("resume", store, "--no-progress", "--no-figures")
-    if kind == "delete_manifest":        # nothing names an intact epoch: stop, touch nothing
+    if kind == "delete_manifest":  # nothing names an intact epoch: stop, touch nothing
         one_line_error(cp, "MANIFEST.json")
         assert _tree(store) == before
         return
@@ -393,7 +428,7 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
         assert "already finished" in cp.stdout
         assert not [n for n in os.listdir(store / "epochs") if ".tmp-" in n]
         assert not (store / "MANIFEST.json.tmp").exists()
-    else:   # fell back to the previous epoch, said so, and recomputed the last sweep
+    else:  # fell back to the previous epoch, said so, and recomputed the last sweep
         assert "using previous epoch 110" in cp.stderr, cp.stderr
     assert _hash(store) == ref_hash
     cp = cli_in_process("checkpoint", "verify", store)
@@ -405,13 +440,14 @@ def test_corrupt_store_verify_and_resume(reference, pristine, tmp_path, backend,
 # the quick rig with one series row per step: the wheel's series is part of every epoch, so an
 # epoch grows by one row (104 bytes) per step and a file-size limit can fall between two epochs
 FULL = ["--set", "output.series_interval=1e-5"]
-FULL_STEPS, FULL_CKPT = 600, 150        # epochs grow by ~15.6 kB from one to the next
+FULL_STEPS, FULL_CKPT = 600, 150  # epochs grow by ~15.6 kB from one to the next
 
 
 def _limit_file_size(nbytes):
     def set_limit():
         resource.setrlimit(resource.RLIMIT_FSIZE, (nbytes, nbytes))
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)   # EFBIG, not death by signal
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG, not death by signal
+
     return set_limit
 
 
@@ -428,8 +464,7 @@ def test_full_disk_stops_cleanly_and_resumes(tmp_path):
     limit = size_prev - 1024
 
     out = tmp_path / "run"
-    cp = _run(out, *FULL, scenario="quick", steps=FULL_STEPS, ckpt=FULL_CKPT,
-              preexec_fn=_limit_file_size(limit))
+    cp = _run(out, *FULL, scenario="quick", steps=FULL_STEPS, ckpt=FULL_CKPT, preexec_fn=_limit_file_size(limit))
     one_line_error(cp, "disk full or file too large")
     _, m = _current_path(out)
     assert 0 < m["current"]["step"] < FULL_STEPS, m["current"]["step"]

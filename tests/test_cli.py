@@ -1,4 +1,5 @@
 """CLI behaviour: bad input is one line on stderr, exit code 2, no traceback."""
+
 import json
 
 import pytest
@@ -43,7 +44,7 @@ def test_bad_scenario_file(tmp_path):
     cp = cli_in_process("run", bad)
     assert cp.returncode == 2 and "invalid TOML" in cp.stderr and len(cp.stderr.strip().splitlines()) == 1
     wrong = tmp_path / "wrong.toml"
-    wrong.write_text("[physics]\ndt = \"soon\"\n")
+    wrong.write_text('[physics]\ndt = "soon"\n')
     cp = cli_in_process("run", wrong)
     assert cp.returncode == 2 and "physics.dt" in cp.stderr
 

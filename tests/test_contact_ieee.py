@@ -7,6 +7,7 @@ the 2D law and the 3D Hertz and linear laws (with rolling resistance): random co
 new, sticking and sliding springs — evaluated compiled in this process and interpreted
 (``NUMBA_DISABLE_JIT=1``) in a subprocess, compared with ``np.array_equal``.
 """
+
 import os
 import subprocess
 import sys
@@ -23,10 +24,12 @@ def _table(law):
     """A material pair's CONTACT_PARAMS record (attribute access in both modes)."""
     if law == "2d":
         from ooc_dem.physics.d2 import layout as L
+
         tab = np.zeros(1, L.CONTACT_PARAMS)
         tab[0] = (2.0e5, 2.0e5 / 3.0, 0.7, 0.5, 0.5, 0.1, 0.3)
         return np.rec.array(tab)[0]
     from ooc_dem.physics.d3 import layout as L3
+
     if law == "3d-hertz":
         params = L3.hertz_params(1.0e8, 0.3, 0.5, mu=0.5, mur=0.1, zr=0.3)
     else:
@@ -49,17 +52,42 @@ def _inputs(law):
     meff = ma * mb / (ma + mb)
     ieff = 0.4 * meff * reff * reff
     delta = rng.uniform(1e-7, 5e-5, N)
-    scale = 10.0 ** rng.uniform(-6, 1.5, (N, 1))   # springs from 1 uN to 30 N: sticking and sliding
-    scale[::7] = 0.0                       # new contacts
+    scale = 10.0 ** rng.uniform(-6, 1.5, (N, 1))  # springs from 1 uN to 30 N: sticking and sliding
+    scale[::7] = 0.0  # new contacts
     dt = np.full(N, 1e-5)
     if dim == 2:
-        cols = [n[:, 0], n[:, 1], delta, *(0.05 * rng.normal(size=(2, N))), *(5.0 * rng.normal(size=(2, N))),
-                ra, rb, meff, ieff, reff, (scale * rng.normal(size=(N, 1)))[:, 0],
-                (1e-3 * scale * rng.normal(size=(N, 1)))[:, 0], dt]
+        cols = [
+            n[:, 0],
+            n[:, 1],
+            delta,
+            *(0.05 * rng.normal(size=(2, N))),
+            *(5.0 * rng.normal(size=(2, N))),
+            ra,
+            rb,
+            meff,
+            ieff,
+            reff,
+            (scale * rng.normal(size=(N, 1)))[:, 0],
+            (1e-3 * scale * rng.normal(size=(N, 1)))[:, 0],
+            dt,
+        ]
     else:
-        cols = [n[:, 0], n[:, 1], n[:, 2], delta, *(0.05 * rng.normal(size=(3, N))),
-                *(5.0 * rng.normal(size=(6, N))), ra, rb, meff, ieff, reff,
-                *(scale * rng.normal(size=(N, 3))).T, *(1e-3 * scale * rng.normal(size=(N, 3))).T, dt]
+        cols = [
+            n[:, 0],
+            n[:, 1],
+            n[:, 2],
+            delta,
+            *(0.05 * rng.normal(size=(3, N))),
+            *(5.0 * rng.normal(size=(6, N))),
+            ra,
+            rb,
+            meff,
+            ieff,
+            reff,
+            *(scale * rng.normal(size=(N, 3))).T,
+            *(1e-3 * scale * rng.normal(size=(N, 3))).T,
+            dt,
+        ]
     return np.column_stack(cols)
 
 
@@ -77,11 +105,12 @@ def evaluate(law):
 def _interpreted(tmp_path):
     """The same contacts through the interpreter (numba's JIT off) in a fresh process."""
     out = tmp_path / "interpreted.npz"
-    code = ("import sys, numpy as np; sys.path.insert(0, sys.argv[1]); import test_contact_ieee as t; "
-            "np.savez(sys.argv[2], **{law: t.evaluate(law) for law in t.LAWS})")
+    code = (
+        "import sys, numpy as np; sys.path.insert(0, sys.argv[1]); import test_contact_ieee as t; "
+        "np.savez(sys.argv[2], **{law: t.evaluate(law) for law in t.LAWS})"
+    )
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent), str(out)], check=True,
-                   env=env, timeout=600)
+    subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent), str(out)], check=True, env=env, timeout=600)
     return np.load(out)
 
 
@@ -97,4 +126,5 @@ def test_compiled_law_gives_the_interpreters_bits(law, interpreted):
     assert compiled.shape == want.shape and np.isfinite(want).all()
     assert np.array_equal(compiled, want), (
         f"{law}: {int((compiled != want).any(axis=1).sum())} of {len(want)} contacts differ "
-        "between the compiled law and its interpreted source (a non-IEEE compile)")
+        "between the compiled law and its interpreted source (a non-IEEE compile)"
+    )

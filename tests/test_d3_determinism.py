@@ -1,6 +1,7 @@
 """docs/design.md section 3 for the 3D kernels: a random 3D settle gives bit-identical state
 with 1 and 2 numba threads, and whatever the memory order of the spheres (ids fixed)
 -- what makes serial DDM and out-of-core exact later."""
+
 import os
 import subprocess
 import sys
@@ -29,9 +30,12 @@ def settle_setup(seed=7):
     vel = rng.normal(0.0, 1.0, pos.shape)
     spin = rng.normal(0.0, 50.0, pos.shape)
     s = S.make_spheres(pos, r, density=2600.0, vel=vel, spin=spin, hist_cap=16)
-    cp = L.contact_table({
-        (L.T_SOIL, L.T_SOIL): L.hertz_params(1e7, 0.3, 0.5, mu=0.5, mur=0.05, zr=0.2, E2=1e7, nu2=0.3),
-        (L.T_WALL, L.T_SOIL): L.linear_params(5e3, 2e3, 0.3, 0.3, 0.4, 0.05, 0.2)})
+    cp = L.contact_table(
+        {
+            (L.T_SOIL, L.T_SOIL): L.hertz_params(1e7, 0.3, 0.5, mu=0.5, mur=0.05, zr=0.2, E2=1e7, nu2=0.3),
+            (L.T_WALL, L.T_SOIL): L.linear_params(5e3, 2e3, 0.3, 0.3, 0.4, 0.05, 0.2),
+        }
+    )
     walls = L.walls_record(28 * sp, 14 * sp)
     return s, cp, walls
 
@@ -39,7 +43,7 @@ def settle_setup(seed=7):
 def run(spheres, cp, walls, steps=STEPS):
     sim = S.Sim(spheres, cp, walls, 2e-6, gravity=(0.0, -9.81, 0.0))
     sim.advance(steps // 2)
-    sim.advance(steps - steps // 2)      # two blocks: the block length changes nothing
+    sim.advance(steps - steps // 2)  # two blocks: the block length changes nothing
     return sim
 
 
@@ -62,16 +66,17 @@ def assert_same(a, b):
 
 def _one_thread_in_subprocess(tmp_path):
     out = tmp_path / "one.npz"
-    code = (f"import sys; sys.path.insert(0, {HERE!r})\n"
-            "import numba, numpy as np, test_d3_determinism as T\n"
-            "assert numba.get_num_threads() == 1\n"
-            "s, cp, w = T.settle_setup()\n"
-            "sim = T.run(s, cp, w)\n"
-            f"np.savez({str(out)!r}, rebuilds=sim.rebuilds, **T.canonical(s))\n")
+    code = (
+        f"import sys; sys.path.insert(0, {HERE!r})\n"
+        "import numba, numpy as np, test_d3_determinism as T\n"
+        "assert numba.get_num_threads() == 1\n"
+        "s, cp, w = T.settle_setup()\n"
+        "sim = T.run(s, cp, w)\n"
+        f"np.savez({str(out)!r}, rebuilds=sim.rebuilds, **T.canonical(s))\n"
+    )
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
     env["PYTHONPATH"] = os.pathsep.join(p for p in (os.path.dirname(HERE), env.get("PYTHONPATH")) if p)
-    cp = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                        timeout=600, check=False)
+    cp = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600, check=False)
     assert cp.returncode == 0, cp.stderr[-3000:]
     with np.load(out) as f:
         return {k: f[k] for k in f.files if k != "rebuilds"}, int(f["rebuilds"])
@@ -83,7 +88,8 @@ def test_threads_and_memory_order_bit_identical(tmp_path, monkeypatch):
     NUMBA_NUM_THREADS=1), a random permutation of the memory order, and the spatial
     reorder (both on 1 thread in-process)."""
     import numba
-    monkeypatch.setattr(S, "SERIAL_BELOW", 0)    # the parallel path even when small
+
+    monkeypatch.setattr(S, "SERIAL_BELOW", 0)  # the parallel path even when small
     s, cp, w = settle_setup()
     n = len(s)
     assert n > 3000
@@ -117,5 +123,7 @@ def test_threads_and_memory_order_bit_identical(tmp_path, monkeypatch):
     one, rebuilds = _one_thread_in_subprocess(tmp_path)
     assert rebuilds == sim.rebuilds
     assert_same(ref, one)
-    print(f"determinism: {n} spheres, {STEPS} steps, {sim.rebuilds} rebuilds, mean contacts "
-          f"{s.hist_n.mean():.2f}, {threads} vs 1 threads and permuted: identical")
+    print(
+        f"determinism: {n} spheres, {STEPS} steps, {sim.rebuilds} rebuilds, mean contacts "
+        f"{s.hist_n.mean():.2f}, {threads} vs 1 threads and permuted: identical"
+    )

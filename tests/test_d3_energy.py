@@ -1,4 +1,5 @@
 """Energy of an undamped, frictionless box of spheres (validation-3d.md section 7)."""
+
 import math
 
 import numpy as np
@@ -15,21 +16,22 @@ BOXL = 0.1
 def _potential(pos, r, law, k):
     """Elastic energy of every overlap at positions pos: Hertz (8/15) E* sqrt(R*) d^(5/2)
     (k = (E*_pair, E*_wall)), linear kn d^2 / 2 (k = (kn, kn))."""
+
     def en(d, estar, rstar):
         if law == "hertz":
-            return 8 / 15 * estar * np.sqrt(rstar) * d ** 2.5
+            return 8 / 15 * estar * np.sqrt(rstar) * d**2.5
         return 0.5 * estar * d * d
+
     u = 0.0
     diff = pos[:, None, :] - pos[None, :, :]
-    dist = np.sqrt((diff ** 2).sum(-1))
+    dist = np.sqrt((diff**2).sum(-1))
     iu = np.triu_indices(len(pos), 1)
     d = (r[:, None] + r[None, :])[iu] - dist[iu]
     rs = (r[:, None] * r[None, :] / (r[:, None] + r[None, :]))[iu]
     on = d > 0
     u += en(d[on], k[0], rs[on]).sum()
     # walls: floor y = 0, x = 0 / BOXL, z = 0 / BOXL (the box has no lid)
-    for dw in (r - pos[:, 1], r - pos[:, 0], r - (BOXL - pos[:, 0]), r - pos[:, 2],
-               r - (BOXL - pos[:, 2])):
+    for dw in (r - pos[:, 1], r - pos[:, 0], r - (BOXL - pos[:, 0]), r - pos[:, 2], r - (BOXL - pos[:, 2])):
         u += en(dw[dw > 0], k[1], r[dw > 0]).sum()
     return u
 
@@ -45,8 +47,7 @@ def _run(law, gravity, nsteps=100_000, every=100, seed=3):
     m_min = s.mass.min()
     vmax = 2 * np.abs(vel).max() * math.sqrt(3)
     if law == "hertz":
-        cp = L.contact_table({(0, 0): L.hertz_params(E, NU, 1.0, E2=E, nu2=NU),
-                              (1, 0): L.hertz_params(E, NU, 1.0)})
+        cp = L.contact_table({(0, 0): L.hertz_params(E, NU, 1.0, E2=E, nu2=NU), (1, 0): L.hertz_params(E, NU, 1.0)})
         k = (cp[0, 0]["estar"], cp[1, 0]["estar"])
         tc = hertz_duration(m_min / 2, r.min() / 2, k[0], vmax)
         dt = tc / 50
@@ -65,10 +66,10 @@ def _run(law, gravity, nsteps=100_000, every=100, seed=3):
     for _ in range(nsteps // every):
         sim.advance(every - 1)
         v0 = s.vel.copy()
-        x = s.pos.copy()                 # x_n
+        x = s.pos.copy()  # x_n
         sim.advance(1)
-        v = 0.5 * (v0 + s.vel)           # v_n
-        ke = 0.5 * (s.mass[:, None] * v * v).sum() + 0.5 * (s.inertia[:, None] * s.spin ** 2).sum()
+        v = 0.5 * (v0 + s.vel)  # v_n
+        ke = 0.5 * (s.mass[:, None] * v * v).sum() + 0.5 * (s.inertia[:, None] * s.spin**2).sum()
         energy.append(ke + _potential(x, s.r, law, k) - (s.mass[:, None] * x * gvec).sum())
     return np.array(energy), sim
 
@@ -84,8 +85,10 @@ def test_energy_bounded_no_drift(law, gravity):
     t = np.arange(len(e))
     drift = np.polyfit(t, e / e[0], 1)[0] * len(e)
     collisions = sim.rebuilds
-    print(f"energy {law} g={gravity}: max rel err {rel.max():.2e}, drift over run {drift:+.2e}, "
-          f"{collisions} list rebuilds")
-    assert collisions > 50          # the spheres really moved about
+    print(
+        f"energy {law} g={gravity}: max rel err {rel.max():.2e}, drift over run {drift:+.2e}, "
+        f"{collisions} list rebuilds"
+    )
+    assert collisions > 50  # the spheres really moved about
     assert rel.max() < 1e-4
     assert abs(drift) < 5e-5

@@ -1,6 +1,7 @@
 """3D friction: oblique impacts (validation-3d.md section 4), a sphere on an incline
 (section 5, gravity tilted instead of the wall), rolling resistance (section 5) and
 the tangential history under rigid rotation (section 6)."""
+
 import math
 
 import numpy as np
@@ -19,13 +20,12 @@ def oblique(cp, vn, vt, w, phi=0.7, steps=400, dt=None):
     """Sphere hitting the floor with normal speed vn, tangential speed vt along
     u = (cos phi, 0, sin phi) (a 3D direction) and spin w about u x y (so the
     contact-point slip is vc = vt + w R). Returns (e_n, vt', w', velocity, spin, u, axis)."""
-    m = RHO_AL * 4 / 3 * math.pi * R_AL ** 3
+    m = RHO_AL * 4 / 3 * math.pi * R_AL**3
     if dt is None:
-        dt = hertz_duration(m, R_AL, E_AL / (1 - NU_AL ** 2), vn) / steps
+        dt = hertz_duration(m, R_AL, E_AL / (1 - NU_AL**2), vn) / steps
     u = np.array([math.cos(phi), 0.0, math.sin(phi)])
     ax = np.cross(u, Y)
-    s = make_spheres([[0.5, R_AL + 2 * vn * dt, 0.5]], R_AL, density=RHO_AL,
-                     vel=[vt * u - vn * Y], spin=[w * ax])
+    s = make_spheres([[0.5, R_AL + 2 * vn * dt, 0.5]], R_AL, density=RHO_AL, vel=[vt * u - vn * Y], spin=[w * ax])
     sim = Sim(s, cp, BOX, dt, gravity=(0, 0, 0))
     sim.advance(steps // 4)
     while s.hist_n[0] > 0 or s.pos[0, 1] < R_AL:
@@ -39,8 +39,7 @@ MU, E_N = 0.3, 0.8
 # the force is clamped at zero (no_tension): rigid-body impulse theory has no tensile
 # normal impulse (with the damping allowed to pull, the compressive impulse that limits
 # friction exceeds m (1 + e) vn by ~0.5 % at e = 0.8, and J_t with it)
-HM = L.contact_table({(L.T_WALL, L.T_SOIL): L.hertz_params(E_AL, NU_AL, E_N, mu=MU,
-                                                            no_tension=True)})
+HM = L.contact_table({(L.T_WALL, L.T_SOIL): L.hertz_params(E_AL, NU_AL, E_N, mu=MU, no_tension=True)})
 
 
 def _gross(vn, vt, w, en, mu=MU):
@@ -48,8 +47,9 @@ def _gross(vn, vt, w, en, mu=MU):
     return vt - mu * (1 + en) * vn * sg, w - 2.5 / R_AL * mu * (1 + en) * vn * sg
 
 
-@pytest.mark.parametrize("case", [(5.0, 1.25, 0.0), (5.0, 3.0, 0.0), (5.0, 1.5, -400.0),
-                                  (3.9, 2.0, 300.0), (5.0, -2.0, 0.0)])
+@pytest.mark.parametrize(
+    "case", [(5.0, 1.25, 0.0), (5.0, 3.0, 0.0), (5.0, 1.5, -400.0), (3.9, 2.0, 300.0), (5.0, -2.0, 0.0)]
+)
 def test_oblique_gross_sliding(case):
     """Hertz-Mindlin (alumina, e = 0.8, mu = 0.3): in the gross-sliding regime
     (|vc| = psi (7/2) mu (1 + e) vn with psi >= 1.25, with and against an initial spin,
@@ -61,28 +61,28 @@ def test_oblique_gross_sliding(case):
     vt = vc - w * R_AL
     en, vt2, w2, v, sp, u, ax = oblique(HM, vn, vt, w)
     vt_th, w_th = _gross(vn, vt, w, en)
-    assert abs(en - E_N) < 0.05 * E_N   # clamped: e_n = 0.82
+    assert abs(en - E_N) < 0.05 * E_N  # clamped: e_n = 0.82
     assert abs(vt2 - vt_th) < 0.01 * abs(vt_th), (vt2, vt_th)
     assert abs(w2 - w_th) < 0.01 * abs(w_th), (w2, w_th)
     assert np.linalg.norm(v - (v @ u) * u - v[1] * Y) < 1e-9 * vn
     assert np.linalg.norm(sp - (sp @ ax) * ax) < 1e-9 * abs(w_th)
-    print(f"gross sliding vn={vn} psi={psi} w={w}: vt' {vt2:.4f} vs {vt_th:.4f} "
-          f"({vt2 / vt_th - 1:+.2e}), w' {w2:.2f} vs {w_th:.2f} ({w2 / w_th - 1:+.2e})")
+    print(
+        f"gross sliding vn={vn} psi={psi} w={w}: vt' {vt2:.4f} vs {vt_th:.4f} "
+        f"({vt2 / vt_th - 1:+.2e}), w' {w2:.2f} vs {w_th:.2f} ({w2 / w_th - 1:+.2e})"
+    )
 
 
 def test_oblique_gross_sliding_linear_law():
     """The same with the linear law (tangential spring ks = kn/2, zn from e = 0.8,
     mu = 0.3): vt', w' within 1 %."""
     kn = 1e7
-    cp = L.contact_table({(L.T_WALL, L.T_SOIL): L.linear_params(
-        kn, 0.5 * kn, L.zeta_of_restitution(E_N), 0.1, MU)})
-    m = RHO_AL * 4 / 3 * math.pi * R_AL ** 3
+    cp = L.contact_table({(L.T_WALL, L.T_SOIL): L.linear_params(kn, 0.5 * kn, L.zeta_of_restitution(E_N), 0.1, MU)})
+    m = RHO_AL * 4 / 3 * math.pi * R_AL**3
     dt = math.pi * math.sqrt(m / kn) / 400
     vn, vt = 2.0, 6.0
     en, vt2, w2, *_ = oblique(cp, vn, vt, 0.0, dt=dt)
     vt_th, w_th = _gross(vn, vt, 0.0, en)
-    assert abs(vt2 - vt_th) < 0.01 * abs(vt_th) and abs(w2 - w_th) < 0.01 * abs(w_th), \
-        (vt2, vt_th, w2, w_th)
+    assert abs(vt2 - vt_th) < 0.01 * abs(vt_th) and abs(w2 - w_th) < 0.01 * abs(w_th), (vt2, vt_th, w2, w_th)
     print(f"linear gross sliding: vt' err {vt2 / vt_th - 1:+.2e}, w' err {w2 / w_th - 1:+.2e}")
 
 
@@ -118,12 +118,10 @@ def _incline(theta_deg, mu, mur=0.0, v0=0.0, steps=20000, dt=1e-5, g=9.81):
     static overlap. Returns (t, x, spin_z) sampled every 100 steps."""
     r, rho, kn = 0.01, 2500.0, 1e5
     th = math.radians(theta_deg)
-    m = rho * 4 / 3 * math.pi * r ** 3
-    cp = L.contact_table({(L.T_WALL, L.T_SOIL): L.linear_params(kn, 0.2 * kn, 0.3, 0.3, mu, mur,
-                                                                 0.3)})
+    m = rho * 4 / 3 * math.pi * r**3
+    cp = L.contact_table({(L.T_WALL, L.T_SOIL): L.linear_params(kn, 0.2 * kn, 0.3, 0.3, mu, mur, 0.3)})
     d0 = m * g * math.cos(th) / kn
-    s = make_spheres([[0.1, r - d0, 0.5]], r, density=rho, vel=[[v0, 0, 0]],
-                     spin=[[0, 0, -v0 / r]])
+    s = make_spheres([[0.1, r - d0, 0.5]], r, density=rho, vel=[[v0, 0, 0]], spin=[[0, 0, -v0 / r]])
     sim = Sim(s, cp, L.walls_record(100.0, 1.0), dt, gravity=(g * math.sin(th), -g * math.cos(th), 0))
     t, x, w = [], [], []
     for _ in range(steps // 100):
@@ -131,7 +129,7 @@ def _incline(theta_deg, mu, mur=0.0, v0=0.0, steps=20000, dt=1e-5, g=9.81):
         t.append(sim.step * dt)
         x.append(s.pos[0, 0])
         w.append(s.spin[0, 2])
-        assert s.hist_n[0] == 1    # stays on the floor
+        assert s.hist_n[0] == 1  # stays on the floor
     return np.array(t), np.array(x), np.array(w), r
 
 
@@ -158,8 +156,10 @@ def test_incline_rolling_or_sliding(theta, mu):
         ath, alth = g * (math.sin(th) - mu * math.cos(th)), 2.5 * mu * g * math.cos(th) / r
     assert abs(a / ath - 1) < 0.01, (a, ath, rolls)
     assert abs(alpha / alth - 1) < 0.01, (alpha, alth, rolls)
-    print(f"incline {theta} deg mu={mu} ({'rolls' if rolls else 'slides'}): a err {a / ath - 1:+.2e}, "
-          f"alpha err {alpha / alth - 1:+.2e}")
+    print(
+        f"incline {theta} deg mu={mu} ({'rolls' if rolls else 'slides'}): a err {a / ath - 1:+.2e}, "
+        f"alpha err {alpha / alth - 1:+.2e}"
+    )
 
 
 def test_rolling_resistance_deceleration():
@@ -198,13 +198,14 @@ def test_history_under_rigid_rotation(axis):
     t0 = np.cross(n0, [0.0, 0.0, 1.0])
     t0 /= np.linalg.norm(t0)
     fs, ms = 0.3 * 0.5 * kn * delta, 0.3 * 0.1 * r / 2 * kn * delta
-    for i in range(2):        # both partners hold identical copies (canonical: a's frame)
+    for i in range(2):  # both partners hold identical copies (canonical: a's frame)
         s.hist_n[i] = 1
         s.hist_id[i, 0] = 1 - i
         s.hist_s[i, 0] = fs * t0
         s.hist_m[i, 0] = ms * np.cross(n0, t0)
-    sim = Sim(s, cp, L.walls_record(1.0, 1.0, False, False, False, False, False), 1e-14,
-              gravity=(0, 0, 0), keep_forces=True)
+    sim = Sim(
+        s, cp, L.walls_record(1.0, 1.0, False, False, False, False, False), 1e-14, gravity=(0, 0, 0), keep_forces=True
+    )
     step = _rotation(axis, 0.01)
     rot = np.eye(3)
     for k in range(300):
@@ -227,5 +228,7 @@ def test_history_under_rigid_rotation(axis):
     # the projection transports the spring parallel along the path of n (LAMMPS): it
     # keeps |Ft| but not the pair frame's twist, so its direction differs from R t0
     # by the path's holonomy (information only)
-    print(f"rigid rotation about {axis}: |Ft|/Fs - 1 = {np.linalg.norm(ft) / fs - 1:+.1e}, "
-          f"spring vs R t0: {np.degrees(math.acos(min(1, st @ (rot @ t0) / fs))):.1f} deg")
+    print(
+        f"rigid rotation about {axis}: |Ft|/Fs - 1 = {np.linalg.norm(ft) / fs - 1:+.1e}, "
+        f"spring vs R t0: {np.degrees(math.acos(min(1, st @ (rot @ t0) / fs))):.1f} deg"
+    )

@@ -4,6 +4,7 @@ compiler turns into SIMD code. The per-pair arithmetic must stay contact.contact
 output of a block is compared, with np.array_equal, to the scalar law on the same pair
 (the code the walls and the wheel use), for both laws, a mixed block, both row layouts,
 new, sticking and sliding contacts, with and without the no-tension clamp."""
+
 from __future__ import annotations
 
 import platform
@@ -16,16 +17,18 @@ from ooc_dem.physics.d3 import forces as F
 from ooc_dem.physics.d3 import layout as L
 from ooc_dem.physics.d3.contact import contact
 
-LINEAR, HERTZ = 0, 1   # the sphere types of the test's contact table
+LINEAR, HERTZ = 0, 1  # the sphere types of the test's contact table
 
 
 def _table():
     """Sphere types 0 and 1: 0-0 linear, 1-1 and 0-1 Hertz (with rolling resistance)."""
-    return L.contact_table({
-        (LINEAR, LINEAR): L.linear_params(5e4, 1.6e4, 0.3, 0.3, 0.5, 0.05, 0.2),
-        (HERTZ, HERTZ): L.hertz_params(1e8, 0.3, 0.5, mu=0.4, mur=0.1, zr=0.3, E2=1e8, nu2=0.3),
-        (LINEAR, HERTZ): L.hertz_params(1e8, 0.3, 0.5, mu=0.4, mur=0.1, zr=0.3, E2=1e8, nu2=0.3,
-                                        no_tension=True)})
+    return L.contact_table(
+        {
+            (LINEAR, LINEAR): L.linear_params(5e4, 1.6e4, 0.3, 0.3, 0.5, 0.05, 0.2),
+            (HERTZ, HERTZ): L.hertz_params(1e8, 0.3, 0.5, mu=0.4, mur=0.1, zr=0.3, E2=1e8, nu2=0.3),
+            (LINEAR, HERTZ): L.hertz_params(1e8, 0.3, 0.5, mu=0.4, mur=0.1, zr=0.3, E2=1e8, nu2=0.3, no_tension=True),
+        }
+    )
 
 
 def _pairs(k, types_a, types_b, seed):
@@ -36,7 +39,7 @@ def _pairs(k, types_a, types_b, seed):
     args[L.LawIn.rb] = rng.uniform(2e-3, 3e-3, k)
     n = rng.normal(size=(k, 3))
     n /= np.linalg.norm(n, axis=1)[:, None]
-    dist = args[L.LawIn.ra] + args[L.LawIn.rb] - rng.uniform(1e-7, 2e-4, k)   # overlapping
+    dist = args[L.LawIn.ra] + args[L.LawIn.rb] - rng.uniform(1e-7, 2e-4, k)  # overlapping
     args[L.LawIn.dx], args[L.LawIn.dy], args[L.LawIn.dz] = (n * dist[:, None]).T
     for f in (L.LawIn.vrx, L.LawIn.vry, L.LawIn.vrz):
         args[f] = rng.normal(0.0, 0.05, k)
@@ -98,11 +101,33 @@ def _one_by_one(args, ta, tb, cp, dt):
         dd = np.sqrt(d2)
         nx, ny, nz = dx / dd, dy / dd, dz / dd
         (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
-            cp[ta[t], tb[t]], nx, ny, nz, rs - dd, a[L.LawIn.vrx], a[L.LawIn.vry],
-            a[L.LawIn.vrz], a[L.LawIn.wax], a[L.LawIn.way], a[L.LawIn.waz], a[L.LawIn.wbx],
-            a[L.LawIn.wby], a[L.LawIn.wbz], ri, rb, mi * mb / (mi + mb), ii * ib / (ii + ib),
-            ri * rb / (ri + rb), a[L.LawIn.s_x], a[L.LawIn.s_y], a[L.LawIn.s_z],
-            a[L.LawIn.m_x], a[L.LawIn.m_y], a[L.LawIn.m_z], dt)
+            cp[ta[t], tb[t]],
+            nx,
+            ny,
+            nz,
+            rs - dd,
+            a[L.LawIn.vrx],
+            a[L.LawIn.vry],
+            a[L.LawIn.vrz],
+            a[L.LawIn.wax],
+            a[L.LawIn.way],
+            a[L.LawIn.waz],
+            a[L.LawIn.wbx],
+            a[L.LawIn.wby],
+            a[L.LawIn.wbz],
+            ri,
+            rb,
+            mi * mb / (mi + mb),
+            ii * ib / (ii + ib),
+            ri * rb / (ri + rb),
+            a[L.LawIn.s_x],
+            a[L.LawIn.s_y],
+            a[L.LawIn.s_z],
+            a[L.LawIn.m_x],
+            a[L.LawIn.m_y],
+            a[L.LawIn.m_z],
+            dt,
+        )
         out[L.LawOut.bx, t] = fn * nx - ftx
         out[L.LawOut.by, t] = fn * ny - fty
         out[L.LawOut.bz, t] = fn * nz - ftz
@@ -129,9 +154,12 @@ ROLLING_FIELDS = ("mox", "moy", "moz", "mx", "my", "mz")
 @pytest.mark.parametrize("blocks", ["linear", "hertz", "hertz-2", "mixed"])
 @pytest.mark.parametrize("layout", ["rolling", "sliding"])
 def test_block_law_gives_the_bits_of_the_pair_law(blocks, layout):
-    types_a, types_b = {"linear": ([LINEAR], [LINEAR]), "hertz": ([HERTZ], [HERTZ]),
-                        "hertz-2": ([HERTZ], [HERTZ, LINEAR]),
-                        "mixed": ([LINEAR, HERTZ], [LINEAR, HERTZ])}[blocks]
+    types_a, types_b = {
+        "linear": ([LINEAR], [LINEAR]),
+        "hertz": ([HERTZ], [HERTZ]),
+        "hertz-2": ([HERTZ], [HERTZ, LINEAR]),
+        "mixed": ([LINEAR, HERTZ], [LINEAR, HERTZ]),
+    }[blocks]
     args, ta, tb = _pairs(700, types_a, types_b, seed=len(blocks) + len(layout))
     cp = _table()
     dt = 2e-6
@@ -144,12 +172,12 @@ def test_block_law_gives_the_bits_of_the_pair_law(blocks, layout):
     s_out = np.sqrt(got[L.LawOut.sx] ** 2 + got[L.LawOut.sy] ** 2 + got[L.LawOut.sz] ** 2)
     assert (s_in == 0).sum() > 50 and (s_out < 0.5 * s_in).sum() > 50
     laws = _table()["law"][ta, tb]
-    assert len(np.unique(laws[:F.LAW_BLOCK])) == (2 if blocks == "mixed" else 1)
-    several = len(np.unique((ta * L.N_TYPES + tb)[:F.LAW_BLOCK])) > 1
+    assert len(np.unique(laws[: F.LAW_BLOCK])) == (2 if blocks == "mixed" else 1)
+    several = len(np.unique((ta * L.N_TYPES + tb)[: F.LAW_BLOCK])) > 1
     assert several == (blocks not in ("linear", "hertz"))
     for f in L.LawOut:
         if layout == "sliding" and f.name in ROLLING_FIELDS:
-            continue   # not computed for a layout without rolling parts (never read)
+            continue  # not computed for a layout without rolling parts (never read)
         assert np.array_equal(got[f], want[f]), f"{blocks}/{layout}: {f.name} differs"
 
 
@@ -160,6 +188,10 @@ def test_block_law_compiles_to_simd():
     args, _, _ = _pairs(8, [LINEAR], [LINEAR], seed=1)
     _blocks(args, _table(), 1e-6, rows)
     asm = "".join(_blocks.inspect_asm().values())
-    packed = {"x86_64": ("vsqrtpd", "sqrtpd"), "AMD64": ("vsqrtpd", "sqrtpd"),
-              "aarch64": ("fsqrt\tv", "fsqrt\tz"), "arm64": ("fsqrt\tv",)}[platform.machine()]
+    packed = {
+        "x86_64": ("vsqrtpd", "sqrtpd"),
+        "AMD64": ("vsqrtpd", "sqrtpd"),
+        "aarch64": ("fsqrt\tv", "fsqrt\tz"),
+        "arm64": ("fsqrt\tv",),
+    }[platform.machine()]
     assert any(op in asm for op in packed), "the block law was not vectorised"

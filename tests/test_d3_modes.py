@@ -10,6 +10,7 @@ Two levels:
   SIGKILLed mid-way and resumed.
 Every comparison is ``np.array_equal`` on every state array plus the canonical hash.
 """
+
 from __future__ import annotations
 
 import os
@@ -89,7 +90,7 @@ def test_one_and_two_threads(fill, monkeypatch):
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one core")
     sc, p = fill
-    monkeypatch.setattr(stp, "SERIAL_BELOW", 0)   # the parallel path even for this bed
+    monkeypatch.setattr(stp, "SERIAL_BELOW", 0)  # the parallel path even for this bed
     assert_same_state(_monolithic(sc, p, threads=1), _monolithic(sc, p, threads=2))
 
 
@@ -108,9 +109,16 @@ def runs(tmp_path_factory):
         out[f"ddm-{d}"] = ooc_dem.run(BED, work / f"ddm{d}", mode="ddm", domains=d, steps=RUN_STEPS)
     for backend in ("hdf5", "zarr"):
         for k in (1, 10):
-            out[f"ooc-{backend}-{k}"] = ooc_dem.run(BED, work / f"ooc-{backend}-{k}", mode="ooc",
-                                                   backend=backend, domains=3, block=k,
-                                                   steps=RUN_STEPS, checkpoint_every=50)
+            out[f"ooc-{backend}-{k}"] = ooc_dem.run(
+                BED,
+                work / f"ooc-{backend}-{k}",
+                mode="ooc",
+                backend=backend,
+                domains=3,
+                block=k,
+                steps=RUN_STEPS,
+                checkpoint_every=50,
+            )
     out["_seconds"] = time.time() - t0
     return out
 
@@ -143,11 +151,30 @@ def test_sigkill_then_resume_gives_the_same_bits(runs, tmp_path):
     """ooc HDF5 K=10, checkpoint every 20 steps: killed after its first commit, resumed."""
     out = tmp_path / "killed"
     ref = runs["ooc-hdf5-10"].summary["state_hash"]
-    cmd = [sys.executable, "-m", "ooc_dem.cli", "run", BED, "--mode", "ooc", "--domains", "3",
-           "--block", "10", "--steps", str(RUN_STEPS), "--checkpoint-every", "20", "--out", str(out),
-           "--no-progress", "--no-figures"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            env=dict(os.environ), start_new_session=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "ooc_dem.cli",
+        "run",
+        BED,
+        "--mode",
+        "ooc",
+        "--domains",
+        "3",
+        "--block",
+        "10",
+        "--steps",
+        str(RUN_STEPS),
+        "--checkpoint-every",
+        "20",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-figures",
+    ]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=dict(os.environ), start_new_session=True
+    )
     deadline = time.time() + 300
     killed = False
     while time.time() < deadline and proc.poll() is None:
@@ -175,6 +202,7 @@ def test_tile_share_takes_the_division_noise_away():
     share that is not a short decimal stays the quotient."""
     from ooc_dem.model.scenario_check import tile_scenario, tile_share
     from ooc_dem.model.scenario import load_scenario
+
     assert 0.6 / 6 != 0.1 and tile_share(0.6, 6) == 0.1
     assert tile_share(8.6, 86) == 0.1 and tile_share(0.2, 2) == 0.1
     assert tile_share(1.0, 3) == 1.0 / 3

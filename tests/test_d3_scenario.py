@@ -1,5 +1,6 @@
 """3D scenarios: the new keys are validated like every other (one line naming
 the key, exit 2), the time-step check covers both contact laws, the built-ins load."""
+
 from __future__ import annotations
 
 import json
@@ -33,18 +34,21 @@ def test_every_key_of_a_3d_scenario_at_extreme_values(key, default, capsys):
         assert key in lines[0], (where, lines[0])
 
 
-@pytest.mark.parametrize("overrides,needle", [
-    (["physics.dim=4"], "physics.dim"),
-    (["contact.soil_soil.law=\"hertz\"", "physics.dim=2", "wheel.enabled=false"], "contact.soil_soil.law"),
-    (["contact.soil_wall.law=\"coulomb\""], "contact.soil_wall.law"),
-    (["wheel.enabled=true"], "wheel.z0"),          # a 0.1 m wheel across a 0.05 m bin
-    (["bin.width=0.004"], "bin.width"),
-    (["contact.soil_soil.poisson_ratio=0.5"], "contact.soil_soil.poisson_ratio"),
-    (["contact.soil_soil.restitution=0"], "contact.soil_soil.restitution"),
-    (["contact.soil_soil.youngs_modulus=1e12"], "physics.dt"),       # Hertz step check
-    (["contact.soil_wall.kn=1e9"], "contact.soil_wall"),             # linear step check
-    (["bed.tiles_across=0"], "bed.tiles_across"),
-])
+@pytest.mark.parametrize(
+    "overrides,needle",
+    [
+        (["physics.dim=4"], "physics.dim"),
+        (['contact.soil_soil.law="hertz"', "physics.dim=2", "wheel.enabled=false"], "contact.soil_soil.law"),
+        (['contact.soil_wall.law="coulomb"'], "contact.soil_wall.law"),
+        (["wheel.enabled=true"], "wheel.z0"),  # a 0.1 m wheel across a 0.05 m bin
+        (["bin.width=0.004"], "bin.width"),
+        (["contact.soil_soil.poisson_ratio=0.5"], "contact.soil_soil.poisson_ratio"),
+        (["contact.soil_soil.restitution=0"], "contact.soil_soil.restitution"),
+        (["contact.soil_soil.youngs_modulus=1e12"], "physics.dt"),  # Hertz step check
+        (["contact.soil_wall.kn=1e9"], "contact.soil_wall"),  # linear step check
+        (["bed.tiles_across=0"], "bed.tiles_across"),
+    ],
+)
 def test_bad_3d_values_are_one_line_errors(overrides, needle):
     with pytest.raises(ScenarioError) as e:
         load_scenario("bed3d", overrides)
@@ -57,13 +61,14 @@ def test_time_step_check_covers_both_laws():
     crit = critical_time_step(sc)
     assert sc.physics.dt <= crit < 1e-4
     # stiffer Hertz soil: a smaller critical step; a faster impact: smaller still
-    stiff = critical_time_step(load_scenario("bed3d", ["contact.soil_soil.youngs_modulus=1e9",
-                                                       "physics.dt=1e-6"]))
-    fast = critical_time_step(load_scenario("bed3d", ["contact.soil_soil.youngs_modulus=1e9",
-                                                      "physics.dt=1e-6", "physics.impact_speed=10"]))
+    stiff = critical_time_step(load_scenario("bed3d", ["contact.soil_soil.youngs_modulus=1e9", "physics.dt=1e-6"]))
+    fast = critical_time_step(
+        load_scenario("bed3d", ["contact.soil_soil.youngs_modulus=1e9", "physics.dt=1e-6", "physics.impact_speed=10"])
+    )
     assert fast < stiff < crit
-    lin = load_scenario("bed3d", ["contact.soil_soil.law=\"linear\"", "contact.soil_soil.kn=1e4",
-                                  "contact.soil_soil.ks=3e3"])
+    lin = load_scenario(
+        "bed3d", ['contact.soil_soil.law="linear"', "contact.soil_soil.kn=1e4", "contact.soil_soil.ks=3e3"]
+    )
     assert critical_time_step(lin) > 0
 
 

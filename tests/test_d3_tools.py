@@ -1,6 +1,7 @@
 """The checkpoint tools (list / verify / inspect / hash / prune / export) on a 3D
 store, and the exports' 3D points, radius, 3-component velocity and spin read back by
 meshio and VTK (ParaView's readers)."""
+
 from __future__ import annotations
 
 import json
@@ -19,8 +20,7 @@ from ooc_dem.model.state import Particles
 @pytest.fixture(scope="module")
 def store3d(tmp_path_factory):
     out = tmp_path_factory.mktemp("d3tools") / "run"
-    res = ooc_dem.run("bed3d", out, mode="ooc", backend="zarr", domains=3, block=5, steps=30,
-                      checkpoint_every=10)
+    res = ooc_dem.run("bed3d", out, mode="ooc", backend="zarr", domains=3, block=5, steps=30, checkpoint_every=10)
     return out, res
 
 
@@ -76,7 +76,7 @@ def test_export_xdmf_read_by_meshio(store3d, tmp_path, capsys):
     s = res.state()
     f = tmp_path / "s.xdmf"
     assert _cli(capsys, "checkpoint", "export", out, "--out", f)[0] == 0
-    tree = ET.parse(f)   # meshio 5.3 refuses Grid-centred attributes (see test_checkpoint_tool)
+    tree = ET.parse(f)  # meshio 5.3 refuses Grid-centred attributes (see test_checkpoint_tool)
     grid = tree.getroot().find("Domain/Grid")
     for a in [a for a in grid.findall("Attribute") if a.get("Center") == "Grid"]:
         grid.remove(a)
@@ -94,6 +94,7 @@ def test_export_vtk_read_by_vtk(store3d, tmp_path, capsys):
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkIOLegacy import vtkPolyDataReader
     from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
+
     out, res = store3d
     s = res.state()
     for name, reader in (("s.vtk", vtkPolyDataReader()), ("s.vtp", vtkXMLPolyDataReader())):
@@ -120,6 +121,7 @@ def test_domain_sensitivity_runs_share_the_tile_under_the_wheel(capsys):
 
     from ooc_dem.model.scenario_check import tile_grid, tile_scenario
     from ooc_dem.model.scenario import load_scenario
+
     path = Path(__file__).resolve().parents[1] / "tools" / "domain_sensitivity.py"
     spec = importlib.util.spec_from_file_location("domain_sensitivity", path)
     tool = importlib.util.module_from_spec(spec)
@@ -133,7 +135,7 @@ def test_domain_sensitivity_runs_share_the_tile_under_the_wheel(capsys):
         for name, across, along in configs:
             sc = load_scenario("paper2008-3d", tool.run_settings(base, [], seed, across, along))
             assert tile_grid(sc) == (along, across)
-            assert sc.wheel.z0 == 0.0   # mid-width: on the seam between tiles across/2 - 1 and across/2
+            assert sc.wheel.z0 == 0.0  # mid-width: on the seam between tiles across/2 - 1 and across/2
             tiles.setdefault(seed, set()).add(tile_scenario(sc).bed_hash())
     assert len(tiles[2008]) == 1 and len(tiles[2009]) == 1 and tiles[2008] != tiles[2009]
     assert tool.main(["--across", "2,4"]) == 2

@@ -1,4 +1,5 @@
 """Serial domain decomposition is bit-identical to the monolithic run (docs/design.md §3-4)."""
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -44,9 +45,18 @@ def test_bare_bed_ddm_equals_monolithic(bare_bed, domains):
 def wheel_case():
     # a fast slip-controlled wheel on the quick rig (0.32 m/s forward), so that the
     # wheel slab is redefined several times within a short run
-    sc = load_scenario("quick", ["wheel.omega=4.0", "wheel.control=slip", "wheel.slip=0.2",
-                                 "wheel.settle_time=0.01", "wheel.drop_gap=0.0",
-                                 "wheel.travel_time=0.05", "decomposition.margin=0.001"])
+    sc = load_scenario(
+        "quick",
+        [
+            "wheel.omega=4.0",
+            "wheel.control=slip",
+            "wheel.slip=0.2",
+            "wheel.settle_time=0.01",
+            "wheel.drop_gap=0.0",
+            "wheel.travel_time=0.05",
+            "decomposition.margin=0.001",
+        ],
+    )
     bed = settled_bed(sc)
     ws = place_wheel(sc, bed)
     steps = 6000
@@ -75,8 +85,7 @@ def test_persistent_subdomains_any_membership_skin(wheel_case, membership_skin, 
     skin) or never (every slab holds the whole bin) gives the monolithic bits, with
     one-step sweeps (every pair row kept between sweeps) and two-step ones."""
     sc, bed, ws, steps, (ref_p, ref_ws, ref_rec) = wheel_case
-    p, w, rec, eng = sweep_run(sc, bed, ws, steps, domains=6, block=block,
-                               membership_skin=membership_skin)
+    p, w, rec, eng = sweep_run(sc, bed, ws, steps, domains=6, block=block, membership_skin=membership_skin)
     assert_same_state(ref_p, p)
     assert np.array_equal(ref_ws, w)
     assert np.array_equal(ref_rec, rec)
@@ -88,8 +97,7 @@ def test_persistent_subdomains_any_membership_skin(wheel_case, membership_skin, 
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(cuts=st.lists(st.floats(0.0, 0.2, allow_nan=False), min_size=0, max_size=7),
-       block=st.integers(1, 4))
+@given(cuts=st.lists(st.floats(0.0, 0.2, allow_nan=False), min_size=0, max_size=7), block=st.integers(1, 4))
 def test_random_decomposition_equals_monolithic(cuts, block):
     """Slab bounds anywhere (through contacts, empty slabs, duplicate bounds) on a falling fill."""
     sc = load_scenario("quick", ["soil.n=300", "bin.length=0.2", "bin.height=0.1", "wheel.enabled=false"])
@@ -139,8 +147,10 @@ def test_compiled_sweeps_give_the_monolithic_bits(threads):
     the bits."""
     import numba
     from ooc_dem.model.state import state_hash
-    sc = load_scenario("quick", ["wheel.settle_time=0.0", "wheel.drop_gap=0.0",
-                                 "wheel.omega=5.0", "decomposition.margin=0.001"])
+
+    sc = load_scenario(
+        "quick", ["wheel.settle_time=0.0", "wheel.drop_gap=0.0", "wheel.omega=5.0", "decomposition.margin=0.001"]
+    )
     bed = settled_bed(sc)
     ws = place_wheel(sc, bed)
     before = numba.get_num_threads()
@@ -162,6 +172,7 @@ def test_one_step_sweeps_keep_rows_through_pair_rebuilds(wheel_case, monkeypatch
     from the discs' histories, which the sub-domain writes back from its own rows first.
     Forced at every sweep here (threshold 0): still the monolithic bits."""
     from ooc_dem.engine import live
+
     made = []
     init = live.LiveDomains.__init__
 
@@ -169,6 +180,7 @@ def test_one_step_sweeps_keep_rows_through_pair_rebuilds(wheel_case, monkeypatch
         init(self, *args, **kwargs)
         self._rebuild2[:] = 0.0
         made.append(self)
+
     monkeypatch.setattr(live.LiveDomains, "__init__", eager)
     sc, bed, ws, steps, (ref_p, ref_ws, ref_rec) = wheel_case
     p, w, rec, eng = sweep_run(sc, bed, ws, steps, domains=6, block=1)
@@ -186,18 +198,20 @@ def test_sweeps_after_the_first_call_go_straight_to_the_compiled_overload(bare_b
     from ooc_dem.model.decomposition import XHistogram, equal_bounds
     from ooc_dem.engine.live import LiveDomains, sweeps_kernel
     from ooc_dem.physics.layout import WS_SIZE
+
     sc, bed = bare_bed
     model = Model.from_scenario(sc)
     K, calls = 3, 4
     hop = 2.0 * sc.soil.r_max + sc.bed.skin
     bounds = equal_bounds(XHistogram.of(bed.pos[:, AX_X], sc.bin.length), 4)
-    live = LiveDomains(bed.take(np.arange(len(bed))), bounds, K * hop, hop, model, model.without_wheel(),
-                       np.zeros(WS_SIZE), -1)
+    live = LiveDomains(
+        bed.take(np.arange(len(bed))), bounds, K * hop, hop, model, model.without_wheel(), np.zeros(WS_SIZE), -1
+    )
     run = sweeps_kernel(live.steppers[0].kern)
     for c in range(calls):
         live.run_sweeps(c * K, 1, K, c > 0, -1.0)
         if c == 0:
-            assert live._entry[1] is None   # the dispatcher compiled or loaded it
+            assert live._entry[1] is None  # the dispatcher compiled or loaded it
     held, fn = live._entry
     assert held is live._domain_list() and fn is not None and fn is not run
     ref, _, _ = mono(sc, bed, None, calls * K)
@@ -213,12 +227,14 @@ def test_fresh_local_sets_refuse_a_refresh(bare_bed):
     from ooc_dem.engine.live import LiveDomains
     from ooc_dem.engine.stepper import EngineError
     from ooc_dem.physics.layout import WS_SIZE
+
     sc, bed = bare_bed
     model = Model.from_scenario(sc)
     hop = 2.0 * sc.soil.r_max + sc.bed.skin
     bounds = equal_bounds(XHistogram.of(bed.pos[:, AX_X], sc.bin.length), 3)
-    live = LiveDomains(bed.take(np.arange(len(bed))), bounds, 2 * hop, hop, model, model.without_wheel(),
-                       np.zeros(WS_SIZE), -1)
+    live = LiveDomains(
+        bed.take(np.arange(len(bed))), bounds, 2 * hop, hop, model, model.without_wheel(), np.zeros(WS_SIZE), -1
+    )
     with pytest.raises(EngineError, match="not been swept"):
         live.run_sweeps(0, 1, 2, True, -1.0)
     live.run_sweeps(0, 1, 2, False, -1.0)

@@ -1,4 +1,5 @@
 """tools/ddm_cost.py: serial DDM against monolithic at a run's last epoch."""
+
 import json
 import subprocess
 import sys
@@ -10,8 +11,7 @@ TOOL = Path(__file__).resolve().parents[1] / "tools" / "ddm_cost.py"
 
 
 def _cost(*args):
-    return subprocess.run([sys.executable, str(TOOL), *map(str, args)], capture_output=True,
-                          text=True, timeout=900)
+    return subprocess.run([sys.executable, str(TOOL), *map(str, args)], capture_output=True, text=True, timeout=900)
 
 
 def test_ddm_and_monolithic_from_one_epoch(tmp_path):

@@ -8,6 +8,7 @@ rewritten the way the old engine wrote it (``to_v1``): every epoch's domain grou
 format-1 arrays, the manifest and run meta at format_version 1 without the entries'
 ``format_version`` and the meta's ``dim``/``hist_cap``, sizes and checksums recomputed.
 """
+
 import hashlib
 import json
 import shutil
@@ -75,11 +76,35 @@ def runs(tmp_path_factory):
     """(format-2 run to STEPS, format-1 copy of a run stopped at CKPT, the format-2 hash at CKPT)."""
     root = tmp_path_factory.mktemp("v1")
     full = root / "full"
-    run_cli("run", "quick", "--out", full, "--steps", STEPS, "--checkpoint-every", CKPT,
-            "--no-progress", "--no-figures", *SETS, check=True)
+    run_cli(
+        "run",
+        "quick",
+        "--out",
+        full,
+        "--steps",
+        STEPS,
+        "--checkpoint-every",
+        CKPT,
+        "--no-progress",
+        "--no-figures",
+        *SETS,
+        check=True,
+    )
     half = root / "half"
-    run_cli("run", "quick", "--out", half, "--steps", CKPT, "--checkpoint-every", CKPT,
-            "--no-progress", "--no-figures", *SETS, check=True)
+    run_cli(
+        "run",
+        "quick",
+        "--out",
+        half,
+        "--steps",
+        CKPT,
+        "--checkpoint-every",
+        CKPT,
+        "--no-progress",
+        "--no-figures",
+        *SETS,
+        check=True,
+    )
     h_half = cli_in_process("checkpoint", "hash", half, check=True).stdout.strip()
     v1 = root / "v1"
     shutil.copytree(half, v1)
@@ -108,7 +133,7 @@ def test_v1_store_hashes_verifies_inspects_exports(runs, tmp_path):
     lines1 = out.read_text().splitlines()
     lines2 = out2.read_text().splitlines()
     assert lines1[3] == "id,x,y,vx,vy,w,r,mass,mat"
-    assert lines1[2:] == lines2[2:]   # same columns and values (line 0 names the source)
+    assert lines1[2:] == lines2[2:]  # same columns and values (line 0 names the source)
 
 
 def test_v1_store_resumes_to_the_v2_bits(runs):
@@ -117,11 +142,11 @@ def test_v1_store_resumes_to_the_v2_bits(runs):
     h_full = json.loads((full / "summary.json").read_text())["state_hash"]
     assert json.loads((v1 / "summary.json").read_text())["state_hash"] == h_full
     m = json.loads((v1 / "MANIFEST.json").read_text())
-    assert m["format_version"] == 2                       # the store moved on to format 2 ...
+    assert m["format_version"] == 2  # the store moved on to format 2 ...
     assert m["current"]["format_version"] == 2
     assert "pos" in m["current"]["domains"]["0"]["arrays"]
     if m["previous"] is not None and m["previous"]["step"] == CKPT:
-        assert m["previous"]["format_version"] == 1      # ... its format-1 epoch stays named so
+        assert m["previous"]["format_version"] == 1  # ... its format-1 epoch stays named so
     assert cli_in_process("checkpoint", "hash", v1, check=True).stdout.strip() == h_full
 
 
@@ -130,10 +155,11 @@ def test_v1_epoch_reads_rows_as_v2(runs):
     hist_s) exactly as a format-2 epoch would."""
     from ooc_dem.model.checkpoint import V1Epoch, open_epoch
     from ooc_dem.storage import open_store
+
     full, v1, _ = runs
     s1, s2 = open_store(v1, repair=False), open_store(full, repair=False)
     try:
-        r1 = open_epoch(s1, CKPT)   # format 1 (after the resume test too: the previous epoch)
+        r1 = open_epoch(s1, CKPT)  # format 1 (after the resume test too: the previous epoch)
         r2 = open_epoch(s2, CKPT)
         assert isinstance(r1, V1Epoch) and not isinstance(r2, V1Epoch)
         assert r1.domain_arrays(0) == r2.domain_arrays(0)

@@ -10,6 +10,7 @@ The cases run in one long-lived worker process (``ooc_dem.cli.main`` called in-p
 the CI slice: every strategy, a few dozen generated cases each plus every bug found by hand
 (hypothesis @example), about a minute in all; the campaigns are tools/fuzz.py's.
 """
+
 import time
 
 import fuzzlib
@@ -18,13 +19,17 @@ from fuzzlib import BUDGET
 
 pytestmark = pytest.mark.slow
 
-TIMEOUT = 10.0     # s per command in the default run (tools/fuzz.py: 20 s)
+TIMEOUT = 10.0  # s per command in the default run (tools/fuzz.py: 20 s)
 
 
 @pytest.fixture(scope="module")
 def fuzzer(tmp_path_factory):
-    fz = fuzzlib.Fuzzer(bases_dir=tmp_path_factory.mktemp("fuzz-bases"), timeout=TIMEOUT, bisect_budget_s=30,
-                        bases=fuzzlib.bases_for(fuzzlib.STRATEGY_NAMES, heavy=False))
+    fz = fuzzlib.Fuzzer(
+        bases_dir=tmp_path_factory.mktemp("fuzz-bases"),
+        timeout=TIMEOUT,
+        bisect_budget_s=30,
+        bases=fuzzlib.bases_for(fuzzlib.STRATEGY_NAMES, heavy=False),
+    )
     yield fz
     fz.close()
 
@@ -41,11 +46,16 @@ def _report(fails) -> str:
     out = [f"{len(fails)} failing case(s), {len(classes)} distinct class(es):"]
     for k, fs in sorted(classes.items()):
         f = fs[0]
-        out.append(f"- [{len(fs)}x] {k}\n    argv: {fuzzlib.short(f['argv'])}\n    base: {f['base']}"
-                   f"  edits: {str(fuzzlib.short(f['edits']))[:400]}\n    {f['detail']}"
-                   f"\n    stderr: {(f['stderr'] or '').strip()[-400:]}"
-                   + (f"\n    (crash after, in the same worker: {fuzzlib.short(f['preceded_by'])})"
-                      if f.get("preceded_by") else ""))
+        out.append(
+            f"- [{len(fs)}x] {k}\n    argv: {fuzzlib.short(f['argv'])}\n    base: {f['base']}"
+            f"  edits: {str(fuzzlib.short(f['edits']))[:400]}\n    {f['detail']}"
+            f"\n    stderr: {(f['stderr'] or '').strip()[-400:]}"
+            + (
+                f"\n    (crash after, in the same worker: {fuzzlib.short(f['preceded_by'])})"
+                if f.get("preceded_by")
+                else ""
+            )
+        )
     return "\n".join(out)
 
 
@@ -59,9 +69,11 @@ def test_fuzz(name, fuzzer, strategies, capsys):
     dt = time.monotonic() - t0
     fails = fuzzer.failures[before:]
     with capsys.disabled():
-        print(f"\nfuzz {name}: {n} cases ({len(fuzzlib.KNOWN[name])} known) in {dt:.1f} s "
-              f"({n / dt:.1f} cases/s), {len(fails)} failing"
-              + (f"; commands missing: {fuzzer.missing}" if fuzzer.missing else ""))
+        print(
+            f"\nfuzz {name}: {n} cases ({len(fuzzlib.KNOWN[name])} known) in {dt:.1f} s "
+            f"({n / dt:.1f} cases/s), {len(fails)} failing"
+            + (f"; commands missing: {fuzzer.missing}" if fuzzer.missing else "")
+        )
     assert n >= BUDGET[name], f"only {n} cases ran for {name} (budget {BUDGET[name]})"
     assert not fails, _report(fails)
 
@@ -74,10 +86,12 @@ def test_fuzz_total(fuzzer, capsys):
     before = len(fuzzer.failures)
     fuzzer.end_worker()
     assert not fuzzer.failures[before:], _report(fuzzer.failures[before:])
-    if set(fuzzer.counts) >= set(fuzzlib.STRATEGY_NAMES):   # all strategies ran in this session
+    if set(fuzzer.counts) >= set(fuzzlib.STRATEGY_NAMES):  # all strategies ran in this session
         with capsys.disabled():
             s = fuzzer.summary()
-            print(f"\nfuzz total: {s['cases']} cases in {s['elapsed_s']} s ({s['cases_per_s']} cases/s), "
-                  f"{s['failures']} failing, worker restarts {s['worker_restarts']}, "
-                  f"max peak RSS {s['max_peak_rss_mb']} MB; slowest: {'; '.join(s['slowest_cases'][:5])}")
-        assert fuzzer.n >= 300     # with the known cases
+            print(
+                f"\nfuzz total: {s['cases']} cases in {s['elapsed_s']} s ({s['cases_per_s']} cases/s), "
+                f"{s['failures']} failing, worker restarts {s['worker_restarts']}, "
+                f"max peak RSS {s['max_peak_rss_mb']} MB; slowest: {'; '.join(s['slowest_cases'][:5])}"
+            )
+        assert fuzzer.n >= 300  # with the known cases

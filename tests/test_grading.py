@@ -1,12 +1,12 @@
 """Radius distributions against their analytic moments, a sieve curve against a sieve
 analysis of the bed drawn from it, and the characteristic diameters of a known set."""
+
 import math
 
 import numpy as np
 import pytest
 
-from ooc_dem.model.grading import (Grading, characteristic_diameters, check_grading, draw_radii,
-                                   passing)
+from ooc_dem.model.grading import Grading, characteristic_diameters, check_grading, draw_radii, passing
 
 N = 200_000
 
@@ -14,11 +14,11 @@ N = 200_000
 def _truncated_normal_moments(mu, sigma, a, b):
     """Mean and standard deviation of N(mu, sigma) truncated to [a, b] (closed form)."""
     phi = lambda x: math.exp(-0.5 * x * x) / math.sqrt(2 * math.pi)  # noqa: E731
-    Phi = lambda x: 0.5 * (1 + math.erf(x / math.sqrt(2)))           # noqa: E731
+    Phi = lambda x: 0.5 * (1 + math.erf(x / math.sqrt(2)))  # noqa: E731
     al, be = (a - mu) / sigma, (b - mu) / sigma
     z = Phi(be) - Phi(al)
     mean = mu + sigma * (phi(al) - phi(be)) / z
-    var = sigma ** 2 * (1 + (al * phi(al) - be * phi(be)) / z - ((phi(al) - phi(be)) / z) ** 2)
+    var = sigma**2 * (1 + (al * phi(al) - be * phi(be)) / z - ((phi(al) - phi(be)) / z) ** 2)
     return mean, math.sqrt(var)
 
 
@@ -41,7 +41,7 @@ def test_truncated_normal_matches_its_closed_form_moments(mu, sigma, a, b):
 def test_lognormal_median_and_geometric_spread():
     # bounds 4 geometric standard deviations out: the truncation is negligible (6e-5 of the mass)
     med, gsd = 1.5e-3, 1.3
-    g = Grading("lognormal", med / gsd ** 4, med * gsd ** 4, median=med, gsd=gsd)
+    g = Grading("lognormal", med / gsd**4, med * gsd**4, median=med, gsd=gsd)
     r = draw_radii(g, N, np.random.default_rng(2), 3)
     s = math.log(gsd)
     assert abs(np.log(r).mean() - math.log(med)) < 5 * s / math.sqrt(N)
@@ -71,16 +71,19 @@ def test_characteristic_diameters_of_a_known_set():
     assert np.allclose(passing(radii, [1e-3, 5e-3, 10e-3], k=0), [10, 50, 100])
 
 
-@pytest.mark.parametrize("g,needle", [
-    (Grading("gravel", 1e-3, 2e-3), "kind"),
-    (Grading("uniform", 2e-3, 1e-3), "r_min"),
-    (Grading("normal", 1e-3, 2e-3, mean=1.5e-3, std=0.0), "std"),
-    (Grading("lognormal", 1e-3, 2e-3, median=1.5e-3, gsd=1.0), "gsd"),
-    (Grading("sieve", sieve=((1e-3, 0),)), "two"),
-    (Grading("sieve", sieve=((2e-3, 0), (1e-3, 100))), "increase"),
-    (Grading("sieve", sieve=((1e-3, 10), (2e-3, 100))), "0 to 100"),
-    (Grading("sieve", sieve=((1e-3, 0), (2e-3, 60), (3e-3, 50), (4e-3, 100))), "0 to 100"),
-])
+@pytest.mark.parametrize(
+    "g,needle",
+    [
+        (Grading("gravel", 1e-3, 2e-3), "kind"),
+        (Grading("uniform", 2e-3, 1e-3), "r_min"),
+        (Grading("normal", 1e-3, 2e-3, mean=1.5e-3, std=0.0), "std"),
+        (Grading("lognormal", 1e-3, 2e-3, median=1.5e-3, gsd=1.0), "gsd"),
+        (Grading("sieve", sieve=((1e-3, 0),)), "two"),
+        (Grading("sieve", sieve=((2e-3, 0), (1e-3, 100))), "increase"),
+        (Grading("sieve", sieve=((1e-3, 10), (2e-3, 100))), "0 to 100"),
+        (Grading("sieve", sieve=((1e-3, 0), (2e-3, 60), (3e-3, 50), (4e-3, 100))), "0 to 100"),
+    ],
+)
 def test_bad_gradings_are_named(g, needle):
     assert needle in check_grading(g)
     with pytest.raises(ValueError, match=needle):

@@ -1,6 +1,7 @@
 """The contact-history capacity is a model value: a run with a smaller capacity
 holds less RAM per disc and gives the same bits (the canonical hash pads the history to a
 content-defined width, so the capacity never enters it); a state that does not fit is refused."""
+
 import dataclasses
 
 import numpy as np
@@ -68,11 +69,12 @@ def test_a_run_resumes_with_the_capacity_it_was_written_with(tmp_path):
     with it, to the same bits as a run that never stopped."""
     from ooc_dem.app.run import Simulation, RunOptions, resume_simulation
     from ooc_dem.storage import open_store
+
     sc = load_scenario("quick", SETS)
     bed = settled_bed(sc)
     out = tmp_path / "run"
     sim = Simulation(sc, out, RunOptions(steps=300, progress=False, figures=False))
-    sim.model.hist_cap = 12          # as a run of the earlier default wrote it
+    sim.model.hist_cap = 12  # as a run of the earlier default wrote it
     sim.start(bed.with_hist_cap(12))
     sim.run()
     sim.close()

@@ -6,6 +6,7 @@ start each); real subprocesses (support.cli.run_cli) run the simulations and the
 point is the process (a bed larger than memory). The systematic sweep over every scenario key
 calls `main()` directly (hundreds of `check`s).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -23,15 +24,18 @@ from support.runs import WHEEL_TEST
 from ooc_dem import cli
 from ooc_dem.model.schema import Scenario, dict_to_toml
 
-EMOJI = "r\U0001F600n"
-MAX_STEPS = 10**10   # the documented maximum step count
+EMOJI = "r\U0001f600n"
+MAX_STEPS = 10**10  # the documented maximum step count
 
 
 def toml_string(text: str) -> str:
     """A TOML basic string (escapes only what TOML requires), to pass any text through --set."""
     special = {'"': '\\"', "\\": "\\\\"}
-    return '"' + "".join(special.get(c) or (f"\\u{ord(c):04X}" if ord(c) < 0x20 or ord(c) == 0x7F else c)
-                         for c in text) + '"'
+    return (
+        '"'
+        + "".join(special.get(c) or (f"\\u{ord(c):04X}" if ord(c) < 0x20 or ord(c) == 0x7F else c) for c in text)
+        + '"'
+    )
 
 
 @pytest.fixture(scope="module")
@@ -39,8 +43,7 @@ def finished_wheel_run(tmp_path_factory):
     """A finished short wheel run (series, summary, initial.npz, store) to copy and damage."""
     out = tmp_path_factory.mktemp("wheel") / "run"
     args = [a for kv in WHEEL_TEST for a in ("--set", kv)]
-    run_cli("run", "quick", *args, "--steps", "600", "--out", out, "--no-progress", "--no-figures",
-            check=True)
+    run_cli("run", "quick", *args, "--steps", "600", "--out", out, "--no-progress", "--no-figures", check=True)
     return out
 
 
@@ -75,7 +78,8 @@ def test_series_buffer_is_sized_by_the_rows_kept_not_the_step_count(monkeypatch)
     from ooc_dem.app import metrics
     from ooc_dem.engine.stepper import N_REC, REC_T, REC_X, REC_VX, REC_WZ, REC_FX, REC_Y
     from ooc_dem.model.scenario import load_scenario
-    sc = load_scenario("quick", ["output.series_interval=1e-5"])   # one row per step
+
+    sc = load_scenario("quick", ["output.series_interval=1e-5"])  # one row per step
     assert metrics.WheelMetrics(sc, 0.05, 10**9).rows.nbytes < 1 << 20
     rng = np.random.default_rng(3)
     rec = rng.normal(size=(3 * metrics.SERIES_START_ROWS + 7, N_REC))
@@ -84,7 +88,7 @@ def test_series_buffer_is_sized_by_the_rows_kept_not_the_step_count(monkeypatch)
         rec[:, col] = rng.uniform(0.1, 1.0, len(rec))
     grown = metrics.WheelMetrics(sc, 0.05, len(rec))
     for a in range(0, len(rec), 500):
-        grown.add(rec[a:a + 500], a)
+        grown.add(rec[a : a + 500], a)
     monkeypatch.setattr(metrics, "SERIES_START_ROWS", 10**6)
     whole = metrics.WheelMetrics(sc, 0.05, len(rec))
     whole.add(rec, 0)
@@ -96,16 +100,16 @@ def test_series_buffer_is_sized_by_the_rows_kept_not_the_step_count(monkeypatch)
 def test_bed_larger_than_memory_refused_before_allocating(tmp_path):
     total = psutil.virtual_memory().total
     out = tmp_path / "o"
-    line = one_line_error(run_cli("run", "bed-2000000000", "--out", out), "soil.n", "memory",
-                          "this machine has")
+    line = one_line_error(run_cli("run", "bed-2000000000", "--out", out), "soil.n", "memory", "this machine has")
     assert not out.exists()
     # monolithic needs ~1 kB a disc: a billion discs never fit; the message offers out-of-core
     # when that would fit here
     line = one_line_error(run_cli("run", "bed-1000000000", "--out", out), "soil.n", "memory")
     if total > 20e9:
         assert "--mode ooc" in line
-    one_line_error(run_cli("run", "quick", "--set", "soil.n=2000000000", "--mode", "ddm", "--out", out),
-                   "soil.n", "memory")
+    one_line_error(
+        run_cli("run", "quick", "--set", "soil.n=2000000000", "--mode", "ddm", "--out", out), "soil.n", "memory"
+    )
     one_line_error(run_cli("prepare", "bed-2000000000", "--out", out), "soil.n", "memory")
     assert not out.exists()
 
@@ -114,18 +118,32 @@ def test_bed_larger_than_memory_refused_before_allocating(tmp_path):
 
 
 def test_domains_and_block_flags_bounded_like_the_scenario(tmp_path):
-    one_line_error(cli_in_process("run", "quick", "--mode", "ddm", "--domains", "5000", "--out", tmp_path / "o",
-                                  timeout=120), "--domains", "4096")
-    one_line_error(cli_in_process("run", "quick", "--mode", "ooc", "--block", "20000", "--out", tmp_path / "o",
-                                  timeout=120), "--block", "10000")
+    one_line_error(
+        cli_in_process("run", "quick", "--mode", "ddm", "--domains", "5000", "--out", tmp_path / "o", timeout=120),
+        "--domains",
+        "4096",
+    )
+    one_line_error(
+        cli_in_process("run", "quick", "--mode", "ooc", "--block", "20000", "--out", tmp_path / "o", timeout=120),
+        "--block",
+        "10000",
+    )
 
 
 def test_more_domains_than_the_bed_holds_refused_naming_the_maximum(tmp_path):
     # 1500 discs in 0.4 m: at most 75 slabs of >= 20 discs (1000 took 110 s a step)
-    line = one_line_error(cli_in_process("run", "quick", "--mode", "ddm", "--domains", "1000",
-                                         "--out", tmp_path / "o", timeout=120), "--domains 1000", "at most 75")
-    one_line_error(cli_in_process("run", "quick", "--mode", "ooc", "--set", "decomposition.domains=500",
-                                  "--out", tmp_path / "o", timeout=120), "decomposition.domains", "at most 75")
+    line = one_line_error(
+        cli_in_process("run", "quick", "--mode", "ddm", "--domains", "1000", "--out", tmp_path / "o", timeout=120),
+        "--domains 1000",
+        "at most 75",
+    )
+    one_line_error(
+        cli_in_process(
+            "run", "quick", "--mode", "ooc", "--set", "decomposition.domains=500", "--out", tmp_path / "o", timeout=120
+        ),
+        "decomposition.domains",
+        "at most 75",
+    )
     assert not (tmp_path / "o").exists(), line
     plan = json.loads(cli_in_process("check", "quick", "--mode", "ddm", "--domains", "75", check=True).stdout)
     assert plan["domains"] == 75
@@ -140,10 +158,10 @@ EXTREME_RUNS = [
     (["--set", "wheel.travel_time=1e308"], "wheel.travel_time"),
     (["--set", "output.series_interval=1e308"], "output.series_interval"),
     (["--set", "soil.density=1e308"], "soil.density"),
-    (["--set", "physics.thickness=1e-200"], "physics.thickness"),   # below the shortest length
-    (["--set", "soil.density=5e-324"], "soil.r_min"),          # the lightest disc's mass underflows
-    (["--set", "soil.n=" + "1" * 5000], "soil.n"),             # beyond Python's int-string limit
-    (["--set", "soil.seed=0x" + "f" * 5000], "soil.seed"),     # hex ints have no digit limit
+    (["--set", "physics.thickness=1e-200"], "physics.thickness"),  # below the shortest length
+    (["--set", "soil.density=5e-324"], "soil.r_min"),  # the lightest disc's mass underflows
+    (["--set", "soil.n=" + "1" * 5000], "soil.n"),  # beyond Python's int-string limit
+    (["--set", "soil.seed=0x" + "f" * 5000], "soil.seed"),  # hex ints have no digit limit
     (["--duration", "1e308"], "--duration"),
 ]
 
@@ -161,8 +179,9 @@ def test_a_tile_narrower_than_a_disc_is_refused_alike_by_check_and_run(scenario,
     bin.length the user never wrote. Both refuse it now, in the same line, naming bed.tile."""
     args = [scenario, "--set", "bed.tile=1"]
     checked = one_line_error(cli_in_process("check", *args, timeout=120), "bed.tile = 1", "bin.length")
-    ran = one_line_error(cli_in_process("run", *args, "--out", tmp_path / "o", "--no-progress", timeout=120),
-                         "bed.tile = 1")
+    ran = one_line_error(
+        cli_in_process("run", *args, "--out", tmp_path / "o", "--no-progress", timeout=120), "bed.tile = 1"
+    )
     assert ran == checked
     assert not (tmp_path / "o").exists()
 
@@ -186,11 +205,15 @@ def test_deeply_nested_overrides_and_files(tmp_path):
     deep_key = "scenario.name." + ".".join(["a"] * 3000)
     one_line_error(cli_in_process("run", "quick", "--set", f"{deep_key}=1", "--out", tmp_path / "o"), "--set")
     one_line_error(cli_in_process("run", "quick", "--set", "a." * 3000 + "b=1", "--out", tmp_path / "o"), "--set")
-    one_line_error(cli_in_process("run", "quick", "--set", "scenario.name=" + "[" * 3000 + "]" * 3000,
-                           "--out", tmp_path / "o"), "scenario.name")
-    for body in ("[scenario]\nname = " + "[" * 5000 + "]" * 5000 + "\n",
-                 "[scenario]\nname = " + "{a = " * 3000 + "1" + "}" * 3000 + "\n",
-                 "[soil]\nn = " + "7" * 5000 + "\n"):
+    one_line_error(
+        cli_in_process("run", "quick", "--set", "scenario.name=" + "[" * 3000 + "]" * 3000, "--out", tmp_path / "o"),
+        "scenario.name",
+    )
+    for body in (
+        "[scenario]\nname = " + "[" * 5000 + "]" * 5000 + "\n",
+        "[scenario]\nname = " + "{a = " * 3000 + "1" + "}" * 3000 + "\n",
+        "[soil]\nn = " + "7" * 5000 + "\n",
+    ):
         f = tmp_path / "deep.toml"
         f.write_text(body)
         one_line_error(cli_in_process("run", f, "--out", tmp_path / "o"), str(f))
@@ -202,26 +225,47 @@ def test_deeply_nested_overrides_and_files(tmp_path):
 
 @pytest.mark.parametrize("name", [EMOJI, "../../x", ".hidden", "a/b", "tab\there", "x" * 101, ""])
 def test_scenario_name_is_one_safe_path_component(name, tmp_path):
-    cp = cli_in_process("run", "bed-1200", "--set", f"scenario.name={json.dumps(name)}", "--steps", "5",
-                        "--out", tmp_path / "o", "--no-progress")
+    cp = cli_in_process(
+        "run",
+        "bed-1200",
+        "--set",
+        f"scenario.name={json.dumps(name)}",
+        "--steps",
+        "5",
+        "--out",
+        tmp_path / "o",
+        "--no-progress",
+    )
     one_line_error(cp, "scenario.name")
     assert not (tmp_path / "o").exists()
 
 
 def test_any_description_is_stored_as_valid_toml_and_resumes(tmp_path):
-    text = f"{EMOJI} \"quoted\" back\\slash\ttab \x01\x7f ü"
+    text = f'{EMOJI} "quoted" back\\slash\ttab \x01\x7f ü'
     out = tmp_path / "o"
-    run_cli("run", "bed-1200", "--set", f"scenario.description={toml_string(text)}", "--steps", "5",
-            "--out", out, "--no-progress", check=True)
+    run_cli(
+        "run",
+        "bed-1200",
+        "--set",
+        f"scenario.description={toml_string(text)}",
+        "--steps",
+        "5",
+        "--out",
+        out,
+        "--no-progress",
+        check=True,
+    )
     run_cli("resume", out, "--steps", "10", "--no-progress", check=True)
     assert json.loads((out / "summary.json").read_text())["steps"] == 10
     import tomllib
+
     assert tomllib.loads((out / "scenario.toml").read_text(encoding="utf-8"))["scenario"]["description"] == text
 
 
 def test_dict_to_toml_writes_any_string():
     import tomllib
-    for text in (EMOJI, "\x00\x1f\x7f", '"\\', "\U0010FFFF", "line\nbreak", "\u2028"):
+
+    for text in (EMOJI, "\x00\x1f\x7f", '"\\', "\U0010ffff", "line\nbreak", "\u2028"):
         assert tomllib.loads(dict_to_toml({"s": {"v": text}}))["s"]["v"] == text
 
 
@@ -237,6 +281,7 @@ def _scenario_keys():
                 walk(v, key)
             else:
                 out.append((key, v))
+
     walk(Scenario(), "")
     return out
 
@@ -245,13 +290,32 @@ def _hostile_values(default):
     if isinstance(default, bool):
         return ["1", '"true"', "1e308"]
     if isinstance(default, int):
-        return ["-1", "0", str(2**31), str(2**63), "1" + "0" * 30, "0x" + "f" * 3000, "1e308", "-0.0",
-                "5e-324", '"7"']
+        return ["-1", "0", str(2**31), str(2**63), "1" + "0" * 30, "0x" + "f" * 3000, "1e308", "-0.0", "5e-324", '"7"']
     if isinstance(default, float):
-        return ["1e308", "-1e308", "5e-324", "1e-200", "-0.0", "0", "1e400", "nan", "inf", "1" + "0" * 400,
-                "true", '"1"']
-    return [json.dumps(EMOJI), '"../../x"', '""', json.dumps("\x01\x7f"), json.dumps("x" * 20000),
-            "[1, [2]]", "{a = 1}", "1e308"]
+        return [
+            "1e308",
+            "-1e308",
+            "5e-324",
+            "1e-200",
+            "-0.0",
+            "0",
+            "1e400",
+            "nan",
+            "inf",
+            "1" + "0" * 400,
+            "true",
+            '"1"',
+        ]
+    return [
+        json.dumps(EMOJI),
+        '"../../x"',
+        '""',
+        json.dumps("\x01\x7f"),
+        json.dumps("x" * 20000),
+        "[1, [2]]",
+        "{a = 1}",
+        "1e308",
+    ]
 
 
 SCENARIO_KEYS = _scenario_keys()
@@ -282,8 +346,24 @@ def test_every_key_at_extreme_values_is_accepted_or_one_line(scenario, key, defa
         assert len(lines[0]) < 600, (where, lines[0])
 
 
-FLAG_VALUES = ["0", "-1", "1e308", "-1e308", "5e-324", "1e-200", "-0.0", "nan", "inf", "1e400", "9" * 5000,
-               "1e999999999999999999", "1.5", "0x10", "", "abc"]
+FLAG_VALUES = [
+    "0",
+    "-1",
+    "1e308",
+    "-1e308",
+    "5e-324",
+    "1e-200",
+    "-0.0",
+    "nan",
+    "inf",
+    "1e400",
+    "9" * 5000,
+    "1e999999999999999999",
+    "1.5",
+    "0x10",
+    "",
+    "abc",
+]
 
 
 @pytest.mark.parametrize("flag", ["--steps", "--duration", "--domains", "--block", "--checkpoint-every"])
@@ -291,7 +371,7 @@ def test_every_numeric_flag_at_extreme_values_is_accepted_or_one_line(flag, caps
     for value in FLAG_VALUES:
         try:
             rc = cli.main(["check", "quick", "--mode", "ooc", f"{flag}={value}"])
-        except SystemExit as e:   # argparse refuses the flag (the parser's error() exits 2)
+        except SystemExit as e:  # argparse refuses the flag (the parser's error() exits 2)
             rc = e.code
         captured = capsys.readouterr()
         where = f"{flag}={value[:40]}"
@@ -414,7 +494,7 @@ def test_hostile_initial_npz(wheel_run_copy, tmp_path):
 
 
 def test_not_a_run_directory(tmp_path, finished_wheel_run):
-    cp = run_cli("report", finished_wheel_run, check=True)       # a run reports and compares
+    cp = run_cli("report", finished_wheel_run, check=True)  # a run reports and compares
     assert "wheel slip" in cp.stdout and cp.stderr == ""
     assert "BIT-IDENTICAL" in run_cli("compare", finished_wheel_run, finished_wheel_run, check=True).stdout
     empty = tmp_path / "empty"
@@ -422,7 +502,7 @@ def test_not_a_run_directory(tmp_path, finished_wheel_run):
     junk = tmp_path / "junk"
     junk.mkdir()
     (junk / "data.bin").write_bytes(os.urandom(100))
-    foreign = tmp_path / "foreign"          # another tool's directory with its own summary.json
+    foreign = tmp_path / "foreign"  # another tool's directory with its own summary.json
     foreign.mkdir()
     (foreign / "summary.json").write_text('{"accuracy": 0.93, "epochs": 12}')
     a_file = tmp_path / "file.txt"
@@ -441,15 +521,14 @@ def test_report_reads_only_regular_files_inside_the_run(wheel_run_copy, tmp_path
     (wheel_run_copy / "summary.json").unlink()
     (wheel_run_copy / "summary.json").write_text(outside.read_text())
     (wheel_run_copy / "series.csv").unlink()
-    os.mkfifo(wheel_run_copy / "series.csv")   # opening it would block forever
+    os.mkfifo(wheel_run_copy / "series.csv")  # opening it would block forever
     one_line_error(cli_in_process("report", wheel_run_copy, timeout=60), "series.csv", "regular file")
 
 
 # ------------------------------------------------------------------ E. sweep window
 
 
-@pytest.mark.parametrize("window", [["output.steady_start=100", "output.steady_end=200"],
-                                    ["wheel.travel_time=0.05"]])
+@pytest.mark.parametrize("window", [["output.steady_start=100", "output.steady_end=200"], ["wheel.travel_time=0.05"]])
 def test_sweep_with_an_empty_steady_window_refused_before_running(window, tmp_path):
     out = tmp_path / "sweep"
     args = [a for kv in WHEEL_TEST + window for a in ("--set", kv)]
@@ -461,8 +540,9 @@ def test_sweep_with_an_empty_steady_window_refused_before_running(window, tmp_pa
 def test_sweep_slips_sharing_a_directory_refused(tmp_path):
     out = tmp_path / "sweep"
     args = [a for kv in WHEEL_TEST for a in ("--set", kv)]
-    one_line_error(cli_in_process("sweep", "quick", *args, "--slips", "0.1,0.1001", "--out", out, timeout=300),
-                   "--slips")
+    one_line_error(
+        cli_in_process("sweep", "quick", *args, "--slips", "0.1,0.1001", "--out", out, timeout=300), "--slips"
+    )
     assert not out.exists()
 
 
@@ -472,25 +552,47 @@ def test_sweep_slips_sharing_a_directory_refused(tmp_path):
 def test_memory_backend_run_writes_its_outputs(tmp_path):
     out = tmp_path / "mem"
     args = [a for kv in WHEEL_TEST for a in ("--set", kv)]
-    cp = run_cli("run", "quick", *args, "--backend", "memory", "--steps", "300", "--out", out,
-                 "--no-progress", check=True)
+    cp = run_cli(
+        "run", "quick", *args, "--backend", "memory", "--steps", "300", "--out", out, "--no-progress", check=True
+    )
     assert "state hash" in cp.stdout
-    for name in ("summary.json", "series.csv", "initial.npz", "scenario.toml", "figures/series.png",
-                 "figures/deformation.png"):
+    for name in (
+        "summary.json",
+        "series.csv",
+        "initial.npz",
+        "scenario.toml",
+        "figures/series.png",
+        "figures/deformation.png",
+    ):
         assert (out / name).is_file(), name
-    assert not (out / "MANIFEST.json").exists()       # the store lived only in the process
+    assert not (out / "MANIFEST.json").exists()  # the store lived only in the process
     summary = json.loads((out / "summary.json").read_text())
     assert summary["backend"] == "memory" and summary["steps"] == 300
-    run_cli("report", out, check=True)                 # figures from the files that remain
+    run_cli("report", out, check=True)  # figures from the files that remain
     one_line_error(cli_in_process("resume", out, "--no-progress"), str(out))
 
 
 # ------------------------------------------------------------------ G. check
 
 
-CHECK_KEYS = {"scenario", "scenario_hash", "mode", "backend", "n_discs", "steps", "simulated_time_s",
-              "dt_s", "dt_critical_s", "checkpoint_every", "domains", "block", "streamed_bed",
-              "memory_bytes", "memory_available_bytes", "memory_budget_bytes"}
+CHECK_KEYS = {
+    "scenario",
+    "scenario_hash",
+    "mode",
+    "backend",
+    "n_discs",
+    "steps",
+    "simulated_time_s",
+    "dt_s",
+    "dt_critical_s",
+    "checkpoint_every",
+    "domains",
+    "block",
+    "streamed_bed",
+    "memory_bytes",
+    "memory_available_bytes",
+    "memory_budget_bytes",
+}
 
 
 def test_check_prints_the_plan_and_writes_nothing(tmp_path):
@@ -508,10 +610,18 @@ def test_check_prints_the_plan_and_writes_nothing(tmp_path):
     assert set(os.listdir(".")) == before and cp.stderr == ""
 
 
-@pytest.mark.parametrize("args", [
-    ["quick", "--set", "physics.dt=1e-3"], ["quick", "--mode", "ddm", "--domains", "1000"],
-    ["bed-2000000000"], ["quick", "--set", "scenario.name=../x"], ["quick", "--duration", "1e308"],
-    ["no-such-scenario"], ["quick", "--backend", "tape"]])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["quick", "--set", "physics.dt=1e-3"],
+        ["quick", "--mode", "ddm", "--domains", "1000"],
+        ["bed-2000000000"],
+        ["quick", "--set", "scenario.name=../x"],
+        ["quick", "--duration", "1e308"],
+        ["no-such-scenario"],
+        ["quick", "--backend", "tape"],
+    ],
+)
 def test_check_refuses_exactly_what_run_refuses(args, tmp_path):
     run = one_line_error(cli_in_process("run", *args, "--out", tmp_path / "o", timeout=120))
     check = one_line_error(cli_in_process("check", *args, timeout=120))
@@ -524,6 +634,7 @@ def test_check_refuses_exactly_what_run_refuses(args, tmp_path):
 def test_memory_error_is_one_line(monkeypatch, capsys):
     def exhausted(args):
         raise MemoryError("Unable to allocate 20.0 GiB")
+
     monkeypatch.setitem(cli.COMMANDS, "scenarios", exhausted)
     assert cli.main(["scenarios"]) == 2
     err = capsys.readouterr().err

@@ -7,6 +7,7 @@ process and measures that process's peak RSS (``ooc_dem.engine.memlimit.run_limi
 one line, and under 300 MB. tools/refusal_memory.py runs the same cases at the sizes of the
 reports (2^25 rows, 4 GB members and chunks, hist_cap 100000, id 3·10^8).
 """
+
 import os
 import shutil
 import sys
@@ -34,6 +35,7 @@ def bases(tmp_path_factory):
         if kind not in made:
             made[kind] = rm.base_run(tmp_path_factory.mktemp(f"base-{kind}") / "run", *rm.BASES[kind])
         return made[kind]
+
     return get
 
 
@@ -46,7 +48,7 @@ def refused_in_little_memory(cmd, *needles):
 
 def test_a_frame_declaring_millions_of_rows_is_refused_before_they_are_read(bases, tmp_path):
     cmd, needle = rm.make_frame_rows(bases("frame_rows"), tmp_path / "run", 1 << 23)
-    assert (tmp_path / "run" / "trajectory").stat()   # the frame is ~110 KB
+    assert (tmp_path / "run" / "trajectory").stat()  # the frame is ~110 KB
     refused_in_little_memory(cmd, needle, "frame-")
 
 
@@ -59,8 +61,12 @@ def test_an_initial_npz_member_of_deflated_zeros_is_refused_from_its_header(base
 def test_animate_bounds_an_initial_npz_member_by_the_first_frames_disc_count(bases, tmp_path):
     run = rm.copy_run(bases("npz_member"), tmp_path / "run")
     rm.bomb_member(run / "initial.npz", "x", 1 << 30)
-    refused_in_little_memory(rm.cli("animate", run, "--out", tmp_path / "f.gif", "--no-progress"),
-                             "'x'", "134217728 rows, expected 1500", "initial.npz")
+    refused_in_little_memory(
+        rm.cli("animate", run, "--out", tmp_path / "f.gif", "--no-progress"),
+        "'x'",
+        "134217728 rows, expected 1500",
+        "initial.npz",
+    )
 
 
 @pytest.mark.parametrize("layout", ["archive", "directory"])
@@ -78,9 +84,10 @@ def test_a_zarr_array_naming_the_sharding_codec_is_one_line_and_nothing_from_zar
     store = rm.copy_run(bases("zarr_gzip"), tmp_path / "run")
     if layout == "directory":
         zarr_epochs_as_directories(store)
-    sharding = {"name": "sharding_indexed",
-                "configuration": {"chunk_shape": [10, 2], "codecs": [rm.BYTES],
-                                  "index_codecs": [rm.BYTES, {"name": "crc32c"}]}}
+    sharding = {
+        "name": "sharding_indexed",
+        "configuration": {"chunk_shape": [10, 2], "codecs": [rm.BYTES], "index_codecs": [rm.BYTES, {"name": "crc32c"}]},
+    }
     rm.zarr_array_edit(store, "domains/d0000/pos", [sharding], None)
     line = refused_in_little_memory(rm.cli("checkpoint", "hash", store, "--epoch", 20), "sharding_indexed")
     assert "Task was destroyed" not in line
@@ -94,12 +101,13 @@ def test_a_manifest_history_capacity_beyond_the_maximum_is_refused_by_the_api(ba
 def test_a_disc_id_of_hundreds_of_millions_costs_no_table_of_that_size(bases, tmp_path):
     """A serial-DDM store is valid with any distinct ids: it resumes in the memory of its
     discs (an owner table indexed by id would take 8 bytes per id up to the largest)."""
-    big = 3 * 10 ** 8
+    big = 3 * 10**8
     cmd, _ = rm.make_ddm_big_id(bases("ddm_big_id"), tmp_path / "run", big)
     r, _ = rm.measure(cmd)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert r.peak_rss_bytes < 1e9, r.peak_rss_bytes          # 8 * 3e8 B = 2.4 GB before
+    assert r.peak_rss_bytes < 1e9, r.peak_rss_bytes  # 8 * 3e8 B = 2.4 GB before
     import ooc_dem
+
     state = ooc_dem.open_run(tmp_path / "run").state()
     assert big in set(state["id"].tolist()) and len(state["id"]) == 1500
 
@@ -109,10 +117,12 @@ def test_initial_npz_values_that_broke_the_figures_are_one_line_errors(bases, tm
     division) each refused in one line, naming the member."""
     base = bases("npz_member")
     z = dict(np.load(base / "initial.npz"))
-    cases = {"object": dict(z, x=np.array([None] * len(z["x"]), dtype=object)),
-             "short": {k: (v[:10] if v.ndim else v) for k, v in z.items()},
-             "zero radii": dict(z, r=np.zeros_like(z["r"]), surface=np.float64(0.0)),
-             "huge surface": dict(z, surface=np.float64(1e300))}
+    cases = {
+        "object": dict(z, x=np.array([None] * len(z["x"]), dtype=object)),
+        "short": {k: (v[:10] if v.ndim else v) for k, v in z.items()},
+        "zero radii": dict(z, r=np.zeros_like(z["r"]), surface=np.float64(0.0)),
+        "huge surface": dict(z, surface=np.float64(1e300)),
+    }
     needles = {"object": "'x'", "short": "'id'", "zero radii": "'r'", "huge surface": "'surface'"}
     for name, arrays in cases.items():
         run = rm.copy_run(base, tmp_path / name.replace(" ", "-"))
@@ -131,6 +141,7 @@ def bomb_bed(tmp_path_factory):
     """A bed.npz of BED_N discs whose 'r' member is 4 GB of deflated zeros (about 19 MB on
     disk), its header true to them; the other members as a bed's."""
     from ooc_dem.model.state import Particles
+
     f = tmp_path_factory.mktemp("bomb-bed") / "bed.npz"
     p = Particles.empty(BED_N, 2)
     p.id[:] = np.arange(BED_N)
@@ -145,8 +156,12 @@ def test_a_bed_member_of_deflated_zeros_is_refused_from_its_header(bomb_bed, tmp
     bed.mkdir()
     shutil.copy(bomb_bed, bed / "bed.npz")
     out = tmp_path / "run"
-    line = refused_in_little_memory(rm.cli("run", "quick", *BED_SETS, "--bed", bed, "--out", out, "--steps", 2,
-                                           "--no-progress", "--no-figures"), "--bed", "'r'", f"soil.n = {BED_N}")
+    line = refused_in_little_memory(
+        rm.cli("run", "quick", *BED_SETS, "--bed", bed, "--out", out, "--steps", 2, "--no-progress", "--no-figures"),
+        "--bed",
+        "'r'",
+        f"soil.n = {BED_N}",
+    )
     assert "536870912 rows" in line
     assert not (out / "MANIFEST.json").exists()
 
@@ -155,16 +170,18 @@ def test_a_bed_cache_entry_of_deflated_zeros_is_rebuilt_with_a_warning(bomb_bed,
     """The cache entry is refused from its header (never inflated), settled again and
     cached again; the run says so in one warning line."""
     from ooc_dem.model.scenario import load_scenario
+
     sc = load_scenario("quick", BED_SETS[1::2])
     entry = tmp_path / "cache" / "beds" / f"{sc.bed_hash()}.v2.npz"
     entry.parent.mkdir(parents=True)
     shutil.copy(bomb_bed, entry)
-    r, lines = rm.measure(rm.cli("run", "quick", *BED_SETS, "--out", tmp_path / "run", "--steps", 2,
-                                 "--no-progress", "--no-figures"),
-                          env=dict(os.environ, OOC_DEM_CACHE=str(tmp_path / "cache")))
+    r, lines = rm.measure(
+        rm.cli("run", "quick", *BED_SETS, "--out", tmp_path / "run", "--steps", 2, "--no-progress", "--no-figures"),
+        env=dict(os.environ, OOC_DEM_CACHE=str(tmp_path / "cache")),
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     warnings = [ln for ln in lines if "warning" in ln]
     assert len(warnings) == 1 and "'r'" in warnings[0] and "rebuilding" in warnings[0], r.stderr
-    assert r.peak_rss_bytes < 1e9, r.peak_rss_bytes     # 4.3 GB when the member was inflated
+    assert r.peak_rss_bytes < 1e9, r.peak_rss_bytes  # 4.3 GB when the member was inflated
     with np.load(entry) as z:
         assert z["r"].shape == (BED_N,) and (z["r"] > 0).all()

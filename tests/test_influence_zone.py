@@ -2,6 +2,7 @@
 the 3D wheel moves, from a run's trajectory frames. The binning and the zone's edges are
 checked on displacements made by hand (known answers), then the tool on a real quick-3d
 run's frames (the wheel rolling), and its refusals (exit code 2)."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -35,8 +36,8 @@ def test_profile_and_edges_of_a_known_field(tool):
     e = np.abs(z) - half
     amp = np.where(e < 0, 1.0, np.exp(-np.maximum(e, 0) / 0.02))
     pos1 = pos0.copy()
-    pos1[:, 1] = -amp                       # pushed down
-    outside = pos0[:, 0] + 1.0              # x outside the wheel's stretch: not counted
+    pos1[:, 1] = -amp  # pushed down
+    outside = pos0[:, 0] + 1.0  # x outside the wheel's stretch: not counted
     rows = tool.lateral_profile(pos0, pos1, (0.1, 0.3), 0.0, half, 0.01)
     assert rows[0]["e_lo"] == pytest.approx(-0.05) and rows[-1]["e_hi"] == pytest.approx(0.46)
     assert sum(r["n"] for r in rows) == z.size
@@ -54,8 +55,7 @@ def test_profile_and_edges_of_a_known_field(tool):
     # the edge is the first bin whose mean, exp(-a / 0.02) (0.02 / 0.01) (1 - exp(-0.5)) for a
     # bin [a, a + 0.01), falls below p: a > 0.02 ln(0.787 / p), within a bin of 0.02 ln(1 / p)
     for p in (0.02, 0.05):
-        a = [r["e_lo"] for r in rows if r["e_lo"] >= 0
-             and np.exp(-r["e_lo"] / 0.02) * 2.0 * (1.0 - np.exp(-0.5)) < p]
+        a = [r["e_lo"] for r in rows if r["e_lo"] >= 0 and np.exp(-r["e_lo"] / 0.02) * 2.0 * (1.0 - np.exp(-0.5)) < p]
         assert zone["edges"][f"{p:g}"] == a[0]
         assert abs(a[0] - 0.02 * np.log(1.0 / p)) < 0.01
 
@@ -66,23 +66,26 @@ def test_tool_on_a_rolling_quick3d_run(tool, tmp_path, capsys):
     with h5py), the soil under the wheel moves more than the floor, and the figure is
     written. (quick-3d's bin is too narrow for a zone: tests/ check the edges above.)"""
     import h5py
+
     out = tmp_path / "q3"
     ooc_dem.run("quick-3d", out, steps=10000, overrides={"output.snapshot_interval": 0.05})
     png = tmp_path / "zone.png"
     assert tool.main([str(out), "--t0", "0.1", "--png", str(png)]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["t0"] == pytest.approx(0.1) and rep["t1"] == pytest.approx(0.2)
-    with h5py.File(out / "trajectory" / "frame-000000005000.h5", "r") as f0, \
-            h5py.File(out / "trajectory" / "frame-000000010000.h5", "r") as f1:
+    with (
+        h5py.File(out / "trajectory" / "frame-000000005000.h5", "r") as f0,
+        h5py.File(out / "trajectory" / "frame-000000010000.h5", "r") as f1,
+    ):
         x = f0["pos"][:, 0]
-        z = f0["pos"][:, 2] - 0.06                                # from the wheel's mid-plane
+        z = f0["pos"][:, 2] - 0.06  # from the wheel's mid-plane
         xw0, xw1 = f0.attrs["wheel_state"][0], f1.attrs["wheel_state"][0]
-    assert rep["wheel_x"] == [xw0, xw1] and xw1 > xw0            # it travelled
+    assert rep["wheel_x"] == [xw0, xw1] and xw1 > xw0  # it travelled
     assert sum(r["n"] for r in rep["profile"]) == int(((x >= xw0) & (x <= xw1)).sum()) > 0
     assert rep["under_wheel"] > rep["floor"] > 0
     assert rep["profile"][0]["e_lo"] < 0 < rep["profile"][-1]["e_lo"] <= rep["wall_gap_m"]
     ahead = rep["ahead"]
-    front = xw1 + 0.110                                          # quick-3d's lug tips
+    front = xw1 + 0.110  # quick-3d's lug tips
     assert ahead["front_x"] == pytest.approx(front)
     assert sum(r["n"] for r in ahead["profile"]) == int(((x >= front) & (np.abs(z) <= 0.03)).sum())
     assert png.stat().st_size > 10_000

@@ -31,6 +31,7 @@ Cases (each exercises different parts of the kernel):
 - bed3d-20000 on the Hertz law (walls too) and on the LAMMPS comparison's linear law
   without rolling (``tools/peers/lammps.py``'s overrides: the sliding row layout).
 """
+
 from __future__ import annotations
 
 import json
@@ -39,14 +40,21 @@ import pytest
 
 from support.cli import cli_in_process, run_cli
 
-QUICK = ["wheel.control=slip", "wheel.slip=0.2", "wheel.omega=5.0", "wheel.settle_time=0.002",
-         "wheel.drop_gap=0.0", "wheel.lug_tip_radius=0.104", "decomposition.margin=0.001"]
+QUICK = [
+    "wheel.control=slip",
+    "wheel.slip=0.2",
+    "wheel.omega=5.0",
+    "wheel.settle_time=0.002",
+    "wheel.drop_gap=0.0",
+    "wheel.lug_tip_radius=0.104",
+    "decomposition.margin=0.001",
+]
 PAPER = ["wheel.settle_time=0.035", "wheel.drop_gap=0.0"]
 
 # version 1 (before the streamed hash): the same states
 QUICK_6000_V1 = "8567c40dcfacd4544f00f5771b6bb7ebede381f80690d65467a4c05dfb404a88"
 PAPER2008_7000_V1 = "9f35eead0fde6961bf107dfbe88ccfa7afe92fa4f0e9f964246049e8ec6502ce"
-BED100K_150_V1 = "d336a4b2c1a003284f51bd03a3e5b6b545a522e81604891b85968fbed24953c6"   # the old tile
+BED100K_150_V1 = "d336a4b2c1a003284f51bd03a3e5b6b545a522e81604891b85968fbed24953c6"  # the old tile
 
 QUICK_6000 = "mset-v2:8d035f96a334b194dd624440d9f8680d01e4f76707314e512140928c0af2c0ee"
 PAPER2008_7000 = "mset-v2:b2bf3778513e76d392dde7a28e417b6b6a34ca4e052f9cf9fd7cf10006c3b6ae"
@@ -61,32 +69,43 @@ BED100K_150 = "mset-v2:bd623b5985dec3c4272d35d05f00dd4ac42e8453687dabfdb73cb01c4
 # case give one value on both. Not explained yet: not numpy (2.3.5 gives the second too),
 # not numba 0.68.0 against 0.68.1, not the CPU model LLVM tunes for (NUMBA_CPU_NAME=znver4
 # gives the second too); log(e) of the restitution is correctly rounded on the Xeon.
-QUICK3D_3000 = ("mset-v2:2d0621bb10b9a219307bc226315cdcb1b82f3b5471ed342cd357f15003fcc99a",
-                "mset-v2:2c733ac178bf5b8ea432271bf7ab80093b8a524e46d5908047bc45d035911026")
-BED3D_HERTZ_400 = ("mset-v2:57c64f8877d77a27a58671d4db811f8a8c0800c24620c22e5e50222d6d1229e8",
-                   "mset-v2:3833b19b1f3b325e414d53545c0ff5508e09ebab06d2770caad41cc05003a73e")
+QUICK3D_3000 = (
+    "mset-v2:2d0621bb10b9a219307bc226315cdcb1b82f3b5471ed342cd357f15003fcc99a",
+    "mset-v2:2c733ac178bf5b8ea432271bf7ab80093b8a524e46d5908047bc45d035911026",
+)
+BED3D_HERTZ_400 = (
+    "mset-v2:57c64f8877d77a27a58671d4db811f8a8c0800c24620c22e5e50222d6d1229e8",
+    "mset-v2:3833b19b1f3b325e414d53545c0ff5508e09ebab06d2770caad41cc05003a73e",
+)
 BED3D_LINEAR_400 = "mset-v2:a597d010304ad62624b2ea7654ed9bf246cfe602f08e19a4594f2ce81a6bc89e"
 HERTZ = ["contact.soil_soil.law=hertz", "contact.soil_wall.law=hertz"]
-LINEAR = ["contact.soil_soil.rolling_friction=0", "contact.soil_soil.rolling_damping=0",
-          "contact.soil_wall.rolling_friction=0", "contact.soil_wall.rolling_damping=0",
-          'contact.soil_soil.law="linear"', "contact.soil_soil.kn=50000.0",
-          "contact.soil_soil.ks=16666.666666666668", "contact.soil_soil.damping_n=0.3",
-          "contact.soil_soil.damping_t=0.3", "contact.soil_soil.friction=0.5"]
+LINEAR = [
+    "contact.soil_soil.rolling_friction=0",
+    "contact.soil_soil.rolling_damping=0",
+    "contact.soil_wall.rolling_friction=0",
+    "contact.soil_wall.rolling_damping=0",
+    'contact.soil_soil.law="linear"',
+    "contact.soil_soil.kn=50000.0",
+    "contact.soil_soil.ks=16666.666666666668",
+    "contact.soil_soil.damping_n=0.3",
+    "contact.soil_soil.damping_t=0.3",
+    "contact.soil_soil.friction=0.5",
+]
 
 CASES = {
     "quick-monolithic": (["quick", *QUICK, "--steps", 6000], {}, QUICK_6000),
     "quick-ddm6": (["quick", *QUICK, "--steps", 6000, "--mode", "ddm", "--domains", 6], {}, QUICK_6000),
     # one numba thread: serial DDM runs its sweeps in one compiled call (live.run_sweeps)
-    "quick-ddm6-1thread": (["quick", *QUICK, "--steps", 6000, "--mode", "ddm", "--domains", 6],
-                           {"NUMBA_NUM_THREADS": "1"}, QUICK_6000),
-    "quick-ooc": (["quick", *QUICK, "--steps", 6000, "--mode", "ooc", "--domains", 2, "--block", 25],
-                  {}, QUICK_6000),
-    "paper2008-2threads": (["paper2008", *PAPER, "--steps", 7000], {"NUMBA_NUM_THREADS": "2"},
-                           PAPER2008_7000),
+    "quick-ddm6-1thread": (
+        ["quick", *QUICK, "--steps", 6000, "--mode", "ddm", "--domains", 6],
+        {"NUMBA_NUM_THREADS": "1"},
+        QUICK_6000,
+    ),
+    "quick-ooc": (["quick", *QUICK, "--steps", 6000, "--mode", "ooc", "--domains", 2, "--block", 25], {}, QUICK_6000),
+    "paper2008-2threads": (["paper2008", *PAPER, "--steps", 7000], {"NUMBA_NUM_THREADS": "2"}, PAPER2008_7000),
     "bed-100k": (["bed-100k", "--steps", 150], {}, BED100K_150),
     "quick-3d": (["quick-3d", "--steps", 3000], {}, QUICK3D_3000),
-    "quick-3d-ddm3": (["quick-3d", "--steps", 3000, "--mode", "ddm", "--domains", 3], {},
-                      QUICK3D_3000),
+    "quick-3d-ddm3": (["quick-3d", "--steps", 3000, "--mode", "ddm", "--domains", 3], {}, QUICK3D_3000),
     "bed3d-hertz": (["bed3d-20000", *HERTZ, "--steps", 400], {}, BED3D_HERTZ_400),
     "bed3d-linear": (["bed3d-20000", *LINEAR, "--steps", 400], {}, BED3D_LINEAR_400),
 }
@@ -108,8 +127,7 @@ def _args(spec):
 def test_state_hash_unchanged(case, tmp_path):
     spec, env, expected = CASES[case]
     out = tmp_path / "run"
-    run_cli("run", *_args(spec), "--out", out, "--no-progress", "--no-figures", check=True,
-            env=env)
+    run_cli("run", *_args(spec), "--out", out, "--no-progress", "--no-figures", check=True, env=env)
     summary = json.loads((out / "summary.json").read_text())
     accepted = expected if isinstance(expected, tuple) else (expected,)
     assert summary["state_hash"] in accepted, f"{case}: the kernel's bits changed"

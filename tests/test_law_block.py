@@ -5,6 +5,7 @@ every output of a block is compared, with np.array_equal, to the scalar law on t
 (as produce computed each pair before the blocks, and as the walls and the wheel still do),
 for blocks of one material pair and of several, with and without rolling resistance, for
 new, sticking and sliding contacts."""
+
 from __future__ import annotations
 
 import platform
@@ -22,9 +23,11 @@ def _table():
     """Disc types 0 and 1 (the table's soil and wall rows stand in for two soils): 0-0 with
     rolling resistance, 1-1 and 0-1 without, other stiffness, damping and friction."""
     cp = np.zeros((L.N_TYPES, L.N_TYPES), L.CONTACT_PARAMS)
-    params = {(0, 0): (5e4, 1.6e4, 0.3, 0.3, 0.5, 0.1, 0.3),
-              (1, 1): (8e4, 2.0e4, 0.2, 0.25, 0.4, 0.0, 0.0),
-              (0, 1): (6e4, 1.8e4, 0.25, 0.3, 0.45, 0.0, 0.0)}
+    params = {
+        (0, 0): (5e4, 1.6e4, 0.3, 0.3, 0.5, 0.1, 0.3),
+        (1, 1): (8e4, 2.0e4, 0.2, 0.25, 0.4, 0.0, 0.0),
+        (0, 1): (6e4, 1.8e4, 0.25, 0.3, 0.45, 0.0, 0.0),
+    }
     for (a, b), p in params.items():
         cp[a, b] = p
         cp[b, a] = p
@@ -38,7 +41,7 @@ def _pairs(k, types_a, types_b, seed):
     args[L.LawIn.ra] = rng.uniform(2e-3, 3e-3, k)
     args[L.LawIn.rb] = rng.uniform(2e-3, 3e-3, k)
     phi = rng.uniform(0.0, 2.0 * np.pi, k)
-    dist = args[L.LawIn.ra] + args[L.LawIn.rb] - rng.uniform(1e-7, 2e-4, k)   # overlapping
+    dist = args[L.LawIn.ra] + args[L.LawIn.rb] - rng.uniform(1e-7, 2e-4, k)  # overlapping
     args[L.LawIn.dx] = dist * np.cos(phi)
     args[L.LawIn.dy] = dist * np.sin(phi)
     args[L.LawIn.vrx] = rng.normal(0.0, 0.05, k)
@@ -100,9 +103,23 @@ def _one_by_one(args, ta, tb, cp, dt):
         nx = dx / dd
         ny = dy / dd
         fn, ft, s_new, mom, m_new = contact(
-            cp[ta[t], tb[t]], nx, ny, delta, a[L.LawIn.vrx], a[L.LawIn.vry], a[L.LawIn.wa],
-            a[L.LawIn.wb], ri, rb, mi * mb / (mi + mb), ii * ib / (ii + ib), ri * rb / (ri + rb),
-            a[L.LawIn.s_old], a[L.LawIn.m_old], dt)
+            cp[ta[t], tb[t]],
+            nx,
+            ny,
+            delta,
+            a[L.LawIn.vrx],
+            a[L.LawIn.vry],
+            a[L.LawIn.wa],
+            a[L.LawIn.wb],
+            ri,
+            rb,
+            mi * mb / (mi + mb),
+            ii * ib / (ii + ib),
+            ri * rb / (ri + rb),
+            a[L.LawIn.s_old],
+            a[L.LawIn.m_old],
+            dt,
+        )
         out[L.LawOut.bx, t] = fn * nx + ft * ny
         out[L.LawOut.by, t] = fn * ny - ft * nx
         out[L.LawOut.ta, t] = ri * ft - mom
@@ -128,7 +145,7 @@ def test_block_law_gives_the_bits_of_the_pair_law(blocks):
     s_out = np.abs(got[L.LawOut.s])
     assert (s_in == 0).sum() > 50 and (s_out < 0.5 * s_in).sum() > 50
     assert (np.abs(got[L.LawOut.m]) > 0).sum() > 50
-    several = len(np.unique((ta * L.N_TYPES + tb)[:L.LAW_BLOCK])) > 1
+    several = len(np.unique((ta * L.N_TYPES + tb)[: L.LAW_BLOCK])) > 1
     assert several == (blocks == "several")
     for f in L.LawOut:
         assert np.array_equal(got[f], want[f]), f"{blocks}: {f.name} differs"
@@ -139,6 +156,10 @@ def test_block_law_compiles_to_simd():
     args, _, _ = _pairs(8, [0], [0], seed=1)
     _blocks(args, _table(), 1e-6)
     asm = "".join(_blocks.inspect_asm().values())
-    packed = {"x86_64": ("vsqrtpd", "sqrtpd"), "AMD64": ("vsqrtpd", "sqrtpd"),
-              "aarch64": ("fsqrt\tv", "fsqrt\tz"), "arm64": ("fsqrt\tv",)}[platform.machine()]
+    packed = {
+        "x86_64": ("vsqrtpd", "sqrtpd"),
+        "AMD64": ("vsqrtpd", "sqrtpd"),
+        "aarch64": ("fsqrt\tv", "fsqrt\tz"),
+        "arm64": ("fsqrt\tv",),
+    }[platform.machine()]
     assert any(op in asm for op in packed), "the block law was not vectorised"

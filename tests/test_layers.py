@@ -3,6 +3,7 @@
 all ooc_dem/errors.py (the exceptions' base). A module may import its own layer and the
 layers below it, never one above; storage imports nothing of the rest but the errors' base.
 Read from the source with ast, so a new upward import fails here before it makes a circle."""
+
 from __future__ import annotations
 
 import ast
@@ -15,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # the layers are the package's folders, lowest first; the modules at the top of the package
 # (the command line, the Python API, the package's __init__) are the application's entry points
 ORDER = ["physics", "model", "engine", "app"]
-INDEPENDENT = "storage"     # below everything, and imports nothing of the rest
+INDEPENDENT = "storage"  # below everything, and imports nothing of the rest
 # the base of every error for the user: importable from every layer, storage included; it
 # imports nothing of ooc_dem
 BASE = "ooc_dem.errors"
@@ -34,8 +35,11 @@ def test_every_module_lives_in_a_layer_folder():
     top = sorted(f.stem for f in ROOT.joinpath("ooc_dem").glob("*.py"))
     assert top == ["__init__", "api", "cli", "errors"], top
     # packages of code (scenarios/ holds the built-in scenarios' TOML files, no code)
-    folders = sorted(d.name for d in ROOT.joinpath("ooc_dem").iterdir()
-                     if d.is_dir() and any(f.name != "__init__.py" for f in d.glob("*.py")))
+    folders = sorted(
+        d.name
+        for d in ROOT.joinpath("ooc_dem").iterdir()
+        if d.is_dir() and any(f.name != "__init__.py" for f in d.glob("*.py"))
+    )
     assert folders == sorted([*ORDER, INDEPENDENT]), folders
 
 
@@ -48,7 +52,7 @@ def imports():
         for node in ast.walk(ast.parse(f.read_text())):
             if isinstance(node, ast.ImportFrom):
                 if node.level:
-                    base = pkg.split(".")[:len(pkg.split(".")) - node.level + 1]
+                    base = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]
                     mod = ".".join(base + ([node.module] if node.module else []))
                     targets = [mod] if node.module else [f"{mod}.{a.name}" for a in node.names]
                 else:
@@ -64,8 +68,9 @@ def imports():
 
 def test_the_import_graph_is_read():
     pairs = list(imports())
-    assert ("ooc_dem.engine.stepper", "ooc_dem.physics") in {(a, b.rsplit(".", 1)[0]) for a, b in pairs} \
-        or any(a == "ooc_dem.engine.stepper" and b.startswith("ooc_dem.physics") for a, b in pairs)
+    assert ("ooc_dem.engine.stepper", "ooc_dem.physics") in {(a, b.rsplit(".", 1)[0]) for a, b in pairs} or any(
+        a == "ooc_dem.engine.stepper" and b.startswith("ooc_dem.physics") for a, b in pairs
+    )
     assert len(pairs) > 50
 
 
@@ -101,7 +106,7 @@ def _import_nodes(name, f):
     for node in ast.walk(ast.parse(f.read_text())):
         if isinstance(node, ast.ImportFrom):
             if node.level:
-                base = pkg.split(".")[:len(pkg.split(".")) - node.level + 1]
+                base = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]
                 mod = ".".join(base + ([node.module] if node.module else []))
             else:
                 mod = node.module or ""
@@ -116,8 +121,12 @@ def _type_only_imports(f) -> set[int]:
     out = set()
     for node in ast.walk(ast.parse(f.read_text())):
         if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
-            out.update((type(n).__name__, n.lineno) for b in node.body for n in ast.walk(b)
-                       if isinstance(n, (ast.Import, ast.ImportFrom)))
+            out.update(
+                (type(n).__name__, n.lineno)
+                for b in node.body
+                for n in ast.walk(b)
+                if isinstance(n, (ast.Import, ast.ImportFrom))
+            )
     return out
 
 
@@ -150,7 +159,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
         stack.append(m)
         for n in sorted(graph[m]):
             if state.get(n) == "open":
-                return stack[stack.index(n):] + [n]
+                return stack[stack.index(n) :] + [n]
             if n not in state and (c := visit(n)):
                 return c
         stack.pop()
@@ -182,24 +191,37 @@ def test_no_private_storage_names_outside_storage():
     bad = []
     for name, f in _module_files("ooc_dem", "tools"):
         for node, mod, names in _import_nodes(name, f):
-            if not (mod == "ooc_dem.storage" or mod.startswith("ooc_dem.storage.")) \
-                    or name.startswith("ooc_dem.storage"):
+            if not (mod == "ooc_dem.storage" or mod.startswith("ooc_dem.storage.")) or name.startswith(
+                "ooc_dem.storage"
+            ):
                 continue
             private = [p for p in mod.split(".")[2:] + names if p.startswith("_")]
             if private:
                 bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: {mod} {', '.join(private)}")
         for node in ast.walk(ast.parse(f.read_text())):
-            if (isinstance(node, ast.Attribute) and node.attr.startswith("_")
-                    and isinstance(node.value, ast.Name) and node.value.id == "storage"):
+            if (
+                isinstance(node, ast.Attribute)
+                and node.attr.startswith("_")
+                and isinstance(node.value, ast.Name)
+                and node.value.id == "storage"
+            ):
                 bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: storage.{node.attr}")
     assert not bad, "private storage names used outside ooc_dem/storage/:\n" + "\n".join(bad)
 
 
 # the run loop, its planning and resume, the engines, their interface and the mode registry
-DISPATCH_FREE = ("ooc_dem/app/run.py", "ooc_dem/app/plan.py", "ooc_dem/app/resume.py",
-                 "ooc_dem/engine/sweep.py", "ooc_dem/engine/ooc.py", "ooc_dem/engine/monolithic.py",
-                 "ooc_dem/engine/interface.py", "ooc_dem/engine/modes.py", "ooc_dem/engine/budget.py",
-                 "ooc_dem/engine/mpi/*.py")
+DISPATCH_FREE = (
+    "ooc_dem/app/run.py",
+    "ooc_dem/app/plan.py",
+    "ooc_dem/app/resume.py",
+    "ooc_dem/engine/sweep.py",
+    "ooc_dem/engine/ooc.py",
+    "ooc_dem/engine/monolithic.py",
+    "ooc_dem/engine/interface.py",
+    "ooc_dem/engine/modes.py",
+    "ooc_dem/engine/budget.py",
+    "ooc_dem/engine/mpi/*.py",
+)
 
 
 def test_the_engines_and_the_run_loop_dispatch_on_no_attribute():
@@ -211,8 +233,11 @@ def test_the_engines_and_the_run_loop_dispatch_on_no_attribute():
     for f in files:
         rel = f.relative_to(ROOT)
         for node in ast.walk(ast.parse(f.read_text())):
-            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
-                    and node.func.id in ("hasattr", "getattr")):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id in ("hasattr", "getattr")
+            ):
                 bad.append(f"{rel}:{node.lineno}: {node.func.id}")
     assert not bad, "\n".join(bad)
 
@@ -221,8 +246,7 @@ def is_app_code(f) -> bool:
     """Whether the callable f is the application's: a function or method defined in an
     application module, or a method bound to an object of one."""
     owner = getattr(f, "__self__", None)
-    modules = [getattr(f, "__module__", None) or "",
-               type(owner).__module__ if owner is not None else ""]
+    modules = [getattr(f, "__module__", None) or "", type(owner).__module__ if owner is not None else ""]
     return any(layer(m) == "app" for m in modules if m.startswith("ooc_dem"))
 
 
@@ -230,6 +254,7 @@ def test_app_code_is_recognised():
     from ooc_dem.app.run import Simulation
     from ooc_dem.engine.sweep import SlabSweep
     from ooc_dem.app.run import FrameParts
+
     assert is_app_code(Simulation.commit) and is_app_code(FrameParts(None, 0).write_part)
     assert not is_app_code(lambda: None)
     assert not is_app_code(SlabSweep.info) and not is_app_code(print)
@@ -239,6 +264,7 @@ def test_no_engine_takes_a_callback():
     """Engines are given data, never the application's functions: no parameter of an
     engine's constructors is annotated Callable or has a callable default."""
     from ooc_dem.engine.modes import MODES
+
     bad, seen = [], 0
     for mode in MODES.values():
         cls = mode.engine
@@ -260,6 +286,7 @@ def test_the_modes_are_listed_once():
     tuple, list or set of mode names, and no comparison of a mode with a mode's name (the
     code asks the registry's capabilities)."""
     from ooc_dem.engine.modes import MODES
+
     names = set(MODES)
     bad = []
     for name, f in _module_files("ooc_dem"):
@@ -272,8 +299,9 @@ def test_the_modes_are_listed_once():
                     bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: {listed}")
             elif isinstance(node, ast.Compare):
                 left = node.left
-                is_mode = (isinstance(left, ast.Name) and left.id == "mode") or \
-                          (isinstance(left, ast.Attribute) and left.attr == "mode")
+                is_mode = (isinstance(left, ast.Name) and left.id == "mode") or (
+                    isinstance(left, ast.Attribute) and left.attr == "mode"
+                )
                 named = [c.value for c in node.comparators if isinstance(c, ast.Constant) and c.value in names]
                 if is_mode and named:
                     bad.append(f"{f.relative_to(ROOT)}:{node.lineno}: mode compared with {named}")
@@ -285,11 +313,11 @@ def tiny_runs(tmp_path_factory):
     """A four-step run of a 300-disc bed in each mode; (mode, engine, simulation)."""
     from ooc_dem.app.run import RunOptions, Simulation
     from ooc_dem.model.scenario import load_scenario
+
     sc = load_scenario("bed-300", ["decomposition.policy=equal"])
     runs = []
     for mode in ("monolithic", "ddm", "ooc"):
-        opts = RunOptions(mode=mode, backend="hdf5", domains=2, block=2, steps=4, progress=False,
-                          figures=False)
+        opts = RunOptions(mode=mode, backend="hdf5", domains=2, block=2, steps=4, progress=False, figures=False)
         sim = Simulation(sc, tmp_path_factory.mktemp(mode) / "run", opts)
         sim.start()
         engine = sim.engine
@@ -304,6 +332,7 @@ def test_every_engine_satisfies_the_protocol(tiny_runs):
     from ooc_dem.app.run import Simulation
     from ooc_dem.engine.ooc import OocEngine
     from ooc_dem.engine.sweep import DdmEngine
+
     classes = {"monolithic": MonolithicEngine, "ddm": DdmEngine, "ooc": OocEngine}
     # the protocol's members: its methods and properties, and its annotated attributes
     members = sorted({m for m in [*vars(Engine), *Engine.__annotations__] if not m.startswith("_")})
@@ -322,8 +351,7 @@ def test_every_engine_satisfies_the_protocol(tiny_runs):
         # function of the application (a bound method of one of its objects, a closure):
         # engines never call back into the application
         assert not any(isinstance(v, Simulation) for v in vars(engine).values()), mode
-        held = [(k, v) for k, v in vars(engine).items()
-                if callable(v) and not isinstance(v, type) and is_app_code(v)]
+        held = [(k, v) for k, v in vars(engine).items() if callable(v) and not isinstance(v, type) and is_app_code(v)]
         assert not held, (mode, held)
         assert summary["n_discs"] == 300 and summary["steps"] == 4
         hashes.add(summary["state_hash"])

@@ -1,6 +1,7 @@
 """MPI mode (engine/mpi.py) with real `mpiexec` processes (the mpich wheel of the test
 extra): R ranks give serial DDM's bits, resume across rank counts, and a rank killed
 with SIGKILL takes the job down."""
+
 import json
 import os
 import shutil
@@ -20,11 +21,24 @@ from support.stores import committed_step
 # quick bed, so that its slab is redefined within 600 steps (test_ddm's wheel case)
 BED = ["bed-600"]
 BED_STEPS = 60
-WHEEL = ["quick", "--set", "wheel.omega=4.0", "--set", "wheel.control=slip", "--set", "wheel.slip=0.2",
-         "--set", "wheel.settle_time=0.0", "--set", "wheel.drop_gap=0.0", "--set", "decomposition.margin=0.001"]
+WHEEL = [
+    "quick",
+    "--set",
+    "wheel.omega=4.0",
+    "--set",
+    "wheel.control=slip",
+    "--set",
+    "wheel.slip=0.2",
+    "--set",
+    "wheel.settle_time=0.0",
+    "--set",
+    "wheel.drop_gap=0.0",
+    "--set",
+    "decomposition.margin=0.001",
+]
 WHEEL_STEPS = 600
 # out-of-core commits an epoch per sweep: sweeps of 10 steps (the bits do not depend on K)
-OOC_WHEEL = [*WHEEL, "--block", "10", "--set", "output.snapshot_interval=0.002"]   # + frames every 200 steps
+OOC_WHEEL = [*WHEEL, "--block", "10", "--set", "output.snapshot_interval=0.002"]  # + frames every 200 steps
 OOC_WHEEL_STEPS = 600
 QUIET = ["--no-progress", "--no-figures"]
 # one numba thread a rank: ranks are the parallelism (and 3 ranks share 2 cores here)
@@ -41,11 +55,18 @@ def mpiexec() -> str:
 
 def run_mpi(ranks: int, *args, timeout=240, check=True):
     env = {**os.environ, **ENV}
-    cp = subprocess.run([mpiexec(), "-n", str(ranks), sys.executable, "-m", "ooc_dem.cli", *map(str, args)],
-                        capture_output=True, text=True, timeout=timeout, env=env)
+    cp = subprocess.run(
+        [mpiexec(), "-n", str(ranks), sys.executable, "-m", "ooc_dem.cli", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
     if check and cp.returncode != 0:
-        raise AssertionError(f"mpiexec -n {ranks} ooc-dem {' '.join(map(str, args))} failed "
-                             f"({cp.returncode}):\n{cp.stdout[-2000:]}\n{cp.stderr[-3000:]}")
+        raise AssertionError(
+            f"mpiexec -n {ranks} ooc-dem {' '.join(map(str, args))} failed "
+            f"({cp.returncode}):\n{cp.stdout[-2000:]}\n{cp.stderr[-3000:]}"
+        )
     return cp
 
 
@@ -55,6 +76,7 @@ def summary(run) -> dict:
 
 def final_state(run) -> dict:
     import ooc_dem
+
     return ooc_dem.open_run(run).state()
 
 
@@ -70,8 +92,7 @@ def _references(tmp_path_factory, mode: str, wheel: list, wheel_steps: int):
     """Serial runs of `mode` to compare with: the bare bed and the wheel run."""
     root = tmp_path_factory.mktemp(f"serial-{mode}")
     run_cli("run", *BED, "--mode", mode, "--steps", BED_STEPS, "--out", root / "bed", *QUIET, check=True, env=ENV)
-    run_cli("run", *wheel, "--mode", mode, "--steps", wheel_steps, "--out", root / "wheel", *QUIET, check=True,
-            env=ENV)
+    run_cli("run", *wheel, "--mode", mode, "--steps", wheel_steps, "--out", root / "wheel", *QUIET, check=True, env=ENV)
     return root
 
 
@@ -103,7 +124,7 @@ def test_wheel_run_ranks_give_the_serial_bits(serial, tmp_path, ranks):
     run_mpi(ranks, "run", *WHEEL, "--mode", "mpi", "--steps", WHEEL_STEPS, "--out", out, *QUIET)
     assert_same_run(serial / "wheel", out)
     s, ref = summary(out), summary(serial / "wheel")
-    assert s["engine"]["redecompositions"] >= 2, s["engine"]   # the initial one and >= 1 on the way
+    assert s["engine"]["redecompositions"] >= 2, s["engine"]  # the initial one and >= 1 on the way
     assert s["engine"]["redecompositions"] == ref["engine"]["redecompositions"]
     assert s["engine"]["bounds"] == ref["engine"]["bounds"]
     assert s["slip"] == ref["slip"] and s["net_traction"] == ref["net_traction"]
@@ -111,6 +132,7 @@ def test_wheel_run_ranks_give_the_serial_bits(serial, tmp_path, ranks):
 
 def test_share_out_is_scattered_only_when_a_sub_domain_is_too_large_to_cut():
     from ooc_dem.engine.mpi import rank_domains, rank_intervals, rank_segments
+
     # the paper2008 wheel slab mid-bin holds half the discs: contiguous ranges split 5416 | 1570
     # (or 2014 | 4972), the wheel slab alone against the two sides 3400 | 3586
     assert rank_domains(np.array([2014, 3400, 1572]), 2).tolist() == [1, 0, 1]
@@ -122,7 +144,7 @@ def test_share_out_is_scattered_only_when_a_sub_domain_is_too_large_to_cut():
     owner = np.array([1, 0, 1])
     assert rank_intervals(owner, bounds, 1).tolist() == [[-np.inf, 0.2], [0.5, np.inf]]
     assert rank_intervals(owner, bounds, 0).tolist() == [[0.2, 0.5]]
-    lb, glob = rank_segments(owner, bounds, 1)   # own, ghost (rank 0's slab), own
+    lb, glob = rank_segments(owner, bounds, 1)  # own, ghost (rank 0's slab), own
     assert lb.tolist() == bounds.tolist() and glob.tolist() == [0, -1, 2]
     lb, glob = rank_segments(np.array([0, 0, 1, 1]), np.array([-np.inf, 1.0, 2.0, 3.0, np.inf]), 0)
     assert lb.tolist() == [-np.inf, 1.0, 2.0, np.inf] and glob.tolist() == [0, 1, -1]
@@ -142,8 +164,18 @@ def test_spheres_on_ranks_give_the_serial_bits(tmp_path):
     """3D kernels have no one-thread twin: each rank advances its sub-domains with their own
     steppers after the same exchange and refresh (serial DDM's per-sub-domain sweep); the
     wheel rolling on the quick-3d bed ends on serial DDM's bits."""
-    args = ["quick-3d", "--set", "wheel.settle_time=0.01", "--set", "wheel.drop_gap=0", "--steps", 600,
-            "--block", 4, *QUIET]
+    args = [
+        "quick-3d",
+        "--set",
+        "wheel.settle_time=0.01",
+        "--set",
+        "wheel.drop_gap=0",
+        "--steps",
+        600,
+        "--block",
+        4,
+        *QUIET,
+    ]
     run_cli("run", *args, "--mode", "ddm", "--out", tmp_path / "ddm", check=True, env=ENV)
     run_mpi(2, "run", *args, "--mode", "mpi", "--out", tmp_path / "mpi")
     assert sorted(set(summary(tmp_path / "mpi")["engine"]["rank_domains"])) == [0, 1]
@@ -183,17 +215,42 @@ def test_resume_a_serial_run_on_ranks(serial, tmp_path):
 def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path, mode, serial_mode):
     out = tmp_path / "mpi"
     env = {**os.environ, **ENV}
-    job = subprocess.Popen([mpiexec(), "-n", "2", sys.executable, "-m", "ooc_dem.cli", "run", *BED, "--mode", mode,
-                            "--steps", "1000000", "--checkpoint-every", "10", "--out", str(out), *QUIET],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    job = subprocess.Popen(
+        [
+            mpiexec(),
+            "-n",
+            "2",
+            sys.executable,
+            "-m",
+            "ooc_dem.cli",
+            "run",
+            *BED,
+            "--mode",
+            mode,
+            "--steps",
+            "1000000",
+            "--checkpoint-every",
+            "10",
+            "--out",
+            str(out),
+            *QUIET,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         deadline = time.time() + 180
         while committed_step(out) < 10:
             assert job.poll() is None, job.communicate()
             assert time.time() < deadline, "the job committed no epoch beyond step 0 in 180 s"
             time.sleep(0.2)
-        ranks = [c for c in psutil.Process(job.pid).children(recursive=True)
-                 if c.environ().get("PMI_RANK") is not None and "ooc_dem.cli" in " ".join(c.cmdline())]
+        ranks = [
+            c
+            for c in psutil.Process(job.pid).children(recursive=True)
+            if c.environ().get("PMI_RANK") is not None and "ooc_dem.cli" in " ".join(c.cmdline())
+        ]
         worker = [c for c in ranks if c.environ()["PMI_RANK"] == "1"]
         assert len(worker) == 1, [(c.pid, c.cmdline()) for c in ranks]
         worker[0].send_signal(signal.SIGKILL)
@@ -214,9 +271,21 @@ def test_sigkilled_rank_takes_the_job_down_and_the_run_resumes(tmp_path, mode, s
 
 
 # a short slip sweep of the quick wheel (set down without a drop, 5000 steps of travel)
-SWEEP = ["quick", "--set", "wheel.settle_time=0.0", "--set", "wheel.drop_gap=0.0",
-         "--set", "wheel.travel_time=0.05", "--set", "wheel.drawbar_ramp=0.01",
-         "--set", "output.steady_start=0.02", "--set", "output.steady_end=0.05"]
+SWEEP = [
+    "quick",
+    "--set",
+    "wheel.settle_time=0.0",
+    "--set",
+    "wheel.drop_gap=0.0",
+    "--set",
+    "wheel.travel_time=0.05",
+    "--set",
+    "wheel.drawbar_ramp=0.01",
+    "--set",
+    "output.steady_start=0.02",
+    "--set",
+    "output.steady_end=0.05",
+]
 
 
 def test_sweep_fans_its_runs_out_over_the_ranks(tmp_path):
@@ -237,8 +306,7 @@ def test_sweep_fans_its_runs_out_over_the_ranks(tmp_path):
 def test_sweep_on_ranks_refuses_bad_input_in_one_line(tmp_path):
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "x").write_text("")
-    cp = run_mpi(2, "sweep", *SWEEP, "--slips", "0.1,0.4", "--out", tmp_path / "taken", "--no-progress",
-                 check=False)
+    cp = run_mpi(2, "sweep", *SWEEP, "--slips", "0.1,0.4", "--out", tmp_path / "taken", "--no-progress", check=False)
     assert cp.returncode == 2
     one_line_error(cp, "directory exists and is not empty")
 
@@ -249,8 +317,22 @@ def test_each_rank_writes_its_own_part_of_every_epoch(serial, tmp_path, backend)
     written by that rank), rank 0's and the globals in the main file; the manifest names
     them all, `checkpoint verify` checks them, and the bits are serial DDM's."""
     out = tmp_path / "mpi"
-    run_mpi(3, "run", *BED, "--mode", "mpi", "--steps", BED_STEPS, "--checkpoint-every", 20, "--backend", backend,
-            "--out", out, *QUIET)
+    run_mpi(
+        3,
+        "run",
+        *BED,
+        "--mode",
+        "mpi",
+        "--steps",
+        BED_STEPS,
+        "--checkpoint-every",
+        20,
+        "--backend",
+        backend,
+        "--out",
+        out,
+        *QUIET,
+    )
     assert_same_run(serial / "bed", out)
     owner = summary(out)["engine"]["rank_domains"]
     of = lambda r: [d for d, q in enumerate(owner) if q == r]
@@ -268,6 +350,7 @@ def test_each_rank_writes_its_own_part_of_every_epoch(serial, tmp_path, backend)
     assert cp.returncode == 0 and "verified" in cp.stdout, cp.stderr
     if backend == "hdf5":
         import h5py
+
         d = of(owners[0])[0]
         with h5py.File(out / m["current"]["parts"][0]["path"], "r") as f:
             assert f"d{d:04d}" in f["domains"]
@@ -280,24 +363,26 @@ def test_out_of_core_ranks_give_the_serial_out_of_core_bits(serial_ooc, tmp_path
     on serial out-of-core's bits."""
     for case, args, steps in (("bed", BED, BED_STEPS), ("wheel", OOC_WHEEL, OOC_WHEEL_STEPS)):
         out = tmp_path / case
-        run_mpi(ranks, "run", *args, "--mode", "mpi-ooc", "--backend", backend, "--steps", steps, "--out", out,
-                *QUIET)
+        run_mpi(ranks, "run", *args, "--mode", "mpi-ooc", "--backend", backend, "--steps", steps, "--out", out, *QUIET)
         assert_same_run(serial_ooc / case, out)
         s, ref = summary(out), summary(serial_ooc / case)
         assert s["mode"] == "mpi-ooc" and s["engine"]["ranks"] == ranks
         assert s["engine"]["redecompositions"] == ref["engine"]["redecompositions"]
         m = json.loads((out / "MANIFEST.json").read_text())
-        assert len(m["current"].get("parts", [])) >= 1     # written by the ranks, not gathered
+        assert len(m["current"].get("parts", [])) >= 1  # written by the ranks, not gathered
     assert summary(tmp_path / "wheel")["engine"]["redecompositions"] >= 2
     assert summary(tmp_path / "wheel")["slip"] == summary(serial_ooc / "wheel")["slip"]
     # the trajectory: rank 0 streams each frame from the committed epoch, the same frames
     import h5py
+
     frames = sorted(p.name for p in (serial_ooc / "wheel" / "trajectory").iterdir())
     assert frames == sorted(p.name for p in (tmp_path / "wheel" / "trajectory").iterdir())
     assert len(frames) == OOC_WHEEL_STEPS // 200 + 1
     for name in frames:
-        with h5py.File(serial_ooc / "wheel" / "trajectory" / name) as a, \
-                h5py.File(tmp_path / "wheel" / "trajectory" / name) as b:
+        with (
+            h5py.File(serial_ooc / "wheel" / "trajectory" / name) as a,
+            h5py.File(tmp_path / "wheel" / "trajectory" / name) as b,
+        ):
             ia, ib = np.argsort(a["id"][()]), np.argsort(b["id"][()])
             for k in ("id", "pos", "vel", "spin", "r", "mat"):
                 assert np.array_equal(a[k][()][ia], b[k][()][ib]), (name, k)
@@ -312,14 +397,14 @@ def test_out_of_core_switches_between_one_process_and_ranks(serial_ooc, tmp_path
     run_cli("resume", out, "--mode", "ooc", "--steps", BED_STEPS, *QUIET, check=True, env=ENV)
     assert summary(out)["mode"] == "ooc"
     assert_same_run(serial_ooc / "bed", out)
-    one_line_error(run_cli("resume", out, "--mode", "ddm", "--steps", BED_STEPS + 10, *QUIET), "--mode 'ddm'",
-                   "ooc")
+    one_line_error(run_cli("resume", out, "--mode", "ddm", "--steps", BED_STEPS + 10, *QUIET), "--mode 'ddm'", "ooc")
 
 
 @pytest.mark.parametrize("mode", ["mpi", "mpi-ooc"])
 def test_bad_input_on_ranks_is_one_line_and_exit_2(tmp_path, mode):
     """The bad-input rule holds under mpiexec too: rank 0's one-line error and exit code 2,
     no abort notice of the MPI beside it."""
-    cp = run_mpi(2, "run", *BED, "--mode", mode, "--set", "output.no_such_key=1", "--out", tmp_path / "run", *QUIET,
-                 check=False)
+    cp = run_mpi(
+        2, "run", *BED, "--mode", mode, "--set", "output.no_such_key=1", "--out", tmp_path / "run", *QUIET, check=False
+    )
     one_line_error(cp, "output.no_such_key: unknown key")

@@ -1,5 +1,6 @@
 """The half pair list + CSR index (physics.d2.neighbors in 2D, physics.d3.neighbors in 3D)
 against brute force."""
+
 import numpy as np
 import pytest
 
@@ -28,7 +29,7 @@ def test_half_list_and_csr_match_brute_force(bed, build):
     if bed == "far":
         pos[:5] += 1000.0 * rng.normal(size=(5, dim))
     r = rng.uniform(r_lo, r_hi, n)
-    gid = rng.permutation(n).astype(np.int64) * 3 + 11      # ids unrelated to the order
+    gid = rng.permutation(n).astype(np.int64) * 3 + 11  # ids unrelated to the order
     d = np.sqrt(((pos[:, None] - pos[None]) ** 2).sum(-1))
     near = (d < r[:, None] + r[None] + skin) & ~np.eye(n, dtype=bool)
     expect = {(min(gid[i], gid[j]), max(gid[i], gid[j])) for i, j in zip(*np.nonzero(near))}
@@ -44,11 +45,11 @@ def test_half_list_and_csr_match_brute_force(bed, build):
     assert BUILDS[build](pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, ref) == npairs
     got = set()
     for i in range(n):
-        bs = pair_b[half_off[i]:half_off[i + 1]]
+        bs = pair_b[half_off[i] : half_off[i + 1]]
         assert (gid[bs] > gid[i]).all() and (np.diff(gid[bs]) > 0).all()
-        assert (pair_a[half_off[i]:half_off[i + 1]] == i).all()
+        assert (pair_a[half_off[i] : half_off[i + 1]] == i).all()
         got |= {(gid[i], gid[b]) for b in bs}
-        slots = inc_k[inc_off[i]:inc_off[i + 1]]
+        slots = inc_k[inc_off[i] : inc_off[i + 1]]
         assert (pair_b[slots] == i).all()
         assert (np.diff(gid[pair_a[slots]]) > 0).all()
     assert got == expect and inc_off[-1] == npairs

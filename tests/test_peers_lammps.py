@@ -3,6 +3,7 @@ another MPI than the binary's starts R independent one-rank copies (each doing t
 run), which once made a 2021 Debian ``lmp`` under the ``mpich`` wheel's mpirun look 2x
 slower and 2x larger than it is; the tool now picks the launcher beside the binary and
 refuses a run whose log says another rank count. Runs the real ``lmp`` of the test extra."""
+
 import importlib.util
 import os
 import shutil
@@ -43,8 +44,7 @@ def test_two_ranks_run_on_two_procs(lmp, tmp_path):
 def test_launcher_of_another_mpi_is_refused(lmp, tmp_path):
     # two independent copies of the binary: what a foreign MPI's mpirun starts
     fake = tmp_path / "copies"
-    fake.write_text('#!/bin/sh\nif [ "$1" = --version ]; then echo copies; exit 0; fi\n'
-                    'shift 4\n"$@" & "$@"\nwait\n')
+    fake.write_text('#!/bin/sh\nif [ "$1" = --version ]; then echo copies; exit 0; fi\nshift 4\n"$@" & "$@"\nwait\n')
     fake.chmod(0o755)
     with pytest.raises(SystemExit, match=r"LAMMPS ran on 1 procs where 2 were asked"):
         peers.run_lammps(lmp, str(fake), 2, tmp_path, MELT, "np2", 0)

@@ -14,6 +14,7 @@ skips, without it) and give ooc-dem's forces and motion.
   the tangential springs and their damping, the Coulomb limit; the two integrators differ
   by O((w dt)^2) at 100+ steps per contact).
 """
+
 import importlib.util
 import math
 import os
@@ -47,8 +48,14 @@ def info(lmp, tmp_path_factory):
 
 def _lammps(lmp, workdir: Path, script: str) -> str:
     (workdir / "in.test").write_text(script)
-    out = subprocess.run([lmp, "-in", "in.test", "-log", "log.test", "-echo", "none"], cwd=workdir,
-                         capture_output=True, text=True, timeout=120, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    out = subprocess.run(
+        [lmp, "-in", "in.test", "-log", "log.test", "-echo", "none"],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=dict(os.environ, OMP_NUM_THREADS="1"),
+    )
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-2000:]
     return out.stdout
 
@@ -69,9 +76,13 @@ def test_static_forces_match(law, lmp, info, tmp_path):
     p = initial_fill(fill_sc).sorted_by_id()
     p.pos[:] *= SQUEEZE
     p.vel[:] = 0.0
-    sc = load_scenario("bed3d", peers.overrides_3d(law) + FILL + [
-        f"bin.length={SQUEEZE * fill_sc.bin.length!r}", f"bin.width={SQUEEZE * fill_sc.bin.width!r}"])
-    half = SQUEEZE * 1.1 * fill_sc.soil.r_max       # half the squeezed pitch
+    sc = load_scenario(
+        "bed3d",
+        peers.overrides_3d(law)
+        + FILL
+        + [f"bin.length={SQUEEZE * fill_sc.bin.length!r}", f"bin.width={SQUEEZE * fill_sc.bin.width!r}"],
+    )
+    half = SQUEEZE * 1.1 * fill_sc.soil.r_max  # half the squeezed pitch
     for ax, far in ((AX_X, sc.bin.length), (AX_Y, None), (AX_Z, sc.bin.width)):
         c = p.pos[:, ax]
         low = c < c.min() + half
@@ -79,8 +90,9 @@ def test_static_forces_match(law, lmp, info, tmp_path):
         if far is not None:
             high = c > c.max() - half
             c[high] = far - 0.9 * p.r[high]
-    law_map, script = peers.export_case(sc, p, info, tmp_path, 0, 0, extra=(
-        "write_dump all custom forces.dump id fx fy fz modify format float %.17g\n"))
+    law_map, script = peers.export_case(
+        sc, p, info, tmp_path, 0, 0, extra=("write_dump all custom forces.dump id fx fy fz modify format float %.17g\n")
+    )
     text = (tmp_path / "bed.data").read_text()
     assert f"{len(p)} atoms" in text and "Velocities" in text
     assert law_map["pair"]["law"] == law_map["wall"]["law"] == law
@@ -95,7 +107,7 @@ def test_static_forces_match(law, lmp, info, tmp_path):
     f_ours = f_ours[order]
     f_l = np.array([f_lmp[i + 1] for i in range(len(p))])
     scale = np.abs(f_l).max()
-    assert scale > 10 * np.abs(p.mass * sc.physics.gravity).max()    # real contact forces, not gravity
+    assert scale > 10 * np.abs(p.mass * sc.physics.gravity).max()  # real contact forces, not gravity
     np.testing.assert_allclose(f_ours, f_l, rtol=0, atol=1e-9 * scale)
     # contacts: every overlapping pair counted by both (LAMMPS counts each at both atoms)
     used = np.arange(ours.p.hist_id.shape[1])[None, :] < ours.p.hist_n[:, None]
@@ -111,9 +123,7 @@ def test_static_forces_match(law, lmp, info, tmp_path):
 
 def _impacts(sc) -> Particles:
     """Sphere 0 hits the floor obliquely; spheres 1 and 2 collide obliquely in mid-air."""
-    pos = np.array([[0.010, 0.0022 + 1e-5, 0.025],
-                    [0.030, 0.050, 0.025],
-                    [0.0346, 0.0515, 0.0255]])
+    pos = np.array([[0.010, 0.0022 + 1e-5, 0.025], [0.030, 0.050, 0.025], [0.0346, 0.0515, 0.0255]])
     r = np.array([0.0022, 0.0020, 0.0025])
     p = Particles.new(pos, r, sc.soil.density, sc.physics.thickness)
     p.vel[:] = [[0.2, -0.3, 0.1], [0.3, 0.0, 0.0], [-0.3, 0.0, 0.0]]
@@ -125,14 +135,21 @@ def test_impacts_match(law, lmp, info, tmp_path):
     steps = 1500
     sc = load_scenario("bed3d", peers.overrides_3d(law) + ["physics.dt=1e-6"])
     p = _impacts(sc)
-    _, script = peers.export_case(sc, p, info, tmp_path, 0, steps, extra=(
-        "write_dump all custom v.dump id vx vy vz omegax omegay omegaz modify format float %.17g\n"))
+    _, script = peers.export_case(
+        sc,
+        p,
+        info,
+        tmp_path,
+        0,
+        steps,
+        extra=("write_dump all custom v.dump id vx vy vz omegax omegay omegaz modify format float %.17g\n"),
+    )
     _lammps(lmp, tmp_path, script)
     v_lmp = _dump(tmp_path / "v.dump")
     ours = DomainStepper(p.take(np.arange(len(p))), Model.from_scenario(sc))
     ours.advance(0, steps)
     q = ours.p.sorted_by_id()
-    assert q.vel[0, 1] > 0.05 and q.vel[1, 0] < 0.25 and q.vel[2, 0] > -0.25   # all three rebounded
+    assert q.vel[0, 1] > 0.05 and q.vel[1, 0] < 0.25 and q.vel[2, 0] > -0.25  # all three rebounded
     speed = 0.3
     # measured (both binaries): linear 0.02 % of the speed for velocities and spins; Hertz
     # 0.9 % (velocities) and 2.3 % (spins). Hertz has the larger gap because, without
@@ -143,7 +160,7 @@ def test_impacts_match(law, lmp, info, tmp_path):
         vl, wl = v_lmp[i + 1][:3], v_lmp[i + 1][3:]
         np.testing.assert_allclose(q.vel[i], vl, rtol=0, atol=vel_tol * speed, err_msg=f"sphere {i} velocity")
         np.testing.assert_allclose(q.spin[i], wl, rtol=0, atol=spin_tol * speed / q.r[i], err_msg=f"sphere {i} spin")
-    assert np.abs(q.spin[0]).max() > 0.2 * speed / q.r[0]                   # friction spun it up
+    assert np.abs(q.spin[0]).max() > 0.2 * speed / q.r[0]  # friction spun it up
 
 
 def test_tsuji_inverse_is_exact():

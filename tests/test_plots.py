@@ -1,4 +1,5 @@
 """Figures, tables and deformation fields on a small synthetic run directory."""
+
 from __future__ import annotations
 
 import json
@@ -13,8 +14,10 @@ from ooc_dem.app.runfiles import read_series
 from ooc_dem.model.scenario import load_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-SERIES_HEADER = ("t [s],t_travel [s],x [m],y [m],vx [m/s],omega [rad/s],slip [-],net_traction [N],"
-                 "vertical_force [N],torque [N m],gross_traction [N],sinkage [m],drawbar [N]")
+SERIES_HEADER = (
+    "t [s],t_travel [s],x [m],y [m],vx [m/s],omega [rad/s],slip [-],net_traction [N],"
+    "vertical_force [N],torque [N m],gross_traction [N],sinkage [m],drawbar [N]"
+)
 
 
 def assert_png(path, min_bytes=10_000):
@@ -26,14 +29,28 @@ def assert_png(path, min_bytes=10_000):
 
 def _summary(scenario="quick"):
     def q(unit, whole, steady):
-        return {"unit": unit, "whole_travel": {"value": whole, "window_s": [0.0, 2.0]},
-                "steady": {"value": steady, "window_s": [0.43, 2.0]}}
-    s = {"scenario": scenario, "mode": "monolithic", "backend": "hdf5", "wall_time_s": 12.345,
-         "slip": q("-", 0.7304, 0.7421), "net_traction": q("N", 9.952, 10.011),
-         "gross_traction": q("N", 12.721, 12.9), "torque": q("N m", 1.2721, 1.29),
-         "sinkage": q("m", 0.0215, 0.0232),
-         "motion_resistance": {"unit": "N", "whole_travel": {"value": 2.769, "window_s": [0.0, 2.0]},
-                               "steady": {"value": 2.889, "window_s": [0.43, 2.0]}}}
+        return {
+            "unit": unit,
+            "whole_travel": {"value": whole, "window_s": [0.0, 2.0]},
+            "steady": {"value": steady, "window_s": [0.43, 2.0]},
+        }
+
+    s = {
+        "scenario": scenario,
+        "mode": "monolithic",
+        "backend": "hdf5",
+        "wall_time_s": 12.345,
+        "slip": q("-", 0.7304, 0.7421),
+        "net_traction": q("N", 9.952, 10.011),
+        "gross_traction": q("N", 12.721, 12.9),
+        "torque": q("N m", 1.2721, 1.29),
+        "sinkage": q("m", 0.0215, 0.0232),
+        "motion_resistance": {
+            "unit": "N",
+            "whole_travel": {"value": 2.769, "window_s": [0.0, 2.0]},
+            "steady": {"value": 2.889, "window_s": [0.43, 2.0]},
+        },
+    }
     s["sinkage"]["static"] = {"value": 0.0081, "window_s": [-0.02, 0.0]}
     return s
 
@@ -142,7 +159,7 @@ def test_displacements_of_permuted_synthetic_bed(run_dir):
 def test_gridded_displacement_hand_computed():
     x0 = np.array([0.1, 0.4, 1.5, 0.5, 0.2])
     y0 = np.array([0.1, 0.2, 0.5, 1.5, 0.3])
-    dx = np.array([1.0, 3.0, 0.0, 4.0, np.nan])    # the NaN disc is skipped
+    dx = np.array([1.0, 3.0, 0.0, 4.0, np.nan])  # the NaN disc is skipped
     dy = np.array([0.0, 2.0, -1.0, 4.0, 7.0])
     g = gridded_displacement(x0, y0, dx, dy, cell=1.0)
     assert g.u.shape == (2, 2)
@@ -187,7 +204,9 @@ def test_sweep_plot(tmp_path):
     csv = tmp_path / "sweep.csv"
     rows = ["slip,drawbar_pull,gross_traction,sinkage"]
     for s in (0.1, 0.3, 0.2, 0.5, 0.7, 0.9):
-        rows.append(f"{s},{12 * (1 - math.exp(-5 * s)) - 2:.4f},{13 * (1 - math.exp(-5 * s)):.4f},{0.01 + 0.02 * s:.4f}")
+        rows.append(
+            f"{s},{12 * (1 - math.exp(-5 * s)) - 2:.4f},{13 * (1 - math.exp(-5 * s)):.4f},{0.01 + 0.02 * s:.4f}"
+        )
     csv.write_text("\n".join(rows) + "\n")
     png = sweep_plot(csv, tmp_path / "figs" / "sweep.png")
     assert_png(png, min_bytes=10_000)

@@ -1,4 +1,5 @@
 """Memory profiler: real subprocesses, real RSS; out-of-core keeps one sub-domain resident."""
+
 import json
 
 
@@ -8,8 +9,21 @@ from ooc_dem.model.state import bytes_per_disc
 
 def test_profile_report(tmp_path):
     out = tmp_path / "prof"
-    cp = run_cli("profile", "bed-6000", "--modes", "monolithic,ddm,ooc", "--domains", "6", "--block", "4",
-                 "--steps", "8", "--out", out, check=True)
+    cp = run_cli(
+        "profile",
+        "bed-6000",
+        "--modes",
+        "monolithic,ddm,ooc",
+        "--domains",
+        "6",
+        "--block",
+        "4",
+        "--steps",
+        "8",
+        "--out",
+        out,
+        check=True,
+    )
     doc = json.loads((out / "memory.json").read_text())
     runs = {r["mode"]: r for r in doc["runs"]}
     assert set(runs) == {"monolithic", "ddm", "ooc"}
@@ -41,16 +55,35 @@ def test_memsweep_stops_monolithic_at_its_limit(tmp_path):
     import subprocess
     import sys
     from pathlib import Path
+
     tool = Path(__file__).resolve().parents[1] / "tools" / "memsweep.py"
-    cp = subprocess.run([sys.executable, str(tool), "--sizes", "1000,2000,3000", "--slab-discs", "1000",
-                         "--monolithic-max", "2000", "--steps", "2", "--out", str(tmp_path / "m")],
-                        capture_output=True, text=True, timeout=900)
+    cp = subprocess.run(
+        [
+            sys.executable,
+            str(tool),
+            "--sizes",
+            "1000,2000,3000",
+            "--slab-discs",
+            "1000",
+            "--monolithic-max",
+            "2000",
+            "--steps",
+            "2",
+            "--out",
+            str(tmp_path / "m"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert cp.returncode == 0, cp.stderr[-3000:]
     doc = json.loads((tmp_path / "m" / "memsweep.json").read_text())
     seen = sorted((r["mode"], r["n_discs"]) for r in doc["runs"])
-    assert seen == [("monolithic", 1000), ("monolithic", 2000), ("ooc", 1000), ("ooc", 2000),
-                    ("ooc", 3000)]
-    assert {r["n_discs"]: r["resident_discs_max"] < r["n_discs"] for r in doc["runs"]
-            if r["mode"] == "ooc"} == {1000: False, 2000: True, 3000: True}
+    assert seen == [("monolithic", 1000), ("monolithic", 2000), ("ooc", 1000), ("ooc", 2000), ("ooc", 3000)]
+    assert {r["n_discs"]: r["resident_discs_max"] < r["n_discs"] for r in doc["runs"] if r["mode"] == "ooc"} == {
+        1000: False,
+        2000: True,
+        3000: True,
+    }
     assert set(doc["fits"]) == {"monolithic", "ooc", "ooc_over_monolithic_slope"}
     assert (tmp_path / "m" / "memsweep.png").stat().st_size > 10_000

@@ -4,6 +4,7 @@ of 1e300, a mass of 5e-324) and counts against the scenario are refused before a
 `--bed` and from the cache go through the same validation (a refused cache entry is rebuilt,
 with a warning); a hostile manifest meta gives the API's own StateError; the disk-space estimate
 of a resume comes from the epoch it resumed from, never from a damaged entry."""
+
 import hashlib
 import json
 import shutil
@@ -26,10 +27,12 @@ D0 = "domains/d0000"
 
 def _edit(name, index, value):
     """An edit of one element of domain 0's array `name` (the dtype kept)."""
+
     def edit(f):
         a = f[f"{D0}/{name}"][:]
         a[index] = value
         f[f"{D0}/{name}"][:] = a
+
     return edit
 
 
@@ -42,6 +45,7 @@ def _globals_step(step):
         a = json.loads(f["globals"].attrs["ooc_dem_attrs"])
         a["step"] = step
         f["globals"].attrs["ooc_dem_attrs"] = json.dumps(a)
+
     return edit
 
 
@@ -61,24 +65,26 @@ TAMPERED = {
 def test_hash_and_export_refuse_what_resume_refuses(run_copy, tmp_path, case):
     edit, needle = TAMPERED[case]
     m = _tamper_current(run_copy, edit)
-    if case == "float32-positions":   # the manifest describes the array as it now is
+    if case == "float32-positions":  # the manifest describes the array as it now is
         m["current"]["domains"]["0"]["arrays"]["pos"][1] = "<f4"
         (run_copy / "MANIFEST.json").write_text(json.dumps(m))
-    assert cli_in_process("checkpoint", "verify", run_copy).returncode == 0   # the checksums pass
+    assert cli_in_process("checkpoint", "verify", run_copy).returncode == 0  # the checksums pass
     one_line_error(cli_in_process("checkpoint", "hash", run_copy), needle)
     out = tmp_path / "e.csv"
     one_line_error(cli_in_process("checkpoint", "export", run_copy, "--out", out), needle)
     assert not out.exists()
-    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
-                                  "--no-figures"), needle)
+    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress", "--no-figures"), needle)
 
 
-@pytest.mark.parametrize("field,index,value", [("vel", (0, 0), 1e300), ("mass", 0, 5e-324),
-                                               ("pos", (0, AX_X), 1e12), ("spin", (0, 0), 1e300)])
+@pytest.mark.parametrize(
+    "field,index,value",
+    [("vel", (0, 0), 1e300), ("mass", 0, 5e-324), ("pos", (0, AX_X), 1e12), ("spin", (0, 0), 1e300)],
+)
 def test_finite_absurd_values_are_refused_naming_the_array(run_copy, field, index, value):
     _tamper_current(run_copy, _edit(field, index, value))
-    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
-                                  "--no-figures"), f"'{field}'")
+    one_line_error(
+        cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress", "--no-figures"), f"'{field}'"
+    )
     one_line_error(cli_in_process("checkpoint", "hash", run_copy), f"'{field}'")
 
 
@@ -86,7 +92,7 @@ def test_disk_space_estimate_ignores_a_damaged_current_epochs_size(run_copy):
     """The current epoch's recorded size says 10^18 bytes (nothing else recomputed, so it fails
     verification): the resume falls back to the previous epoch and finishes."""
     m = _manifest(run_copy)
-    m["current"]["files"][0]["size"] = 10 ** 18
+    m["current"]["files"][0]["size"] = 10**18
     (run_copy / "MANIFEST.json").write_text(json.dumps(m))
     cp = run_cli("resume", run_copy, "--steps", STEPS + 20, "--no-progress", "--no-figures")
     assert cp.returncode == 0, cp.stderr[-2000:]
@@ -94,8 +100,7 @@ def test_disk_space_estimate_ignores_a_damaged_current_epochs_size(run_copy):
     assert _manifest(run_copy)["current"]["step"] == STEPS + 20
 
 
-@pytest.mark.parametrize("key,value", [("dim", 3.0), ("dim", "2"), ("hist_cap", "12"),
-                                       ("hist_cap", 12.5)])
+@pytest.mark.parametrize("key,value", [("dim", 3.0), ("dim", "2"), ("hist_cap", "12"), ("hist_cap", 12.5)])
 def test_hostile_meta_types_raise_the_packages_state_error(run_copy, key, value):
     m = _manifest(run_copy)
     m["meta"][key] = value
@@ -109,9 +114,20 @@ def test_3d_material_index_beyond_the_table_is_refused(tmp_path):
     """mat = 2^31 - 1 in a 3D store: indexed into the contact table it read far out of bounds
     (a segmentation fault); refused by resume, hash and the API."""
     out = tmp_path / "run3"
-    run_cli("run", "quick-3d", "--out", out, "--steps", 10, "--checkpoint-every", 5,
-            "--no-progress", "--no-figures", check=True)
-    _tamper_current(out, _edit("mat", 0, 2 ** 31 - 1))
+    run_cli(
+        "run",
+        "quick-3d",
+        "--out",
+        out,
+        "--steps",
+        10,
+        "--checkpoint-every",
+        5,
+        "--no-progress",
+        "--no-figures",
+        check=True,
+    )
+    _tamper_current(out, _edit("mat", 0, 2**31 - 1))
     one_line_error(cli_in_process("resume", out, "--steps", 20, "--no-progress", "--no-figures"), "'mat'")
     one_line_error(cli_in_process("checkpoint", "hash", out), "'mat'")
     with pytest.raises(ooc_dem.StateError, match="'mat'"):
@@ -119,6 +135,7 @@ def test_3d_material_index_beyond_the_table_is_refused(tmp_path):
 
 
 # ----------------------------------------------------------------------------- disc counts
+
 
 def _commit_with_discs(run, edit):
     """Commit, through the store's own writer, a copy of the current epoch (one step on) whose
@@ -171,8 +188,21 @@ def _add_disc(rec):
 @pytest.fixture(scope="module")
 def run_3d_zarr(tmp_path_factory):
     out = tmp_path_factory.mktemp("zarr3d") / "run"
-    run_cli("run", "quick-3d", "--backend", "zarr", "--out", out, "--steps", 10, "--checkpoint-every", 5,
-            "--no-progress", "--no-figures", check=True)
+    run_cli(
+        "run",
+        "quick-3d",
+        "--backend",
+        "zarr",
+        "--out",
+        out,
+        "--steps",
+        10,
+        "--checkpoint-every",
+        5,
+        "--no-progress",
+        "--no-figures",
+        check=True,
+    )
     return out
 
 
@@ -185,12 +215,13 @@ def test_a_consistent_change_of_the_disc_count_is_refused(base_run, run_3d_zarr,
     run = tmp_path / "run"
     shutil.copytree(base_run if dim == 2 else run_3d_zarr, run)
     step = _commit_with_discs(run, edit)
-    assert cli_in_process("checkpoint", "verify", run).returncode == 0   # the store finds nothing wrong
+    assert cli_in_process("checkpoint", "verify", run).returncode == 0  # the store finds nothing wrong
     line = one_line_error(cli_in_process("checkpoint", "hash", run), f"epoch {step} holds", "soil.n")
     one_line_error(cli_in_process("resume", run, "--steps", step + 10, "--no-progress", "--no-figures"), line)
 
 
 # ----------------------------------------------------------------------------- MPI parts
+
 
 def _resign(store, entry, rel):
     """Record file `rel` (the main file or a part of manifest entry `entry`) at its size and
@@ -209,9 +240,23 @@ def test_a_part_of_another_epoch_is_refused_naming_the_part(tmp_path):
     resume in one line naming the part, and by a reader that skips verification (as the
     ranks' do) when it opens the part."""
     from test_mpi import run_mpi
+
     run = tmp_path / "mpi"
-    run_mpi(2, "run", "quick", "--mode", "mpi", "--steps", 20, "--checkpoint-every", 10, "--out", run,
-            "--no-progress", "--no-figures")
+    run_mpi(
+        2,
+        "run",
+        "quick",
+        "--mode",
+        "mpi",
+        "--steps",
+        20,
+        "--checkpoint-every",
+        10,
+        "--out",
+        run,
+        "--no-progress",
+        "--no-figures",
+    )
     m = _manifest(run)
     cur, prev = m["current"], m["previous"]
     assert cur["parts"] and prev["parts"]
@@ -221,7 +266,7 @@ def test_a_part_of_another_epoch_is_refused_naming_the_part(tmp_path):
     for d, info in cur["domains"].items():
         if info.get("part") == 1:
             cur["domains"][d] = prev["domains"][d]
-    m["previous"] = None   # else the previous epoch, intact, would be used instead
+    m["previous"] = None  # else the previous epoch, intact, would be used instead
     (run / "MANIFEST.json").write_text(json.dumps(m))
     needle = f"{part.rpartition('/')[2]}: the file records step {prev['step']}"
     cp = cli_in_process("checkpoint", "verify", run)
@@ -231,8 +276,7 @@ def test_a_part_of_another_epoch_is_refused_naming_the_part(tmp_path):
     one_line_error(cli_in_process("checkpoint", "export", run, "--out", out), needle)
     assert not out.exists()
     one_line_error(cli_in_process("resume", run, "--steps", 30, "--no-progress", "--no-figures"), needle)
-    one_line_error(run_mpi(2, "resume", run, "--steps", 30, "--no-progress", "--no-figures", check=False),
-                   needle)
+    one_line_error(run_mpi(2, "resume", run, "--steps", 30, "--no-progress", "--no-figures", check=False), needle)
     store = open_store(run, repair=False)
     try:
         with store.read_epoch(verify=False) as reader:
@@ -252,8 +296,16 @@ SMALL = ["--set", "soil.n=300", *sum((["--set", s] for s in WHEEL_TEST), [])]
 def prepared_bed(tmp_path_factory):
     """A settled bed of a small quick scenario, prepared with its own cache."""
     root = tmp_path_factory.mktemp("bed")
-    run_cli("prepare", "quick", *SMALL, "--out", root / "bed", "--no-progress", check=True,
-            env={"OOC_DEM_CACHE": str(root / "cache")})
+    run_cli(
+        "prepare",
+        "quick",
+        *SMALL,
+        "--out",
+        root / "bed",
+        "--no-progress",
+        check=True,
+        env={"OOC_DEM_CACHE": str(root / "cache")},
+    )
     return root
 
 
@@ -269,6 +321,7 @@ def _bed_with(src, dst, edit):
 def _set(name, index, value):
     def edit(a):
         a[name][index] = value
+
     return edit
 
 
@@ -288,9 +341,14 @@ def test_run_refuses_a_bad_bed_in_one_line(prepared_bed, tmp_path, case):
     edit, needle = BAD_BEDS[case]
     bed = _bed_with(prepared_bed / "bed", tmp_path / "bed", edit)
     out = tmp_path / "run"
-    one_line_error(cli_in_process("run", "quick", *SMALL, "--bed", bed, "--out", out, "--steps", 2,
-                                  "--no-progress", "--no-figures"), "--bed", needle)
-    assert not (out / "MANIFEST.json").exists()   # nothing committed from it
+    one_line_error(
+        cli_in_process(
+            "run", "quick", *SMALL, "--bed", bed, "--out", out, "--steps", 2, "--no-progress", "--no-figures"
+        ),
+        "--bed",
+        needle,
+    )
+    assert not (out / "MANIFEST.json").exists()  # nothing committed from it
 
 
 def test_a_refused_cache_entry_is_rebuilt_with_a_warning(prepared_bed, tmp_path):
@@ -302,13 +360,23 @@ def test_a_refused_cache_entry_is_rebuilt_with_a_warning(prepared_bed, tmp_path)
     with np.load(entry) as z:
         arrays = {k: z[k][:-1] for k in z.files}
     np.savez(entry, **arrays)
-    cp = run_cli("run", "quick", *SMALL, "--out", tmp_path / "run", "--steps", 2, "--no-progress",
-                 "--no-figures", env={"OOC_DEM_CACHE": str(cache)})
+    cp = run_cli(
+        "run",
+        "quick",
+        *SMALL,
+        "--out",
+        tmp_path / "run",
+        "--steps",
+        2,
+        "--no-progress",
+        "--no-figures",
+        env={"OOC_DEM_CACHE": str(cache)},
+    )
     assert cp.returncode == 0, cp.stderr[-2000:]
     warnings = [ln for ln in cp.stderr.splitlines() if "warning" in ln]
     assert len(warnings) == 1 and "soil.n = 300" in warnings[0] and "rebuilding" in warnings[0], cp.stderr
     with np.load(entry) as z, np.load(prepared_bed / "bed" / "bed.npz") as bed:
-        assert np.array_equal(z["pos"], bed["pos"])   # the same bed, settled again
+        assert np.array_equal(z["pos"], bed["pos"])  # the same bed, settled again
 
 
 def test_a_format_1_bed_at_another_capacity_reads_as_the_bed_it_stores(prepared_bed, tmp_path):
@@ -316,13 +384,25 @@ def test_a_format_1_bed_at_another_capacity_reads_as_the_bed_it_stores(prepared_
     history capacity, deflated members."""
     from ooc_dem.app.bed import read_bed
     from ooc_dem.model.scenario import load_scenario
+
     with np.load(prepared_bed / "bed" / "bed.npz") as z:
         a = {k: z[k] for k in z.files}
-    wider = {k: np.concatenate([v, np.zeros((len(v), 4) + v.shape[2:], v.dtype)], axis=1)
-             for k, v in a.items() if k.startswith("hist_") and k != "hist_n"}
+    wider = {
+        k: np.concatenate([v, np.zeros((len(v), 4) + v.shape[2:], v.dtype)], axis=1)
+        for k, v in a.items()
+        if k.startswith("hist_") and k != "hist_n"
+    }
     v1 = {k: v for k, v in a.items() if k not in ("pos", "vel", "spin", "hist_s", "hist_m")}
-    v1.update(hist_id=wider["hist_id"], x=a["pos"][:, 0], y=a["pos"][:, 1], vx=a["vel"][:, 0], vy=a["vel"][:, 1],
-              w=a["spin"][:, 0], hist_ft=wider["hist_s"][..., 0], hist_mr=wider["hist_m"][..., 0])
+    v1.update(
+        hist_id=wider["hist_id"],
+        x=a["pos"][:, 0],
+        y=a["pos"][:, 1],
+        vx=a["vel"][:, 0],
+        vy=a["vel"][:, 1],
+        w=a["spin"][:, 0],
+        hist_ft=wider["hist_s"][..., 0],
+        hist_mr=wider["hist_m"][..., 0],
+    )
     np.savez_compressed(tmp_path / "bed.npz", **v1)
     p = read_bed(tmp_path / "bed.npz", load_scenario("quick", SMALL[1::2]), "--bed")
     assert p.hist_cap == a["hist_id"].shape[1] + 4

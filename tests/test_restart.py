@@ -7,6 +7,7 @@ SIGKILLs it after a delay drawn uniformly from [0, T] (interpreter start-up, bed
 setup, stepping, writing or committing an epoch), resumes it to the end and
 requires the reference hash and a passing `checkpoint verify`.
 """
+
 import argparse
 import importlib.util
 import random
@@ -22,8 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # spends most of its wall time stepping and committing rather than starting the interpreter
 CONFIGS = {
     "monolithic": ("monolithic", 4800, 60, 10),
-    "ooc-hdf5": ("ooc-hdf5", 600, 60, 10),      # an epoch per sweep: 60 commits
-    "ooc-zarr": ("ooc-zarr", 600, 60, 20),      # zarr commits are slower: 30 of them
+    "ooc-hdf5": ("ooc-hdf5", 600, 60, 10),  # an epoch per sweep: 60 commits
+    "ooc-zarr": ("ooc-zarr", 600, 60, 20),  # zarr commits are slower: 30 of them
 }
 TRIALS = ["monolithic"] * 8 + ["ooc-hdf5"] * 6 + ["ooc-zarr"] * 6
 
@@ -41,8 +42,16 @@ def torture(tmp_path_factory):
     work = tmp_path_factory.mktemp("torture")
     runners, refs = {}, {}
     for name, (mode, steps, every, block) in CONFIGS.items():
-        args = argparse.Namespace(scenario="bed-1200", steps=steps, checkpoint_every=every, domains=3,
-                                  block=block, kills=1, timeout=600, keep=False)
+        args = argparse.Namespace(
+            scenario="bed-1200",
+            steps=steps,
+            checkpoint_every=every,
+            domains=3,
+            block=block,
+            kills=1,
+            timeout=600,
+            keep=False,
+        )
         t = mod.Torture(args, work / name)
         refs[name] = t.reference(mode)
         t.reference_hash = refs[name]["hash"]
@@ -90,8 +99,9 @@ def test_resume_extends_run_to_same_bits(tmp_path, mode):
     """Run 30 steps (committing every 10), then resume to 60: equals a straight
     monolithic 60-step run."""
     a, b = tmp_path / "a", tmp_path / "b"
-    run_cli("run", "bed-1200", "--out", a, "--steps", "30", "--checkpoint-every", "10", *mode,
-            "--no-progress", check=True)
+    run_cli(
+        "run", "bed-1200", "--out", a, "--steps", "30", "--checkpoint-every", "10", *mode, "--no-progress", check=True
+    )
     run_cli("resume", a, "--steps", "60", "--no-progress", check=True)
     run_cli("run", "bed-1200", "--out", b, "--steps", "60", "--no-progress", check=True)
     ha = cli_in_process("checkpoint", "hash", a, check=True).stdout.strip()

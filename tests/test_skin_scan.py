@@ -1,4 +1,5 @@
 """tools/skin_scan.py: the skin changes the time, never the bits."""
+
 import json
 import subprocess
 import sys
@@ -11,12 +12,13 @@ TOOL = Path(__file__).resolve().parents[1] / "tools" / "skin_scan.py"
 
 
 def _scan(*args):
-    return subprocess.run([sys.executable, str(TOOL), *map(str, args)], capture_output=True,
-                          text=True, timeout=900)
+    return subprocess.run([sys.executable, str(TOOL), *map(str, args)], capture_output=True, text=True, timeout=900)
 
 
-@pytest.mark.parametrize("scenario, steps, skins, scan_steps", [
-    ("quick", 2000, "0.0006,0.00002", 500), ("quick-3d", 1500, "0.001,0.0001", 300)])
+@pytest.mark.parametrize(
+    "scenario, steps, skins, scan_steps",
+    [("quick", 2000, "0.0006,0.00002", 500), ("quick-3d", 1500, "0.001,0.0001", 300)],
+)
 def test_every_skin_gives_the_same_bits(tmp_path, scenario, steps, skins, scan_steps):
     """A scenario's wheel on its bed (2D and 3D), advanced from its last epoch with a wide
     and a narrow skin: the same canonical state hash, more rebuilds and fewer candidate

@@ -1,4 +1,5 @@
 """Particles declares its fields (for readers and type checkers) in the state's one order."""
+
 import numpy as np
 
 from ooc_dem.model.state import ALL_FIELDS, Particles, fields

@@ -15,6 +15,7 @@
 - the HDF5 reader holds one group's objects open at a time: reading every group of an
   epoch does not grow resident memory with the number of groups.
 """
+
 import json
 import shutil
 import tracemalloc
@@ -35,7 +36,7 @@ from ooc_dem.model.state import Particles, state_hash
 from ooc_dem.storage import create_store, open_store
 
 LENGTH = 1.0
-CELL = 0.01   # the groups' memory-order cell (any positive size gives the same hashes)
+CELL = 0.01  # the groups' memory-order cell (any positive size gives the same hashes)
 
 
 def test_xxh64_is_xxhash():
@@ -87,7 +88,7 @@ def test_hash_is_a_function_of_the_set_of_discs(dim):
     # stale values in unused history slots are not state
     q = p.take(np.arange(len(p)))
     free = np.flatnonzero(q.hist_n < q.hist_cap)[0]
-    q.hist_id[free, q.hist_n[free]:] = 12345
+    q.hist_id[free, q.hist_n[free] :] = 12345
     assert hash_particles(q, wheel, 77) == h
     # every field, a history entry, the step and the wheel enter the hash
     seen = {h}
@@ -100,7 +101,7 @@ def test_hash_is_a_function_of_the_set_of_discs(dim):
             a[i] = 10**9
         seen.add(hash_particles(q, wheel, 77))
     q = p.take(np.arange(len(p)))
-    q.hist_n[i] -= 1   # one contact fewer
+    q.hist_n[i] -= 1  # one contact fewer
     seen.add(hash_particles(q, wheel, 77))
     seen.add(hash_particles(p, wheel, 78))
     seen.add(hash_particles(p, wheel + [0, 0, 0, 0, 0, 1e-9], 77))
@@ -114,7 +115,7 @@ def _write_store(path, groups: int, per_group: int, summaries: bool = True):
     every group (the worst case for the id check)."""
     n = groups * per_group
     p = _state(n, 3)
-    p.pos[:, AX_X] = (np.arange(n) + 0.5) / n * LENGTH   # slab d holds discs d*per_group ...
+    p.pos[:, AX_X] = (np.arange(n) + 0.5) / n * LENGTH  # slab d holds discs d*per_group ...
     store = create_store(str(path), "hdf5", {"format_version": 2, "dim": 2, "hist_cap": 12})
     w = store.begin_epoch(10)
     for d in range(groups):
@@ -144,7 +145,7 @@ def test_hash_verify_and_bounds_memory_scales_with_the_group_not_n(tmp_path, mon
     of two groups' ids (its default, 2**16 ids, is a constant whatever N is, but larger than
     these groups)."""
     monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", 0)
-    hash_particles(_state(5, 0), None, 0)   # compile the digest kernel outside the measurement
+    hash_particles(_state(5, 0), None, 0)  # compile the digest kernel outside the measurement
     peaks = {}
     for groups in (4, 16):
         p = _write_store(tmp_path / f"s{groups}", groups, 3000)
@@ -154,13 +155,14 @@ def test_hash_verify_and_bounds_memory_scales_with_the_group_not_n(tmp_path, mon
             peaks[groups] = {
                 "hash": _peak(lambda: h.setdefault("v", hash_epoch(reader))),
                 "verify": _peak(lambda: validate_epoch(reader, "t")),
-                "bounds": _peak(lambda: x_histogram(reader, LENGTH))}
+                "bounds": _peak(lambda: x_histogram(reader, LENGTH)),
+            }
             assert h["v"] == hash_particles(p, np.zeros(6), 10)
         store.close()
     for what in ("hash", "verify", "bounds"):
         ratio = peaks[16][what] / peaks[4][what]
         assert ratio < 1.5, (what, peaks)
-    assert peaks[16]["bounds"] < 200_000, peaks   # summaries only: no disc is read
+    assert peaks[16]["bounds"] < 200_000, peaks  # summaries only: no disc is read
 
 
 def _csv_columns(path) -> dict[str, list[str]]:
@@ -180,20 +182,30 @@ def test_export_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
         out = tmp_path / f"e{groups}.csv"
         store = open_store(str(tmp_path / f"s{groups}"), repair=False)
         with open_epoch(store) as reader:
+
             def run():
                 with export.read_snapshot(reader, "t", tmp_path, buffer_bytes=256 << 10) as snap:
                     export.export_snapshot(snap, "csv", out)
+
             peaks[groups] = _peak(run)
         store.close()
         cols = _csv_columns(out)
         order = np.argsort(p.id)
         assert np.array_equal(np.array(cols["id"], np.int64), p.id[order])
-        for name, want in (("x", p.pos[:, 0]), ("y", p.pos[:, 1]), ("vx", p.vel[:, 0]),
-                           ("vy", p.vel[:, 1]), ("w", p.spin[:, 0]), ("r", p.r), ("mass", p.mass)):
+        for name, want in (
+            ("x", p.pos[:, 0]),
+            ("y", p.pos[:, 1]),
+            ("vx", p.vel[:, 0]),
+            ("vy", p.vel[:, 1]),
+            ("w", p.spin[:, 0]),
+            ("r", p.r),
+            ("mass", p.mass),
+        ):
             assert np.array_equal(np.array(cols[name], np.float64), want[order]), name
         assert np.array_equal(np.array(cols["mat"], np.int32), p.mat[order])
         assert sorted(tmp_path.iterdir()) == sorted(
-            [tmp_path / f"s{g}" for g in peaks] + [tmp_path / f"e{g}.csv" for g in peaks])
+            [tmp_path / f"s{g}" for g in peaks] + [tmp_path / f"e{g}.csv" for g in peaks]
+        )
     assert peaks[16] / peaks[4] < 1.5, peaks
 
 
@@ -202,7 +214,7 @@ def test_export_refuses_an_id_held_by_two_groups(tmp_path):
     n, groups = 400, 4
     p = _state(n, 7)
     p.pos[:, AX_X] = (np.arange(n) + 0.5) / n * LENGTH
-    p.id[n - 1] = p.id[0]    # the first and the last group share an id
+    p.id[n - 1] = p.id[0]  # the first and the last group share an id
     p.hist_n[:] = 0
     store = create_store(str(tmp_path / "s"), "hdf5", {"format_version": 2, "dim": 2, "hist_cap": 12})
     w = store.begin_epoch(10)
@@ -244,7 +256,7 @@ def test_bounds_from_summaries_and_from_an_older_store_agree(tmp_path):
             hists[name] = x_histogram(counting, LENGTH)
             # with summaries nothing is read; without, each group's x once
             assert counting.rows == (0 if name == "new" else len(p)), name
-            validate_epoch(reader, name)   # an older store (no summaries) still verifies
+            validate_epoch(reader, name)  # an older store (no summaries) still verifies
         store.close()
     # serial DDM's groups in RAM, grouped otherwise (3 groups of scattered rows): same counts
     ram = RamEpochs()
@@ -257,7 +269,7 @@ def test_bounds_from_summaries_and_from_an_older_store_agree(tmp_path):
         assert np.array_equal(equal_bounds(h, 7), equal_bounds(whole, 7))
     b = equal_bounds(whole, 5)
     counts = np.histogram(p.pos[:, AX_X], b)[0]
-    assert abs(counts - len(p) / 5).max() <= len(p) / 4096 + 1   # within a bin's share
+    assert abs(counts - len(p) / 5).max() <= len(p) / 4096 + 1  # within a bin's share
 
 
 def test_ids_repeated_across_groups_are_refused_in_bounded_memory(tmp_path, monkeypatch):
@@ -279,6 +291,7 @@ def _strip_summaries(store_dir):
     """Remove every group's x_summary from the current HDF5 epoch (as written before groups kept x summaries)
     and recompute the manifest's size and checksum of the file."""
     import hashlib
+
     m = json.loads((store_dir / "MANIFEST.json").read_text())
     cur = m["current"]
     path = store_dir / cur["path"]
@@ -291,7 +304,7 @@ def _strip_summaries(store_dir):
     data = path.read_bytes()
     for e in cur["files"]:
         if e["path"] == cur["path"]:
-            e.pop("xxh3_128", None)    # re-signed as the stores of that time were (sha256)
+            e.pop("xxh3_128", None)  # re-signed as the stores of that time were (sha256)
             e["size"], e["sha256"] = len(data), hashlib.sha256(data).hexdigest()
     m["previous"] = None
     (store_dir / "MANIFEST.json").write_text(json.dumps(m))
@@ -300,8 +313,7 @@ def _strip_summaries(store_dir):
 def test_store_without_summaries_resumes_to_the_same_bits(tmp_path):
     """A store whose epoch lacks the x summaries (written before groups kept x summaries) verifies, resumes
     and ends with the hash of an uninterrupted run; a summary that lies is refused."""
-    common = ["--mode", "ooc", "--backend", "hdf5", "--domains", 3, "--block", 10,
-              "--no-progress", "--no-figures"]
+    common = ["--mode", "ooc", "--backend", "hdf5", "--domains", 3, "--block", 10, "--no-progress", "--no-figures"]
     run_cli("run", "bed-1200", "--steps", 60, "--out", tmp_path / "whole", *common, check=True)
     run_cli("run", "bed-1200", "--steps", 30, "--out", tmp_path / "part", *common, check=True)
     shutil.copytree(tmp_path / "part", tmp_path / "lie", symlinks=True)
@@ -322,15 +334,17 @@ def test_store_without_summaries_resumes_to_the_same_bits(tmp_path):
         a["x_summary"]["counts"][-1] -= 1
         g.attrs["ooc_dem_attrs"] = json.dumps(a)
     import hashlib
+
     data = path.read_bytes()
     for e in m["current"]["files"]:
         if e["path"] == m["current"]["path"]:
-            e.pop("xxh3_128", None)    # re-signed as the stores of that time were (sha256)
+            e.pop("xxh3_128", None)  # re-signed as the stores of that time were (sha256)
             e["size"], e["sha256"] = len(data), hashlib.sha256(data).hexdigest()
     m["previous"] = None
     (tmp_path / "lie" / "MANIFEST.json").write_text(json.dumps(m))
-    one_line_error(cli_in_process("resume", tmp_path / "lie", "--steps", 60, "--no-progress", "--no-figures"),
-                   "x_summary")
+    one_line_error(
+        cli_in_process("resume", tmp_path / "lie", "--steps", 60, "--no-progress", "--no-figures"), "x_summary"
+    )
 
 
 def test_reading_every_group_holds_no_memory_per_group(tmp_path):
@@ -339,6 +353,7 @@ def test_reading_every_group_holds_no_memory_per_group(tmp_path):
     every group's open grew resident memory with D (24 MB at 64 groups of 8192 discs here)
     instead of with the slab."""
     import psutil
+
     groups, per_group = 64, 8192
     n = groups * per_group
     p = _state(n, 3, cap=1)
@@ -373,14 +388,24 @@ def test_resume_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
     runs' hashes."""
     from ooc_dem.app.run import RunOptions, Simulation, resume_simulation
     from ooc_dem.model.scenario import load_scenario
+
     monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", 0)
     peaks, hashes = {}, {}
     for groups in (4, 16):
         sc = load_scenario(f"bed-{3000 * groups}", ["decomposition.policy=equal"])
 
         def opts(steps):
-            return RunOptions(mode="ooc", backend="hdf5", domains=groups, block=5, steps=steps,
-                              checkpoint_every=5, progress=False, figures=False)
+            return RunOptions(
+                mode="ooc",
+                backend="hdf5",
+                domains=groups,
+                block=5,
+                steps=steps,
+                checkpoint_every=5,
+                progress=False,
+                figures=False,
+            )
+
         whole = Simulation(sc, tmp_path / f"whole{groups}", opts(10))
         whole.start(streamed=True)
         hashes[groups] = whole.run()["state_hash"]
@@ -389,7 +414,10 @@ def test_resume_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
         first.run()
         first.close()
         box = {}
-        peaks[groups] = _peak(lambda: box.setdefault("sim", resume_simulation(
-            tmp_path / f"run{groups}", steps=10, progress=False, figures=False)))
+        peaks[groups] = _peak(
+            lambda: box.setdefault(
+                "sim", resume_simulation(tmp_path / f"run{groups}", steps=10, progress=False, figures=False)
+            )
+        )
         assert box["sim"].run()["state_hash"] == hashes[groups]
     assert peaks[16] / peaks[4] < 1.5, peaks

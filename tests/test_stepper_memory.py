@@ -1,6 +1,7 @@
 """A pair list that must grow is let go before its successor is allocated: at 1M discs the
 list is ~120 bytes a disc, and holding both would put that on top of the peak RSS. The
 growth never changes a result bit (docs/design.md §3)."""
+
 import tracemalloc
 
 import numpy as np
@@ -64,6 +65,6 @@ def test_a_list_regrown_inside_a_run_is_not_held_twice_and_keeps_the_bits(traced
     rise = _traced_rise(lambda: st.advance(20, 30))
     new = _list_bytes(st)
     assert st.pair_b.shape[0] >= st.pairs
-    assert rise < new - old + old // 2, (rise, new, old)   # not new + old
+    assert rise < new - old + old // 2, (rise, new, old)  # not new + old
     ref.advance(20, 30)
     assert_same_state(ref.p, st.p)

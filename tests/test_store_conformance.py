@@ -33,18 +33,19 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 
 # ----------------------------------------------------------------------------- helpers
 
+
 def domain_arrays(step: int, d: int, n: int = 12) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(1000 * step + d)
     return {
-        "x": rng.standard_normal(n),                                  # float64
-        "ids": np.arange(n, dtype=np.int64) + 100 * d,                # int64
-        "mat": rng.integers(-5, 5, size=n, dtype=np.int32),           # int32
-        "vel": rng.standard_normal((n, 2)),                           # 2-D
-        "flag": rng.random(n) < 0.5,                                  # bool
+        "x": rng.standard_normal(n),  # float64
+        "ids": np.arange(n, dtype=np.int64) + 100 * d,  # int64
+        "mat": rng.integers(-5, 5, size=n, dtype=np.int32),  # int32
+        "vel": rng.standard_normal((n, 2)),  # 2-D
+        "flag": rng.random(n) < 0.5,  # bool
         "w": rng.random(n).astype(np.float32),
-        "hist_ptr": np.arange(n + 1, dtype=np.int64),                 # different length
-        "hist_partner": np.zeros(0, dtype=np.int64),                  # empty
-        "empty2d": np.zeros((0, 3), dtype=np.float64),                # empty 2-D
+        "hist_ptr": np.arange(n + 1, dtype=np.int64),  # different length
+        "hist_partner": np.zeros(0, dtype=np.int64),  # empty
+        "empty2d": np.zeros((0, 3), dtype=np.float64),  # empty 2-D
     }
 
 
@@ -52,8 +53,10 @@ def write_epoch(store, step, ndom=2, n=12, durable=False):
     w = store.begin_epoch(step)
     for d in range(ndom):
         w.write_domain(d, domain_arrays(step, d, n), {"d": d, "step": step, "bounds": [0.5 * d, 0.5 * d + 0.5]})
-    w.write_globals({"step": np.array(step, dtype=np.int64), "wheel": np.arange(6.0) + step},
-                    {"rng": {"state": 2**100 + step}, "scenario": "quick"})
+    w.write_globals(
+        {"step": np.array(step, dtype=np.int64), "wheel": np.arange(6.0) + step},
+        {"rng": {"state": 2**100 + step}, "scenario": "quick"},
+    )
     w.commit(durable=durable)
 
 
@@ -105,33 +108,53 @@ def flip_byte(path: pathlib.Path, offset: int | None = None):
     path.write_bytes(bytes(data))
 
 
-_DTYPES = [np.bool_, np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint16, np.uint32,
-           np.uint64, np.float16, np.float32, np.float64, np.complex64, np.complex128]
+_DTYPES = [
+    np.bool_,
+    np.int8,
+    np.int16,
+    np.int32,
+    np.int64,
+    np.uint8,
+    np.uint16,
+    np.uint32,
+    np.uint64,
+    np.float16,
+    np.float32,
+    np.float64,
+    np.complex64,
+    np.complex128,
+]
 
 
 @st.composite
 def array_dicts(draw):
     k = draw(st.integers(0, 4))
-    names = draw(st.lists(st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True),
-                          min_size=k, max_size=k, unique=True))
+    names = draw(
+        st.lists(st.from_regex(r"[A-Za-z_][A-Za-z0-9_]{0,8}", fullmatch=True), min_size=k, max_size=k, unique=True)
+    )
     out = {}
     for n in names:
         dtype = np.dtype(draw(st.sampled_from(_DTYPES)))
-        shape = draw(st.one_of(hnp.array_shapes(min_dims=1, max_dims=1, min_side=0, max_side=40),
-                               hnp.array_shapes(min_dims=2, max_dims=2, min_side=0, max_side=6)))
-        out[n] = draw(hnp.arrays(dtype, shape))       # includes nan / inf / -0.0 / extremes
+        shape = draw(
+            st.one_of(
+                hnp.array_shapes(min_dims=1, max_dims=1, min_side=0, max_side=40),
+                hnp.array_shapes(min_dims=2, max_dims=2, min_side=0, max_side=6),
+            )
+        )
+        out[n] = draw(hnp.arrays(dtype, shape))  # includes nan / inf / -0.0 / extremes
     return out
 
 
 # ----------------------------------------------------------------------------- every backend
+
 
 class StoreTests:
     """The checks every backend passes. A subclass sets ``backend`` and implements
     ``corrupt``, ``spoil_previous`` and ``fail_manifest_write``."""
 
     backend: str
-    on_disk = False          # the store is a directory of files (epochs/, MANIFEST.json)
-    ext = ""                 # the extension of the epoch files it writes
+    on_disk = False  # the store is a directory of files (epochs/, MANIFEST.json)
+    ext = ""  # the extension of the epoch files it writes
 
     @pytest.fixture
     def spath(self, tmp_path):
@@ -190,12 +213,12 @@ class StoreTests:
         a = np.arange(5.0)
         w = s.begin_epoch(1)
         w.write_domain(0, {"a": a})
-        a[0] = 99.0                                   # caller reuses its buffer after writing
+        a[0] = 99.0  # caller reuses its buffer after writing
         w.commit()
         r = s.read_epoch()
         got = r.read_domain(0)["a"]
         assert got[0] == 0.0
-        got[1] = -1.0                                 # caller mutates what it read
+        got[1] = -1.0  # caller mutates what it read
         assert r.read_domain(0)["a"][1] == 1.0
         assert s.verify() == []
 
@@ -233,7 +256,7 @@ class StoreTests:
             w.write_domain(0, {"s": np.array(1.0)})
         with pytest.raises(StoreError, match="JSON"):
             w.write_domain(0, {"a": np.zeros(1)}, {"bad": object()})
-        w.write_domain(0, {"a": np.zeros(1)})         # the writer is still usable
+        w.write_domain(0, {"a": np.zeros(1)})  # the writer is still usable
         with pytest.raises(StoreError, match="already written"):
             w.write_domain(0, {"a": np.zeros(1)})
         with pytest.raises(StoreError, match="still being written"):
@@ -251,11 +274,21 @@ class StoreTests:
         s = create_store(spath, self.backend, {})
         state = {"step": 0}
 
-        @settings(max_examples=20, deadline=None, database=None,
-                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-        @given(doms=st.lists(array_dicts(), min_size=1, max_size=2), attrs=st.dictionaries(
-            st.text(max_size=5), st.one_of(st.integers(), st.floats(allow_nan=False), st.text(max_size=5)),
-            max_size=3), rows=st.data())
+        @settings(
+            max_examples=20,
+            deadline=None,
+            database=None,
+            suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+        )
+        @given(
+            doms=st.lists(array_dicts(), min_size=1, max_size=2),
+            attrs=st.dictionaries(
+                st.text(max_size=5),
+                st.one_of(st.integers(), st.floats(allow_nan=False), st.text(max_size=5)),
+                max_size=3,
+            ),
+            rows=st.data(),
+        )
         def check(doms, attrs, rows):
             state["step"] += 1
             with s.begin_epoch(state["step"]) as w:
@@ -274,9 +307,12 @@ class StoreTests:
                 if arrays:
                     first = next(iter(arrays.values()))
                     assert r.domain_len(d) == first.shape[0]
-                    idx = np.array(sorted(rows.draw(st.sets(st.integers(0, max(0, first.shape[0] - 1)),
-                                                            max_size=5)))
-                                   if first.shape[0] else [], dtype=np.int64)
+                    idx = np.array(
+                        sorted(rows.draw(st.sets(st.integers(0, max(0, first.shape[0] - 1)), max_size=5)))
+                        if first.shape[0]
+                        else [],
+                        dtype=np.int64,
+                    )
                     part = r.read_domain(d, rows=idx, names=[next(iter(arrays))])
                     assert_same(part[next(iter(arrays))], first[idx])
             r.close()
@@ -289,15 +325,29 @@ class StoreTests:
     def test_partial_row_reads(self, spath):
         n = 1000
         s = create_store(spath, self.backend, {})
-        arrays = {"x": np.arange(n, dtype=np.float64) * 0.5, "v": np.arange(3 * n, dtype=np.int32).reshape(n, 3),
-                  "f": np.arange(n) % 3 == 0, "ptr": np.arange(n + 1, dtype=np.int64)}
+        arrays = {
+            "x": np.arange(n, dtype=np.float64) * 0.5,
+            "v": np.arange(3 * n, dtype=np.int32).reshape(n, 3),
+            "f": np.arange(n) % 3 == 0,
+            "ptr": np.arange(n + 1, dtype=np.int64),
+        }
         w = s.begin_epoch(1)
         w.write_domain(0, arrays)
         w.commit()
-        r = open_store(spath, repair=False).read_epoch()      # a reader beside the open writer
-        selections = [slice(10, 20), slice(0, n), slice(990, 2000), slice(5, 5), slice(None, None, 7),
-                      slice(900, 100, -3), np.array([0, 1, 2, 500, 501, 999]), np.array([999, 3, 3, 0]),
-                      np.array([], dtype=np.int64), np.array([-1, -2]), np.arange(n) % 5 == 1]
+        r = open_store(spath, repair=False).read_epoch()  # a reader beside the open writer
+        selections = [
+            slice(10, 20),
+            slice(0, n),
+            slice(990, 2000),
+            slice(5, 5),
+            slice(None, None, 7),
+            slice(900, 100, -3),
+            np.array([0, 1, 2, 500, 501, 999]),
+            np.array([999, 3, 3, 0]),
+            np.array([], dtype=np.int64),
+            np.array([-1, -2]),
+            np.arange(n) % 5 == 1,
+        ]
         for sel in selections:
             got = r.read_domain(0, names=["x", "v", "f"], rows=sel)
             for k in ("x", "v", "f"):
@@ -318,7 +368,7 @@ class StoreTests:
         w = s.begin_epoch(2)
         w.write_domain(0, domain_arrays(2, 0))
         w.abort()
-        w.abort()                                          # idempotent
+        w.abort()  # idempotent
         assert s.current() == 1
         # exception inside the context manager aborts
         with pytest.raises(ZeroDivisionError):
@@ -338,8 +388,8 @@ class StoreTests:
         if self.on_disk:
             assert any(".tmp-" in n for n in epoch_entries(spath))
             with pytest.raises(StoreError, match="already has this store open for writing"):
-                open_store(spath)                   # a second writer is refused while s holds the lock
-            s._lock.release()                       # the crash: the kernel drops a dead writer's lock
+                open_store(spath)  # a second writer is refused while s holds the lock
+            s._lock.release()  # the crash: the kernel drops a dead writer's lock
         s2 = open_store(spath)
         assert s2.current() == 1 and s2.epochs() == [1]
         assert_epoch(s2, 1, reader=s2.read_epoch())
@@ -362,9 +412,9 @@ class StoreTests:
         if self.on_disk:
             assert [n[:14] for n in epoch_entries(spath)] == ["e000000000001."]
             assert not pathlib.Path(spath, "MANIFEST.json.tmp").exists()
-        s2 = open_store(spath, repair=False)                 # (s still holds the write lock)
+        s2 = open_store(spath, repair=False)  # (s still holds the write lock)
         assert s2.current() == 1 and s2.verify() == [] and s2.leftovers() == []
-        write_epoch(s, 2)                                    # and the store is still usable
+        write_epoch(s, 2)  # and the store is still usable
         assert s.epochs() == [1, 2] and open_store(spath, repair=False).verify() == []
 
     def test_previous_epoch_kept_older_removed(self, spath):
@@ -443,7 +493,7 @@ class StoreTests:
         with pytest.raises(StoreError, match="no previous epoch"):
             open_store(spath, repair=False).read_epoch()
         s = open_store(spath)
-        write_epoch(s, 1)          # same step as the corrupt current: replaces it
+        write_epoch(s, 1)  # same step as the corrupt current: replaces it
         write_epoch(s, 2)
         s.close()
         self.corrupt(spath, "flip")
@@ -458,8 +508,7 @@ class StoreTests:
         write_epoch(s, 1)
         s.close()
         # another backend of the same kind (a directory of files, or memory)
-        other = next((b for b in BACKENDS if b != self.backend and (b == "memory") != self.on_disk),
-                     self.backend)
+        other = next((b for b in BACKENDS if b != self.backend and (b == "memory") != self.on_disk), self.backend)
         s = create_store(spath, other, {"run": 2})
         assert s.current() is None and s.epochs() == []
         s2 = open_store(spath, repair=False)
@@ -506,13 +555,13 @@ class DiskStoreTests(StoreTests):
         """A test taking ``compression`` and not given its own runs with each of the backend's."""
         own = any("compression" in m.args[0] for m in metafunc.definition.iter_markers("parametrize"))
         if "compression" in metafunc.fixturenames and not own:
-            metafunc.parametrize("compression", [None, *COMPRESSIONS[self.backend]],
-                                 ids=lambda c: c or "none")
+            metafunc.parametrize("compression", [None, *COMPRESSIONS[self.backend]], ids=lambda c: c or "none")
 
     def fail_manifest_write(self, store, spath, monkeypatch):
         def boom(src, dst):
             raise OSError(28, "No space left on device")
-        monkeypatch.setattr(os, "replace", boom)            # (after the data: zarr uses it too)
+
+        monkeypatch.setattr(os, "replace", boom)  # (after the data: zarr uses it too)
 
     def spoil_previous(self, spath):
         m = json.loads(pathlib.Path(spath, "MANIFEST.json").read_text())
@@ -531,10 +580,10 @@ class DiskStoreTests(StoreTests):
         s.close()
         cur = current_path(spath)
         stray = cur.with_name(cur.name.replace("000000001", "000000099"))
-        (shutil.copytree if cur.is_dir() else shutil.copy)(cur, stray)          # renamed but never committed
+        (shutil.copytree if cur.is_dir() else shutil.copy)(cur, stray)  # renamed but never committed
         pathlib.Path(spath, "MANIFEST.json.tmp").write_text("{half a manif")
         pathlib.Path(spath, "epochs", cur.name + ".tmp-12345").write_bytes(b"partial")
-        pathlib.Path(spath, "notes.txt").write_text("user file")              # not ours: left alone
+        pathlib.Path(spath, "notes.txt").write_text("user file")  # not ours: left alone
         s = open_store(spath, repair=False)
         assert len(epoch_entries(spath)) == 3 and s.repaired == []
         s = open_store(spath)
@@ -551,6 +600,7 @@ class DiskStoreTests(StoreTests):
         import hashlib
 
         import xxhash
+
         p = spath
         s = create_store(p, self.backend, {})
         write_epoch(s, 1)
@@ -593,7 +643,7 @@ class DiskStoreTests(StoreTests):
         mp.unlink()
         with pytest.raises(StoreError, match="MANIFEST.json missing or unreadable"):
             open_store(p)
-        assert epoch_entries(p) == before                 # nothing deleted by a failed open
+        assert epoch_entries(p) == before  # nothing deleted by a failed open
         mp.write_text(good)
         assert open_store(p).verify() == []
         bad = json.loads(good)
@@ -630,15 +680,18 @@ class DiskStoreTests(StoreTests):
         (tmp_path / "empty").mkdir()
         with pytest.raises(StoreError, match="not an ooc-dem store"):
             open_store(tmp_path / "empty")
-        s = create_store(tmp_path / "empty", self.backend, {"ok": 1})          # empty dir is fine
+        s = create_store(tmp_path / "empty", self.backend, {"ok": 1})  # empty dir is fine
         assert open_store(tmp_path / "empty", repair=False).meta == {"ok": 1}
         s.close()
 
     def test_disk_full_gives_store_error_and_keeps_committed_epoch(self, spath):
         p = spath
-        res = subprocess.run([sys.executable, "-c", _DISK_FULL_CHILD.format(repo=str(REPO), path=p,
-                                                                            backend=self.backend)],
-                             capture_output=True, text=True, timeout=60)
+        res = subprocess.run(
+            [sys.executable, "-c", _DISK_FULL_CHILD.format(repo=str(REPO), path=p, backend=self.backend)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert res.returncode == 0, res.stderr
         out = res.stdout
         assert "STOREERROR" in out, out + res.stderr
@@ -651,7 +704,7 @@ class DiskStoreTests(StoreTests):
         r = s.read_epoch()
         assert_same(r.read_domain(0)["x"], np.arange(1000.0))
         assert r.domain_attrs(0) == {"ok": True}
-        write_epoch(s, 2)                                    # the store is still usable
+        write_epoch(s, 2)  # the store is still usable
         assert s.epochs() == [1, 2]
 
     def test_epochs_are_read_by_the_formats_library_and_reopen_compressed(self, spath, compression):
@@ -661,9 +714,14 @@ class DiskStoreTests(StoreTests):
         data compresses."""
         p = spath
         rng = np.random.default_rng(3)
-        arrays = {"id": np.arange(300_001, dtype=np.int64), "pos": rng.random((300_001, 2)),
-                  "flag": rng.random(300_001) < 0.5, "mat": np.zeros(300_001, np.int32),
-                  "z": np.array([1 + 2j, 3 - 4j]), "empty": np.zeros((0, 3))}
+        arrays = {
+            "id": np.arange(300_001, dtype=np.int64),
+            "pos": rng.random((300_001, 2)),
+            "flag": rng.random(300_001) < 0.5,
+            "mat": np.zeros(300_001, np.int32),
+            "z": np.array([1 + 2j, 3 - 4j]),
+            "empty": np.zeros((0, 3)),
+        }
         glob = {"scalar": np.float64(2.5), "ws": np.arange(6.0)}
         s = create_store(p, self.backend, {}, compression=compression)
         w = s.begin_epoch(7)
@@ -673,13 +731,12 @@ class DiskStoreTests(StoreTests):
         s.close()
         s = open_store(p)
         assert s.compression == compression
-        write_epoch(s, 8)                                    # written again with the same compression
+        write_epoch(s, 8)  # written again with the same compression
         assert s.manifest()["current"].get("compression") == compression
         r = s.read_epoch(7)
         back = r.read_domain(0)
         assert all(np.array_equal(back[k], arrays[k]) and back[k].dtype == arrays[k].dtype for k in arrays)
-        assert np.array_equal(r.read_domain(0, ["pos"], slice(123_456, 250_001))["pos"],
-                              arrays["pos"][123_456:250_001])
+        assert np.array_equal(r.read_domain(0, ["pos"], slice(123_456, 250_001))["pos"], arrays["pos"][123_456:250_001])
         g, _ = r.read_globals()
         assert g["scalar"] == 2.5 and np.array_equal(g["ws"], glob["ws"])
         r.close()
@@ -690,11 +747,12 @@ class DiskStoreTests(StoreTests):
         assert scalar == 2.5
         assert all(np.array_equal(read[k], arrays[k]) for k in arrays)
         raw = sum(a.nbytes for a in arrays.values())
-        if compression is not None:        # ids, zeros and booleans compress; the random floats not
+        if compression is not None:  # ids, zeros and booleans compress; the random floats not
             assert size < 0.9 * raw, (size, raw)
 
 
 # ----------------------------------------------------------------------------- the backends
+
 
 class TestHDF5(DiskStoreTests):
     backend = "hdf5"
@@ -702,6 +760,7 @@ class TestHDF5(DiskStoreTests):
 
     def corrupt(self, spath, how):
         import h5py
+
         f = a_data_file(spath)
         if how == "flip":
             with h5py.File(f, "r", locking=False) as h:
@@ -718,6 +777,7 @@ class TestHDF5(DiskStoreTests):
 
     def read_with_library(self, path, names):
         import h5py
+
         with h5py.File(path, "r", locking=False) as f:
             return {k: f[f"domains/d0000/{k}"][()] for k in names}, f["globals/scalar"][()]
 
@@ -741,6 +801,7 @@ class TestZarr(DiskStoreTests):
     def read_with_library(self, path, names):
         import zarr
         from zarr.storage import ZipStore
+
         z = zarr.open_group(store=ZipStore(str(path), mode="r"), mode="r")
         return {k: z[f"domains/d0000/{k}"][...] for k in names}, z["globals/scalar"][()]
 
@@ -756,7 +817,7 @@ class TestZarr(DiskStoreTests):
         w.write_domain(0, {"x": x})
         w.commit()
         r = s.read_epoch()
-        assert_same(r.read_domain(0, rows=slice(0, 1))["x"], x[:1])     # metadata now cached
+        assert_same(r.read_domain(0, rows=slice(0, 1))["x"], x[:1])  # metadata now cached
         read = []
         real = os.preadv
 
@@ -764,11 +825,12 @@ class TestZarr(DiskStoreTests):
             n = real(fd, bufs, offset, *a)
             read.append(n)
             return n
+
         monkeypatch.setattr(os, "preadv", counting)
         assert_same(r.read_domain(0, rows=slice(300_000, 300_100))["x"], x[300_000:300_100])
         if compression is None:
             assert sum(read) == 100 * 8, read
-        else:       # one compressed chunk of 131072 rows (and its 30-byte zip header), not the 8 MB
+        else:  # one compressed chunk of 131072 rows (and its 30-byte zip header), not the 8 MB
             assert len(read) <= 2 and 0 < sum(read) < (1 << 20), read
         read.clear()
         assert_same(r.read_domain(0, rows=np.array([1, 999_999]))["x"], x[[1, 999_999]])
@@ -786,11 +848,11 @@ class TestZarr(DiskStoreTests):
         s.close()
         f = a_data_file(spath)
         with open(f, "r+b") as fh:
-            fh.truncate(f.stat().st_size // 2)           # the central directory is gone
+            fh.truncate(f.stat().st_size // 2)  # the central directory is gone
         s = open_store(spath)
         with pytest.raises(StoreError, match="cannot open epoch 2"):
             s.read_epoch(verify=False)
-        r = s.read_epoch()                               # falls back to epoch 1
+        r = s.read_epoch()  # falls back to epoch 1
         assert r.step == 1 and "using previous epoch 1" in s.warnings[0]
         assert_same(r.read_domain(0)["x"], x + 1)
 
@@ -802,6 +864,7 @@ class TestMemory(StoreTests):
     def _epochs(spath):
         """The memory store's manifest and epochs (there is no file to damage)."""
         from ooc_dem.storage import _memory
+
         b = _memory._REGISTRY[spath]
         return json.loads(b.manifest_json), b.epochs
 
@@ -824,6 +887,7 @@ class TestMemory(StoreTests):
     def fail_manifest_write(self, store, spath, monkeypatch):
         def boom(m, durable=False):
             raise StoreError(f"{spath}/MANIFEST.json: disk full or file too large (simulated)")
+
         monkeypatch.setattr(store._place, "write_manifest", boom)
 
     def test_registry(self):
@@ -846,6 +910,7 @@ def test_every_backend_has_its_conformance_class():
 
 # ----------------------------------------------------------------------------- helpers of the package
 
+
 def test_gather_rows_windows_match_fancy_indexing():
     a = np.arange(5000 * 2, dtype=np.float64).reshape(5000, 2)
     calls = []
@@ -856,18 +921,19 @@ def test_gather_rows_windows_match_fancy_indexing():
 
     rng = np.random.default_rng(0)
     idx = np.sort(rng.choice(5000, 300, replace=False))
-    got = gather_rows(read_range, idx, a.shape, a.dtype, window_bytes=1600)   # 100 rows per window
+    got = gather_rows(read_range, idx, a.shape, a.dtype, window_bytes=1600)  # 100 rows per window
     assert_same(got, a[idx])
-    assert max(e - s for s, e in calls) <= 100                  # never reads more than a window
-    assert sum(e - s for s, e in calls) < a.shape[0]            # ... nor the whole array
+    assert max(e - s for s, e in calls) <= 100  # never reads more than a window
+    assert sum(e - s for s, e in calls) < a.shape[0]  # ... nor the whole array
     calls.clear()
     assert_same(gather_rows(read_range, np.arange(100, 4000), a.shape, a.dtype, 1600), a[100:4000])
     assert all(e - s <= 100 for s, e in calls)
 
 
 def test_store_errors_are_one_line():
-    e = write_error("/x/e1.h5", RuntimeError("Can't write (file write failed: errno = 27,\n"
-                                             " error message = 'File too large')"))
+    e = write_error(
+        "/x/e1.h5", RuntimeError("Can't write (file write failed: errno = 27,\n error message = 'File too large')")
+    )
     assert isinstance(e, StoreError) and "\n" not in str(e)
     assert str(e).startswith("/x/e1.h5: disk full or file too large (")
     assert "disk full" in str(write_error("p", OSError(28, "No space left on device")))
@@ -887,6 +953,7 @@ def test_start_writeback_never_raises_nor_blocks(tmp_path):
     """The write-back hint on a file, a directory, a missing path, and a FIFO (opened
     non-blocking: a FIFO with no writer would otherwise hang the writer)."""
     from ooc_dem.storage._util import start_writeback
+
     f = tmp_path / "f"
     f.write_bytes(b"x" * 100000)
     fifo = tmp_path / "fifo"

@@ -8,6 +8,7 @@ process for the runs that must finish, and for the writer whose lock is held), a
 with exactly one line on stderr, no traceback, a `victim` directory beside the store
 untouched, and (where nothing may change) the store itself untouched.
 """
+
 import copy
 import json
 import os
@@ -23,9 +24,9 @@ import pytest
 from support.cli import cli_in_process, one_line_error, run_cli
 from support.stores import zarr_epochs_as_directories
 
-STEPS, CKPT = 20, 10                 # current epoch 20, previous epoch 10
-RESUME_MORE = ["--steps", "40", "--no-progress", "--no-figures"]   # commits 30 and 40
-HANG_TIMEOUT_S = 120                 # a command reading /dev/zero or a FIFO never returns
+STEPS, CKPT = 20, 10  # current epoch 20, previous epoch 10
+RESUME_MORE = ["--steps", "40", "--no-progress", "--no-figures"]  # commits 30 and 40
+HANG_TIMEOUT_S = 120  # a command reading /dev/zero or a FIFO never returns
 
 
 @pytest.fixture(scope="module")
@@ -36,10 +37,24 @@ def pristine(tmp_path_factory):
     def get(backend):
         if backend not in made:
             out = tmp_path_factory.mktemp(f"hostile-{backend}") / "store"
-            run_cli("run", "quick", "--steps", STEPS, "--checkpoint-every", CKPT, "--out", out,
-                    "--backend", backend, "--no-progress", "--no-figures", check=True)
+            run_cli(
+                "run",
+                "quick",
+                "--steps",
+                STEPS,
+                "--checkpoint-every",
+                CKPT,
+                "--out",
+                out,
+                "--backend",
+                backend,
+                "--no-progress",
+                "--no-figures",
+                check=True,
+            )
             made[backend] = out
         return made[backend]
+
     return get
 
 
@@ -93,17 +108,17 @@ def _cli(*args, timeout=HANG_TIMEOUT_S):
 
 
 def _path_to_root(store) -> str:
-    """"../" enough times to climb from the store directory to "/"."""
+    """ "../" enough times to climb from the store directory to "/"."""
     return "../" * (len(Path(store).resolve().parts) - 1)
 
 
 # ------------------------------------------------------------------ 1. paths are confined
 
+
 @pytest.mark.parametrize("where", ["relative", "absolute"])
 def test_prune_never_deletes_a_previous_path_outside_the_store(pristine, tmp_path, where):
     store, victim = _make(pristine, tmp_path)
-    _edit(store, lambda m: m["previous"].update(
-        path="../victim" if where == "relative" else str(victim)))
+    _edit(store, lambda m: m["previous"].update(path="../victim" if where == "relative" else str(victim)))
     before, vbefore = _snapshot(store), _snapshot(victim)
     one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "previous epoch", "victim")
     assert _snapshot(victim) == vbefore
@@ -130,6 +145,7 @@ def test_resume_never_deletes_a_current_epoch_outside_the_store(pristine, tmp_pa
     def point_outside(m):
         m["current"]["path"] = outside
         m["current"]["files"][0]["path"] = outside
+
     _edit(store, point_outside)
     vbefore = _snapshot(victim)
     one_line_error(_cli("resume", store, *RESUME_MORE), "current epoch", "victim")
@@ -146,8 +162,11 @@ def test_repair_never_deletes_through_a_symlinked_epochs_dir(pristine, tmp_path)
     (target / "e000000000030.h5.tmp-1").write_bytes(b"someone else's file named like a temporary")
     os.symlink(target, store / "epochs")
     vbefore = _snapshot(victim)
-    for cmd in (("resume", store, *RESUME_MORE), ("checkpoint", "prune", store, "--keep", "1"),
-                ("checkpoint", "verify", store)):
+    for cmd in (
+        ("resume", store, *RESUME_MORE),
+        ("checkpoint", "prune", store, "--keep", "1"),
+        ("checkpoint", "verify", store),
+    ):
         one_line_error(_cli(*cmd), "epochs", "symbolic link")
         assert _snapshot(victim) == vbefore
 
@@ -165,8 +184,10 @@ def test_a_file_entry_on_dev_zero_is_refused_not_read_forever(pristine, tmp_path
 
 # ------------------------------------------------------------------ 2. no data loss inside
 
-@pytest.mark.parametrize("path", [".", "epochs", "MANIFEST.json", "epochs/../epochs",
-                                  "epochs/", "epochs//e000000000010.h5"])
+
+@pytest.mark.parametrize(
+    "path", [".", "epochs", "MANIFEST.json", "epochs/../epochs", "epochs/", "epochs//e000000000010.h5"]
+)
 def test_prune_never_deletes_the_store_its_epochs_dir_or_its_manifest(pristine, tmp_path, path):
     store, victim = _make(pristine, tmp_path)
     _edit(store, lambda m: m["previous"].update(path=path))
@@ -182,10 +203,11 @@ def test_prune_never_deletes_the_current_epoch_named_as_previous(pristine, tmp_p
     def alias(m):
         if same == "whole entry":
             m["previous"] = copy.deepcopy(m["current"])
-        elif same == "path":     # the current epoch's path under an older step
+        elif same == "path":  # the current epoch's path under an older step
             m["previous"] = dict(copy.deepcopy(m["current"]), step=m["previous"]["step"])
-        else:                    # the current step under the previous path
+        else:  # the current step under the previous path
             m["previous"]["step"] = m["current"]["step"]
+
     _edit(store, alias)
     before = _snapshot(store)
     one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "MANIFEST.json")
@@ -195,6 +217,7 @@ def test_prune_never_deletes_the_current_epoch_named_as_previous(pristine, tmp_p
 
 
 # ------------------------------------------------------------------ 3. checksums always cover the epoch
+
 
 def _flip_data_byte(store):
     """Flip one byte inside the x positions of the current HDF5 epoch (valid file, wrong data)."""
@@ -217,6 +240,7 @@ def test_an_epoch_whose_files_are_not_listed_is_refused(pristine, tmp_path, list
 
     def unlist(m):
         m["current"]["files"] = [] if listing == "no files" else copy.deepcopy(m["previous"]["files"])
+
     _edit(store, unlist)
     cp = _cli("checkpoint", "verify", store)
     assert "OK" not in cp.stdout, cp.stdout
@@ -255,6 +279,7 @@ def test_a_symlink_inside_a_zarr_epoch_is_a_verification_problem(pristine, tmp_p
 
 # ------------------------------------------------------------------ 4. one writer per store
 
+
 def _wait_for_commit(store, proc, timeout=300):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -273,23 +298,41 @@ def test_a_second_writer_is_refused_while_a_run_writes(pristine, tmp_path):
     store = tmp_path / "store"
     # epoch 0 is committed at the start and stays current while the run steps: `checkpoint hash`
     # of an epoch that a commit deletes under it is another matter (not the lock's)
-    proc = subprocess.Popen([sys.executable, "-m", "ooc_dem.cli", "run", "quick", "--steps", "1000000",
-                             "--checkpoint-every", "1000000", "--out", str(store), "--no-progress",
-                             "--no-figures"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ooc_dem.cli",
+            "run",
+            "quick",
+            "--steps",
+            "1000000",
+            "--checkpoint-every",
+            "1000000",
+            "--out",
+            str(store),
+            "--no-progress",
+            "--no-figures",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         _wait_for_commit(store, proc)
-        one_line_error(_cli("resume", store, "--no-progress", "--no-figures"),
-                        "another process is writing this store", f"pid {proc.pid}")
-        one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"),
-                        "is writing this store", str(proc.pid))
-        for cmd in ("verify", "list", "hash"):        # read-only: never refused
+        one_line_error(
+            _cli("resume", store, "--no-progress", "--no-figures"),
+            "another process is writing this store",
+            f"pid {proc.pid}",
+        )
+        one_line_error(_cli("checkpoint", "prune", store, "--keep", "1"), "is writing this store", str(proc.pid))
+        for cmd in ("verify", "list", "hash"):  # read-only: never refused
             cp = _cli("checkpoint", cmd, store)
             assert cp.returncode == 0, (cmd, cp.stdout, cp.stderr)
         assert proc.poll() is None
     finally:
         proc.kill()
         proc.wait()
-    step = _manifest(store)["current"]["step"]      # killed: the kernel dropped its lock
+    step = _manifest(store)["current"]["step"]  # killed: the kernel dropped its lock
     cp = run_cli("resume", store, "--steps", step + CKPT, "--no-progress", "--no-figures", timeout=HANG_TIMEOUT_S)
     assert cp.returncode == 0, cp.stderr
     assert _manifest(store)["current"]["step"] == step + CKPT
@@ -313,6 +356,7 @@ def test_lock_file_is_part_of_the_store(tmp_path):
     directory holding only the lock file counts as empty."""
     from ooc_dem.storage import StoreError, create_store, open_store
     from ooc_dem.storage._disk import classify
+
     p = tmp_path / "s"
     s = create_store(p, "hdf5", {"k": 1})
     assert (p / ".ooc-dem.lock").is_file()
@@ -335,31 +379,37 @@ def test_lock_file_is_part_of_the_store(tmp_path):
 
 # ------------------------------------------------------------------ 5. hostile fields
 
+
 def _rename_domain(key):
     def f(m):
         m["current"]["domains"][key] = m["current"]["domains"].pop("0")
+
     return f
 
 
 def _set(role, field, value):
     def f(m):
         m[role][field] = value
+
     return f
 
 
 def _set_file(field, value):
     def f(m):
         m["current"]["files"][0][field] = value
+
     return f
 
 
 def _swap_checksum(name, value):
     """The first file's checksum replaced by `name`: `value` (None: no checksum at all)."""
+
     def f(m):
         entry = m["current"]["files"][0]
         entry.pop("xxh3_128")
         if name is not None:
             entry[name] = value
+
     return f
 
 
@@ -367,6 +417,7 @@ def _set_array(field, value):
     def f(m):
         spec = m["current"]["domains"]["0"]["arrays"]["pos"]
         spec[0 if field == "shape" else 1] = value
+
     return f
 
 
@@ -376,6 +427,7 @@ def _nest(depth):
         for _ in range(depth):
             v = [v]
         m["meta"]["nested"] = v
+
     return f
 
 
@@ -415,8 +467,10 @@ HOSTILE = {
     "dtype not canonical": (_set_array("dtype", "float64"), "dtype"),
     "dtype int": (_set_array("dtype", 8), "dtype"),
     "arrays not a dict": (lambda m: m["current"]["domains"]["0"].update(arrays=[1]), "arrays"),
-    "array name hostile": (lambda m: m["current"]["domains"]["0"]["arrays"].update(
-        {"../x": [[1], "<f8"]}), "array name"),
+    "array name hostile": (
+        lambda m: m["current"]["domains"]["0"]["arrays"].update({"../x": [[1], "<f8"]}),
+        "array name",
+    ),
     "domains not a dict": (_set("current", "domains", [1]), "domains"),
     "step null": (_set("previous", "step", None), "step"),
     "previous without current": (lambda m: m.update(current=None), "no current"),
@@ -430,8 +484,7 @@ def test_hostile_manifest_fields_give_one_line(pristine, tmp_path, case):
     mutate, needle = HOSTILE[case]
     _edit(store, mutate)
     before = _snapshot(store)
-    for cmd in (("checkpoint", "verify", store), ("checkpoint", "list", store),
-                ("resume", store, *RESUME_MORE)):
+    for cmd in (("checkpoint", "verify", store), ("checkpoint", "list", store), ("resume", store, *RESUME_MORE)):
         one_line_error(_cli(*cmd), "MANIFEST.json", needle)
         assert _snapshot(store) == before
 
@@ -441,20 +494,26 @@ def _deep_json(m) -> str:
     return text[:-1] + ', "deep": ' + "[" * 200_000 + "]" * 200_000 + "}"
 
 
-@pytest.mark.parametrize("case", ["nested 200000 deep", "integer of 5000 digits", "huge", "fifo",
-                                  "directory", "symlink to /dev/zero"])
+@pytest.mark.parametrize(
+    "case", ["nested 200000 deep", "integer of 5000 digits", "huge", "fifo", "directory", "symlink to /dev/zero"]
+)
 def test_hostile_manifest_files_give_one_line(pristine, tmp_path, case):
     store, victim = _make(pristine, tmp_path)
     mpath = store / "MANIFEST.json"
     m = _manifest(store)
-    needle = {"nested 200000 deep": "nested too deeply", "integer of 5000 digits": "not valid JSON",
-              "huge": "more than", "fifo": "not a regular file", "directory": "not a regular file",
-              "symlink to /dev/zero": "symbolic link"}[case]
+    needle = {
+        "nested 200000 deep": "nested too deeply",
+        "integer of 5000 digits": "not valid JSON",
+        "huge": "more than",
+        "fifo": "not a regular file",
+        "directory": "not a regular file",
+        "symlink to /dev/zero": "symbolic link",
+    }[case]
     if case == "nested 200000 deep":
         mpath.write_text(_deep_json(m))
     elif case == "integer of 5000 digits":
         mpath.write_text(json.dumps(m).replace('"step": 20', '"step": 2' + "0" * 5000))
-    elif case == "huge":                 # sparse: 65 MiB on paper, nothing on disk
+    elif case == "huge":  # sparse: 65 MiB on paper, nothing on disk
         with open(mpath, "r+b") as f:
             f.truncate(65 << 20)
     else:
@@ -466,8 +525,11 @@ def test_hostile_manifest_files_give_one_line(pristine, tmp_path, case):
         else:
             os.symlink("/dev/zero", mpath)
     before = _snapshot(store)
-    for cmd in (("checkpoint", "verify", store), ("resume", store, *RESUME_MORE),
-                ("checkpoint", "prune", store, "--keep", "1")):
+    for cmd in (
+        ("checkpoint", "verify", store),
+        ("resume", store, *RESUME_MORE),
+        ("checkpoint", "prune", store, "--keep", "1"),
+    ):
         one_line_error(_cli(*cmd), "MANIFEST.json", needle)
         assert _snapshot(store) == before
 
@@ -476,6 +538,7 @@ def test_memory_store_manifest_is_validated_too():
     """The memory backend has nothing to confine, but its manifest is checked the same way."""
     import numpy as np
     from ooc_dem.storage import StoreError, _memory, create_store, drop_memory_store, open_store
+
     key = "mem://hostile"
     s = create_store(key, "memory", {})
     w = s.begin_epoch(3)
@@ -485,12 +548,20 @@ def test_memory_store_manifest_is_validated_too():
     b = _memory._REGISTRY[key]
     good = b.manifest_json
     try:
-        for mutate, needle in ((_rename_domain("01"), "domain key"), (_set("current", "step", 3.0), "step"),
-                               (_set("current", "path", "../e000000000003.mem"), "path"),
-                               (_set("current", "files", []), "files hold only 0"),
-                               (lambda m: m["current"].update(files=[                 # attrs unlisted
-                                   f for f in m["current"]["files"] if not f["path"].endswith(".attrs")]),
-                                "unexpected")):
+        for mutate, needle in (
+            (_rename_domain("01"), "domain key"),
+            (_set("current", "step", 3.0), "step"),
+            (_set("current", "path", "../e000000000003.mem"), "path"),
+            (_set("current", "files", []), "files hold only 0"),
+            (
+                lambda m: m["current"].update(
+                    files=[  # attrs unlisted
+                        f for f in m["current"]["files"] if not f["path"].endswith(".attrs")
+                    ]
+                ),
+                "unexpected",
+            ),
+        ):
             m = json.loads(good)
             mutate(m)
             b.manifest_json = json.dumps(m)
@@ -499,7 +570,7 @@ def test_memory_store_manifest_is_validated_too():
             except StoreError as e:
                 assert needle in str(e) and "\n" not in str(e), str(e)
                 continue
-            problems = st.verify()            # an unlisted pseudo-file is a verification problem
+            problems = st.verify()  # an unlisted pseudo-file is a verification problem
             assert problems and any(needle in p for p in problems), problems
     finally:
         drop_memory_store(key)

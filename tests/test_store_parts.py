@@ -2,6 +2,7 @@
 two-phase commit MPI ranks use. Each part is written by a real separate process (so its
 temporary carries that process's pid), read back with h5py / zarr-python, checked, and
 attacked the way a hostile store could: a part is untrusted input like the rest."""
+
 import json
 import os
 import subprocess
@@ -31,8 +32,12 @@ print(json.dumps(write_part(path, step, basename, part, doms)))
 
 
 def _part(path, step, basename, part, spec) -> dict:
-    cp = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(step), basename, str(part), json.dumps(spec)],
-                        capture_output=True, text=True, env=ENV)
+    cp = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(path), str(step), basename, str(part), json.dumps(spec)],
+        capture_output=True,
+        text=True,
+        env=ENV,
+    )
     assert cp.returncode == 0, cp.stderr
     return json.loads(cp.stdout)
 
@@ -131,7 +136,7 @@ def test_a_part_written_by_a_killed_process_is_a_leftover(tmp_path):
     _epoch(store, 10, [{"1": 4}])
     w = store.begin_epoch(20)
     orphan = _part(path, 20, w.basename, 1, {"1": 4})
-    store.close()     # the writer never committed
+    store.close()  # the writer never committed
     assert os.path.exists(orphan["tmp"])
     ro = open_store(path, repair=False)
     assert any(x.path == orphan["tmp"] for x in ro.leftovers())
@@ -174,18 +179,31 @@ def test_a_damaged_or_missing_part_fails_verification_and_reading_falls_back(tmp
     store.close()
 
 
-@pytest.mark.parametrize("edit,needle", [
-    (lambda e: e["parts"][0].update(path="../../victim.h5"), "has a forbidden part '..'"),
-    (lambda e: e["parts"][0].update(path="epochs/e000000000020.p2.h5"), "is not part 1 of its epoch"),
-    (lambda e: e["parts"][0].update(path="epochs/e000000000010.p1.h5"), "names step 10, the entry says 20"),
-    (lambda e: e["parts"][0].update(path="epochs/e000000000020.h5"), "is not part 1 of its epoch"),
-    (lambda e: e["parts"][0]["files"][0].update(path="epochs/e000000000020.h5"), "is not the epoch file"),
-    (lambda e: e["parts"][0].update(files=[]), "lists no files"),
-    (lambda e: e.update(parts={"1": 2}), "malformed \"parts\""),
-    (lambda e: e["domains"]["1"].update(part=2), "domain 1 part"),
-    (lambda e: e["parts"].append(dict(e["parts"][0])), "is not part 2"),
-], ids=["outside", "wrong-number", "other-step", "main-as-part", "file-of-main", "no-files", "not-a-list",
-        "domain-part-out-of-range", "duplicate"])
+@pytest.mark.parametrize(
+    "edit,needle",
+    [
+        (lambda e: e["parts"][0].update(path="../../victim.h5"), "has a forbidden part '..'"),
+        (lambda e: e["parts"][0].update(path="epochs/e000000000020.p2.h5"), "is not part 1 of its epoch"),
+        (lambda e: e["parts"][0].update(path="epochs/e000000000010.p1.h5"), "names step 10, the entry says 20"),
+        (lambda e: e["parts"][0].update(path="epochs/e000000000020.h5"), "is not part 1 of its epoch"),
+        (lambda e: e["parts"][0]["files"][0].update(path="epochs/e000000000020.h5"), "is not the epoch file"),
+        (lambda e: e["parts"][0].update(files=[]), "lists no files"),
+        (lambda e: e.update(parts={"1": 2}), 'malformed "parts"'),
+        (lambda e: e["domains"]["1"].update(part=2), "domain 1 part"),
+        (lambda e: e["parts"].append(dict(e["parts"][0])), "is not part 2"),
+    ],
+    ids=[
+        "outside",
+        "wrong-number",
+        "other-step",
+        "main-as-part",
+        "file-of-main",
+        "no-files",
+        "not-a-list",
+        "domain-part-out-of-range",
+        "duplicate",
+    ],
+)
 def test_a_hostile_part_entry_is_refused_in_one_line(tmp_path, edit, needle):
     path = tmp_path / "s"
     store = create_store(path, "hdf5", {})
@@ -202,7 +220,7 @@ def test_a_hostile_part_entry_is_refused_in_one_line(tmp_path, edit, needle):
     msg = str(ei.value)
     assert needle in msg and "\n" not in msg, msg
     assert victim.read_bytes() == b"precious"
-    assert len(_files(path)) == 3      # nothing deleted by the refused open
+    assert len(_files(path)) == 3  # nothing deleted by the refused open
 
 
 def test_a_part_that_is_a_symbolic_link_out_of_the_store_is_refused(tmp_path):

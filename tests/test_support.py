@@ -1,6 +1,7 @@
 """The in-process `ooc-dem` of tests/support keeps what a process would show (exit code, both
 streams, a traceback, a warning, a write to fd 2) and fails a command that leaves the test
 process changed or runs past its timeout: the refusal tests that use it can still fail."""
+
 import os
 import signal
 import sys
@@ -14,8 +15,10 @@ from ooc_dem import cli
 from support.cli import cli_in_process, one_line_error, run_cli
 
 
-@pytest.mark.parametrize("args", [["check", "no-such-scenario"], ["run", "--bogus"], ["scenarios"],
-                                  ["check", "quick", "--set", "physics.dt=1e-3"]])
+@pytest.mark.parametrize(
+    "args",
+    [["check", "no-such-scenario"], ["run", "--bogus"], ["scenarios"], ["check", "quick", "--set", "physics.dt=1e-3"]],
+)
 def test_in_process_gives_what_a_process_gives(args):
     here, there = cli_in_process(*args), run_cli(*args)
     assert (here.returncode, here.stdout, here.stderr) == (there.returncode, there.stdout, there.stderr)
@@ -40,6 +43,7 @@ def test_what_a_process_would_print_breaks_the_one_line_rule(what, monkeypatch):
         if what == "fd 2":
             os.write(2, b"from C\n")
         return _refuse()
+
     _command(monkeypatch, body)
     res = cli_in_process("scenarios")
     assert res.returncode == (1 if what == "traceback" else 2)
@@ -52,8 +56,9 @@ def test_a_refusal_passes_the_one_line_rule(monkeypatch):
     assert one_line_error(cli_in_process("scenarios"), "refused") == "ooc-dem: error: refused"
 
 
-@pytest.mark.parametrize("what", ["environment", "working directory", "signal handlers", "threads",
-                                  "files left open", "still running"])
+@pytest.mark.parametrize(
+    "what", ["environment", "working directory", "signal handlers", "threads", "files left open", "still running"]
+)
 def test_a_command_that_changes_the_process_fails_the_test(what, monkeypatch, tmp_path):
     held = []
 
@@ -73,6 +78,7 @@ def test_a_command_that_changes_the_process_fails_the_test(what, monkeypatch, tm
         elif what == "still running":
             time.sleep(5)
         return _refuse()
+
     _command(monkeypatch, body)
     before = (os.getcwd(), dict(os.environ), signal.getsignal(signal.SIGUSR1))
     try:
@@ -81,4 +87,4 @@ def test_a_command_that_changes_the_process_fails_the_test(what, monkeypatch, tm
     finally:
         for h in held:
             h.set() if isinstance(h, threading.Event) else h.close()
-    assert (os.getcwd(), dict(os.environ), signal.getsignal(signal.SIGUSR1)) == before   # put back
+    assert (os.getcwd(), dict(os.environ), signal.getsignal(signal.SIGUSR1)) == before  # put back

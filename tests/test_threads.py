@@ -1,4 +1,5 @@
 """docs/design.md §3: the result does not depend on the thread count."""
+
 import numba
 import numpy as np
 
@@ -37,6 +38,7 @@ def test_one_and_two_threads_bit_identical():
 def test_wheel_run_thread_independent():
     """The wheel's forces are summed canonically: same wheel records with 1 and 2 threads."""
     from ooc_dem.app.run import place_wheel
+
     sc = load_scenario("quick", ["wheel.settle_time=0.0", "wheel.drawbar_ramp=0.0"])
     bed = settled_bed(sc)
     ws = place_wheel(sc, bed)
@@ -49,6 +51,7 @@ def test_wheel_run_thread_independent():
             st = DomainStepper(bed.take(np.arange(len(bed))), Model.from_scenario(sc), ws, reorder=True)
             # force the parallel path even for this small bed
             import ooc_dem.engine.stepper as stp
+
             old = stp.SERIAL_BELOW
             stp.SERIAL_BELOW = 0
             try:
@@ -64,7 +67,7 @@ def test_wheel_run_thread_independent():
     assert np.array_equal(states[0].ws, states[1].ws)
 
 
-_TOY = '''
+_TOY = """
 import numpy as np
 from numba import njit, prange
 
@@ -79,7 +82,7 @@ def scale(a, c):
     for i in prange(a.shape[0]):
         a[i] *= c
     return a
-'''
+"""
 
 
 def test_serial_twins_have_no_parallel_region(tmp_path, monkeypatch):
@@ -90,10 +93,12 @@ def test_serial_twins_have_no_parallel_region(tmp_path, monkeypatch):
     parallel. The toy module is written here so that its twins compile afresh (LLVM of
     cached code cannot be inspected)."""
     from ooc_dem.physics.twins import serial_twin
+
     (tmp_path / "twin_toy.py").write_text(_TOY)
     monkeypatch.syspath_prepend(str(tmp_path))
     import twin_toy
-    scheduled = "do_scheduling"   # numba's parallel launch (numba/parfors/parfor_lowering.py)
+
+    scheduled = "do_scheduling"  # numba's parallel launch (numba/parfors/parfor_lowering.py)
     twins = [serial_twin(twin_toy.fill, "fill_serial"), serial_twin(twin_toy.scale, "scale_serial")]
     a = np.zeros(8)
     twins[0](a)

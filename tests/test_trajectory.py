@@ -1,5 +1,6 @@
 """Trajectories: frames written by every mode, kill-safe and resumable, exported
 as an XDMF time series (read back with VTK's vtkXdmfReader) and animated to GIF and MP4."""
+
 import os
 import signal
 import subprocess
@@ -11,8 +12,7 @@ import numpy as np
 import pytest
 
 from support.cli import cli_in_process, one_line_error, run_cli
-from ooc_dem.app.trajectory import (ROW_FIELDS, TRAJECTORY_FILE, Trajectory, TrajectoryWriter, frame_name,
-                                wheel_outline)
+from ooc_dem.app.trajectory import ROW_FIELDS, TRAJECTORY_FILE, Trajectory, TrajectoryWriter, frame_name, wheel_outline
 from ooc_dem.app.trajectory_format import TRAJECTORY_DIR
 
 STEPS = 600
@@ -21,9 +21,11 @@ STEPS = 600
 FRAME = ["--set", "output.snapshot_interval=0.00123"]
 FRAME_STEPS = [0, 123, 246, 369, 492]
 COMMON = ["--steps", STEPS, "--checkpoint-every", 250, "--no-progress", "--no-figures"]
-MODES = {"monolithic": ["--mode", "monolithic"],
-         "ddm": ["--mode", "ddm", "--domains", "3", "--block", "10"],
-         "ooc": ["--mode", "ooc", "--domains", "3", "--block", "10"]}
+MODES = {
+    "monolithic": ["--mode", "monolithic"],
+    "ddm": ["--mode", "ddm", "--domains", "3", "--block", "10"],
+    "ooc": ["--mode", "ooc", "--domains", "3", "--block", "10"],
+}
 
 
 def frames_of(run):
@@ -47,8 +49,17 @@ def runs(tmp_path_factory):
         out[name] = base / name
         run_cli("run", "quick", "--out", out[name], *opts, *COMMON, *FRAME, check=True)
     out["noframes"] = base / "noframes"
-    run_cli("run", "quick", "--out", out["noframes"], *MODES["ooc"], *COMMON,
-            "--set", "output.snapshot_interval=0", check=True)
+    run_cli(
+        "run",
+        "quick",
+        "--out",
+        out["noframes"],
+        *MODES["ooc"],
+        *COMMON,
+        "--set",
+        "output.snapshot_interval=0",
+        check=True,
+    )
     return out
 
 
@@ -69,7 +80,7 @@ def test_modes_write_the_same_frames(runs):
     folder = runs["ooc"] / TRAJECTORY_DIR
     assert sorted(p.name for p in folder.iterdir()) == [frame_name(s) for s in FRAME_STEPS]
     with h5py.File(folder / frame_name(123), "r") as f:
-        assert (np.diff(f["id"][:]) < 0).any()   # slab order, not id order
+        assert (np.diff(f["id"][:]) < 0).any()  # slab order, not id order
     assert not (runs["noframes"] / TRAJECTORY_DIR).exists()
 
 
@@ -89,8 +100,7 @@ def _published(folder) -> tuple[int, bool]:
         names = os.listdir(folder)
     except FileNotFoundError:
         return 0, False
-    return (sum(n.startswith("frame-") and n.endswith(".h5") for n in names),
-            any(".h5.tmp-" in n for n in names))
+    return (sum(n.startswith("frame-") and n.endswith(".h5") for n in names), any(".h5.tmp-" in n for n in names))
 
 
 @pytest.mark.parametrize("mode", ["monolithic", "ooc"])
@@ -102,8 +112,17 @@ def test_sigkill_anywhere_then_resume_gives_the_same_frames(tmp_path, mode):
     the same steps, no duplicates, no gaps, every array equal (np.array_equal); no
     temporary is left and the final state is the same."""
     steps, every = 1000, 3
-    args = [*MODES[mode], "--steps", steps, "--checkpoint-every", 200, "--no-progress",
-            "--no-figures", "--set", f"output.snapshot_interval={every * 1e-5}"]
+    args = [
+        *MODES[mode],
+        "--steps",
+        steps,
+        "--checkpoint-every",
+        200,
+        "--no-progress",
+        "--no-figures",
+        "--set",
+        f"output.snapshot_interval={every * 1e-5}",
+    ]
     ref_dir = tmp_path / "ref"
     run_cli("run", "quick", "--out", ref_dir, *args, check=True)
     ref = frames_of(ref_dir)
@@ -117,12 +136,12 @@ def test_sigkill_anywhere_then_resume_gives_the_same_frames(tmp_path, mode):
     seen_temp = []
     prev = 0
     for k, target in enumerate(targets):
-        target = max(int(target), prev + 10)   # frames this process wrote (a resume only drops)
+        target = max(int(target), prev + 10)  # frames this process wrote (a resume only drops)
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.time() + 600
         while time.time() < deadline and proc.poll() is None and _published(folder)[0] < target:
             time.sleep(0.005)
-        if k in (1, 3):     # right inside a frame's write: as soon as its temporary appears
+        if k in (1, 3):  # right inside a frame's write: as soon as its temporary appears
             while time.time() < deadline and proc.poll() is None and not _published(folder)[1]:
                 time.sleep(0.0005)
         else:
@@ -143,14 +162,21 @@ def test_sigkill_anywhere_then_resume_gives_the_same_frames(tmp_path, mode):
 
 def _quick_frames(quick_scenario):
     import dataclasses
-    return dataclasses.replace(quick_scenario, output=dataclasses.replace(quick_scenario.output,
-                                                                          snapshot_interval=1e-4))
+
+    return dataclasses.replace(
+        quick_scenario, output=dataclasses.replace(quick_scenario.output, snapshot_interval=1e-4)
+    )
 
 
 def _part(rng, step, ids):
-    return {"id": ids, "pos": rng.random((len(ids), 2)) + step, "vel": rng.random((len(ids), 2)),
-            "spin": rng.random((len(ids), 1)), "r": rng.random(len(ids)),
-            "mat": np.zeros(len(ids), np.int32)}
+    return {
+        "id": ids,
+        "pos": rng.random((len(ids), 2)) + step,
+        "vel": rng.random((len(ids), 2)),
+        "spin": rng.random((len(ids), 1)),
+        "r": rng.random(len(ids)),
+        "mat": np.zeros(len(ids), np.int32),
+    }
 
 
 def test_writer_publishes_only_whole_frames_and_truncates_on_reopen(tmp_path, quick_scenario):
@@ -168,7 +194,7 @@ def test_writer_publishes_only_whole_frames_and_truncates_on_reopen(tmp_path, qu
         parts = [_part(rng, step, ids[:20]), _part(rng, step, ids[20:])]
         w.write_frame(step, step * 1e-5, np.full(6, step, float), parts)
         written[step] = parts
-    w.write_part(40, _part(rng, 40, np.arange(n)))      # a frame half-way: not ended
+    w.write_part(40, _part(rng, 40, np.arange(n)))  # a frame half-way: not ended
     folder = tmp_path / TRAJECTORY_DIR
     assert [p for p in os.listdir(folder) if p.startswith(frame_name(40) + ".tmp-")]
     with Trajectory.of_run(tmp_path) as t:
@@ -181,7 +207,7 @@ def test_writer_publishes_only_whole_frames_and_truncates_on_reopen(tmp_path, qu
         assert np.array_equal(f["wheel_state"], np.full(6, 20.0)) and f["time"] == 20e-5
     w.close()
     assert sorted(os.listdir(folder)) == [frame_name(s) for s in (0, 10, 20, 30)]
-    w = TrajectoryWriter.reopen(tmp_path, sc, 2, n, step=20)   # resumed from the epoch at 20
+    w = TrajectoryWriter.reopen(tmp_path, sc, 2, n, step=20)  # resumed from the epoch at 20
     assert w.committed == 3 and not w.due(20) and w.due(30)
     assert sorted(os.listdir(folder)) == [frame_name(s) for s in (0, 10, 20)]
     w.write_frame(30, 30e-5, np.zeros(6), [_part(rng, 30, np.arange(n))])
@@ -210,12 +236,16 @@ def test_half_written_temporary_is_ignored_then_removed_on_resume(tmp_path, quic
     folder = tmp_path / TRAJECTORY_DIR
     whole = (folder / frame_name(10)).read_bytes()
     torn = folder / f"{frame_name(20)}.tmp-k1ll3d_x"
-    torn.write_bytes(whole[:len(whole) // 2])
-    others = {"notes.txt": b"mine", f"{frame_name(20)}.tmp-": b"x", "frame-20.h5": b"y",
-              f"{frame_name(30)}.h5.bak": b"z"}
+    torn.write_bytes(whole[: len(whole) // 2])
+    others = {
+        "notes.txt": b"mine",
+        f"{frame_name(20)}.tmp-": b"x",
+        "frame-20.h5": b"y",
+        f"{frame_name(30)}.h5.bak": b"z",
+    }
     for name, data in others.items():
         (folder / name).write_bytes(data)
-    (folder / f"{frame_name(40)}.tmp-dir").mkdir()          # our pattern, but not a file
+    (folder / f"{frame_name(40)}.tmp-dir").mkdir()  # our pattern, but not a file
     with Trajectory.of_run(tmp_path) as t:
         assert list(t.steps) == [0, 10] and len(list(t)) == 2
     w = TrajectoryWriter.reopen(tmp_path, sc, 2, n, step=10)
@@ -234,17 +264,18 @@ def test_xdmf_time_series_reads_in_vtk(tmp_path, runs):
     1500 disc points with their arrays from the frame files, and the wheel outline polygon."""
     vtk = pytest.importorskip("vtk")
     from ooc_dem.model.scenario import load_scenario
+
     run = runs["ooc"]
     out = tmp_path / "traj.xdmf"
     cp = cli_in_process("export-trajectory", run, "--out", out, check=True)
     assert "5 frames" in cp.stdout
-    assert out.stat().st_size < 200_000   # references, not a copy of the data
+    assert out.stat().st_size < 200_000  # references, not a copy of the data
     sc = load_scenario("quick")
     r = vtk.vtkXdmfReader()
     r.SetFileName(str(out))
     r.UpdateInformation()
     times = r.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
-    assert f'{TRAJECTORY_DIR}/{frame_name(123)}:/pos' in out.read_text()
+    assert f"{TRAJECTORY_DIR}/{frame_name(123)}:/pos" in out.read_text()
     with Trajectory.of_run(run) as t:
         assert np.allclose(times, t.times, rtol=0, atol=1e-15)
         for i, tv in enumerate(times):
@@ -263,8 +294,9 @@ def test_xdmf_time_series_reads_in_vtk(tmp_path, runs):
             assert pd.GetArray("id").GetValue(j) == raw["id"][start + j]
             assert pd.GetArray("velocity").GetNumberOfComponents() == 3
             ws = t.wheel_states[i]
-            poly = wheel_outline(ws[0], ws[1], ws[4], sc.wheel.radius, sc.wheel.n_lugs,
-                                 sc.wheel.lug_tip_radius, sc.wheel.lug_thickness)
+            poly = wheel_outline(
+                ws[0], ws[1], ws[4], sc.wheel.radius, sc.wheel.n_lugs, sc.wheel.lug_tip_radius, sc.wheel.lug_thickness
+            )
             assert wheel.GetNumberOfPoints() == len(poly) and wheel.GetNumberOfCells() == 1
             assert np.allclose(wheel.GetPoint(0)[:2], poly[0])
 
@@ -284,12 +316,13 @@ def test_animate_writes_a_readable_film(tmp_path, runs, suffix):
     assert len(pictures) == 5
     first = pictures[0]
     assert first.shape[1] == 1280 and first.shape[0] % 16 == 0
-    assert not np.array_equal(pictures[0], pictures[-1])   # the soil (and the text) moved
-    assert not list(tmp_path.glob(".film*"))   # no temporary left
+    assert not np.array_equal(pictures[0], pictures[-1])  # the soil (and the text) moved
+    assert not list(tmp_path.glob(".film*"))  # no temporary left
 
 
 def test_api_trajectory(runs):
     import ooc_dem
+
     res = ooc_dem.open_run(runs["ooc"])
     with res.trajectory() as t:
         assert len(t) == 5
@@ -301,47 +334,48 @@ def test_api_trajectory(runs):
 def test_bad_input_is_one_line(tmp_path, runs):
     """No trajectory, a garbage or edited trajectory, an output inside the store, a bad
     suffix or key: exit 2 with one line."""
-    one_line_error(cli_in_process("animate", runs["noframes"], "--out", tmp_path / "a.gif"),
-                   "no trajectory/", "snapshot_interval")
-    one_line_error(cli_in_process("export-trajectory", tmp_path / "nowhere", "--out", tmp_path / "a.xdmf"),
-                   "not a run directory")
-    one_line_error(cli_in_process("export-trajectory", runs["ooc"], "--out", runs["ooc"] / "a.xdmf"),
-                   "inside the ooc-dem store")
+    one_line_error(
+        cli_in_process("animate", runs["noframes"], "--out", tmp_path / "a.gif"), "no trajectory/", "snapshot_interval"
+    )
+    one_line_error(
+        cli_in_process("export-trajectory", tmp_path / "nowhere", "--out", tmp_path / "a.xdmf"), "not a run directory"
+    )
+    one_line_error(
+        cli_in_process("export-trajectory", runs["ooc"], "--out", runs["ooc"] / "a.xdmf"), "inside the ooc-dem store"
+    )
     one_line_error(cli_in_process("animate", runs["ooc"], "--out", tmp_path / "a.avi"), ".mp4 or .gif")
     one_line_error(cli_in_process("export-trajectory", runs["ooc"], "--out", tmp_path / "a.txt"), ".xdmf")
-    one_line_error(cli_in_process("check", "quick", "--set", "output.snapshot_interval=-1"),
-                   "output.snapshot_interval")
+    one_line_error(cli_in_process("check", "quick", "--set", "output.snapshot_interval=-1"), "output.snapshot_interval")
     bad = tmp_path / "bad"
     (bad / TRAJECTORY_DIR).mkdir(parents=True)
     target = bad / TRAJECTORY_DIR / frame_name(123)
     target.write_bytes(b"\x89HDF\r\n\x1a\n" + os.urandom(2000))
     one_line_error(cli_in_process("animate", bad, "--out", tmp_path / "b.gif"), "not a readable HDF5 file")
     good = runs["monolithic"] / TRAJECTORY_DIR / frame_name(123)
-    for edit, needle in ((lambda f: f.attrs.__setitem__("step", 99), "its name says 123"),
-                         (lambda f: f.attrs.__setitem__("format", "x"), "not an ooc-dem trajectory"),
-                         (lambda f: f["id"].__setitem__(1, f["id"][0]), "disc id twice"),
-                         (lambda f: f.attrs.__setitem__("n_discs", -3), "is not a count"),
-                         (lambda f: f["r"].resize(7, axis=0), "rows"),
-                         (lambda f: f.__setitem__("mat2", f["mat"][:]) or f.__delitem__("mat"),
-                          "no dataset 'mat'"),
-                         (lambda f: f.attrs.__setitem__("dim", 3), "dtype")):
+    for edit, needle in (
+        (lambda f: f.attrs.__setitem__("step", 99), "its name says 123"),
+        (lambda f: f.attrs.__setitem__("format", "x"), "not an ooc-dem trajectory"),
+        (lambda f: f["id"].__setitem__(1, f["id"][0]), "disc id twice"),
+        (lambda f: f.attrs.__setitem__("n_discs", -3), "is not a count"),
+        (lambda f: f["r"].resize(7, axis=0), "rows"),
+        (lambda f: f.__setitem__("mat2", f["mat"][:]) or f.__delitem__("mat"), "no dataset 'mat'"),
+        (lambda f: f.attrs.__setitem__("dim", 3), "dtype"),
+    ):
         target.write_bytes(good.read_bytes())
         with h5py.File(target, "r+") as f:
             edit(f)
         one_line_error(cli_in_process("animate", bad, "--out", tmp_path / "c.gif", "--no-progress"), needle)
     target.unlink()
-    target.symlink_to(good)                            # a frame name that is a symlink
+    target.symlink_to(good)  # a frame name that is a symlink
     one_line_error(cli_in_process("export-trajectory", bad, "--out", tmp_path / "e.xdmf"), "not a regular file")
     link = tmp_path / "linked"
     link.mkdir()
     (link / TRAJECTORY_DIR).symlink_to(runs["monolithic"] / TRAJECTORY_DIR)
-    one_line_error(cli_in_process("export-trajectory", link, "--out", tmp_path / "d.xdmf"),
-                   "not a directory")
+    one_line_error(cli_in_process("export-trajectory", link, "--out", tmp_path / "d.xdmf"), "not a directory")
     old = tmp_path / "old"
     old.mkdir()
-    (old / TRAJECTORY_FILE).symlink_to(good)           # version 1 file: the old rule still holds
-    one_line_error(cli_in_process("export-trajectory", old, "--out", tmp_path / "f.xdmf"),
-                   "outside the run directory")
+    (old / TRAJECTORY_FILE).symlink_to(good)  # version 1 file: the old rule still holds
+    one_line_error(cli_in_process("export-trajectory", old, "--out", tmp_path / "f.xdmf"), "outside the run directory")
 
 
 def test_version_1_single_file_is_read_and_migrated_on_resume(tmp_path, quick_scenario):
@@ -352,13 +386,19 @@ def test_version_1_single_file_is_read_and_migrated_on_resume(tmp_path, quick_sc
     n, steps = 30, [0, 10, 20, 30]
     parts = [_part(rng, s, rng.permutation(n)) for s in steps]
     with h5py.File(tmp_path / TRAJECTORY_FILE, "w") as f:
-        for k, v in {"format": "ooc-dem trajectory", "format_version": 1, "dim": 2,
-                     "frame_every_steps": 10, "dt": sc.physics.dt, "scenario_hash": sc.hash(),
-                     "n_discs": n, "frames": len(steps)}.items():
+        for k, v in {
+            "format": "ooc-dem trajectory",
+            "format_version": 1,
+            "dim": 2,
+            "frame_every_steps": 10,
+            "dt": sc.physics.dt,
+            "scenario_hash": sc.hash(),
+            "n_discs": n,
+            "frames": len(steps),
+        }.items():
             f.attrs[k] = v
         for k in ROW_FIELDS:
-            f[k] = np.concatenate([p[k] for p in parts]).astype(
-                {"id": "<i8", "mat": "<i4"}.get(k, "<f8"))
+            f[k] = np.concatenate([p[k] for p in parts]).astype({"id": "<i8", "mat": "<i4"}.get(k, "<f8"))
         f["frame_step"] = np.array(steps, "<i8")
         f["frame_time"] = np.array(steps, "<f8") * 1e-5
         f["frame_start"] = np.arange(len(steps), dtype="<i8") * n

@@ -3,6 +3,7 @@ recomputed) is refused before it is stepped, hashed or exported; hostile run opt
 text in the manifest are refused; `checkpoint export --out` never replaces a store's files or
 anything that is not a regular file; a kill after the last commit or before the first one leaves
 a run that `resume` / `run --out` finish. Every refusal: exit 2, one line on stderr."""
+
 import hashlib
 import json
 import os
@@ -17,7 +18,6 @@ import pytest
 from support.cli import cli_in_process, one_line_error, run_cli
 from support.runs import BASE_RUN_STEPS as STEPS, WHEEL_TEST
 from ooc_dem.physics.layout import AX_X
-
 
 
 def _manifest(store: Path) -> dict:
@@ -35,7 +35,7 @@ def _tamper_current(store: Path, edit):
     data = path.read_bytes()
     for f in cur["files"]:
         if f["path"] == cur["path"]:
-            f.pop("xxh3_128", None)         # re-signed the way older stores were (still read)
+            f.pop("xxh3_128", None)  # re-signed the way older stores were (still read)
             f["size"], f["sha256"] = len(data), hashlib.sha256(data).hexdigest()
     # the previous epoch would be resumed from instead if it were left intact; drop it
     m["previous"] = None
@@ -94,11 +94,10 @@ TAMPERED = {
 def test_consistently_tampered_epoch_is_refused(run_copy, case):
     edit, needle = TAMPERED[case]
     _tamper_current(run_copy, edit)
-    assert cli_in_process("checkpoint", "verify", run_copy).returncode == 0   # the checksums do pass
+    assert cli_in_process("checkpoint", "verify", run_copy).returncode == 0  # the checksums do pass
     before = (run_copy / "MANIFEST.json").read_bytes()
-    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress",
-                                   "--no-figures"), needle)
-    assert (run_copy / "MANIFEST.json").read_bytes() == before        # nothing committed over it
+    one_line_error(cli_in_process("resume", run_copy, "--steps", STEPS + 20, "--no-progress", "--no-figures"), needle)
+    assert (run_copy / "MANIFEST.json").read_bytes() == before  # nothing committed over it
     if case in ("duplicate-ids", "globals-attrs-without-step", "wheel-state-nan", "hist_n-99"):
         one_line_error(cli_in_process("checkpoint", "hash", run_copy))
     if case in ("duplicate-ids", "globals-attrs-without-step", "wheel-state-nan"):
@@ -108,6 +107,7 @@ def test_consistently_tampered_epoch_is_refused(run_copy, case):
 def test_missing_globals_group_is_refused(run_copy):
     def drop_globals(f):
         del f["globals"]
+
     m = _tamper_current(run_copy, drop_globals)
     m["current"]["globals"] = None
     (run_copy / "MANIFEST.json").write_text(json.dumps(m))
@@ -136,19 +136,36 @@ def test_hostile_run_meta_is_refused(run_copy, case):
 def test_hostile_engine_attrs_are_refused(tmp_path):
     """A DDM epoch whose stored slab bounds are not a decomposition of its domains."""
     out = tmp_path / "ddm"
-    run_cli("run", "quick", "--out", out, "--mode", "ddm", "--domains", "3", "--steps", 20,
-            "--checkpoint-every", 10, "--no-progress", "--no-figures",
-            *sum((["--set", s] for s in WHEEL_TEST), []), check=True)
+    run_cli(
+        "run",
+        "quick",
+        "--out",
+        out,
+        "--mode",
+        "ddm",
+        "--domains",
+        "3",
+        "--steps",
+        20,
+        "--checkpoint-every",
+        10,
+        "--no-progress",
+        "--no-figures",
+        *sum((["--set", s] for s in WHEEL_TEST), []),
+        check=True,
+    )
 
     def bad_bounds(f):
         a = json.loads(f["globals"].attrs["ooc_dem_attrs"])
         a["engine"]["bounds"] = ["left", 0.2]
         f["globals"].attrs["ooc_dem_attrs"] = json.dumps(a)
+
     _tamper_current(out, bad_bounds)
     one_line_error(cli_in_process("resume", out, "--steps", 40, "--no-progress", "--no-figures"), "bounds")
 
 
 # ------------------------------------------------------------------ export --out
+
 
 def _export(store, out, *extra):
     return cli_in_process("checkpoint", "export", store, "--out", out, *extra)
@@ -156,8 +173,12 @@ def _export(store, out, *extra):
 
 def test_export_never_replaces_store_files(run_copy):
     m = _manifest(run_copy)
-    targets = [run_copy / "MANIFEST.json", run_copy / m["current"]["path"],
-               run_copy / "epochs" / "new.csv", run_copy / "final.vtk"]
+    targets = [
+        run_copy / "MANIFEST.json",
+        run_copy / m["current"]["path"],
+        run_copy / "epochs" / "new.csv",
+        run_copy / "final.vtk",
+    ]
     for t in targets:
         before = t.read_bytes() if t.exists() else None
         one_line_error(_export(run_copy, t, "--format", "csv"), "store")
@@ -179,7 +200,7 @@ def test_export_refuses_what_is_not_a_regular_file(run_copy, tmp_path):
     link.symlink_to(target)
     (tmp_path / "adir.csv").mkdir()
     cases = [fifo, link, tmp_path / "adir.csv"]
-    if os.geteuid() == 0:            # a real device node, as /dev/null is (mknod needs root)
+    if os.geteuid() == 0:  # a real device node, as /dev/null is (mknod needs root)
         dev = tmp_path / "null.csv"
         os.mknod(dev, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
         cases.append(dev)
@@ -206,6 +227,7 @@ def _umask() -> int:
 
 # ------------------------------------------------------------------ kills around the commits
 
+
 def test_resume_finishes_outputs_lost_after_the_final_commit(base_run, tmp_path):
     """A SIGKILL between the final commit and the outputs leaves exactly this: a committed final
     epoch and no (or a torn) summary.json, series.csv and figures."""
@@ -230,7 +252,8 @@ def test_resume_finishes_outputs_lost_after_the_final_commit(base_run, tmp_path)
             assert got[key] == summary[key], key
         assert (run / "series.csv").read_text() == series
         assert sorted(p.name for p in (run / "figures").iterdir()) == sorted(
-            p.name for p in (base_run / "figures").iterdir())
+            p.name for p in (base_run / "figures").iterdir()
+        )
         assert run_cli("report", run).returncode == 0
         assert run_cli("compare", base_run, run).returncode == 0
     # a finished run with all its outputs: resume has nothing to do and writes nothing
@@ -245,6 +268,7 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     from ooc_dem.app.run import RunOptions, Simulation
     from ooc_dem.model.scenario import load_scenario
     from ooc_dem.storage import create_store
+
     sc = load_scenario("quick", WHEEL_TEST)
     out = tmp_path / "run"
     sim = Simulation(sc, out, RunOptions(steps=20, progress=False, figures=False))
@@ -252,13 +276,23 @@ def test_run_stopped_before_its_first_commit_can_be_started_again(tmp_path):
     (out / "scenario.toml").write_text(sc.to_toml())
     line = one_line_error(cli_in_process("resume", out, "--no-progress"), "no committed epoch")
     assert f"--out {out}" in line and "ooc-dem run" in line
-    args = ["run", "quick", "--out", out, "--steps", 20, "--no-progress", "--no-figures",
-            *sum((["--set", s] for s in WHEEL_TEST), [])]
-    (out / "notes.txt").write_text("mine")          # a user's file: the directory is not ours
+    args = [
+        "run",
+        "quick",
+        "--out",
+        out,
+        "--steps",
+        20,
+        "--no-progress",
+        "--no-figures",
+        *sum((["--set", s] for s in WHEEL_TEST), []),
+    ]
+    (out / "notes.txt").write_text("mine")  # a user's file: the directory is not ours
     one_line_error(cli_in_process(*args), "not empty")
     (out / "notes.txt").unlink()
     from ooc_dem.storage import open_store
-    with open_store(out):                          # a live run still setting up holds the store
+
+    with open_store(out):  # a live run still setting up holds the store
         one_line_error(run_cli(*args), "another process is writing this store")
     cp = run_cli(*args)
     assert cp.returncode == 0, cp.stderr

@@ -17,6 +17,7 @@ cores that may be busy with a long simulation, and spinning worker threads of
 tiny systems are then very slow. Results do not depend on the thread count
 (docs/design.md §3).
 """
+
 from __future__ import annotations
 
 import math
@@ -40,8 +41,8 @@ M = RHO * math.pi * R * R * B
 I_DISC = 0.5 * M * R * R
 KN0 = 1.0e5
 KS0 = KN0 / 3.0
-TC_WALL = math.pi * math.sqrt(M / KN0)          # undamped disc-wall contact time
-TC_PAIR = math.pi * math.sqrt(0.5 * M / KN0)    # undamped equal-disc contact time
+TC_WALL = math.pi * math.sqrt(M / KN0)  # undamped disc-wall contact time
+TC_PAIR = math.pi * math.sqrt(0.5 * M / KN0)  # undamped equal-disc contact time
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -63,8 +64,9 @@ def pair_params(kn=KN0, ks=None, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0) -> np.
     return v
 
 
-def make_model(dt, disc=None, wall=None, gx=0.0, gy=0.0, bottom=False, left=False, right=False,
-               length=1.0e3, r_max=R) -> Model:
+def make_model(
+    dt, disc=None, wall=None, gx=0.0, gy=0.0, bottom=False, left=False, right=False, length=1.0e3, r_max=R
+) -> Model:
     cp = np.zeros((3, 3, N_FIELDS))
     if disc is not None:
         cp[0, 0] = disc
@@ -72,15 +74,28 @@ def make_model(dt, disc=None, wall=None, gx=0.0, gy=0.0, bottom=False, left=Fals
         cp[1, 0] = wall
         cp[0, 1] = wall
     walls = np.array([length, float(left), float(right), float(bottom)])
-    return Model(dt=dt, gravity=np.array([gx, gy]), skin=0.2 * r_max, cp=cp, walls=walls, wg=np.zeros(WG_SIZE),
-                 wc=np.zeros(WC_SIZE), wheel_enabled=False, r_max=r_max)
+    return Model(
+        dt=dt,
+        gravity=np.array([gx, gy]),
+        skin=0.2 * r_max,
+        cp=cp,
+        walls=walls,
+        wg=np.zeros(WG_SIZE),
+        wc=np.zeros(WC_SIZE),
+        wheel_enabled=False,
+        r_max=r_max,
+    )
 
 
 def make_discs(x, y, r=R, vx=0.0, vy=0.0, w=0.0) -> Particles:
     x = np.atleast_1d(np.asarray(x, dtype=float))
     n = len(x)
-    p = Particles.new(np.column_stack([x, np.broadcast_to(np.asarray(y, float), (n,))]),
-                      np.broadcast_to(np.asarray(r, float), (n,)), RHO, B)
+    p = Particles.new(
+        np.column_stack([x, np.broadcast_to(np.asarray(y, float), (n,))]),
+        np.broadcast_to(np.asarray(r, float), (n,)),
+        RHO,
+        B,
+    )
     p.vel[:, AX_X][:] = vx
     p.vel[:, AX_Y][:] = vy
     p.spin[:, SP_Z][:] = w
@@ -89,8 +104,9 @@ def make_discs(x, y, r=R, vx=0.0, vy=0.0, w=0.0) -> Particles:
 
 def col(p, k):
     """The 2D column named k (x, y, vx, vy, w) of p's vectors (a view)."""
-    return {"x": p.pos[:, AX_X], "y": p.pos[:, AX_Y], "vx": p.vel[:, AX_X], "vy": p.vel[:, AX_Y],
-            "w": p.spin[:, SP_Z]}[k]
+    return {"x": p.pos[:, AX_X], "y": p.pos[:, AX_Y], "vx": p.vel[:, AX_X], "vy": p.vel[:, AX_Y], "w": p.spin[:, SP_Z]}[
+        k
+    ]
 
 
 def incline(theta_deg):
@@ -191,10 +207,12 @@ def _voigt_unclamped(delta, vn, kn, zeta, meff):
     contact_force returns max(0, kn d - cn vn); that expression is odd in
     (d, vn), so f(d, vn) - f(-d, -vn) = kn d - cn vn exactly (one term is 0).
     """
-    a = contact_force(0.0, 1.0, delta, 0.0, vn, 0.0, 0.0, 0.0, R, meff, 1.0, R, 0.0, 0.0,
-                      kn, kn / 3, zeta, 0.0, 0.0, 0.0, 0.0, 1e-6)[0]
-    b = contact_force(0.0, 1.0, -delta, 0.0, -vn, 0.0, 0.0, 0.0, R, meff, 1.0, R, 0.0, 0.0,
-                      kn, kn / 3, zeta, 0.0, 0.0, 0.0, 0.0, 1e-6)[0]
+    a = contact_force(
+        0.0, 1.0, delta, 0.0, vn, 0.0, 0.0, 0.0, R, meff, 1.0, R, 0.0, 0.0, kn, kn / 3, zeta, 0.0, 0.0, 0.0, 0.0, 1e-6
+    )[0]
+    b = contact_force(
+        0.0, 1.0, -delta, 0.0, -vn, 0.0, 0.0, 0.0, R, meff, 1.0, R, 0.0, 0.0, kn, kn / 3, zeta, 0.0, 0.0, 0.0, 0.0, 1e-6
+    )[0]
     return a - b
 
 
@@ -303,7 +321,7 @@ def _on_incline(theta_deg, wall, t_end, block=False, ramp=0.0, dt=5e-6, every=10
     th = math.radians(theta_deg)
     p = make_discs(0.0, R - M * G * math.cos(0.0 if ramp > 0 else th) / KN0)
     if block:
-        p.inertia[:] = np.inf          # rotation locked: a block
+        p.inertia[:] = np.inf  # rotation locked: a block
     model = make_model(dt, wall=wall, bottom=True)
     st = DomainStepper(p, model, reorder=False)
     keys = ("x", "y", "vx", "vy", "w")
@@ -317,7 +335,7 @@ def _on_incline(theta_deg, wall, t_end, block=False, ramp=0.0, dt=5e-6, every=10
         for k in keys:
             tr[k].append(col(p, k).copy())
     tr = {k: np.array(v) for k, v in tr.items()}
-    t = np.arange(len(tr["x"])) * every * dt - 0.5 * dt   # velocity times
+    t = np.arange(len(tr["x"])) * every * dt - 0.5 * dt  # velocity times
     return th, p, tr, t
 
 
@@ -463,7 +481,7 @@ def test_sliding_to_rolling_on_flat_ground():
     t_th = v0 / (3 * mu * G)
     every = 4
     tr = trajectory(st, int(1.2 * t_th / dt), every=every)
-    tv = np.arange(len(tr["x"])) * every * dt - 0.5 * dt     # velocity times
+    tv = np.arange(len(tr["x"])) * every * dt - 0.5 * dt  # velocity times
     slip = tr["vx"][:, 0] + tr["w"][:, 0] * R
     t_roll, k, s = first_crossing(tv, slip)
     v_roll = tr["vx"][k, 0] + s * (tr["vx"][k + 1, 0] - tr["vx"][k, 0])
@@ -483,8 +501,7 @@ def _oblique(theta_deg, mu, v=0.5):
     dt = TC_WALL / 1000
     gap = 0.01 * R
     p = make_discs(0.5, R + gap, vx=v * math.sin(th), vy=-v * math.cos(th))
-    st = DomainStepper(p, make_model(dt, wall=pair_params(ks=KN0 / 3, mu=mu), bottom=True),
-                       reorder=False)
+    st = DomainStepper(p, make_model(dt, wall=pair_params(ks=KN0 / 3, mu=mu), bottom=True), reorder=False)
     st.advance(0, int((gap / (v * math.cos(th)) + 1.5 * TC_WALL) / dt))
     assert p.pos[:, AX_Y][0] > R, "still in contact"
     return th, v, p.vel[:, AX_X][0], p.vel[:, AX_Y][0], p.spin[:, SP_Z][0]
@@ -530,12 +547,11 @@ def test_equal_opposite_spins_head_on_exact():
     v0, w0 = 0.5, 40.0
     dt = TC_PAIR / 500
     gap = 0.01 * R
-    p = make_discs([-(R + gap / 2), R + gap / 2], 0.0, vx=np.array([0.5 * v0, -0.5 * v0]),
-                   w=np.array([w0, -w0]))
+    p = make_discs([-(R + gap / 2), R + gap / 2], 0.0, vx=np.array([0.5 * v0, -0.5 * v0]), w=np.array([w0, -w0]))
     st = DomainStepper(p, make_model(dt, disc=pair_params(zn=0.3, zt=0.3, mu=0.5)), reorder=False, keep_forces=True)
     tr = trajectory(st, int((gap / v0 + 1.5 * TC_PAIR) / dt), forces=True)
-    assert np.abs(tr["fx"]).max() > 0                       # they did collide
-    assert p.vel[:, AX_X][0] < 0 < p.vel[:, AX_X][1]                            # and rebounded
+    assert np.abs(tr["fx"]).max() > 0  # they did collide
+    assert p.vel[:, AX_X][0] < 0 < p.vel[:, AX_X][1]  # and rebounded
     assert np.all(tr["tq"] == 0.0)
     assert np.all(tr["fy"] == 0.0)
     assert np.all(tr["w"][:, 0] == w0) and np.all(tr["w"][:, 1] == -w0)
@@ -579,8 +595,7 @@ def test_energy_conserved_without_damping_and_friction():
     p.vel[:, AX_Y][:] = rng.normal(0, 0.8, n)
     p.spin[:, SP_Z][:] = rng.normal(0, 10.0, n)
     prm = pair_params(mu=0.0)
-    model = make_model(dt, disc=prm, wall=prm, gy=-G, bottom=True, left=True, right=True,
-                       length=L, r_max=R)
+    model = make_model(dt, disc=prm, wall=prm, gy=-G, bottom=True, left=True, right=True, length=L, r_max=R)
     st = DomainStepper(p, model, reorder=False)
     w_start = p.spin[:, SP_Z].copy()
     energies, contacts_seen, step = [], 0, 0
@@ -591,7 +606,9 @@ def test_energy_conserved_without_damping_and_friction():
         st.advance(step, 1)
         step += 1
         if step % 1000 == 1:
-            energies.append(_energy(p, x0, y0, 0.5 * (vx0 + p.vel[:, AX_X]), 0.5 * (vy0 + p.vel[:, AX_Y]), p.spin[:, SP_Z], L, KN0))
+            energies.append(
+                _energy(p, x0, y0, 0.5 * (vx0 + p.vel[:, AX_X]), 0.5 * (vy0 + p.vel[:, AX_Y]), p.spin[:, SP_Z], L, KN0)
+            )
         # count contact starts (a contact lasts > 20 steps; sample every 10)
         st.advance(step, 9)
         step += 9
@@ -637,8 +654,9 @@ def _angular_momentum(p, tr):
     """
     m, inertia = p.mass[None, :], p.inertia[None, :]
     orb = m * (tr["x"] * tr["vy"] - tr["y"] * tr["vx"])
-    scale = (m * np.hypot(tr["x"], tr["y"]) * np.hypot(tr["vx"], tr["vy"])
-             + inertia * np.abs(tr["w"])).sum(axis=1).max()
+    scale = (
+        (m * np.hypot(tr["x"], tr["y"]) * np.hypot(tr["vx"], tr["vy"]) + inertia * np.abs(tr["w"])).sum(axis=1).max()
+    )
     return (orb + inertia * tr["w"]).sum(axis=1), scale
 
 
@@ -654,7 +672,7 @@ def test_momentum_of_isolated_pair_exact():
     py = (m * tr["vy"]).sum(axis=1)
     scale = (m * np.hypot(tr["vx"], tr["vy"])).sum(axis=1)[0]
     assert np.abs(tr["vx"][-1] - tr["vx"][0]).max() > 0.03
-    assert np.abs(tr["tq"]).max() > 0                     # friction acted
+    assert np.abs(tr["tq"]).max() > 0  # friction acted
     assert np.abs(px - px[0]).max() < 1e-12 * scale, np.abs(px - px[0]).max() / scale
     assert np.abs(py - py[0]).max() < 1e-12 * scale, np.abs(py - py[0]).max() / scale
 
@@ -699,7 +717,7 @@ def test_newton_third_law_random_cluster():
     x = (k % 6) * 1.85 * R + rng.uniform(-0.05, 0.05, n) * R
     y = (k // 6) * 1.85 * R + rng.uniform(-0.05, 0.05, n) * R
     p = Particles.new(np.column_stack([x, y]), rng.uniform(0.9 * R, R, n), RHO, B)
-    p.id[:] = rng.permutation(1000)[:n]                   # ids unrelated to the order
+    p.id[:] = rng.permutation(1000)[:n]  # ids unrelated to the order
     p.vel[:, AX_X][:] = rng.normal(0, 0.2, n)
     p.vel[:, AX_Y][:] = rng.normal(0, 0.2, n)
     p.spin[:, SP_Z][:] = rng.normal(0, 20.0, n)
@@ -736,14 +754,37 @@ def all_contacts(p: Particles, model: Model):
 
     for i in range(len(p)):
         c = cp[tw, p.mat[i]]
-        for pid, delta, nx, ny, on in ((ID_WALL_RIGHT, p.r[i] - (length - p.pos[:, AX_X][i]), -1.0, 0.0, walls[2]),
-                                       (ID_WALL_LEFT, p.r[i] - p.pos[:, AX_X][i], 1.0, 0.0, walls[1]),
-                                       (ID_WALL_BOTTOM, p.r[i] - p.pos[:, AX_Y][i], 0.0, 1.0, walls[3])):
+        for pid, delta, nx, ny, on in (
+            (ID_WALL_RIGHT, p.r[i] - (length - p.pos[:, AX_X][i]), -1.0, 0.0, walls[2]),
+            (ID_WALL_LEFT, p.r[i] - p.pos[:, AX_X][i], 1.0, 0.0, walls[1]),
+            (ID_WALL_BOTTOM, p.r[i] - p.pos[:, AX_Y][i], 0.0, 1.0, walls[3]),
+        ):
             if on > 0.5 and delta > 0:
                 s, mr = hist(i, pid)
                 fn, ft, _, _, _ = contact_force(
-                    nx, ny, delta, p.vel[:, AX_X][i], p.vel[:, AX_Y][i], 0.0, p.spin[:, SP_Z][i], 0.0, p.r[i], p.mass[i],
-                    p.inertia[i], p.r[i], s, mr, c[KN], c[KS], c[ZN], c[ZT], c[MU], c[MUR], c[ZR], dt)
+                    nx,
+                    ny,
+                    delta,
+                    p.vel[:, AX_X][i],
+                    p.vel[:, AX_Y][i],
+                    0.0,
+                    p.spin[:, SP_Z][i],
+                    0.0,
+                    p.r[i],
+                    p.mass[i],
+                    p.inertia[i],
+                    p.r[i],
+                    s,
+                    mr,
+                    c[KN],
+                    c[KS],
+                    c[ZN],
+                    c[ZT],
+                    c[MU],
+                    c[MUR],
+                    c[ZR],
+                    dt,
+                )
                 out.append((i, pid, fn * nx + ft * ny, fn * ny - ft * nx))
     dx = p.pos[:, AX_X][None, :] - p.pos[:, AX_X][:, None]
     dy = p.pos[:, AX_Y][None, :] - p.pos[:, AX_Y][:, None]
@@ -757,9 +798,29 @@ def all_contacts(p: Particles, model: Model):
         c = cp[p.mat[a], p.mat[b]]
         ma, mb, ia, ib, ra, rb = p.mass[a], p.mass[b], p.inertia[a], p.inertia[b], p.r[a], p.r[b]
         fn, ft, _, _, _ = contact_force(
-            nx, ny, ra + rb - d, p.vel[:, AX_X][b] - p.vel[:, AX_X][a], p.vel[:, AX_Y][b] - p.vel[:, AX_Y][a], p.spin[:, SP_Z][a], p.spin[:, SP_Z][b], ra, rb,
-            ma * mb / (ma + mb), ia * ib / (ia + ib), ra * rb / (ra + rb), s, mr,
-            c[KN], c[KS], c[ZN], c[ZT], c[MU], c[MUR], c[ZR], dt)
+            nx,
+            ny,
+            ra + rb - d,
+            p.vel[:, AX_X][b] - p.vel[:, AX_X][a],
+            p.vel[:, AX_Y][b] - p.vel[:, AX_Y][a],
+            p.spin[:, SP_Z][a],
+            p.spin[:, SP_Z][b],
+            ra,
+            rb,
+            ma * mb / (ma + mb),
+            ia * ib / (ia + ib),
+            ra * rb / (ra + rb),
+            s,
+            mr,
+            c[KN],
+            c[KS],
+            c[ZN],
+            c[ZT],
+            c[MU],
+            c[MUR],
+            c[ZR],
+            dt,
+        )
         bx, by = fn * nx + ft * ny, fn * ny - ft * nx
         out.append((b, int(p.id[a]), bx, by))
         out.append((a, int(p.id[b]), -bx, -by))
@@ -770,8 +831,10 @@ def all_contacts(p: Particles, model: Model):
 def settled(request):
     from ooc_dem.app.bed import settled_bed
     from ooc_dem.model.scenario import load_scenario
-    sc = load_scenario("quick", ["soil.n=300", "bin.length=0.12", "wheel.enabled=false",
-                                 f"contact.soil_wall.friction={request.param}"])
+
+    sc = load_scenario(
+        "quick", ["soil.n=300", "bin.length=0.12", "wheel.enabled=false", f"contact.soil_wall.friction={request.param}"]
+    )
     p = settled_bed(sc)
     model = Model.from_scenario(sc).without_wheel()
     return request.param, p, model, all_contacts(p, model)
@@ -804,7 +867,7 @@ def test_settled_bed_wall_reaction_equals_weight(settled):
     bottom = sum(c[3] for c in cts if c[1] == ID_WALL_BOTTOM)
     side = sum(c[3] for c in cts if c[1] in (ID_WALL_LEFT, ID_WALL_RIGHT))
     assert abs(st.force[:, AX_Y].sum() - (bottom + side)) < 1e-12 * W
-    assert rel_err(bottom + side, W) < 0.01, ((bottom + side) / W)
+    assert rel_err(bottom + side, W) < 0.01, (bottom + side) / W
     if wall_mu == 0.0:
         assert side == 0.0
         assert rel_err(bottom, W) < 0.01, bottom / W

@@ -1,4 +1,5 @@
 """The paper's rig: outputs, sign conventions, drawbar pull - slip curve."""
+
 import json
 
 import numpy as np
@@ -26,8 +27,16 @@ def quick_run(tmp_path_factory):
 def test_quick_outputs(quick_run):
     out, cp = quick_run
     assert "wheel slip" in cp.stdout and "state hash" in cp.stdout
-    for f in ("series.csv", "summary.json", "initial.npz", "scenario.toml", "MANIFEST.json",
-              "figures/series.png", "figures/deformation.png", "figures/displacement.png"):
+    for f in (
+        "series.csv",
+        "summary.json",
+        "initial.npz",
+        "scenario.toml",
+        "MANIFEST.json",
+        "figures/series.png",
+        "figures/deformation.png",
+        "figures/displacement.png",
+    ):
         assert (out / f).is_file(), f
         assert (out / f).stat().st_size > 0, f
     for png in (out / "figures").glob("*.png"):
@@ -72,8 +81,16 @@ def test_slip_sign_and_drawbar_dependence(tmp_path):
     res = {}
     for load in (0.0, 10.0):
         out = tmp_path / f"d{load:g}"
-        run_cli("run", "quick", "--out", out, "--no-figures", "--no-progress",
-                *_settings([f"wheel.drawbar_load={load}"]), check=True)
+        run_cli(
+            "run",
+            "quick",
+            "--out",
+            out,
+            "--no-figures",
+            "--no-progress",
+            *_settings([f"wheel.drawbar_load={load}"]),
+            check=True,
+        )
         res[load] = json.loads((out / "summary.json").read_text())
     s0 = res[0.0]["slip"]["steady"]["value"]
     s10 = res[10.0]["slip"]["steady"]["value"]
@@ -85,8 +102,7 @@ def test_slip_sign_and_drawbar_dependence(tmp_path):
 
 def test_sweep_drawbar_pull_increases_with_slip(tmp_path):
     out = tmp_path / "sweep"
-    run_cli("sweep", "quick", *_settings(), "--slips", "0.05,0.3,0.6", "--out", out, "--no-progress",
-            check=True)
+    run_cli("sweep", "quick", *_settings(), "--slips", "0.05,0.3,0.6", "--out", out, "--no-progress", check=True)
     data = np.genfromtxt(out / "drawbar_pull_slip.csv", delimiter=",", names=True)
     assert list(data["slip"]) == [0.05, 0.3, 0.6]
     assert np.all(np.diff(data["drawbar_pull"]) > 0), data["drawbar_pull"]
@@ -99,9 +115,10 @@ def test_windows_of_a_run_stopped_early_say_what_they_cover():
     from ooc_dem.app.metrics import WheelMetrics
     from ooc_dem.physics.layout import N_REC, REC_T, REC_X
     from ooc_dem.model.scenario import load_scenario
+
     sc = load_scenario("quick")
     dt = sc.physics.dt
-    steps = int(round((sc.wheel.settle_time + 0.5) / dt))   # 0.5 s of the 2 s travel
+    steps = int(round((sc.wheel.settle_time + 0.5) / dt))  # 0.5 s of the 2 s travel
     rec = np.zeros((steps, N_REC))
     rec[:, REC_T] = np.arange(steps) * dt
     rec[:, REC_X] = np.arange(steps) * 1e-6

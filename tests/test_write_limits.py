@@ -7,6 +7,7 @@ behind, and leave every committed epoch intact and the run resumable. The checks
 writing (free space and the limit against the estimated size) are also switched off in a
 second pass, so that the failure is met in the middle of the write. A small tmpfs gives a
 real full disk (ENOSPC)."""
+
 import json
 import os
 import resource
@@ -23,8 +24,16 @@ from support.cli import one_line_error
 ROOT = Path(__file__).resolve().parents[1]
 # 1 KB, 8 KB, ... 2 MB: an epoch of `quick` is 250 kB, a frame 110 kB, its GIF 400 kB
 LIMITS = [1 << (10 + 3 * k) for k in range(5)]
-STEPS = ["--steps", "100", "--checkpoint-every", "50", "--set", "output.snapshot_interval=0.0005",
-         "--no-progress", "--no-figures"]
+STEPS = [
+    "--steps",
+    "100",
+    "--checkpoint-every",
+    "50",
+    "--set",
+    "output.snapshot_interval=0.0005",
+    "--no-progress",
+    "--no-figures",
+]
 
 # the CLI with every check before writing switched off (the names each writer calls)
 _NO_PRECHECK = """
@@ -44,11 +53,14 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHO
 
 def limited(cmd, limit: int | None, timeout=300):
     """Run cmd under RLIMIT_FSIZE = limit (None: unlimited), set in the child before exec."""
+
     def limit_files():
         if limit is not None:
             resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-    return subprocess.run(list(map(str, cmd)), capture_output=True, text=True, timeout=timeout,
-                          env=ENV, preexec_fn=limit_files)
+
+    return subprocess.run(
+        list(map(str, cmd)), capture_output=True, text=True, timeout=timeout, env=ENV, preexec_fn=limit_files
+    )
 
 
 def cli_limited(args, limit: int | None, precheck: bool = True):
@@ -119,7 +131,7 @@ def test_every_export_format_under_every_file_size_limit(base, tmp_path, prechec
             assert_clean_outcome(cp, d)
             out[fmt] = cp.returncode
             if cp.returncode == 2:
-                assert not list(d.iterdir()), (fmt, limit, list(d.iterdir()))   # nothing published
+                assert not list(d.iterdir()), (fmt, limit, list(d.iterdir()))  # nothing published
         return out
 
     codes = sweep(job)
@@ -185,6 +197,7 @@ except OSError as e:
     print(f"ooc-dem: error: {{e.filename}}: {{e.strerror}}", file=sys.stderr)
     sys.exit(2)
 """
+
     def job(args):
         limit, precheck = args
         out = tmp_path / f"run-{limit}-{precheck}"
@@ -201,7 +214,7 @@ except OSError as e:
         results = dict(zip(cases, pool.map(job, cases)))
     for (limit, pre), (rc, frames) in results.items():
         assert rc == (0 if limit > 200_000 else 2), (limit, pre, rc)
-        assert len(frames) == (3 if rc == 0 else 0), (limit, pre, frames)   # whole frames only
+        assert len(frames) == (3 if rc == 0 else 0), (limit, pre, frames)  # whole frames only
 
 
 @pytest.mark.parametrize("suffix", [".gif", ".mp4"])
@@ -225,8 +238,7 @@ def test_a_truncated_mp4_is_never_published(base, tmp_path):
     """imageio's writer ignored ffmpeg's failure: under a 40 kB limit the 80 kB film was
     published cut short, exit 0. Now the encoder's exit status decides."""
     out = tmp_path / "a.mp4"
-    line = one_line_error(cli_limited(["animate", base, "--out", out, "--no-progress"], 40 << 10),
-                          "encoder failed")
+    line = one_line_error(cli_limited(["animate", base, "--out", out, "--no-progress"], 40 << 10), "encoder failed")
     assert "SIGXFSZ" in line or "too large" in line, line
     assert not list(tmp_path.iterdir())
 

@@ -10,6 +10,7 @@ warm-up. Prints one JSON object per size and a final JSON list. ``--family bed``
     python tools/bench.py --sizes 7000,100000 --steps 500 --threads 2
     python tools/bench.py --family bed3d --sizes 20000 --steps 200
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,16 +24,17 @@ import time
 FAMILIES = ("bed", "bed3d")
 
 
-def one(n: int, steps: int, threads: int, warmup: int, family: str = "bed",
-        overrides: list[str] | None = None) -> dict:
+def one(n: int, steps: int, threads: int, warmup: int, family: str = "bed", overrides: list[str] | None = None) -> dict:
     """One measurement on the settled bed of ``{family}-{n}`` (in this process)."""
     import numba
+
     numba.set_num_threads(threads)
     import numpy as np
     from ooc_dem.app.bed import settled_bed
     from ooc_dem.engine.memlimit import own_peak_rss_bytes
     from ooc_dem.engine.stepper import DomainStepper, Model
     from ooc_dem.model.scenario import load_scenario
+
     t0 = time.time()
     sc = load_scenario(f"{family}-{n}", overrides)
     bed = settled_bed(sc)
@@ -49,14 +51,28 @@ def one(n: int, steps: int, threads: int, warmup: int, family: str = "bed",
     peak = own_peak_rss_bytes()
     contacts = float(np.mean(st.p.hist_n))
     extra = {}
-    if hasattr(st, "nbytes"):   # the stepper's own arrays besides the discs, and its pair list
-        extra = {"stepper_bytes_per_disc": round(st.nbytes() / n, 1),
-                 "candidate_pairs_per_disc": round(st.pairs / n, 3)}
-    return {"n": n, "family": family, "dim": sc.dim, "steps": steps, "threads": threads, "warmup_steps": warmup, "seconds": round(el, 4),
-            "particle_steps_per_s": n * steps / el, "contacts_per_disc": round(contacts, 3),
-            "neighbour_rebuilds": st.rebuilds, "peak_rss_bytes": peak,
-            "peak_rss_bytes_per_disc": round(peak / n, 1), "bed_setup_s": round(t_bed, 2),
-            "rss_after_bed_bytes": rss_bed, **extra}
+    if hasattr(st, "nbytes"):  # the stepper's own arrays besides the discs, and its pair list
+        extra = {
+            "stepper_bytes_per_disc": round(st.nbytes() / n, 1),
+            "candidate_pairs_per_disc": round(st.pairs / n, 3),
+        }
+    return {
+        "n": n,
+        "family": family,
+        "dim": sc.dim,
+        "steps": steps,
+        "threads": threads,
+        "warmup_steps": warmup,
+        "seconds": round(el, 4),
+        "particle_steps_per_s": n * steps / el,
+        "contacts_per_disc": round(contacts, 3),
+        "neighbour_rebuilds": st.rebuilds,
+        "peak_rss_bytes": peak,
+        "peak_rss_bytes_per_disc": round(peak / n, 1),
+        "bed_setup_s": round(t_bed, 2),
+        "rss_after_bed_bytes": rss_bed,
+        **extra,
+    }
 
 
 def main():
@@ -65,10 +81,10 @@ def main():
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--warmup", type=int, default=300)
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--family", default="bed", choices=FAMILIES,
-                    help="bed: 2D bed-N (discs); bed3d: 3D bed3d-N (spheres)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="scenario override (every size)")
+    ap.add_argument(
+        "--family", default="bed", choices=FAMILIES, help="bed: 2D bed-N (discs); bed3d: 3D bed3d-N (spheres)"
+    )
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scenario override (every size)")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.one:
@@ -76,9 +92,25 @@ def main():
         return
     results = []
     for n in [int(float(s)) for s in a.sizes.split(",")]:
-        out = subprocess.run([sys.executable, __file__, "--one", str(n), "--steps", str(a.steps),
-                              "--threads", str(a.threads), "--warmup", str(a.warmup), "--family", a.family]
-                             + [f"--set={o}" for o in a.set], capture_output=True, text=True)
+        out = subprocess.run(
+            [
+                sys.executable,
+                __file__,
+                "--one",
+                str(n),
+                "--steps",
+                str(a.steps),
+                "--threads",
+                str(a.threads),
+                "--warmup",
+                str(a.warmup),
+                "--family",
+                a.family,
+            ]
+            + [f"--set={o}" for o in a.set],
+            capture_output=True,
+            text=True,
+        )
         if out.returncode != 0:
             print(out.stderr, file=sys.stderr)
             sys.exit(out.returncode)

@@ -20,6 +20,7 @@ JIT warm-up, on ``--threads`` threads:
   temporal blocking, against K = 1 (one thread: the loop a lane runs; null for a
   dimension whose kernels have no one-thread step, 3D today).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,8 +40,7 @@ def main(argv=None) -> int:
     ap.add_argument("--blocks", default="1,2,4,8", help="K values of blocked_us")
     a = ap.parse_args(argv)
     if a.domains < 2 or a.steps < 1 or a.threads < 1 or a.repeat < 1:
-        print("ddm_cost: --domains must be >= 2, --steps, --threads and --repeat >= 1",
-              file=sys.stderr)
+        print("ddm_cost: --domains must be >= 2, --steps, --threads and --repeat >= 1", file=sys.stderr)
         return 2
     if not (Path(a.run) / "scenario.toml").is_file():
         print(f"ddm_cost: {a.run} is not a run store (no scenario.toml)", file=sys.stderr)
@@ -53,6 +53,7 @@ def main(argv=None) -> int:
         print(f"ddm_cost: --blocks {a.blocks!r}: comma-separated K values >= 1", file=sys.stderr)
         return 2
     import numba
+
     numba.set_num_threads(a.threads)
     import numpy as np
     from numba import njit
@@ -92,8 +93,14 @@ def main(argv=None) -> int:
         o = np.argsort(p.id)
         return p.pos[o], p.vel[o]
 
-    out = {"run": a.run, "step": step0, "discs": len(discs), "domains": a.domains,
-           "threads": a.threads, "steps": a.steps}
+    out = {
+        "run": a.run,
+        "step": step0,
+        "discs": len(discs),
+        "domains": a.domains,
+        "threads": a.threads,
+        "steps": a.steps,
+    }
     ends = {}
     for mode in ("mono", "ddm"):
         best = float("inf")
@@ -115,18 +122,75 @@ def main(argv=None) -> int:
     p = lv.p
 
     @njit
-    def refresh_loop(k, pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
-                     x_built, ref, disp2, part, skin, bounds, owned, owned_before, role):
+    def refresh_loop(
+        k,
+        pieces,
+        ids,
+        owner_row,
+        pos,
+        vel,
+        spin,
+        hist_n,
+        hist_id,
+        hist_s,
+        hist_m,
+        x_built,
+        ref,
+        disp2,
+        part,
+        skin,
+        bounds,
+        owned,
+        owned_before,
+        role,
+    ):
         c = 0
         for _ in range(k):
-            c += live.refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id,
-                                         hist_s, hist_m, x_built, ref, disp2, False, part, skin,
-                                         bounds, owned, owned_before, role)[1]
+            c += live.refresh_own_pieces(
+                pieces,
+                ids,
+                owner_row,
+                pos,
+                vel,
+                spin,
+                hist_n,
+                hist_id,
+                hist_s,
+                hist_m,
+                x_built,
+                ref,
+                disp2,
+                False,
+                part,
+                skin,
+                bounds,
+                owned,
+                owned_before,
+                role,
+            )[1]
         return c
 
-    args = (lv._pieces, p.id, lv.owner_row, p.pos, p.vel, p.spin, p.hist_n, p.hist_id, p.hist_s,
-            p.hist_m, lv.x_built, lv.ref, lv.disp2, lv._part, np.inf, lv.bounds, lv.owned,
-            lv.owned_before, lv.role)
+    args = (
+        lv._pieces,
+        p.id,
+        lv.owner_row,
+        p.pos,
+        p.vel,
+        p.spin,
+        p.hist_n,
+        p.hist_id,
+        p.hist_s,
+        p.hist_m,
+        lv.x_built,
+        lv.ref,
+        lv.disp2,
+        lv._part,
+        np.inf,
+        lv.bounds,
+        lv.owned,
+        lv.owned_before,
+        lv.role,
+    )
     refresh_loop(1, *args)
     t = time.perf_counter()
     refresh_loop(a.steps, *args)
@@ -146,12 +210,14 @@ def main(argv=None) -> int:
         while s < nsteps:
             for j in range(len(doms)):
                 kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
-                step_serial(K, s0 + s, kp, d, pl, bd, forces, ws, err, recs[j], False, False,
-                            stable[:d.gid.shape[0]], every)
+                step_serial(
+                    K, s0 + s, kp, d, pl, bd, forces, ws, err, recs[j], False, False, stable[: d.gid.shape[0]], every
+                )
             s += K
         return s
 
     from numba.typed import List
+
     every = np.zeros((0, 2), np.int64)
     blocked = {}
     for K in blocks_k:

@@ -18,6 +18,7 @@ Prints one JSON object on stdout (progress goes to stderr): cases per strategy, 
 cases/s, the distinct failure classes (one reproducer each) and every failure (argv, edits, exit
 code, stderr, the property that broke). Exit status 1 on any failure.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,25 +39,44 @@ def main(argv=None) -> int:
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     if soft == resource.RLIM_INFINITY or soft > HARNESS_ADDRESS_SPACE:
         resource.setrlimit(resource.RLIMIT_AS, (HARNESS_ADDRESS_SPACE, hard))
-    import fuzzlib   # beside this file (tools/ is the script's directory), under the bound too
+    import fuzzlib  # beside this file (tools/ is the script's directory), under the bound too
+
     weights = fuzzlib.BUDGET
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--cases", type=int, default=None, help="generated cases in total (default 5000; --long: "
-                   f"{LONG_CASES})")
-    p.add_argument("--long", action="store_true",
-                   help=f"the release campaign: {LONG_CASES} cases over every strategy, {LONG_TIMEOUT:.0f} s a command")
-    p.add_argument("--seed", type=int, default=None,
-                   help="hypothesis seed (default: derandomized, the same cases every run)")
-    p.add_argument("--strategies", default=",".join(fuzzlib.STRATEGY_NAMES),
-                   help="comma-separated subset of: " + ", ".join(fuzzlib.STRATEGY_NAMES))
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--cases", type=int, default=None, help=f"generated cases in total (default 5000; --long: {LONG_CASES})"
+    )
+    p.add_argument(
+        "--long",
+        action="store_true",
+        help=f"the release campaign: {LONG_CASES} cases over every strategy, {LONG_TIMEOUT:.0f} s a command",
+    )
+    p.add_argument(
+        "--seed", type=int, default=None, help="hypothesis seed (default: derandomized, the same cases every run)"
+    )
+    p.add_argument(
+        "--strategies",
+        default=",".join(fuzzlib.STRATEGY_NAMES),
+        help="comma-separated subset of: " + ", ".join(fuzzlib.STRATEGY_NAMES),
+    )
     p.add_argument("--timeout", type=float, default=None, help=f"per command, s (default {fuzzlib.CASE_TIMEOUT:.0f})")
-    p.add_argument("--mem-bound-gib", type=float, default=fuzzlib.MEM_BOUND / fuzzlib.GiB,
-                   help="peak RSS above the worker's baseline, GiB")
+    p.add_argument(
+        "--mem-bound-gib",
+        type=float,
+        default=fuzzlib.MEM_BOUND / fuzzlib.GiB,
+        help="peak RSS above the worker's baseline, GiB",
+    )
     p.add_argument("--no-known", action="store_true", help="skip the known-bug examples")
     p.add_argument("--workdir", help="keep case directories here (default: a temporary directory)")
-    p.add_argument("--keep-failed", type=int, default=0, metavar="K",
-                   help="keep the directories of the first K failing cases (with --workdir)")
+    p.add_argument(
+        "--keep-failed",
+        type=int,
+        default=0,
+        metavar="K",
+        help="keep the directories of the first K failing cases (with --workdir)",
+    )
     p.add_argument("--quiet", action="store_true", help="no per-failure progress on stderr")
     a = p.parse_args(argv)
     names = [s.strip() for s in a.strategies.split(",") if s.strip()]
@@ -77,9 +97,14 @@ def main(argv=None) -> int:
             print(msg[:400], file=sys.stderr, flush=True)
 
     t0 = time.monotonic()
-    fz = fuzzlib.Fuzzer(workdir=Path(a.workdir) if a.workdir else None, timeout=a.timeout,
-                        mem_bound=int(a.mem_bound_gib * fuzzlib.GiB), keep_failed=a.keep_failed, log=log,
-                        bases=fuzzlib.bases_for(names))
+    fz = fuzzlib.Fuzzer(
+        workdir=Path(a.workdir) if a.workdir else None,
+        timeout=a.timeout,
+        mem_bound=int(a.mem_bound_gib * fuzzlib.GiB),
+        keep_failed=a.keep_failed,
+        log=log,
+        bases=fuzzlib.bases_for(names),
+    )
     try:
         strategies = fuzzlib.build_strategies()
         for s in names:
@@ -89,14 +114,38 @@ def main(argv=None) -> int:
         summary = fz.summary()
     finally:
         fz.close()
-    summary.update({"seed": a.seed, "long": a.long, "strategies": names,
-                    "command": "python tools/fuzz.py " + " ".join(sys.argv[1:] if argv is None else argv),
-                    "requested_cases": a.cases, "generated_per_strategy": per,
-                    "timeout_s": a.timeout, "wall_s": round(time.monotonic() - t0, 1),
-                    "all_failures": [{k: (f[k][-1500:] if k == "stderr" else fuzzlib.short(f[k])) for k in
-                                      ("class", "strategy", "base", "edits", "argv", "property", "detail",
-                                       "preceded_by", "exit_code", "stderr", "kept_dir") if f.get(k) is not None}
-                                     for f in fz.failures]})
+    summary.update(
+        {
+            "seed": a.seed,
+            "long": a.long,
+            "strategies": names,
+            "command": "python tools/fuzz.py " + " ".join(sys.argv[1:] if argv is None else argv),
+            "requested_cases": a.cases,
+            "generated_per_strategy": per,
+            "timeout_s": a.timeout,
+            "wall_s": round(time.monotonic() - t0, 1),
+            "all_failures": [
+                {
+                    k: (f[k][-1500:] if k == "stderr" else fuzzlib.short(f[k]))
+                    for k in (
+                        "class",
+                        "strategy",
+                        "base",
+                        "edits",
+                        "argv",
+                        "property",
+                        "detail",
+                        "preceded_by",
+                        "exit_code",
+                        "stderr",
+                        "kept_dir",
+                    )
+                    if f.get(k) is not None
+                }
+                for f in fz.failures
+            ],
+        }
+    )
     summary["ok"] = not fz.failures
     print(json.dumps(summary, indent=2, ensure_ascii=False))
     return 0 if summary["ok"] else 1

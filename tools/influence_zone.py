@@ -24,6 +24,7 @@ a bin this wide keeps the side walls at least that far from the wheel: b + 2 e_p
 Reads two frames of the run (each one value per sphere of the bed, in memory: a tool for
 runs that fit in RAM; the engine's out-of-core path never does this).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,32 +57,41 @@ def _binned(d: np.ndarray, e: np.ndarray, side: np.ndarray, bin_width: float) ->
         if not m.any():
             continue
         db = d[m]
-        rows.append({"e_lo": b * bin_width, "e_hi": (b + 1) * bin_width, "n": int(m.sum()),
-                     "disp": float(np.linalg.norm(db, axis=1).mean()),
-                     "dx": float(db[:, AX_X].mean()), "dy": float(db[:, AX_Y].mean()),
-                     "dz_out": float((db[:, AX_Z] * side[m]).mean())})
+        rows.append(
+            {
+                "e_lo": b * bin_width,
+                "e_hi": (b + 1) * bin_width,
+                "n": int(m.sum()),
+                "disp": float(np.linalg.norm(db, axis=1).mean()),
+                "dx": float(db[:, AX_X].mean()),
+                "dy": float(db[:, AX_Y].mean()),
+                "dz_out": float((db[:, AX_Z] * side[m]).mean()),
+            }
+        )
     return rows
 
 
-def lateral_profile(pos0: np.ndarray, pos1: np.ndarray, x_range: tuple[float, float], z0: float,
-                    half_width: float, bin_width: float) -> list[dict]:
+def lateral_profile(
+    pos0: np.ndarray, pos1: np.ndarray, x_range: tuple[float, float], z0: float, half_width: float, bin_width: float
+) -> list[dict]:
     """Per lateral bin of e = |z - z0| - half_width (initial positions, spheres whose initial x
     is in x_range): count and mean displacement |d|, dx, dy and dz away from the wheel."""
     x, z = pos0[:, AX_X], pos0[:, AX_Z]
     lo, hi = x_range
     sel = (x >= lo) & (x <= hi)
-    return _binned(pos1[sel] - pos0[sel], np.abs(z[sel] - z0) - half_width,
-                   np.where(z[sel] >= z0, 1.0, -1.0), bin_width)
+    return _binned(
+        pos1[sel] - pos0[sel], np.abs(z[sel] - z0) - half_width, np.where(z[sel] >= z0, 1.0, -1.0), bin_width
+    )
 
 
-def ahead_profile(pos0: np.ndarray, pos1: np.ndarray, front: float, z0: float, half_width: float,
-                  bin_width: float) -> list[dict]:
+def ahead_profile(
+    pos0: np.ndarray, pos1: np.ndarray, front: float, z0: float, half_width: float, bin_width: float
+) -> list[dict]:
     """The same ahead of the wheel: spheres of its track (|z - z0| <= half_width) that started
     at x >= front (the lugs' front at the end), binned by e = x - front."""
     x, z = pos0[:, AX_X], pos0[:, AX_Z]
     sel = (x >= front) & (np.abs(z - z0) <= half_width)
-    return _binned(pos1[sel] - pos0[sel], x[sel] - front, np.where(z[sel] >= z0, 1.0, -1.0),
-                   bin_width)
+    return _binned(pos1[sel] - pos0[sel], x[sel] - front, np.where(z[sel] >= z0, 1.0, -1.0), bin_width)
 
 
 def edges_of(rows: list[dict], fractions: list[float], floor: float, wheel: float) -> dict:
@@ -110,8 +120,12 @@ def zone_edges(rows: list[dict], fractions: list[float], floor_from: float | Non
     far = [r for r in outside if r["e_lo"] >= floor_from] or outside[-1:]
     floor = float(np.average([r["disp"] for r in far], weights=[r["n"] for r in far]))
     wheel = float(np.average([r["disp"] for r in under], weights=[r["n"] for r in under]))
-    return {"floor": floor, "floor_from": floor_from, "under_wheel": wheel,
-            "edges": edges_of(rows, fractions, floor, wheel)}
+    return {
+        "floor": floor,
+        "floor_from": floor_from,
+        "under_wheel": wheel,
+        "edges": edges_of(rows, fractions, floor, wheel),
+    }
 
 
 def main(argv=None) -> int:
@@ -128,6 +142,7 @@ def main(argv=None) -> int:
     from ooc_dem.engine.stepper import wheel_z0
     from ooc_dem.app.trajectory import Trajectory, TrajectoryError
     from ooc_dem.model.scenario import ScenarioError
+
     run = Path(a.run)
     try:
         fractions = [float(p) for p in a.fractions.split(",")]
@@ -137,8 +152,9 @@ def main(argv=None) -> int:
             raise ValueError(f"--bin: a width in m between 0 and 1, got {a.bin}")
         sc = load_scenario(run / "scenario.toml")
         if sc.dim != 3 or not sc.wheel.enabled:
-            raise ValueError(f"{run}: needs a 3D wheel run (this one is {sc.dim}D"
-                             f"{'' if sc.wheel.enabled else ', no wheel'})")
+            raise ValueError(
+                f"{run}: needs a 3D wheel run (this one is {sc.dim}D{'' if sc.wheel.enabled else ', no wheel'})"
+            )
         traj = Trajectory.of_run(run)
         if len(traj) < 2:
             raise ValueError(f"{run}: needs a 3D wheel run with at least two trajectory frames")
@@ -154,43 +170,57 @@ def main(argv=None) -> int:
     xw0, xw1 = float(f0["wheel_state"][WS_X]), float(f1["wheel_state"][WS_X])
     bin_width = a.bin or 2.0 * sc.soil.r_max
     z0, half_width = wheel_z0(sc), 0.5 * sc.wheel.width
-    rows = lateral_profile(f0["pos"], f1["pos"], (min(xw0, xw1), max(xw0, xw1)), z0, half_width,
-                           bin_width)
+    rows = lateral_profile(f0["pos"], f1["pos"], (min(xw0, xw1), max(xw0, xw1)), z0, half_width, bin_width)
     try:
         zone = zone_edges(rows, fractions, a.floor_from)
-    except ValueError as e:   # e.g. --t0 and --t1 on one frame: the wheel did not travel
-        print(f"influence_zone: {run}, t = {traj.times[i0]:g}-{traj.times[i1]:g} s: {e}",
-              file=sys.stderr)
+    except ValueError as e:  # e.g. --t0 and --t1 on one frame: the wheel did not travel
+        print(f"influence_zone: {run}, t = {traj.times[i0]:g}-{traj.times[i1]:g} s: {e}", file=sys.stderr)
         return 2
     front = max(xw0, xw1) + sc.wheel.lug_tip_radius
     ahead = ahead_profile(f0["pos"], f1["pos"], front, z0, half_width, bin_width)
-    report = {"run": str(run), "t0": float(traj.times[i0]), "t1": float(traj.times[i1]),
-              "wheel_x": [xw0, xw1], "wheel_width": sc.wheel.width, "bin_width_m": sc.bin.width,
-              "wall_gap_m": 0.5 * (sc.bin.width - sc.wheel.width), "lateral_bin": bin_width,
-              **zone,
-              "bin_width_for": {p: (None if e is None else sc.wheel.width + 2.0 * e)
-                                for p, e in zone["edges"].items()},
-              "profile": rows,
-              "ahead": {"front_x": front, "end_wall_gap_m": sc.bin.length - front,
-                        "edges": edges_of(ahead, fractions, zone["floor"], zone["under_wheel"]),
-                        "profile": ahead}}
+    report = {
+        "run": str(run),
+        "t0": float(traj.times[i0]),
+        "t1": float(traj.times[i1]),
+        "wheel_x": [xw0, xw1],
+        "wheel_width": sc.wheel.width,
+        "bin_width_m": sc.bin.width,
+        "wall_gap_m": 0.5 * (sc.bin.width - sc.wheel.width),
+        "lateral_bin": bin_width,
+        **zone,
+        "bin_width_for": {p: (None if e is None else sc.wheel.width + 2.0 * e) for p, e in zone["edges"].items()},
+        "profile": rows,
+        "ahead": {
+            "front_x": front,
+            "end_wall_gap_m": sc.bin.length - front,
+            "edges": edges_of(ahead, fractions, zone["floor"], zone["under_wheel"]),
+            "profile": ahead,
+        },
+    }
     if a.png:
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+
         e = np.array([0.5 * (r["e_lo"] + r["e_hi"]) for r in rows])
         fig, (ax, lx) = plt.subplots(1, 2, figsize=(12, 4))
-        for key, label in (("disp", "|d|"), ("dy", "dy (up)"), ("dz_out", "dz (outward)"),
-                           ("dx", "dx (travel)")):
+        for key, label in (("disp", "|d|"), ("dy", "dy (up)"), ("dz_out", "dz (outward)"), ("dx", "dx (travel)")):
             ax.plot(100 * e, 1000 * np.array([r[key] for r in rows]), marker=".", label=label)
         rel = (np.array([r["disp"] for r in rows]) - zone["floor"]) / (zone["under_wheel"] - zone["floor"])
-        lx.semilogy(100 * e, np.where(rel > 0, rel, np.nan), marker=".", c="C0",
-                    label="beside the wheel (e from its side face)")
+        lx.semilogy(
+            100 * e, np.where(rel > 0, rel, np.nan), marker=".", c="C0", label="beside the wheel (e from its side face)"
+        )
         if ahead:
             ea = np.array([0.5 * (r["e_lo"] + r["e_hi"]) for r in ahead])
             ra = (np.array([r["disp"] for r in ahead]) - zone["floor"]) / (zone["under_wheel"] - zone["floor"])
-            lx.semilogy(100 * ea, np.where(ra > 0, ra, np.nan), marker=".", c="C3",
-                        label="ahead of the lugs' front at the end (e = x - front)")
+            lx.semilogy(
+                100 * ea,
+                np.where(ra > 0, ra, np.nan),
+                marker=".",
+                c="C3",
+                label="ahead of the lugs' front at the end (e = x - front)",
+            )
         lx.legend(fontsize=7, loc="lower left")
         for p, edge in zone["edges"].items():
             lx.axhline(float(p), ls=":", c="gray")
@@ -198,22 +228,23 @@ def main(argv=None) -> int:
                 if edge is not None:
                     axis.axvline(100 * edge, ls="--", c="gray")
             if edge is not None:
-                lx.text(100 * edge, float(p), f" {float(p):.0%}: e = {100 * edge:.1f} cm",
-                        va="bottom", fontsize=8)
+                lx.text(100 * edge, float(p), f" {float(p):.0%}: e = {100 * edge:.1f} cm", va="bottom", fontsize=8)
         for axis in (ax, lx):
             axis.axvline(0, c="k", lw=0.8)
-        ax.set_xlabel("lateral distance from the wheel's side face e (cm; < 0 under the wheel)",
-                      fontsize=8)
-        lx.set_xlabel("distance e (cm) from the wheel's side face (blue) or the lugs' front (red)",
-                      fontsize=8)
+        ax.set_xlabel("lateral distance from the wheel's side face e (cm; < 0 under the wheel)", fontsize=8)
+        lx.set_xlabel("distance e (cm) from the wheel's side face (blue) or the lugs' front (red)", fontsize=8)
         ax.axhline(0, c="k", lw=0.5)
         ax.set_ylabel("mean displacement (mm)")
-        ax.set_title(f"{run.name}: soil displaced between t = {traj.times[i0]:.2f} and "
-                     f"{traj.times[i1]:.2f} s", fontsize=9)
+        ax.set_title(
+            f"{run.name}: soil displaced between t = {traj.times[i0]:.2f} and {traj.times[i1]:.2f} s", fontsize=9
+        )
         ax.legend(fontsize=8)
         lx.set_ylabel("(|d| - floor) / (|d| under the wheel - floor)")
-        lx.set_title(f"floor {1e3 * zone['floor']:.4f} mm (e >= {100 * zone['floor_from']:.0f} cm); "
-                     f"side wall at e = {100 * report['wall_gap_m']:.0f} cm", fontsize=9)
+        lx.set_title(
+            f"floor {1e3 * zone['floor']:.4f} mm (e >= {100 * zone['floor_from']:.0f} cm); "
+            f"side wall at e = {100 * report['wall_gap_m']:.0f} cm",
+            fontsize=9,
+        )
         fig.tight_layout()
         fig.savefig(a.png, dpi=120)
         report["png"] = a.png

@@ -18,6 +18,7 @@ Two measurements, printed as one JSON object:
     python tools/iobench.py --only epoch --n 100000 --domains 8
     python tools/iobench.py --only sweep --backends zarr --steps 10,40
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,8 +46,9 @@ class _FsCounter:
             return
         if event == "open":
             path, mode, flags = args
-            writing = (isinstance(mode, str) and any(c in mode for c in "wxa")) or \
-                (isinstance(flags, int) and flags & os.O_CREAT)
+            writing = (isinstance(mode, str) and any(c in mode for c in "wxa")) or (
+                isinstance(flags, int) and flags & os.O_CREAT
+            )
             if not writing:
                 return
             key = "create"
@@ -54,11 +56,11 @@ class _FsCounter:
             path = args[0]
             key = {"os.mkdir": "mkdir", "os.rmdir": "rmdir", "os.remove": "unlink"}[event]
         if args[-1] is not None and event != "open" and not os.path.isabs(os.fsdecode(path)):
-            self.counts[key] += 1       # rmtree's dir_fd-relative calls: inside the tree it removes
+            self.counts[key] += 1  # rmtree's dir_fd-relative calls: inside the tree it removes
             return
         try:
             p = os.fsdecode(path)
-        except TypeError:               # an fd
+        except TypeError:  # an fd
             return
         if os.path.abspath(p).startswith(self.root):
             self.counts[key] += 1
@@ -69,6 +71,7 @@ class _FsCounter:
 
 def _run_sweeps(counter, scenario, backend, steps, compression, tmp):
     import ooc_dem
+
     out = os.path.join(tmp, f"{backend}-{compression}-{steps}")
     counter.root = os.path.abspath(out)
     before = counter.snapshot()
@@ -85,18 +88,25 @@ def sweep(args, counter) -> list[dict]:
     s1, s2 = (int(v) for v in args.steps.split(","))
     res = []
     with tempfile.TemporaryDirectory(dir=args.tmp) as tmp:
-        _run_sweeps(counter, args.scenario, "hdf5", 2, "none", tmp)   # JIT warm-up
+        _run_sweeps(counter, args.scenario, "hdf5", 2, "none", tmp)  # JIT warm-up
         for backend in args.backends.split(","):
             for comp in args.compressions_for(backend):
                 t1, c1 = _run_sweeps(counter, args.scenario, backend, s1, comp, tmp)
                 t2, c2 = _run_sweeps(counter, args.scenario, backend, s2, comp, tmp)
                 per = {k: round((c2[k] - c1[k]) / (s2 - s1), 1) for k in c1}
-                res.append({"scenario": args.scenario, "backend": backend, "compression": comp,
-                            "block": 1, "steps": [s1, s2],
-                            "s_per_sweep": round((t2 - t1) / (s2 - s1), 4),
-                            "fs_objects_per_epoch": per,
-                            "created_per_epoch": per["mkdir"] + per["create"],
-                            "deleted_per_epoch": per["unlink"] + per["rmdir"]})
+                res.append(
+                    {
+                        "scenario": args.scenario,
+                        "backend": backend,
+                        "compression": comp,
+                        "block": 1,
+                        "steps": [s1, s2],
+                        "s_per_sweep": round((t2 - t1) / (s2 - s1), 4),
+                        "fs_objects_per_epoch": per,
+                        "created_per_epoch": per["mkdir"] + per["create"],
+                        "deleted_per_epoch": per["unlink"] + per["rmdir"],
+                    }
+                )
                 print(json.dumps(res[-1]), file=sys.stderr)
     return res
 
@@ -107,6 +117,7 @@ def _bed_groups(name, domains):
     from ooc_dem.model.checkpoint import particles_to_record
     from ooc_dem.physics.layout import AX_X
     from ooc_dem.model.scenario import load_scenario
+
     bed = settled_bed(load_scenario(name))
     order = np.argsort(bed.pos[:, AX_X], kind="stable")
     parts = np.array_split(order, domains)
@@ -116,6 +127,7 @@ def _bed_groups(name, domains):
 def epoch(args) -> list[dict]:
     import numpy as np
     from ooc_dem.storage import create_store
+
     groups = _bed_groups(args.bed or f"bed-{args.n}", args.domains)
     args.n = sum(len(g["id"]) for g in groups)
     raw = sum(a.nbytes for g in groups for a in g.values())
@@ -144,17 +156,23 @@ def epoch(args) -> list[dict]:
                         r.read_domain(d, ["pos", "vel", "spin", "r"], slice(0, max(1, n // 100)))
                     best_h = min(best_h, time.perf_counter() - t)
                     r.close()
-                    assert all(np.array_equal(back[d][k], groups[d][k]) for d in range(len(groups))
-                               for k in groups[d])
+                    assert all(np.array_equal(back[d][k], groups[d][k]) for d in range(len(groups)) for k in groups[d])
                 info = s.list_epochs()[-1]
                 s.close()
-                res.append({"backend": backend, "compression": comp, "n_discs": args.n,
-                            "domains": args.domains, "record_bytes_per_disc": round(raw / args.n, 1),
-                            "disk_bytes_per_disc": round(info.nbytes / args.n, 1),
-                            "ratio": round(raw / info.nbytes, 3),
-                            "write_MB_s": round(raw / best_w / 1e6, 1),
-                            "read_MB_s": round(raw / best_r / 1e6, 1),
-                            "strip_read_s": round(best_h, 4)})
+                res.append(
+                    {
+                        "backend": backend,
+                        "compression": comp,
+                        "n_discs": args.n,
+                        "domains": args.domains,
+                        "record_bytes_per_disc": round(raw / args.n, 1),
+                        "disk_bytes_per_disc": round(info.nbytes / args.n, 1),
+                        "ratio": round(raw / info.nbytes, 3),
+                        "write_MB_s": round(raw / best_w / 1e6, 1),
+                        "read_MB_s": round(raw / best_r / 1e6, 1),
+                        "strip_read_s": round(best_h, 4),
+                    }
+                )
                 print(json.dumps(res[-1]), file=sys.stderr)
     return res
 
@@ -163,16 +181,23 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["sweep", "epoch"])
     ap.add_argument("--backends", default="hdf5,zarr")
-    ap.add_argument("--compressions", default="all",
-                    help="comma-separated names, 'none', or 'all' (every one the backend has)")
+    ap.add_argument(
+        "--compressions", default="all", help="comma-separated names, 'none', or 'all' (every one the backend has)"
+    )
     ap.add_argument("--scenario", default="quick")
     ap.add_argument("--steps", default="10,40", help="S1,S2 of the sweep measurement")
-    ap.add_argument("--sweep-compression", action="store_true",
-                    help="the sweep measurement for every compression too (default: none only)")
+    ap.add_argument(
+        "--sweep-compression",
+        action="store_true",
+        help="the sweep measurement for every compression too (default: none only)",
+    )
     ap.add_argument("--n", type=int, default=100000, help="epoch: the bed-N scenario's N")
-    ap.add_argument("--bed", help="epoch: a scenario whose settled bed to store instead of bed-N "
-                                  "(bed-N is tiled from copies of one tile, which flatters "
-                                  "compression; e.g. quick or paper2008 are settled whole)")
+    ap.add_argument(
+        "--bed",
+        help="epoch: a scenario whose settled bed to store instead of bed-N "
+        "(bed-N is tiled from copies of one tile, which flatters "
+        "compression; e.g. quick or paper2008 are settled whole)",
+    )
     ap.add_argument("--domains", type=int, default=8)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--tmp", default=None, help="directory for the stores (default: the system's)")
@@ -180,15 +205,16 @@ def main():
 
     def compressions_for(backend, for_sweep=False):
         from ooc_dem import storage
+
         have = ["none"] + list(getattr(storage, "COMPRESSIONS", {}).get(backend, ()))
         if args.compressions == "all":
             return have
         return [c for c in args.compressions.split(",") if c in have]
+
     counter = _FsCounter()
     out = {}
     if args.only in (None, "sweep"):
-        args.compressions_for = (compressions_for if args.sweep_compression
-                                 else (lambda b: ["none"]))
+        args.compressions_for = compressions_for if args.sweep_compression else (lambda b: ["none"])
         out["sweep"] = sweep(args, counter)
     if args.only in (None, "epoch"):
         args.compressions_for = compressions_for

@@ -25,6 +25,7 @@ halo rows and messages per block measured here, and those two MPI numbers.
 
 Prints one JSON object per run, then the report (one JSON object).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -67,26 +68,60 @@ if rank == 0:
 
 def pingpong(mpiexec: str) -> dict:
     """Seconds per exchange of n bytes each way, latency (8 B) and bandwidth (16 MiB)."""
-    cp = subprocess.run([mpiexec, "-n", "2", sys.executable, "-c", _PINGPONG], capture_output=True,
-                        text=True, env=dict(os.environ), timeout=600)
+    cp = subprocess.run(
+        [mpiexec, "-n", "2", sys.executable, "-c", _PINGPONG],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ),
+        timeout=600,
+    )
     if cp.returncode != 0:
         raise SystemExit(f"mpiscale: the ping-pong failed: {cp.stderr.strip().splitlines()[-1:]}")
     times = {int(k): v for k, v in json.loads(cp.stdout.strip().splitlines()[-1]).items()}
     big = max(times)
-    return {"seconds_per_exchange": {str(k): round(v, 9) for k, v in sorted(times.items())},
-            "latency_s": times[8], "bandwidth_bytes_per_s": big / (times[big] - times[8])}
+    return {
+        "seconds_per_exchange": {str(k): round(v, 9) for k, v in sorted(times.items())},
+        "latency_s": times[8],
+        "bandwidth_bytes_per_s": big / (times[big] - times[8]),
+    }
 
 
-def run_once(scenario: str, mode: str, ranks: int, threads: int, steps: int, domains: int, block: int,
-             overrides: list[str], work: Path, mpiexec: str | None = None, extra=()) -> dict:
+def run_once(
+    scenario: str,
+    mode: str,
+    ranks: int,
+    threads: int,
+    steps: int,
+    domains: int,
+    block: int,
+    overrides: list[str],
+    work: Path,
+    mpiexec: str | None = None,
+    extra=(),
+) -> dict:
     """One `ooc-dem run` (under ``mpiexec -n ranks`` for the MPI modes), measured by its
     summary.json; ``extra``: more command-line flags."""
     out = work / f"{scenario}-{mode}-{ranks}r-{threads}t"
     shutil.rmtree(out, ignore_errors=True)
-    cmd = [sys.executable, "-m", "ooc_dem.cli", "run", scenario, "--mode", mode, "--steps", str(steps),
-           "--checkpoint-every", str(steps), "--out", str(out), "--no-progress", "--no-figures"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ooc_dem.cli",
+        "run",
+        scenario,
+        "--mode",
+        mode,
+        "--steps",
+        str(steps),
+        "--checkpoint-every",
+        str(steps),
+        "--out",
+        str(out),
+        "--no-progress",
+        "--no-figures",
+    ]
     if mode != "monolithic":
-        cmd += ["--domains", str(domains)] + (["--block", str(block)] if block else [])   # 0: the mode's own K
+        cmd += ["--domains", str(domains)] + (["--block", str(block)] if block else [])  # 0: the mode's own K
     for s in overrides:
         cmd += ["--set", s]
     cmd += list(extra)
@@ -101,11 +136,22 @@ def run_once(scenario: str, mode: str, ranks: int, threads: int, steps: int, dom
     s = json.loads((out / "summary.json").read_text())
     eng = s.get("engine") or {}
     shutil.rmtree(out, ignore_errors=True)
-    return {"scenario": scenario, "mode": mode, "flags": list(extra), "ranks": ranks, "threads_per_rank": threads,
-            "steps": steps, "domains": eng.get("domains"), "block": eng.get("block"),
-            "n": s["n_discs"], "wall_time_s": s["wall_time_s"], "process_s": round(total, 3),
-            "particle_steps_per_s": s["n_discs"] * steps / s["wall_time_s"],
-            "state_hash": s["state_hash"], "engine": eng}
+    return {
+        "scenario": scenario,
+        "mode": mode,
+        "flags": list(extra),
+        "ranks": ranks,
+        "threads_per_rank": threads,
+        "steps": steps,
+        "domains": eng.get("domains"),
+        "block": eng.get("block"),
+        "n": s["n_discs"],
+        "wall_time_s": s["wall_time_s"],
+        "process_s": round(total, 3),
+        "particle_steps_per_s": s["n_discs"] * steps / s["wall_time_s"],
+        "state_hash": s["state_hash"],
+        "engine": eng,
+    }
 
 
 def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ranks_list) -> dict:
@@ -123,9 +169,10 @@ def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ran
     2 log2(R) latencies for the collectives. The wire part alone (the ping-pong's latency
     and bandwidth for the rows and messages actually sent) is given beside it."""
     import math
+
     K = one["block"]
     blocks = one["steps"] / K
-    t_ps = one["wall_time_s"] / (one["n"] * one["steps"])       # one rank, one core
+    t_ps = one["wall_time_s"] / (one["n"] * one["steps"])  # one rank, one core
     eng2 = two["engine"]
     rows_strip = eng2["rank0_halo_rows_sent"] / blocks
     msgs_neighbour = eng2["rank0_messages"] / blocks
@@ -135,12 +182,18 @@ def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ran
     # the 1-rank run's); the rest of its time is the per-block cost
     share = max(eng2.get("rank_discs") or [one["n"] / 2]) / one["n"]
     per_neighbour = max((two["wall_time_s"] - one["wall_time_s"] * share) / blocks, wire)
-    out = {"t_particle_step_s": t_ps, "largest_rank_share_of_2": share,
-           "halo_rows_per_neighbour_per_block": rows_strip,
-           "messages_per_neighbour_per_block": msgs_neighbour, "row_bytes": dtype_bytes,
-           "wire_s_per_neighbour_per_block": wire,
-           "measured_s_per_neighbour_per_block": per_neighbour,
-           "n_target": n_target, "block": K, "predicted": []}
+    out = {
+        "t_particle_step_s": t_ps,
+        "largest_rank_share_of_2": share,
+        "halo_rows_per_neighbour_per_block": rows_strip,
+        "messages_per_neighbour_per_block": msgs_neighbour,
+        "row_bytes": dtype_bytes,
+        "wire_s_per_neighbour_per_block": wire,
+        "measured_s_per_neighbour_per_block": per_neighbour,
+        "n_target": n_target,
+        "block": K,
+        "predicted": [],
+    }
 
     def cost(R):
         return 2 * per_neighbour + 2 * math.log2(max(R, 2)) * lat
@@ -148,8 +201,15 @@ def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ran
     for R in ranks_list:
         comp = n_target / R * K * t_ps
         c = cost(R)
-        out["predicted"].append({"ranks": R, "discs_per_rank": n_target / R, "compute_per_block_s": comp,
-                                 "exchange_per_block_s": c, "efficiency": comp / (comp + c)})
+        out["predicted"].append(
+            {
+                "ranks": R,
+                "discs_per_rank": n_target / R,
+                "compute_per_block_s": comp,
+                "exchange_per_block_s": c,
+                "efficiency": comp / (comp + c),
+            }
+        )
     # below this many discs per rank (1024 ranks' collectives) the efficiency is under 80 %
     n_min = 4.0 * cost(1024) / (K * t_ps)
     out["discs_per_rank_at_80_percent"] = n_min
@@ -159,8 +219,9 @@ def model(one: dict, two: dict, pp: dict, dtype_bytes: int, n_target: float, ran
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scenarios", default="bed-1000000:8:20:200,paper2008:3:4:4000",
-                    help="NAME[:D[:K[:STEPS]]], comma-separated")
+    ap.add_argument(
+        "--scenarios", default="bed-1000000:8:20:200,paper2008:3:4:4000", help="NAME[:D[:K[:STEPS]]], comma-separated"
+    )
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--domains", type=int, default=8)
     ap.add_argument("--block", type=int, default=20)
@@ -182,12 +243,13 @@ def main(argv=None) -> int:
     from ooc_dem.engine.mpi import row_words
     from ooc_dem.engine.stepper import Model
     from ooc_dem.model.scenario import load_scenario
+
     report = {"tool": "tools/mpiscale.py", "pingpong": pp, "scenarios": []}
     cases = []
     for item in a.scenarios.split(","):
         name, *rest = item.split(":")
         try:
-            D, K, steps = [int(v) for v in rest] + [a.domains, a.block, a.steps][len(rest):]
+            D, K, steps = [int(v) for v in rest] + [a.domains, a.block, a.steps][len(rest) :]
         except ValueError:
             ap.error(f"--scenarios entry {item!r}: NAME[:D[:K[:STEPS]]] with integers")
         cases.append((name, D, K, steps, list(a.set)))
@@ -213,16 +275,25 @@ def main(argv=None) -> int:
             sc = load_scenario(scen, sets)
             m = Model.from_scenario(sc)
             one = {**one, "discs_per_m": one["n"] / sc.bin.length}
-            entry = {"scenario": scen, "set": sets, "n": one["n"], "steps": steps, "domains": D,
-                     "block": K, "runs": list(best.values()),
-                     "hashes_equal": len(hashes) == 1,
-                     "speedup_2_ranks_over_1": one["wall_time_s"] / two["wall_time_s"],
-                     "speedup_2_ranks_over_monolithic_2_threads": mono["wall_time_s"] / two["wall_time_s"],
-                     "model": model(one, two, pp, 8 * row_words(m.dim, m.hist_cap), a.target,
-                                    (8, 64, 1024))}
+            entry = {
+                "scenario": scen,
+                "set": sets,
+                "n": one["n"],
+                "steps": steps,
+                "domains": D,
+                "block": K,
+                "runs": list(best.values()),
+                "hashes_equal": len(hashes) == 1,
+                "speedup_2_ranks_over_1": one["wall_time_s"] / two["wall_time_s"],
+                "speedup_2_ranks_over_monolithic_2_threads": mono["wall_time_s"] / two["wall_time_s"],
+                "model": model(one, two, pp, 8 * row_words(m.dim, m.hist_cap), a.target, (8, 64, 1024)),
+            }
             report["scenarios"].append(entry)
-    report["machine"] = {"cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in load0],
-                         "loadavg_after": [round(x, 2) for x in os.getloadavg()]}
+    report["machine"] = {
+        "cpus": os.cpu_count(),
+        "loadavg_before": [round(x, 2) for x in load0],
+        "loadavg_after": [round(x, 2) for x in os.getloadavg()],
+    }
     print(json.dumps(report, indent=1))
     return 0
 

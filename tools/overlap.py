@@ -11,6 +11,7 @@ set-up excluded); the hashes must agree.
 
 Prints one JSON object per run, then the report (one JSON object).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,11 @@ def main(argv=None) -> int:
     ap.add_argument("--work", default=None, help="directory for the runs' stores (default: a temporary one)")
     a = ap.parse_args(argv)
     scen = f"bed-{a.discs}"
-    configs = {"monolithic": ("monolithic", ()), "ooc": ("ooc", ("--backend", a.backend)),
-               "ooc_overlap": ("ooc", ("--backend", a.backend, "--io-overlap"))}
+    configs = {
+        "monolithic": ("monolithic", ()),
+        "ooc": ("ooc", ("--backend", a.backend)),
+        "ooc_overlap": ("ooc", ("--backend", a.backend, "--io-overlap")),
+    }
     load0 = os.getloadavg()
     best: dict[str, dict] = {}
     with tempfile.TemporaryDirectory(prefix="overlap-", dir=a.work) as tmp:
@@ -51,13 +55,23 @@ def main(argv=None) -> int:
                 if name not in best or r["wall_time_s"] < best[name]["wall_time_s"]:
                     best[name] = r
     mono = best["monolithic"]["wall_time_s"]
-    report = {"tool": "tools/overlap.py", "scenario": scen, "steps": a.steps, "domains": a.domains,
-              "block": a.block, "threads": a.threads, "backend": a.backend,
-              "best_wall_time_s": {k: v["wall_time_s"] for k, v in best.items()},
-              "throughput_vs_monolithic": {k: round(mono / v["wall_time_s"], 3) for k, v in best.items()},
-              "hashes_equal": len({v["state_hash"] for v in best.values()}) == 1,
-              "machine": {"cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in load0],
-                          "loadavg_after": [round(x, 2) for x in os.getloadavg()]}}
+    report = {
+        "tool": "tools/overlap.py",
+        "scenario": scen,
+        "steps": a.steps,
+        "domains": a.domains,
+        "block": a.block,
+        "threads": a.threads,
+        "backend": a.backend,
+        "best_wall_time_s": {k: v["wall_time_s"] for k, v in best.items()},
+        "throughput_vs_monolithic": {k: round(mono / v["wall_time_s"], 3) for k, v in best.items()},
+        "hashes_equal": len({v["state_hash"] for v in best.values()}) == 1,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "loadavg_before": [round(x, 2) for x in load0],
+            "loadavg_after": [round(x, 2) for x in os.getloadavg()],
+        },
+    }
     print(json.dumps(report, indent=1))
     return 0
 

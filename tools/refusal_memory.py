@@ -13,6 +13,7 @@ valid and must resume in the memory of its discs, not of its largest id. Prints 
 
 tests/test_hostile_sizes.py runs the same cases at smaller sizes.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,16 +34,23 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from ooc_dem.engine.memlimit import run_limited  # noqa: E402
 
-PIECE = 64 << 20        # bytes of zeros compressed at a time
+PIECE = 64 << 20  # bytes of zeros compressed at a time
 # the sizes of the reproductions (tests/test_hostile_sizes.py uses smaller ones)
-FULL = {"frame_rows": 1 << 25, "npz_member": 4 << 30, "zarr_gzip": 4 << 30, "hist_cap": 100_000,
-        "ddm_big_id": 3 * 10 ** 8}
+FULL = {
+    "frame_rows": 1 << 25,
+    "npz_member": 4 << 30,
+    "zarr_gzip": 4 << 30,
+    "hist_cap": 100_000,
+    "ddm_big_id": 3 * 10**8,
+}
 BYTES = {"name": "bytes", "configuration": {"endian": "little"}}
 GZIP = [BYTES, {"name": "gzip", "configuration": {"level": 1}}]
-API_STATE = ("import sys, ooc_dem\n"
-             "try:\n    ooc_dem.open_run(sys.argv[1]).state()\n"
-             "except (ooc_dem.StoreError, ooc_dem.StateError) as e:\n"
-             "    print(f'ooc-dem: error: {e}', file=sys.stderr); sys.exit(2)\n")
+API_STATE = (
+    "import sys, ooc_dem\n"
+    "try:\n    ooc_dem.open_run(sys.argv[1]).state()\n"
+    "except (ooc_dem.StoreError, ooc_dem.StateError) as e:\n"
+    "    print(f'ooc-dem: error: {e}', file=sys.stderr); sys.exit(2)\n"
+)
 
 
 def cli(*args) -> list[str]:
@@ -52,9 +60,25 @@ def cli(*args) -> list[str]:
 def base_run(out: Path, *extra) -> Path:
     """A tiny finished run of the quick rig (frames every 10 steps)."""
     if not (out / "MANIFEST.json").exists():
-        subprocess.run(cli("run", "quick", "--out", out, "--steps", 20, "--checkpoint-every", 10,
-                           "--set", "output.snapshot_interval=0.0001", "--no-progress", *extra),
-                       check=True, capture_output=True, text=True)
+        subprocess.run(
+            cli(
+                "run",
+                "quick",
+                "--out",
+                out,
+                "--steps",
+                20,
+                "--checkpoint-every",
+                10,
+                "--set",
+                "output.snapshot_interval=0.0001",
+                "--no-progress",
+                *extra,
+            ),
+            check=True,
+            capture_output=True,
+            text=True,
+        )
     return out
 
 
@@ -70,7 +94,7 @@ def deflated_zeros(nbytes: int, head: bytes = b"", gzip: bool = False):
     out, crc, left = [c.compress(head)], zlib.crc32(head), nbytes
     piece = bytes(min(PIECE, nbytes))
     while left:
-        b = piece[:min(left, PIECE)]
+        b = piece[: min(left, PIECE)]
         out.append(c.compress(b))
         crc = zlib.crc32(b, crc)
         left -= len(b)
@@ -95,6 +119,7 @@ def make_frame_rows(base: Path, dest: Path, rows: int):
     """A published trajectory frame whose datasets declare `rows` rows (unwritten chunks:
     the file stays about 110 KB)."""
     import h5py
+
     copy_run(base, dest)
     frame = sorted((dest / "trajectory").glob("frame-*.h5"))[1]
     with h5py.File(frame, "r+") as f:
@@ -127,9 +152,11 @@ def bomb_member(npz: Path, member: str, nbytes: int) -> None:
 
 def _npy_header(shape, dtype) -> bytes:
     import io
+
     b = io.BytesIO()
-    np.lib.format.write_array_header_1_0(b, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
-                                             "fortran_order": False, "shape": shape})
+    np.lib.format.write_array_header_1_0(
+        b, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)), "fortran_order": False, "shape": shape}
+    )
     return b.getvalue()
 
 
@@ -158,6 +185,7 @@ def zarr_array_edit(store: Path, array: str, codecs: list, chunk: bytes | None) 
         meta = json.loads(doc)
         meta["codecs"] = codecs
         return json.dumps(meta).encode()
+
     key = f"{array}/zarr.json"
     if path.is_dir():
         (path / key).write_bytes(edit((path / key).read_bytes()))
@@ -198,6 +226,7 @@ def make_ddm_big_id(base: Path, dest: Path, big: int):
     (in the partners' contact histories too: every order stays ascending); valid, so
     `resume` continues it."""
     import h5py
+
     copy_run(base, dest)
     m = json.loads((dest / "MANIFEST.json").read_text())
     with h5py.File(dest / m["current"]["path"], "r+") as f:
@@ -213,10 +242,20 @@ def make_ddm_big_id(base: Path, dest: Path, big: int):
     return cli("resume", dest, "--steps", 30, "--no-progress", "--no-figures"), None
 
 
-CASES = {"frame_rows": make_frame_rows, "npz_member": make_npz_member, "zarr_gzip": make_zarr_gzip,
-         "hist_cap": make_hist_cap, "ddm_big_id": make_ddm_big_id}
-BASES = {"frame_rows": (), "npz_member": (), "zarr_gzip": ("--backend", "zarr"), "hist_cap": (),
-         "ddm_big_id": ("--mode", "ddm", "--domains", "4", "--no-figures")}
+CASES = {
+    "frame_rows": make_frame_rows,
+    "npz_member": make_npz_member,
+    "zarr_gzip": make_zarr_gzip,
+    "hist_cap": make_hist_cap,
+    "ddm_big_id": make_ddm_big_id,
+}
+BASES = {
+    "frame_rows": (),
+    "npz_member": (),
+    "zarr_gzip": ("--backend", "zarr"),
+    "hist_cap": (),
+    "ddm_big_id": ("--mode", "ddm", "--domains", "4", "--no-figures"),
+}
 
 
 def measure(cmd, env=None):
@@ -237,9 +276,16 @@ def main():
         base = base_run(work / "-".join(["base", *(x.strip("-") for x in BASES[name])]), *BASES[name])
         cmd, _ = CASES[name](base, work / name, FULL[name])
         r, lines = measure(cmd)
-        out.append({"case": name, "size": FULL[name], "exit_code": r.returncode,
-                    "stderr_lines": len(lines), "peak_rss_mb": round(r.peak_rss_bytes / 1e6, 1),
-                    "message": lines[-1][:200] if lines else ""})
+        out.append(
+            {
+                "case": name,
+                "size": FULL[name],
+                "exit_code": r.returncode,
+                "stderr_lines": len(lines),
+                "peak_rss_mb": round(r.peak_rss_bytes / 1e6, 1),
+                "message": lines[-1][:200] if lines else "",
+            }
+        )
         shutil.rmtree(work / name, ignore_errors=True)
         print(json.dumps(out[-1]), file=sys.stderr)
     print(json.dumps(out, indent=1))

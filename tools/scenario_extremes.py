@@ -19,6 +19,7 @@ Beds go to a private cache (OOC_DEM_CACHE).
 Prints one JSON object: counts, and every failure (scenario, key, value, command, exit, stderr).
 Exit status 1 on any failure.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,8 @@ SHORT_SETTLE_STEPS = 20
 
 
 def _fuzzing():
-    import fuzzlib   # beside this file (tools/ is the script's directory)
+    import fuzzlib  # beside this file (tools/ is the script's directory)
+
     return fuzzlib
 
 
@@ -54,12 +56,13 @@ def numeric_keys(sc) -> list[tuple[str, type]]:
 
 def cases(scenarios, only_keys=None) -> list[dict]:
     from ooc_dem.model.scenario import load_scenario
+
     got = []
     for name in scenarios:
         for key, typ in numeric_keys(load_scenario(name)):
             if only_keys and key not in only_keys:
                 continue
-            for v in (FLOATS if typ is float else INTS):
+            for v in FLOATS if typ is float else INTS:
                 got.append({"scenario": name, "key": key, "value": repr(v)})
     return got
 
@@ -91,13 +94,23 @@ def survey(scenarios, only_keys=None, full_settle=False, steps=STEPS) -> dict:
     # a run of each scenario on a bed of its own compiles the settle's and the run's kernels
     # (minutes for 3D) before the first case: else the first cases would time out on it
     run_args = (*RUN_ARGS, "--steps", str(steps))
-    warm = [(["run", name, "--set", "soil.seed=1", *run_args, "--out", str(work / f"warm-{name}")], str(work))
-            for name in scenarios]
+    warm = [
+        (["run", name, "--set", "soil.seed=1", *run_args, "--out", str(work / f"warm-{name}")], str(work))
+        for name in scenarios
+    ]
     # the worker is this script (--worker): fuzzlib's worker with the short settle patched in
     worker = fz.Worker(warmup=warm, mem_bound=MEM_BOUND, errlog=work / "worker.err", script=Path(__file__).resolve())
     todo = cases(scenarios, only_keys)
-    counts = {"cases": len(todo), "check_refused": 0, "check_accepted": 0, "run_ok": 0, "run_refused": 0,
-              "failures": 0, "worker_restarts": 0, "retried": 0}
+    counts = {
+        "cases": len(todo),
+        "check_refused": 0,
+        "check_accepted": 0,
+        "run_ok": 0,
+        "run_refused": 0,
+        "failures": 0,
+        "worker_restarts": 0,
+        "retried": 0,
+    }
     failures, run_refusals = [], []
     t0 = time.monotonic()
     try:
@@ -106,8 +119,15 @@ def survey(scenarios, only_keys=None, full_settle=False, steps=STEPS) -> dict:
             check = worker.call(["check", case["scenario"], "--set", item], work, timeout=TIMEOUT)
             bad = verdict(check)
             if bad:
-                failures.append({**case, "command": "check", "problem": bad, "rc": check.get("rc"),
-                                 "stderr": (check.get("stderr") or "")[-3000:]})
+                failures.append(
+                    {
+                        **case,
+                        "command": "check",
+                        "problem": bad,
+                        "rc": check.get("rc"),
+                        "stderr": (check.get("stderr") or "")[-3000:],
+                    }
+                )
                 continue
             if check["rc"] != 0:
                 counts["check_refused"] += 1
@@ -115,28 +135,40 @@ def survey(scenarios, only_keys=None, full_settle=False, steps=STEPS) -> dict:
             counts["check_accepted"] += 1
             out = work / "out"
             shutil.rmtree(out, ignore_errors=True)
-            run = worker.call(["run", case["scenario"], "--set", item, *run_args, "--out", str(out)],
-                              work, timeout=TIMEOUT)
+            run = worker.call(
+                ["run", case["scenario"], "--set", item, *run_args, "--out", str(out)], work, timeout=TIMEOUT
+            )
             if run.get("rc") is None:
                 # killed (timeout, signal, memory): once more in a fresh worker, whose caches the
                 # first try warmed, with more time -- a first compile of a kernel takes minutes
                 counts["retried"] += 1
                 shutil.rmtree(out, ignore_errors=True)
-                run = worker.call(["run", case["scenario"], "--set", item, *run_args, "--out", str(out)],
-                                  work, timeout=RETRY_TIMEOUT)
+                run = worker.call(
+                    ["run", case["scenario"], "--set", item, *run_args, "--out", str(out)], work, timeout=RETRY_TIMEOUT
+                )
             shutil.rmtree(out, ignore_errors=True)
             bad = verdict(run)
             if bad:
-                failures.append({**case, "command": "run", "problem": bad, "rc": run.get("rc"),
-                                 "elapsed": round(run.get("elapsed", 0), 1),
-                                 "stderr": (run.get("stderr") or "")[-3000:]})
+                failures.append(
+                    {
+                        **case,
+                        "command": "run",
+                        "problem": bad,
+                        "rc": run.get("rc"),
+                        "elapsed": round(run.get("elapsed", 0), 1),
+                        "stderr": (run.get("stderr") or "")[-3000:],
+                    }
+                )
             elif run["rc"] == 2:
                 counts["run_refused"] += 1
                 run_refusals.append({**case, "stderr": run["stderr"].strip()})
             else:
                 counts["run_ok"] += 1
-            print(f"[{i + 1}/{len(todo)}] {case['scenario']} {item}: "
-                  f"{bad or ('refused' if run['rc'] else 'ok')}", file=sys.stderr, flush=True)
+            print(
+                f"[{i + 1}/{len(todo)}] {case['scenario']} {item}: {bad or ('refused' if run['rc'] else 'ok')}",
+                file=sys.stderr,
+                flush=True,
+            )
     finally:
         worker.kill()
         worker.kill_cleanup()
@@ -150,6 +182,7 @@ def survey(scenarios, only_keys=None, full_settle=False, steps=STEPS) -> dict:
 def _short_settle(sc, p, progress=None):
     """A few steps of the settle's own kernels instead of a settle to rest."""
     from ooc_dem.engine.stepper import DomainStepper, Model
+
     stepper = DomainStepper(p, Model.from_scenario(sc).without_wheel())
     stepper.advance(0, SHORT_SETTLE_STEPS)
     return stepper.p, SHORT_SETTLE_STEPS
@@ -159,8 +192,10 @@ def _worker() -> int:
     sys.path.insert(0, str(ROOT))
     if os.environ.get("OOC_DEM_EXTREMES_SHORT_SETTLE"):
         import ooc_dem.app.bed
+
         ooc_dem.app.bed.settle = _short_settle
     from fuzzlib.worker import _worker_main
+
     return _worker_main()
 
 

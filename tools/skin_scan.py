@@ -15,6 +15,7 @@ time a step, the rebuilds, the candidate pairs a particle and the state's hash a
 RUN: a store written by ``ooc-dem run`` (its own scenario.toml is used, with bed.skin set).
 The whole state is held in memory: a tool for runs that fit in RAM.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,6 +31,7 @@ def _model(run: Path, skin: float | None = None):
     """The run's own scenario (with bed.skin set unless skin is None), as the kernels' model."""
     from ooc_dem.engine.stepper import Model
     from ooc_dem.model.scenario import load_scenario
+
     overrides = [] if skin is None else [f"bed.skin={skin}"]
     return Model.from_scenario(load_scenario(str(run / "scenario.toml"), overrides))
 
@@ -38,7 +40,8 @@ def last_epoch(run: Path):
     """(particles, wheel state, step) of the run's last committed epoch, read once."""
     from ooc_dem.model.checkpoint import read_all_particles
     from ooc_dem.storage import open_store
-    model = _model(run)   # its dimension and history capacity
+
+    model = _model(run)  # its dimension and history capacity
     with open_store(run) as store:
         reader = store.read_epoch(None)
         try:
@@ -52,12 +55,13 @@ def last_epoch(run: Path):
 def one(run: Path, epoch, skin: float, steps: int) -> dict:
     from ooc_dem.engine.monolithic import MonolithicEngine
     from ooc_dem.model.state import state_hash
+
     base, ws, step0 = epoch
     model = _model(run, skin)
-    particles = base.take(np.arange(len(base)))   # a copy: the engine advances it in place
+    particles = base.take(np.arange(len(base)))  # a copy: the engine advances it in place
     engine = MonolithicEngine(particles, ws, model)
     warm = 10
-    engine.advance(step0, warm)   # compiles (or loads) the kernels, builds the list
+    engine.advance(step0, warm)  # compiles (or loads) the kernels, builds the list
     builds0 = engine.stepper.rebuilds
     t0 = time.perf_counter()
     engine.advance(step0 + warm, steps)
@@ -65,10 +69,13 @@ def one(run: Path, epoch, skin: float, steps: int) -> dict:
     p = engine.particles()
     # the canonical state hash (as `ooc-dem checkpoint hash`): a history slot beyond a
     # particle's hist_n is no part of its state (a stale spring may stay there)
-    return {"skin": skin, "us_per_step": round(wall / steps * 1e6, 1),
-            "rebuilds": engine.stepper.rebuilds - builds0,
-            "candidate_pairs_per_particle": round(engine.stepper.pairs / len(p), 3),
-            "state_hash": state_hash(p, engine.wheel_state, step0 + warm + steps)}
+    return {
+        "skin": skin,
+        "us_per_step": round(wall / steps * 1e6, 1),
+        "rebuilds": engine.stepper.rebuilds - builds0,
+        "candidate_pairs_per_particle": round(engine.stepper.pairs / len(p), 3),
+        "state_hash": state_hash(p, engine.wheel_state, step0 + warm + steps),
+    }
 
 
 def main(argv=None) -> int:
@@ -90,6 +97,7 @@ def main(argv=None) -> int:
         print(f"skin_scan: {a.run}: not a run store (no scenario.toml)", file=sys.stderr)
         return 2
     from ooc_dem.storage import StoreError
+
     best: dict[float, dict] = {}
     times: dict[float, list] = {s: [] for s in skins}
     try:
@@ -100,13 +108,17 @@ def main(argv=None) -> int:
                 times[s].append(r["us_per_step"])
                 if s not in best or r["us_per_step"] < best[s]["us_per_step"]:
                     best[s] = r
-    except (StoreError, ValueError, KeyError, OSError) as e:   # foreign or damaged store
+    except (StoreError, ValueError, KeyError, OSError) as e:  # foreign or damaged store
         print(f"skin_scan: {a.run}: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     rows = [dict(best[s], us_per_step_rounds=times[s]) for s in skins]
-    out = {"run": str(a.run), "steps": a.steps, "rows": rows,
-           "same_bits": len({r["state_hash"] for r in rows}) == 1,
-           "fastest_skin": min(rows, key=lambda r: r["us_per_step"])["skin"]}
+    out = {
+        "run": str(a.run),
+        "steps": a.steps,
+        "rows": rows,
+        "same_bits": len({r["state_hash"] for r in rows}) == 1,
+        "fastest_skin": min(rows, key=lambda r: r["us_per_step"])["skin"],
+    }
     print(json.dumps(out, indent=1))
     return 0 if out["same_bits"] else 1
 

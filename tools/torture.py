@@ -16,6 +16,7 @@ bit-identical).
 
 Prints one JSON object on stdout (progress goes to stderr); exit status 1 on any failure.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,8 +33,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 EPOCH_FILE = re.compile(r"^e\d{12,}(\.r\d+)?\.(h5|zarr)$")
-NOTHING_COMMITTED = ("no such store", "not an ooc-dem store", "MANIFEST.json missing",
-                     "no committed epoch")
+NOTHING_COMMITTED = ("no such store", "not an ooc-dem store", "MANIFEST.json missing", "no committed epoch")
 
 
 def log(msg: str) -> None:
@@ -43,8 +43,10 @@ def log(msg: str) -> None:
 def parse_mode(name: str) -> tuple[str, str]:
     mode, _, backend = name.partition("-")
     if mode not in ("monolithic", "ddm", "ooc") or backend not in ("", "hdf5", "zarr"):
-        raise SystemExit(f"torture.py: error: mode {name!r}: expected MODE[-BACKEND] with MODE in "
-                         f"monolithic, ddm, ooc and BACKEND in hdf5, zarr")
+        raise SystemExit(
+            f"torture.py: error: mode {name!r}: expected MODE[-BACKEND] with MODE in "
+            f"monolithic, ddm, ooc and BACKEND in hdf5, zarr"
+        )
     return mode, backend or "hdf5"
 
 
@@ -52,8 +54,12 @@ class Torture:
     def __init__(self, args, workdir: Path):
         self.a = args
         self.work = workdir
-        self.env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-            [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+        self.env = dict(
+            os.environ,
+            PYTHONPATH=os.pathsep.join(
+                [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])
+            ),
+        )
 
     # ------------------------------------------------------------ commands
     def cli(self, *args) -> list[str]:
@@ -62,9 +68,26 @@ class Torture:
     def run_cmd(self, out: Path, mode_name: str) -> list[str]:
         mode, backend = parse_mode(mode_name)
         a = self.a
-        return self.cli("run", a.scenario, "--out", out, "--steps", a.steps,
-                        "--checkpoint-every", a.checkpoint_every, "--mode", mode, "--backend", backend,
-                        "--domains", a.domains, "--block", a.block, "--no-progress", "--no-figures")
+        return self.cli(
+            "run",
+            a.scenario,
+            "--out",
+            out,
+            "--steps",
+            a.steps,
+            "--checkpoint-every",
+            a.checkpoint_every,
+            "--mode",
+            mode,
+            "--backend",
+            backend,
+            "--domains",
+            a.domains,
+            "--block",
+            a.block,
+            "--no-progress",
+            "--no-figures",
+        )
 
     def resume_cmd(self, out: Path) -> list[str]:
         return self.cli("resume", out, "--no-progress", "--no-figures")
@@ -93,8 +116,9 @@ class Torture:
         cp = self.call(self.run_cmd(out, mode_name))
         wall = time.monotonic() - t0
         if cp.returncode != 0:
-            raise SystemExit(f"torture.py: reference run {mode_name} failed ({cp.returncode}): "
-                             f"{cp.stderr.strip().splitlines()[-1:]}")
+            raise SystemExit(
+                f"torture.py: reference run {mode_name} failed ({cp.returncode}): {cp.stderr.strip().splitlines()[-1:]}"
+            )
         h = self.hash(out)
         log(f"reference {mode_name}: {wall:.1f} s, hash {h}")
         return {"hash": h, "wall_s": round(wall, 3)}
@@ -113,22 +137,26 @@ class Torture:
     def lost_commit(out: Path) -> bool:
         """No manifest next to committed-looking epoch files: a commit was lost."""
         edir = out / "epochs"
-        return (not (out / "MANIFEST.json").exists() and edir.is_dir()
-                and any(EPOCH_FILE.match(n) for n in os.listdir(edir)))
+        return (
+            not (out / "MANIFEST.json").exists()
+            and edir.is_dir()
+            and any(EPOCH_FILE.match(n) for n in os.listdir(edir))
+        )
 
     def trial(self, mode_name: str, idx: int, rng: random.Random, wall: float) -> dict:
         out = self.work / mode_name / f"trial-{idx:03d}"
         shutil.rmtree(out, ignore_errors=True)
         out.parent.mkdir(parents=True, exist_ok=True)
         rec = {"trial": idx, "delays": [], "exit_at_kill": [], "restarted": False, "resumes": 0}
-        fresh = True                      # the next process is `run` (no store yet / restarted)
+        fresh = True  # the next process is `run` (no store yet / restarted)
         for _ in range(self.a.kills):
             delay = round(rng.uniform(0.0, wall), 3)
             rec["delays"].append(delay)
             if not fresh:
                 rec["resumes"] += 1
             rec["exit_at_kill"].append(
-                self.killed(self.run_cmd(out, mode_name) if fresh else self.resume_cmd(out), delay))
+                self.killed(self.run_cmd(out, mode_name) if fresh else self.resume_cmd(out), delay)
+            )
             if self.lost_commit(out):
                 return self.fail(rec, "MANIFEST.json lost although epoch files exist")
             fresh = False
@@ -137,7 +165,7 @@ class Torture:
                 shutil.rmtree(out, ignore_errors=True)
                 rec["restarted"] = True
                 fresh = True
-        for _ in range(5):                 # now let it finish
+        for _ in range(5):  # now let it finish
             if fresh:
                 cp = self.call(self.run_cmd(out, mode_name))
                 if cp.returncode != 0:
@@ -183,14 +211,30 @@ class Torture:
         rng = random.Random(a.seed)
         refs = {m: self.reference(m) for m in modes}
         hashes = {r["hash"] for r in refs.values()}
-        result = {"trials": a.trials, "seed": a.seed, "scenario": a.scenario, "steps": a.steps,
-                  "checkpoint_every": a.checkpoint_every, "domains": a.domains, "block": a.block,
-                  "kills_per_trial": a.kills, "references": refs,
-                  "references_agree": len(hashes) == 1 and None not in hashes, "modes": {}}
+        result = {
+            "trials": a.trials,
+            "seed": a.seed,
+            "scenario": a.scenario,
+            "steps": a.steps,
+            "checkpoint_every": a.checkpoint_every,
+            "domains": a.domains,
+            "block": a.block,
+            "kills_per_trial": a.kills,
+            "references": refs,
+            "references_agree": len(hashes) == 1 and None not in hashes,
+            "modes": {},
+        }
         for m in modes:
             self.reference_hash = refs[m]["hash"]
-            stats = {"passed": 0, "failed": 0, "resumed": 0, "restarted": 0, "kill_delays": [],
-                     "finished_before_kill": 0, "failures": []}
+            stats = {
+                "passed": 0,
+                "failed": 0,
+                "resumed": 0,
+                "restarted": 0,
+                "kill_delays": [],
+                "finished_before_kill": 0,
+                "failures": [],
+            }
             for i in range(a.trials):
                 rec = self.trial(m, i, rng, refs[m]["wall_s"])
                 stats["kill_delays"].append(rec["delays"][0] if len(rec["delays"]) == 1 else rec["delays"])
@@ -200,23 +244,25 @@ class Torture:
                     stats["passed"] += 1
                 else:
                     stats["failed"] += 1
-                    stats["failures"].append({k: rec.get(k) for k in
-                                              ("trial", "delays", "exit_at_kill", "reason")})
-                log(f"{m} trial {i}: kill after {rec['delays']} s -> "
+                    stats["failures"].append({k: rec.get(k) for k in ("trial", "delays", "exit_at_kill", "reason")})
+                log(
+                    f"{m} trial {i}: kill after {rec['delays']} s -> "
                     f"{'restarted' if rec['restarted'] else 'resumed'}, "
-                    f"{'ok' if rec['ok'] else 'FAILED: ' + rec.get('reason', '')}")
+                    f"{'ok' if rec['ok'] else 'FAILED: ' + rec.get('reason', '')}"
+                )
             result["modes"][m] = stats
-        result["ok"] = result["references_agree"] and all(
-            s["failed"] == 0 for s in result["modes"].values())
+        result["ok"] = result["references_agree"] and all(s["failed"] == 0 for s in result["modes"].values())
         return result
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--trials", type=int, required=True, help="trials per mode")
-    p.add_argument("--modes", default="monolithic,ooc-hdf5,ooc-zarr",
-                   help="comma-separated MODE[-BACKEND] (default: %(default)s)")
+    p.add_argument(
+        "--modes", default="monolithic,ooc-hdf5,ooc-zarr", help="comma-separated MODE[-BACKEND] (default: %(default)s)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--kills", type=int, default=1, help="SIGKILLs per trial (the run, then resumes)")
     p.add_argument("--scenario", default="bed-1200")

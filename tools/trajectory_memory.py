@@ -7,6 +7,7 @@ Writes DIR/run/trajectory/ (frames of N discs on a jittered grid, written in 8 p
 as an out-of-core run would) and DIR/run/scenario.toml (quick's wheel), then runs each
 command in a fresh interpreter and prints its peak RSS (VmHWM) next to one frame's size.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,12 +48,13 @@ def main():
     a = ap.parse_args()
     from ooc_dem.model.scenario import load_scenario
     from ooc_dem.app.trajectory import TrajectoryWriter
+
     work = Path(a.work)
     run = work / "run"
     run.mkdir(parents=True, exist_ok=True)
     sc = load_scenario("quick")
     n = a.discs
-    side = int(np.ceil(np.sqrt(n * 8)))      # a bin 8x wider than high
+    side = int(np.ceil(np.sqrt(n * 8)))  # a bin 8x wider than high
     r = 0.5 * sc.bin.length / side
     length = sc.bin.length
     sc = dataclasses.replace(sc, soil=dataclasses.replace(sc.soil, n=n))
@@ -65,9 +67,17 @@ def main():
     for k in range(a.frames):
         step = k * w.every
         for part in np.array_split(rng.permutation(n), 8):
-            w.write_part(step, {"id": part, "pos": np.column_stack([gx[part], gy[part]]) + k * 1e-4,
-                                "vel": np.zeros((len(part), 2)), "spin": np.zeros((len(part), 1)),
-                                "r": np.full(len(part), r), "mat": np.zeros(len(part), np.int32)})
+            w.write_part(
+                step,
+                {
+                    "id": part,
+                    "pos": np.column_stack([gx[part], gy[part]]) + k * 1e-4,
+                    "vel": np.zeros((len(part), 2)),
+                    "spin": np.zeros((len(part), 1)),
+                    "r": np.full(len(part), r),
+                    "mat": np.zeros(len(part), np.int32),
+                },
+            )
         w.end(step, step * sc.physics.dt, [0.5 * length, side / 8 * 2 * r + 0.12, 0.01, 0, 0.1 * k, -1.0])
     w.close()
     frame_bytes = n * (8 + 16 + 16 + 8 + 8 + 4)
@@ -75,8 +85,10 @@ def main():
     rows = {"discs": n, "frames": a.frames, "frame_bytes": frame_bytes}
     base, _, _ = peak_rss([sys.executable, "-c", "import numpy, h5py, matplotlib.pyplot"])
     rows["baseline_rss"] = base
-    for name, cmd in (("export-trajectory", cli + ["export-trajectory", run, "--out", work / "t.xdmf"]),
-                      ("animate", cli + ["animate", run, "--out", work / "t.mp4", "--no-progress"])):
+    for name, cmd in (
+        ("export-trajectory", cli + ["export-trajectory", run, "--out", work / "t.xdmf"]),
+        ("animate", cli + ["animate", run, "--out", work / "t.mp4", "--no-progress"]),
+    ):
         hwm, wall, rc = peak_rss(list(map(str, cmd)))
         rows[name] = {"peak_rss": hwm, "above_baseline": hwm - base, "wall_s": round(wall, 1), "exit": rc}
     print(json.dumps(rows, indent=2))

@@ -8,6 +8,7 @@ at a time (memory: one frame plus the figure). MP4 (H.264) goes through ``imagei
 (the ffmpeg binary ships in its wheel); GIF through Pillow (imageio's streaming GIF writer),
 no ffmpeg needed. The file is written under a temporary name and renamed when complete.
 """
+
 from __future__ import annotations
 
 import os
@@ -39,17 +40,19 @@ def default_out(run_dir: str | os.PathLike[str]) -> Path:
 
 
 def _slip(ws: NDArray[np.float64], radius: float) -> float | None:
-    rolled = -float(ws[5]) * radius      # wz < 0: the wheel turns clockwise, driving +x
+    rolled = -float(ws[5]) * radius  # wz < 0: the wheel turns clockwise, driving +x
     return 1.0 - float(ws[2]) / rolled if rolled > 1e-12 else None
 
 
-def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None, fps: int = 20,
-            progress: bool = False) -> tuple[Path, int]:
+def animate(
+    run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None, fps: int = 20, progress: bool = False
+) -> tuple[Path, int]:
     """Render the run's trajectory to ``out`` (.mp4 or .gif; default ``default_out``).
     Returns (the file, the number of frames)."""
     from .outfile import ExportError, check_targets
     from ..model.fields import layer_index
     from .plots import _n_layers, _pyplot
+
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else default_out(run_dir)
     ext = out.suffix.lower()
@@ -62,9 +65,11 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
         try:
             import imageio_ffmpeg  # noqa: F401
         except ImportError:
-            raise ExportError(f"--out {out}: MP4 needs imageio-ffmpeg (pip install imageio-ffmpeg); "
-                              f"a .gif needs no ffmpeg") from None
+            raise ExportError(
+                f"--out {out}: MP4 needs imageio-ffmpeg (pip install imageio-ffmpeg); a .gif needs no ffmpeg"
+            ) from None
     import imageio.v2 as iio
+
     traj = Trajectory.of_run(run_dir)
     try:
         if len(traj) == 0:
@@ -75,10 +80,13 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
         first = traj[0]
         x0, y0, r0 = first["pos"][:, 0], first["pos"][:, 1], first["r"]
         init = run_file(run_dir, "initial.npz")
-        surface = read_initial(init, len(first["id"]), sc)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
+        surface = (
+            read_initial(init, len(first["id"]), sc)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
+        )
         layer = layer_index(y0, surface, _n_layers(surface, r0))
         from matplotlib.colors import to_rgba_array
-        palette = to_rgba_array(list(LAYER_COLOURS) + ["#4a7fbf"])   # the layers, then "unknown disc"
+
+        palette = to_rgba_array(list(LAYER_COLOURS) + ["#4a7fbf"])  # the layers, then "unknown disc"
         colour_of = (layer % 2).astype(np.int8)
         ids0 = first["id"]
         # the view: the bin (or the discs) from the floor to above the wheel's highest point
@@ -94,7 +102,7 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
         yb += 0.03 * (yb - ya)
         W = WIDTH_PX
         H = max(16, int(round(W * (yb - ya) / (xb - xa) / 16.0)) * 16)
-        yb = ya + (xb - xa) * H / W            # equal scale in x and y
+        yb = ya + (xb - xa) * H / W  # equal scale in x and y
         plt = _pyplot()
         dpi = 100
         fig = plt.figure(figsize=(W / dpi, H / dpi), dpi=dpi)
@@ -105,19 +113,30 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
         ax.set_facecolor("white")
         from matplotlib.collections import EllipseCollection
         from matplotlib.patches import Polygon
+
         coll = None
-        wpatch = Polygon(np.zeros((3, 2)), closed=True, facecolor="#b8c4d0", edgecolor="k",
-                         linewidth=0.8, zorder=5, visible=wheel)
+        wpatch = Polygon(
+            np.zeros((3, 2)), closed=True, facecolor="#b8c4d0", edgecolor="k", linewidth=0.8, zorder=5, visible=wheel
+        )
         ax.add_patch(wpatch)
-        label = ax.text(0.01, 0.98, "", transform=ax.transAxes, va="top", ha="left", fontsize=14,
-                        family="monospace", zorder=10,
-                        bbox=dict(facecolor="white", edgecolor="0.5", alpha=0.85))
+        label = ax.text(
+            0.01,
+            0.98,
+            "",
+            transform=ax.transAxes,
+            va="top",
+            ha="left",
+            fontsize=14,
+            family="monospace",
+            zorder=10,
+            bbox=dict(facecolor="white", edgecolor="0.5", alpha=0.85),
+        )
         bar = None
         if progress:
             import sys
             from tqdm import tqdm
-            bar = tqdm(total=len(traj), desc=f"animate {out.name}", unit="frame", file=sys.stderr,
-                       dynamic_ncols=True)
+
+            bar = tqdm(total=len(traj), desc=f"animate {out.name}", unit="frame", file=sys.stderr, dynamic_ncols=True)
 
         def write(tmp: Path) -> int:
             nonlocal coll
@@ -126,11 +145,12 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
                 writer = _Ffmpeg(tmp, (W, H), fps)
             else:
                 import imageio.plugins.pillow_legacy  # noqa: F401  (registers GIF-PIL)
+
                 writer = iio.get_writer(tmp, format="GIF-PIL", mode="I", duration=1.0 / fps, loop=0)
             n = 0
             done = False
             try:
-                for fr in traj:   # one frame at a time
+                for fr in traj:  # one frame at a time
                     ids, pos, r = fr["id"], fr["pos"], fr["r"]
                     if coll is None or len(ids) != len(np.asarray(coll.get_offsets())):
                         if coll is not None:
@@ -139,9 +159,18 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
                         known = (ids0[at] == ids) if len(ids0) else np.zeros(len(ids), bool)
                         fc = palette[np.where(known, colour_of[at] if len(ids0) else 2, 2)]
                         d = 2.0 * r
-                        coll = EllipseCollection(d, d, np.zeros_like(d), units="xy", offsets=pos,
-                                                 offset_transform=ax.transData, facecolors=fc,
-                                                 edgecolors="#3a2a1a", linewidths=0.15, zorder=1)
+                        coll = EllipseCollection(
+                            d,
+                            d,
+                            np.zeros_like(d),
+                            units="xy",
+                            offsets=pos,
+                            offset_transform=ax.transData,
+                            facecolors=fc,
+                            edgecolors="#3a2a1a",
+                            linewidths=0.15,
+                            zorder=1,
+                        )
                         ax.add_collection(coll)
                     else:
                         coll.set_offsets(pos)
@@ -149,8 +178,9 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
                     text = f"t = {fr['time']:7.3f} s"
                     if wheel:
                         w = sc.wheel
-                        wpatch.set_xy(wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs,
-                                                    w.lug_tip_radius, w.lug_thickness))
+                        wpatch.set_xy(
+                            wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
+                        )
                         s = _slip(ws, w.radius)
                         text += "\nslip = " + (f"{s:6.3f}" if s is not None else "   —  ")
                     label.set_text(text)
@@ -163,7 +193,7 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
                 done = True
             finally:
                 if isinstance(writer, _Ffmpeg):
-                    writer.close(ok=done)    # raises if the encoder failed: no film is published
+                    writer.close(ok=done)  # raises if the encoder failed: no film is published
                 else:
                     writer.close()
             return n
@@ -185,7 +215,6 @@ def animate(run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None 
         traj.close()
 
 
-
 class _Ffmpeg:
     """H.264 MP4 through the ffmpeg binary of imageio-ffmpeg (the command imageio's FFMPEG
     writer runs), fed rgb24 frames on its stdin; unlike that writer, the encoder's exit
@@ -196,21 +225,46 @@ class _Ffmpeg:
         import subprocess
         import threading
         import imageio_ffmpeg
-        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
-               "-s", f"{size[0]}x{size[1]}", "-pix_fmt", "rgb24", "-r", str(int(fps)), "-i", "-",
-               "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-v", "error",
-               "-f", "mp4", str(path)]
-        self.p = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.PIPE, start_new_session=True)
-        if self.p.stdin is None or self.p.stderr is None:    # both are pipes (PIPE above)
+
+        cmd = [
+            imageio_ffmpeg.get_ffmpeg_exe(),
+            "-y",
+            "-f",
+            "rawvideo",
+            "-vcodec",
+            "rawvideo",
+            "-s",
+            f"{size[0]}x{size[1]}",
+            "-pix_fmt",
+            "rgb24",
+            "-r",
+            str(int(fps)),
+            "-i",
+            "-",
+            "-an",
+            "-vcodec",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+            "-v",
+            "error",
+            "-f",
+            "mp4",
+            str(path),
+        ]
+        self.p = subprocess.Popen(
+            cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True
+        )
+        if self.p.stdin is None or self.p.stderr is None:  # both are pipes (PIPE above)
             raise OSError("the encoder's stdin and stderr are not pipes")
         self._stdin, stderr = self.p.stdin, self.p.stderr
         self._err = b""
         self._broken = False
 
-        def drain() -> None:    # its messages, kept short: the last one names the failure
+        def drain() -> None:  # its messages, kept short: the last one names the failure
             for line in stderr:
                 self._err = (self._err + line)[-4096:]
+
         self._t = threading.Thread(target=drain, daemon=True)
         self._t.start()
 
@@ -218,7 +272,7 @@ class _Ffmpeg:
         try:
             self._stdin.write(np.ascontiguousarray(img).data.cast("B"))
         except (BrokenPipeError, ValueError):
-            self._broken = True      # the encoder stopped: close() says why
+            self._broken = True  # the encoder stopped: close() says why
             self.close()
 
     def close(self, ok: bool = True) -> None:
@@ -238,8 +292,9 @@ class _Ffmpeg:
             return
         lines = [ln.strip() for ln in self._err.decode("utf-8", "replace").splitlines() if ln.strip()]
         why = f": {lines[-1]}" if lines else ""
-        if rc is not None and rc < 0:   # e.g. SIGXFSZ: subprocesses get the signal's default back
+        if rc is not None and rc < 0:  # e.g. SIGXFSZ: subprocesses get the signal's default back
             import signal
+
             status = f"killed by {signal.Signals(-rc).name}"
         else:
             status = f"exit status {rc}"
@@ -252,6 +307,7 @@ def _write_replacing_suffixed(out: Path, write: Callable[[Path], int]) -> int:
     import contextlib
     import os
     import tempfile
+
     fd, name = tempfile.mkstemp(prefix=f".{out.stem}.tmp-", suffix=out.suffix, dir=out.parent)
     os.close(fd)
     tmp = Path(name)

@@ -16,6 +16,7 @@ column: a square box of side 2 ``repose.column_radius`` filled and settled like 
 cut to the cylinder of that radius, its ``soil.n`` lowest spheres kept and set down at
 the centre of the bin's floor (``settled_column``).
 """
+
 from __future__ import annotations
 
 import math
@@ -60,7 +61,8 @@ def initial_fill(sc: Scenario) -> Particles:
     top = s.r_max + (nrow - 1) * pitch + s.r_max
     if top > sc.bin.height:
         raise ScenarioError(
-            f"bin.height = {sc.bin.height}: the loose fill of {s.n} discs needs {top:.3f} m; raise bin.height")
+            f"bin.height = {sc.bin.height}: the loose fill of {s.n} discs needs {top:.3f} m; raise bin.height"
+        )
     r = rng.uniform(s.r_min, s.r_max, s.n)
     k = np.arange(s.n)
     col = k % ncol
@@ -82,21 +84,23 @@ def initial_fill_3d(sc: Scenario) -> Particles:
     """Loose random fill of the 3D box: a jittered cubic grid of pitch 2.2 r_max, layer by
     layer bottom up (x fastest, then z), with a little random horizontal motion."""
     from ..physics.layout import AX_Z
+
     s = sc.soil
     rng = np.random.default_rng(s.seed)
     pitch = 2.2 * s.r_max
     nx = int((sc.bin.length - 2 * s.r_max) / pitch)
     nz = int((sc.bin.width - 2 * s.r_max) / pitch)
     if nx < 1 or nz < 1:
-        raise ScenarioError(f"bin.length = {sc.bin.length}, bin.width = {sc.bin.width}: too small for "
-                            f"one sphere column")
+        raise ScenarioError(
+            f"bin.length = {sc.bin.length}, bin.width = {sc.bin.width}: too small for one sphere column"
+        )
     per = nx * nz
     nrow = -(-s.n // per)
     top = s.r_max + (nrow - 1) * pitch + s.r_max
     if top > sc.bin.height:
         raise ScenarioError(
-            f"bin.height = {sc.bin.height}: the loose fill of {s.n} spheres needs {top:.3f} m; raise "
-            f"bin.height")
+            f"bin.height = {sc.bin.height}: the loose fill of {s.n} spheres needs {top:.3f} m; raise bin.height"
+        )
     r = rng.uniform(s.r_min, s.r_max, s.n)
     k = np.arange(s.n)
     layer, inlayer = k // per, k % per
@@ -121,8 +125,9 @@ def mean_speed(p: Particles) -> float:
     return float(np.mean(np.sqrt(np.einsum("ij,ij->i", p.vel, p.vel))))
 
 
-def surface_height(p: Particles, length: float, r_max: float, x_origin: float = 0.0,
-                   across: tuple[float, float] | None = None) -> float:
+def surface_height(
+    p: Particles, length: float, r_max: float, x_origin: float = 0.0, across: tuple[float, float] | None = None
+) -> float:
     """Mean height of the top of the bed: the max of y + r in cells of 4 r_max along x
     (from x_origin over length), the end cells (walls) excluded. ``across`` = (z_lo, z_hi),
     3D: only the spheres in that band (the wheel's footprint), split into cells of about
@@ -154,6 +159,7 @@ def wheel_footprint(sc: Scenario) -> tuple[float, float] | None:
     if sc.dim != 3 or not sc.wheel.enabled:
         return None
     from ..engine.stepper import wheel_z0
+
     z0, half = wheel_z0(sc), 0.5 * sc.wheel.width
     return (z0 - half, z0 + half)
 
@@ -179,8 +185,10 @@ def settle(sc: Scenario, p: Particles, progress: SettleProgress | None = None) -
         if step >= min_steps and speed < sc.bed.settle_speed:
             break
         if step >= max_steps:
-            raise BedError(f"bed did not settle within bed.max_settle_time = {sc.bed.max_settle_time} s "
-                           f"(mean speed {speed:.2e} m/s > bed.settle_speed = {sc.bed.settle_speed})")
+            raise BedError(
+                f"bed did not settle within bed.max_settle_time = {sc.bed.max_settle_time} s "
+                f"(mean speed {speed:.2e} m/s > bed.settle_speed = {sc.bed.settle_speed})"
+            )
     return stepper.p, step
 
 
@@ -188,6 +196,7 @@ def column_scenario(sc: Scenario) -> Scenario:
     """The scenario the repose column is settled in: the square box of side 2 column_radius
     around the column, filled with scenario.repose_fill's count of spheres."""
     from ..model.scenario_check import repose_fill
+
     d = sc.to_dict()
     side = 2.0 * sc.repose.column_radius
     d["bin"]["length"] = d["bin"]["width"] = side
@@ -206,6 +215,7 @@ def settled_column(sc: Scenario, progress: SettleProgress | None = None) -> Part
     walls are gone), as are contacts with cut spheres; the floor's are kept (it stays)."""
     from ..physics.d3.layout import ID_WALL_BOTTOM
     from ..physics.layout import AX_Z
+
     csc = column_scenario(sc)
     col, _ = settle(csc, initial_fill(csc), progress)
     col = _zero_motion(col).sorted_by_id()
@@ -213,12 +223,14 @@ def settled_column(sc: Scenario, progress: SettleProgress | None = None) -> Part
     radial = np.hypot(col.pos[:, AX_X] - R, col.pos[:, AX_Z] - R)
     inside = np.flatnonzero(radial <= R - sc.soil.r_max)
     if len(inside) < sc.soil.n:
-        raise BedError(f"soil.n = {sc.soil.n}: the settled repose column holds only {len(inside)} spheres "
-                       f"inside repose.column_radius = {R!r}; lower soil.n or widen the column")
-    lowest = inside[np.argsort(col.pos[inside, AX_Y], kind="stable")[:sc.soil.n]]
+        raise BedError(
+            f"soil.n = {sc.soil.n}: the settled repose column holds only {len(inside)} spheres "
+            f"inside repose.column_radius = {R!r}; lower soil.n or widen the column"
+        )
+    lowest = inside[np.argsort(col.pos[inside, AX_Y], kind="stable")[: sc.soil.n]]
     q = col.take(np.sort(lowest))
     new_id = np.full(len(col), -1, np.int64)
-    new_id[q.id] = np.arange(len(q))   # sorted_by_id: col.id is 0..n_fill-1
+    new_id[q.id] = np.arange(len(q))  # sorted_by_id: col.id is 0..n_fill-1
     hid, hs, hm, hn = q.hist_id.copy(), q.hist_s.copy(), q.hist_m.copy(), q.hist_n.copy()
     q.hist_id[:] = 0
     q.hist_s[:] = 0.0
@@ -251,7 +263,8 @@ def _zero_motion(p: Particles) -> Particles:
 
 def cache_dir() -> Path:
     root = os.environ.get("OOC_DEM_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "ooc-dem")
+        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "ooc-dem"
+    )
     return Path(root)
 
 
@@ -266,27 +279,30 @@ def read_bed(path: str | os.PathLike[str], sc: Scenario, label: str) -> Particle
     from ..storage.npzfile import npz_member_names, read_npz_members
     from ..model.schema import MAX_HIST_CAP
     from ..model.state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
+
     where = f"{label} {path}"
     dtypes = dict(FIELD_DTYPES)
     want: dict[str, tuple[RowShape, str]] = {}
     for k, shape in field_tails(sc.dim, 0).items():
         tail: RowShape = shape
-        if k in HIST_FIELDS:     # a bed's capacity is its own, not the scenario's
+        if k in HIST_FIELDS:  # a bed's capacity is its own, not the scenario's
             tail = (range(MAX_HIST_CAP + 1),) + shape[1:]
         want[k] = (tail, "iu" if FIELD_DTYPES[k].kind in "iu" else "iuf")
     try:
         if is_v1(npz_member_names(path, StateError)):
             for new, comps in V1_ARRAYS.items():
                 tail, kinds = want.pop(new)
-                for c in comps:     # one component of the format-2 array: its last axis dropped
+                for c in comps:  # one component of the format-2 array: its last axis dropped
                     want[c], dtypes[c] = (tail[:-1], kinds), FIELD_DTYPES[new]
         arrays = read_npz_members(path, want, sc.soil.n, StateError, n_from=f"soil.n = {sc.soil.n}")
     except StateError as e:
         raise StateError(f"{label} {e}") from None
     for k, a in arrays.items():
         t = dtypes[k]
-        if not (np.can_cast(a.dtype, t) or (t.kind == "i" and (a.size == 0 or (
-                np.iinfo(t).min <= a.min() and a.max() <= np.iinfo(t).max)))):
+        if not (
+            np.can_cast(a.dtype, t)
+            or (t.kind == "i" and (a.size == 0 or (np.iinfo(t).min <= a.min() and a.max() <= np.iinfo(t).max)))
+        ):
             raise StateError(f"{where}: {k!r} holds {a.dtype} values beyond {t}")
     try:
         p = Particles(**arrays)
@@ -296,18 +312,20 @@ def read_bed(path: str | os.PathLike[str], sc: Scenario, label: str) -> Particle
     return p
 
 
-def _cached(sc: Scenario, build: Callable[[SettleProgress | None], Particles],
-            progress: SettleProgress | None = None) -> Particles:
+def _cached(
+    sc: Scenario, build: Callable[[SettleProgress | None], Particles], progress: SettleProgress | None = None
+) -> Particles:
     # format-2 beds (pos, vel, ...) under their own name, so that an engine of format 1
     # sharing the cache never sees (and deletes) them; a format-1 cache (x, y, ...) still
     # loads: Particles converts it (state.upgrade_v1)
     beds = cache_dir() / "beds"
     path = beds / f"{sc.bed_hash()}.v2.npz"
     from ..model.checkpoint import StateError
+
     for f in (path, beds / f"{sc.bed_hash()}.npz"):
         if f.is_file():
             try:
-                p = read_bed(f, sc, "cached bed")   # the cache is a file like any other
+                p = read_bed(f, sc, "cached bed")  # the cache is a file like any other
                 # the capacity is no part of the bed's bits (nor of its hash): a bed cached
                 # at another capacity is refitted to this scenario's
                 return p if p.hist_cap == sc.hist_cap else p.with_hist_cap(sc.hist_cap)
@@ -319,7 +337,7 @@ def _cached(sc: Scenario, build: Callable[[SettleProgress | None], Particles],
     p = build(progress)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-    np.savez(tmp, allow_pickle=False, **p.arrays())   # numeric arrays: nothing to pickle
+    np.savez(tmp, allow_pickle=False, **p.arrays())  # numeric arrays: nothing to pickle
     os.replace(tmp, path)
     return p
 
@@ -332,7 +350,7 @@ def settled_bed(sc: Scenario, progress: SettleProgress | None = None, use_cache:
         at = 0
         for part in tiled_bed_parts(sc, progress=progress, use_cache=use_cache, tiles_per_part=8):
             for k in bed.arrays():
-                getattr(bed, k)[at:at + len(part)] = getattr(part, k)
+                getattr(bed, k)[at : at + len(part)] = getattr(part, k)
             at += len(part)
         return bed
 
@@ -345,8 +363,9 @@ def settled_bed(sc: Scenario, progress: SettleProgress | None = None, use_cache:
     return _cached(sc, build, progress) if use_cache else build(progress)
 
 
-def tiled_bed_parts(sc: Scenario, progress: SettleProgress | None = None, use_cache: bool = True,
-                    tiles_per_part: int = 1) -> Iterator[Particles]:
+def tiled_bed_parts(
+    sc: Scenario, progress: SettleProgress | None = None, use_cache: bool = True, tiles_per_part: int = 1
+) -> Iterator[Particles]:
     """Yield the bed in x order, a few tiles at a time (never the whole bed in RAM).
 
     Every other tile is mirrored, so that across each seam a disc that touched the
@@ -385,10 +404,12 @@ def tiled_bed_parts(sc: Scenario, progress: SettleProgress | None = None, use_ca
         yield Particles.concat(parts)
 
 
-def _tile_template(tile: Particles, keep: NDArray[np.bool_], mirrored: bool, left_inner: bool, right_inner: bool,
-                   tile_len: float) -> Particles:
+def _tile_template(
+    tile: Particles, keep: NDArray[np.bool_], mirrored: bool, left_inner: bool, right_inner: bool, tile_len: float
+) -> Particles:
     """One tile copy at offset 0 with tile-local ids (shifted per copy by the caller)."""
     from ..physics.layout import ID_WALL_LEFT, ID_WALL_RIGHT
+
     q = tile.take(np.flatnonzero(keep))
     if mirrored:
         # a reflection in x: x -> L - x, vx -> -vx, and (2D) the spin about z reverses
@@ -423,14 +444,15 @@ def _tile_template(tile: Particles, keep: NDArray[np.bool_], mirrored: bool, lef
     return q
 
 
-def _tiled_bed_parts_3d(sc: Scenario, progress: SettleProgress | None, use_cache: bool,
-                        tiles_per_part: int) -> Iterator[Particles]:
+def _tiled_bed_parts_3d(
+    sc: Scenario, progress: SettleProgress | None, use_cache: bool, tiles_per_part: int
+) -> Iterator[Particles]:
     """tiled_bed_parts in 3D: tile columns along x (each ``bed.tiles_across`` tiles across z),
     a few columns at a time, in x order. Tile (kx, kz) is number k = kx * nz + kz, mirrored
     in x when kx is odd and in z when kz is odd; sphere ids are k * n_tile + the tile's id."""
-    from ..physics.d3.layout import (ID_WALL_BACK, ID_WALL_FRONT, ID_WALL_LEFT,
-                                    ID_WALL_RIGHT)
+    from ..physics.d3.layout import ID_WALL_BACK, ID_WALL_FRONT, ID_WALL_LEFT, ID_WALL_RIGHT
     from ..physics.layout import AX_Z
+
     tsc = tile_scenario(sc)
     tile = settled_bed(tsc, progress, use_cache).sorted_by_id()
     n_tile = len(tile)
@@ -439,8 +461,12 @@ def _tiled_bed_parts_3d(sc: Scenario, progress: SettleProgress | None, use_cache
     ntiles = nx * nz
     extra = ntiles * n_tile - sc.soil.n
     top_first = np.argsort(-(tile.pos[:, AX_Y] + tile.r), kind="stable")
-    swap = {ID_WALL_LEFT: ID_WALL_RIGHT, ID_WALL_RIGHT: ID_WALL_LEFT,
-            ID_WALL_FRONT: ID_WALL_BACK, ID_WALL_BACK: ID_WALL_FRONT}
+    swap = {
+        ID_WALL_LEFT: ID_WALL_RIGHT,
+        ID_WALL_RIGHT: ID_WALL_LEFT,
+        ID_WALL_FRONT: ID_WALL_BACK,
+        ID_WALL_BACK: ID_WALL_FRONT,
+    }
     templates: dict[tuple[int, bool, bool, bool, bool, bool, bool], Particles] = {}
     for start in range(0, nx, max(1, tiles_per_part // nz)):
         parts = []
@@ -468,12 +494,15 @@ def _tiled_bed_parts_3d(sc: Scenario, progress: SettleProgress | None, use_cache
                                 q.spin[:, other] = -q.spin[:, other]
                                 q.hist_m[:, :, other] = -q.hist_m[:, :, other]
                     drop_walls = set()
-                    for inner, wid in ((inner_l, ID_WALL_LEFT), (inner_r, ID_WALL_RIGHT),
-                                       (inner_f, ID_WALL_FRONT), (inner_b, ID_WALL_BACK)):
+                    for inner, wid in (
+                        (inner_l, ID_WALL_LEFT),
+                        (inner_r, ID_WALL_RIGHT),
+                        (inner_f, ID_WALL_FRONT),
+                        (inner_b, ID_WALL_BACK),
+                    ):
                         if inner:
                             drop_walls.add(wid)
-                    hid, hs, hm, hn = (q.hist_id.copy(), q.hist_s.copy(), q.hist_m.copy(),
-                                       q.hist_n.copy())
+                    hid, hs, hm, hn = (q.hist_id.copy(), q.hist_s.copy(), q.hist_m.copy(), q.hist_n.copy())
                     q.hist_id[:] = 0
                     q.hist_s[:] = 0.0
                     q.hist_m[:] = 0.0

@@ -1,4 +1,5 @@
 """`ooc-dem checkpoint`: list, verify, inspect, hash, prune and export the epochs of a store."""
+
 from __future__ import annotations
 
 import json
@@ -29,15 +30,13 @@ def _checkpoint_list(store, path) -> None:
         print(f"{path}: no committed epoch")
         return
     for info in infos:
-        line = (f"epoch {info.step:>10d}  {info.path}  {info.nbytes / 1e6:8.3f} MB  "
-                f"domains {info.n_domains}")
+        line = f"epoch {info.step:>10d}  {info.path}  {info.nbytes / 1e6:8.3f} MB  domains {info.n_domains}"
         bad = info.problems
         if bad:
-            print(f"{line}  DAMAGED ({bad[0]}{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}) "
-                  f"({info.role})")
+            print(f"{line}  DAMAGED ({bad[0]}{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}) ({info.role})")
             continue
         try:
-            r = store.read_epoch(info.step, verify=False)   # sizes match; `verify` checks the bytes
+            r = store.read_epoch(info.step, verify=False)  # sizes match; `verify` checks the bytes
             try:
                 _, attrs = r.read_globals()
                 n = sum(r.domain_len(d) for d in r.domains())
@@ -60,15 +59,18 @@ def _checkpoint_verify(store, args) -> int:
         named = {e["step"] for e in (m["current"], m["previous"]) if e}
         gone = {p.step for p in problems if p.step is not None and p.step not in named}
         for s in sorted(gone):
-            print(f"note: epoch {s} was superseded by a newer commit while being verified "
-                  f"(a run is writing this store)")
+            print(
+                f"note: epoch {s} was superseded by a newer commit while being verified (a run is writing this store)"
+            )
         problems = [p for p in problems if p.step not in gone]
     for x in _store_leftovers(store, m):
         if x.running:
             print(f"note: {x.path}: epoch being written by running process {x.pid}")
         else:
-            print(f"warning: {x.path}: leftover of an interrupted write, not part of any committed "
-                  f"epoch (`ooc-dem resume` deletes it)")
+            print(
+                f"warning: {x.path}: leftover of an interrupted write, not part of any committed "
+                f"epoch (`ooc-dem resume` deletes it)"
+            )
     if problems:
         for pr in problems:
             print(f"FAIL {_one_line(pr)}")
@@ -76,8 +78,11 @@ def _checkpoint_verify(store, args) -> int:
         cur, prev = m["current"], m["previous"]
         hint = ""
         if args.epoch is None and cur and cur["step"] in bad:
-            hint = (f"; `ooc-dem resume` falls back to epoch {prev['step']}" if prev and prev["step"] not in bad
-                    else "; no intact epoch to resume from")
+            hint = (
+                f"; `ooc-dem resume` falls back to epoch {prev['step']}"
+                if prev and prev["step"] not in bad
+                else "; no intact epoch to resume from"
+            )
         raise CliError(f"{args.store}: {len(problems)} problem(s) found{hint}")
     which = store.epochs() if args.epoch is None else [args.epoch]
     print(f"OK: {args.store} epochs {which} verified")
@@ -86,12 +91,15 @@ def _checkpoint_verify(store, args) -> int:
 
 def _checkpoint_prune(args) -> int:
     from ooc_dem.storage import open_store
+
     with open_store(args.store, repair=False) as looking:
         live = _live_writers(looking)
     if live:
-        raise CliError(f"{args.store}: a run is writing this store (pid {', '.join(map(str, live))}); "
-                       f"prune it when the run has stopped")
-    store = open_store(args.store, repair=True)    # the write lock: no run can start meanwhile
+        raise CliError(
+            f"{args.store}: a run is writing this store (pid {', '.join(map(str, live))}); "
+            f"prune it when the run has stopped"
+        )
+    store = open_store(args.store, repair=True)  # the write lock: no run can start meanwhile
     try:
         for p in store.repaired:
             print(f"removed leftover {p}")
@@ -102,8 +110,10 @@ def _checkpoint_prune(args) -> int:
         # never leave only a damaged epoch: the one kept must verify first
         bad = store.verify(cur)
         if bad:
-            raise CliError(f"{args.store}: refusing to prune: current epoch {cur} fails verification "
-                           f"({_one_line(bad[0])}); the previous epoch is its fallback")
+            raise CliError(
+                f"{args.store}: refusing to prune: current epoch {cur} fails verification "
+                f"({_one_line(bad[0])}); the previous epoch is its fallback"
+            )
         before = {info.step: info.path for info in store.list_epochs()}
         removed = store.prune(args.keep)
         for s in removed:
@@ -121,14 +131,15 @@ def _checkpoint_prune(args) -> int:
 def _checkpoint_export(store, args) -> int:
     from ..model.checkpoint import StateError
     from .export import ExportError, check_targets, export_snapshot, infer_format, output_files, read_snapshot
+
     fmt = args.format or infer_format(args.out)
     if fmt is None:
-        raise CliError(f"--out {args.out}: cannot tell the format from the suffix; give --format "
-                       f"xdmf|vtk|csv")
+        raise CliError(f"--out {args.out}: cannot tell the format from the suffix; give --format xdmf|vtk|csv")
     out = Path(args.out)
     try:
-        check_targets(output_files(fmt, out), out)   # before reading anything
+        check_targets(output_files(fmt, out), out)  # before reading anything
         from ..model.checkpoint import open_epoch, stored_layout, validate_epoch
+
         dim, cap, bounds = stored_layout(store.meta or {}, args.store)
         reader = open_epoch(store, args.epoch)
         try:
@@ -141,9 +152,10 @@ def _checkpoint_export(store, args) -> int:
             files = export_snapshot(snap, fmt, out)
     except (ExportError, StateError) as e:
         raise CliError(str(e)) from None
-    _warn_fallback(store)   # after the work: a refusal stays one line
-    print(f"exported epoch {snap.step} ({len(snap)} discs, t = {snap.time:.6f} s) as {fmt}: "
-          + ", ".join(map(str, files)))
+    _warn_fallback(store)  # after the work: a refusal stays one line
+    print(
+        f"exported epoch {snap.step} ({len(snap)} discs, t = {snap.time:.6f} s) as {fmt}: " + ", ".join(map(str, files))
+    )
     return 0
 
 
@@ -155,6 +167,7 @@ def _warn_fallback(store) -> None:
 def cmd_checkpoint(args):
     from ..model.checkpoint import hash_epoch, open_epoch, stored_layout, validate_globals
     from ooc_dem.storage import open_store
+
     if args.ckpt_command == "prune":
         return _checkpoint_prune(args)
     # read-only: no repair (a running writer's temporary epoch must not be deleted under it)
@@ -170,21 +183,24 @@ def cmd_checkpoint(args):
         layout = stored_layout(store.meta or {}, args.store) if args.ckpt_command == "hash" else None
         reader = open_epoch(store, args.epoch)
         try:
-            if layout is not None:   # hash (its layout read above)
+            if layout is not None:  # hash (its layout read above)
                 # streamed and validated as read: a store larger than RAM hashes too
                 out = hash_epoch(reader, args.store, *layout)
             else:  # inspect
                 arrays, attrs = reader.read_globals()
                 validate_globals(arrays, attrs, f"{args.store}: epoch {reader.step}", reader.step)
-                info = {"step": attrs["step"], "time": attrs.get("time"),
-                        "discs": sum(reader.domain_len(d) for d in reader.domains()),
-                        "domains": {str(d): reader.domain_len(d) for d in reader.domains()},
-                        "wheel_state": [float(v) for v in arrays["wheel_state"]],
-                        "mode": attrs.get("mode")}
+                info = {
+                    "step": attrs["step"],
+                    "time": attrs.get("time"),
+                    "discs": sum(reader.domain_len(d) for d in reader.domains()),
+                    "domains": {str(d): reader.domain_len(d) for d in reader.domains()},
+                    "wheel_state": [float(v) for v in arrays["wheel_state"]],
+                    "mode": attrs.get("mode"),
+                }
                 out = json.dumps(info, indent=2)
         finally:
             reader.close()
-        _warn_fallback(store)   # after the work: a refusal stays one line
+        _warn_fallback(store)  # after the work: a refusal stays one line
         print(out)
         return 0
     finally:

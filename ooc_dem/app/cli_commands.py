@@ -1,5 +1,6 @@
 """The `ooc-dem` commands but `checkpoint` (``cli_checkpoint.py``): each takes the parsed
 arguments and returns the exit code; a user error is a ``CliError`` (one line)."""
+
 from __future__ import annotations
 
 import json
@@ -17,18 +18,22 @@ if TYPE_CHECKING:
 
 def _load(args):
     from ..model.scenario import load_scenario
+
     return load_scenario(args.scenario, args.set)
 
 
 def cmd_scenarios(args):
     from ..model.scenario import builtin_names, load_scenario
+
     for name in builtin_names():
         if name == "bed-N":
             print("bed-N        bare bed of N discs (e.g. bed-7000, bed-100k, bed-1m), tiled from `bed`")
             continue
         if name == "bed3d-N":
-            print("bed3d-N      bare 3D bed of N spheres (e.g. bed3d-20000, bed3d-1m), tiled from "
-                  "`bed3d` along x and across the width")
+            print(
+                "bed3d-N      bare 3D bed of N spheres (e.g. bed3d-20000, bed3d-1m), tiled from "
+                "`bed3d` along x and across the width"
+            )
             continue
         sc = load_scenario(name)
         print(f"{name:12s} {sc.scenario.description}")
@@ -39,19 +44,19 @@ def cmd_prepare(args):
     import numpy as np
     from .bed import settled_bed, surface_height, wheel_footprint
     from .plan import check_bed_memory
+
     sc = _load(args)
-    check_bed_memory(sc)   # before the bed is allocated
+    check_bed_memory(sc)  # before the bed is allocated
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise CliError(f"--out {out}: directory exists and is not empty")
     bed = settled_bed(sc, progress=None if args.no_progress else _settle_progress(sc))
     out.mkdir(parents=True, exist_ok=True)
-    columns: dict[str, Any] = bed.arrays()   # Any: savez's stub would match a column to allow_pickle
+    columns: dict[str, Any] = bed.arrays()  # Any: savez's stub would match a column to allow_pickle
     np.savez(out / "bed.npz", **columns)
     (out / "scenario.toml").write_text(sc.to_toml(), encoding="utf-8")
     surf = surface_height(bed, sc.bin.length, sc.soil.r_max, across=wheel_footprint(sc))
-    info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf,
-            "bed_hash": sc.bed_hash()}
+    info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf, "bed_hash": sc.bed_hash()}
     (out / "bed.json").write_text(json.dumps(info, indent=2))
     print(json.dumps(info))
     return 0
@@ -59,55 +64,75 @@ def cmd_prepare(args):
 
 def _settle_progress(sc):
     import time
+
     state = {"last": 0.0}
 
     def cb(t, speed):
         if time.time() - state["last"] > 1.0:
             state["last"] = time.time()
-            print(f"settling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s (target {sc.bed.settle_speed:.1e})",
-                  file=sys.stderr, flush=True)
+            print(
+                f"settling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s (target {sc.bed.settle_speed:.1e})",
+                file=sys.stderr,
+                flush=True,
+            )
+
     return cb
 
 
 def load_bed(path: str | os.PathLike[str], sc: Scenario) -> Particles:
     from .bed import read_bed
     from ..model.checkpoint import StateError
+
     f = Path(path) / "bed.npz"
     if not f.is_file():
         raise CliError(f"--bed {path}: no bed.npz (make one with `ooc-dem prepare`)")
     try:
-        return read_bed(f, sc, "--bed")   # what a store holding it would be refused for
+        return read_bed(f, sc, "--bed")  # what a store holding it would be refused for
     except StateError as e:
         raise CliError(str(e)) from None
 
 
 def _run_options(args):
     from .plan import RunOptions
-    return RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
-                      steps=args.steps, duration=args.duration, checkpoint_every=args.checkpoint_every,
-                      durable=getattr(args, "durable", False),
-                      memory=getattr(args, "memory", None),
-                      progress=not getattr(args, "no_progress", True),
-                      figures=not getattr(args, "no_figures", True),
-                      compression=None if getattr(args, "compression", "none") == "none" else args.compression,
-                      io_overlap=getattr(args, "io_overlap", False))
+
+    return RunOptions(
+        mode=args.mode,
+        backend=args.backend,
+        domains=args.domains,
+        block=args.block,
+        steps=args.steps,
+        duration=args.duration,
+        checkpoint_every=args.checkpoint_every,
+        durable=getattr(args, "durable", False),
+        memory=getattr(args, "memory", None),
+        progress=not getattr(args, "no_progress", True),
+        figures=not getattr(args, "no_figures", True),
+        compression=None if getattr(args, "compression", "none") == "none" else args.compression,
+        io_overlap=getattr(args, "io_overlap", False),
+    )
 
 
 def cmd_run(args):
     from .run import Simulation
+
     sc = _load(args)
     out = args.out or os.path.join("runs", sc.name)
-    sim = Simulation(sc, out, _run_options(args))   # plans and checks everything (ooc-dem check)
+    sim = Simulation(sc, out, _run_options(args))  # plans and checks everything (ooc-dem check)
     if sim.opts.memory is not None:
         from ..engine.budget import fmt_bytes
+
         p = sim.plan
         # the plan records the --memory it was sized for
         assert p.memory_budget_bytes is not None, "a --memory plan without its budget"
-        print(f"ooc-dem: memory budget {fmt_bytes(p.memory_budget_bytes)}: {p.mode} with D = {p.domains} "
-              f"sub-domain{'s' if p.domains > 1 else ''}, K = {p.block} step{'s' if p.block > 1 else ''} per "
-              f"sweep; expected peak {fmt_bytes(p.memory_bytes)}", file=sys.stderr, flush=True)
+        print(
+            f"ooc-dem: memory budget {fmt_bytes(p.memory_budget_bytes)}: {p.mode} with D = {p.domains} "
+            f"sub-domain{'s' if p.domains > 1 else ''}, K = {p.block} step{'s' if p.block > 1 else ''} per "
+            f"sweep; expected peak {fmt_bytes(p.memory_bytes)}",
+            file=sys.stderr,
+            flush=True,
+        )
     bed = load_bed(args.bed, sc) if args.bed else None
-    sim.start(bed, streamed=True)   # a tiled bare bed goes into an out-of-core store tile by tile
+    sim.start(bed, streamed=True)  # a tiled bare bed goes into an out-of-core store tile by tile
     summary = sim.run()
     _print_run_result(summary, out)
     return 0
@@ -116,6 +141,7 @@ def cmd_run(args):
 def cmd_check(args):
     """`run`'s validation and planning (Simulation's own plan_run), without a run."""
     from .plan import plan_run
+
     sc = _load(args)
     plan = plan_run(sc, _run_options(args))
     print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict()}, indent=2))
@@ -124,18 +150,28 @@ def cmd_check(args):
 
 def _print_run_result(summary, out):
     from .plots import print_table
+
     if "slip" in summary:
         print(print_table(summary))
-    print(f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
-          f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}")
+    print(
+        f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
+        f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}"
+    )
     print(f"state hash: {summary['state_hash']}")
     print(f"output: {out}  (shown by `ooc-dem report {out}`; in Python: ooc_dem.open_run({str(out)!r}))")
 
 
 def cmd_resume(args):
     from .run import resume_simulation
-    sim = resume_simulation(args.store, steps=args.steps, until=args.until,
-                            progress=not args.no_progress, figures=not args.no_figures, mode=args.mode)
+
+    sim = resume_simulation(
+        args.store,
+        steps=args.steps,
+        until=args.until,
+        progress=not args.no_progress,
+        figures=not args.no_figures,
+        mode=args.mode,
+    )
     if sim is None:
         return 0
     summary = sim.run()
@@ -147,20 +183,24 @@ def cmd_export_trajectory(args):
     from .export import ExportError
     from .runfiles import read_run_scenario
     from .trajectory import Trajectory, write_xdmf
+
     with Trajectory.of_run(args.run) as traj:
         try:
             out = write_xdmf(traj, args.out, read_run_scenario(Path(args.run)))
         except ExportError as e:
             raise CliError(str(e)) from None
         n, t = len(traj), (float(traj.times[-1]) if len(traj) else 0.0)
-    print(f"exported {n} frames (t = 0 .. {t:.6f} s) of {traj.path} as XDMF: {out} "
-          f"(open it in ParaView; it refers to the files of {traj.path.name}, keep both)")
+    print(
+        f"exported {n} frames (t = 0 .. {t:.6f} s) of {traj.path} as XDMF: {out} "
+        f"(open it in ParaView; it refers to the files of {traj.path.name}, keep both)"
+    )
     return 0
 
 
 def cmd_animate(args):
     from .animate import animate
     from .export import ExportError
+
     try:
         out, n = animate(args.run, args.out, fps=args.fps, progress=not args.no_progress)
     except ExportError as e:
@@ -171,8 +211,9 @@ def cmd_animate(args):
 
 def cmd_report(args):
     from .plots import make_figures, print_table, read_summary
+
     out = Path(args.store)
-    summary = read_summary(out)   # validated: a hostile or foreign file is a one-line error
+    summary = read_summary(out)  # validated: a hostile or foreign file is a one-line error
     if "slip" in summary:
         figs = make_figures(out)
         print(print_table(summary))
@@ -185,25 +226,29 @@ def cmd_report(args):
 
 def cmd_compare(args):
     from .compare import compare_runs
+
     print(compare_runs(args.a, args.b))
     return 0
 
 
 def cmd_sweep(args):
     from .sweep_slip import run_slip_sweep
+
     try:
         slips = [float(s) for s in args.slips.split(",") if s.strip()]
     except ValueError:
         raise CliError(f"--slips {args.slips!r}: must be comma-separated numbers") from None
     if not slips or any(not (0.0 <= s < 1.0) for s in slips):
         raise CliError(f"--slips {args.slips!r}: each slip must be in [0, 1)")
-    run_slip_sweep(args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress,
-                   comm=getattr(args, "comm", None))
+    run_slip_sweep(
+        args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress, comm=getattr(args, "comm", None)
+    )
     return 0
 
 
 def cmd_profile(args):
     from .profiling import PROFILED_MODES, profile
+
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in PROFILED_MODES]
     if not modes or bad:
@@ -214,10 +259,19 @@ def cmd_profile(args):
         raise CliError(f"--out {out}: directory exists and is not empty")
     from ..engine.memlimit import MemoryLimitError
     from .profiling import OomKilled
+
     try:
-        doc = profile(args.scenario, modes, out, overrides=args.set, backend=args.backend,
-                      domains=args.domains, block=args.block, steps=args.steps,
-                      memory_limit=args.memory_limit)
+        doc = profile(
+            args.scenario,
+            modes,
+            out,
+            overrides=args.set,
+            backend=args.backend,
+            domains=args.domains,
+            block=args.block,
+            steps=args.steps,
+            memory_limit=args.memory_limit,
+        )
     except OomKilled as e:
         print(f"ooc-dem: error: {e}", file=sys.stderr)
         return EXIT_OOM
@@ -232,10 +286,12 @@ def cmd_profile(args):
     for r in doc["runs"]:
         lim = r.get("memory_limit")
         if lim:
-            print(f"{r['mode']}: under the {lim['memory_limit_bytes'] / 1e6:.1f} MB limit (cgroup v"
-                  f"{lim['cgroup_version']}): peak RSS {lim['peak_rss_bytes'] / 1e6:.1f} MB (anonymous "
-                  f"{lim['sampled_peak_anon_bytes'] / 1e6:.1f} MB), cgroup peak "
-                  f"{lim['cgroup_peak_bytes'] / 1e6:.1f} MB, {lim['rss_samples']} RSS samples over "
-                  f"{lim['wall_s']:.1f} s")
+            print(
+                f"{r['mode']}: under the {lim['memory_limit_bytes'] / 1e6:.1f} MB limit (cgroup v"
+                f"{lim['cgroup_version']}): peak RSS {lim['peak_rss_bytes'] / 1e6:.1f} MB (anonymous "
+                f"{lim['sampled_peak_anon_bytes'] / 1e6:.1f} MB), cgroup peak "
+                f"{lim['cgroup_peak_bytes'] / 1e6:.1f} MB, {lim['rss_samples']} RSS samples over "
+                f"{lim['wall_s']:.1f} s"
+            )
     print(f"report: {out / 'memory.json'}  {out / 'memory.md'}  figure: {out / 'memory.png'}")
     return 0

@@ -1,5 +1,6 @@
 """The `ooc-dem` command line's arguments: the parser, its value types, and the one-line
 usage errors (``CliError``, exit code 2). The modes offered come from ``engine.modes``."""
+
 from __future__ import annotations
 
 import argparse
@@ -8,7 +9,7 @@ import sys
 from ..errors import OocDemError
 
 EXIT_USAGE = 2
-EXIT_OOM = 137      # a profiled run killed by its --memory-limit (128 + SIGKILL, as a shell reports it)
+EXIT_OOM = 137  # a profiled run killed by its --memory-limit (128 + SIGKILL, as a shell reports it)
 
 
 class CliError(OocDemError):
@@ -48,6 +49,7 @@ def _nonneg_int(text):
 
 def _show(text) -> str:
     from ..model.scenario import show
+
     return show(text, 40)
 
 
@@ -60,7 +62,7 @@ def _count(lo: int, hi: int):
         allowed = f"an integer in [{lo}, {big(hi)}]" if hi >= 10**6 else f"an integer in [{lo}, {hi}]"
         t = text.strip().replace("_", "")
         try:
-            if len(t) > 40:   # also keeps int() clear of Python's digit limit
+            if len(t) > 40:  # also keeps int() clear of Python's digit limit
                 raise InvalidOperation
             d = Decimal(t)
             if not d.is_finite() or d != d.to_integral_value():
@@ -70,12 +72,14 @@ def _count(lo: int, hi: int):
         if not lo <= d <= hi:
             raise argparse.ArgumentTypeError(f"{_show(text)} must be {allowed}")
         return int(d)
+
     return parse
 
 
 def _size(text):
     """A memory size: 2GB, 1.5G, 512MiB, 300MB or bytes."""
     from ..engine.memlimit import parse_size
+
     try:
         return parse_size(text)
     except ValueError as e:
@@ -94,9 +98,13 @@ def _positive_float(text):
 
 def build_parser() -> argparse.ArgumentParser:
     from ..model.scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
-    p = _Parser(prog="ooc-dem", description="Out-of-core 2D DEM of soil-wheel interaction "
-                "(serial domain decomposition, bit-identical modes).")
+
+    p = _Parser(
+        prog="ooc-dem",
+        description="Out-of-core 2D DEM of soil-wheel interaction (serial domain decomposition, bit-identical modes).",
+    )
     from .. import __version__
+
     p.add_argument("--version", action="version", version=f"ooc-dem {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
@@ -104,34 +112,58 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_scenario_args(q):
         q.add_argument("scenario", help="built-in name (see `ooc-dem scenarios`) or a TOML file")
-        q.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                       help="override a scenario value (repeatable)")
+        q.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="SECTION.KEY=VALUE",
+            help="override a scenario value (repeatable)",
+        )
 
     def add_plan_args(q):
         """The options `run` and `check` share (check validates them exactly as run would)."""
-        q.add_argument("--mode", default="monolithic", choices=mode_names(),
-                       help="; ".join(f"{m.name}: {m.summary}" for m in MODES.values())
-                            + " (the MPI modes under mpiexec)")
-        q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr", "memory"],
-                       help="memory: the store lives only in this process (no resume); summary, "
-                            "series and figures are still written to --out")
-        q.add_argument("--compression", default="none", choices=["none", "zstd", "blosc", "gzip", "lzf"],
-                       help="compress the store's arrays: zarr zstd|blosc, hdf5 gzip|lzf (default "
-                            "none: see the README's Disk economy)")
-        q.add_argument("--io-overlap", action="store_true",
-                       help="out-of-core: read the next slab and write the last one in threads while a "
-                            "slab computes (same bits; up to three slabs resident)")
+        q.add_argument(
+            "--mode",
+            default="monolithic",
+            choices=mode_names(),
+            help="; ".join(f"{m.name}: {m.summary}" for m in MODES.values()) + " (the MPI modes under mpiexec)",
+        )
+        q.add_argument(
+            "--backend",
+            default="hdf5",
+            choices=["hdf5", "zarr", "memory"],
+            help="memory: the store lives only in this process (no resume); summary, "
+            "series and figures are still written to --out",
+        )
+        q.add_argument(
+            "--compression",
+            default="none",
+            choices=["none", "zstd", "blosc", "gzip", "lzf"],
+            help="compress the store's arrays: zarr zstd|blosc, hdf5 gzip|lzf (default "
+            "none: see the README's Disk economy)",
+        )
+        q.add_argument(
+            "--io-overlap",
+            action="store_true",
+            help="out-of-core: read the next slab and write the last one in threads while a "
+            "slab computes (same bits; up to three slabs resident)",
+        )
         q.add_argument("--domains", type=_count(1, MAX_DOMAINS), help="number of sub-domains D (ddm, ooc)")
         q.add_argument("--block", type=_count(1, MAX_BLOCK), help="steps per epoch K (temporal blocking)")
         g = q.add_mutually_exclusive_group()
         g.add_argument("--steps", type=_count(0, MAX_STEPS), help="total steps to run")
         g.add_argument("--duration", type=_positive_float, help="total simulated time to run, s")
-        q.add_argument("--checkpoint-every", type=_count(1, MAX_STEPS), metavar="STEPS",
-                       help="commit an epoch every STEPS steps")
-        q.add_argument("--memory", type=_size, metavar="SIZE",
-                       help="memory budget, e.g. 2GB: out-of-core chooses the sub-domains D and "
-                            "block K whose slab, halo and I/O buffers fit; other modes are checked "
-                            "against it")
+        q.add_argument(
+            "--checkpoint-every", type=_count(1, MAX_STEPS), metavar="STEPS", help="commit an epoch every STEPS steps"
+        )
+        q.add_argument(
+            "--memory",
+            type=_size,
+            metavar="SIZE",
+            help="memory budget, e.g. 2GB: out-of-core chooses the sub-domains D and "
+            "block K whose slab, halo and I/O buffers fit; other modes are checked "
+            "against it",
+        )
 
     q = sub.add_parser("run", help="run a scenario")
     add_scenario_args(q)
@@ -153,50 +185,72 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--steps", type=_count(0, MAX_STEPS), help="new total step count")
     g.add_argument("--until", type=_positive_float, help="new total simulated time, s")
     switching = switching_families()
-    q.add_argument("--mode", choices=[name for family in switching for name in family],
-                   help="continue in another mode of those that share their epochs: "
-                        + ", ".join(" or ".join(f) for f in switching))
+    q.add_argument(
+        "--mode",
+        choices=[name for family in switching for name in family],
+        help="continue in another mode of those that share their epochs: "
+        + ", ".join(" or ".join(f) for f in switching),
+    )
     q.add_argument("--no-progress", action="store_true")
     q.add_argument("--no-figures", action="store_true")
 
     q = sub.add_parser("checkpoint", help="list, verify, inspect, prune and export the epochs of a store")
     csub = q.add_subparsers(dest="ckpt_command", required=True, parser_class=_Parser)
-    for name, hlp in (("hash", "the canonical state hash (mset-v2) of the latest state"),
-                      ("list", "list committed epochs"),
-                      ("verify", "verify checksums and structure (exit 2 if a problem is found)"),
-                      ("inspect", "show one epoch")):
+    for name, hlp in (
+        ("hash", "the canonical state hash (mset-v2) of the latest state"),
+        ("list", "list committed epochs"),
+        ("verify", "verify checksums and structure (exit 2 if a problem is found)"),
+        ("inspect", "show one epoch"),
+    ):
         c = csub.add_parser(name, help=hlp)
         c.add_argument("store")
         if name != "list":
             c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
     c = csub.add_parser("prune", help="delete committed epochs beyond the newest N (never the current)")
     c.add_argument("store")
-    c.add_argument("--keep", type=_positive_int, required=True, metavar="N",
-                   help="number of newest committed epochs to keep (>= 1; the current is always kept)")
+    c.add_argument(
+        "--keep",
+        type=_positive_int,
+        required=True,
+        metavar="N",
+        help="number of newest committed epochs to keep (>= 1; the current is always kept)",
+    )
     c = csub.add_parser("export", help="write one epoch as XDMF+HDF5, VTK or CSV")
     c.add_argument("store")
-    c.add_argument("--format", choices=["xdmf", "vtk", "csv"],
-                   help="xdmf (NAME.xdmf + NAME.h5), vtk (legacy ASCII .vtk, or XML if --out ends in "
-                        ".vtp) or csv; default from the --out suffix")
+    c.add_argument(
+        "--format",
+        choices=["xdmf", "vtk", "csv"],
+        help="xdmf (NAME.xdmf + NAME.h5), vtk (legacy ASCII .vtk, or XML if --out ends in "
+        ".vtp) or csv; default from the --out suffix",
+    )
     c.add_argument("--out", required=True, metavar="FILE", help="output file")
     c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
 
-    q = sub.add_parser("export-trajectory", help="write a run's trajectory as an XDMF time series "
-                                                 "for ParaView (refers to the frame files in RUN/trajectory/, no copy)")
+    q = sub.add_parser(
+        "export-trajectory",
+        help="write a run's trajectory as an XDMF time series "
+        "for ParaView (refers to the frame files in RUN/trajectory/, no copy)",
+    )
     q.add_argument("run", metavar="RUN", help="run directory (with trajectory/)")
     q.add_argument("--out", required=True, metavar="FILE.xdmf", help="XDMF file to write (outside the run)")
 
     q = sub.add_parser("animate", help="render a run's trajectory as a film (MP4 or GIF)")
     q.add_argument("run", metavar="RUN", help="run directory (with trajectory/)")
-    q.add_argument("--out", metavar="FILE", help="FILE.mp4 (ffmpeg from imageio-ffmpeg) or FILE.gif; "
-                                                 "default RUN.mp4 beside the run directory")
+    q.add_argument(
+        "--out",
+        metavar="FILE",
+        help="FILE.mp4 (ffmpeg from imageio-ffmpeg) or FILE.gif; default RUN.mp4 beside the run directory",
+    )
     q.add_argument("--fps", type=_count(1, 120), default=20, help="frames per second (default 20)")
     q.add_argument("--no-progress", action="store_true")
 
     sub.add_parser("scenarios", help="list built-in scenarios")
 
-    q = sub.add_parser("check", help="validate a scenario and run options as `run` would; print the "
-                                     "resolved plan as JSON (no files, no bed, no stepping)")
+    q = sub.add_parser(
+        "check",
+        help="validate a scenario and run options as `run` would; print the "
+        "resolved plan as JSON (no files, no bed, no stepping)",
+    )
     add_scenario_args(q)
     add_plan_args(q)
 
@@ -216,10 +270,14 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--block", type=_count(1, MAX_BLOCK))
     q.add_argument("--backend", default="hdf5", choices=["hdf5", "zarr"])
     q.add_argument("--steps", type=_count(1, MAX_STEPS), default=200, help="steps measured per mode")
-    q.add_argument("--memory-limit", type=_size, metavar="SIZE",
-                   help="run each mode under this hard memory limit (a memory cgroup made for it, "
-                        "removed after; needs root or a delegated cgroup); a mode that exceeds it is "
-                        f"reported as killed by the limit, exit code {EXIT_OOM}")
+    q.add_argument(
+        "--memory-limit",
+        type=_size,
+        metavar="SIZE",
+        help="run each mode under this hard memory limit (a memory cgroup made for it, "
+        "removed after; needs root or a delegated cgroup); a mode that exceeds it is "
+        f"reported as killed by the limit, exit code {EXIT_OOM}",
+    )
 
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)

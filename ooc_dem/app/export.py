@@ -30,6 +30,7 @@ history), domain group by domain group, and sorted by id in bounded memory
 output), so a store larger than RAM exports too. Files are written under a
 temporary name and renamed when complete.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -41,8 +42,7 @@ from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room
 
 from ..model.checkpoint import StateError, check_unique_sorted, validate_globals
 from ..physics.layout import spin_width
-from .export_formats import (Snapshot, output_files, read_records, record_dtype, vector_columns,
-                             write_snapshot)
+from .export_formats import Snapshot, output_files, read_records, record_dtype, vector_columns, write_snapshot
 from .outfile import ExportError, check_targets, write_failure
 
 FORMATS = ("xdmf", "vtk", "csv")
@@ -67,8 +67,10 @@ def _group_records(reader, d, source: str, dim: int | None) -> tuple[np.ndarray,
         width = len(vec[k]) if k in vec else None
         want = (n, width) if width else (n,)
         if p[k].shape != want:
-            raise StateError(f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
-                             f"shape {p[k].shape}, expected {want}" + (f" ({dim}D)" if width else ""))
+            raise StateError(
+                f"{source}: epoch {reader.step} domain {d}: array {k!r} has "
+                f"shape {p[k].shape}, expected {want}" + (f" ({dim}D)" if width else "")
+            )
         if width:
             for c, name in enumerate(vec[k]):
                 rec[name] = p[k][:, c]
@@ -112,10 +114,9 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
         try:
             return tempfile.TemporaryFile(dir=workdir)
         except OSError as e:
-            raise ExportError(f"{workdir}: cannot create a temporary export file "
-                              f"({e.strerror})") from None
+            raise ExportError(f"{workdir}: cannot create a temporary export file ({e.strerror})") from None
 
-    runs_file, runs, dim = temp(), [], None     # runs: (first record, count)
+    runs_file, runs, dim = temp(), [], None  # runs: (first record, count)
     lo: dict[str, int | None] = {"id": None, "mat": None}
     hi = dict(lo)
     try:
@@ -138,8 +139,15 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
         if len(runs) > 1:
             merged = temp()
             try:
-                _merge_runs(runs_file, runs, dtype, merged, where,
-                            max(64, buffer_bytes // (2 * len(runs) * dtype.itemsize)), workdir)
+                _merge_runs(
+                    runs_file,
+                    runs,
+                    dtype,
+                    merged,
+                    where,
+                    max(64, buffer_bytes // (2 * len(runs) * dtype.itemsize)),
+                    workdir,
+                )
             except BaseException:
                 merged.close()
                 raise
@@ -151,9 +159,16 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
         raise
     info = {"source": str(source), "mode": str(attrs.get("mode", ""))}
     ranges = {k: (lo[k], hi[k]) for k in lo if lo[k] is not None}
-    return Snapshot(attrs["step"], float(attrs.get("time", 0.0)),
-                    np.asarray(arrays["wheel_state"], np.float64), info, dim, runs_file,
-                    start, ranges)
+    return Snapshot(
+        attrs["step"],
+        float(attrs.get("time", 0.0)),
+        np.asarray(arrays["wheel_state"], np.float64),
+        info,
+        dim,
+        runs_file,
+        start,
+        ranges,
+    )
 
 
 def _merge_runs(src, runs, dtype, dst, where: str, rows: int, out) -> None:
@@ -164,7 +179,7 @@ def _merge_runs(src, runs, dtype, dst, where: str, rows: int, out) -> None:
     sorts that batch and writes it; the run that set the bound is emptied, so every round
     writes at least one buffer's worth unless the runs are ending.
     """
-    pos = [s for s, _ in runs]          # next record of each run still on disk
+    pos = [s for s, _ in runs]  # next record of each run still on disk
     end = [s + c for s, c in runs]
     bufs = [np.empty(0, dtype)] * len(runs)
     last = None
@@ -215,12 +230,11 @@ def _check_room(snap: Snapshot, fmt: str, out: Path) -> None:
     try:
         if fmt == "xdmf":
             h5 = output_files(fmt, out)[1]
-            row = 2 * 3 * 8 + 3 * 8 + 8 * spin_width(snap.dim) + snap.dtype["id"].itemsize \
-                + snap.dtype["mat"].itemsize
+            row = 2 * 3 * 8 + 3 * 8 + 8 * spin_width(snap.dim) + snap.dtype["id"].itemsize + snap.dtype["mat"].itemsize
             check_room(h5, n * row + H5_OVERHEAD)
             check_room(out, 4096)
         else:
-            values = 3 * 3 + spin_width(snap.dim) + 6        # xyz, velocity, offsets, spin, ...
+            values = 3 * 3 + spin_width(snap.dim) + 6  # xyz, velocity, offsets, spin, ...
             check_room(out, n * values * _TEXT_VALUE_BYTES + 4096)
     except OSError as e:
         raise ExportError(write_failure(e.filename or out, e)) from None

@@ -1,6 +1,7 @@
 """The export formats (export.py's module docstring describes them): a ``Snapshot`` (the
 exported content of one epoch, in id order) written as XDMF (+ HDF5), VTK (legacy or XML
 .vtp) or CSV, each under a temporary name (``outfile.AtomicFile``)."""
+
 from __future__ import annotations
 
 import contextlib
@@ -31,8 +32,8 @@ def snapshot_columns(dim: int) -> tuple[str, ...]:
     return ("id", *v["pos"], *v["vel"], *v["spin"], "r", "mass", "mat")
 
 
-CSV_COLUMNS = snapshot_columns(2)   # id, x, y, vx, vy, w, r, mass, mat
-WHEEL_NAMES = WS_NAMES               # layout.WHEEL_STATE: x, y, vx, vy, theta, wz
+CSV_COLUMNS = snapshot_columns(2)  # id, x, y, vx, vy, w, r, mass, mat
+WHEEL_NAMES = WS_NAMES  # layout.WHEEL_STATE: x, y, vx, vy, theta, wz
 _ROWS_PER_WRITE = 65536
 
 
@@ -53,7 +54,7 @@ class Snapshot:
         self.dim = dim
         self.columns = snapshot_columns(dim)
         self.dtype = record_dtype(dim)
-        self._records = records     # an unnamed temporary file of n records, id order
+        self._records = records  # an unnamed temporary file of n records, id order
         self._n = n
         self.int_ranges = int_ranges  # integer column -> (min, max) over every disc
 
@@ -103,8 +104,7 @@ def output_files(fmt: str, out: Path) -> list[Path]:
     if fmt == "xdmf":
         h5 = out.with_suffix(".h5")
         if h5 == out:
-            raise ExportError(f"--out {out}: give the .xdmf name; the HDF5 data is written beside it "
-                              f"as {out.stem}.h5")
+            raise ExportError(f"--out {out}: give the .xdmf name; the HDF5 data is written beside it as {out.stem}.h5")
         return [out, h5]
     return [out]
 
@@ -148,8 +148,10 @@ def _one_line(text: str) -> str:
 
 
 def _description(snap: Snapshot) -> str:
-    return _one_line(f"ooc-dem epoch {snap.step} t = {snap.time!r} s, {len(snap)} discs"
-                     + (f", from {snap.info['source']}" if snap.info.get("source") else ""))
+    return _one_line(
+        f"ooc-dem epoch {snap.step} t = {snap.time!r} s, {len(snap)} discs"
+        + (f", from {snap.info['source']}" if snap.info.get("source") else "")
+    )
 
 
 def _xml_comment(text: str) -> str:
@@ -179,6 +181,7 @@ def _spin_array(c: dict) -> np.ndarray:
 
 # ------------------------------------------------------------------ XDMF + HDF5
 
+
 def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
     _, h5 = output_files("xdmf", out)
     if ":" in h5.name:
@@ -188,8 +191,10 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
     data = {
         "positions": lambda s, c: _xyz_array(c),
         "velocity": lambda s, c: _xyz_array(c, "v"),
-        "radius": lambda s, c: c["r"], "spin": lambda s, c: _spin_array(c),
-        "id": lambda s, c: c["id"], "mass": lambda s, c: c["mass"],
+        "radius": lambda s, c: c["r"],
+        "spin": lambda s, c: _spin_array(c),
+        "id": lambda s, c: c["id"],
+        "mass": lambda s, c: c["mass"],
         "material": lambda s, c: c["mat"],
         "connectivity": lambda s, c: _index(s, c).reshape(-1, 1),
     }
@@ -205,14 +210,14 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
         # through the write guard: a full disk or the file-size limit must reach us as an
         # OSError, never reach HDF5 (which crashes after a failed write)
         f, guard = create_h5(tmp, exclusive=False)
-        sets = {k: f.create_dataset(k, shape=shapes.get(k, (n,)),
-                                    dtype=dtypes.get(k, np.dtype(np.float64)))
-                for k in data}
+        sets = {
+            k: f.create_dataset(k, shape=shapes.get(k, (n,)), dtype=dtypes.get(k, np.dtype(np.float64))) for k in data
+        }
         for start, chunk in snap.chunks():
             for k, of in data.items():
                 v = of(start, chunk)
-                sets[k][start:start + len(v)] = v
-            guard.check()    # stop at the first failed write
+                sets[k][start : start + len(v)] = v
+            guard.check()  # stop at the first failed write
         ws = f.create_dataset("wheel_state", data=np.asarray(snap.wheel_state, np.float64))
         ws.attrs["components"] = ",".join(WHEEL_NAMES)
         f.attrs["step"] = np.int64(snap.step)
@@ -232,34 +237,41 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
 
     def item(name, dims, kind, size):
         typ = "Int" if kind in "iu" else "Float"
-        return (f'<DataItem Dimensions="{dims}" DataType="{typ}" Precision="{size}" '
-                f'Format="HDF">{escape(h5.name)}:/{name}</DataItem>')
+        return (
+            f'<DataItem Dimensions="{dims}" DataType="{typ}" Precision="{size}" '
+            f'Format="HDF">{escape(h5.name)}:/{name}</DataItem>'
+        )
 
-    lines = ['<?xml version="1.0" ?>',
-             f"<!-- {_xml_comment(_description(snap))} -->",
-             '<Xdmf Version="3.0">',
-             "  <Domain>",
-             '    <Grid Name="discs" GridType="Uniform">',
-             f'      <Topology TopologyType="Polyvertex" NumberOfElements="{n}" NodesPerElement="1">',
-             f"        {item('connectivity', f'{n} 1', 'i', 8)}",
-             "      </Topology>",
-             '      <Geometry GeometryType="XYZ">',
-             f"        {item('positions', f'{n} 3', 'f', 8)}",
-             "      </Geometry>"]
+    lines = [
+        '<?xml version="1.0" ?>',
+        f"<!-- {_xml_comment(_description(snap))} -->",
+        '<Xdmf Version="3.0">',
+        "  <Domain>",
+        '    <Grid Name="discs" GridType="Uniform">',
+        f'      <Topology TopologyType="Polyvertex" NumberOfElements="{n}" NodesPerElement="1">',
+        f"        {item('connectivity', f'{n} 1', 'i', 8)}",
+        "      </Topology>",
+        '      <Geometry GeometryType="XYZ">',
+        f"        {item('positions', f'{n} 3', 'f', 8)}",
+        "      </Geometry>",
+    ]
     for name in ("radius", "velocity", "spin", "id", "mass", "material"):
         shape, dt = shapes.get(name, (n,)), dtypes.get(name, np.dtype(np.float64))
         atype = "Vector" if len(shape) == 2 else "Scalar"
         dims = " ".join(map(str, shape))
-        lines += [f'      <Attribute Name="{name}" AttributeType="{atype}" Center="Node">',
-                  f"        {item(name, dims, dt.kind, dt.itemsize)}",
-                  "      </Attribute>"]
+        lines += [
+            f'      <Attribute Name="{name}" AttributeType="{atype}" Center="Node">',
+            f"        {item(name, dims, dt.kind, dt.itemsize)}",
+            "      </Attribute>",
+        ]
     # per-epoch values: Grid-centred attributes = field data in ParaView's XDMF 3 reader
     for name, kind, text in _field_items(snap):
         typ = "Int" if kind == "i" else "Float"
-        lines += [f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Grid">',
-                  f'        <DataItem Dimensions="1" DataType="{typ}" Precision="8" Format="XML">'
-                  f"{text}</DataItem>",
-                  "      </Attribute>"]
+        lines += [
+            f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Grid">',
+            f'        <DataItem Dimensions="1" DataType="{typ}" Precision="8" Format="XML">{text}</DataItem>',
+            "      </Attribute>",
+        ]
     lines += ["    </Grid>", "  </Domain>", "</Xdmf>", ""]
     with AtomicFile(out) as f:
         f.write("\n".join(lines))
@@ -267,6 +279,7 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
 
 
 # ------------------------------------------------------------------ VTK
+
 
 def _vtk_legacy_type(snap: Snapshot, column: str) -> str:
     if snap.dtype[column].kind == "f":
@@ -302,8 +315,7 @@ def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
         _write_columns(f, snap, lambda s, c: _xyz(c, "v"), " ")
         # further point arrays as a FIELD block: a legacy reader keeps only the first SCALARS
         # unless told to read them all, but always reads every FIELD array
-        more = (("spin", _spin_columns(snap.dim)), ("id", ["id"]), ("mass", ["mass"]),
-                ("material", ["mat"]))
+        more = (("spin", _spin_columns(snap.dim)), ("id", ["id"]), ("mass", ["mass"]), ("material", ["mat"]))
         f.write(f"FIELD point_arrays {len(more)}\n")
         for name, cols in more:
             f.write(f"{name} {len(cols)} {n} {_vtk_legacy_type(snap, cols[0])}\n")
@@ -314,8 +326,7 @@ def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
 _VTP_TYPE = {"f8": "Float64", "i8": "Int64", "i4": "Int32"}
 
 
-def _vtp_array(f, snap: Snapshot, name, columns_of, dtype: np.dtype, ncomp: int = 1,
-               indent="        ") -> None:
+def _vtp_array(f, snap: Snapshot, name, columns_of, dtype: np.dtype, ncomp: int = 1, indent="        ") -> None:
     t = _VTP_TYPE[f"{dtype.kind}{dtype.itemsize}"]
     nm = f' Name="{name}"' if name else ""
     f.write(f'{indent}<DataArray type="{t}"{nm} NumberOfComponents="{ncomp}" format="ascii">\n')
@@ -329,15 +340,21 @@ def _write_vtp(snap: Snapshot, out: Path) -> Path:
     with AtomicFile(out) as f:
         f.write('<?xml version="1.0"?>\n')
         f.write(f"<!-- {_xml_comment(_description(snap))} -->\n")
-        f.write('<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
-                'header_type="UInt64">\n  <PolyData>\n    <FieldData>\n')
+        f.write(
+            '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
+            'header_type="UInt64">\n  <PolyData>\n    <FieldData>\n'
+        )
         for name, kind, text in _field_items(snap):
             t = "Int64" if kind == "i" else "Float64"
-            f.write(f'      <DataArray type="{t}" Name={quoteattr(name)} NumberOfTuples="1" '
-                    f'format="ascii">{text}</DataArray>\n')
+            f.write(
+                f'      <DataArray type="{t}" Name={quoteattr(name)} NumberOfTuples="1" '
+                f'format="ascii">{text}</DataArray>\n'
+            )
         f.write("    </FieldData>\n")
-        f.write(f'    <Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
-                f'NumberOfStrips="0" NumberOfPolys="0">\n')
+        f.write(
+            f'    <Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+            f'NumberOfStrips="0" NumberOfPolys="0">\n'
+        )
         f.write('      <PointData Scalars="radius" Vectors="velocity">\n')
         for name, col in (("radius", "r"), ("id", "id"), ("mass", "mass"), ("material", "mat")):
             _vtp_array(f, snap, name, lambda s, c, col=col: [c[col]], snap.dtype[col])
@@ -355,12 +372,12 @@ def _write_vtp(snap: Snapshot, out: Path) -> Path:
 
 # ------------------------------------------------------------------ CSV
 
+
 def _write_csv(snap: Snapshot, out: Path) -> Path:
     with AtomicFile(out) as f:
         f.write(f"# {_description(snap)}\n")
         f.write(f"# step={snap.step} time={float(snap.time)!r}\n")
-        f.write("# wheel_state " + ",".join(f"{k}={float(v)!r}" for k, v in
-                                            zip(WHEEL_NAMES, snap.wheel_state)) + "\n")
+        f.write("# wheel_state " + ",".join(f"{k}={float(v)!r}" for k, v in zip(WHEEL_NAMES, snap.wheel_state)) + "\n")
         f.write(",".join(snap.columns) + "\n")
         _write_columns(f, snap, lambda s, c: [c[k] for k in snap.columns], ",")
     return out

@@ -9,6 +9,7 @@ slip s = 1 - v / (R omega); sinkage = initial surface height - lowest rim point.
 Accumulation is sequential, step by step, so the numbers do not depend on how
 the steps were grouped into blocks (modes and restarts give the same bits).
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -23,15 +24,41 @@ from ..physics.layout import REC_DB, REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_
 if TYPE_CHECKING:
     from ..model.scenario import Scenario
 
-SERIES_COLUMNS = ("t", "t_travel", "x", "y", "vx", "omega", "slip", "net_traction",
-                  "vertical_force", "torque", "gross_traction", "sinkage", "drawbar")
+SERIES_COLUMNS = (
+    "t",
+    "t_travel",
+    "x",
+    "y",
+    "vx",
+    "omega",
+    "slip",
+    "net_traction",
+    "vertical_force",
+    "torque",
+    "gross_traction",
+    "sinkage",
+    "drawbar",
+)
 SERIES_UNITS = ("s", "s", "m", "m", "m/s", "rad/s", "-", "N", "N", "N m", "N", "m", "N")
 
 # series row layout: the column index of each SERIES_COLUMNS name
-(S_T, S_T_TRAVEL, S_X, S_Y, S_VX, S_OMEGA, S_SLIP, S_NET_TRACTION, S_VERTICAL_FORCE, S_TORQUE,
- S_GROSS_TRACTION, S_SINKAGE, S_DRAWBAR) = range(len(SERIES_COLUMNS))
+(
+    S_T,
+    S_T_TRAVEL,
+    S_X,
+    S_Y,
+    S_VX,
+    S_OMEGA,
+    S_SLIP,
+    S_NET_TRACTION,
+    S_VERTICAL_FORCE,
+    S_TORQUE,
+    S_GROSS_TRACTION,
+    S_SINKAGE,
+    S_DRAWBAR,
+) = range(len(SERIES_COLUMNS))
 N_SERIES = len(SERIES_COLUMNS)
-SERIES_START_ROWS = 1024   # the series buffer starts this long and doubles when full
+SERIES_START_ROWS = 1024  # the series buffer starts this long and doubles when full
 
 # interval accumulator layout
 I_N, I_VX, I_WZ, I_FX, I_FY, I_TQ, I_Y, I_DB, I_X, I_YLAST, I_T = range(11)
@@ -42,9 +69,19 @@ N_WACC = 9
 
 
 @njit(cache=True)
-def _accumulate(rec: NDArray[np.float64], steps_per_row: int, step0: int, iacc: NDArray[np.float64],
-                rows: NDArray[np.float64], nrows: NDArray[np.int64], wacc: NDArray[np.float64],
-                windows: NDArray[np.float64], surface: float, radius: float, omega: float) -> None:
+def _accumulate(
+    rec: NDArray[np.float64],
+    steps_per_row: int,
+    step0: int,
+    iacc: NDArray[np.float64],
+    rows: NDArray[np.float64],
+    nrows: NDArray[np.int64],
+    wacc: NDArray[np.float64],
+    windows: NDArray[np.float64],
+    surface: float,
+    radius: float,
+    omega: float,
+) -> None:
     """Fold per-step records into interval rows and window sums (sequentially)."""
     for s in range(rec.shape[0]):
         t = rec[s, REC_T]
@@ -74,13 +111,15 @@ def _accumulate(rec: NDArray[np.float64], steps_per_row: int, step0: int, iacc: 
         if ((step0 + s + 1) % steps_per_row) == 0:
             n = iacc[I_N]
             r = nrows[0]
-            if r < rows.shape[0]:   # the caller sized rows for this record (WheelMetrics.add)
+            if r < rows.shape[0]:  # the caller sized rows for this record (WheelMetrics.add)
                 rows[r, S_T] = t
                 rows[r, S_X] = iacc[I_X]
                 rows[r, S_Y] = iacc[I_YLAST]
                 rows[r, S_VX] = iacc[I_VX] / n
                 rows[r, S_OMEGA] = -iacc[I_WZ] / n
-                rows[r, S_SLIP] = (1.0 - (iacc[I_VX] / n) / (radius * omega)) if omega > 0 and iacc[I_WZ] != 0.0 else np.nan
+                rows[r, S_SLIP] = (
+                    (1.0 - (iacc[I_VX] / n) / (radius * omega)) if omega > 0 and iacc[I_WZ] != 0.0 else np.nan
+                )
                 rows[r, S_NET_TRACTION] = iacc[I_FX] / n
                 rows[r, S_VERTICAL_FORCE] = iacc[I_FY] / n
                 rows[r, S_TORQUE] = iacc[I_TQ] / n
@@ -106,11 +145,13 @@ class WheelMetrics:
         self.nrows = np.zeros(1, np.int64)
         w = sc.wheel
         t0 = w.settle_time
-        self.windows = np.array([
-            [t0, t0 + w.travel_time],
-            [t0 + sc.output.steady_start, t0 + min(sc.output.steady_end, w.travel_time)],
-            [t0 - min(0.1 * w.settle_time, 0.1), t0],   # static sinkage: end of settling
-        ])
+        self.windows = np.array(
+            [
+                [t0, t0 + w.travel_time],
+                [t0 + sc.output.steady_start, t0 + min(sc.output.steady_end, w.travel_time)],
+                [t0 - min(0.1 * w.settle_time, 0.1), t0],  # static sinkage: end of settling
+            ]
+        )
         self.wacc = np.zeros((len(self.windows), N_WACC))
 
     def add(self, rec: NDArray[np.float64], step0: int) -> None:
@@ -118,8 +159,19 @@ class WheelMetrics:
             return
         self._reserve(int(self.nrows[0]) + len(rec) // self.steps_per_row + 1)
         w = self.sc.wheel
-        _accumulate(rec, self.steps_per_row, step0, self.iacc, self.rows, self.nrows, self.wacc,
-                    self.windows, self.surface, w.radius, w.omega)
+        _accumulate(
+            rec,
+            self.steps_per_row,
+            step0,
+            self.iacc,
+            self.rows,
+            self.nrows,
+            self.wacc,
+            self.windows,
+            self.surface,
+            w.radius,
+            w.omega,
+        )
 
     def _reserve(self, rows: int) -> None:
         """Room for at least ``rows`` series rows (never fewer than before; the new rows NaN)."""
@@ -133,8 +185,11 @@ class WheelMetrics:
     # ---- persistence (checkpoint) ----------------------------------------
     def state_arrays(self) -> dict[str, NDArray[np.float64]]:
         n = int(self.nrows[0])
-        return {"metrics_iacc": self.iacc.copy(), "metrics_wacc": self.wacc.copy(),
-                "metrics_rows": self.rows[:n].copy()}
+        return {
+            "metrics_iacc": self.iacc.copy(),
+            "metrics_wacc": self.wacc.copy(),
+            "metrics_rows": self.rows[:n].copy(),
+        }
 
     def load_state(self, arrays: Mapping[str, NDArray[Any]]) -> None:
         self.iacc[:] = arrays["metrics_iacc"]
@@ -183,9 +238,11 @@ class WheelMetrics:
         whole, steady, static = self._window(0), self._window(1), self._window(2)
 
         def q(key: str, unit: str) -> dict[str, Any]:
-            return {"unit": unit,
-                    "whole_travel": {"value": whole.get(key), "window_s": whole.get("window_s")},
-                    "steady": {"value": steady.get(key), "window_s": steady.get("window_s")}}
+            return {
+                "unit": unit,
+                "whole_travel": {"value": whole.get(key), "window_s": whole.get("window_s")},
+                "steady": {"value": steady.get(key), "window_s": steady.get("window_s")},
+            }
 
         out: dict[str, Any] = {
             "time_origin": "start of travel (end of the wheel's settling)",
@@ -202,8 +259,10 @@ class WheelMetrics:
             if win.get("steps"):
                 mr[name] = {"value": win["gross_traction"] - win["net_traction"], "window_s": win["window_s"]}
         out["motion_resistance"] = {"unit": "N", **mr}
-        out["sinkage"]["static"] = {"value": static.get("sinkage"),
-                                    "window_s": static.get("window_s"),
-                                    "note": "mean over the last part of the settling phase (omega = 0)"}
+        out["sinkage"]["static"] = {
+            "value": static.get("sinkage"),
+            "window_s": static.get("window_s"),
+            "note": "mean over the last part of the settling phase (omega = 0)",
+        }
         out["surface_height"] = {"unit": "m", "value": self.surface}
         return out

@@ -2,6 +2,7 @@
 (``check_targets``: never a directory, device, FIFO or symlink, never inside an ooc-dem store)
 and ``AtomicFile`` (written under a temporary name, renamed into place when complete). A
 failure is an ``ExportError`` with one line naming the file."""
+
 from __future__ import annotations
 
 import os
@@ -13,7 +14,7 @@ from typing import IO, Any, Literal
 from ..errors import OocDemError
 from ..storage.atomic import new_temp
 
-STORE_MANIFEST = "MANIFEST.json"   # its presence marks a directory as an ooc-dem store
+STORE_MANIFEST = "MANIFEST.json"  # its presence marks a directory as an ooc-dem store
 
 
 class ExportError(OocDemError):
@@ -36,16 +37,20 @@ def check_targets(files: list[Path], out: Path) -> None:
         except OSError as e:
             raise ExportError(f"--out {out}: cannot inspect {f} ({e.strerror})") from None
         if st is not None and not stat.S_ISREG(st.st_mode):
-            kind = "a directory" if stat.S_ISDIR(st.st_mode) else (
-                "a symlink" if stat.S_ISLNK(st.st_mode) else "not a regular file")
+            kind = (
+                "a directory"
+                if stat.S_ISDIR(st.st_mode)
+                else ("a symlink" if stat.S_ISLNK(st.st_mode) else "not a regular file")
+            )
             raise ExportError(f"--out {out}: {f} is {kind} (give a new file name or a regular file)")
         parent = f.parent.resolve()
         if not parent.is_dir():
             raise ExportError(f"--out {out}: directory {f.parent} does not exist")
         for d in (parent, *parent.parents):
             if (d / STORE_MANIFEST).exists():
-                raise ExportError(f"--out {out}: {f} would be inside the ooc-dem store {d} "
-                                  f"(write exports outside any store)")
+                raise ExportError(
+                    f"--out {out}: {f} would be inside the ooc-dem store {d} (write exports outside any store)"
+                )
 
 
 class AtomicFile:
@@ -63,18 +68,23 @@ class AtomicFile:
     def __enter__(self) -> IO[Any]:
         try:
             self.tmp = new_temp(self.path)
-            self.f = open(self.tmp, self.mode, encoding=None if "b" in self.mode else "ascii",
-                          newline=None if "b" in self.mode else "\n")
+            self.f = open(
+                self.tmp,
+                self.mode,
+                encoding=None if "b" in self.mode else "ascii",
+                newline=None if "b" in self.mode else "\n",
+            )
         except OSError as e:
             if self.tmp is not None:
                 remove_file(self.tmp)
             raise ExportError(write_failure(self.path, e)) from None
         return self.f
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> Literal[False]:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> Literal[False]:
         f, tmp = self.f, self.tmp
-        if f is None or tmp is None:     # never entered
+        if f is None or tmp is None:  # never entered
             return False
         try:
             f.close()

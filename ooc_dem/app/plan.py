@@ -3,6 +3,7 @@ before anything is allocated or written (the mode, steps, checkpoints, sub-domai
 block K, the memory it needs). ``run``, ``check`` and ``resume`` share it; the modes and
 what they can do come from the registry (``engine.modes``).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -11,8 +12,7 @@ from dataclasses import dataclass
 from ..engine import budget
 from ..errors import OocDemError
 from ..engine.modes import MODES, mode_names
-from ..model.scenario import (MAX_DOMAINS, MAX_STEPS, Scenario, big, critical_time_step, show,
-                              steps_for_duration)
+from ..model.scenario import MAX_DOMAINS, MAX_STEPS, Scenario, big, critical_time_step, show, steps_for_duration
 from ..storage import BACKENDS
 from .metrics import N_SERIES
 
@@ -27,15 +27,15 @@ class RunOptions:
     backend: str = "hdf5"
     domains: int | None = None
     block: int | None = None
-    steps: int | None = None            # total steps to run (from step 0)
-    duration: float | None = None       # or: total simulated time to run, s (from t = 0)
+    steps: int | None = None  # total steps to run (from step 0)
+    duration: float | None = None  # or: total simulated time to run, s (from t = 0)
     checkpoint_every: int | None = None  # steps between committed epochs
     durable: bool = False
     progress: bool = True
     figures: bool = True
-    memory: int | None = None           # bytes the run may hold at its peak (--memory): chooses D, K
-    compression: str | None = None      # the store's (storage.COMPRESSIONS[backend]); None: off
-    io_overlap: bool = False            # out-of-core: read ahead, write behind in threads (--io-overlap)
+    memory: int | None = None  # bytes the run may hold at its peak (--memory): chooses D, K
+    compression: str | None = None  # the store's (storage.COMPRESSIONS[backend]); None: off
+    io_overlap: bool = False  # out-of-core: read ahead, write behind in threads (--io-overlap)
 
 
 def total_steps(sc: Scenario, opts: RunOptions) -> int:
@@ -46,21 +46,23 @@ def total_steps(sc: Scenario, opts: RunOptions) -> int:
     if opts.duration is not None:
         return steps_for_duration(opts.duration, sc.physics.dt, f"--duration {show(opts.duration)}")
     if sc.wheel.enabled:
-        return steps_for_duration(sc.wheel.settle_time + sc.wheel.travel_time, sc.physics.dt,
-                                  "wheel.settle_time + wheel.travel_time")
+        return steps_for_duration(
+            sc.wheel.settle_time + sc.wheel.travel_time, sc.physics.dt, "wheel.settle_time + wheel.travel_time"
+        )
     return int(sc.output.run_steps)
 
 
 # ---- memory plan: the measured bytes per particle of each mode and dimension, and the
 # budget that chooses D and K, live in engine/budget.py
-SERIES_ROW_BYTES = N_SERIES * 8    # one series.csv row (float64 columns)
-MIN_DISCS_PER_DOMAIN = 20           # a sub-domain of fewer discs is all halo and overhead
+SERIES_ROW_BYTES = N_SERIES * 8  # one series.csv row (float64 columns)
+MIN_DISCS_PER_DOMAIN = 20  # a sub-domain of fewer discs is all halo and overhead
 
 
 @dataclass(frozen=True)
 class RunPlan:
     """What a run will do, resolved and checked before anything is allocated or written
     (``ooc-dem check`` prints it)."""
+
     scenario: str
     mode: str
     backend: str
@@ -102,9 +104,11 @@ def _domains_and_block(sc: Scenario, opts: RunOptions) -> tuple[int, int]:
     limit = max_domains(sc)
     if D > limit:
         what = f"--domains {D}" if opts.domains else f"decomposition.domains = {D}"
-        raise RunError(f"{what}: at most {limit} sub-domain{'s' if limit > 1 else ''} for this bed ({sc.soil.n} discs, "
-                       f"bin.length {sc.bin.length:g} m: each slab needs >= {MIN_DISCS_PER_DOMAIN} discs "
-                       f"and >= one contact hop {_hop(sc):.3g} m)")
+        raise RunError(
+            f"{what}: at most {limit} sub-domain{'s' if limit > 1 else ''} for this bed ({sc.soil.n} discs, "
+            f"bin.length {sc.bin.length:g} m: each slab needs >= {MIN_DISCS_PER_DOMAIN} discs "
+            f"and >= one contact hop {_hop(sc):.3g} m)"
+        )
     return D, _block_for(sc, opts, D)
 
 
@@ -131,11 +135,11 @@ def _slabs(opts: RunOptions) -> int:
     return 3 if opts.io_overlap and MODES[opts.mode].out_of_core else 1
 
 
-def estimate_memory(sc: Scenario, opts: RunOptions, steps: int, domains: int, block: int,
-                    streamed: bool) -> int:
+def estimate_memory(sc: Scenario, opts: RunOptions, steps: int, domains: int, block: int, streamed: bool) -> int:
     """Bytes the run needs at its peak (engine/budget.py: measured bytes per particle)."""
-    return budget.estimate_peak(sc, opts.mode, opts.backend, domains, block, streamed,
-                                _series_bytes(sc, steps), _slabs(opts))
+    return budget.estimate_peak(
+        sc, opts.mode, opts.backend, domains, block, streamed, _series_bytes(sc, steps), _slabs(opts)
+    )
 
 
 def _budgeted(sc: Scenario, opts: RunOptions, steps: int, streamed: bool) -> tuple[int, int]:
@@ -149,25 +153,33 @@ def _budgeted(sc: Scenario, opts: RunOptions, steps: int, streamed: bool) -> tup
     if not MODES[opts.mode].out_of_core or opts.domains is not None:
         return _domains_and_block(sc, opts)
     block_of = lambda D: _block_for(sc, opts, D)
-    got = budget.choose_decomposition(sc, memory, block_of, max_domains(sc), opts.backend, streamed,
-                                      _series_bytes(sc, steps), _slabs(opts))
+    got = budget.choose_decomposition(
+        sc, memory, block_of, max_domains(sc), opts.backend, streamed, _series_bytes(sc, steps), _slabs(opts)
+    )
     if got is None:
-        raise RunError(budget.smallest_fit_message(sc, memory, block_of, max_domains(sc), opts.backend,
-                                                   streamed, _series_bytes(sc, steps), _slabs(opts)))
+        raise RunError(
+            budget.smallest_fit_message(
+                sc, memory, block_of, max_domains(sc), opts.backend, streamed, _series_bytes(sc, steps), _slabs(opts)
+            )
+        )
     return got[0], got[1]
 
 
 def machine_memory() -> int:
     import psutil
+
     return int(psutil.virtual_memory().total)
 
 
 def _check_compression(opts: RunOptions) -> None:
     from ooc_dem.storage import COMPRESSIONS
+
     have = COMPRESSIONS.get(opts.backend, ())
     if opts.compression is not None and opts.compression not in have:
-        raise RunError(f"--compression {show(opts.compression)}: the {opts.backend} backend has "
-                       f"{', '.join(have) or 'no compression'}")
+        raise RunError(
+            f"--compression {show(opts.compression)}: the {opts.backend} backend has "
+            f"{', '.join(have) or 'no compression'}"
+        )
 
 
 def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> RunPlan:
@@ -189,14 +201,28 @@ def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> Ru
     if need > have:
         raise RunError(_memory_message(sc, opts, steps, need, have, streamed))
     if opts.memory is not None and need > opts.memory:
-        raise RunError(f"--memory {_fmt_bytes(opts.memory)}: the {opts.mode} run needs about "
-                       f"{_fmt_bytes(need)} (D = {D}, K = {K})"
-                       + ("" if MODES[opts.mode].out_of_core else "; --mode ooc chooses sub-domains that fit"))
-    return RunPlan(scenario=sc.name, mode=opts.mode, backend=opts.backend, n_discs=sc.soil.n, steps=steps,
-                   simulated_time_s=steps * sc.physics.dt, dt_s=sc.physics.dt,
-                   dt_critical_s=critical_time_step(sc), checkpoint_every=every, domains=D, block=K,
-                   streamed_bed=streamed, memory_bytes=need, memory_available_bytes=have,
-                   memory_budget_bytes=opts.memory)
+        raise RunError(
+            f"--memory {_fmt_bytes(opts.memory)}: the {opts.mode} run needs about "
+            f"{_fmt_bytes(need)} (D = {D}, K = {K})"
+            + ("" if MODES[opts.mode].out_of_core else "; --mode ooc chooses sub-domains that fit")
+        )
+    return RunPlan(
+        scenario=sc.name,
+        mode=opts.mode,
+        backend=opts.backend,
+        n_discs=sc.soil.n,
+        steps=steps,
+        simulated_time_s=steps * sc.physics.dt,
+        dt_s=sc.physics.dt,
+        dt_critical_s=critical_time_step(sc),
+        checkpoint_every=every,
+        domains=D,
+        block=K,
+        streamed_bed=streamed,
+        memory_bytes=need,
+        memory_available_bytes=have,
+        memory_budget_bytes=opts.memory,
+    )
 
 
 def check_bed_memory(sc: Scenario) -> int:
@@ -208,9 +234,11 @@ def check_bed_memory(sc: Scenario) -> int:
     need = m.baseline + sc.soil.n * per_disc
     have = machine_memory()
     if need > have:
-        raise RunError(f"soil.n = {sc.soil.n}: preparing the bed needs about {_fmt_bytes(need)} of memory, "
-                       f"this machine has {_fmt_bytes(have)} (`ooc-dem run --mode ooc` streams a tiled bed "
-                       f"instead)")
+        raise RunError(
+            f"soil.n = {sc.soil.n}: preparing the bed needs about {_fmt_bytes(need)} of memory, "
+            f"this machine has {_fmt_bytes(have)} (`ooc-dem run --mode ooc` streams a tiled bed "
+            f"instead)"
+        )
     return need
 
 
@@ -218,12 +246,10 @@ def _memory_message(sc, opts, steps, need, have, streamed) -> str:
     series_rows = steps // max(1, int(round(sc.output.series_interval / sc.physics.dt))) + 1
     series = _series_bytes(sc, steps)
     if series > need / 2:
-        what = (f"output.series_interval = {sc.output.series_interval!r}: {steps} steps keep "
-                f"{series_rows} series rows")
+        what = f"output.series_interval = {sc.output.series_interval!r}: {steps} steps keep {series_rows} series rows"
     else:
         what = f"soil.n = {sc.soil.n}"
-    msg = (f"{what}: the run needs about {_fmt_bytes(need)} of memory ({opts.mode}), this machine "
-           f"has {_fmt_bytes(have)}")
+    msg = f"{what}: the run needs about {_fmt_bytes(need)} of memory ({opts.mode}), this machine has {_fmt_bytes(have)}"
     out_of_core = MODES[opts.mode].out_of_core
     if not out_of_core and series <= need / 2:
         ooc = RunOptions(**{**dataclasses.asdict(opts), "mode": "ooc", "domains": None, "block": None})
@@ -239,6 +265,6 @@ def _memory_message(sc, opts, steps, need, have, streamed) -> str:
 def default_checkpoint_every(sc: Scenario, steps: int) -> int:
     """One epoch per simulated second of a wheel run (at most ~100 per run), else only at the end."""
     if sc.wheel.enabled:
-        every = int(round(min(1.0 / sc.physics.dt, MAX_STEPS)))   # a tiny dt: 1/dt overflows
+        every = int(round(min(1.0 / sc.physics.dt, MAX_STEPS)))  # a tiny dt: 1/dt overflows
         return max(every, -(-steps // 100)) if steps else every
     return max(1, steps)

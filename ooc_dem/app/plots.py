@@ -11,6 +11,7 @@ Everything runs headless (Agg backend); discs are drawn at their true radii with
 one ``EllipseCollection``, so ~10^4 discs render in about a second. The run's files are
 read through runfiles.py (validated: a run directory is untrusted input).
 """
+
 from __future__ import annotations
 
 import math
@@ -25,11 +26,23 @@ from ..storage.atomic import write_replacing
 
 from ..model.fields import displacements, gridded_displacement, layer_index
 from ..physics.layout import AX_X, AX_Y, AX_Z, WS_THETA, WS_X, WS_Y
-from .runfiles import (RunFileError, has_store, read_csv, read_final, read_final_particles, read_initial,
-                       read_initial_z, read_run_scenario, read_series, read_summary, run_file, summary_value,
-                       summary_window)
+from .runfiles import (
+    RunFileError,
+    has_store,
+    read_csv,
+    read_final,
+    read_final_particles,
+    read_initial,
+    read_initial_z,
+    read_run_scenario,
+    read_series,
+    read_summary,
+    run_file,
+    summary_value,
+    summary_window,
+)
 
-LAYER_COLOURS = ("#e3c79a", "#8a5a2b")   # light sand / dark soil, alternating
+LAYER_COLOURS = ("#e3c79a", "#8a5a2b")  # light sand / dark soil, alternating
 DPI = 150
 
 
@@ -39,8 +52,10 @@ DPI = 150
 def _pyplot() -> Any:
     """matplotlib.pyplot on the Agg backend (no display), imported when first needed."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     return plt
 
 
@@ -48,31 +63,77 @@ def _discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=
     """All discs as one EllipseCollection at true radius (data units)."""
     from matplotlib.collections import EllipseCollection
     from matplotlib.colors import to_rgba_array
+
     facecolors = to_rgba_array(facecolors if isinstance(facecolors, str) else list(facecolors))
     d = 2.0 * np.asarray(r, dtype=np.float64)
-    coll = EllipseCollection(d, d, np.zeros_like(d), units="xy",
-                             offsets=np.column_stack([x, y]), offset_transform=ax.transData,
-                             facecolors=facecolors, edgecolors=edgecolor, linewidths=linewidth,
-                             zorder=zorder, alpha=alpha)
+    coll = EllipseCollection(
+        d,
+        d,
+        np.zeros_like(d),
+        units="xy",
+        offsets=np.column_stack([x, y]),
+        offset_transform=ax.transData,
+        facecolors=facecolors,
+        edgecolors=edgecolor,
+        linewidths=linewidth,
+        zorder=zorder,
+        alpha=alpha,
+    )
     ax.add_collection(coll)
     return coll
 
 
-def draw_wheel(ax, x, y, theta, radius, n_lugs, lug_tip_radius, lug_thickness=0.002,
-               fill=True, zorder=5, color="k", alpha=1.0, linestyle="-"):
+def draw_wheel(
+    ax,
+    x,
+    y,
+    theta,
+    radius,
+    n_lugs,
+    lug_tip_radius,
+    lug_thickness=0.002,
+    fill=True,
+    zorder=5,
+    color="k",
+    alpha=1.0,
+    linestyle="-",
+):
     """Rim circle plus ``n_lugs`` radial lugs (from R to the tip) at angles theta + 2 pi k / n."""
     from matplotlib.patches import Circle, Polygon
-    ax.add_patch(Circle((x, y), radius, facecolor="#b8c4d0" if fill else "none",
-                        edgecolor=color, linewidth=1.0, zorder=zorder, alpha=alpha, linestyle=linestyle))
+
+    ax.add_patch(
+        Circle(
+            (x, y),
+            radius,
+            facecolor="#b8c4d0" if fill else "none",
+            edgecolor=color,
+            linewidth=1.0,
+            zorder=zorder,
+            alpha=alpha,
+            linestyle=linestyle,
+        )
+    )
     half = 0.5 * lug_thickness
     for k in range(int(n_lugs)):
         phi = theta + 2.0 * math.pi * k / n_lugs
         ux, uy = math.cos(phi), math.sin(phi)
         nx, ny = -uy, ux
-        pts = [(x + ux * rr + nx * s, y + uy * rr + ny * s)
-               for rr, s in ((radius, -half), (lug_tip_radius, -half), (lug_tip_radius, half), (radius, half))]
-        ax.add_patch(Polygon(pts, closed=True, facecolor=color if fill else "none", edgecolor=color,
-                             linewidth=0.8, zorder=zorder + 0.1, alpha=alpha, linestyle=linestyle))
+        pts = [
+            (x + ux * rr + nx * s, y + uy * rr + ny * s)
+            for rr, s in ((radius, -half), (lug_tip_radius, -half), (lug_tip_radius, half), (radius, half))
+        ]
+        ax.add_patch(
+            Polygon(
+                pts,
+                closed=True,
+                facecolor=color if fill else "none",
+                edgecolor=color,
+                linewidth=0.8,
+                zorder=zorder + 0.1,
+                alpha=alpha,
+                linestyle=linestyle,
+            )
+        )
     ax.plot([x], [y], marker="+", color=color, markersize=6, zorder=zorder + 0.2, alpha=alpha)
 
 
@@ -101,6 +162,7 @@ def _save(fig, path: Path) -> Path:
     # resume would take for a finished one
     write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"), need=FIGURE_BYTES)
     import matplotlib.pyplot as plt
+
     plt.close(fig)
     return path
 
@@ -110,7 +172,7 @@ def _save(fig, path: Path) -> Path:
 
 def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
     plt = _pyplot()
-    t = series["t_travel"] if "t_travel" in series else series["t"]   # read_series: one is there
+    t = series["t_travel"] if "t_travel" in series else series["t"]  # read_series: one is there
     steady = summary_window(summary, "slip", "steady")
     if steady is None and sc is not None:
         steady = (sc.output.steady_start, min(sc.output.steady_end, sc.wheel.travel_time))
@@ -140,8 +202,9 @@ def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
 
     for k, ax in enumerate(axes):
         if steady is not None:
-            ax.axvspan(steady[0], steady[1], color="0.85", alpha=0.6, zorder=0,
-                       label="steady window" if k == 0 else None)
+            ax.axvspan(
+                steady[0], steady[1], color="0.85", alpha=0.6, zorder=0, label="steady window" if k == 0 else None
+            )
         if len(t) and np.nanmin(t) < 0:
             ax.axvline(0.0, color="0.4", lw=0.8, ls="-.")
         ax.grid(True, lw=0.3, alpha=0.6)
@@ -197,7 +260,7 @@ def _deformation_figure(init, final, sc, series, path: Path):
     layer = layer_index(iy, surface, n_layers)
     colours = np.array(LAYER_COLOURS)[layer % 2]
     # final discs take the layer colour of the same id
-    fcol = np.full(len(fid), "#4a7fbf", dtype=object)   # discs not in the initial bed (none expected)
+    fcol = np.full(len(fid), "#4a7fbf", dtype=object)  # discs not in the initial bed (none expected)
     if len(iid):
         order = np.argsort(iid, kind="stable")
         pos = np.clip(np.searchsorted(iid[order], fid), 0, len(iid) - 1)
@@ -206,8 +269,9 @@ def _deformation_figure(init, final, sc, series, path: Path):
 
     xa, xb, ya, yb = _zoom(sc, series, ws, ix, iy, ir, surface)
     width_in, panel_h = _panel_size(xb - xa, yb - ya)
-    fig, axes = plt.subplots(2, 1, figsize=(width_in + 0.8, 2 * panel_h + 1.0), sharex=True, sharey=True,
-                             constrained_layout=True)
+    fig, axes = plt.subplots(
+        2, 1, figsize=(width_in + 0.8, 2 * panel_h + 1.0), sharex=True, sharey=True, constrained_layout=True
+    )
     a0, a1 = axes
     m0 = (ix + ir > xa) & (ix - ir < xb)
     _discs(a0, ix[m0], iy[m0], ir[m0], colours[m0])
@@ -217,8 +281,19 @@ def _deformation_figure(init, final, sc, series, path: Path):
     if wheel_on:
         w = sc.wheel
         x_start, y_start = _placement(sc, ix, iy, ir)
-        draw_wheel(a0, x_start, y_start, 0.0, w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
-                   fill=False, color="0.35", linestyle="--")
+        draw_wheel(
+            a0,
+            x_start,
+            y_start,
+            0.0,
+            w.radius,
+            w.n_lugs,
+            w.lug_tip_radius,
+            w.lug_thickness,
+            fill=False,
+            color="0.35",
+            linestyle="--",
+        )
         draw_wheel(a1, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
     for ax in axes:
         ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=3)
@@ -227,9 +302,11 @@ def _deformation_figure(init, final, sc, series, path: Path):
         ax.set_aspect("equal")
         ax.set_ylabel("y [m]")
     a1.set_xlabel("x [m]")
-    a0.set_title(f"initial bed: {n_layers} horizontal layers of {1e3 * surface / n_layers:.1f} mm "
-                 f"(dotted: initial surface" + ("; dashed: wheel as placed)" if wheel_on else ")"),
-                 fontsize=10)
+    a0.set_title(
+        f"initial bed: {n_layers} horizontal layers of {1e3 * surface / n_layers:.1f} mm "
+        f"(dotted: initial surface" + ("; dashed: wheel as placed)" if wheel_on else ")"),
+        fontsize=10,
+    )
     title = "final state: each disc keeps its initial layer colour"
     if wheel_on:
         title += f"; wheel at x = {ws[WS_X]:.3f} m, θ = {math.degrees(ws[WS_THETA]):.0f}°"
@@ -246,8 +323,9 @@ def _displacement_figure(init, final, sc, series, path: Path):
     dmean = 2.0 * float(np.mean(ir)) if len(ir) else 0.004
     cell = max(2.5 * dmean, (xb - xa) / 45.0)
     sel = (ix >= xa) & (ix <= xb)
-    grid = gridded_displacement(ix[sel], iy[sel], dx[sel], dy[sel], cell,
-                                extent=(xa, xb, max(ya, 0.0), surface), min_count=2)
+    grid = gridded_displacement(
+        ix[sel], iy[sel], dx[sel], dy[sel], cell, extent=(xa, xb, max(ya, 0.0), surface), min_count=2
+    )
     mag = np.hypot(grid.u, grid.v)
     finite = np.isfinite(mag)
     # true scale unless arrows would overlap badly; the key gives the scale either way
@@ -259,18 +337,49 @@ def _displacement_figure(init, final, sc, series, path: Path):
     m0 = (ix + ir > xa) & (ix - ir < xb)
     _discs(ax, ix[m0], iy[m0], ir[m0], "#eeeeee", edgecolor="#cccccc", linewidth=0.1, zorder=0)
     if finite.any():
-        q = ax.quiver(grid.x[finite], grid.y[finite], grid.u[finite], grid.v[finite], 1e3 * mag[finite],
-                      angles="xy", scale_units="xy", scale=scale, cmap="viridis", width=0.0025, zorder=2)
+        q = ax.quiver(
+            grid.x[finite],
+            grid.y[finite],
+            grid.u[finite],
+            grid.v[finite],
+            1e3 * mag[finite],
+            angles="xy",
+            scale_units="xy",
+            scale=scale,
+            cmap="viridis",
+            width=0.0025,
+            zorder=2,
+        )
         cb = fig.colorbar(q, ax=ax, shrink=0.8)
         cb.set_label("displacement [mm]")
         ref = _nice(big if big > 0 else cell)
-        ax.quiverkey(q, 0.97, 0.95, ref, f"{1e3 * ref:g} mm", labelpos="W", coordinates="axes",
-                     color="k", fontproperties={"size": 8})
+        ax.quiverkey(
+            q,
+            0.97,
+            0.95,
+            ref,
+            f"{1e3 * ref:g} mm",
+            labelpos="W",
+            coordinates="axes",
+            color="k",
+            fontproperties={"size": 8},
+        )
     wheel_on = sc is not None and sc.wheel.enabled and ws is not None
     if wheel_on:
         w = sc.wheel
-        draw_wheel(ax, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness,
-                   fill=False, color="0.2", zorder=3)
+        draw_wheel(
+            ax,
+            ws[WS_X],
+            ws[WS_Y],
+            ws[WS_THETA],
+            w.radius,
+            w.n_lugs,
+            w.lug_tip_radius,
+            w.lug_thickness,
+            fill=False,
+            color="0.2",
+            zorder=3,
+        )
     ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=1)
     ax.set_xlim(xa, xb)
     ax.set_ylim(ya, yb)
@@ -278,9 +387,11 @@ def _displacement_figure(init, final, sc, series, path: Path):
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     how = "true scale" if scale == 1.0 else f"scaled ×{1 / scale:.2g}"
-    ax.set_title(f"soil displacement (final − initial), mean over {1e3 * cell:.0f} mm cells of initial "
-                 f"position; arrows {how}" + ("; wheel at its final position" if wheel_on else ""),
-                 fontsize=9)
+    ax.set_title(
+        f"soil displacement (final − initial), mean over {1e3 * cell:.0f} mm cells of initial "
+        f"position; arrows {how}" + ("; wheel at its final position" if wheel_on else ""),
+        fontsize=9,
+    )
     return _save(fig, path)
 
 
@@ -290,9 +401,9 @@ def _nice(v: float) -> float:
         return 1e-3
     e = math.floor(math.log10(v))
     for m in (5.0, 2.0, 1.0):
-        if m * 10.0 ** e <= v:
-            return m * 10.0 ** e
-    return 10.0 ** e
+        if m * 10.0**e <= v:
+            return m * 10.0**e
+    return 10.0**e
 
 
 # the figures make_figures writes for a wheel run (into OUT/figures/)
@@ -307,6 +418,7 @@ def figure_files(sc) -> tuple[str, ...]:
     beside: tuple[str, ...] = ()
     if sc.dim == 3:
         from .views3d import LATERAL_FIGURE, MIDWIDTH_FIGURE, RUT_FIGURE, WHEEL_MESH
+
         names, beside = names + (MIDWIDTH_FIGURE, RUT_FIGURE, LATERAL_FIGURE), (WHEEL_MESH,)
     return tuple(f"figures/{n}" for n in names) + beside
 
@@ -340,8 +452,13 @@ def make_figures(out_dir, final=None) -> list[Path]:
             final = read_final(out)
         init = read_initial(initial_file, len(final[0]), sc)
         fid, fx, fy, fr, ws = final
-        final = (np.asarray(fid, np.int64), np.asarray(fx, np.float64), np.asarray(fy, np.float64),
-                 np.asarray(fr, np.float64), None if ws is None else np.asarray(ws, np.float64))
+        final = (
+            np.asarray(fid, np.int64),
+            np.asarray(fx, np.float64),
+            np.asarray(fy, np.float64),
+            np.asarray(fr, np.float64),
+            None if ws is None else np.asarray(ws, np.float64),
+        )
         written.append(_deformation_figure(init, final, sc, series, fig_dir / DEFORMATION_FIGURE))
         written.append(_displacement_figure(init, final, sc, series, fig_dir / DISPLACEMENT_FIGURE))
         init_z = read_initial_z(initial_file, len(init[0]))
@@ -356,8 +473,18 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
     """The 3D views of a run (module doc). init: (id, x, y, r, surface) and z of the
     initial bed; final_p: the final Particles."""
     from ..engine.stepper import wheel_z0
-    from .views3d import (LATERAL_FIGURE, MIDWIDTH_FIGURE, RUT_FIGURE, WHEEL_MESH, _grid, _match,
-                          lateral_map, surface_map, write_wheel_vtk)
+    from .views3d import (
+        LATERAL_FIGURE,
+        MIDWIDTH_FIGURE,
+        RUT_FIGURE,
+        WHEEL_MESH,
+        _grid,
+        _match,
+        lateral_map,
+        surface_map,
+        write_wheel_vtk,
+    )
+
     out = Path(out)
     fig_dir = out / "figures"
     (iid, ix, iy, ir, surface), iz = init
@@ -371,9 +498,15 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
     mf = np.abs(fz - z0) < band
     mi = np.abs(iz - z0) < band
     mi[_match(iid, fid[mf])] = True
-    written.append(_deformation_figure((iid[mi], ix[mi], iy[mi], ir[mi], surface),
-                                             (fid[mf], fx[mf], fy[mf], fr[mf], ws), sc, series,
-                                             fig_dir / MIDWIDTH_FIGURE))
+    written.append(
+        _deformation_figure(
+            (iid[mi], ix[mi], iy[mi], ir[mi], surface),
+            (fid[mf], fx[mf], fy[mf], fr[mf], ws),
+            sc,
+            series,
+            fig_dir / MIDWIDTH_FIGURE,
+        )
+    )
     plt = _pyplot()
     cell, nx, nz = _grid(sc)
     extent = (0.0, nx * cell, 0.0, nz * cell)
@@ -382,21 +515,28 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
     k = _match(iid, fid)
     lat = lateral_map(sc, ix[k], iz[k], fz - iz[k])
     for name, data, label, cmap in (
-            (RUT_FIGURE, 1e3 * rut, "surface change (final − initial) [mm]", "RdBu"),
-            (LATERAL_FIGURE, 1e3 * lat, "mean lateral displacement dz [mm] (by initial cell)", "PuOr")):
+        (RUT_FIGURE, 1e3 * rut, "surface change (final − initial) [mm]", "RdBu"),
+        (LATERAL_FIGURE, 1e3 * lat, "mean lateral displacement dz [mm] (by initial cell)", "PuOr"),
+    ):
         lim = float(np.nanmax(np.abs(data))) if np.isfinite(data).any() else 1.0
-        fig, ax = plt.subplots(figsize=(10, 10 * sc.bin.width / sc.bin.length + 1.2),
-                               constrained_layout=True)
-        im = ax.imshow(data.T, origin="lower", extent=extent, cmap=cmap, vmin=-lim, vmax=lim,
-                       aspect="equal", interpolation="nearest")
+        fig, ax = plt.subplots(figsize=(10, 10 * sc.bin.width / sc.bin.length + 1.2), constrained_layout=True)
+        im = ax.imshow(
+            data.T,
+            origin="lower",
+            extent=extent,
+            cmap=cmap,
+            vmin=-lim,
+            vmax=lim,
+            aspect="equal",
+            interpolation="nearest",
+        )
         for zb in (z0 - 0.5 * w.width, z0 + 0.5 * w.width):
             ax.axhline(zb, color="k", lw=0.8, ls="--")
         ax.axvline(w.x0, color="0.3", lw=0.6, ls=":")
         ax.axvline(float(ws[WS_X]), color="k", lw=0.8)
         ax.set_xlabel("x [m] (travel)")
         ax.set_ylabel("z [m] (across)")
-        ax.set_title(f"{sc.name}: {label}; dashed: wheel width, dotted/solid: start/final "
-                     f"axle x", fontsize=9)
+        ax.set_title(f"{sc.name}: {label}; dashed: wheel width, dotted/solid: start/final axle x", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.8)
         written.append(_save(fig, fig_dir / name))
     written.append(write_wheel_vtk(out / WHEEL_MESH, sc, ws))
@@ -406,8 +546,13 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
 # ------------------------------------------------------------------ tables
 
 # Nakashima (2008) Table 3, without DDM, whole 45 s of travel
-PAPER_TABLE3 = {"slip": 0.736, "net_traction": 9.968, "gross_traction": 12.697,
-                "motion_resistance": 12.697 - 9.968, "wall_time_s": 6844.0}
+PAPER_TABLE3 = {
+    "slip": 0.736,
+    "net_traction": 9.968,
+    "gross_traction": 12.697,
+    "motion_resistance": 12.697 - 9.968,
+    "wall_time_s": 6844.0,
+}
 
 
 def print_table(summary: dict, reference: dict | None = None) -> str:
@@ -439,10 +584,13 @@ def print_table(summary: dict, reference: dict | None = None) -> str:
         return "nan" if not math.isfinite(v) else f"{v:.{digits}f}"
 
     rows = []
-    spec = (("wheel slip (-)", "slip", 1.0, 3), ("net traction (N)", "net_traction", 1.0, 3),
-            ("gross traction (N)", "gross_traction", 1.0, 3),
-            ("motion resistance (N)", "motion_resistance", 1.0, 3),
-            ("torque (N m)", "torque", 1.0, 4))
+    spec = (
+        ("wheel slip (-)", "slip", 1.0, 3),
+        ("net traction (N)", "net_traction", 1.0, 3),
+        ("gross traction (N)", "gross_traction", 1.0, 3),
+        ("motion resistance (N)", "motion_resistance", 1.0, 3),
+        ("torque (N m)", "torque", 1.0, 4),
+    )
     for label, key, scale, digits in spec:
         row = [label] + [fmt(summary_value(summary, key, c), scale, digits) for c in cols]
         if reference:
@@ -476,8 +624,9 @@ def print_table(summary: dict, reference: dict | None = None) -> str:
     notes = ["windows in s of travel (0 = end of the wheel's settling); motion resistance = gross − net"]
     sw = summary_window(summary, "sinkage", "static")
     if static is not None:
-        notes.append("static sinkage: mean at the end of settling (ω = 0)"
-                     + (f", t = {sw[0]:g}–{sw[1]:g} s" if sw else ""))
+        notes.append(
+            "static sinkage: mean at the end of settling (ω = 0)" + (f", t = {sw[0]:g}–{sw[1]:g} s" if sw else "")
+        )
     if reference:
         notes.append("paper 2008: Nakashima, CIGR Ejournal PM 08 006, Table 3 (whole 45 s, 2008 Mac Pro)")
     return "\n".join(out + [""] + notes)
@@ -498,8 +647,14 @@ def sweep_plot(csv_path, png_path) -> Path:
     order = np.argsort(cols["slip"], kind="stable")
     s = cols["slip"][order]
     has_sink = "sinkage" in cols
-    fig, axes = plt.subplots(2 if has_sink else 1, 1, sharex=True, squeeze=False,
-                             figsize=(7, 7 if has_sink else 4.5), constrained_layout=True)
+    fig, axes = plt.subplots(
+        2 if has_sink else 1,
+        1,
+        sharex=True,
+        squeeze=False,
+        figsize=(7, 7 if has_sink else 4.5),
+        constrained_layout=True,
+    )
     ax = axes[0, 0]
     ax.plot(s, cols["drawbar_pull"][order], "o-", color="C1", label="drawbar pull (net traction)")
     if "gross_traction" in cols:
@@ -518,4 +673,3 @@ def sweep_plot(csv_path, png_path) -> Path:
     png_path = Path(png_path)
     png_path.parent.mkdir(parents=True, exist_ok=True)
     return _save(fig, png_path)
-

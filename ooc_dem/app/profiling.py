@@ -8,6 +8,7 @@ the peak (VmHWM and ru_maxrss), a sampled RSS time series, the resident disc
 counts and the theoretical state size. Files written and read by the stores are
 dropped from the page cache (``posix_fadvise(DONTNEED)``) by the storage layer.
 """
+
 from __future__ import annotations
 
 import json
@@ -87,12 +88,12 @@ def _warm_up(mode: str, backend: str, tmp: Path, dim: int = 2) -> None:
     kernel is compiled or loaded."""
     from .run import RunOptions, Simulation
     from ..model.scenario import load_scenario
+
     if dim == 3:
         sc = load_scenario("bed3d", ["soil.n=300", "bed.tile=0", "decomposition.policy=equal"])
     else:
         sc = load_scenario("bed-300", ["decomposition.policy=equal"])
-    opts = RunOptions(mode=mode, backend=backend, domains=2, block=2, steps=4, progress=False,
-                      figures=False)
+    opts = RunOptions(mode=mode, backend=backend, domains=2, block=2, steps=4, progress=False, figures=False)
     sim = Simulation(sc, tmp / "warmup", opts)
     sim.start()
     sim.run()
@@ -105,20 +106,30 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     from .run import RunOptions, Simulation
     from ..model.scenario import load_scenario
     from ..model.state import BYTES_PER_DISC, bytes_per_disc
+
     t_import = rss_bytes()
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     sc = load_scenario(args.scenario, args.set)
     _warm_up(args.mode, args.backend, Path(tempfile.mkdtemp(dir=work)), sc.dim)
     steps = args.steps
-    opts = RunOptions(mode=args.mode, backend=args.backend, domains=args.domains, block=args.block,
-                      steps=steps, checkpoint_every=max(1, steps), progress=False, figures=False)
+    opts = RunOptions(
+        mode=args.mode,
+        backend=args.backend,
+        domains=args.domains,
+        block=args.block,
+        steps=steps,
+        checkpoint_every=max(1, steps),
+        progress=False,
+        figures=False,
+    )
     out = work / f"run-{args.mode}"
     shutil.rmtree(out, ignore_errors=True)
     sim = Simulation(sc, out, opts)
     # baseline: after imports and JIT warm-up, before the scenario's state exists; the peak
     # then covers setup (bed, store) and run alike, so no mode hides its state in the baseline
     import gc
+
     gc.collect()
     baseline = rss_bytes()
     # VmHWM, not ru_maxrss: a process spawned by vfork starts its ru_maxrss at its parent's peak
@@ -137,17 +148,24 @@ def child(args: argparse.Namespace) -> dict[str, Any]:
     n = summary["n_discs"]
     eng = summary["engine"]
     res = {
-        "mode": args.mode, "backend": args.backend if MODES[args.mode].out_of_core else None,
-        "scenario": sc.name, "n_discs": n, "steps": steps,
-        "domains": eng.get("domains"), "block": eng.get("block"),
-        "rss_after_imports_bytes": t_import, "baseline_rss_bytes": baseline,
-        "peak_rss_bytes": peak, "peak_above_baseline_bytes": peak - baseline,
+        "mode": args.mode,
+        "backend": args.backend if MODES[args.mode].out_of_core else None,
+        "scenario": sc.name,
+        "n_discs": n,
+        "steps": steps,
+        "domains": eng.get("domains"),
+        "block": eng.get("block"),
+        "rss_after_imports_bytes": t_import,
+        "baseline_rss_bytes": baseline,
+        "peak_rss_bytes": peak,
+        "peak_above_baseline_bytes": peak - baseline,
         "peak_rss_lifetime_bytes": max(warm_peak, hwm_bytes()),
         "peak_reset_ok": reset_ok,
         "theoretical_state_bytes": n * (BYTES_PER_DISC if sc.dim == 2 else bytes_per_disc(3)),
         "dim": sc.dim,
         "resident_discs_max": eng.get("resident_max"),
-        "setup_s": round(t_setup, 3), "run_s": round(elapsed, 3),
+        "setup_s": round(t_setup, 3),
+        "run_s": round(elapsed, 3),
         "particle_steps_per_s": n * steps / elapsed if elapsed > 0 else None,
         "state_hash": summary["state_hash"],
         "rss_series": [[round(t, 4), b] for t, b in sampler.samples],
@@ -165,14 +183,40 @@ class OomKilled(OocDemError, RuntimeError):
         self.result = result
 
 
-def run_child(scenario: str, mode: str, *, overrides: Sequence[str] = (), backend: str = "hdf5",
-              domains: int | None = None, block: int | None = None, steps: int = 20, work: Path,
-              interval: float = 0.05, keep: bool = False, threads: int | None = None,
-              memory_limit: int | None = None) -> dict[str, Any]:
+def run_child(
+    scenario: str,
+    mode: str,
+    *,
+    overrides: Sequence[str] = (),
+    backend: str = "hdf5",
+    domains: int | None = None,
+    block: int | None = None,
+    steps: int = 20,
+    work: Path,
+    interval: float = 0.05,
+    keep: bool = False,
+    threads: int | None = None,
+    memory_limit: int | None = None,
+) -> dict[str, Any]:
     """One mode in a fresh subprocess; with ``memory_limit`` (bytes) under a hard limit (a memory
     cgroup made for it, memlimit.py), its RSS and the cgroup's usage sampled over the whole run."""
-    cmd = [sys.executable, "-m", "ooc_dem.app.profiling", "--child", scenario, "--mode", mode,
-           "--backend", backend, "--steps", str(steps), "--work", str(work), "--interval", str(interval)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ooc_dem.app.profiling",
+        "--child",
+        scenario,
+        "--mode",
+        mode,
+        "--backend",
+        backend,
+        "--steps",
+        str(steps),
+        "--work",
+        str(work),
+        "--interval",
+        str(interval),
+    ]
     for s in overrides:
         cmd += ["--set", s]
     if domains:
@@ -192,6 +236,7 @@ def run_child(scenario: str, mode: str, *, overrides: Sequence[str] = (), backen
         measured: dict[str, Any] = json.loads(cp.stdout.strip().splitlines()[-1])
         return measured
     from ..engine.memlimit import run_limited
+
     lim = run_limited(cmd, memory_limit, env=env, interval=min(interval, 0.1))
     limited = {**lim.as_dict(), "limit_rss_series": lim.samples}
     if lim.oom_killed:
@@ -217,9 +262,11 @@ def report(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
             r["above_baseline_ratio_to_monolithic"] = (r["peak_above_baseline_bytes"] / base) if base > 0 else None
     (out / "memory.json").write_text(json.dumps(doc, indent=2))
     mib = 1 / 2**20
-    lines = ["| mode | discs | D | K | baseline RSS (MiB) | peak RSS (MiB) | peak − baseline (MiB) | "
-             "÷ monolithic (peak − baseline) | resident discs (max) | state (MiB) | particle-steps/s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| mode | discs | D | K | baseline RSS (MiB) | peak RSS (MiB) | peak − baseline (MiB) | "
+        "÷ monolithic (peak − baseline) | resident discs (max) | state (MiB) | particle-steps/s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results:
         ratio = r.get("above_baseline_ratio_to_monolithic")
         lines.append(
@@ -227,12 +274,15 @@ def report(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
             f"{r.get('domains') or 1} | {r.get('block') or 1} | {r['baseline_rss_bytes'] * mib:.1f} | "
             f"{r['peak_rss_bytes'] * mib:.1f} | {r['peak_above_baseline_bytes'] * mib:.1f} | "
             f"{'' if ratio is None else f'{ratio:.3f}'} | {r.get('resident_discs_max')} | "
-            f"{r['theoretical_state_bytes'] * mib:.1f} | {r['particle_steps_per_s']:.3g} |")
+            f"{r['theoretical_state_bytes'] * mib:.1f} | {r['particle_steps_per_s']:.3g} |"
+        )
     md = "\n".join(lines) + "\n"
     (out / "memory.md").write_text(md)
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for r in results:
         s = np.array(r["rss_series"], dtype=float)
@@ -249,37 +299,65 @@ def report(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
     return doc
 
 
-def profile(scenario: str, modes: Iterable[str], out: Path, overrides: Sequence[str] = (), backend: str = "hdf5",
-            domains: int | None = None, block: int | None = None, steps: int = 20,
-            memory_limit: int | None = None) -> dict[str, Any]:
+def profile(
+    scenario: str,
+    modes: Iterable[str],
+    out: Path,
+    overrides: Sequence[str] = (),
+    backend: str = "hdf5",
+    domains: int | None = None,
+    block: int | None = None,
+    steps: int = 20,
+    memory_limit: int | None = None,
+) -> dict[str, Any]:
     """Each mode in a fresh subprocess (under ``memory_limit`` bytes, a hard cgroup limit, if
     given). A mode killed by the limit raises OomKilled after memory.json records it."""
     results: list[dict[str, Any]] = []
     for m in modes:
         try:
-            results.append(run_child(scenario, m, overrides=overrides, backend=backend, domains=domains,
-                                     block=block, steps=steps, work=out / "work", memory_limit=memory_limit))
+            results.append(
+                run_child(
+                    scenario,
+                    m,
+                    overrides=overrides,
+                    backend=backend,
+                    domains=domains,
+                    block=block,
+                    steps=steps,
+                    work=out / "work",
+                    memory_limit=memory_limit,
+                )
+            )
         except OomKilled as e:
             import shutil
+
             shutil.rmtree(out / "work", ignore_errors=True)
             out.mkdir(parents=True, exist_ok=True)
             (out / "memory.json").write_text(json.dumps({"runs": results, "oom_killed": e.result}, indent=2))
             raise
         r = results[-1]
         lim = r.get("memory_limit")
-        print(f"{m}: peak {r['peak_rss_bytes'] / 2**20:.1f} MiB, above baseline "
-              f"{r['peak_above_baseline_bytes'] / 2**20:.1f} MiB, resident max {r['resident_discs_max']}"
-              + (f"; under a {lim['memory_limit_bytes'] / 2**20:.0f} MiB limit: whole-process peak RSS "
-                 f"{lim['peak_rss_bytes'] / 2**20:.1f} MiB, cgroup peak {lim['cgroup_peak_bytes'] / 2**20:.1f} MiB"
-                 if lim else ""),
-              file=sys.stderr, flush=True)
+        print(
+            f"{m}: peak {r['peak_rss_bytes'] / 2**20:.1f} MiB, above baseline "
+            f"{r['peak_above_baseline_bytes'] / 2**20:.1f} MiB, resident max {r['resident_discs_max']}"
+            + (
+                f"; under a {lim['memory_limit_bytes'] / 2**20:.0f} MiB limit: whole-process peak RSS "
+                f"{lim['peak_rss_bytes'] / 2**20:.1f} MiB, cgroup peak {lim['cgroup_peak_bytes'] / 2**20:.1f} MiB"
+                if lim
+                else ""
+            ),
+            file=sys.stderr,
+            flush=True,
+        )
     import shutil
+
     shutil.rmtree(out / "work", ignore_errors=True)
     return report(results, out)
 
 
 def _main() -> None:
     import argparse
+
     ap = argparse.ArgumentParser()
     ap.add_argument("--child", action="store_true")
     ap.add_argument("scenario")

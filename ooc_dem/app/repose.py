@@ -28,6 +28,7 @@ Method (``measure``), on the final positions and radii only:
 ``heap_outputs`` turns a run's final state into ``summary.json``'s ``repose`` entry and
 ``figures/repose.png`` (the profile, the fitted flank lines and the angle).
 """
+
 from __future__ import annotations
 
 import math
@@ -47,16 +48,17 @@ if TYPE_CHECKING:
     from ..model.scenario import Scenario
 
 REPOSE_FIGURE = "repose.png"
-MIN_FLANK_BINS = 3       # bins a sector's flank needs for a line fit
-MIN_SECTORS_FRACTION = 0.5   # fitted sectors needed (of all) for an angle
+MIN_FLANK_BINS = 3  # bins a sector's flank needs for a line fit
+MIN_SECTORS_FRACTION = 0.5  # fitted sectors needed (of all) for an angle
 
 
 class ReposeError(OocDemError, ValueError):
     """The heap has no measurable flank (message is one line)."""
 
 
-def _check(pos: ArrayLike, r: ArrayLike, sectors: int, bin_width: float, fit_low: float,
-           fit_high: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _check(
+    pos: ArrayLike, r: ArrayLike, sectors: int, bin_width: float, fit_low: float, fit_high: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     pos = np.asarray(pos, np.float64)
     r = np.asarray(r, np.float64)
     if pos.ndim != 2 or pos.shape[1] != 3 or r.shape != (len(pos),):
@@ -74,8 +76,9 @@ def _check(pos: ArrayLike, r: ArrayLike, sectors: int, bin_width: float, fit_low
     return pos, r
 
 
-def surface_profiles(pos: NDArray[np.float64], r: NDArray[np.float64], sectors: int, bin_width: float
-                     ) -> tuple[float, tuple[float, float], NDArray[np.float64], NDArray[np.float64]]:
+def surface_profiles(
+    pos: NDArray[np.float64], r: NDArray[np.float64], sectors: int, bin_width: float
+) -> tuple[float, tuple[float, float], NDArray[np.float64], NDArray[np.float64]]:
     """(H, centre (x, z), profile rho (sectors, K), profile height (sectors, K)) (module doc,
     step 2); NaN where a sector's bin is empty."""
     top = pos[:, AX_Y] + r
@@ -84,7 +87,7 @@ def surface_profiles(pos: NDArray[np.float64], r: NDArray[np.float64], sectors: 
     cx, cz = float(pos[core, AX_X].mean()), float(pos[core, AX_Z].mean())
     dx, dz = pos[:, AX_X] - cx, pos[:, AX_Z] - cz
     rho = np.hypot(dx, dz)
-    frac = (np.arctan2(dz, dx) + math.pi) / (2 * math.pi) * sectors   # [0, sectors]
+    frac = (np.arctan2(dz, dx) + math.pi) / (2 * math.pi) * sectors  # [0, sectors]
     sec = np.minimum(frac, sectors - 1e-9).astype(np.int64)
     k = (rho / bin_width).astype(np.int64)
     nbins = int(k.max()) + 1
@@ -121,14 +124,25 @@ def fit_flank(rho: NDArray[np.float64], h: NDArray[np.float64], lo: float, hi: f
     slope, intercept = np.polyfit(x, y, 1)
     resid = y - (slope * x + intercept)
     ss = float(np.sum((y - y.mean()) ** 2))
-    return {"angle_deg": math.degrees(math.atan(-slope)), "slope": float(slope),
-            "intercept_m": float(intercept), "bins": n, "rho_from_m": float(x.min()),
-            "rho_to_m": float(x.max()),
-            "r_squared": float(1.0 - np.sum(resid ** 2) / ss) if ss > 0 else 1.0}
+    return {
+        "angle_deg": math.degrees(math.atan(-slope)),
+        "slope": float(slope),
+        "intercept_m": float(intercept),
+        "bins": n,
+        "rho_from_m": float(x.min()),
+        "rho_to_m": float(x.max()),
+        "r_squared": float(1.0 - np.sum(resid**2) / ss) if ss > 0 else 1.0,
+    }
 
 
-def measure(pos: ArrayLike, r: ArrayLike, sectors: int = 8, bin_width: float = 0.005, fit_low: float = 0.2,
-            fit_high: float = 0.8) -> dict[str, Any]:
+def measure(
+    pos: ArrayLike,
+    r: ArrayLike,
+    sectors: int = 8,
+    bin_width: float = 0.005,
+    fit_low: float = 0.2,
+    fit_high: float = 0.8,
+) -> dict[str, Any]:
     """The heap's angle of repose (module doc) as a JSON-ready dict; ReposeError when fewer
     than half the sectors have a flank to fit."""
     pos, r = _check(pos, r, sectors, bin_width, fit_low, fit_high)
@@ -137,25 +151,32 @@ def measure(pos: ArrayLike, r: ArrayLike, sectors: int = 8, bin_width: float = 0
     fits = [fit_flank(prof_r[s], prof[s], lo, hi) for s in range(sectors)]
     angles = np.array([f["angle_deg"] for f in fits if f is not None])
     if len(angles) < max(1, math.ceil(MIN_SECTORS_FRACTION * sectors)):
-        raise ReposeError(f"only {len(angles)} of {sectors} sectors have a flank of >= {MIN_FLANK_BINS} "
-                          f"radial bins between {fit_low:g} and {fit_high:g} of the heap height "
-                          f"{height:.4g} m (heap too flat or bins too wide)")
+        raise ReposeError(
+            f"only {len(angles)} of {sectors} sectors have a flank of >= {MIN_FLANK_BINS} "
+            f"radial bins between {fit_low:g} and {fit_high:g} of the heap height "
+            f"{height:.4g} m (heap too flat or bins too wide)"
+        )
     std = float(angles.std(ddof=1)) if len(angles) > 1 else 0.0
     with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)   # a bin empty in every sector: NaN
+        warnings.simplefilter("ignore", RuntimeWarning)  # a bin empty in every sector: NaN
         mean_prof = np.nanmean(prof, axis=0)
     return {
         "angle_deg": float(angles.mean()),
         "angle_std_deg": std,
         "angle_sem_deg": std / math.sqrt(len(angles)),
-        "method": (f"surface profile in each of {sectors} azimuthal sectors around the heap's axis: per "
-                   f"radial bin of {bin_width:g} m the mean of the highest sphere tops of cells about "
-                   f"{bin_width:g} m x {bin_width:g} m; least-squares line over the flank between "
-                   f"{fit_low:g} and {fit_high:g} of the heap height; mean of the sectors' angles "
-                   f"(docs/reference/repose3d.md)"),
+        "method": (
+            f"surface profile in each of {sectors} azimuthal sectors around the heap's axis: per "
+            f"radial bin of {bin_width:g} m the mean of the highest sphere tops of cells about "
+            f"{bin_width:g} m x {bin_width:g} m; least-squares line over the flank between "
+            f"{fit_low:g} and {fit_high:g} of the heap height; mean of the sectors' angles "
+            f"(docs/reference/repose3d.md)"
+        ),
         "heap_height_m": height,
         "axis_m": [cx, cz],
-        "fit_low": fit_low, "fit_high": fit_high, "bin_width_m": bin_width, "sectors": sectors,
+        "fit_low": fit_low,
+        "fit_high": fit_high,
+        "bin_width_m": bin_width,
+        "sectors": sectors,
         "sectors_fitted": int(len(angles)),
         "sector_fits": fits,
         "profile_bin_centres_m": ((np.arange(prof.shape[1]) + 0.5) * bin_width).tolist(),
@@ -163,8 +184,14 @@ def measure(pos: ArrayLike, r: ArrayLike, sectors: int = 8, bin_width: float = 0
     }
 
 
-def heap_outputs(out: str | os.PathLike[str], sc: Scenario, pos: NDArray[np.float64], r: NDArray[np.float64],
-                 vel: NDArray[np.float64], figures: bool = True) -> dict[str, Any]:
+def heap_outputs(
+    out: str | os.PathLike[str],
+    sc: Scenario,
+    pos: NDArray[np.float64],
+    r: NDArray[np.float64],
+    vel: NDArray[np.float64],
+    figures: bool = True,
+) -> dict[str, Any]:
     """summary.json's ``repose`` entry of a finished repose run, and figures/repose.png.
 
     Never raises for the heap's shape: an unmeasurable heap gives ``angle_deg`` null and
@@ -172,11 +199,16 @@ def heap_outputs(out: str | os.PathLike[str], sc: Scenario, pos: NDArray[np.floa
     rp = sc.repose
     d_mean = float(2.0 * np.mean(r))
     speed = np.sqrt(np.einsum("ij,ij->i", vel, vel))
-    entry: dict[str, Any] = {"unit": "deg", "friction": sc.contact.soil_soil.friction,
-             "rolling_friction": sc.contact.soil_soil.rolling_friction,
-             "column_radius_m": rp.column_radius, "n_spheres": int(len(r)),
-             "mean_diameter_m": d_mean, "mean_speed_m_s": float(speed.mean()),
-             "max_speed_m_s": float(speed.max())}
+    entry: dict[str, Any] = {
+        "unit": "deg",
+        "friction": sc.contact.soil_soil.friction,
+        "rolling_friction": sc.contact.soil_soil.rolling_friction,
+        "column_radius_m": rp.column_radius,
+        "n_spheres": int(len(r)),
+        "mean_diameter_m": d_mean,
+        "mean_speed_m_s": float(speed.mean()),
+        "max_speed_m_s": float(speed.max()),
+    }
     m: dict[str, Any] | None
     try:
         m = measure(pos, r, rp.sectors, rp.bin_width, rp.fit_low, rp.fit_high)
@@ -193,13 +225,16 @@ def heap_outputs(out: str | os.PathLike[str], sc: Scenario, pos: NDArray[np.floa
     return entry
 
 
-def repose_figure(pos: NDArray[np.float64], r: NDArray[np.float64], m: dict[str, Any] | None,
-                  entry: dict[str, Any], path: Path) -> Path:
+def repose_figure(
+    pos: NDArray[np.float64], r: NDArray[np.float64], m: dict[str, Any] | None, entry: dict[str, Any], path: Path
+) -> Path:
     """Side view (every sphere at its distance from the heap's axis; the per-sector
     surface profiles; each sector's fitted flank line; the fit band) and top view."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     top = pos[:, AX_Y] + r
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [1.6, 1]})
     if m is not None:
@@ -222,25 +257,37 @@ def repose_figure(pos: NDArray[np.float64], r: NDArray[np.float64], m: dict[str,
                 ax.plot(xs * 1e3, (fit["intercept_m"] + fit["slope"] * xs) * 1e3, "-", color=col, lw=2.2)
         for f in (m["fit_low"], m["fit_high"]):
             ax.axhline(f * H * 1e3, color="k", ls=":", lw=0.8)
-        ax.text(0.98, 0.95, f"angle of repose {m['angle_deg']:.1f}° ± {m['angle_std_deg']:.1f}° (sd)\n"
-                f"{m['sectors_fitted']} of {m['sectors']} sectors, flank {m['fit_low']:g}–{m['fit_high']:g} H\n"
-                f"H = {H * 1e3:.1f} mm = {entry['heap_height_diameters']:.1f} d",
-                transform=ax.transAxes, ha="right", va="top", fontsize=10,
-                bbox={"fc": "w", "ec": "0.6"})
+        ax.text(
+            0.98,
+            0.95,
+            f"angle of repose {m['angle_deg']:.1f}° ± {m['angle_std_deg']:.1f}° (sd)\n"
+            f"{m['sectors_fitted']} of {m['sectors']} sectors, flank {m['fit_low']:g}–{m['fit_high']:g} H\n"
+            f"H = {H * 1e3:.1f} mm = {entry['heap_height_diameters']:.1f} d",
+            transform=ax.transAxes,
+            ha="right",
+            va="top",
+            fontsize=10,
+            bbox={"fc": "w", "ec": "0.6"},
+        )
     else:
-        ax.text(0.5, 0.9, f"no angle: {entry.get('note', '')}", transform=ax.transAxes, ha="center",
-                fontsize=8, wrap=True)
+        ax.text(
+            0.5, 0.9, f"no angle: {entry.get('note', '')}", transform=ax.transAxes, ha="center", fontsize=8, wrap=True
+        )
     ax.set_xlabel("distance from the heap's axis ρ [mm]")
     ax.set_ylabel("height y [mm]")
-    ax.set_title(f"heap profile: surface per sector (thin), flank fits (thick); "
-                 f"μ = {entry['friction']:g}, μr = {entry['rolling_friction']:g}", fontsize=10)
+    ax.set_title(
+        f"heap profile: surface per sector (thin), flank fits (thick); "
+        f"μ = {entry['friction']:g}, μr = {entry['rolling_friction']:g}",
+        fontsize=10,
+    )
     # true proportions (the angle as seen), out to where 99.5 % of the spheres lie
     ax.set_xlim(0, 1.05e3 * float(np.quantile(rho, 0.995)))
     ax.set_ylim(0, 1.3e3 * float(top.max()))
     ax.set_aspect("equal", adjustable="box")
     order = np.argsort(top)
-    sc_ = ax2.scatter((pos[order, AX_X] - cx) * 1e3, (pos[order, AX_Z] - cz) * 1e3, s=3, c=top[order] * 1e3,
-                      cmap="terrain", lw=0)
+    sc_ = ax2.scatter(
+        (pos[order, AX_X] - cx) * 1e3, (pos[order, AX_Z] - cz) * 1e3, s=3, c=top[order] * 1e3, cmap="terrain", lw=0
+    )
     if m is not None:
         reach = float(np.nanmax(rho)) * 1e3
         for s in range(m["sectors"]):

@@ -2,6 +2,7 @@
 meta, the stored run options, the last intact epoch and its globals). ``run.py``'s
 ``resume_simulation`` makes the Simulation that continues from it.
 """
+
 from __future__ import annotations
 
 import math
@@ -17,9 +18,15 @@ from .plan import RunError, RunOptions, total_steps
 
 
 # the run options a store's meta must hold, with the types a resume accepts
-_RUN_OPTION_TYPES = {"mode": (str,), "backend": (str,), "domains": (int, type(None)),
-                     "block": (int, type(None)), "steps": (int,), "checkpoint_every": (int,),
-                     "io_overlap": (bool, type(None))}   # None: a store written before it existed
+_RUN_OPTION_TYPES = {
+    "mode": (str,),
+    "backend": (str,),
+    "domains": (int, type(None)),
+    "block": (int, type(None)),
+    "steps": (int,),
+    "checkpoint_every": (int,),
+    "io_overlap": (bool, type(None)),
+}  # None: a store written before it existed
 
 
 def _stored_run_options(meta: dict, path) -> dict:
@@ -31,11 +38,11 @@ def _stored_run_options(meta: dict, path) -> dict:
     run: dict[str, Any] = {key: stored.get(key) for key in _RUN_OPTION_TYPES}
     for key, types in _RUN_OPTION_TYPES.items():
         if type(run[key]) not in types:
-            raise RunError(f"{path}: stored run option {key!r} = {show(run[key])} has the wrong type "
-                           f"(store damaged or edited)")
+            raise RunError(
+                f"{path}: stored run option {key!r} = {show(run[key])} has the wrong type (store damaged or edited)"
+            )
     if run["mode"] not in MODES or run["backend"] not in BACKENDS:
-        raise RunError(f"{path}: stored run mode/backend {show(run['mode'])}/{show(run['backend'])} "
-                       f"unknown")
+        raise RunError(f"{path}: stored run mode/backend {show(run['mode'])}/{show(run['backend'])} unknown")
     for key in ("domains", "block"):
         if run[key] is not None and not 1 <= run[key] <= 100_000:
             raise RunError(f"{path}: stored run option {key!r} = {show(run[key])} out of range")
@@ -51,33 +58,42 @@ def check_engine_attrs(engine, n_domains: int, where: str) -> None:
     block, bounds = engine.get("block"), engine.get("bounds")
     if type(block) is not int or not 1 <= block <= 100_000:
         raise RunError(f"{where}: stored block K = {show(block)}: must be an integer in [1, 100000]")
-    if (not isinstance(bounds, list) or len(bounds) != n_domains - 1
-            or not all(type(b) in (int, float) and math.isfinite(b) for b in bounds)
-            or any(b1 < b0 for b0, b1 in zip(bounds, bounds[1:]))):
+    if (
+        not isinstance(bounds, list)
+        or len(bounds) != n_domains - 1
+        or not all(type(b) in (int, float) and math.isfinite(b) for b in bounds)
+        or any(b1 < b0 for b0, b1 in zip(bounds, bounds[1:]))
+    ):
         raise RunError(f"{where}: stored slab bounds must be {n_domains - 1} finite ascending numbers")
 
 
-def stored_run(store, path: Path, steps: int | None, until: float | None, progress: bool, figures: bool,
-               mode: str | None = None) -> tuple[Scenario, RunOptions]:
+def stored_run(
+    store, path: Path, steps: int | None, until: float | None, progress: bool, figures: bool, mode: str | None = None
+) -> tuple[Scenario, RunOptions]:
     """The scenario and run options a store's meta holds (checked), with the new total
     steps (``steps`` or ``until``) and mode (``mode``: one of the stored mode's family)."""
     from ..model.checkpoint import StateError, stored_scenario
+
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":
         raise RunError(f"{path}: not an ooc-dem run store")
     v = meta.get("format_version")
     if type(v) is not int or v not in SUPPORTED_VERSIONS:
-        raise RunError(f"{path}: store format version {show(v)} is not supported "
-                       f"(this engine reads versions {', '.join(map(str, SUPPORTED_VERSIONS))})")
+        raise RunError(
+            f"{path}: store format version {show(v)} is not supported "
+            f"(this engine reads versions {', '.join(map(str, SUPPORTED_VERSIONS))})"
+        )
     try:
         sc = stored_scenario(meta, str(path))
     except StateError as e:
         raise RunError(str(e)) from None
     run = _stored_run_options(meta, path)
     if store.current() is None:
-        raise RunError(f"{path}: no committed epoch: the run stopped before its first checkpoint; "
-                       f"start it again with `ooc-dem run {sc.name} --out {path}` (it replaces "
-                       f"this empty store)")
+        raise RunError(
+            f"{path}: no committed epoch: the run stopped before its first checkpoint; "
+            f"start it again with `ooc-dem run {sc.name} --out {path}` (it replaces "
+            f"this empty store)"
+        )
     total = run["steps"]
     if until is not None:
         total = steps_for_duration(until, sc.physics.dt, f"--until {show(until)}")
@@ -86,12 +102,22 @@ def stored_run(store, path: Path, steps: int | None, until: float | None, progre
     if mode is not None and mode != run["mode"]:
         if mode not in MODES or not MODES[run["mode"]].switches_to(MODES[mode]):
             families = " and ".join(" and ".join(f) for f in switching_families())
-            raise RunError(f"--mode {show(mode)}: a {run['mode']} run resumes in its own mode "
-                           f"(only {families} runs switch between each other)")
+            raise RunError(
+                f"--mode {show(mode)}: a {run['mode']} run resumes in its own mode "
+                f"(only {families} runs switch between each other)"
+            )
         run["mode"] = mode
-    opts = RunOptions(mode=run["mode"], backend=run["backend"], domains=run["domains"], block=run["block"],
-                      steps=total, checkpoint_every=run["checkpoint_every"], progress=progress,
-                      figures=figures, io_overlap=bool(run["io_overlap"]))
+    opts = RunOptions(
+        mode=run["mode"],
+        backend=run["backend"],
+        domains=run["domains"],
+        block=run["block"],
+        steps=total,
+        checkpoint_every=run["checkpoint_every"],
+        progress=progress,
+        figures=figures,
+        io_overlap=bool(run["io_overlap"]),
+    )
     return sc, opts
 
 
@@ -99,7 +125,8 @@ def stored_run(store, path: Path, steps: int | None, until: float | None, progre
 class ResumeEpoch:
     """The store's last intact epoch, validated: its reader (open: the caller closes it),
     the history capacity its states were written with, and its globals."""
-    reader: Any   # a store's epoch reader, or a format-1 one seen through V1Epoch (open_epoch)
+
+    reader: Any  # a store's epoch reader, or a format-1 one seen through V1Epoch (open_epoch)
     hist_cap: int
     arrays: dict
     attrs: dict
@@ -110,6 +137,7 @@ def open_resume_epoch(store, path: Path, sc: Scenario) -> ResumeEpoch:
     by scenario ``sc``."""
     from ooc_dem.storage import StoreError
     from ..model.checkpoint import StateError, stored_layout, validate_epoch
+
     reader = None
     try:
         try:

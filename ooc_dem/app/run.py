@@ -6,6 +6,7 @@ the registry (``engine.modes``) and is driven through ``engine.interface.Engine`
 the run loop hands it a number of steps, gets back what they computed, folds it into
 the metrics and commits the epochs. ``resume.py`` reads what a resume continues from.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -37,8 +38,16 @@ if TYPE_CHECKING:
     from .metrics import WheelMetrics
     from .trajectory import TrajectoryWriter
 
-__all__ = ["FrameParts", "RunError", "RunOptions", "Simulation", "StreamedBed", "place_wheel", "plan_run",
-           "resume_simulation"]
+__all__ = [
+    "FrameParts",
+    "RunError",
+    "RunOptions",
+    "Simulation",
+    "StreamedBed",
+    "place_wheel",
+    "plan_run",
+    "resume_simulation",
+]
 
 
 def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
@@ -50,6 +59,7 @@ def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
     under = np.abs(x - w.x0) < w.lug_tip_radius + sc.soil.r_max
     if sc.dim == 3:
         from ..engine.stepper import wheel_z0
+
         under &= np.abs(bed.pos[:, AX_Z] - wheel_z0(sc)) < 0.5 * w.width + sc.soil.r_max
     top = float((y[under] + bed.r[under]).max()) if under.any() else float((y + bed.r).max())
     ws[WS_X] = w.x0
@@ -65,15 +75,24 @@ class Progress:
         self.dt = dt
         if enabled and total_steps > 0:
             from tqdm import tqdm
-            self.bar = tqdm(total=total_steps, desc=label, unit="step", unit_scale=True,
-                            mininterval=1.0, file=sys.stderr, dynamic_ncols=True,
-                            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} steps "
-                                       "[{elapsed}<{remaining}, {rate_fmt}] {postfix}")
+
+            self.bar = tqdm(
+                total=total_steps,
+                desc=label,
+                unit="step",
+                unit_scale=True,
+                mininterval=1.0,
+                file=sys.stderr,
+                dynamic_ncols=True,
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} steps "
+                "[{elapsed}<{remaining}, {rate_fmt}] {postfix}",
+            )
 
     def update(self, step: int, n: int, **post):
         if self.bar is not None:
-            self.bar.set_postfix_str(f"t={step * self.dt:.4f} s " + " ".join(f"{k}={v}" for k, v in post.items()),
-                                     refresh=False)
+            self.bar.set_postfix_str(
+                f"t={step * self.dt:.4f} s " + " ".join(f"{k}={v}" for k, v in post.items()), refresh=False
+            )
             self.bar.update(n)
 
     def close(self):
@@ -93,6 +112,7 @@ def _stopped_before_first_commit(out: Path) -> bool:
     refuses if a live writer holds it); anything else in the directory makes it a user's.
     """
     from ooc_dem.storage import StoreError, open_store, store_owns
+
     try:
         store = open_store(out, repair=False)
     except StoreError:
@@ -117,6 +137,7 @@ class StreamedBed:
 
     def __iter__(self):
         from .bed import tiled_bed_parts
+
         # the first pass measures: its list is filled as the parts go by
         measured: list[float] | None = [] if self.surfaces is None else None
         if measured is not None:
@@ -125,8 +146,9 @@ class StreamedBed:
         for p in tiled_bed_parts(self.sc, tiles_per_part=8):
             if measured is not None:
                 x0 = p.pos[:, AX_X].min()
-                measured.append(surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max,
-                                                    x_origin=x0, across=band))
+                measured.append(
+                    surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max, x_origin=x0, across=band)
+                )
             yield p
 
 
@@ -166,6 +188,7 @@ class Simulation:
         self.wall_time = 0.0
         # trajectory frames (trajectory.py): every frame_every steps, 0 = none
         from .trajectory import frame_every
+
         self.frame_every = frame_every(sc)
         self.frames: TrajectoryWriter | None = None
 
@@ -182,13 +205,25 @@ class Simulation:
     # ------------------------------------------------------------------ setup
     def _meta(self) -> dict:
         o = self.opts
-        return {"engine": "ooc-dem", "engine_version": __version__, "format_version": FORMAT_VERSION,
-                "dim": self.model.dim, "hist_cap": self.model.hist_cap,
-                "scenario_toml": self.sc.to_toml(), "scenario_hash": self.sc.hash(),
-                "scenario_name": self.sc.name,
-                "run": {"mode": o.mode, "backend": o.backend, "domains": o.domains, "block": o.block,
-                        "steps": self.steps, "checkpoint_every": self.checkpoint_every,
-                        "io_overlap": o.io_overlap}}
+        return {
+            "engine": "ooc-dem",
+            "engine_version": __version__,
+            "format_version": FORMAT_VERSION,
+            "dim": self.model.dim,
+            "hist_cap": self.model.hist_cap,
+            "scenario_toml": self.sc.to_toml(),
+            "scenario_hash": self.sc.hash(),
+            "scenario_name": self.sc.name,
+            "run": {
+                "mode": o.mode,
+                "backend": o.backend,
+                "domains": o.domains,
+                "block": o.block,
+                "steps": self.steps,
+                "checkpoint_every": self.checkpoint_every,
+                "io_overlap": o.io_overlap,
+            },
+        }
 
     def _store_backend(self) -> str:
         # monolithic and DDM checkpoint to a file store too; the backend is the user's choice
@@ -198,34 +233,43 @@ class Simulation:
         """Create the store and the initial epoch. ``streamed``: an out-of-core run of a
         tiled bare bed writes its bed into the store tile by tile (never the whole bed in RAM)."""
         from ooc_dem.storage import StoreError, create_store
+
         if self.out.exists() and any(self.out.iterdir()) and not _stopped_before_first_commit(self.out):
-            raise RunError(f"--out {self.out}: directory exists and is not empty (use a new directory, "
-                           f"or `ooc-dem resume {self.out}` to continue a run)")
+            raise RunError(
+                f"--out {self.out}: directory exists and is not empty (use a new directory, "
+                f"or `ooc-dem resume {self.out}` to continue a run)"
+            )
         sc = self.sc
         if streamed and bed is None and streamable(sc, self.opts):
             return self._start_streamed()
-        if self.plan.streamed_bed:   # planned for a streamed bed, but the whole bed will be in RAM
+        if self.plan.streamed_bed:  # planned for a streamed bed, but the whole bed will be in RAM
             self.plan = plan_run(sc, self.opts, streamed=False)
         if bed is None:
             bed = settled_bed(self.sc, progress=self._bed_progress())
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
-        self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max,
-                                      across=wheel_footprint(self.sc))
+        self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max, across=wheel_footprint(self.sc))
         try:
-            self.store = create_store(self.out, self._store_backend(), self._meta(),
-                                      compression=self.opts.compression)
+            self.store = create_store(self.out, self._store_backend(), self._meta(), compression=self.opts.compression)
         except StoreError as e:
             raise RunError(str(e)) from None
         # a memory store lives in this process only; the run's other outputs still go to --out
         self.out.mkdir(parents=True, exist_ok=True)
         # initial.npz keeps the 2D users' column names (x, y: layout.AXIS_NAMES)
-        extra: dict[str, Any] = {"z": bed.pos[:, AX_Z]} if bed.dim == 3 else {}   # 3D: the slice and rut views
-        np.savez(self.out / "initial.npz", id=bed.id, x=bed.pos[:, AX_X], y=bed.pos[:, AX_Y],
-                 r=bed.r, surface=np.float64(self.surface), **extra)
+        extra: dict[str, Any] = {"z": bed.pos[:, AX_Z]} if bed.dim == 3 else {}  # 3D: the slice and rut views
+        np.savez(
+            self.out / "initial.npz",
+            id=bed.id,
+            x=bed.pos[:, AX_X],
+            y=bed.pos[:, AX_Y],
+            r=bed.r,
+            surface=np.float64(self.surface),
+            **extra,
+        )
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:
             from .metrics import WheelMetrics
+
             self.metrics = WheelMetrics(self.sc, self.surface, self.steps)
         self.step = 0
         self.commit()
@@ -233,17 +277,24 @@ class Simulation:
 
     def _start_streamed(self) -> None:
         from ooc_dem.storage import StoreError, create_store
+
         bed = StreamedBed(self.sc)
         try:
-            self.store = create_store(self.out, self._store_backend(), self._meta(),
-                                      compression=self.opts.compression)
+            self.store = create_store(self.out, self._store_backend(), self._meta(), compression=self.opts.compression)
         except StoreError as e:
             raise RunError(str(e)) from None
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
         self.engine = self.mode.engine.create_streamed(
-            self.sc, self.model, bed, np.zeros(WS_SIZE), domains=self.plan.domains, block=self.plan.block,
-            store=self.store, **self._engine_options())
+            self.sc,
+            self.model,
+            bed,
+            np.zeros(WS_SIZE),
+            domains=self.plan.domains,
+            block=self.plan.block,
+            store=self.store,
+            **self._engine_options(),
+        )
         # create_streamed passed over the bed once: its surfaces are measured
         assert bed.surfaces is not None, "the streamed bed was not passed over"
         self.surface = float(np.mean(bed.surfaces))
@@ -256,14 +307,17 @@ class Simulation:
         """Open the trajectory (new, or continued after the resumed step) and write the
         frame of the current step if one belongs there."""
         from .trajectory import TrajectoryWriter
+
         if not self.frame_every:
             return
         if resumed:
-            self.frames = TrajectoryWriter.reopen(self.out, self.sc, self.model.dim, self.n_discs(), self.step,
-                                                 durable=self.opts.durable)
+            self.frames = TrajectoryWriter.reopen(
+                self.out, self.sc, self.model.dim, self.n_discs(), self.step, durable=self.opts.durable
+            )
         else:
-            self.frames = TrajectoryWriter.create(self.out, self.sc, self.model.dim, self.n_discs(),
-                                                 durable=self.opts.durable)
+            self.frames = TrajectoryWriter.create(
+                self.out, self.sc, self.model.dim, self.n_discs(), durable=self.opts.durable
+            )
         if self.frames is not None and self.frames.due(self.step):
             self._write_frame(parts_written=False)
 
@@ -278,6 +332,7 @@ class Simulation:
         """Commit the frame of the current step; ``parts_written``: the engine wrote its parts
         during the advance (out-of-core, into ``_frame_parts``)."""
         from .trajectory import ROW_FIELDS
+
         # only called for a due frame, so the trajectory is open
         assert self.frames is not None, "no trajectory open"
         t = self.step * self.sc.physics.dt
@@ -294,14 +349,29 @@ class Simulation:
         return {"io_overlap": self.opts.io_overlap} if self.mode.out_of_core else {}
 
     def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
-        return self.mode.engine.create(self.sc, self.model, particles, ws, domains=self.plan.domains,
-                                       block=self.plan.block, store=self.store, **self._engine_options())
+        return self.mode.engine.create(
+            self.sc,
+            self.model,
+            particles,
+            ws,
+            domains=self.plan.domains,
+            block=self.plan.block,
+            store=self.store,
+            **self._engine_options(),
+        )
 
     def _reopen_engine(self, reader, arrays: dict, attrs: dict) -> Engine:
         """The engine continuing from the committed epoch ``reader`` reads (checked)."""
-        return self.mode.engine.reopen(self.sc, self.model, reader, arrays["wheel_state"], attrs.get("engine"),
-                                       store=self.store, redecompositions=list(attrs.get("redecompositions", [])),
-                                       **self._engine_options())
+        return self.mode.engine.reopen(
+            self.sc,
+            self.model,
+            reader,
+            arrays["wheel_state"],
+            attrs.get("engine"),
+            store=self.store,
+            redecompositions=list(attrs.get("redecompositions", [])),
+            **self._engine_options(),
+        )
 
     def _continue_from(self, store, epoch, where) -> None:
         """Take up the committed epoch a resume reads (``resume.open_resume_epoch``): its
@@ -315,12 +385,14 @@ class Simulation:
         at = f"{where}: epoch {epoch.reader.step}"
         if self.sc.wheel.enabled:
             from .metrics import WheelMetrics
+
             metrics = self.metrics = WheelMetrics(self.sc, self.surface, max(self.steps, self.step))
             try:
                 metrics.load_state(epoch.arrays)
-            except (KeyError, ValueError) as e:   # missing or mis-shaped accumulators
-                raise RunError(f"{at}: stored wheel metrics unusable "
-                               f"({type(e).__name__}: {' '.join(str(e).split())})") from None
+            except (KeyError, ValueError) as e:  # missing or mis-shaped accumulators
+                raise RunError(
+                    f"{at}: stored wheel metrics unusable ({type(e).__name__}: {' '.join(str(e).split())})"
+                ) from None
         if self.mode.decomposes:
             check_engine_attrs(attrs.get("engine"), len(epoch.reader.domains()), at)
         self.engine = self._reopen_engine(epoch.reader, epoch.arrays, attrs)
@@ -333,17 +405,31 @@ class Simulation:
         def cb(t, speed):
             if time.time() - state["last"] > 1.0:
                 state["last"] = time.time()
-                print(f"\rsettling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s "
-                      f"(target {self.sc.bed.settle_speed:.1e})", end="", file=sys.stderr, flush=True)
+                print(
+                    f"\rsettling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s "
+                    f"(target {self.sc.bed.settle_speed:.1e})",
+                    end="",
+                    file=sys.stderr,
+                    flush=True,
+                )
+
         return cb
 
     # ------------------------------------------------------------ checkpoint
     def commit(self) -> None:
         from ooc_dem.storage import StoreError
-        attrs = {"step": self.step, "time": self.step * self.sc.physics.dt, "surface": self.surface,
-                 "scenario_hash": self.sc.hash(), "mode": self.opts.mode,
-                 "wall_time": self.wall_time, "redecompositions": self.redecompositions,
-                 "format_version": FORMAT_VERSION, "engine_version": __version__}
+
+        attrs = {
+            "step": self.step,
+            "time": self.step * self.sc.physics.dt,
+            "surface": self.surface,
+            "scenario_hash": self.sc.hash(),
+            "mode": self.opts.mode,
+            "wall_time": self.wall_time,
+            "redecompositions": self.redecompositions,
+            "format_version": FORMAT_VERSION,
+            "engine_version": __version__,
+        }
         engine = self._engine()
         attrs["engine"] = engine.info()
         arrays = {"wheel_state": np.asarray(engine.wheel_state, np.float64).copy()}
@@ -373,8 +459,9 @@ class Simulation:
                 next_ckpt = (self.step // self.checkpoint_every + 1) * self.checkpoint_every
                 # frame steps end an advance too (out-of-core: a sweep), like epochs: where an
                 # advance is cut never changes a bit (docs/design.md section 3)
-                next_frame = ((self.step // self.frame_every + 1) * self.frame_every
-                              if self.frames is not None else self.steps)
+                next_frame = (
+                    (self.step // self.frame_every + 1) * self.frame_every if self.frames is not None else self.steps
+                )
                 n = min(self.steps, next_ckpt, next_frame, self.step + chunk_pref) - self.step
                 step0 = self.step
                 frame = self._frame_parts(step0 + n)
@@ -415,28 +502,44 @@ class Simulation:
         """Write series.csv, summary.json and the figures from the committed final state
         (``outputs.py``: each under a temporary name, renamed when complete)."""
         results = dict(self.metrics.summary()) if self.metrics is not None else {}
-        if self.sc.repose.enabled:   # the angle-of-repose test (docs/reference/repose3d.md)
+        if self.sc.repose.enabled:  # the angle-of-repose test (docs/reference/repose3d.md)
             from .repose import heap_outputs
+
             # in id order: every mode (and the state read back) gives the same bits; the
             # figure is written before summary.json, so a summary means both are there
             p = self._engine().particles().sorted_by_id()
             results["repose"] = heap_outputs(self.out, self.sc, p.pos, p.r, p.vel, self.opts.figures)
-        summary = run_summary(scenario=self.sc.name, scenario_hash=self.sc.hash(), mode=self.opts.mode,
-                              backend=self.opts.backend, steps=self.step, dt=self.sc.physics.dt,
-                              wall_time=self.wall_time, n_discs=self.n_discs(), engine=self._engine().info(),
-                              results=results, state_hash=self.state_hash())
-        write_outputs(self.out, summary, self.metrics.series() if self.metrics is not None else None,
-                      figures=self.opts.figures and self.metrics is not None)
+        summary = run_summary(
+            scenario=self.sc.name,
+            scenario_hash=self.sc.hash(),
+            mode=self.opts.mode,
+            backend=self.opts.backend,
+            steps=self.step,
+            dt=self.sc.physics.dt,
+            wall_time=self.wall_time,
+            n_discs=self.n_discs(),
+            engine=self._engine().info(),
+            results=results,
+            state_hash=self.state_hash(),
+        )
+        write_outputs(
+            self.out,
+            summary,
+            self.metrics.series() if self.metrics is not None else None,
+            figures=self.opts.figures and self.metrics is not None,
+        )
         return summary
 
     def complete_outputs(self) -> list[str]:
         """After the last commit: write whichever outputs a kill left unwritten; return their names."""
         from .plots import figure_files
         from .repose import REPOSE_FIGURE
+
         repose = (REPOSE_FIGURE,) if self.opts.figures and self.sc.repose.enabled else ()
         figures = figure_files(self.sc) if self.opts.figures and self.metrics is not None else ()
-        return complete_outputs(self.out, self.step, self.finish, series=self.metrics is not None,
-                                figures=figures, summary_figures=repose)
+        return complete_outputs(
+            self.out, self.step, self.finish, series=self.metrics is not None, figures=figures, summary_figures=repose
+        )
 
     def n_discs(self) -> int:
         return self._engine().n_discs()
@@ -444,7 +547,8 @@ class Simulation:
     def state_hash(self) -> str:
         from ..model.checkpoint import hash_epoch, state_bounds
         from ooc_dem.storage import open_store
-        store = open_store(self.out, repair=False)   # read-only: this run holds the write lock
+
+        store = open_store(self.out, repair=False)  # read-only: this run holds the write lock
         reader = open_epoch(store)
         # streamed and validated as read: never the whole state in RAM
         h = hash_epoch(reader, str(self.out), self.model.dim, self.model.hist_cap, state_bounds(self.sc))
@@ -453,9 +557,14 @@ class Simulation:
         return h
 
 
-def resume_simulation(path, steps: int | None = None, until: float | None = None,
-                      progress: bool = True, figures: bool = True,
-                      mode: str | None = None) -> "Simulation | None":
+def resume_simulation(
+    path,
+    steps: int | None = None,
+    until: float | None = None,
+    progress: bool = True,
+    figures: bool = True,
+    mode: str | None = None,
+) -> "Simulation | None":
     """Reopen a run's store at its last intact epoch and return a Simulation ready to run.
 
     Returns None (after a message) when the run is already finished; if its outputs
@@ -463,6 +572,7 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     they are written first, from the committed state.
     """
     from ooc_dem.storage import StoreError, open_store
+
     path = Path(path)
     try:
         store = open_store(path)
@@ -471,29 +581,31 @@ def resume_simulation(path, steps: int | None = None, until: float | None = None
     try:
         sim = _reopen(store, path, steps, until, progress, figures, mode)
     except BaseException:
-        store.close()           # releases the write lock: a refused resume leaves the store free
+        store.close()  # releases the write lock: a refused resume leaves the store free
         raise
     if sim is None:
         store.close()
     return sim
 
 
-def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
-            mode: str | None = None) -> "Simulation | None":
+def _reopen(
+    store, path: Path, steps, until, progress: bool, figures: bool, mode: str | None = None
+) -> "Simulation | None":
     """resume_simulation's work on an open store (None: the run was already finished)."""
     sc, opts = stored_run(store, path, steps, until, progress, figures, mode)
-    sim = Simulation(sc, path, opts)   # the stored options planned and checked as a run's
+    sim = Simulation(sc, path, opts)  # the stored options planned and checked as a run's
     epoch = open_resume_epoch(store, path, sc)
     try:
         sim._continue_from(store, epoch, path)
     finally:
         epoch.reader.close()
-    for w in store.warnings:   # only once the epoch is accepted: a refusal stays one line
+    for w in store.warnings:  # only once the epoch is accepted: a refusal stays one line
         print(f"ooc-dem: warning: {w}", file=sys.stderr)
     # the trajectory continues from the resumed step: later frames dropped, this one written
     # if a kill came between the epoch's commit and the frame's
     if sim.frame_every:
         from .trajectory import TrajectoryError
+
         try:
             sim._start_trajectory(resumed=True)
         except TrajectoryError as e:
@@ -503,7 +615,9 @@ def _reopen(store, path: Path, steps, until, progress: bool, figures: bool,
             sim.frames.close()
             sim.frames = None
         done = sim.complete_outputs()
-        print(f"{path}: run already finished at step {sim.step}"
-              + (f" (wrote its missing outputs: {', '.join(done)})" if done else " (nothing to do)"))
+        print(
+            f"{path}: run already finished at step {sim.step}"
+            + (f" (wrote its missing outputs: {', '.join(done)})" if done else " (nothing to do)")
+        )
         return None
     return sim

@@ -7,6 +7,7 @@ come from anyone), so each is checked against what ooc-dem writes and refused in
   ``read_initial_z`` (``initial.npz``), ``read_run_scenario`` (``scenario.toml``);
 * ``read_final`` / ``read_final_particles``: the last committed epoch of the run's store.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,10 +27,10 @@ class RunFileError(OocDemError, ValueError):
     """A file of a run directory is missing, unreadable or not what ooc-dem writes (one line)."""
 
 
-MAX_SUMMARY_BYTES = 16 << 20   # summary.json is a few kB; anything this big is not ours
+MAX_SUMMARY_BYTES = 16 << 20  # summary.json is a few kB; anything this big is not ours
 MAX_SCENARIO_BYTES = 1 << 20
 MAX_HEADER_CHARS = 4096
-SERIES_NEEDED = ("slip", "net_traction", "gross_traction", "torque", "sinkage")   # the series figure's
+SERIES_NEEDED = ("slip", "net_traction", "gross_traction", "torque", "sinkage")  # the series figure's
 INITIAL_ARRAYS = ("id", "x", "y", "r", "surface")
 
 
@@ -46,7 +47,7 @@ def run_file(out, name: str, required: bool = False) -> Path | None:
         real = f.resolve(strict=True)
         inside = real.is_relative_to(out.resolve(strict=True))
         regular = stat.S_ISREG(os.stat(real).st_mode)
-    except (OSError, RuntimeError) as e:   # dangling or looping symlink
+    except (OSError, RuntimeError) as e:  # dangling or looping symlink
         raise RunFileError(f"{f}: unreadable ({one_line(e)})") from None
     if not inside:
         raise RunFileError(f"{f}: leads outside the run directory (refused)")
@@ -66,11 +67,28 @@ def _is_number(v) -> bool:
 
 
 # what Simulation.finish writes; `report` and `compare` need all of it
-SUMMARY_FIELDS = {"scenario": str, "scenario_hash": str, "mode": str, "backend": str, "steps": int,
-                  "simulated_time_s": _is_number, "wall_time_s": _is_number, "n_discs": int,
-                  "engine": dict, "state_hash": str}
-WHEEL_QUANTITIES = ("slip", "net_traction", "gross_traction", "torque", "vertical_force",
-                    "travel_distance", "sinkage", "motion_resistance")
+SUMMARY_FIELDS = {
+    "scenario": str,
+    "scenario_hash": str,
+    "mode": str,
+    "backend": str,
+    "steps": int,
+    "simulated_time_s": _is_number,
+    "wall_time_s": _is_number,
+    "n_discs": int,
+    "engine": dict,
+    "state_hash": str,
+}
+WHEEL_QUANTITIES = (
+    "slip",
+    "net_traction",
+    "gross_traction",
+    "torque",
+    "vertical_force",
+    "travel_distance",
+    "sinkage",
+    "motion_resistance",
+)
 WINDOWS = ("whole_travel", "steady", "static")
 
 
@@ -139,11 +157,10 @@ def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict | N
     if f is None:
         return None
     if f.stat().st_size > MAX_SUMMARY_BYTES:
-        raise RunFileError(f"{f}: {f.stat().st_size} bytes, too large for a summary "
-                           f"(at most {MAX_SUMMARY_BYTES})")
+        raise RunFileError(f"{f}: {f.stat().st_size} bytes, too large for a summary (at most {MAX_SUMMARY_BYTES})")
     try:
         summary = json.loads(f.read_bytes())
-    except (ValueError, RecursionError) as e:   # bad JSON or UTF-8, nesting, digit limit
+    except (ValueError, RecursionError) as e:  # bad JSON or UTF-8, nesting, digit limit
         raise RunFileError(f"{f}: not valid JSON ({one_line(e)})") from None
     return validate_summary(summary, f, complete)
 
@@ -157,10 +174,12 @@ def read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
         names = [h.strip().split(" [")[0].strip() for h in header.split(",")]
         missing = [n for n in needed if n not in names]
         if not header or missing:
-            raise RunFileError(f"{path}: header has no column {(missing or needed or ['(any)'])[0]!r} "
-                               f"(not a series written by ooc-dem)")
+            raise RunFileError(
+                f"{path}: header has no column {(missing or needed or ['(any)'])[0]!r} "
+                f"(not a series written by ooc-dem)"
+            )
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")   # "input contained no data": a header-only file is valid
+            warnings.simplefilter("ignore")  # "input contained no data": a header-only file is valid
             data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, encoding="utf-8")
     except RunFileError:
         raise
@@ -192,6 +211,7 @@ def read_initial(path, n: int | None = None, sc=None) -> tuple:
     count when known), distinct ids, finite positions, radii > 0 and a surface above the
     floor, within the scenario's bin (``sc``) or MAX_INITIAL_COORD."""
     from ..storage.npzfile import read_npz_members
+
     want = {"id": ((), "iu"), "x": ((), "iuf"), "y": ((), "iuf"), "r": ((), "iuf"), "surface": (None, "iuf")}
     a = read_npz_members(path, want, n, RunFileError)
     if len(a["id"]) != len(a["x"]) or len(a["y"]) != len(a["x"]) or len(a["r"]) != len(a["x"]):
@@ -229,6 +249,7 @@ def read_run_scenario(out: Path):
     if f is None:
         return None
     from ..model.scenario import ScenarioError, scenario_from_toml
+
     if f.stat().st_size > MAX_SCENARIO_BYTES:
         raise RunFileError(f"{f}: too large for a scenario")
     try:
@@ -242,6 +263,7 @@ def has_store(out: Path) -> bool:
     if os.path.lexists(out / "MANIFEST.json"):
         return True
     from ooc_dem.storage import StoreError, open_store
+
     try:
         open_store(out, repair=False).close()
     except StoreError:
@@ -259,7 +281,8 @@ def read_final_particles(out: Path):
     """(Particles, wheel_state) of the last committed epoch of the run's store."""
     from ooc_dem.storage import open_store
     from ..model.checkpoint import read_epoch_particles
-    store = open_store(out, repair=False)   # read-only: the run drawing it may hold the write lock
+
+    store = open_store(out, repair=False)  # read-only: the run drawing it may hold the write lock
     try:
         p, arrays, _ = read_epoch_particles(store, str(out))
         ws = np.asarray(arrays["wheel_state"], dtype=np.float64).copy()
@@ -280,6 +303,7 @@ def summary_value(summary, key, name):
 def read_initial_z(path, n: int):
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
     from ..storage.npzfile import npz_member_names, read_npz_members
+
     if "z" not in npz_member_names(path, RunFileError):
         return None
     a = read_npz_members(path, {"z": ((), "iuf")}, n, RunFileError)["z"]

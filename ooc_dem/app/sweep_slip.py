@@ -3,6 +3,7 @@
 Each slip is one monolithic run in OUT/slip_<s>/ from the same settled bed; the
 drawbar pull is the steady-window mean net traction.
 """
+
 from __future__ import annotations
 
 import json
@@ -23,9 +24,11 @@ def steady_window_problem(sc: Scenario) -> str | None:
     o, w = sc.output, sc.wheel
     end = min(o.steady_end, w.travel_time)
     if end - o.steady_start < sc.physics.dt:
-        return (f"output.steady_start = {o.steady_start!r}, output.steady_end = {o.steady_end!r}: the steady "
-                f"window [{o.steady_start:g}, {end:g}] s of travel (cut at wheel.travel_time = "
-                f"{w.travel_time:g} s) holds no step; the drawbar pull is its mean")
+        return (
+            f"output.steady_start = {o.steady_start!r}, output.steady_end = {o.steady_end!r}: the steady "
+            f"window [{o.steady_start:g}, {end:g}] s of travel (cut at wheel.travel_time = "
+            f"{w.travel_time:g} s) holds no step; the drawbar pull is its mean"
+        )
     return None
 
 
@@ -34,8 +37,14 @@ def _steady(summary: dict[str, Any], key: str) -> Any:
     return summary[key]["steady"]["value"]
 
 
-def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out: Path,
-                   progress: bool = True, comm: MPI.Comm | None = None) -> list[dict[str, Any]] | None:
+def run_slip_sweep(
+    scenario: str,
+    overrides: list[str],
+    slips: list[float],
+    out: Path,
+    progress: bool = True,
+    comm: MPI.Comm | None = None,
+) -> list[dict[str, Any]] | None:
     """The curve, one run per slip. With ``comm`` (an MPI communicator: ``mpiexec -n R
     ooc-dem sweep``) the runs fan out over the ranks (run i on rank i mod R, each the same
     monolithic run as in one process, so the same bits); rank 0 gathers the rows and
@@ -58,8 +67,7 @@ def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out:
     if problem:
         raise RunError(problem)
     # every run planned (and checked) before the first one starts (on every rank alike)
-    sims = [Simulation(sc, d, RunOptions(progress=progress and ranks == 1, figures=False))
-            for sc, d in zip(scs, dirs)]
+    sims = [Simulation(sc, d, RunOptions(progress=progress and ranks == 1, figures=False)) for sc, d in zip(scs, dirs)]
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
     if comm is not None:
@@ -69,21 +77,29 @@ def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out:
     for i in range(rank, len(slips), ranks):
         try:
             summary = sims[i].run()
-        except Exception as e:   # noqa: BLE001 - reported by rank 0 as the sweep's one-line error
+        except Exception as e:  # noqa: BLE001 - reported by rank 0 as the sweep's one-line error
             failure = f"slip {slips[i]:g}{f' (rank {rank})' if ranks > 1 else ''}: {e}"
             if comm is None:
                 raise
             break
-        mine[i] = {"slip": slips[i], "drawbar_pull": _steady(summary, "net_traction"),
-                   "gross_traction": _steady(summary, "gross_traction"), "sinkage": _steady(summary, "sinkage"),
-                   "vertical_force": _steady(summary, "vertical_force")}
+        mine[i] = {
+            "slip": slips[i],
+            "drawbar_pull": _steady(summary, "net_traction"),
+            "gross_traction": _steady(summary, "gross_traction"),
+            "sinkage": _steady(summary, "sinkage"),
+            "vertical_force": _steady(summary, "vertical_force"),
+        }
         r = mine[i]
-        print(f"slip {r['slip']:.3f}: drawbar pull {r['drawbar_pull']:.3f} N, "
-              f"gross traction {r['gross_traction']:.3f} N, sinkage {1e3 * r['sinkage']:.1f} mm"
-              + (f" (rank {rank})" if ranks > 1 else ""), flush=True)
+        print(
+            f"slip {r['slip']:.3f}: drawbar pull {r['drawbar_pull']:.3f} N, "
+            f"gross traction {r['gross_traction']:.3f} N, sinkage {1e3 * r['sinkage']:.1f} mm"
+            + (f" (rank {rank})" if ranks > 1 else ""),
+            flush=True,
+        )
     parts: list[tuple[dict[int, dict[str, Any]], str | None]] | None = (
-        comm.gather((mine, failure), root=0) if comm is not None else [(mine, failure)])
-    if rank != 0 or parts is None:   # gather gives the list on rank 0 only
+        comm.gather((mine, failure), root=0) if comm is not None else [(mine, failure)]
+    )
+    if rank != 0 or parts is None:  # gather gives the list on rank 0 only
         return None
     failures = [f for _, f in parts if f]
     if failures:
@@ -94,12 +110,24 @@ def run_slip_sweep(scenario: str, overrides: list[str], slips: list[float], out:
     with open(csv, "w") as f:
         f.write("slip,drawbar_pull,gross_traction,sinkage,vertical_force\n")
         for r in rows:
-            f.write(f"{r['slip']!r},{r['drawbar_pull']!r},{r['gross_traction']!r},{r['sinkage']!r},"
-                    f"{r['vertical_force']!r}\n")
+            f.write(
+                f"{r['slip']!r},{r['drawbar_pull']!r},{r['gross_traction']!r},{r['sinkage']!r},"
+                f"{r['vertical_force']!r}\n"
+            )
     from .plots import sweep_plot
+
     sweep_plot(csv, out / "drawbar_pull_slip.png")
-    (out / "sweep.json").write_text(json.dumps({"scenario": scenario, "overrides": overrides,
-                                                "window": scs[0].output.steady_start, "rows": rows,
-                                                "ranks": ranks}, indent=2))
+    (out / "sweep.json").write_text(
+        json.dumps(
+            {
+                "scenario": scenario,
+                "overrides": overrides,
+                "window": scs[0].output.steady_start,
+                "rows": rows,
+                "ranks": ranks,
+            },
+            indent=2,
+        )
+    )
     print(f"curve: {csv}  figure: {out / 'drawbar_pull_slip.png'}")
     return rows

@@ -26,6 +26,7 @@ Version 1 (``RUN/trajectory.h5``, one append-only file for all frames, as earlie
 engines wrote it) is still read; a run resumed over one continues in ``trajectory/``
 (its frames up to the resumed step copied there first; the old file is left as it is).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -41,9 +42,23 @@ from ooc_dem.storage.writeguard import H5_OVERHEAD, GuardedFile, check_room, clo
 from ..storage.atomic import new_temp
 from ..physics.layout import axes, spin_width
 from .runfiles import RunFileError, one_line, run_file
-from .trajectory_format import (DTYPES, FORMAT_NAME, FORMAT_VERSION, MAX_CHUNK_ROWS, MAX_STEP, ROW_FIELDS,
-                                TRAJECTORY_FILE, TrajectoryError, frame_every, frame_name, open_frame,
-                                row_bytes, row_tails, scan_frames, trajectory_folder)
+from .trajectory_format import (
+    DTYPES,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    MAX_CHUNK_ROWS,
+    MAX_STEP,
+    ROW_FIELDS,
+    TRAJECTORY_FILE,
+    TrajectoryError,
+    frame_every,
+    frame_name,
+    open_frame,
+    row_bytes,
+    row_tails,
+    scan_frames,
+    trajectory_folder,
+)
 from .trajectory_read import Trajectory
 
 
@@ -70,10 +85,16 @@ class TrajectoryWriter:
         self.dim = dim
         self.n = n
         self.durable = durable
-        self.header = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "dim": dim,
-                       "frame_every_steps": every, "dt": float(sc.physics.dt),
-                       "scenario_hash": sc.hash(), "n_discs": n}
-        self.steps: list[int] = []        # the published frames' steps, rising
+        self.header = {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "dim": dim,
+            "frame_every_steps": every,
+            "dt": float(sc.physics.dt),
+            "scenario_hash": sc.hash(),
+            "n_discs": n,
+        }
+        self.steps: list[int] = []  # the published frames' steps, rising
         self._pending_step: int | None = None
         # the pending frame's temporary (path, h5py file, its guard); set with _pending_step
         self._tmp: tuple[Path, Any, GuardedFile] | None = None
@@ -120,8 +141,10 @@ class TrajectoryWriter:
                 continue
             w.steps.append(s)
         if not w.steps and step > 0:
-            print(f"ooc-dem: warning: {w.folder}: no frame up to step {step}; the trajectory "
-                  f"restarts there", file=sys.stderr)
+            print(
+                f"ooc-dem: warning: {w.folder}: no frame up to step {step}; the trajectory restarts there",
+                file=sys.stderr,
+            )
         return w
 
     def _drop_after(self, step: int) -> None:
@@ -146,15 +169,21 @@ class TrajectoryWriter:
         have = set(self.steps)
         try:
             with Trajectory(run_file(out, TRAJECTORY_FILE)) as old:
-                if old.dim != self.dim or old.frame_every != self.every or old.scenario_hash != self.header["scenario_hash"]:
+                if (
+                    old.dim != self.dim
+                    or old.frame_every != self.every
+                    or old.scenario_hash != self.header["scenario_hash"]
+                ):
                     raise TrajectoryError(f"{old.path}: written by another scenario or interval")
                 for i in range(len(old)):
                     if old.steps[i] <= step and int(old.steps[i]) not in have:
                         fr = old[i]
                         self.write_frame(fr["step"], fr["time"], fr["wheel_state"], [fr])
         except RunFileError as e:
-            print(f"ooc-dem: warning: {one_line(e)}; the trajectory continues in {self.folder} "
-                  f"without its frames", file=sys.stderr)
+            print(
+                f"ooc-dem: warning: {one_line(e)}; the trajectory continues in {self.folder} without its frames",
+                file=sys.stderr,
+            )
 
     def last_step(self) -> int | None:
         return self.steps[-1] if self.steps else None
@@ -196,8 +225,7 @@ class TrajectoryWriter:
         chunk = max(1, min(self.n, MAX_CHUNK_ROWS))
         for k in ROW_FIELDS:
             tail = row_tails(self.dim)[k]
-            f.create_dataset(k, shape=(0, *tail), maxshape=(None, *tail), dtype=DTYPES[k],
-                             chunks=(chunk, *tail))
+            f.create_dataset(k, shape=(0, *tail), maxshape=(None, *tail), dtype=DTYPES[k], chunks=(chunk, *tail))
         return self._tmp
 
     def _frame(self, step: int) -> tuple[Path, Any, GuardedFile]:
@@ -220,7 +248,7 @@ class TrajectoryWriter:
             for k in ROW_FIELDS:
                 ds = f[k]
                 ds.resize(start + m, axis=0)
-                ds[start:start + m] = np.asarray(get(k), DTYPES[k])
+                ds[start : start + m] = np.asarray(get(k), DTYPES[k])
             guard.check()
         except BaseException:
             self._discard()
@@ -261,8 +289,17 @@ class TrajectoryWriter:
 
 # ------------------------------------------------------------------ wheel outline
 
-def wheel_outline(x: float, y: float, theta: float, radius: float, n_lugs: int, lug_tip_radius: float,
-                  lug_thickness: float, arc_points: int = 6) -> np.ndarray:
+
+def wheel_outline(
+    x: float,
+    y: float,
+    theta: float,
+    radius: float,
+    n_lugs: int,
+    lug_tip_radius: float,
+    lug_thickness: float,
+    arc_points: int = 6,
+) -> np.ndarray:
     """The 2D wheel as one closed polygon (P x 2, counter-clockwise): the rim, and each of the
     ``n_lugs`` lugs (at angles theta + 2 pi k / n, ``lug_thickness`` wide, from the rim out to
     ``lug_tip_radius``) as an outward notch; a plain circle of 72 points without lugs."""
@@ -289,6 +326,7 @@ def wheel_outline(x: float, y: float, theta: float, radius: float, n_lugs: int, 
 
 # ------------------------------------------------------------------ XDMF
 
+
 def _xml_numbers(a) -> str:
     return " ".join(repr(float(v)) for v in np.asarray(a, np.float64).ravel())
 
@@ -302,6 +340,7 @@ def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
     at the frame's wheel state; inline, a few hundred numbers). Written under a temporary name."""
     from xml.sax.saxutils import quoteattr
     from .outfile import AtomicFile, ExportError, check_targets
+
     out = Path(out)
     if out.suffix.lower() not in (".xdmf", ".xmf"):
         raise ExportError(f"--out {out}: give a .xdmf (or .xmf) file name")
@@ -311,8 +350,9 @@ def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
     def rel_of(i: int) -> str:
         rel = os.path.relpath(traj.file(i).resolve(), base)
         if ":" in rel or any(c in rel for c in "\n\r"):
-            raise ExportError(f"--out {out}: the path to {traj.file(i)} from there contains ':' (XDMF "
-                              f"cannot refer to it)")
+            raise ExportError(
+                f"--out {out}: the path to {traj.file(i)} from there contains ':' (XDMF cannot refer to it)"
+            )
         return rel
 
     dim = traj.dim
@@ -321,8 +361,14 @@ def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
     rels = [rel_of(i) for i in range(len(traj))]
     D, R = len(axes(dim)), spin_width(dim)
     geo = "XY" if D == 2 else "XYZ"
-    num = {"id": ('Int', 8), "pos": ('Float', 8), "vel": ('Float', 8), "spin": ('Float', 8),
-           "r": ('Float', 8), "mat": ('Int', 4)}
+    num = {
+        "id": ("Int", 8),
+        "pos": ("Float", 8),
+        "vel": ("Float", 8),
+        "spin": ("Float", 8),
+        "r": ("Float", 8),
+        "mat": ("Int", 4),
+    }
     wheel = sc is not None and sc.wheel.enabled and dim == 2
 
     def slab(i: int, name: str, start: int, m: int, width: int | None, ind: str) -> str:
@@ -335,48 +381,59 @@ def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
         else:
             sel, dims, full = f"{start} 0 1 1 {m} {width}", f"{m} {width}", f"{total} {width}"
             sdims = "3 2"
-        return (f'{ind}<DataItem ItemType="HyperSlab" Dimensions="{dims}" Type="HyperSlab">\n'
-                f'{ind}  <DataItem Dimensions="{sdims}" Format="XML">{sel}</DataItem>\n'
-                f'{ind}  <DataItem Dimensions="{full}" NumberType="{nt}" Precision="{prec}" '
-                f'Format="HDF">{src}</DataItem>\n'
-                f'{ind}</DataItem>\n')
+        return (
+            f'{ind}<DataItem ItemType="HyperSlab" Dimensions="{dims}" Type="HyperSlab">\n'
+            f'{ind}  <DataItem Dimensions="{sdims}" Format="XML">{sel}</DataItem>\n'
+            f'{ind}  <DataItem Dimensions="{full}" NumberType="{nt}" Precision="{prec}" '
+            f'Format="HDF">{src}</DataItem>\n'
+            f"{ind}</DataItem>\n"
+        )
 
-    attrs = [("velocity", "vel", D, "Vector"), ("spin", "spin", R, "Scalar" if R == 1 else "Vector"),
-             ("radius", "r", None, "Scalar"), ("id", "id", None, "Scalar"),
-             ("material", "mat", None, "Scalar")]
+    attrs = [
+        ("velocity", "vel", D, "Vector"),
+        ("spin", "spin", R, "Scalar" if R == 1 else "Vector"),
+        ("radius", "r", None, "Scalar"),
+        ("id", "id", None, "Scalar"),
+        ("material", "mat", None, "Scalar"),
+    ]
     with AtomicFile(out) as f:
-        f.write('<?xml version="1.0" ?>\n<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>\n<Xdmf Version="2.0">\n'
-                ' <Domain>\n  <Grid Name="trajectory" GridType="Collection" CollectionType="Temporal">\n')
+        f.write(
+            '<?xml version="1.0" ?>\n<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>\n<Xdmf Version="2.0">\n'
+            ' <Domain>\n  <Grid Name="trajectory" GridType="Collection" CollectionType="Temporal">\n'
+        )
         for i in range(len(traj)):
             start, m = traj.rows(i)
             t = float(traj.times[i])
             ind = "     "
-            f.write(f'   <Grid Name="step {int(traj.steps[i])}" GridType="Collection" '
-                    f'CollectionType="Spatial">\n    <Time Value="{t!r}"/>\n'
-                    f'    <Grid Name="discs" GridType="Uniform">\n'
-                    f'{ind}<Topology TopologyType="Polyvertex" NumberOfElements="{m}" NodesPerElement="1"/>\n'
-                    f'{ind}<Geometry GeometryType="{geo}">\n')
+            f.write(
+                f'   <Grid Name="step {int(traj.steps[i])}" GridType="Collection" '
+                f'CollectionType="Spatial">\n    <Time Value="{t!r}"/>\n'
+                f'    <Grid Name="discs" GridType="Uniform">\n'
+                f'{ind}<Topology TopologyType="Polyvertex" NumberOfElements="{m}" NodesPerElement="1"/>\n'
+                f'{ind}<Geometry GeometryType="{geo}">\n'
+            )
             f.write(slab(i, "pos", start, m, D, ind + " "))
-            f.write(f'{ind}</Geometry>\n')
+            f.write(f"{ind}</Geometry>\n")
             for label, name, width, kind in attrs:
                 f.write(f'{ind}<Attribute Name="{label}" AttributeType="{kind}" Center="Node">\n')
                 f.write(slab(i, name, start, m, width, ind + " "))
-                f.write(f'{ind}</Attribute>\n')
-            f.write('    </Grid>\n')
+                f.write(f"{ind}</Attribute>\n")
+            f.write("    </Grid>\n")
             if wheel:
                 w = sc.wheel
                 ws = traj.wheel_states[i]
-                poly = wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius,
-                                     w.lug_thickness)
+                poly = wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
                 P = len(poly)
-                f.write(f'    <Grid Name="wheel" GridType="Uniform">\n'
-                        f'{ind}<Topology TopologyType="Polygon" NumberOfElements="1" NodesPerElement="{P}">\n'
-                        f'{ind}  <DataItem Dimensions="1 {P}" NumberType="Int" Format="XML">'
-                        f'{" ".join(map(str, range(P)))}</DataItem>\n{ind}</Topology>\n'
-                        f'{ind}<Geometry GeometryType="XY">\n'
-                        f'{ind}  <DataItem Dimensions="{P} 2" NumberType="Float" Precision="8" '
-                        f'Format="XML">{_xml_numbers(poly)}</DataItem>\n{ind}</Geometry>\n'
-                        f'    </Grid>\n')
-            f.write('   </Grid>\n')
-        f.write('  </Grid>\n </Domain>\n</Xdmf>\n')
+                f.write(
+                    f'    <Grid Name="wheel" GridType="Uniform">\n'
+                    f'{ind}<Topology TopologyType="Polygon" NumberOfElements="1" NodesPerElement="{P}">\n'
+                    f'{ind}  <DataItem Dimensions="1 {P}" NumberType="Int" Format="XML">'
+                    f"{' '.join(map(str, range(P)))}</DataItem>\n{ind}</Topology>\n"
+                    f'{ind}<Geometry GeometryType="XY">\n'
+                    f'{ind}  <DataItem Dimensions="{P} 2" NumberType="Float" Precision="8" '
+                    f'Format="XML">{_xml_numbers(poly)}</DataItem>\n{ind}</Geometry>\n'
+                    f"    </Grid>\n"
+                )
+            f.write("   </Grid>\n")
+        f.write("  </Grid>\n </Domain>\n</Xdmf>\n")
     return out

@@ -1,6 +1,7 @@
 """The trajectory's file format (trajectory.py's module docstring describes it): names,
 dtypes and limits, and the checks of a frame file read back (untrusted input: a file that is
 not what ooc-dem writes is refused in one line, ``TrajectoryError``)."""
+
 from __future__ import annotations
 
 import os
@@ -15,23 +16,31 @@ from ..physics.layout import WS_SIZE, axes, spin_width
 from .runfiles import RunFileError, one_line
 
 TRAJECTORY_DIR = "trajectory"
-TRAJECTORY_FILE = "trajectory.h5"        # format version 1 (read, and migrated on resume)
+TRAJECTORY_FILE = "trajectory.h5"  # format version 1 (read, and migrated on resume)
 FORMAT_NAME = "ooc-dem trajectory"
 FORMAT_VERSION = 2
 LEGACY_VERSION = 1
 FRAME_RE = re.compile(r"frame-([0-9]{12})\.h5")
 TEMP_RE = re.compile(r"frame-[0-9]{12}\.h5\.tmp-[A-Za-z0-9_]{1,64}")
-MAX_STEP = 10 ** 12 - 1
+MAX_STEP = 10**12 - 1
 ROW_FIELDS = ("id", "pos", "vel", "spin", "r", "mat")
 INDEX_FIELDS = ("frame_step", "frame_time", "frame_start", "frame_rows", "wheel_state")
-DTYPES: dict[str, np.dtype[Any]] = {"id": np.dtype("<i8"), "pos": np.dtype("<f8"), "vel": np.dtype("<f8"),
-          "spin": np.dtype("<f8"), "r": np.dtype("<f8"), "mat": np.dtype("<i4"),
-          "frame_step": np.dtype("<i8"), "frame_time": np.dtype("<f8"),
-          "frame_start": np.dtype("<i8"), "frame_rows": np.dtype("<i8"),
-          "wheel_state": np.dtype("<f8")}
+DTYPES: dict[str, np.dtype[Any]] = {
+    "id": np.dtype("<i8"),
+    "pos": np.dtype("<f8"),
+    "vel": np.dtype("<f8"),
+    "spin": np.dtype("<f8"),
+    "r": np.dtype("<f8"),
+    "mat": np.dtype("<i4"),
+    "frame_step": np.dtype("<i8"),
+    "frame_time": np.dtype("<f8"),
+    "frame_start": np.dtype("<i8"),
+    "frame_rows": np.dtype("<i8"),
+    "wheel_state": np.dtype("<f8"),
+}
 MAX_CHUNK_ROWS = 1 << 16
-MAX_ROWS = 1 << 40            # a hostile file's counts are refused beyond this
-MAX_FRAMES = 1 << 24          # a hostile folder's file count is refused beyond this
+MAX_ROWS = 1 << 40  # a hostile file's counts are refused beyond this
+MAX_FRAMES = 1 << 24  # a hostile folder's file count is refused beyond this
 
 
 class TrajectoryError(RunFileError):
@@ -53,14 +62,25 @@ def frame_name(step: int) -> str:
 def row_tails(dim: int) -> dict[str, tuple[int, ...]]:
     """Each dataset's shape beyond its first axis, in a run of dimension `dim`."""
     D, R = len(axes(dim)), spin_width(dim)
-    return {"id": (), "pos": (D,), "vel": (D,), "spin": (R,), "r": (), "mat": (),
-            "frame_step": (), "frame_time": (), "frame_start": (), "frame_rows": (),
-            "wheel_state": (WS_SIZE,)}
+    return {
+        "id": (),
+        "pos": (D,),
+        "vel": (D,),
+        "spin": (R,),
+        "r": (),
+        "mat": (),
+        "frame_step": (),
+        "frame_time": (),
+        "frame_start": (),
+        "frame_rows": (),
+        "wheel_state": (WS_SIZE,),
+    }
 
 
 def h5py_module():
     """h5py, imported when first needed."""
     import h5py
+
     return h5py
 
 
@@ -120,14 +140,13 @@ def check_row_bytes(f, path, rows: int, dim: int) -> None:
     unfiltered, so every row's bytes are in the file, and a read allocates no more than the
     file's own size (nor more than this machine's memory)."""
     import psutil
+
     for k in ROW_FIELDS:
         if f[k].id.get_create_plist().get_nfilters():
-            raise TrajectoryError(f"{path}: dataset {k!r} is filtered or compressed (not what "
-                                  f"ooc-dem writes; refused)")
+            raise TrajectoryError(f"{path}: dataset {k!r} is filtered or compressed (not what ooc-dem writes; refused)")
     need, size = rows * row_bytes(dim), os.stat(path).st_size
     if need > size or need > psutil.virtual_memory().total // 4:
-        raise TrajectoryError(f"{path}: {rows} rows declared ({need} bytes), the file holds "
-                              f"{size} bytes (refused)")
+        raise TrajectoryError(f"{path}: {rows} rows declared ({need} bytes), the file holds {size} bytes (refused)")
 
 
 def _is_count(a) -> bool:
@@ -139,12 +158,14 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
     returns its header (dim, frame_every_steps, dt, scenario_hash, step, time, wheel_state, rows)."""
     attrs = f.attrs
     fmt = attrs.get("format")
-    if not isinstance(fmt, str) or fmt != FORMAT_NAME:   # an array attribute compares element-wise
+    if not isinstance(fmt, str) or fmt != FORMAT_NAME:  # an array attribute compares element-wise
         raise TrajectoryError(f"{path}: not an ooc-dem trajectory frame")
     v = attrs.get("format_version")
     if not isinstance(v, (int, np.integer)) or int(v) != FORMAT_VERSION:
-        raise TrajectoryError(f"{path}: trajectory format version {v!r} is not supported (this engine "
-                              f"reads version {FORMAT_VERSION} frames)")
+        raise TrajectoryError(
+            f"{path}: trajectory format version {v!r} is not supported (this engine "
+            f"reads version {FORMAT_VERSION} frames)"
+        )
     for key in ("dim", "frame_every_steps", "n_discs", "step"):
         if not _is_count(attrs.get(key)):
             raise TrajectoryError(f"{path}: attribute {key!r} = {attrs.get(key)!r} is not a count")
@@ -163,12 +184,16 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
     if not isinstance(t, (float, np.floating)) or not np.isfinite(t):
         raise TrajectoryError(f"{path}: attribute 'time' = {t!r} is not a time")
     ws = attrs.get("wheel_state")
-    if (not isinstance(ws, np.ndarray) or ws.dtype != DTYPES["wheel_state"] or ws.shape != (WS_SIZE,)
-            or not np.isfinite(ws).all()):
+    if (
+        not isinstance(ws, np.ndarray)
+        or ws.dtype != DTYPES["wheel_state"]
+        or ws.shape != (WS_SIZE,)
+        or not np.isfinite(ws).all()
+    ):
         raise TrajectoryError(f"{path}: attribute 'wheel_state' is not {WS_SIZE} finite float64 numbers")
     h = str(attrs.get("scenario_hash", ""))
     tails = row_tails(dim)
-    rows: int = checked_dataset(f, ROW_FIELDS[0], tails[ROW_FIELDS[0]], path).shape[0]   # 'id'
+    rows: int = checked_dataset(f, ROW_FIELDS[0], tails[ROW_FIELDS[0]], path).shape[0]  # 'id'
     for k in ROW_FIELDS[1:]:
         ds = checked_dataset(f, k, tails[k], path)
         if ds.shape[0] != rows:
@@ -178,9 +203,17 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
     if rows > int(attrs["n_discs"]):
         raise TrajectoryError(f"{path}: {rows} rows, more than its n_discs = {int(attrs['n_discs'])}")
     check_row_bytes(f, path, rows, dim)
-    return {"dim": dim, "frame_every_steps": int(attrs["frame_every_steps"]), "dt": float(dt),
-            "scenario_hash": h, "step": s, "time": float(t), "wheel_state": np.array(ws), "rows": rows,
-            "n_discs": int(attrs["n_discs"])}
+    return {
+        "dim": dim,
+        "frame_every_steps": int(attrs["frame_every_steps"]),
+        "dt": float(dt),
+        "scenario_hash": h,
+        "step": s,
+        "time": float(t),
+        "wheel_state": np.array(ws),
+        "rows": rows,
+        "n_discs": int(attrs["n_discs"]),
+    }
 
 
 def open_frame(path, step: int | None = None):
@@ -204,14 +237,15 @@ def checked_dataset(f, k: str, tail: tuple, path):
     h5py = h5py_module()
     link = f.get(k, getlink=True)
     if not isinstance(link, h5py.HardLink):
-        raise TrajectoryError(f"{path}: no dataset {k!r}" if link is None else
-                              f"{path}: {k!r} is a link (refused)")
+        raise TrajectoryError(f"{path}: no dataset {k!r}" if link is None else f"{path}: {k!r} is a link (refused)")
     ds = f[k]
     if not isinstance(ds, h5py.Dataset):
         raise TrajectoryError(f"{path}: {k!r} is not a dataset")
     if ds.is_virtual or ds.external:
         raise TrajectoryError(f"{path}: dataset {k!r} refers to other files (refused)")
     if ds.dtype != DTYPES[k] or ds.shape[1:] != tail:
-        raise TrajectoryError(f"{path}: dataset {k!r} has dtype {ds.dtype.str} shape {ds.shape}, "
-                              f"expected {DTYPES[k].str} (rows, {', '.join(map(str, tail))})")
+        raise TrajectoryError(
+            f"{path}: dataset {k!r} has dtype {ds.dtype.str} shape {ds.shape}, "
+            f"expected {DTYPES[k].str} (rows, {', '.join(map(str, tail))})"
+        )
     return ds

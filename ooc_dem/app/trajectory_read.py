@@ -1,5 +1,6 @@
 """Reading a run's trajectory: ``Trajectory`` (the ``trajectory/`` folder of frame files, or a
 version-1 ``trajectory.h5``), every file checked as it is opened (trajectory_format.py)."""
+
 from __future__ import annotations
 
 import os
@@ -10,24 +11,41 @@ import numpy as np
 
 from ..physics.layout import WS_SIZE
 from .runfiles import one_line, run_file
-from .trajectory_format import (FORMAT_NAME, FORMAT_VERSION, INDEX_FIELDS, LEGACY_VERSION, MAX_ROWS, ROW_FIELDS,
-                                TRAJECTORY_DIR, TRAJECTORY_FILE, TrajectoryError, check_row_bytes,
-                                checked_dataset, h5py_module, open_frame, row_tails, scan_frames,
-                                trajectory_folder)
+from .trajectory_format import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    INDEX_FIELDS,
+    LEGACY_VERSION,
+    MAX_ROWS,
+    ROW_FIELDS,
+    TRAJECTORY_DIR,
+    TRAJECTORY_FILE,
+    TrajectoryError,
+    check_row_bytes,
+    checked_dataset,
+    h5py_module,
+    open_frame,
+    row_tails,
+    scan_frames,
+    trajectory_folder,
+)
 
 
 # format version 1: RUN/trajectory.h5, all frames in one file (read only)
+
 
 def _check_legacy_layout(f, path) -> None:
     """The attributes and datasets of a trajectory, as ooc-dem writes them (untrusted input)."""
     attrs = f.attrs
     fmt = attrs.get("format")
-    if not isinstance(fmt, str) or fmt != FORMAT_NAME:   # an array attribute compares element-wise
+    if not isinstance(fmt, str) or fmt != FORMAT_NAME:  # an array attribute compares element-wise
         raise TrajectoryError(f"{path}: not an ooc-dem trajectory")
     v = attrs.get("format_version")
     if not isinstance(v, (int, np.integer)) or int(v) != LEGACY_VERSION:
-        raise TrajectoryError(f"{path}: trajectory format version {v!r} is not supported (this engine "
-                              f"reads versions {LEGACY_VERSION} and {FORMAT_VERSION})")
+        raise TrajectoryError(
+            f"{path}: trajectory format version {v!r} is not supported (this engine "
+            f"reads versions {LEGACY_VERSION} and {FORMAT_VERSION})"
+        )
     for key in ("dim", "frame_every_steps", "frames", "n_discs"):
         a = attrs.get(key)
         if not isinstance(a, (int, np.integer)) or not 0 <= int(a) <= MAX_ROWS:
@@ -58,8 +76,9 @@ def _check_legacy_index(f, path, F: int) -> dict[str, np.ndarray]:
         end = int(start[-1] + rows[-1])
         for k in ROW_FIELDS:
             if f[k].shape[0] < end:
-                raise TrajectoryError(f"{path}: dataset {k!r} has {f[k].shape[0]} rows, the committed "
-                                      f"frames need {end}")
+                raise TrajectoryError(
+                    f"{path}: dataset {k!r} has {f[k].shape[0]} rows, the committed frames need {end}"
+                )
         if int(rows.max()) > int(f.attrs["n_discs"]):
             raise TrajectoryError(f"{path}: a frame of {int(rows.max())} rows, more than n_discs")
         check_row_bytes(f, path, end, int(f.attrs["dim"]))
@@ -97,8 +116,10 @@ class Trajectory:
             if heads:
                 for key in ("dim", "frame_every_steps", "dt", "scenario_hash", "n_discs"):
                     if head[key] != heads[0][key]:
-                        raise TrajectoryError(f"{p}: {key} {head[key]!r}, the first frame's is "
-                                              f"{heads[0][key]!r} (frames of different runs)")
+                        raise TrajectoryError(
+                            f"{p}: {key} {head[key]!r}, the first frame's is "
+                            f"{heads[0][key]!r} (frames of different runs)"
+                        )
             heads.append(head)
         F = len(heads)
         self.n_frames = F
@@ -107,8 +128,7 @@ class Trajectory:
             "frame_time": np.array([h["time"] for h in heads], np.float64),
             "frame_start": np.zeros(F, np.int64),
             "frame_rows": np.array([h["rows"] for h in heads], np.int64),
-            "wheel_state": (np.array([h["wheel_state"] for h in heads], np.float64) if F
-                            else np.zeros((0, WS_SIZE))),
+            "wheel_state": (np.array([h["wheel_state"] for h in heads], np.float64) if F else np.zeros((0, WS_SIZE))),
         }
         h0 = heads[0] if heads else {}
         self.dim = h0.get("dim")
@@ -146,8 +166,9 @@ class Trajectory:
             return cls(folder)
         f = run_file(run_dir, TRAJECTORY_FILE)
         if f is None:
-            raise TrajectoryError(f"{run_dir}: no {TRAJECTORY_DIR}/ (the run wrote no frames: set "
-                                  f"output.snapshot_interval > 0)")
+            raise TrajectoryError(
+                f"{run_dir}: no {TRAJECTORY_DIR}/ (the run wrote no frames: set output.snapshot_interval > 0)"
+            )
         return cls(f)
 
     @property
@@ -184,7 +205,7 @@ class Trajectory:
         a, m = self.rows(i)
         if self.files is None:
             legacy = self._legacy_file()
-            out = {k: legacy[k][a:a + m] for k in ROW_FIELDS}
+            out = {k: legacy[k][a : a + m] for k in ROW_FIELDS}
         else:
             f, head = open_frame(self.files[i], int(self.steps[i]))
             try:

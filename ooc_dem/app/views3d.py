@@ -12,6 +12,7 @@
   rim cylinder with end caps and one box per lug), to load in ParaView next to the
   particles of ``ooc-dem checkpoint export RUN --format vtk|xdmf``.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,13 +35,15 @@ WHEEL_MESH = "wheel.vtk"
 RIM_SEGMENTS = 72
 
 
-def wheel_mesh(sc: Scenario, ws: NDArray[np.float64],
-               segments: int = RIM_SEGMENTS) -> tuple[NDArray[np.float64], list[list[int]]]:
+def wheel_mesh(
+    sc: Scenario, ws: NDArray[np.float64], segments: int = RIM_SEGMENTS
+) -> tuple[NDArray[np.float64], list[list[int]]]:
     """(points (P, 3), polygons as point-index lists) of the wheel at state ws: the rim
     cylinder (segments quads, two end-cap polygons) and each lug as a closed box from R to
     the lug tip, lug_thickness thick, across the wheel's width (the plates the kernels use,
     without their rounded edges)."""
     from ..engine.stepper import wheel_z0
+
     w = sc.wheel
     X, Y, th = float(ws[WS_X]), float(ws[WS_Y]), float(ws[WS_THETA])
     z0 = wheel_z0(sc)
@@ -63,22 +66,32 @@ def wheel_mesh(sc: Scenario, ws: NDArray[np.float64],
         vx, vy = -uy, ux
         base = len(pts)
         for z in (za, zb):
-            for s, t in ((w.radius, -half), (w.lug_tip_radius, -half), (w.lug_tip_radius, half),
-                         (w.radius, half)):
+            for s, t in ((w.radius, -half), (w.lug_tip_radius, -half), (w.lug_tip_radius, half), (w.radius, half)):
                 pts.append((X + s * ux + t * vx, Y + s * uy + t * vy, z))
         b = base
-        polys += [[b, b + 1, b + 2, b + 3], [b + 4, b + 7, b + 6, b + 5],
-                  [b, b + 4, b + 5, b + 1], [b + 1, b + 5, b + 6, b + 2],
-                  [b + 2, b + 6, b + 7, b + 3], [b + 3, b + 7, b + 4, b]]
+        polys += [
+            [b, b + 1, b + 2, b + 3],
+            [b + 4, b + 7, b + 6, b + 5],
+            [b, b + 4, b + 5, b + 1],
+            [b + 1, b + 5, b + 6, b + 2],
+            [b + 2, b + 6, b + 7, b + 3],
+            [b + 3, b + 7, b + 4, b],
+        ]
     return np.array(pts, np.float64), polys
 
 
 def write_wheel_vtk(path: str | os.PathLike[str], sc: Scenario, ws: NDArray[np.float64]) -> Path:
     """The wheel mesh (``wheel_mesh``) as a legacy ASCII VTK polydata file (atomic)."""
     from ..storage.atomic import write_replacing
+
     pts, polys = wheel_mesh(sc, ws)
-    lines = ["# vtk DataFile Version 3.0", f"ooc-dem wheel of {sc.name}", "ASCII",
-             "DATASET POLYDATA", f"POINTS {len(pts)} double"]
+    lines = [
+        "# vtk DataFile Version 3.0",
+        f"ooc-dem wheel of {sc.name}",
+        "ASCII",
+        "DATASET POLYDATA",
+        f"POINTS {len(pts)} double",
+    ]
     lines += [f"{float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in pts]
     lines.append(f"POLYGONS {len(polys)} {sum(len(p) + 1 for p in polys)}")
     lines += [" ".join(map(str, [len(p), *p])) for p in polys]
@@ -95,14 +108,15 @@ def _grid(sc: Scenario) -> tuple[float, int, int]:
     return cell, nx, nz
 
 
-def _cells(x: NDArray[np.float64], z: NDArray[np.float64], cell: float, nx: int,
-           nz: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    return (np.clip((x / cell).astype(np.int64), 0, nx - 1),
-            np.clip((z / cell).astype(np.int64), 0, nz - 1))
+def _cells(
+    x: NDArray[np.float64], z: NDArray[np.float64], cell: float, nx: int, nz: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    return (np.clip((x / cell).astype(np.int64), 0, nx - 1), np.clip((z / cell).astype(np.int64), 0, nz - 1))
 
 
-def surface_map(sc: Scenario, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64],
-                r: NDArray[np.float64]) -> NDArray[np.float64]:
+def surface_map(
+    sc: Scenario, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64], r: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Top of the bed (max y + r) per x-z cell of 2 r_max (nan where a cell is empty)."""
     cell, nx, nz = _grid(sc)
     ix, iz = _cells(x, z, cell, nx, nz)
@@ -112,8 +126,9 @@ def surface_map(sc: Scenario, x: NDArray[np.float64], y: NDArray[np.float64], z:
     return top
 
 
-def lateral_map(sc: Scenario, x0: NDArray[np.float64], z0: NDArray[np.float64],
-                dz: NDArray[np.float64]) -> NDArray[np.float64]:
+def lateral_map(
+    sc: Scenario, x0: NDArray[np.float64], z0: NDArray[np.float64], dz: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Mean lateral displacement per x-z cell of the spheres' initial position (nan: empty)."""
     cell, nx, nz = _grid(sc)
     ix, iz = _cells(x0, z0, cell, nx, nz)

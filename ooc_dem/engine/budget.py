@@ -18,6 +18,7 @@ slab bounds and the state hash streams group by group (statehash.py), so their t
 (at most a slab's owned particles), below the slab's own peak. They stay named so a
 path that ever holds per-particle data of the whole bed again is modelled, not hidden.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,16 +30,17 @@ from .modes import MODES
 @dataclass(frozen=True)
 class ByteModel:
     """Bytes a run holds per particle of one dimension (measured, rounded up)."""
+
     dim: int
-    state: int              # one copy of a particle's state (state.bytes_per_disc)
-    monolithic: int         # a monolithic run: state + neighbour list + forces + set-up copies
-    resident: int           # a particle resident in a sub-domain (slab or halo), I/O copies included
-    ooc_setup: int          # out-of-core set-up from a bed held in RAM, per particle of the bed
-    streamed_setup: int     # out-of-core set-up of a streamed bed, per particle of the bed
-    final_hash: int         # out-of-core: the state hash at the run's end, per particle of the bed
-    hash_chunk: int         # ... and per particle of its chunk (min(N, HASH_CHUNK) rows at a time)
-    ooc_fixed: int          # out-of-core sweeps, whatever the slab: storage libraries' buffers
-    baseline: int           # the interpreter, numpy, numba and the compiled kernels
+    state: int  # one copy of a particle's state (state.bytes_per_disc)
+    monolithic: int  # a monolithic run: state + neighbour list + forces + set-up copies
+    resident: int  # a particle resident in a sub-domain (slab or halo), I/O copies included
+    ooc_setup: int  # out-of-core set-up from a bed held in RAM, per particle of the bed
+    streamed_setup: int  # out-of-core set-up of a streamed bed, per particle of the bed
+    final_hash: int  # out-of-core: the state hash at the run's end, per particle of the bed
+    hash_chunk: int  # ... and per particle of its chunk (min(N, HASH_CHUNK) rows at a time)
+    ooc_fixed: int  # out-of-core sweeps, whatever the slab: storage libraries' buffers
+    baseline: int  # the interpreter, numpy, numba and the compiled kernels
 
 
 MIB = 1 << 20
@@ -72,14 +74,32 @@ MIB = 1 << 20
 #         its baseline is kept 5 MiB higher)
 # The 1400 / 3000 B and 200 / 215 MiB before the fix over-estimated these peaks by 20-22 %.
 BYTE_MODELS = {
-    2: ByteModel(dim=2, state=bytes_per_disc(2), monolithic=1100, resident=1000, ooc_setup=400,
-                 streamed_setup=0, final_hash=0, hash_chunk=0, ooc_fixed=8 * MIB,
-                 baseline=185 * MIB),
-    3: ByteModel(dim=3, state=bytes_per_disc(3), monolithic=2500, resident=2400, ooc_setup=900,
-                 streamed_setup=0, final_hash=0, hash_chunk=0, ooc_fixed=8 * MIB,
-                 baseline=190 * MIB),
+    2: ByteModel(
+        dim=2,
+        state=bytes_per_disc(2),
+        monolithic=1100,
+        resident=1000,
+        ooc_setup=400,
+        streamed_setup=0,
+        final_hash=0,
+        hash_chunk=0,
+        ooc_fixed=8 * MIB,
+        baseline=185 * MIB,
+    ),
+    3: ByteModel(
+        dim=3,
+        state=bytes_per_disc(3),
+        monolithic=2500,
+        resident=2400,
+        ooc_setup=900,
+        streamed_setup=0,
+        final_hash=0,
+        hash_chunk=0,
+        ooc_fixed=8 * MIB,
+        baseline=190 * MIB,
+    ),
 }
-HASH_CHUNK = 1 << 18    # rows a field is hashed in at a time (checkpoint.hash_epoch's chunk)
+HASH_CHUNK = 1 << 18  # rows a field is hashed in at a time (checkpoint.hash_epoch's chunk)
 
 
 def byte_model(dim: int) -> ByteModel:
@@ -108,28 +128,32 @@ def state_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: 
     parts = {"baseline": m.baseline}
     if not MODES[mode].decomposes:
         parts["state"] = n * m.monolithic
-    elif not MODES[mode].out_of_core:   # mpi: rank 0 holds the bed at the start (first cut)
+    elif not MODES[mode].out_of_core:  # mpi: rank 0 holds the bed at the start (first cut)
         halo = slab_fraction(sc, mode, domains, block) - 1.0 / domains
         parts["state"] = n * (m.resident * (1.0 + domains * halo) + m.state)
     else:
         # the sweeps, the set-up and the final hash come one after another: the largest counts
-        phases = {"slab": m.ooc_fixed + slabs * n * m.resident * slab_fraction(sc, mode, domains, block),
-                  "setup": n * (m.streamed_setup if streamed else m.ooc_setup),
-                  "hash": n * m.final_hash + min(n, HASH_CHUNK) * m.hash_chunk}
+        phases = {
+            "slab": m.ooc_fixed + slabs * n * m.resident * slab_fraction(sc, mode, domains, block),
+            "setup": n * (m.streamed_setup if streamed else m.ooc_setup),
+            "hash": n * m.final_hash + min(n, HASH_CHUNK) * m.hash_chunk,
+        }
         top = max(phases, key=phases.__getitem__)
         parts[top] = phases[top]
     if backend == "memory":
-        parts["memory_store"] = 3 * n * m.state   # the in-process store: current, previous, being written
+        parts["memory_store"] = 3 * n * m.state  # the in-process store: current, previous, being written
     return parts
 
 
-def estimate_peak(sc, mode: str, backend: str, domains: int, block: int, streamed: bool,
-                  series_bytes: float = 0.0, slabs: int = 1) -> int:
+def estimate_peak(
+    sc, mode: str, backend: str, domains: int, block: int, streamed: bool, series_bytes: float = 0.0, slabs: int = 1
+) -> int:
     return int(sum(state_peak(sc, mode, backend, domains, block, streamed, slabs).values()) + series_bytes)
 
 
-def choose_decomposition(sc, budget: int, block_of, max_domains: int, backend: str, streamed: bool,
-                         series_bytes: float = 0.0, slabs: int = 1) -> tuple[int, int, int] | None:
+def choose_decomposition(
+    sc, budget: int, block_of, max_domains: int, backend: str, streamed: bool, series_bytes: float = 0.0, slabs: int = 1
+) -> tuple[int, int, int] | None:
     """The fewest out-of-core sub-domains D (and their K = ``block_of(D)``) whose peak fits
     ``budget`` bytes: (D, K, peak), or None when even ``max_domains`` does not fit.
 
@@ -153,24 +177,43 @@ def fmt_bytes(n: float) -> str:
 def parse_memory(text: str) -> int:
     """A memory size from the command line: '2GB', '1.5G', '512MiB', '300MB', '2e9' (bytes)."""
     from .memlimit import parse_size
+
     return parse_size(text)
 
 
-def smallest_fit_message(sc, budget: int, block_of, max_domains: int, backend: str, streamed: bool,
-                         series_bytes: float = 0.0, slabs: int = 1) -> str:
+def smallest_fit_message(
+    sc, budget: int, block_of, max_domains: int, backend: str, streamed: bool, series_bytes: float = 0.0, slabs: int = 1
+) -> str:
     """Why a budget cannot be met: the parts of the smallest out-of-core peak (at the most
     sub-domains the bed allows)."""
     parts = state_peak(sc, "ooc", backend, max_domains, block_of(max_domains), streamed, slabs)
     if series_bytes:
         parts["series"] = series_bytes
-    names = {"baseline": "interpreter and kernels",
-             "slab": f"a slab of D = {max_domains} with its halo", "memory_store": "--backend memory store",
-             "setup": "set-up (B per particle of the whole bed)", "hash": "the final state hash (holds "
-             "every id)", "series": "the wheel series"}
+    names = {
+        "baseline": "interpreter and kernels",
+        "slab": f"a slab of D = {max_domains} with its halo",
+        "memory_store": "--backend memory store",
+        "setup": "set-up (B per particle of the whole bed)",
+        "hash": "the final state hash (holds every id)",
+        "series": "the wheel series",
+    }
     detail = " + ".join(f"{names.get(k, k)} {fmt_bytes(v)}" for k, v in parts.items())
-    return (f"--memory {fmt_bytes(budget)}: out-of-core needs at least about "
-            f"{fmt_bytes(sum(parts.values()))} for soil.n = {sc.soil.n} ({detail})")
+    return (
+        f"--memory {fmt_bytes(budget)}: out-of-core needs at least about "
+        f"{fmt_bytes(sum(parts.values()))} for soil.n = {sc.soil.n} ({detail})"
+    )
 
 
-__all__ = ["ByteModel", "BYTE_MODELS", "byte_model", "choose_decomposition", "estimate_peak", "fmt_bytes",
-           "hop", "parse_memory", "slab_fraction", "smallest_fit_message", "state_peak"]
+__all__ = [
+    "ByteModel",
+    "BYTE_MODELS",
+    "byte_model",
+    "choose_decomposition",
+    "estimate_peak",
+    "fmt_bytes",
+    "hop",
+    "parse_memory",
+    "slab_fraction",
+    "smallest_fit_message",
+    "state_peak",
+]

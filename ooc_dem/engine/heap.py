@@ -11,15 +11,16 @@ every large array keeps its own mapping and is given back when freed. Elsewhere 
 this does nothing. ``import ooc_dem`` fixes it for the whole process: a monolithic run
 kept its set-up's freed arrays in the heap too (bed-1000000: 55 B/disc).
 """
+
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
 import sys
 
-M_TRIM_THRESHOLD = -1   # glibc's malloc.h
+M_TRIM_THRESHOLD = -1  # glibc's malloc.h
 M_MMAP_THRESHOLD = -3
-MMAP_THRESHOLD_BYTES = 128 * 1024   # glibc's initial value, kept fixed
+MMAP_THRESHOLD_BYTES = 128 * 1024  # glibc's initial value, kept fixed
 
 _done = False
 
@@ -34,7 +35,7 @@ def bound_heap() -> bool:
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
         mallopt = libc.mallopt
-    except (OSError, AttributeError):   # not glibc (musl has no mallopt)
+    except (OSError, AttributeError):  # not glibc (musl has no mallopt)
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     ok = mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) == 1

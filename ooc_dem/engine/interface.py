@@ -15,6 +15,7 @@ written by the write-behind thread while the next slab computes. So the loop pas
 sink for that one advance: a plain data destination whose type is defined here, which
 the application implements (its trajectory writer) and the engine does not keep.
 """
+
 from __future__ import annotations
 
 from typing import Callable, Iterable, Iterator, Protocol, runtime_checkable
@@ -60,8 +61,7 @@ class Engine(Protocol):
         """The whole current state in RAM (for callers that hold it anyway)."""
         ...
 
-    def n_discs(self) -> int:
-        ...
+    def n_discs(self) -> int: ...
 
     def state_parts(self, names: Iterable[str]) -> Iterator:
         """The current state one part at a time (``Particles`` or record dicts holding at
@@ -85,12 +85,10 @@ class FrameParts(Protocol):
     ``Engine.advance`` when a trajectory frame is due at its end, and publishes the frame
     after the advance."""
 
-    def write_part(self, part: dict) -> None:
-        ...
+    def write_part(self, part: dict) -> None: ...
 
 
-def write_epoch(store, step: int, write_domains: Callable, arrays: dict, attrs: dict,
-                durable: bool = False) -> None:
+def write_epoch(store, step: int, write_domains: Callable, arrays: dict, attrs: dict, durable: bool = False) -> None:
     """Write one epoch into ``store``: the domain groups (``write_domains(writer)``), the
     globals, then the commit; the partial epoch is removed on any failure."""
     writer = store.begin_epoch(step)

@@ -23,6 +23,7 @@ The local sets are rebuilt only when some disc has moved more than
 ``membership_skin`` in x since they were built (a disc outside a set could then be
 within the halo), or when the bounds or the wheel's slab change.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -42,8 +43,7 @@ from .stepper import N_REC, DomainStepper, EngineError, Model
 
 
 @njit(cache=True)
-def _refresh_rows(lo, hi, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
-                  x_built, ref, with_hist):
+def _refresh_rows(lo, hi, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built, ref, with_hist):
     """Rows lo..hi-1 of the halo refresh (``refresh_own_pieces``): every halo row copied
     from its owner's row (what a sweep changes; id, r, mass, inertia and mat are fixed per
     disc), its contact history too unless with_hist is False (K = 1: see ``_run_sweeps``);
@@ -99,8 +99,7 @@ def _own_range(lo, hi, x_lo, x_hi, ids, x, owner_row, owned, owned_before, role)
         if now:
             owner_row[ids[r]] = r
             count += 1
-        role[r] = ((ROLE_OWNED if now else 0) | (ROLE_OWNED_BEFORE if before else 0)
-                   | (role[r] & ROLE_SHARED))
+        role[r] = (ROLE_OWNED if now else 0) | (ROLE_OWNED_BEFORE if before else 0) | (role[r] & ROLE_SHARED)
     return count
 
 
@@ -110,8 +109,7 @@ def _own_rows(ids, x, off, bounds, owner_row, owned, owned_before, role):
     returns how many rows are owned."""
     count = 0
     for d in range(len(off) - 1):
-        count += _own_range(off[d], off[d + 1], bounds[d], bounds[d + 1], ids, x, owner_row,
-                            owned, owned_before, role)
+        count += _own_range(off[d], off[d + 1], bounds[d], bounds[d + 1], ids, x, owner_row, owned, owned_before, role)
     return count
 
 
@@ -119,15 +117,37 @@ def row_pieces(off, size: int = 256) -> np.ndarray:
     """The rows of every sub-domain cut into pieces of at most `size` rows: (n, 3) rows
     (first row, end row, sub-domain), so that a parallel loop over the pieces shares the
     rows evenly between the threads whatever the sub-domains' sizes."""
-    pieces = [(a, min(a + size, int(off[d + 1])), d)
-              for d in range(len(off) - 1) for a in range(int(off[d]), int(off[d + 1]), size)]
+    pieces = [
+        (a, min(a + size, int(off[d + 1])), d)
+        for d in range(len(off) - 1)
+        for a in range(int(off[d]), int(off[d + 1]), size)
+    ]
     return np.array(pieces, np.int64).reshape(-1, 3)
 
 
 @njit(cache=True, parallel=True)
-def refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m,
-                       x_built, ref, disp2, with_hist, part, membership_skin, bounds, owned,
-                       owned_before, role):
+def refresh_own_pieces(
+    pieces,
+    ids,
+    owner_row,
+    pos,
+    vel,
+    spin,
+    hist_n,
+    hist_id,
+    hist_s,
+    hist_m,
+    x_built,
+    ref,
+    disp2,
+    with_hist,
+    part,
+    membership_skin,
+    bounds,
+    owned,
+    owned_before,
+    role,
+):
     """The halo refresh (``_refresh_rows``; disp2[d]: the largest squared displacement from
     its neighbour-list reference of sub-domain d's refreshed rows), then ownership from x
     (``_own_range``), the rows shared between the threads: two parallel loops over
@@ -137,9 +157,22 @@ def refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id, 
     when the motion exceeds membership_skin: ownership is then left as it was)."""
     n = pieces.shape[0]
     for t in prange(n):
-        part[t, 0], part[t, 1] = _refresh_rows(pieces[t, 0], pieces[t, 1], ids, owner_row, pos, vel,
-                                               spin, hist_n, hist_id, hist_s, hist_m, x_built, ref,
-                                               with_hist)
+        part[t, 0], part[t, 1] = _refresh_rows(
+            pieces[t, 0],
+            pieces[t, 1],
+            ids,
+            owner_row,
+            pos,
+            vel,
+            spin,
+            hist_n,
+            hist_id,
+            hist_s,
+            hist_m,
+            x_built,
+            ref,
+            with_hist,
+        )
     moved = 0.0
     disp2[:] = 0.0
     for t in range(n):
@@ -151,13 +184,13 @@ def refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n, hist_id, 
     x = pos[:, AX_X]
     for t in prange(n):
         d = pieces[t, 2]
-        part[t, 0] = _own_range(pieces[t, 0], pieces[t, 1], bounds[d], bounds[d + 1], ids, x,
-                                owner_row, owned, owned_before, role)
+        part[t, 0] = _own_range(
+            pieces[t, 0], pieces[t, 1], bounds[d], bounds[d + 1], ids, x, owner_row, owned, owned_before, role
+        )
     count = np.int64(0)
     for t in range(n):
-        count += np.int64(part[t, 0])   # a count of at most `size` rows: exact as a float
+        count += np.int64(part[t, 0])  # a count of at most `size` rows: exact as a float
     return moved, count
-
 
 
 # per-sub-domain flags of the compiled sweeps (one int64 array per sub-domain)
@@ -171,10 +204,44 @@ run_steps_serial = slot("the dimension's one-thread run_steps (physics.KernelMod
 sync_history_serial = slot("the dimension's one-thread sync_history (physics.KernelModule)")
 
 
-def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, recbuf, norec,
-                ids, owner_row, pos, vel, spin, hist_n, hist_id, hist_s, hist_m, x_built, off, ref,
-                disp2, bounds, owned, owned_before, role, n_total, membership_skin, rebuild2,
-                wheel_reach, active, keep_rows, all_stable, pieces, part):
+def _run_sweeps(
+    nsweeps,
+    K,
+    step0,
+    refresh_first,
+    doms,
+    lanes,
+    lane_off,
+    wslab,
+    recbuf,
+    norec,
+    ids,
+    owner_row,
+    pos,
+    vel,
+    spin,
+    hist_n,
+    hist_id,
+    hist_s,
+    hist_m,
+    x_built,
+    off,
+    ref,
+    disp2,
+    bounds,
+    owned,
+    owned_before,
+    role,
+    n_total,
+    membership_skin,
+    rebuild2,
+    wheel_reach,
+    active,
+    keep_rows,
+    all_stable,
+    pieces,
+    part,
+):
     """Serial DDM, whole sweeps in one compiled call: per sweep, (1) every halo copy from
     its owner and ownership from x (skipped before the first sweep of a fresh build),
     (2) every sub-domain K steps with the one-thread step, the sub-domains side by side on
@@ -212,13 +279,31 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
     parallel refresh and ownership (``row_pieces``) and their scratch (len(pieces), 2)."""
     status = SWEEPS_DONE
     done = nsweeps
-    every_disc = np.zeros((0, 2), np.int64)   # run_steps' spans: each step advances every disc
+    every_disc = np.zeros((0, 2), np.int64)  # run_steps' spans: each step advances every disc
     for sw in range(nsweeps):
         if sw > 0 or refresh_first:
-            moved, count = refresh_own_pieces(pieces, ids, owner_row, pos, vel, spin, hist_n,
-                                              hist_id, hist_s, hist_m, x_built, ref, disp2,
-                                              not keep_rows, part, membership_skin, bounds,
-                                              owned, owned_before, role)
+            moved, count = refresh_own_pieces(
+                pieces,
+                ids,
+                owner_row,
+                pos,
+                vel,
+                spin,
+                hist_n,
+                hist_id,
+                hist_s,
+                hist_m,
+                x_built,
+                ref,
+                disp2,
+                not keep_rows,
+                part,
+                membership_skin,
+                bounds,
+                owned,
+                owned_before,
+                role,
+            )
             if moved > membership_skin:
                 status = SWEEPS_REBUILD
                 done = sw
@@ -231,8 +316,7 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                 if active[j] and disp2[j] > rebuild2[j]:
                     # the rebuild reloads every row from the discs: write the rows back first
                     kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
-                    sync_history_serial(d.gid.shape[0], d, pl, err, roles,
-                                        0 if keep_rows else ROLE_OWNED_BEFORE)
+                    sync_history_serial(d.gid.shape[0], d, pl, err, roles, 0 if keep_rows else ROLE_OWNED_BEFORE)
                     flags[F_REBUILD] = 1
         s0 = step0 + sw * K
         for lane in prange(len(lane_off) - 1):
@@ -243,10 +327,23 @@ def _run_sweeps(nsweeps, K, step0, refresh_first, doms, lanes, lane_off, wslab, 
                 if n == 0:
                     flags[F_DONE] = K
                     continue
-                rec = recbuf[sw * K:] if j == wslab else norec
-                k, rb = run_steps_serial(K, s0, kp, d, pl, bd, forces, ws, err, rec,
-                                         flags[F_REBUILD] != 0, flags[F_PAIRS_DONE] != 0,
-                                         all_stable[:n] if keep_rows else roles, every_disc)
+                rec = recbuf[sw * K :] if j == wslab else norec
+                k, rb = run_steps_serial(
+                    K,
+                    s0,
+                    kp,
+                    d,
+                    pl,
+                    bd,
+                    forces,
+                    ws,
+                    err,
+                    rec,
+                    flags[F_REBUILD] != 0,
+                    flags[F_PAIRS_DONE] != 0,
+                    all_stable[:n] if keep_rows else roles,
+                    every_disc,
+                )
                 flags[F_DONE] = k
                 flags[F_REBUILDS] += rb
                 flags[F_REBUILD] = 0
@@ -292,7 +389,7 @@ def _append(items, item):
     items.append(item)
 
 
-_SWEEPS: dict[str, Any] = {}   # the compiled sweeps by kernel module (numba dispatchers)
+_SWEEPS: dict[str, Any] = {}  # the compiled sweeps by kernel module (numba dispatchers)
 
 
 def sweeps_kernel(kern):
@@ -300,18 +397,32 @@ def sweeps_kernel(kern):
     one-thread step, and its write-back of the rows' springs (``sync_history_serial``)."""
     if kern.__name__ not in _SWEEPS:
         name = "run_sweeps_" + kern.__name__.rsplit(".", 1)[-1]
-        _SWEEPS[kern.__name__] = serial_twin(_run_sweeps, name, parallel=True,
-                                             run_steps_serial=kern.run_steps_serial,
-                                             sync_history_serial=kern.sync_history_serial)
+        _SWEEPS[kern.__name__] = serial_twin(
+            _run_sweeps,
+            name,
+            parallel=True,
+            run_steps_serial=kern.run_steps_serial,
+            sync_history_serial=kern.sync_history_serial,
+        )
     return _SWEEPS[kern.__name__]
 
 
 class LiveDomains:
     """All sub-domains of a serial-DDM run with their halos and steppers, kept in RAM."""
 
-    def __init__(self, discs: Particles, bounds: np.ndarray, halo: float, membership_skin: float,
-                 model: Model, model_nowheel: Model, ws: np.ndarray, wslab: int,
-                 active: np.ndarray | None = None, whole_refresh: bool = True):
+    def __init__(
+        self,
+        discs: Particles,
+        bounds: np.ndarray,
+        halo: float,
+        membership_skin: float,
+        model: Model,
+        model_nowheel: Model,
+        ws: np.ndarray,
+        wslab: int,
+        active: np.ndarray | None = None,
+        whole_refresh: bool = True,
+    ):
         """active: which sub-domains are advanced (default all; an MPI rank's two ghost
         sub-domains, which only hold the neighbour ranks' copies, are not).
         whole_refresh: every halo row is refreshed from its owner's row before each sweep
@@ -321,8 +432,7 @@ class LiveDomains:
         self.D = len(self.bounds) - 1
         self.n = len(discs)
         self.wslab = wslab
-        self.active = (np.ones(self.D, np.bool_) if active is None
-                       else np.asarray(active, np.bool_).copy())
+        self.active = np.ones(self.D, np.bool_) if active is None else np.asarray(active, np.bool_).copy()
         self.membership_skin = membership_skin
         self.whole_refresh = whole_refresh
         x = discs.pos[:, AX_X]
@@ -372,18 +482,19 @@ class LiveDomains:
         # rows of the advanced sub-domains (fixed for these local sets)
         self._active_rows = np.concatenate(
             [np.arange(self.off[j], self.off[j + 1]) for j in range(self.D) if self.active[j]]
-            or [np.zeros(0, np.int64)])
+            or [np.zeros(0, np.int64)]
+        )
         # the compiled sweeps' per-sub-domain flags, lane plan and rebuild thresholds
         self.flags = [np.zeros(4, np.int64) for _ in range(self.D)]
         self._lane_plan = self._lanes()
-        self._rebuild2 = np.array([0.25 * st.model.skin ** 2 for st in self.steppers])
+        self._rebuild2 = np.array([0.25 * st.model.skin**2 for st in self.steppers])
         # the refresh and the ownership share the rows between the threads in pieces
         self._pieces = row_pieces(self.off)
         self._part = np.zeros((len(self._pieces), 2))
-        self._doms: Any = None   # a numba typed List (_domain_list)
+        self._doms: Any = None  # a numba typed List (_domain_list)
         self._doms_key: tuple[tuple[int, int, int], ...] | None = None
-        self._entry = (None, None)   # (list of sub-domains, the compiled sweeps for it: _compiled)
-        self._swept = False          # a sweep has run on these local sets (run_sweeps' refresh_first)
+        self._entry = (None, None)  # (list of sub-domains, the compiled sweeps for it: _compiled)
+        self._swept = False  # a sweep has run on these local sets (run_sweeps' refresh_first)
         self._own()
 
     def resident(self) -> list[int]:
@@ -395,14 +506,25 @@ class LiveDomains:
         both were computed from their true states; nothing outside the sub-domain writes an
         owned row)."""
         p = self.p
-        self._check_owned(_own_rows(self.slot, p.pos[:, AX_X], self.off, self.bounds, self.owner_row,
-                                    self.owned, self.owned_before, self.role))
+        self._check_owned(
+            _own_rows(
+                self.slot,
+                p.pos[:, AX_X],
+                self.off,
+                self.bounds,
+                self.owner_row,
+                self.owned,
+                self.owned_before,
+                self.role,
+            )
+        )
 
     def _check_owned(self, total: int) -> None:
         """Every disc owned exactly once (``total`` rows owned of n discs)."""
         if total != self.n:
-            raise EngineError(f"serial DDM owns {total} of {self.n} discs "
-                              f"(bounds {self.bounds.tolist()}): decomposition error")
+            raise EngineError(
+                f"serial DDM owns {total} of {self.n} discs (bounds {self.bounds.tolist()}): decomposition error"
+            )
 
     def owned_active_rows(self) -> np.ndarray:
         """Rows owned at the start of the last sweep by the advanced sub-domains."""
@@ -417,11 +539,28 @@ class LiveDomains:
         """Halo copies <- owners' time-n copies, then ownership from x. False when the
         local sets must be rebuilt instead (a disc moved beyond the membership skin)."""
         p = self.p
-        moved, total = refresh_own_pieces(self._pieces, self.slot, self.owner_row, p.pos, p.vel, p.spin,
-                                          p.hist_n, p.hist_id, p.hist_s, p.hist_m, self.x_built,
-                                          self.ref, self.disp2, True, self._part,
-                                          self.membership_skin, self.bounds, self.owned,
-                                          self.owned_before, self.role)
+        moved, total = refresh_own_pieces(
+            self._pieces,
+            self.slot,
+            self.owner_row,
+            p.pos,
+            p.vel,
+            p.spin,
+            p.hist_n,
+            p.hist_id,
+            p.hist_s,
+            p.hist_m,
+            self.x_built,
+            self.ref,
+            self.disp2,
+            True,
+            self._part,
+            self.membership_skin,
+            self.bounds,
+            self.owned,
+            self.owned_before,
+            self.role,
+        )
         if moved > self.membership_skin:
             return False
         self._check_owned(total)
@@ -455,7 +594,7 @@ class LiveDomains:
             return self._doms
         doms = None
         for j, (st, fl) in enumerate(zip(self.steppers, self.flags)):
-            item = st.kernel_args() + (fl, self.role[self.off[j]:self.off[j + 1]])
+            item = st.kernel_args() + (fl, self.role[self.off[j] : self.off[j + 1]])
             if doms is None:
                 doms = _list_of(item)
             else:
@@ -480,7 +619,7 @@ class LiveDomains:
             return run
         try:
             cres = run.overloads.get(tuple(numba.typeof(a) for a in args))
-        except AttributeError:   # a numba without the overloads table
+        except AttributeError:  # a numba without the overloads table
             cres = None
         self._entry = (doms, run if cres is None else cres.entry_point)
         return self._entry[1]
@@ -509,21 +648,50 @@ class LiveDomains:
         done = 0
         status = SWEEPS_DONE
         while done < nsweeps:
-            args = (nsweeps - done, K, step0 + done * K, refresh_first or done > 0, doms,
-                    lanes, lane_off, self.wslab,
-                    record(recbuf[done * K:], WHEEL_RECORD) if self.wslab >= 0 else norec,
-                    norec, self.slot, self.owner_row, p.pos, p.vel, p.spin, p.hist_n,
-                    p.hist_id, p.hist_s, p.hist_m, self.x_built, self.off, self.ref,
-                    self.disp2, self.bounds, self.owned, self.owned_before, self.role,
-                    self.n, self.membership_skin,
-                    self._rebuild2, wheel_reach if self.wslab >= 0 else -1.0,
-                    self.active, keep_rows, all_stable, self._pieces, self._part)
+            args = (
+                nsweeps - done,
+                K,
+                step0 + done * K,
+                refresh_first or done > 0,
+                doms,
+                lanes,
+                lane_off,
+                self.wslab,
+                record(recbuf[done * K :], WHEEL_RECORD) if self.wslab >= 0 else norec,
+                norec,
+                self.slot,
+                self.owner_row,
+                p.pos,
+                p.vel,
+                p.spin,
+                p.hist_n,
+                p.hist_id,
+                p.hist_s,
+                p.hist_m,
+                self.x_built,
+                self.off,
+                self.ref,
+                self.disp2,
+                self.bounds,
+                self.owned,
+                self.owned_before,
+                self.role,
+                self.n,
+                self.membership_skin,
+                self._rebuild2,
+                wheel_reach if self.wslab >= 0 else -1.0,
+                self.active,
+                keep_rows,
+                all_stable,
+                self._pieces,
+                self._part,
+            )
             n_sw, status = self._compiled(run, doms, args)(*args)
             done += n_sw
             if status == SWEEPS_DOMAIN:
                 # a sub-domain stopped (a buffer to grow, or an error): finish its block
                 # with its own stepper, which grows what it must, then go on
-                self._finish_block(step0 + done * K, K, recbuf[done * K:(done + 1) * K])
+                self._finish_block(step0 + done * K, K, recbuf[done * K : (done + 1) * K])
                 done += 1
                 doms = self._domain_list()
                 if self.wslab >= 0:
@@ -534,8 +702,10 @@ class LiveDomains:
                         break
                 continue
             if status == SWEEPS_OWNERSHIP:
-                raise EngineError(f"serial DDM lost ownership of discs at step {step0 + done * K} "
-                                  f"(bounds {self.bounds.tolist()}): decomposition error")
+                raise EngineError(
+                    f"serial DDM lost ownership of discs at step {step0 + done * K} "
+                    f"(bounds {self.bounds.tolist()}): decomposition error"
+                )
             break
         self._swept = self._swept or done > 0
         for st, fl in zip(self.steppers, self.flags):
@@ -547,7 +717,7 @@ class LiveDomains:
             for st in self.steppers:
                 if st.n:
                     st._check(step0 + done * K, K)
-        return recbuf[:done * K], done, status
+        return recbuf[: done * K], done, status
 
     def _finish_block(self, step0: int, K: int, rec) -> None:
         """The sub-domains a compiled sweep left short of K steps: each continues from where
@@ -568,7 +738,7 @@ class LiveDomains:
                 err[ERR_BODY_CAPACITY] = 0
                 st._pairs_done = True
             elif err.any():
-                st._check(step0 + k, K)   # fatal (history overflow): raises
+                st._check(step0 + k, K)  # fatal (history overflow): raises
             if k < K and st.n:
                 r = rec[k:] if j == self.wslab else np.zeros((0, N_REC))
                 st._run(K - k, step0 + k, r)

@@ -26,6 +26,7 @@ them first: RSS can exceed the limit by those (~90 MB for numba's LLVM and numpy
 while the child's anonymous memory (RssAnon) cannot. RSS, RssAnon (``/proc/PID/status``)
 and the cgroup's usage are sampled over the whole run.
 """
+
 from __future__ import annotations
 
 import os
@@ -49,10 +50,24 @@ class MemoryLimitError(OocDemError, RuntimeError):
 def parse_size(text: str) -> int:
     """Bytes from '2GB', '512MiB', '1.5G', '300M', '1e9' (decimal units, binary with 'i')."""
     t = str(text).strip().replace("_", "")
-    units = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,
-             "t": 10**12, "tb": 10**12, "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
+    units = {
+        "": 1,
+        "b": 1,
+        "k": 10**3,
+        "kb": 10**3,
+        "m": 10**6,
+        "mb": 10**6,
+        "g": 10**9,
+        "gb": 10**9,
+        "t": 10**12,
+        "tb": 10**12,
+        "kib": 2**10,
+        "mib": 2**20,
+        "gib": 2**30,
+        "tib": 2**40,
+    }
     num = t.rstrip("bBiIkKmMgGtT")
-    unit = t[len(num):].lower()
+    unit = t[len(num) :].lower()
     try:
         v = float(num) * units[unit]
     except (ValueError, KeyError):
@@ -82,8 +97,9 @@ def _own_cgroup() -> tuple[int, Path]:
             d = mount / v2_path.lstrip("/")
             if "memory" in _read(mount / "cgroup.controllers", "").split():
                 return 2, d
-    raise MemoryLimitError("no memory cgroup controller is mounted (cgroup v1 memory or cgroup v2 "
-                           "with the memory controller)")
+    raise MemoryLimitError(
+        "no memory cgroup controller is mounted (cgroup v1 memory or cgroup v2 with the memory controller)"
+    )
 
 
 def _read(path: Path, default=None):
@@ -120,13 +136,14 @@ class MemoryCgroup:
                     ctl.write_text("+memory")
             self.path.mkdir()
         except OSError as e:
-            raise MemoryLimitError(f"cannot make a memory cgroup in {parent} ({e.strerror or e}; "
-                                   f"this needs root or a delegated cgroup)") from None
+            raise MemoryLimitError(
+                f"cannot make a memory cgroup in {parent} ({e.strerror or e}; this needs root or a delegated cgroup)"
+            ) from None
         try:
             if self.version == 1:
                 (self.path / "memory.limit_in_bytes").write_text(str(self.limit))
                 sw = self.path / "memory.memsw.limit_in_bytes"
-                if sw.exists():   # swap accounting: memory + swap under the same bound
+                if sw.exists():  # swap accounting: memory + swap under the same bound
                     sw.write_text(str(self.limit))
             else:
                 (self.path / "memory.max").write_text(str(self.limit))
@@ -200,15 +217,16 @@ def _rss_of(pid: int) -> tuple[int, int, int]:
 @dataclass
 class LimitedRun:
     """What a (possibly limited) child did."""
+
     cmd: list
     returncode: int
     stdout: str
     stderr: str
     wall_s: float
-    peak_rss_bytes: int              # the child's own peak RSS (wait4's ru_maxrss, VmHWM samples)
+    peak_rss_bytes: int  # the child's own peak RSS (wait4's ru_maxrss, VmHWM samples)
     limit_bytes: int | None = None
     cgroup_version: int | None = None
-    cgroup_peak_bytes: int | None = None   # RSS + page cache + kernel memory charged to the cgroup
+    cgroup_peak_bytes: int | None = None  # RSS + page cache + kernel memory charged to the cgroup
     oom_killed: bool = False
     # [t s, child VmRSS B, cgroup usage B or -1, child RssAnon B]
     samples: list = field(default_factory=list)
@@ -223,21 +241,30 @@ class LimitedRun:
         return max((s[3] for s in self.samples), default=-1)
 
     def as_dict(self) -> dict:
-        return {"returncode": self.returncode, "wall_s": round(self.wall_s, 3),
-                "peak_rss_bytes": self.peak_rss_bytes, "sampled_peak_rss_bytes": self.sampled_peak_rss_bytes,
-                "sampled_peak_anon_bytes": self.sampled_peak_anon_bytes,
-                "memory_limit_bytes": self.limit_bytes, "cgroup_version": self.cgroup_version,
-                "cgroup_peak_bytes": self.cgroup_peak_bytes, "oom_killed": self.oom_killed,
-                "rss_samples": len(self.samples)}
+        return {
+            "returncode": self.returncode,
+            "wall_s": round(self.wall_s, 3),
+            "peak_rss_bytes": self.peak_rss_bytes,
+            "sampled_peak_rss_bytes": self.sampled_peak_rss_bytes,
+            "sampled_peak_anon_bytes": self.sampled_peak_anon_bytes,
+            "memory_limit_bytes": self.limit_bytes,
+            "cgroup_version": self.cgroup_version,
+            "cgroup_peak_bytes": self.cgroup_peak_bytes,
+            "oom_killed": self.oom_killed,
+            "rss_samples": len(self.samples),
+        }
 
     def oom_message(self, what: str) -> str:
         def mb(b):
             return f"{b / 1e6:.1f} MB"
-        return (f"{what} was killed by the memory limit (OOM): limit {mb(self.limit_bytes)}, "
-                f"peak RSS {mb(self.peak_rss_bytes)}"
-                + (f", cgroup peak {mb(self.cgroup_peak_bytes)}" if self.cgroup_peak_bytes else "")
-                + f" after {self.wall_s:.1f} s; raise the limit or lower the run's need (ooc: more "
-                  f"--domains or a smaller --memory budget)")
+
+        return (
+            f"{what} was killed by the memory limit (OOM): limit {mb(self.limit_bytes)}, "
+            f"peak RSS {mb(self.peak_rss_bytes)}"
+            + (f", cgroup peak {mb(self.cgroup_peak_bytes)}" if self.cgroup_peak_bytes else "")
+            + f" after {self.wall_s:.1f} s; raise the limit or lower the run's need (ooc: more "
+            f"--domains or a smaller --memory budget)"
+        )
 
 
 # The launcher (run as ``python -I -S -c``, so it loads nothing but the interpreter): fork, the
@@ -268,24 +295,40 @@ os.write(fd, f"{status} {ru.ru_maxrss}\\n".encode())
 """
 
 
-def run_limited(cmd, limit_bytes: int | None = None, *, env=None, cwd=None, interval: float = 0.1,
-                stdout_path=None) -> LimitedRun:
+def run_limited(
+    cmd, limit_bytes: int | None = None, *, env=None, cwd=None, interval: float = 0.1, stdout_path=None
+) -> LimitedRun:
     """Run ``cmd`` to its end under ``limit_bytes`` (None: no limit, still measured).
 
     stdout and stderr go to temporary files (or ``stdout_path``), never a pipe that a
     large output could fill while we only sample."""
     cg = MemoryCgroup(limit_bytes) if limit_bytes is not None else None
     try:
-        with tempfile.TemporaryFile("w+") as err, \
-                (open(stdout_path, "w+") if stdout_path else tempfile.TemporaryFile("w+")) as out:
+        with (
+            tempfile.TemporaryFile("w+") as err,
+            open(stdout_path, "w+") if stdout_path else tempfile.TemporaryFile("w+") as out,
+        ):
             t0 = time.perf_counter()
             argv = list(map(str, cmd))
             rfd, wfd = os.pipe()
             try:
                 launcher = subprocess.Popen(
-                    [sys.executable, "-I", "-S", "-c", _LAUNCHER, str(wfd),
-                     str(cg.path / "cgroup.procs") if cg is not None else "", *argv],
-                    stdout=out, stderr=err, env=env, cwd=cwd, pass_fds=(wfd,))
+                    [
+                        sys.executable,
+                        "-I",
+                        "-S",
+                        "-c",
+                        _LAUNCHER,
+                        str(wfd),
+                        str(cg.path / "cgroup.procs") if cg is not None else "",
+                        *argv,
+                    ],
+                    stdout=out,
+                    stderr=err,
+                    env=env,
+                    cwd=cwd,
+                    pass_fds=(wfd,),
+                )
             finally:
                 os.close(wfd)
             with os.fdopen(rfd, "r") as report:
@@ -303,22 +346,28 @@ def run_limited(cmd, limit_bytes: int | None = None, *, env=None, cwd=None, inte
                 done = report.readline().split()
             wall = time.perf_counter() - t0
             if len(done) != 2:
-                raise MemoryLimitError(f"the launcher of {argv[0]} ended without reporting its child "
-                                       f"(exit {launcher.returncode})")
+                raise MemoryLimitError(
+                    f"the launcher of {argv[0]} ended without reporting its child (exit {launcher.returncode})"
+                )
             status, maxrss_kib = map(int, done)
             out.seek(0)
             err.seek(0)
-            res = LimitedRun(cmd=argv, returncode=os.waitstatus_to_exitcode(status), stdout=out.read(),
-                             stderr=err.read(), wall_s=wall,
-                             peak_rss_bytes=max(maxrss_kib * 1024, peak_hwm),
-                             limit_bytes=limit_bytes, samples=samples)
+            res = LimitedRun(
+                cmd=argv,
+                returncode=os.waitstatus_to_exitcode(status),
+                stdout=out.read(),
+                stderr=err.read(),
+                wall_s=wall,
+                peak_rss_bytes=max(maxrss_kib * 1024, peak_hwm),
+                limit_bytes=limit_bytes,
+                samples=samples,
+            )
         if cg is not None:
             res.cgroup_version = cg.version
             res.cgroup_peak_bytes = cg.peak()
             # killed by SIGKILL while the cgroup's OOM killer counted a kill: the limit did it
             kills = cg.oom_kills()
-            res.oom_killed = res.returncode == -signal.SIGKILL and (
-                kills > 0 if kills is not None else cg.hit_limit())
+            res.oom_killed = res.returncode == -signal.SIGKILL and (kills > 0 if kills is not None else cg.hit_limit())
         return res
     finally:
         if cg is not None:

@@ -11,6 +11,7 @@ wheel_state, engine_attrs, *, store, redecompositions, **options)``, and
 ``default_block(sc, domains)``; out-of-core ones take ``io_overlap`` among the options
 and also ``create_streamed`` (a bed that never is whole in RAM).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -47,41 +48,84 @@ class Mode:
 
 def _monolithic() -> type:
     from .monolithic import MonolithicEngine
+
     return MonolithicEngine
 
 
 def _ddm() -> type:
     from .sweep import DdmEngine
+
     return DdmEngine
 
 
 def _ooc() -> type:
     from .ooc import OocEngine
+
     return OocEngine
 
 
 def _mpi() -> type:
     from .mpi import MpiEngine
+
     return MpiEngine
 
 
 def _mpi_ooc() -> type:
     from .mpi import MpiOocEngine
+
     return MpiOocEngine
 
 
-MODES: dict[str, Mode] = {m.name: m for m in (
-    Mode("monolithic", "the whole bin as one domain", decomposes=False, out_of_core=False, mpi=False,
-         family="monolithic", _load=_monolithic),
-    Mode("ddm", "serial domain decomposition, the sub-domains in RAM", decomposes=True, out_of_core=False,
-         mpi=False, family="ddm", _load=_ddm),
-    Mode("ooc", "out-of-core: one slab and its halo in RAM, the epochs in the store", decomposes=True,
-         out_of_core=True, mpi=False, family="ooc", _load=_ooc),
-    Mode("mpi", "serial DDM's sub-domains spread over MPI ranks", decomposes=True, out_of_core=False,
-         mpi=True, family="ddm", _load=_mpi),
-    Mode("mpi-ooc", "out-of-core with each MPI rank streaming its own slabs", decomposes=True,
-         out_of_core=True, mpi=True, family="ooc", _load=_mpi_ooc),
-)}
+MODES: dict[str, Mode] = {
+    m.name: m
+    for m in (
+        Mode(
+            "monolithic",
+            "the whole bin as one domain",
+            decomposes=False,
+            out_of_core=False,
+            mpi=False,
+            family="monolithic",
+            _load=_monolithic,
+        ),
+        Mode(
+            "ddm",
+            "serial domain decomposition, the sub-domains in RAM",
+            decomposes=True,
+            out_of_core=False,
+            mpi=False,
+            family="ddm",
+            _load=_ddm,
+        ),
+        Mode(
+            "ooc",
+            "out-of-core: one slab and its halo in RAM, the epochs in the store",
+            decomposes=True,
+            out_of_core=True,
+            mpi=False,
+            family="ooc",
+            _load=_ooc,
+        ),
+        Mode(
+            "mpi",
+            "serial DDM's sub-domains spread over MPI ranks",
+            decomposes=True,
+            out_of_core=False,
+            mpi=True,
+            family="ddm",
+            _load=_mpi,
+        ),
+        Mode(
+            "mpi-ooc",
+            "out-of-core with each MPI rank streaming its own slabs",
+            decomposes=True,
+            out_of_core=True,
+            mpi=True,
+            family="ooc",
+            _load=_mpi_ooc,
+        ),
+    )
+}
 
 
 def mode_names(where: Callable[[Mode], bool] = lambda m: True) -> tuple[str, ...]:

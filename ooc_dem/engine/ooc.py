@@ -1,5 +1,6 @@
 """Out-of-core (``OocEngine``): the sweep (``sweep.SlabSweep``) over epochs in a store, one
 slab and its halo in RAM at a time; the epochs are the store's, written a sweep at a time."""
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Iterable, Self
@@ -32,13 +33,23 @@ class OocEngine(SlabSweep):
     epoch_each_advance = True
     writes_frame_parts = True
 
-    def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds, *,
-                 store, io_overlap: bool = False, redecompositions=()):
+    def __init__(
+        self,
+        sc,
+        model: Model,
+        wheel_state: np.ndarray,
+        block: int,
+        bounds,
+        *,
+        store,
+        io_overlap: bool = False,
+        redecompositions=(),
+    ):
         super().__init__(sc, model, wheel_state, block, bounds, redecompositions)
         self.store = store
-        self.preferred_chunk = self.K   # one sweep an advance: the next reads its epoch
-        self._writer: EpochWriter | None = None   # the epoch being written
-        self._store_reader = None   # the current committed epoch
+        self.preferred_chunk = self.K  # one sweep an advance: the next reads its epoch
+        self._writer: EpochWriter | None = None  # the epoch being written
+        self._store_reader = None  # the current committed epoch
         self.committed_step: int | None = None
         # read ahead and write behind in threads (``_slabs``)
         self.io_overlap = bool(io_overlap)
@@ -51,9 +62,19 @@ class OocEngine(SlabSweep):
         return max(sc.decomposition.block, auto_block(sc, domains, sc.bin.length))
 
     @classmethod
-    def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *,
-               domains: int, block: int, store, io_overlap: bool = False,
-               bounds=None) -> Self:
+    def create(
+        cls,
+        sc,
+        model: Model,
+        particles: Particles,
+        wheel_state: np.ndarray,
+        *,
+        domains: int,
+        block: int,
+        store,
+        io_overlap: bool = False,
+        bounds=None,
+    ) -> Self:
         """Split the discs into `domains` slabs by the scenario's policy (or at `bounds`)
         and write them as the store's first epoch (committed by the first ``commit``)."""
         eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store=store, io_overlap=io_overlap)
@@ -62,8 +83,18 @@ class OocEngine(SlabSweep):
         return eng
 
     @classmethod
-    def create_streamed(cls, sc, model: Model, parts: Iterable[Particles], wheel_state: np.ndarray, *,
-                        domains: int, block: int, store, io_overlap: bool = False) -> Self:
+    def create_streamed(
+        cls,
+        sc,
+        model: Model,
+        parts: Iterable[Particles],
+        wheel_state: np.ndarray,
+        *,
+        domains: int,
+        block: int,
+        store,
+        io_overlap: bool = False,
+    ) -> Self:
         """Start from a bed produced in x-ordered parts (``parts``, iterated twice: each
         pass produces them again), never holding the whole bed: pass 1 counts the discs in
         x bins (for the bounds), pass 2 writes each sub-domain's group as soon as no later
@@ -96,12 +127,23 @@ class OocEngine(SlabSweep):
         return eng
 
     @classmethod
-    def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, io_overlap: bool = False, redecompositions=()) -> Self:
+    def reopen(
+        cls,
+        sc,
+        model: Model,
+        reader,
+        wheel_state: np.ndarray,
+        engine_attrs: dict,
+        *,
+        store,
+        io_overlap: bool = False,
+        redecompositions=(),
+    ) -> Self:
         """Continue from the committed epoch `reader` reads (its step is the engine's)."""
         K, bounds = cls._stored_geometry(engine_attrs)
-        eng = cls(sc, model, wheel_state, K, bounds, store=store, io_overlap=io_overlap,
-                  redecompositions=redecompositions)
+        eng = cls(
+            sc, model, wheel_state, K, bounds, store=store, io_overlap=io_overlap, redecompositions=redecompositions
+        )
         eng._store_reader = open_epoch(store, reader.step)
         eng.committed_step = int(reader.step)
         eng._n = sum(reader.domain_len(d) for d in reader.domains())
@@ -140,8 +182,10 @@ class OocEngine(SlabSweep):
         """One sweep of nsteps steps (1 to K: the halo is sized for K); its epoch is left
         open for ``commit``."""
         if not 1 <= nsteps <= self.K:
-            raise ValueError(f"out-of-core advance of {nsteps} steps: one sweep is 1 to K = {self.K} "
-                             f"steps (its epoch is committed before the next sweep reads it)")
+            raise ValueError(
+                f"out-of-core advance of {nsteps} steps: one sweep is 1 to K = {self.K} "
+                f"steps (its epoch is committed before the next sweep reads it)"
+            )
         return self.sweep(step0, nsteps, frame)
 
     def _begin_epoch(self, step: int):
@@ -172,8 +216,7 @@ class OocEngine(SlabSweep):
         (group_order), so the slab is already in the kernels' cache-friendly order: no
         spatial re-sort."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
-        pieces = [q for g in src.domains()
-                  if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
+        pieces = [q for g in src.domains() if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
         return records_to_particles(pieces, self.model.hist_cap, self.model.dim)
 
     def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int, local=None):
@@ -222,6 +265,7 @@ class OocEngine(SlabSweep):
                 yield d, len(owned), rec, ws, len(local)
             return
         from concurrent.futures import ThreadPoolExecutor
+
         with ThreadPoolExecutor(1, "ooc-read") as reads, ThreadPoolExecutor(1, "ooc-write") as writes:
             ahead = reads.submit(self._read_slab, src, 0)
             written = None
@@ -231,7 +275,7 @@ class OocEngine(SlabSweep):
                     ahead = reads.submit(self._read_slab, src, d + 1)
                 local, owned, rec, ws = self._advance_slab(src, d, step0, k, wslab, local)
                 if written is not None:
-                    written.result()       # one write in flight: memory stays three slabs
+                    written.result()  # one write in flight: memory stays three slabs
                 written = writes.submit(stage, d, local, owned)
                 yield d, len(owned), rec, ws, len(local)
                 del local
@@ -246,7 +290,7 @@ class OocEngine(SlabSweep):
 
         def stage(d, local, owned):
             group = self._stage_owned(d, local, owned)
-            if frame is not None:   # a frame due at the sweep's end: each slab's part as it passes
+            if frame is not None:  # a frame due at the sweep's end: each slab's part as it passes
                 frame.write_part(group)
 
         for d, n_owned, rec, ws, n_local in self._slabs(src, step0, k, wslab, stage):
@@ -255,8 +299,10 @@ class OocEngine(SlabSweep):
                 rec_wheel, new_ws = rec, ws
             owned_total += n_owned
         if self._n is not None and owned_total != self._n:
-            raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
-                              f"(bounds {self.bounds.tolist()}): decomposition error")
+            raise EngineError(
+                f"sweep at step {step0} kept {owned_total} of {self._n} discs "
+                f"(bounds {self.bounds.tolist()}): decomposition error"
+            )
         self.ws = new_ws
         self._note_resident(resident)
         return rec_wheel
@@ -264,8 +310,9 @@ class OocEngine(SlabSweep):
     def particles(self) -> Particles:
         src = self._source()
         m = self.model
-        return Particles.concat([record_to_particles(src.read_domain(d), m.hist_cap)
-                                 for d in src.domains()], m.dim, m.hist_cap)
+        return Particles.concat(
+            [record_to_particles(src.read_domain(d), m.hist_cap) for d in src.domains()], m.dim, m.hist_cap
+        )
 
     def state_parts(self, names=()):
         """Each group of the committed epoch in turn (never the whole bed)."""

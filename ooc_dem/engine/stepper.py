@@ -13,6 +13,7 @@ steps in place. Monolithic, DDM and out-of-core only differ in which discs they
 hand it and where the results go, so they cannot drift apart. It never looks inside
 the kernel module: it hands it the named records of physics.layout.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -23,15 +24,53 @@ import numpy as np
 from ..physics import kernels
 from ..physics import layout as L
 from ..physics.d2.layout import CONTACT_PARAMS, N_FIELDS, WALLS
-from ..physics.layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW,  # noqa: F401
-                              ERR_PAIR_CAPACITY, N_ERR, N_REC,
-                              REC_COLUMNS, REC_DB, REC_FX, REC_FY, REC_NC, REC_T, REC_THETA,
-                              REC_TQ, REC_VX, REC_VY, REC_WZ, REC_X, REC_Y, WC_DRAWBAR,
-                              WC_OMEGA, WC_RAMP, WC_SETTLE, WC_SIZE, WC_SLIP, WC_SLIPMODE,
-                              WG_CAP, WG_ENABLED, WG_LUG_IN, WG_LUG_OUT, WG_MASS, WG_NLUGS,
-                              WG_R, WG_SIZE, WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD,
-                              WHEEL_STATE, WS_SIZE, Bodies, Forces, KernelParams,
-                              Pairs, discs_of, record, spin_width)
+from ..physics.layout import (
+    ERR_BODY_CAPACITY,
+    ERR_HIST_OVERFLOW,  # noqa: F401
+    ERR_PAIR_CAPACITY,
+    N_ERR,  # noqa: F401
+    N_REC,
+    REC_COLUMNS,  # noqa: F401
+    REC_DB,  # noqa: F401
+    REC_FX,  # noqa: F401
+    REC_FY,  # noqa: F401
+    REC_NC,  # noqa: F401
+    REC_T,  # noqa: F401
+    REC_THETA,  # noqa: F401
+    REC_TQ,  # noqa: F401
+    REC_VX,  # noqa: F401
+    REC_VY,  # noqa: F401
+    REC_WZ,  # noqa: F401
+    REC_X,  # noqa: F401
+    REC_Y,  # noqa: F401
+    WC_DRAWBAR,  # noqa: F401
+    WC_OMEGA,  # noqa: F401
+    WC_RAMP,  # noqa: F401
+    WC_SETTLE,  # noqa: F401
+    WC_SIZE,
+    WC_SLIP,  # noqa: F401
+    WC_SLIPMODE,  # noqa: F401
+    WG_CAP,  # noqa: F401
+    WG_ENABLED,  # noqa: F401
+    WG_LUG_IN,  # noqa: F401
+    WG_LUG_OUT,  # noqa: F401
+    WG_MASS,  # noqa: F401
+    WG_NLUGS,  # noqa: F401
+    WG_R,  # noqa: F401
+    WG_SIZE,
+    WHEEL_CONTROLS,
+    WHEEL_GEOMETRY,
+    WHEEL_RECORD,
+    WHEEL_STATE,
+    WS_SIZE,
+    Bodies,
+    Forces,
+    KernelParams,
+    Pairs,
+    discs_of,
+    record,
+    spin_width,
+)
 from ..model.state import Particles, default_hist_cap
 from ..errors import OocDemError
 
@@ -47,17 +86,18 @@ class EngineError(OocDemError, RuntimeError):
 class Model:
     """Everything the kernels need from a scenario: flat float arrays whose layouts are
     the records of physics.layout (``records()`` gives the record views)."""
+
     dt: float
-    gravity: np.ndarray   # (dim,) acceleration of gravity
+    gravity: np.ndarray  # (dim,) acceleration of gravity
     skin: float
-    cp: np.ndarray        # CONTACT_PARAMS table [type_a, type_b, field]; types T_SOIL, T_WALL, T_WHEEL
-    walls: np.ndarray     # WALLS
-    wg: np.ndarray        # WHEEL_GEOMETRY
-    wc: np.ndarray        # WHEEL_CONTROLS
+    cp: np.ndarray  # CONTACT_PARAMS table [type_a, type_b, field]; types T_SOIL, T_WALL, T_WHEEL
+    walls: np.ndarray  # WALLS
+    wg: np.ndarray  # WHEEL_GEOMETRY
+    wc: np.ndarray  # WHEEL_CONTROLS
     wheel_enabled: bool
     r_max: float
-    dim: int = 2              # 2 for every current scenario; picks the kernel module
-    hist_cap: int = 0         # contact-history capacity C per particle (0: the dimension's default)
+    dim: int = 2  # 2 for every current scenario; picks the kernel module
+    hist_cap: int = 0  # contact-history capacity C per particle (0: the dimension's default)
 
     def __post_init__(self):
         if not self.hist_cap:
@@ -74,8 +114,15 @@ class Model:
         table = record(cp, CONTACT_PARAMS)
 
         def put(a, b, pair):
-            vals = (pair.kn, pair.ks, pair.damping_n, pair.damping_t, pair.friction,
-                    pair.rolling_friction, pair.rolling_damping)
+            vals = (
+                pair.kn,
+                pair.ks,
+                pair.damping_n,
+                pair.damping_t,
+                pair.friction,
+                pair.rolling_friction,
+                pair.rolling_damping,
+            )
             table[a, b] = vals
             table[b, a] = vals
 
@@ -86,9 +133,19 @@ class Model:
         record(walls, WALLS)[0] = (sc.bin.length, 1.0, 1.0, 1.0)
         wg, wc = wheel_records(sc)
         w = sc.wheel
-        return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
-                   skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc, wheel_enabled=w.enabled,
-                   r_max=sc.soil.r_max, dim=sc.dim, hist_cap=sc.hist_cap)
+        return cls(
+            dt=sc.physics.dt,
+            gravity=np.array(sc.gravity_vector, np.float64),
+            skin=sc.bed.skin,
+            cp=cp,
+            walls=walls,
+            wg=wg,
+            wc=wc,
+            wheel_enabled=w.enabled,
+            r_max=sc.soil.r_max,
+            dim=sc.dim,
+            hist_cap=sc.hist_cap,
+        )
 
     @classmethod
     def _from_scenario_3d(cls, sc) -> "Model":
@@ -97,14 +154,24 @@ class Model:
         (the 2D records; its width and lateral centre z0 span the rim and the lugs)."""
         from ..physics.d3 import layout as L3
         from ..model.scenario_check import contact_table_3d
+
         table = contact_table_3d(sc)
-        cp = np.ascontiguousarray(table).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES,
-                                                                  L3.N_FIELDS).copy()
+        cp = np.ascontiguousarray(table).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES, L3.N_FIELDS).copy()
         walls = L3.walls_record(sc.bin.length, sc.bin.width).view(np.float64).copy()
         wg, wc = wheel_records(sc)
-        return cls(dt=sc.physics.dt, gravity=np.array(sc.gravity_vector, np.float64),
-                   skin=sc.bed.skin, cp=cp, walls=walls, wg=wg, wc=wc,
-                   wheel_enabled=sc.wheel.enabled, r_max=sc.soil.r_max, dim=3, hist_cap=sc.hist_cap)
+        return cls(
+            dt=sc.physics.dt,
+            gravity=np.array(sc.gravity_vector, np.float64),
+            skin=sc.bed.skin,
+            cp=cp,
+            walls=walls,
+            wg=wg,
+            wc=wc,
+            wheel_enabled=sc.wheel.enabled,
+            r_max=sc.soil.r_max,
+            dim=3,
+            hist_cap=sc.hist_cap,
+        )
 
     @property
     def order_cell(self) -> float:
@@ -120,10 +187,12 @@ class Model:
     def records(self):
         """(cp, walls, wg, wc) as record views (no copies) for the kernels."""
         cpt, wallt = self.layouts()
-        return (record(np.ascontiguousarray(self.cp, np.float64), cpt),
-                record(np.ascontiguousarray(self.walls, np.float64), wallt),
-                record(np.ascontiguousarray(self.wg, np.float64), WHEEL_GEOMETRY),
-                record(np.ascontiguousarray(self.wc, np.float64), WHEEL_CONTROLS))
+        return (
+            record(np.ascontiguousarray(self.cp, np.float64), cpt),
+            record(np.ascontiguousarray(self.walls, np.float64), wallt),
+            record(np.ascontiguousarray(self.wg, np.float64), WHEEL_GEOMETRY),
+            record(np.ascontiguousarray(self.wc, np.float64), WHEEL_CONTROLS),
+        )
 
     def kernel_params(self) -> KernelParams:
         """The kernels' parameters (layout.KernelParams; records are views, no copies)."""
@@ -137,8 +206,19 @@ class Model:
     def without_wheel(self) -> "Model":
         wg = self.wg.copy()
         record(wg, WHEEL_GEOMETRY)["enabled"] = 0.0
-        return Model(self.dt, self.gravity.copy(), self.skin, self.cp, self.walls, wg, self.wc,
-                     False, self.r_max, self.dim, self.hist_cap)
+        return Model(
+            self.dt,
+            self.gravity.copy(),
+            self.skin,
+            self.cp,
+            self.walls,
+            wg,
+            self.wc,
+            False,
+            self.r_max,
+            self.dim,
+            self.hist_cap,
+        )
 
 
 def wheel_records(sc) -> tuple[np.ndarray, np.ndarray]:
@@ -190,8 +270,15 @@ class DomainStepper:
     on: np.ndarray
     rows: np.ndarray
 
-    def __init__(self, particles: Particles, model: Model, wheel_state: np.ndarray | None = None,
-                 reorder: bool = True, keep_forces: bool = False, pairs_hint: int = 0):
+    def __init__(
+        self,
+        particles: Particles,
+        model: Model,
+        wheel_state: np.ndarray | None = None,
+        reorder: bool = True,
+        keep_forces: bool = False,
+        pairs_hint: int = 0,
+    ):
         """keep_forces: keep each step's contact forces and torques in ``force`` (N, D) and
         ``torque`` (N, R) (diagnostics and tests; 24 bytes a disc in 2D). pairs_hint: the
         candidate pairs expected (e.g. from a like slab), so that the first build fills the
@@ -200,8 +287,10 @@ class DomainStepper:
         if particles.dim != model.dim:
             raise EngineError(f"{particles.dim}D particles handed to a {model.dim}D model")
         if particles.hist_cap != model.hist_cap:
-            raise EngineError(f"particles with a contact-history capacity of {particles.hist_cap} "
-                              f"handed to a model of capacity {model.hist_cap}")
+            raise EngineError(
+                f"particles with a contact-history capacity of {particles.hist_cap} "
+                f"handed to a model of capacity {model.hist_cap}"
+            )
         self.kern = model.kernels()
         # row layouts of this dimension's kernels (physics.KernelModule): the pair row of
         # this contact table (3D leaves the rolling parts out without rolling resistance)
@@ -219,7 +308,7 @@ class DomainStepper:
         self.half_off = np.zeros(n + 1, self._idx)
         self.inc_off = np.zeros(n + 1, self._idx)
         self._grow_pairs(max(0, int(pairs_hint)))
-        self.ref = np.zeros((n, model.dim))   # positions at the last neighbour-list build
+        self.ref = np.zeros((n, model.dim))  # positions at the last neighbour-list build
         nf = n if keep_forces else 0
         self._forces = Forces(np.zeros((nf, model.dim)), np.zeros((nf, spin_width(model.dim))))
         self.keep_forces = keep_forces
@@ -258,8 +347,18 @@ class DomainStepper:
 
     def nbytes(self) -> int:
         """Bytes the stepper holds besides the discs."""
-        arrs = (self.half_off, self.inc_off, self.pair_b, self.pair_a, self.inc_k, self.on,
-                self.rows, self.ref, *self._forces, self.bodies.rows)
+        arrs = (
+            self.half_off,
+            self.inc_off,
+            self.pair_b,
+            self.pair_a,
+            self.inc_k,
+            self.on,
+            self.rows,
+            self.ref,
+            *self._forces,
+            self.bodies.rows,
+        )
         return sum(a.nbytes for a in arrs)
 
     def advance(self, step0: int, nsteps: int, spans: np.ndarray | None = None) -> np.ndarray:
@@ -287,10 +386,16 @@ class DomainStepper:
     def kernel_args(self) -> tuple:
         """(kernel params, Discs, Pairs, Bodies, Forces, wheel state record, errors): what
         the step kernels take of this stepper (views, no copies)."""
-        pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.ref,
-                   self.on, self.rows)
-        return (self.model.kernel_params(), discs_of(self.p), pl, self.bodies, self._forces,
-                record(self.ws, WHEEL_STATE), self.err)
+        pl = Pairs(self.half_off, self.pair_b, self.pair_a, self.inc_off, self.inc_k, self.ref, self.on, self.rows)
+        return (
+            self.model.kernel_params(),
+            discs_of(self.p),
+            pl,
+            self.bodies,
+            self._forces,
+            record(self.ws, WHEEL_STATE),
+            self.err,
+        )
 
     def _grow_bodies(self) -> None:
         """A chunk's wall/wheel rows did not fit: twice the room."""
@@ -301,10 +406,23 @@ class DomainStepper:
         done = 0
         while True:
             kp, d, pl, bd, forces, ws, err = self.kernel_args()
-            k, rb = self.kern.run_steps(nsteps - done, step0 + done, kp, d, pl, bd, forces, ws,
-                                        err, recv[done:] if len(rec) else recv, not self._built,
-                                        self._pairs_done, L.EVERY_PARTICLE, spans[done:])
-            del kp, d, pl, bd, forces, ws, err   # no view may keep a list that is regrown
+            k, rb = self.kern.run_steps(
+                nsteps - done,
+                step0 + done,
+                kp,
+                d,
+                pl,
+                bd,
+                forces,
+                ws,
+                err,
+                recv[done:] if len(rec) else recv,
+                not self._built,
+                self._pairs_done,
+                L.EVERY_PARTICLE,
+                spans[done:],
+            )
+            del kp, d, pl, bd, forces, ws, err  # no view may keep a list that is regrown
             self._pairs_done = False
             done += k
             self.rebuilds += rb
@@ -322,12 +440,14 @@ class DomainStepper:
             else:
                 return done
             if done >= nsteps:
-                return done   # a rebuild is pending: the next advance starts with it
+                return done  # a rebuild is pending: the next advance starts with it
 
     def _check(self, at, nsteps):
         p = self.p
         if self.err[ERR_HIST_OVERFLOW]:
-            raise EngineError(f"contact history overflow at step {at}: a disc has more than "
-                              f"{p.hist_id.shape[1]} contacts (overlaps too large: check dt, kn, or the bed)")
+            raise EngineError(
+                f"contact history overflow at step {at}: a disc has more than "
+                f"{p.hist_id.shape[1]} contacts (overlaps too large: check dt, kn, or the bed)"
+            )
         if not np.isfinite(p.pos).all():
             raise EngineError(f"non-finite position at step {at}: the run is unstable")

@@ -15,13 +15,23 @@ alive between sweeps (``live.LiveDomains``: same bits, no per-sweep rebuilding),
 copies its state into the store only when the run commits. ``SlabSweep`` holds what the
 two share: the slabs, the block K and halo, the wheel's slab and re-decomposition.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from ..model.checkpoint import particles_to_record, record_rows, record_to_particles
-from ..model.decomposition import (XHistogram, equal_bounds, group_order, owner, summary_ok, wheel_bounds,
-                             wheel_slab_index, wheel_slab_ok, x_summary)
+from ..model.decomposition import (
+    XHistogram,
+    equal_bounds,
+    group_order,
+    owner,
+    summary_ok,
+    wheel_bounds,
+    wheel_slab_index,
+    wheel_slab_ok,
+    x_summary,
+)
 from ..physics.layout import AX_X, WS_X
 from ..model.state import DISC_FIELDS, HIST_FIELDS
 from ..model.state import Particles
@@ -39,7 +49,7 @@ class RamEpochs:
 
     def __init__(self, hist_cap: int | None = None):
         self.current: dict[int, tuple[Particles, dict]] = {}
-        self.hist_cap = hist_cap   # the model's: records are read into states of this capacity
+        self.hist_cap = hist_cap  # the model's: records are read into states of this capacity
 
     # reader side
     def domains(self):
@@ -121,8 +131,7 @@ def x_histogram(src, length: float) -> XHistogram:
     return hist
 
 
-def slab_bounds(sc, hist: XHistogram, domains: int, wheel_x: float, reach: float,
-                margin_required: float) -> np.ndarray:
+def slab_bounds(sc, hist: XHistogram, domains: int, wheel_x: float, reach: float, margin_required: float) -> np.ndarray:
     """The D + 1 slab bounds of the scenario's policy from the discs' x histogram: around
     the wheel (its reach plus the margins inside one slab) or equal counts. Every engine
     that decomposes (serial DDM, out-of-core, MPI) takes its bounds from here."""
@@ -141,8 +150,7 @@ def group_rows(p: Particles, rows, cell: float) -> np.ndarray:
 
 def group_attrs(x: np.ndarray) -> dict:
     """A group's count and x extent, from its discs' x."""
-    return {"n": len(x), "xmin": float(x.min()) if len(x) else 0.0,
-            "xmax": float(x.max()) if len(x) else 0.0}
+    return {"n": len(x), "xmin": float(x.min()) if len(x) else 0.0, "xmax": float(x.max()) if len(x) else 0.0}
 
 
 def group_record(p: Particles, rows, cell: float, length: float) -> tuple[dict, dict]:
@@ -187,7 +195,7 @@ def cone_spans(x: np.ndarray, lo: float, hi: float, hop: float, k: int) -> np.nd
     if n == 0 or k <= 0:
         return spans
     dist = np.maximum(np.maximum(lo - x, x - hi), 0.0)
-    hops = np.minimum(np.ceil(dist / hop), k + 1).astype(np.int64)   # 0: inside the slab
+    hops = np.minimum(np.ceil(dist / hop), k + 1).astype(np.int64)  # 0: inside the slab
     rows = np.arange(n, dtype=np.int64)
     first = np.full(k + 2, n, np.int64)
     last = np.full(k + 2, -1, np.int64)
@@ -196,7 +204,7 @@ def cone_spans(x: np.ndarray, lo: float, hi: float, hop: float, k: int) -> np.nd
     # the rows of discs within m hops: from the least first to the greatest last of hops <= m
     first = np.minimum.accumulate(first)
     last = np.maximum.accumulate(last)
-    reach = k - np.arange(k)          # step s advances the discs within k - s hops
+    reach = k - np.arange(k)  # step s advances the discs within k - s hops
     spans[:, 0] = first[reach]
     spans[:, 1] = np.maximum(last[reach] + 1, first[reach])
     return spans
@@ -212,8 +220,7 @@ class SlabSweep:
     epoch_each_advance = False
     writes_frame_parts = False
 
-    def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds,
-                 redecompositions=()):
+    def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds, redecompositions=()):
         self.sc = sc
         self.model = model
         self.model_nowheel = model.without_wheel()
@@ -314,16 +321,20 @@ class SlabSweep:
             writer.write_domain(d, src.read_domain(d), src.domain_attrs(d))
 
     def info(self) -> dict:
-        return {"domains": self.D, "block": self.K, "halo_m": self.halo,
-                "resident_max": self.resident_max, "resident_last_sweep": self.resident_last,
-                "bounds": [float(v) for v in self.bounds[1:-1]],
-                "redecompositions": len(self.redecompositions)}
+        return {
+            "domains": self.D,
+            "block": self.K,
+            "halo_m": self.halo,
+            "resident_max": self.resident_max,
+            "resident_last_sweep": self.resident_last,
+            "bounds": [float(v) for v in self.bounds[1:-1]],
+            "redecompositions": len(self.redecompositions),
+        }
 
     @staticmethod
     def _stored_geometry(engine_attrs: dict) -> tuple[int, np.ndarray]:
         """(K, bounds) of a committed epoch's engine attrs (checked by the caller)."""
-        return (int(engine_attrs["block"]),
-                np.array([-np.inf, *engine_attrs["bounds"], np.inf]))
+        return (int(engine_attrs["block"]), np.array([-np.inf, *engine_attrs["bounds"], np.inf]))
 
 
 class DdmEngine(SlabSweep):
@@ -332,16 +343,15 @@ class DdmEngine(SlabSweep):
 
     name = "ddm"
 
-    def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds,
-                 store=None, redecompositions=()):
+    def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds, store=None, redecompositions=()):
         super().__init__(sc, model, wheel_state, block, bounds, redecompositions)
-        self.store = store          # where `commit` writes (None: a sweep without commits)
+        self.store = store  # where `commit` writes (None: a sweep without commits)
         self.epoch = RamEpochs(model.hist_cap)
         # persistent sub-domains (None until the first sweep or after a rebuild), and
         # whether they hold newer states than self.epoch
         self._live: LiveDomains | None = None
         self._live_newer = False
-        self._live_stale = False    # the compiled sweeps stopped for a rebuild of the local sets
+        self._live_stale = False  # the compiled sweeps stopped for a rebuild of the local sets
         self.live_builds = 0
         # whole sweeps in compiled calls (live.run_sweeps), the sub-domains side by side
         # on the threads (paper2008, D = 6, K = 1, 6000 steps, 2 threads: 4.9 s against
@@ -356,16 +366,27 @@ class DdmEngine(SlabSweep):
         return sc.decomposition.block
 
     @classmethod
-    def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *,
-               domains: int, block: int, store=None, bounds=None) -> "DdmEngine":
+    def create(
+        cls,
+        sc,
+        model: Model,
+        particles: Particles,
+        wheel_state: np.ndarray,
+        *,
+        domains: int,
+        block: int,
+        store=None,
+        bounds=None,
+    ) -> "DdmEngine":
         """Split the discs into `domains` slabs by the scenario's policy (or at `bounds`)."""
         eng = cls(sc, model, wheel_state, block, [-np.inf, np.inf], store)
         eng._populate(particles, domains, bounds)
         return eng
 
     @classmethod
-    def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, redecompositions=()) -> "DdmEngine":
+    def reopen(
+        cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *, store, redecompositions=()
+    ) -> "DdmEngine":
         """Continue from a committed epoch (its groups copied into RAM)."""
         K, bounds = cls._stored_geometry(engine_attrs)
         eng = cls(sc, model, wheel_state, K, bounds, store, redecompositions)
@@ -450,15 +471,15 @@ class DdmEngine(SlabSweep):
             self.ws = live.steppers[live.wslab].ws.copy()
         self._note_resident(live.resident())
         if status == SWEEPS_REBUILD:
-            self._live_stale = True   # a disc moved beyond the membership skin
+            self._live_stale = True  # a disc moved beyond the membership skin
         return rec, done
 
     def _build_live(self, wslab: int) -> LiveDomains:
         src = self._source()
-        discs = Particles.concat([src.domain_particles(d) for d in src.domains()],
-                                 self.model.dim, self.model.hist_cap)
-        live = LiveDomains(discs, self.bounds, self.halo, self.membership_skin, self.model,
-                           self.model_nowheel, self.ws, wslab)
+        discs = Particles.concat([src.domain_particles(d) for d in src.domains()], self.model.dim, self.model.hist_cap)
+        live = LiveDomains(
+            discs, self.bounds, self.halo, self.membership_skin, self.model, self.model_nowheel, self.ws, wslab
+        )
         self._live = live
         self.live_builds += 1
         # the live sub-domains are now the only copy kept (the groups are made
@@ -468,8 +489,7 @@ class DdmEngine(SlabSweep):
 
     def particles(self) -> Particles:
         src = self._source()
-        return Particles.concat([src.domain_particles(d) for d in src.domains()],
-                                self.model.dim, self.model.hist_cap)
+        return Particles.concat([src.domain_particles(d) for d in src.domains()], self.model.dim, self.model.hist_cap)
 
     def state_parts(self, names=()):
         yield self.particles()
@@ -484,8 +504,9 @@ class DdmEngine(SlabSweep):
         return {**super().info(), "local_set_builds": self.live_builds}
 
 
-def sweep_run(sc, particles: Particles, wheel_state, steps: int, bounds=None, domains=None, block=1,
-              membership_skin=None):
+def sweep_run(
+    sc, particles: Particles, wheel_state, steps: int, bounds=None, domains=None, block=1, membership_skin=None
+):
     """Advance discs `steps` steps with the serial-DDM sweep; returns (particles, wheel_state, records, engine).
 
     `bounds` fixes the slab bounds (D+1 ascending values, -inf and +inf at the ends);
@@ -493,9 +514,15 @@ def sweep_run(sc, particles: Particles, wheel_state, steps: int, bounds=None, do
     overrides how far (m) discs may move before the local sets are rebuilt.
     """
     model = Model.from_scenario(sc)
-    eng = DdmEngine.create(sc, model, particles, np.asarray(wheel_state, np.float64),
-                           domains=domains or sc.decomposition.domains,
-                           block=block or DdmEngine.default_block(sc, domains), bounds=bounds)
+    eng = DdmEngine.create(
+        sc,
+        model,
+        particles,
+        np.asarray(wheel_state, np.float64),
+        domains=domains or sc.decomposition.domains,
+        block=block or DdmEngine.default_block(sc, domains),
+        bounds=bounds,
+    )
     if membership_skin is not None:
         eng.membership_skin = membership_skin
     rec = eng.advance(0, steps)

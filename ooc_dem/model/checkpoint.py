@@ -6,6 +6,7 @@ contact history in CSR form (``hist_id`` (E,), ``hist_s`` (E, S), ``hist_m`` (E,
 used slots disc after disc, each disc's sorted by partner id; E = sum of hist_n).
 Format-1 epochs (2D components as their own arrays) are read through ``V1Epoch``.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,8 +19,17 @@ from ..physics.layout import AX_X, WS_SIZE
 from . import statehash
 from .decomposition import x_summary
 from .scenario import show
-from .state import (DISC_FIELDS, FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, Particles, default_hist_cap,
-                    record_fields, stack_v1, upgrade_v1)
+from .state import (
+    DISC_FIELDS,
+    FIELD_DTYPES,
+    HIST_FIELDS,
+    V1_ARRAYS,
+    Particles,
+    default_hist_cap,
+    record_fields,
+    stack_v1,
+    upgrade_v1,
+)
 
 # the run format (run meta ``format_version``, = the store format): 2 = per-particle vectors
 # (pos, vel (n, D), spin (n, R), hist_s (E, S), hist_m (E, M)); 1 = the 2D components as
@@ -46,8 +56,10 @@ def material_count(dim: int) -> int:
     """The materials a disc may name: the rows of the contact table (``Model.cp``)."""
     if dim == 3:
         from ..physics.d3.layout import N_TYPES
+
         return N_TYPES
     from ..physics.layout import N_TYPES
+
     return N_TYPES
 
 
@@ -67,6 +79,7 @@ class StateBounds:
     positions within a generous box around the bin, and speeds (and spins at the rim) of
     at most r_max per time step: past that a step's contact detection is meaningless, and
     values far beyond it (1e300) overflow the neighbour grid's arithmetic."""
+
     n_discs: int
     dt: float
     r_min: float
@@ -81,10 +94,16 @@ def state_bounds(sc) -> StateBounds:
     """The StateBounds of a scenario's states."""
     extent = (sc.bin.length, sc.bin.height) + ((sc.bin.width,) if sc.dim == 3 else ())
     margin = BOX_MARGIN * max(extent)
-    return StateBounds(n_discs=sc.soil.n, dt=sc.physics.dt, r_min=sc.soil.r_min, r_max=sc.soil.r_max,
-                       density=sc.soil.density, thickness=sc.physics.thickness,
-                       box_lo=tuple(-margin for _ in extent),
-                       box_hi=tuple(e + margin for e in extent))
+    return StateBounds(
+        n_discs=sc.soil.n,
+        dt=sc.physics.dt,
+        r_min=sc.soil.r_min,
+        r_max=sc.soil.r_max,
+        density=sc.soil.density,
+        thickness=sc.physics.thickness,
+        box_lo=tuple(-margin for _ in extent),
+        box_hi=tuple(e + margin for e in extent),
+    )
 
 
 def _check_bounds(rec: dict, where: str, dim: int, b: StateBounds) -> None:
@@ -93,38 +112,50 @@ def _check_bounds(rec: dict, where: str, dim: int, b: StateBounds) -> None:
     if not len(r):
         return
     if r.min() < b.r_min / RADIUS_SLACK or r.max() > b.r_max * RADIUS_SLACK:
-        raise StateError(f"{where}: array 'r' holds radii outside [{b.r_min / RADIUS_SLACK:g}, "
-                         f"{b.r_max * RADIUS_SLACK:g}] (the scenario's soil.r_min = {b.r_min:g}, "
-                         f"r_max = {b.r_max:g})")
+        raise StateError(
+            f"{where}: array 'r' holds radii outside [{b.r_min / RADIUS_SLACK:g}, "
+            f"{b.r_max * RADIUS_SLACK:g}] (the scenario's soil.r_min = {b.r_min:g}, "
+            f"r_max = {b.r_max:g})"
+        )
     if dim == 3:
-        nominal = b.density * (4.0 / 3.0) * math.pi * r ** 3
+        nominal = b.density * (4.0 / 3.0) * math.pi * r**3
     else:
         nominal = b.density * math.pi * r * r * b.thickness
     ratio = rec["mass"] / nominal
     if ratio.min() < 1.0 / MASS_SLACK or ratio.max() > MASS_SLACK:
-        raise StateError(f"{where}: array 'mass' holds masses beyond {MASS_SLACK:g} times those of "
-                         f"discs of that radius and soil.density = {b.density:g}")
+        raise StateError(
+            f"{where}: array 'mass' holds masses beyond {MASS_SLACK:g} times those of "
+            f"discs of that radius and soil.density = {b.density:g}"
+        )
     ratio = rec["inertia"] / (rec["mass"] * r * r)
     if ratio.min() < 0.4 / MASS_SLACK or ratio.max() > 0.5 * MASS_SLACK:
-        raise StateError(f"{where}: array 'inertia' holds inertias beyond {MASS_SLACK:g} times "
-                         f"those of discs of that mass and radius")
+        raise StateError(
+            f"{where}: array 'inertia' holds inertias beyond {MASS_SLACK:g} times "
+            f"those of discs of that mass and radius"
+        )
     pos = rec["pos"]
     lo, hi = np.asarray(b.box_lo), np.asarray(b.box_hi)
     if (pos.min(axis=0) < lo).any() or (pos.max(axis=0) > hi).any():
-        raise StateError(f"{where}: array 'pos' holds positions far outside the bin (beyond "
-                         f"{BOX_MARGIN:g} bin extents)")
-    reach = (b.r_max / b.dt) ** 2   # squared: no root, and 1e300 squares to inf, still refused
+        raise StateError(
+            f"{where}: array 'pos' holds positions far outside the bin (beyond {BOX_MARGIN:g} bin extents)"
+        )
+    reach = (b.r_max / b.dt) ** 2  # squared: no root, and 1e300 squares to inf, still refused
     if np.einsum("ij,ij->i", rec["vel"], rec["vel"]).max() > reach:
-        raise StateError(f"{where}: array 'vel' holds speeds above soil.r_max / physics.dt = "
-                         f"{b.r_max / b.dt:g} m/s (a disc would cross its radius in one step)")
+        raise StateError(
+            f"{where}: array 'vel' holds speeds above soil.r_max / physics.dt = "
+            f"{b.r_max / b.dt:g} m/s (a disc would cross its radius in one step)"
+        )
     spin = rec["spin"]
     if (np.einsum("ij,ij->i", spin, spin) * (r * r)).max() > reach:
-        raise StateError(f"{where}: array 'spin' holds spins whose rim speed is above "
-                         f"soil.r_max / physics.dt = {b.r_max / b.dt:g} m/s")
+        raise StateError(
+            f"{where}: array 'spin' holds spins whose rim speed is above "
+            f"soil.r_max / physics.dt = {b.r_max / b.dt:g} m/s"
+        )
 
 
-def validate_record(rec: dict, where: str, dim: int | None = 2, hist_cap: int | None = None,
-                    bounds: StateBounds | None = None) -> None:
+def validate_record(
+    rec: dict, where: str, dim: int | None = 2, hist_cap: int | None = None, bounds: StateBounds | None = None
+) -> None:
     """Refuse a domain record that this engine could not have written (StateError).
 
     Checks names, dtypes and shapes of every field (``state.record_fields(dim)``: pos must
@@ -145,8 +176,9 @@ def validate_record(rec: dict, where: str, dim: int | None = 2, hist_cap: int | 
             raise StateError(f"{where}: array {name!r} missing")
         if a.ndim != 1 + len(tail) or a.shape[1:] != tail or a.dtype != dt:
             want = "(rows" + "".join(f", {k}" for k in tail) + ")"
-            raise StateError(f"{where}: array {name!r} is {a.dtype} with shape {a.shape}, "
-                             f"expected {want} {dt} ({dim}D)")
+            raise StateError(
+                f"{where}: array {name!r} is {a.dtype} with shape {a.shape}, expected {want} {dt} ({dim}D)"
+            )
     n = len(rec["id"])
     for name in DISC_FIELDS:
         if len(rec[name]) != n:
@@ -161,8 +193,10 @@ def validate_record(rec: dict, where: str, dim: int | None = 2, hist_cap: int | 
         if n and rec[name].min() < 0:
             raise StateError(f"{where}: array {name!r} holds negative values")
     if n and rec["mat"].max() >= material_count(dim):
-        raise StateError(f"{where}: array 'mat' holds {int(rec['mat'].max())}, beyond the "
-                         f"{material_count(dim)} materials of the contact table")
+        raise StateError(
+            f"{where}: array 'mat' holds {int(rec['mat'].max())}, beyond the "
+            f"{material_count(dim)} materials of the contact table"
+        )
     check_unique_sorted(np.sort(rec["id"]), where)
     hist_n = rec["hist_n"]
     hist_cap = default_hist_cap(dim) if hist_cap is None else hist_cap
@@ -171,8 +205,7 @@ def validate_record(rec: dict, where: str, dim: int | None = 2, hist_cap: int | 
     total = int(hist_n.sum(dtype=np.int64))
     for name in HIST_FIELDS:
         if len(rec[name]) != total:
-            raise StateError(f"{where}: array {name!r} has {len(rec[name])} entries, hist_n adds up "
-                             f"to {total}")
+            raise StateError(f"{where}: array {name!r} has {len(rec[name])} entries, hist_n adds up to {total}")
     owner = np.repeat(rec["id"], hist_n)
     partner = rec["hist_id"]
     if (partner == owner).any():
@@ -195,14 +228,14 @@ def validate_globals(arrays: dict, attrs: dict, where: str, step: int | None = N
     if ws is None:
         raise StateError(f"{where}: globals hold no wheel_state")
     if ws.shape != (WS_SIZE,) or ws.dtype.kind != "f" or not np.isfinite(ws).all():
-        raise StateError(f"{where}: wheel_state must be {WS_SIZE} finite floats, got {ws.dtype} "
-                         f"{ws.shape}")
+        raise StateError(f"{where}: wheel_state must be {WS_SIZE} finite floats, got {ws.dtype} {ws.shape}")
     expected, step = step, attrs.get("step")
     if type(step) is not int or step < 0:
         raise StateError(f"{where}: globals attribute 'step' = {show(step)}: must be an integer >= 0")
     if expected is not None and step != expected:
-        raise StateError(f"{where}: globals attribute 'step' = {step}, the manifest says the epoch "
-                         f"holds step {expected}")
+        raise StateError(
+            f"{where}: globals attribute 'step' = {step}, the manifest says the epoch holds step {expected}"
+        )
     for key in ("time", "surface", "wall_time"):
         v = attrs.get(key, 0.0)
         if type(v) not in (int, float) or not math.isfinite(v):
@@ -244,8 +277,7 @@ def record_to_particles(rec: dict[str, np.ndarray], hist_cap: int | None = None)
     return records_to_particles([rec], hist_cap)
 
 
-def records_to_particles(recs: list[dict[str, np.ndarray]], hist_cap: int | None = None,
-                         dim: int = 2) -> Particles:
+def records_to_particles(recs: list[dict[str, np.ndarray]], hist_cap: int | None = None, dim: int = 2) -> Particles:
     """One state from store records (format 2; format 1 converted first), one after the
     other: allocated once, each record copied straight into its rows (no state per
     record and no concatenation). `dim` gives the shape of an empty result only."""
@@ -270,7 +302,7 @@ def records_to_particles(recs: list[dict[str, np.ndarray]], hist_cap: int | None
             raise StateError(f"contact history counts outside [0, {hist_cap}] (capacity)")
         hn = hn.astype(np.intp)
         total = int(hn.sum())
-        dest = csr_slots(np.arange(at, at + n) * hist_cap, hn)   # the slot each entry goes to
+        dest = csr_slots(np.arange(at, at + n) * hist_cap, hn)  # the slot each entry goes to
         for k in HIST_FIELDS:
             flat = rec[k]
             if len(flat) != total:
@@ -360,12 +392,13 @@ def open_epoch(store, step: int | None = None, verify: bool = True):
 def stored_scenario(meta: dict, where: str):
     """The scenario a run store's meta holds, checked against its hash (StateError)."""
     from .scenario import ScenarioError, scenario_from_toml
+
     toml = meta.get("scenario_toml")
     if not isinstance(toml, str):
         raise StateError(f"{where}: stored scenario missing (store damaged or edited)")
     try:
         sc = scenario_from_toml(toml)
-    except (ScenarioError, ValueError, RecursionError) as e:   # tomllib's errors are ValueErrors
+    except (ScenarioError, ValueError, RecursionError) as e:  # tomllib's errors are ValueErrors
         raise StateError(f"{where}: stored scenario unreadable ({' '.join(str(e).split())})") from None
     if sc.hash() != meta.get("scenario_hash"):
         raise StateError(f"{where}: stored scenario does not match its hash (store damaged or edited)")
@@ -379,22 +412,26 @@ def stored_layout(meta: dict, where: str, sc=None) -> tuple[int, int, StateBound
     when that is larger (runs written when 2D's default was 12 may hold discs with more than
     today's 8 contacts), up to the scenario's maximum."""
     from .schema import MAX_HIST_CAP
+
     if not isinstance(meta, dict):
         raise StateError(f"{where}: store meta is not an object")
-    dim = meta.get("dim", 2)   # format 1 was 2D only
+    dim = meta.get("dim", 2)  # format 1 was 2D only
     if type(dim) is not int or dim not in (2, 3):
         raise StateError(f"{where}: store meta 'dim' = {show(dim)}: must be the integer 2 or 3")
     cap = meta.get("hist_cap")
     if cap is not None and type(cap) is not int:
         raise StateError(f"{where}: store meta 'hist_cap' = {show(cap)}: must be an integer")
-    if cap is not None and not 1 <= cap <= MAX_HIST_CAP:   # no run is written with more
-        raise StateError(f"{where}: store meta 'hist_cap' = {cap}: not a contact-history "
-                         f"capacity (1 to {MAX_HIST_CAP})")
+    if cap is not None and not 1 <= cap <= MAX_HIST_CAP:  # no run is written with more
+        raise StateError(
+            f"{where}: store meta 'hist_cap' = {cap}: not a contact-history capacity (1 to {MAX_HIST_CAP})"
+        )
     if sc is None and "scenario_toml" in meta:
         sc = stored_scenario(meta, where)
     if sc is not None and sc.dim != dim:
-        raise StateError(f"{where}: store holds a {dim}-dimensional run, the stored scenario is "
-                         f"{sc.dim}-dimensional (store damaged or edited)")
+        raise StateError(
+            f"{where}: store holds a {dim}-dimensional run, the stored scenario is "
+            f"{sc.dim}-dimensional (store damaged or edited)"
+        )
     own = sc.hist_cap if sc is not None else default_hist_cap(dim)
     if cap is not None and own < cap <= MAX_HIST_CAP:
         own = cap
@@ -427,8 +464,9 @@ def hash_particles(p: Particles, wheel, step: int) -> str:
     return statehash.hash_records([particles_to_record(p)], wheel, step)
 
 
-def validate_epoch(reader, where: str, dim: int | None = 2, hist_cap: int | None = None,
-                   bounds: StateBounds | None = None) -> None:
+def validate_epoch(
+    reader, where: str, dim: int | None = 2, hist_cap: int | None = None, bounds: StateBounds | None = None
+) -> None:
     """Refuse an epoch that this engine could not have written (StateError), domain by domain:
     the one validation of every reader of an epoch (resume, ``hash_epoch``, export, the
     API's ``state()``, the figures), ``checked_groups`` consumed.
@@ -439,8 +477,9 @@ def validate_epoch(reader, where: str, dim: int | None = 2, hist_cap: int | None
         pass
 
 
-def checked_groups(reader, where: str, dim: int | None = 2, hist_cap: int | None = None,
-                   bounds: StateBounds | None = None):
+def checked_groups(
+    reader, where: str, dim: int | None = 2, hist_cap: int | None = None, bounds: StateBounds | None = None
+):
     """Yield (d, record) of every domain group of an epoch, each validated, after the
     globals (``validate_globals``, their step the manifest's); when all are yielded, ids
     are checked unique across domains (``check_unique_ids``) and, with `bounds`, the disc
@@ -460,29 +499,28 @@ def checked_groups(reader, where: str, dim: int | None = 2, hist_cap: int | None
         dattrs = reader.domain_attrs(d)
         if not isinstance(dattrs, dict):
             raise StateError(f"{at}: attributes are not an object")
-        for key in ("xmin", "xmax"):   # every writer records them: the sweeps' reads depend on them
+        for key in ("xmin", "xmax"):  # every writer records them: the sweeps' reads depend on them
             v = dattrs.get(key)
             if not (type(v) is int or type(v) is float) or not math.isfinite(v):
                 raise StateError(f"{at}: attribute {key!r} = {show(v)}: must be a finite number")
         if "n" in dattrs and dattrs["n"] != len(rec["id"]):
-            raise StateError(f"{at}: attribute 'n' = {show(dattrs['n'])}, the domain holds "
-                             f"{len(rec['id'])} discs")
-        x = rec["pos"][:, AX_X]   # in any row order: halo reads filter their candidate rows by x
+            raise StateError(f"{at}: attribute 'n' = {show(dattrs['n'])}, the domain holds {len(rec['id'])} discs")
+        x = rec["pos"][:, AX_X]  # in any row order: halo reads filter their candidate rows by x
         if len(x) and (x.min() < dattrs["xmin"] or x.max() > dattrs["xmax"]):
             raise StateError(f"{at}: discs outside the domain's stored x range")
-        summary = dattrs.get("x_summary")   # absent in stores written before groups kept x summaries
+        summary = dattrs.get("x_summary")  # absent in stores written before groups kept x summaries
         if summary is not None:
             length = summary.get("length") if isinstance(summary, dict) else None
-            if (type(length) is not float or not math.isfinite(length) or length <= 0
-                    or summary != x_summary(x, length)):
+            if type(length) is not float or not math.isfinite(length) or length <= 0 or summary != x_summary(x, length):
                 raise StateError(f"{at}: attribute 'x_summary' does not match the domain's discs")
         n_discs += len(rec["id"])
         del x
         yield d, rec
         del rec
     if bounds is not None and n_discs != bounds.n_discs:
-        raise StateError(f"{where}: epoch {reader.step} holds {n_discs} discs, the scenario has "
-                         f"soil.n = {bounds.n_discs}")
+        raise StateError(
+            f"{where}: epoch {reader.step} holds {n_discs} discs, the scenario has soil.n = {bounds.n_discs}"
+        )
     check_unique_ids(reader, f"{where}: epoch {reader.step}")
 
 
@@ -526,8 +564,9 @@ ID_CHECK_CAP = 1 << 16
 def _group_ids(reader, d, where: str) -> np.ndarray:
     ids = np.asarray(reader.read_domain(d, ["id"])["id"])
     if ids.ndim != 1 or ids.dtype.kind not in "iu":
-        raise StateError(f"{where} domain {d}: array 'id' is {ids.dtype} with shape {ids.shape}, "
-                         f"expected (rows,) integers")
+        raise StateError(
+            f"{where} domain {d}: array 'id' is {ids.dtype} with shape {ids.shape}, expected (rows,) integers"
+        )
     return ids
 
 
@@ -545,7 +584,7 @@ def check_unique_ids(reader, where: str, cap: int | None = None) -> None:
     ids follow x) are read about twice; ids scattered across every group cost a read of
     every group per range (N / cap ranges).
     """
-    ranges = []   # (group, lowest id, highest id, count)
+    ranges = []  # (group, lowest id, highest id, count)
     for d in reader.domains():
         ids = np.sort(_group_ids(reader, d, where))
         if len(ids):
@@ -565,7 +604,7 @@ def check_unique_ids(reader, where: str, cap: int | None = None) -> None:
         a, b = todo.pop()
         groups = [d for d, g_lo, g_hi, _ in ranges if g_lo < b and g_hi >= a]
         if len(groups) < 2:
-            continue   # within one group: checked in pass 1
+            continue  # within one group: checked in pass 1
         held, count, halve = [], 0, False
         for d in groups:
             ids = _group_ids(reader, d, where)
@@ -586,8 +625,9 @@ def check_unique_ids(reader, where: str, cap: int | None = None) -> None:
         del held
 
 
-def hash_epoch(reader, where: str = "", dim: int | None = None, hist_cap: int | None = None,
-               bounds: StateBounds | None = None) -> str:
+def hash_epoch(
+    reader, where: str = "", dim: int | None = None, hist_cap: int | None = None, bounds: StateBounds | None = None
+) -> str:
     """The canonical state hash of an epoch (``statehash``), streamed group by group and
     validated as it is read (``checked_groups``, the validation of ``validate_epoch``; dim
     None: each record's own): one group's record in RAM at a time, read sequentially, the

@@ -16,12 +16,13 @@ whole bed. Counts add exactly, so the bounds are the same whatever the partition
 groups (every mode, D, K, resume); within a bin the count is taken as uniform in x.
 Bounds never change a result bit (docs/design.md §3), only how the work is split.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 
-X_BINS = 4096   # histogram bins over the bin's length (a summary holds at most this many counts)
+X_BINS = 4096  # histogram bins over the bin's length (a summary holds at most this many counts)
 
 
 def _bins(x: np.ndarray, length: float) -> np.ndarray:
@@ -38,8 +39,7 @@ def x_summary(x: np.ndarray, length: float) -> dict:
         return {"length": float(length), "first": 0, "counts": []}
     b = _bins(x, length)
     first = int(b.min())
-    return {"length": float(length), "first": first,
-            "counts": [int(c) for c in np.bincount(b - first)]}
+    return {"length": float(length), "first": first, "counts": [int(c) for c in np.bincount(b - first)]}
 
 
 def summary_ok(s, length: float, n) -> bool:
@@ -75,7 +75,7 @@ class XHistogram:
 
     def add_summary(self, s: dict) -> None:
         c = np.asarray(s["counts"], np.int64)
-        self.counts[s["first"]:s["first"] + len(c)] += c
+        self.counts[s["first"] : s["first"] + len(c)] += c
 
     @property
     def n(self) -> int:
@@ -189,9 +189,9 @@ def group_order(pos: np.ndarray, cell: float) -> np.ndarray:
     # rows already in cell order is found in one pass
     cells = np.floor(pos / cell)
     bits = 21 if pos.shape[1] == 2 else 16
-    column = 2.0**(62 - bits * (pos.shape[1] - 1))
+    column = 2.0 ** (62 - bits * (pos.shape[1] - 1))
     key = np.clip(cells[:, 0], -column, column - 1).astype(np.int64)
     for k in range(1, pos.shape[1]):
-        row = np.clip(cells[:, k], -2.0**(bits - 1), 2.0**(bits - 1) - 1).astype(np.int64)
-        key = (key << bits) + (row + 2**(bits - 1))
+        row = np.clip(cells[:, k], -(2.0 ** (bits - 1)), 2.0 ** (bits - 1) - 1).astype(np.int64)
+        key = (key << bits) + (row + 2 ** (bits - 1))
     return np.argsort(key, kind="stable")

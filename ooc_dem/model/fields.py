@@ -13,6 +13,7 @@ its initial layer. These functions compute what such figures need:
 
 No plotting here; see ``ooc_dem.app.plots``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -82,6 +83,7 @@ class DisplacementGrid:
     started in the cell (NaN where ``count`` is below the threshold);
     ``count``: number of discs per cell.
     """
+
     x: np.ndarray
     y: np.ndarray
     u: np.ndarray

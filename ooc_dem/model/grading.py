@@ -20,6 +20,7 @@ A truncated draw inverts the distribution's number CDF, tabulated over [r_min, r
 uniform number a particle (no rejection loop, so the random stream does not depend on the
 parameters).
 """
+
 from __future__ import annotations
 
 import math
@@ -41,6 +42,7 @@ class Grading:
     ``mean``/``std``: the normal law's radius mean and standard deviation; ``median``/
     ``gsd``: the log-normal law's median radius and geometric standard deviation (> 1);
     ``sieve``: ((diameter, percent passing by mass), ...) for the sieve curve."""
+
     kind: str = "uniform"
     r_min: float = 0.0
     r_max: float = 0.0
@@ -114,7 +116,7 @@ def number_cdf(g: Grading, k: int) -> tuple[np.ndarray, np.ndarray]:
     log_r = np.linspace(math.log(lo), math.log(hi), m)
     r = np.exp(log_r)
     if g.kind == "normal":
-        density = np.exp(-0.5 * ((r - g.mean) / g.std) ** 2) * r          # per unit ln r
+        density = np.exp(-0.5 * ((r - g.mean) / g.std) ** 2) * r  # per unit ln r
     elif g.kind == "lognormal":
         density = np.exp(-0.5 * ((log_r - math.log(g.median)) / math.log(g.gsd)) ** 2)
     else:
@@ -122,7 +124,7 @@ def number_cdf(g: Grading, k: int) -> tuple[np.ndarray, np.ndarray]:
         log_d = np.log([a for a, _ in g.sieve])
         slope = np.diff([b for _, b in g.sieve]) / np.diff(log_d)
         seg = np.clip(np.searchsorted(log_d, log_r + math.log(2.0), side="right") - 1, 0, len(slope) - 1)
-        density = slope[seg] * np.exp(-k * log_r)                          # number = mass / d^k
+        density = slope[seg] * np.exp(-k * log_r)  # number = mass / d^k
     cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(log_r))])
     if not cdf[-1] > 0:
         raise ValueError(f"{g.kind}: no particle between r_min = {lo!r} and r_max = {hi!r}")
@@ -133,7 +135,7 @@ def passing(radii: np.ndarray, diameters, k: int) -> np.ndarray:
     """Percent by mass of particles of the given radii finer than each diameter (a sieve
     analysis of a bed; mass as d^k)."""
     d = 2.0 * np.sort(np.asarray(radii, np.float64))
-    m = d ** k
+    m = d**k
     cum = np.concatenate([[0.0], np.cumsum(m)]) / m.sum()
     idx = np.searchsorted(d, np.asarray(diameters, np.float64), side="right")
     return 100.0 * cum[idx]
@@ -146,7 +148,7 @@ def characteristic_diameters(radii: np.ndarray, k: int, percents=(10, 50, 60)) -
     d = 2.0 * np.sort(np.asarray(radii, np.float64))
     if d.size == 0:
         raise ValueError("no particles")
-    m = d ** k
+    m = d**k
     # the cumulative mass fraction at each particle's centre of mass share (a midpoint rule)
     cum = (np.cumsum(m) - 0.5 * m) / m.sum()
     out = {f"d{p:g}": float(np.interp(p / 100.0, cum, d)) for p in percents}

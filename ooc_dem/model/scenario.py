@@ -8,6 +8,7 @@ This module is the scenario's public face: loading, and the names callers use fr
 model/schema.py (the dataclasses, the limits, the message helpers) and
 model/scenario_check.py (building and checking, the critical time step).
 """
+
 from __future__ import annotations
 
 import math
@@ -17,13 +18,35 @@ from pathlib import Path
 from typing import Any
 
 from .scenario_check import critical_time_step, scenario_from_dict
-from .schema import (MAX_BLOCK, MAX_DOMAINS, MAX_SCENARIO_FILE, MAX_STEPS, NAME_RE, Scenario, ScenarioError,
-                     big, show, show_key, steps_for_duration)
+from .schema import (
+    MAX_BLOCK,
+    MAX_DOMAINS,
+    MAX_SCENARIO_FILE,
+    MAX_STEPS,
+    NAME_RE,
+    Scenario,
+    ScenarioError,
+    big,
+    show,
+    show_key,
+    steps_for_duration,
+)
 
 __all__ = [
-    "MAX_BLOCK", "MAX_DOMAINS", "MAX_STEPS", "Scenario", "ScenarioError", "apply_overrides", "big",
-    "builtin_names", "critical_time_step", "load_scenario", "scenario_from_dict", "scenario_from_toml",
-    "show", "steps_for_duration",
+    "MAX_BLOCK",
+    "MAX_DOMAINS",
+    "MAX_STEPS",
+    "Scenario",
+    "ScenarioError",
+    "apply_overrides",
+    "big",
+    "builtin_names",
+    "critical_time_step",
+    "load_scenario",
+    "scenario_from_dict",
+    "scenario_from_toml",
+    "show",
+    "steps_for_duration",
 ]
 
 
@@ -34,7 +57,7 @@ def builtin_names() -> list[str]:
 
 
 def _builtin_text(name: str) -> str | None:
-    if NAME_RE.fullmatch(name) is None:   # never a path: built-ins are files of one package
+    if NAME_RE.fullmatch(name) is None:  # never a path: built-ins are files of one package
         return None
     f = resources.files("ooc_dem.scenarios") / f"{name}.toml"
     if f.is_file():
@@ -64,7 +87,7 @@ def _parse_count(text: str) -> int | None:
         v = float(t) * mult
     except ValueError:
         return None
-    if not math.isfinite(v) or v < 1 or v != int(v):   # inf, nan, 1e400, 0, -5, 12.5
+    if not math.isfinite(v) or v < 1 or v != int(v):  # inf, nan, 1e400, 0, -5, 12.5
         return None
     return int(v)
 
@@ -107,7 +130,7 @@ def _parse_value(text: str, item: str) -> Any:
         return text  # bare word -> string
     except RecursionError:
         raise ScenarioError(f"--set {show(item)}: value nested too deeply") from None
-    except ValueError as e:   # e.g. an integer beyond Python's int-string conversion limit
+    except ValueError as e:  # e.g. an integer beyond Python's int-string conversion limit
         raise ScenarioError(f"--set {show(item)}: unreadable value ({_first_line(e)})") from None
 
 
@@ -124,9 +147,11 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
         parts = key.strip().split(".")
         if len(parts) < 2 or not all(parts):
             raise ScenarioError(f"--set {show(item)}: key must be section.key (e.g. physics.dt=1e-5)")
-        if len(parts) > 3:   # the deepest key is contact.<pair>.<key>
-            raise ScenarioError(f"--set {show(item)}: key {show(key, 40)} has {len(parts)} parts; "
-                                f"keys are section.key or contact.pair.key")
+        if len(parts) > 3:  # the deepest key is contact.<pair>.<key>
+            raise ScenarioError(
+                f"--set {show(item)}: key {show(key, 40)} has {len(parts)} parts; "
+                f"keys are section.key or contact.pair.key"
+            )
         node = data
         for p in parts[:-1]:
             node = node.setdefault(p, {})
@@ -143,7 +168,7 @@ def _parse_toml(text: str, src: str) -> dict:
         raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML ({_first_line(e)})") from None
     except RecursionError:
         raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML (tables or arrays nested too deeply)") from None
-    except ValueError as e:   # an integer beyond Python's int-string conversion limit
+    except ValueError as e:  # an integer beyond Python's int-string conversion limit
         raise ScenarioError(f"scenario {show(src, 400)}: invalid TOML ({_first_line(e)})") from None
 
 
@@ -155,14 +180,16 @@ def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Sce
     if src.startswith("bed3d-") and _builtin_text(src) is None:
         n = _parse_count(src[6:])
         if n is None:
-            raise ScenarioError(f"scenario {show(src, 400)}: bed3d-N needs a sphere count N such as "
-                                f"bed3d-20000, bed3d-100k, bed3d-1m")
+            raise ScenarioError(
+                f"scenario {show(src, 400)}: bed3d-N needs a sphere count N such as bed3d-20000, bed3d-100k, bed3d-1m"
+            )
         data = bed3d_scenario_dict(n)
     elif src.startswith("bed-") and _builtin_text(src) is None:
         n = _parse_count(src[4:])
         if n is None:
-            raise ScenarioError(f"scenario {show(src, 400)}: bed-N needs a disc count N such as bed-7000, "
-                                f"bed-100k, bed-1m")
+            raise ScenarioError(
+                f"scenario {show(src, 400)}: bed-N needs a disc count N such as bed-7000, bed-100k, bed-1m"
+            )
         data = bed_scenario_dict(n)
     else:
         text = _builtin_text(src)
@@ -171,14 +198,16 @@ def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Sce
             try:
                 is_file = p.is_file()
                 size = p.stat().st_size if is_file else 0
-            except (OSError, ValueError):   # name too long, NUL byte
+            except (OSError, ValueError):  # name too long, NUL byte
                 is_file, size = False, 0
             if not is_file:
                 raise ScenarioError(
-                    f"scenario {show(src, 400)}: not a built-in ({', '.join(builtin_names())}) and no such file")
+                    f"scenario {show(src, 400)}: not a built-in ({', '.join(builtin_names())}) and no such file"
+                )
             if size > MAX_SCENARIO_FILE:
-                raise ScenarioError(f"scenario {show(src, 400)}: {size} bytes; a scenario file is at most "
-                                    f"{MAX_SCENARIO_FILE} bytes")
+                raise ScenarioError(
+                    f"scenario {show(src, 400)}: {size} bytes; a scenario file is at most {MAX_SCENARIO_FILE} bytes"
+                )
             try:
                 text = p.read_text(encoding="utf-8")
             except (OSError, UnicodeDecodeError) as e:
@@ -190,4 +219,3 @@ def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Sce
 
 def scenario_from_toml(text: str) -> Scenario:
     return scenario_from_dict(_parse_toml(text, "(stored)"))
-

@@ -6,14 +6,30 @@ checks derive (tile geometry, the repose column's fill, the 3D contact tables).
 ``scenario_from_dict`` builds a Scenario from a dict and checks it; a bad value raises
 ``ScenarioError`` with one line naming the key, the value and what is allowed.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import math
 from typing import Any
 
-from .schema import (LAWS, MAX_BLOCK, MAX_DOMAINS, MAX_HIST_CAP, MAX_STEPS, MAX_TEXT, NAME_ALLOWED,
-                     NAME_RE, ContactPair, Scenario, ScenarioError, big, show, show_key, steps_for_duration)
+from .schema import (
+    LAWS,
+    MAX_BLOCK,
+    MAX_DOMAINS,
+    MAX_HIST_CAP,
+    MAX_STEPS,
+    MAX_TEXT,
+    NAME_ALLOWED,
+    NAME_RE,
+    ContactPair,
+    Scenario,
+    ScenarioError,
+    big,
+    show,
+    show_key,
+    steps_for_duration,
+)
 
 
 # ------------------------------------------------------------ constraints
@@ -36,7 +52,7 @@ def _within(lo: float, hi: float, lo_open: bool = False, what: str = "a number")
 # z0 + w/2 - (z0 - w/2) == 0 and divided by zero in the bed's surface height
 MIN_LENGTH = 1e-9
 _LENGTH = _within(MIN_LENGTH, 1e6)
-_GAP = _within(0.0, 1e6)                        # m, may be 0
+_GAP = _within(0.0, 1e6)  # m, may be 0
 _COUNT = lambda hi: (lambda v: 0 <= v <= hi, f"an integer in [0, {big(hi)}]")
 _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("scenario", "name"): (lambda v: NAME_RE.fullmatch(v) is not None, NAME_ALLOWED),
@@ -46,8 +62,10 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("physics", "dt"): _POS,
     ("physics", "contacts_per_disc"): (lambda v: 1 <= v <= 1000, "a number in [1, 1000]"),
     ("physics", "dim"): (lambda v: v in (2, 3), "2 or 3"),
-    ("physics", "history_capacity"): (lambda v: v == 0 or 4 <= v <= MAX_HIST_CAP,
-                                      f"0 (the dimension's default) or an integer in [4, {MAX_HIST_CAP}]"),
+    ("physics", "history_capacity"): (
+        lambda v: v == 0 or 4 <= v <= MAX_HIST_CAP,
+        f"0 (the dimension's default) or an integer in [4, {MAX_HIST_CAP}]",
+    ),
     ("physics", "impact_speed"): _within(0.0, 1e4, lo_open=True),
     ("bin", "length"): _LENGTH,
     ("bin", "height"): _LENGTH,
@@ -123,18 +141,17 @@ def _coerce(path: str, value: Any, typ) -> Any:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             try:
                 v = float(value)
-            except OverflowError:   # an integer beyond the float range
+            except OverflowError:  # an integer beyond the float range
                 v = math.inf
             if not math.isfinite(v):
                 raise ScenarioError(f"{path} = {show(value)}: must be a finite number")
-            return v + 0.0   # -0.0 -> 0.0: one spelling of zero in the stored TOML and the hash
+            return v + 0.0  # -0.0 -> 0.0: one spelling of zero in the stored TOML and the hash
     elif typ is str:
         if isinstance(value, str):
             try:
                 value.encode("utf-8")
             except UnicodeEncodeError:
-                raise ScenarioError(f"{path} = {show(value)}: not valid Unicode text "
-                                    f"(lone surrogate)") from None
+                raise ScenarioError(f"{path} = {show(value)}: not valid Unicode text (lone surrogate)") from None
             return value
     raise ScenarioError(f"{path} = {show(value)}: must be {_type_name(typ)}")
 
@@ -175,24 +192,27 @@ def _check_ranges(sc: Scenario) -> None:
     if sc.dim == 2:
         for pair in ("soil_soil", "soil_wall", "soil_wheel"):
             if getattr(sc.contact, pair).law != "linear":
-                raise ScenarioError(f"contact.{pair}.law = {show(getattr(sc.contact, pair).law)}: "
-                                    f"the 2D engine has the linear law only (hertz needs physics.dim = 3)")
+                raise ScenarioError(
+                    f"contact.{pair}.law = {show(getattr(sc.contact, pair).law)}: "
+                    f"the 2D engine has the linear law only (hertz needs physics.dim = 3)"
+                )
     elif sc.wheel.enabled:
         w = sc.wheel
         z0 = w.z0 if w.z0 > 0.0 else 0.5 * sc.bin.width
         if not (0.5 * w.width <= z0 <= sc.bin.width - 0.5 * w.width):
-            raise ScenarioError(f"wheel.z0 = {w.z0!r}: the wheel (wheel.width = {w.width!r}) must fit "
-                                f"across the bin (bin.width = {sc.bin.width!r}): z0 in "
-                                f"[{0.5 * w.width!r}, {sc.bin.width - 0.5 * w.width!r}], or 0 for "
-                                f"the mid-width (physics.dim = 3)")
+            raise ScenarioError(
+                f"wheel.z0 = {w.z0!r}: the wheel (wheel.width = {w.width!r}) must fit "
+                f"across the bin (bin.width = {sc.bin.width!r}): z0 in "
+                f"[{0.5 * w.width!r}, {sc.bin.width - 0.5 * w.width!r}], or 0 for "
+                f"the mid-width (physics.dim = 3)"
+            )
     s = sc.soil
     if s.r_max < s.r_min:
         raise ScenarioError(f"soil.r_max = {s.r_max!r}: must be >= soil.r_min ({s.r_min!r})")
     if 2 * s.r_max >= sc.bin.length:
         raise ScenarioError(f"bin.length = {sc.bin.length!r}: must exceed the largest disc diameter")
     if sc.dim == 3 and 2 * s.r_max >= sc.bin.width:
-        raise ScenarioError(f"bin.width = {sc.bin.width!r}: must exceed the largest sphere diameter "
-                            f"(physics.dim = 3)")
+        raise ScenarioError(f"bin.width = {sc.bin.width!r}: must exceed the largest sphere diameter (physics.dim = 3)")
     w = sc.wheel
     if w.enabled:
         if w.lug_tip_radius < w.radius:
@@ -200,26 +220,31 @@ def _check_ranges(sc: Scenario) -> None:
         if not (w.lug_tip_radius < w.x0 < sc.bin.length - w.lug_tip_radius):
             raise ScenarioError(
                 f"wheel.x0 = {w.x0!r}: the wheel must fit in the bin, x0 in "
-                f"({w.lug_tip_radius}, {sc.bin.length - w.lug_tip_radius})")
+                f"({w.lug_tip_radius}, {sc.bin.length - w.lug_tip_radius})"
+            )
         if sc.physics.gravity <= 0:
             raise ScenarioError("physics.gravity = 0: a wheel needs gravity > 0 (its mass is load / g)")
     _check_repose(sc)
     _check_tile(sc)
     o = sc.output
     if o.steady_end < o.steady_start:
-        raise ScenarioError(f"output.steady_end = {o.steady_end!r}: must be >= output.steady_start ({o.steady_start!r})")
+        raise ScenarioError(
+            f"output.steady_end = {o.steady_end!r}: must be >= output.steady_start ({o.steady_start!r})"
+        )
     _check_derived(sc)
     dt, (crit, stiffest) = sc.physics.dt, _critical_step(sc)
     if sc.dim == 3 and dt > crit:
         raise ScenarioError(
             f"physics.dt = {dt!r}: above the stability limit {crit:.3e} s of the stiffest contact "
             f"({stiffest}; physics.dim = 3, lightest sphere of soil.r_min and soil.density, "
-            f"physics.contacts_per_disc contacts, physics.impact_speed for hertz); use dt <= {crit:.3e}")
+            f"physics.contacts_per_disc contacts, physics.impact_speed for hertz); use dt <= {crit:.3e}"
+        )
     if dt > crit:
         raise ScenarioError(
             f"physics.dt = {dt!r}: above the stability limit {crit:.3e} s of the stiffest contact "
             f"({stiffest} on the lightest disc (soil.r_min, soil.density, physics.thickness) with "
-            f"physics.contacts_per_disc contacts: dt_crit = (2/w)(sqrt(1+z^2)-z)); use dt <= {crit:.3e}")
+            f"physics.contacts_per_disc contacts: dt_crit = (2/w)(sqrt(1+z^2)-z)); use dt <= {crit:.3e}"
+        )
 
 
 def tile_grid(sc: Scenario) -> tuple[int, int]:
@@ -271,40 +296,53 @@ def _check_tile(sc: Scenario) -> None:
     except ScenarioError as e:
         length, width = tile_size(sc)
         size = f"{length:.3g} m long" + (f", {width:.3g} m wide" if sc.dim == 3 else "")
-        raise ScenarioError(f"bed.tile = {sc.bed.tile}: the bed is settled in tiles of {sc.bed.tile} "
-                            f"of the soil.n = {sc.soil.n} discs, {size}, and such a tile is refused "
-                            f"({e}); raise bed.tile") from None
+        raise ScenarioError(
+            f"bed.tile = {sc.bed.tile}: the bed is settled in tiles of {sc.bed.tile} "
+            f"of the soil.n = {sc.soil.n} discs, {size}, and such a tile is refused "
+            f"({e}); raise bed.tile"
+        ) from None
 
 
 def _check_repose(sc: Scenario) -> None:
     """The angle-of-repose test's keys against each other and against the bin and the soil."""
     rp, s = sc.repose, sc.soil
     if not rp.fit_low < rp.fit_high:
-        raise ScenarioError(f"repose.fit_low = {rp.fit_low!r}, repose.fit_high = {rp.fit_high!r}: the "
-                            f"flank is fitted from fit_low to fit_high of the heap height (fit_low < fit_high)")
+        raise ScenarioError(
+            f"repose.fit_low = {rp.fit_low!r}, repose.fit_high = {rp.fit_high!r}: the "
+            f"flank is fitted from fit_low to fit_high of the heap height (fit_low < fit_high)"
+        )
     if not rp.enabled:
         return
     if sc.dim != 3:
         raise ScenarioError("repose.enabled = true: the angle-of-repose test is 3D (set physics.dim = 3)")
     if sc.bed.tile:
-        raise ScenarioError(f"bed.tile = {sc.bed.tile}: the repose column is settled whole (bed.tile = 0 "
-                            f"with repose.enabled = true)")
+        raise ScenarioError(
+            f"bed.tile = {sc.bed.tile}: the repose column is settled whole (bed.tile = 0 with repose.enabled = true)"
+        )
     if rp.column_radius < 2 * s.r_max:
-        raise ScenarioError(f"repose.column_radius = {rp.column_radius!r}: must be at least two sphere "
-                            f"diameters (2 soil.r_max = {2 * s.r_max!r}) so that the column holds spheres")
+        raise ScenarioError(
+            f"repose.column_radius = {rp.column_radius!r}: must be at least two sphere "
+            f"diameters (2 soil.r_max = {2 * s.r_max!r}) so that the column holds spheres"
+        )
     for key, size in (("bin.length", sc.bin.length), ("bin.width", sc.bin.width)):
         if size < 4 * rp.column_radius:
-            raise ScenarioError(f"{key} = {size!r}: the heap spreads beyond the column; the bin must be at "
-                                f"least 4 repose.column_radius = {4 * rp.column_radius!r} across")
+            raise ScenarioError(
+                f"{key} = {size!r}: the heap spreads beyond the column; the bin must be at "
+                f"least 4 repose.column_radius = {4 * rp.column_radius!r} across"
+            )
     n_fill, top = repose_fill(sc)
     if top > sc.bin.height:
-        raise ScenarioError(f"bin.height = {sc.bin.height!r}: the loose fill of the repose column ({n_fill} "
-                            f"spheres in a {2 * rp.column_radius:g} m square, cut to soil.n = {s.n}) needs "
-                            f"{top:.3f} m; raise bin.height or repose.column_radius")
+        raise ScenarioError(
+            f"bin.height = {sc.bin.height!r}: the loose fill of the repose column ({n_fill} "
+            f"spheres in a {2 * rp.column_radius:g} m square, cut to soil.n = {s.n}) needs "
+            f"{top:.3f} m; raise bin.height or repose.column_radius"
+        )
     if rp.bin_width < s.r_min or rp.bin_width > rp.column_radius:
-        raise ScenarioError(f"repose.bin_width = {rp.bin_width!r}: the profile's radial bins must be "
-                            f"between soil.r_min = {s.r_min!r} and repose.column_radius = "
-                            f"{rp.column_radius!r} wide")
+        raise ScenarioError(
+            f"repose.bin_width = {rp.bin_width!r}: the profile's radial bins must be "
+            f"between soil.r_min = {s.r_min!r} and repose.column_radius = "
+            f"{rp.column_radius!r} wide"
+        )
 
 
 # spheres filled into the column's square box per sphere kept inside the cylinder: the
@@ -336,19 +374,22 @@ def _check_derived(sc: Scenario) -> None:
             raise ScenarioError(
                 f"{key} = {r!r}: a sphere of this radius has mass soil.density * 4/3 pi r^3 = "
                 f"{m:.3g} kg (moment of inertia {0.4 * m * r * r:.3g}; physics.dim = 3): "
-                f"must be finite and > 0")
+                f"must be finite and > 0"
+            )
         if not (0.0 < m < math.inf and 0.0 < 0.5 * m * r * r < math.inf):
             raise ScenarioError(
                 f"{key} = {r!r}: a disc of this radius has mass soil.density * pi * r^2 * "
                 f"physics.thickness = {m:.3g} kg (moment of inertia {0.5 * m * r * r:.3g}): "
-                f"must be finite and > 0")
+                f"must be finite and > 0"
+            )
     if sc.wheel.enabled:
         mass = sc.wheel_mass
         if not (0.0 < mass < math.inf):
-            raise ScenarioError(f"wheel.load = {sc.wheel.load!r}: the wheel mass wheel.load / physics.gravity "
-                                f"= {mass:.3g} kg must be finite and > 0")
-        steps_for_duration(sc.wheel.settle_time + sc.wheel.travel_time, ph.dt,
-                           "wheel.settle_time + wheel.travel_time")
+            raise ScenarioError(
+                f"wheel.load = {sc.wheel.load!r}: the wheel mass wheel.load / physics.gravity "
+                f"= {mass:.3g} kg must be finite and > 0"
+            )
+        steps_for_duration(sc.wheel.settle_time + sc.wheel.travel_time, ph.dt, "wheel.settle_time + wheel.travel_time")
     steps_for_duration(sc.bed.max_settle_time, ph.dt, "bed.max_settle_time")
     steps_for_duration(sc.output.series_interval, ph.dt, "output.series_interval")
     if sc.output.snapshot_interval:
@@ -359,7 +400,7 @@ def disc_mass(sc: Scenario, r: float) -> float:
     """density * pi * r^2 * thickness (3D: density * 4/3 pi r^3), as the engine computes it
     (products: inf or 0, never an exception)."""
     if sc.dim == 3:
-        return sc.soil.density * (4.0 / 3.0) * math.pi * r ** 3
+        return sc.soil.density * (4.0 / 3.0) * math.pi * r**3
     return sc.soil.density * math.pi * r * r * sc.physics.thickness
 
 
@@ -390,8 +431,11 @@ def _critical_step(sc: Scenario) -> tuple[float, str]:
     for name in pairs:
         p = getattr(sc.contact, name)
         # tangential spring acting on rotation: torque ks r^2 on inertia I
-        for key, w2, z in (("kn", nc * p.kn / m_min, p.damping_n), ("ks", nc * p.ks / m_min, p.damping_t),
-                           ("ks", nc * p.ks * s.r_min * s.r_min / i_min, p.damping_t)):
+        for key, w2, z in (
+            ("kn", nc * p.kn / m_min, p.damping_n),
+            ("ks", nc * p.ks / m_min, p.damping_t),
+            ("ks", nc * p.ks * s.r_min * s.r_min / i_min, p.damping_t),
+        ):
             lim = limit(w2, z)
             if lim < worst:
                 worst, which = lim, f"contact.{name}.{key}"
@@ -403,21 +447,36 @@ def contact_params_3d(pair: ContactPair) -> tuple:
     linear with the 2D keys, or Hertz-Mindlin with both surfaces of youngs_modulus and
     poisson_ratio, damping from restitution."""
     from ..physics.d3 import layout as L3
+
     if pair.law == "hertz":
-        return L3.hertz_params(pair.youngs_modulus, pair.poisson_ratio, pair.restitution,
-                               mu=pair.friction, mur=pair.rolling_friction, zr=pair.rolling_damping,
-                               E2=pair.youngs_modulus, nu2=pair.poisson_ratio, no_tension=False)
-    return L3.linear_params(pair.kn, pair.ks, pair.damping_n, pair.damping_t, pair.friction,
-                            pair.rolling_friction, pair.rolling_damping)
+        return L3.hertz_params(
+            pair.youngs_modulus,
+            pair.poisson_ratio,
+            pair.restitution,
+            mu=pair.friction,
+            mur=pair.rolling_friction,
+            zr=pair.rolling_damping,
+            E2=pair.youngs_modulus,
+            nu2=pair.poisson_ratio,
+            no_tension=False,
+        )
+    return L3.linear_params(
+        pair.kn, pair.ks, pair.damping_n, pair.damping_t, pair.friction, pair.rolling_friction, pair.rolling_damping
+    )
 
 
 def contact_table_3d(sc: Scenario):
     """CONTACT_PARAMS table [type_a, type_b] of a 3D scenario (soil-soil, soil-wall, soil-wheel)."""
     from ..physics.d3 import layout as L3
+
     c = sc.contact
-    return L3.contact_table({(L3.T_SOIL, L3.T_SOIL): contact_params_3d(c.soil_soil),
-                             (L3.T_WALL, L3.T_SOIL): contact_params_3d(c.soil_wall),
-                             (L3.T_WHEEL, L3.T_SOIL): contact_params_3d(c.soil_wheel)})
+    return L3.contact_table(
+        {
+            (L3.T_SOIL, L3.T_SOIL): contact_params_3d(c.soil_soil),
+            (L3.T_WALL, L3.T_SOIL): contact_params_3d(c.soil_wall),
+            (L3.T_WHEEL, L3.T_SOIL): contact_params_3d(c.soil_wheel),
+        }
+    )
 
 
 def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
@@ -428,6 +487,7 @@ def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
 
     from ..physics.d3 import layout as L3
     from ..physics.d3.timestep import critical_dt
+
     s = sc.soil
     cp = contact_table_3d(sc)
     worst, which = math.inf, "none"
@@ -437,9 +497,15 @@ def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
     for name, types in pairs:
         pair = getattr(sc.contact, name)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)   # an overflowing stiffness: 0 below
-            crit, mode = critical_dt(cp, disc_mass(sc, s.r_min), s.r_min, sc.physics.impact_speed,
-                                     sc.physics.contacts_per_disc, types=[types])
+            warnings.simplefilter("ignore", RuntimeWarning)  # an overflowing stiffness: 0 below
+            crit, mode = critical_dt(
+                cp,
+                disc_mass(sc, s.r_min),
+                s.r_min,
+                sc.physics.impact_speed,
+                sc.physics.contacts_per_disc,
+                types=[types],
+            )
         if math.isnan(crit):
             crit = 0.0
         if crit < worst:
@@ -456,5 +522,3 @@ def scenario_from_dict(data: dict) -> Scenario:
     sc = _build(Scenario, data, "", Scenario())
     _check_ranges(sc)
     return sc
-
-

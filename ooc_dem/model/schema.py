@@ -4,6 +4,7 @@ helpers of its one-line messages, and the TOML a scenario is stored as.
 
 Checking the values is model/scenario_check.py's, loading them model/scenario.py's.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -33,7 +34,7 @@ MAX_HIST_CAP = 64
 # scenario.name becomes the default output directory runs/<name>: one safe path component
 NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,99}")
 NAME_ALLOWED = "1-100 letters, digits and _ . + - (not starting with . + or -; it names runs/<name>)"
-MAX_TEXT = 10_000          # characters of a string value (descriptions end up in every manifest)
+MAX_TEXT = 10_000  # characters of a string value (descriptions end up in every manifest)
 MAX_SCENARIO_FILE = 1 << 20  # bytes of a scenario TOML file
 
 
@@ -68,10 +69,12 @@ def big(n: int) -> str:
 
 def steps_for_duration(seconds: float, dt: float, what: str) -> int:
     """round(seconds / dt), refused (naming ``what``) unless finite and at most MAX_STEPS."""
-    n = seconds / dt   # float division: inf on overflow, never an exception (dt > 0)
+    n = seconds / dt  # float division: inf on overflow, never an exception (dt > 0)
     if not (0.0 <= n <= MAX_STEPS):
-        raise ScenarioError(f"{what}: {show(seconds)} s at physics.dt = {dt!r} s is {n:.3g} steps, "
-                            f"more than the maximum {big(MAX_STEPS)}")
+        raise ScenarioError(
+            f"{what}: {show(seconds)} s at physics.dt = {dt!r} s is {n:.3g} steps, "
+            f"more than the maximum {big(MAX_STEPS)}"
+        )
     return int(round(n))
 
 
@@ -86,20 +89,20 @@ class Meta:
 
 @dataclass(frozen=True)
 class Physics:
-    gravity: float = 9.80          # m/s^2, acts in -y
-    thickness: float = 0.10        # m, discs are cylinders of this length
-    dt: float = 1.0e-5             # s
+    gravity: float = 9.80  # m/s^2, acts in -y
+    thickness: float = 0.10  # m, discs are cylinders of this length
+    dt: float = 1.0e-5  # s
     contacts_per_disc: float = 4.0  # used for the critical-step estimate
-    dim: int = 2                   # 2: discs in the x-y plane; 3: spheres (z across the bin)
-    impact_speed: float = 1.0      # m/s, largest expected impact speed (3D Hertz time-step check)
-    history_capacity: int = 0      # contacts a particle may hold (0: 8 in 2D, 12 in 3D; never a result bit)
+    dim: int = 2  # 2: discs in the x-y plane; 3: spheres (z across the bin)
+    impact_speed: float = 1.0  # m/s, largest expected impact speed (3D Hertz time-step check)
+    history_capacity: int = 0  # contacts a particle may hold (0: 8 in 2D, 12 in 3D; never a result bit)
 
 
 @dataclass(frozen=True)
 class Bin:
-    length: float = 0.60           # m
-    height: float = 0.40           # m, top of the neighbour grid (open top)
-    width: float = 0.10            # m, across the bin (z; 3D only: side walls at z = 0 and width)
+    length: float = 0.60  # m
+    height: float = 0.40  # m, top of the neighbour grid (open top)
+    width: float = 0.10  # m, across the bin (z; 3D only: side walls at z = 0 and width)
 
 
 @dataclass(frozen=True)
@@ -113,26 +116,26 @@ class Soil:
 
 @dataclass(frozen=True)
 class Bed:
-    settle_speed: float = 1.0e-4   # m/s, mean speed that ends deposition
-    max_settle_time: float = 5.0   # s, refuse beds that never settle
-    tile: int = 0                  # >0: build the bed by tiling a settled tile of this many discs
-    skin: float = 0.0006           # m, Verlet skin of the neighbour lists
-    tiles_across: int = 1          # 3D tiled beds: tiles across the width (z)
+    settle_speed: float = 1.0e-4  # m/s, mean speed that ends deposition
+    max_settle_time: float = 5.0  # s, refuse beds that never settle
+    tile: int = 0  # >0: build the bed by tiling a settled tile of this many discs
+    skin: float = 0.0006  # m, Verlet skin of the neighbour lists
+    tiles_across: int = 1  # 3D tiled beds: tiles across the width (z)
 
 
 @dataclass(frozen=True)
 class ContactPair:
     kn: float = 2.0e5
     ks: float = 2.0e5 / 3.0
-    damping_n: float = 1.0         # ratio of critical, normal
-    damping_t: float = 1.0         # ratio of critical, tangential
+    damping_n: float = 1.0  # ratio of critical, normal
+    damping_t: float = 1.0  # ratio of critical, tangential
     friction: float = 0.5
     rolling_friction: float = 0.0  # limit mu_r * r_eff * Fn
-    rolling_damping: float = 0.0   # ratio of critical, rolling
-    law: str = "linear"            # "linear" (kn, ks, damping_*) or "hertz" (3D: Hertz-Mindlin)
+    rolling_damping: float = 0.0  # ratio of critical, rolling
+    law: str = "linear"  # "linear" (kn, ks, damping_*) or "hertz" (3D: Hertz-Mindlin)
     youngs_modulus: float = 1.0e7  # Pa, hertz: both surfaces of the pair
-    poisson_ratio: float = 0.3     # hertz
-    restitution: float = 0.5       # hertz: coefficient of restitution (sets the damping)
+    poisson_ratio: float = 0.3  # hertz
+    restitution: float = 0.5  # hertz: coefficient of restitution (sets the damping)
 
 
 @dataclass(frozen=True)
@@ -147,37 +150,37 @@ class Wheel:
     enabled: bool = True
     radius: float = 0.100
     width: float = 0.100
-    load: float = 19.6             # N, dead weight (mass = load / g)
+    load: float = 19.6  # N, dead weight (mass = load / g)
     n_lugs: int = 18
     lug_tip_radius: float = 0.110  # m, outermost point of a lug
-    lug_thickness: float = 0.002   # m, capsule diameter
-    x0: float = 0.15               # m, initial centre
-    drop_gap: float = 0.002        # m, gap between lug tips and the surface at placement
-    omega: float = 0.138           # rad/s, clockwise, drives in +x
-    control: str = "drawbar"       # "drawbar" (free x) or "slip" (prescribed forward speed)
-    drawbar_load: float = 10.0     # N, opposes travel
-    drawbar_ramp: float = 1.0      # s
-    slip: float = 0.0              # prescribed slip when control = "slip"
-    settle_time: float = 1.0       # s, omega = 0, x held
-    travel_time: float = 45.0      # s
-    z0: float = 0.0                # m, 3D: lateral centre of the wheel (0: the bin's mid-width)
+    lug_thickness: float = 0.002  # m, capsule diameter
+    x0: float = 0.15  # m, initial centre
+    drop_gap: float = 0.002  # m, gap between lug tips and the surface at placement
+    omega: float = 0.138  # rad/s, clockwise, drives in +x
+    control: str = "drawbar"  # "drawbar" (free x) or "slip" (prescribed forward speed)
+    drawbar_load: float = 10.0  # N, opposes travel
+    drawbar_ramp: float = 1.0  # s
+    slip: float = 0.0  # prescribed slip when control = "slip"
+    settle_time: float = 1.0  # s, omega = 0, x held
+    travel_time: float = 45.0  # s
+    z0: float = 0.0  # m, 3D: lateral centre of the wheel (0: the bin's mid-width)
 
 
 @dataclass(frozen=True)
 class Output:
     series_interval: float = 0.01  # s, time-series row interval (means over it)
-    steady_start: float = 9.6      # s of travel
-    steady_end: float = 45.0       # s of travel
-    run_steps: int = 0             # bare beds: default step count of `run`
+    steady_start: float = 9.6  # s of travel
+    steady_end: float = 45.0  # s of travel
+    run_steps: int = 0  # bare beds: default step count of `run`
     snapshot_interval: float = 0.0  # s, trajectory frame interval (RUN/trajectory/); 0 = none
 
 
 @dataclass(frozen=True)
 class Decomposition:
-    policy: str = "wheel"          # "wheel" (paper) or "equal"
+    policy: str = "wheel"  # "wheel" (paper) or "equal"
     domains: int = 6
-    block: int = 1                 # temporal blocking K (steps per epoch)
-    margin: float = 0.01           # m, wheel slab margin beyond the lug tips
+    block: int = 1  # temporal blocking K (steps per epoch)
+    margin: float = 0.01  # m, wheel slab margin beyond the lug tips
 
 
 @dataclass(frozen=True)
@@ -185,12 +188,13 @@ class Repose:
     """Angle-of-repose test (3D, docs/reference/repose3d.md): the settled column of
     ``soil.n`` spheres, a cylinder of ``column_radius`` standing on the floor at the bin's
     centre, is released at step 0; its heap's flank angle is measured at the end."""
+
     enabled: bool = False
-    column_radius: float = 0.02    # m, radius of the released column
-    fit_low: float = 0.2           # flank fit from this fraction of the heap height ...
-    fit_high: float = 0.8          # ... to this one
-    sectors: int = 8               # azimuthal sectors, one profile and one fit each
-    bin_width: float = 0.005       # m, radial bins of the surface profile
+    column_radius: float = 0.02  # m, radius of the released column
+    fit_low: float = 0.2  # flank fit from this fraction of the heap height ...
+    fit_high: float = 0.8  # ... to this one
+    sectors: int = 8  # azimuthal sectors, one profile and one fit each
+    bin_width: float = 0.005  # m, radial bins of the surface profile
 
 
 @dataclass(frozen=True)
@@ -221,12 +225,14 @@ class Scenario:
         """Contact-history capacity per particle (physics.history_capacity, else the
         dimension's default: state.HIST_CAP_BY_DIM)."""
         from .state import default_hist_cap
+
         return self.physics.history_capacity or default_hist_cap(self.dim)
 
     @property
     def gravity_vector(self) -> tuple[float, ...]:
         """Gravity as a dim-vector along -y (physics.layout.AX_Y)."""
         from ..physics.layout import AX_Y
+
         g = [0.0] * self.dim
         g[AX_Y] = -self.physics.gravity
         return tuple(g)
@@ -252,7 +258,7 @@ class Scenario:
             for key, neutral in _PAIR_HASH_NEUTRAL.items():
                 if pair.get(key) == neutral:
                     del pair[key]
-        if d["repose"] == dataclasses.asdict(Repose()):   # added with repose3d
+        if d["repose"] == dataclasses.asdict(Repose()):  # added with repose3d
             del d["repose"]
         return d
 
@@ -274,17 +280,21 @@ class Scenario:
         d = self._hash_dict()
         keep = {k: d[k] for k in ("physics", "bin", "soil", "bed")}
         keep["contact"] = d["contact"]
-        if self.repose.enabled:   # the settled column is cut to this radius
+        if self.repose.enabled:  # the settled column is cut to this radius
             keep["repose"] = {"column_radius": self.repose.column_radius}
         return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:16]
 
 
 # keys whose default value is left out of the hashes (added with the 3D engine)
-_HASH_NEUTRAL = {("physics", "dim"): 2, ("physics", "impact_speed"): 1.0, ("bin", "width"): 0.10,
-                 ("bed", "tiles_across"): 1, ("physics", "history_capacity"): 0,
-                 ("wheel", "z0"): 0.0}
-_PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3,
-                      "restitution": 0.5}
+_HASH_NEUTRAL = {
+    ("physics", "dim"): 2,
+    ("physics", "impact_speed"): 1.0,
+    ("bin", "width"): 0.10,
+    ("bed", "tiles_across"): 1,
+    ("physics", "history_capacity"): 0,
+    ("wheel", "z0"): 0.0,
+}
+_PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3, "restitution": 0.5}
 LAWS = ("linear", "hertz")
 REPOSE_MEASUREMENT_KEYS = ("fit_low", "fit_high", "sectors", "bin_width")
 

@@ -7,6 +7,7 @@ by partner id. Overflowing the capacity is an error, never a silent drop. The sh
 come from one function, ``fields(dim, cap)``; columns are the named axes of
 physics.layout (AX_X, AX_Y, AX_Z).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable
@@ -15,8 +16,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, axes,  # noqa: F401
-                             hist_widths, spin_width)
+from ..physics.layout import (
+    AX_X,  # noqa: F401
+    AX_Y,  # noqa: F401
+    HM_R,  # noqa: F401
+    HS_T,  # noqa: F401
+    SP_Z,  # noqa: F401
+    WS_NAMES,
+    WS_SIZE,  # noqa: F401
+    axes,  # noqa: F401
+    hist_widths,
+    spin_width,
+)
 
 # default contact-history capacity C per dimension (the model's ``hist_cap``; scenario key
 # physics.history_capacity overrides it). A 2D disc in a settled polydisperse bed touches at
@@ -25,7 +36,7 @@ from ..physics.layout import (AX_X, AX_Y, HM_R, HS_T, SP_Z, WS_NAMES, WS_SIZE, a
 # monodisperse packing. Overflow is an error (EngineError), never a silent drop, and the
 # capacity never enters a result bit or the state hash.
 HIST_CAP_BY_DIM = {2: 8, 3: 12}
-HIST_CAP = HIST_CAP_BY_DIM[2]   # the 2D default
+HIST_CAP = HIST_CAP_BY_DIM[2]  # the 2D default
 
 # name -> dtype of every per-particle array, in canonical order; the shapes are
 # (N,) + field_tails(dim, cap)[name]
@@ -48,7 +59,7 @@ ALL_FIELDS = tuple(FIELD_DTYPES)
 # (one row a contact in the store record: CSR)
 DISC_FIELDS = ("id", "pos", "vel", "spin", "r", "mass", "inertia", "mat", "hist_n")
 HIST_FIELDS = ("hist_id", "hist_s", "hist_m")
-WHEEL_FIELDS = WS_NAMES   # layout.WHEEL_STATE: the one definition
+WHEEL_FIELDS = WS_NAMES  # layout.WHEEL_STATE: the one definition
 
 
 def field_tails(dim: int, cap: int) -> dict[str, tuple[int, ...]]:
@@ -59,8 +70,20 @@ def field_tails(dim: int, cap: int) -> dict[str, tuple[int, ...]]:
     S, M = hist_widths(dim)
     if type(cap) is not int or cap < 0:
         raise ValueError(f"history capacity {cap!r}: must be an integer >= 0")
-    return {"id": (), "pos": (D,), "vel": (D,), "spin": (R,), "r": (), "mass": (), "inertia": (),
-            "mat": (), "hist_n": (), "hist_id": (cap,), "hist_s": (cap, S), "hist_m": (cap, M)}
+    return {
+        "id": (),
+        "pos": (D,),
+        "vel": (D,),
+        "spin": (R,),
+        "r": (),
+        "mass": (),
+        "inertia": (),
+        "mat": (),
+        "hist_n": (),
+        "hist_id": (cap,),
+        "hist_s": (cap, S),
+        "hist_m": (cap, M),
+    }
 
 
 def fields(dim: int, cap: int) -> dict[str, tuple[np.dtype, tuple[int, ...]]]:
@@ -91,8 +114,7 @@ def default_hist_cap(dim: int) -> int:
 def bytes_per_disc(dim: int = 2, cap: int | None = None) -> int:
     """Bytes of one particle's state (capacity cap, else the dimension's default)."""
     cap = default_hist_cap(dim) if cap is None else cap
-    return sum(dt.itemsize * int(np.prod(shape, dtype=np.int64))
-               for dt, shape in fields(dim, cap).values())
+    return sum(dt.itemsize * int(np.prod(shape, dtype=np.int64)) for dt, shape in fields(dim, cap).values())
 
 
 BYTES_PER_DISC = bytes_per_disc(2, HIST_CAP)
@@ -101,8 +123,12 @@ BYTES_PER_DISC = bytes_per_disc(2, HIST_CAP)
 # format 1 (2D only) stored each component as its own array: a format-2 array is the
 # stack of these along a new last axis (the ONE conversion table of the old format)
 V1_ARRAYS: dict[str, tuple[str, ...]] = {
-    "pos": ("x", "y"), "vel": ("vx", "vy"), "spin": ("w",), "hist_s": ("hist_ft",),
-    "hist_m": ("hist_mr",)}
+    "pos": ("x", "y"),
+    "vel": ("vx", "vy"),
+    "spin": ("w",),
+    "hist_s": ("hist_ft",),
+    "hist_m": ("hist_mr",),
+}
 
 
 def is_v1(names: Iterable[str]) -> bool:
@@ -158,8 +184,7 @@ class Particles:
         pos = np.asarray(arrays["pos"])
         hid = np.asarray(arrays["hist_id"])
         if pos.ndim != 2 or hid.ndim != 2:
-            raise ValueError(f"Particles: pos must be (N, D) and hist_id (N, C), got {pos.shape} "
-                             f"and {hid.shape}")
+            raise ValueError(f"Particles: pos must be (N, D) and hist_id (N, C), got {pos.shape} and {hid.shape}")
         spec = fields(int(pos.shape[1]), int(hid.shape[1]))
         n = pos.shape[0]
         for name, (dt, tail) in spec.items():
@@ -174,8 +199,16 @@ class Particles:
         return cls(**{k: np.zeros((n,) + tail, dt) for k, (dt, tail) in fields(dim, hist_cap).items()})
 
     @classmethod
-    def new(cls, pos: ArrayLike, r: ArrayLike, density: float, thickness: float, mat: ArrayLike | None = None,
-            ids: ArrayLike | None = None, hist_cap: int | None = None) -> "Particles":
+    def new(
+        cls,
+        pos: ArrayLike,
+        r: ArrayLike,
+        density: float,
+        thickness: float,
+        mat: ArrayLike | None = None,
+        ids: ArrayLike | None = None,
+        hist_cap: int | None = None,
+    ) -> "Particles":
         """Particles at rest at pos (N, D) with radii r; mass from the density (2D: discs are
         cylinders of length ``thickness``; 3D: spheres)."""
         pos = np.asarray(pos, np.float64)
@@ -188,7 +221,7 @@ class Particles:
             p.mass[:] = density * np.pi * p.r * p.r * thickness
             p.inertia[:] = 0.5 * p.mass * p.r * p.r
         else:
-            p.mass[:] = density * (4.0 / 3.0) * np.pi * p.r ** 3
+            p.mass[:] = density * (4.0 / 3.0) * np.pi * p.r**3
             p.inertia[:] = 0.4 * p.mass * p.r * p.r
         if mat is not None:
             p.mat[:] = mat
@@ -249,6 +282,7 @@ class Particles:
 def state_hash(p: Particles, wheel: np.ndarray | None, step: int) -> str:
     """The canonical state hash (``ooc_dem.model.statehash``: a multiset hash of per-disc digests)."""
     from .statehash import hash_records
+
     used = np.arange(p.hist_cap)[None, :] < p.hist_n[:, None]
     rec = {k: getattr(p, k) for k in DISC_FIELDS}
     rec.update({k: getattr(p, k)[used] for k in HIST_FIELDS})

@@ -24,6 +24,7 @@ a person. Untrusted stores are protected by validation (checkpoint.py), not by t
 Version 1 (engines before this hash) was an unprefixed SHA-256 of the state sorted by id; it
 needed all ids in RAM.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -31,8 +32,8 @@ import hashlib
 import numpy as np
 from numba import njit, prange
 
-PREFIX = "mset-v2:"      # the version of the hash string (v1: 64 bare hex digits)
-LANES = 4                # XXH64 digests per disc (seeds 0 .. LANES-1): 256 bits
+PREFIX = "mset-v2:"  # the version of the hash string (v1: 64 bare hex digits)
+LANES = 4  # XXH64 digests per disc (seeds 0 .. LANES-1): 256 bits
 _TAG = b"ooc-dem canonical state hash v2\x00"
 
 _P1 = np.uint64(0x9E3779B185EBCA87)
@@ -99,8 +100,7 @@ def xxh64_words(words, n, seed):
 
 
 @njit(cache=True, parallel=True)
-def _disc_digests(idw, posw, velw, spinw, rw, massw, inertw, matw, hnw, off, hidw, hsw, hmw,
-                  max_words, out):
+def _disc_digests(idw, posw, velw, spinw, rw, massw, inertw, matw, hnw, off, hidw, hsw, hmw, max_words, out):
     """out[i, lane] = XXH64(message of disc i, seed = lane). The message is assembled in a
     per-disc scratch of max_words words (the caller's bound from the largest hist_n)."""
     n = len(idw)
@@ -177,16 +177,27 @@ def digests(rec: dict) -> np.ndarray:
     np.cumsum(hn, out=off[1:])
     E = len(rec["hist_id"])
     if int(off[-1]) != E or len(hs) != E or len(hm) != E:
-        raise ValueError(f"hist_n adds up to {int(off[-1])}, the history holds {E}, "
-                         f"{len(hs)}, {len(hm)} entries")
+        raise ValueError(f"hist_n adds up to {int(off[-1])}, the history holds {E}, {len(hs)}, {len(hm)} entries")
     widths = (pos.shape[1], spin.shape[1], hs.shape[1], hm.shape[1])
     out = np.zeros((n, LANES), np.uint64)
     if n:
-        _disc_digests(_u64(rec["id"], "<i8"), _u64(pos, "<f8"), _u64(rec["vel"], "<f8"),
-                      _u64(spin, "<f8"), _u64(rec["r"], "<f8"), _u64(rec["mass"], "<f8"),
-                      _u64(rec["inertia"], "<f8"), _u64(rec["mat"], "<i4"), hn.view(np.uint64),
-                      off, _u64(rec["hist_id"], "<i8"), _u64(hs, "<f8"), _u64(hm, "<f8"),
-                      disc_words(widths, int(hn.max())), out)
+        _disc_digests(
+            _u64(rec["id"], "<i8"),
+            _u64(pos, "<f8"),
+            _u64(rec["vel"], "<f8"),
+            _u64(spin, "<f8"),
+            _u64(rec["r"], "<f8"),
+            _u64(rec["mass"], "<f8"),
+            _u64(rec["inertia"], "<f8"),
+            _u64(rec["mat"], "<i4"),
+            hn.view(np.uint64),
+            off,
+            _u64(rec["hist_id"], "<i8"),
+            _u64(hs, "<f8"),
+            _u64(hm, "<f8"),
+            disc_words(widths, int(hn.max())),
+            out,
+        )
     return out
 
 

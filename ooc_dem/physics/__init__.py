@@ -15,6 +15,7 @@ contact law, contact rows, the walls' and the wheel's contact geometry and its c
 geometry -- and is a ``KernelModule``: the same names in every dimension, checked when
 the package is imported. ``kernels(dim)`` picks it.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -34,20 +35,21 @@ _llvm.set_option("", "--vectorize-memory-check-threshold=4096")
 
 class KernelModule(Protocol):
     """What every dimension's kernel module (``physics.d2``, ``physics.d3``) exports."""
-    DIM: int                      # axes D
-    N_CHUNKS: int                 # body-row buffers a Bodies holds (chunks.N_CHUNKS)
-    N_ERR: int                    # error flags (layout.ERRORS)
-    CONTACT_PARAMS: np.dtype      # one material pair's record (table cp[type_a, type_b])
-    WALLS: np.dtype               # the walls' record
-    PAIR_ROW: np.dtype            # the general pair-row layout
-    BODY_ROW: np.dtype            # one particle-body contact of a step
-    pair_row_layout: Callable     # pair_row_layout(cp) -> the pair-row layout of table cp
+
+    DIM: int  # axes D
+    N_CHUNKS: int  # body-row buffers a Bodies holds (chunks.N_CHUNKS)
+    N_ERR: int  # error flags (layout.ERRORS)
+    CONTACT_PARAMS: np.dtype  # one material pair's record (table cp[type_a, type_b])
+    WALLS: np.dtype  # the walls' record
+    PAIR_ROW: np.dtype  # the general pair-row layout
+    BODY_ROW: np.dtype  # one particle-body contact of a step
+    pair_row_layout: Callable  # pair_row_layout(cp) -> the pair-row layout of table cp
     # the step (physics.step.run_steps) and its one-thread twin, with the twin's write-back
     # of the rows' springs (serial DDM's compiled sweeps, engine.live)
     run_steps: Callable
     run_steps_serial: Callable
     sync_history_serial: Callable
-    spatial_order: Callable       # spatial_order(pos, n, cell) -> memory-order permutation
+    spatial_order: Callable  # spatial_order(pos, n, cell) -> memory-order permutation
     # the phases of a step (tools/kernel_bench.py times them)
     produce: Callable
     gather_integrate: Callable

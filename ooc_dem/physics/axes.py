@@ -2,6 +2,7 @@
 dimension (``twins.Slot``, bound by ``step.instantiate`` and ``neighbors.instantiate``).
 Axis a of a position, velocity or force is column a (``layout.AX_X``, ``AX_Y``,
 ``AX_Z``); the machinery loops over range(DIM), so 2D and 3D run the same source."""
+
 from .twins import slot
 
 DIM = slot("DIM: the axes D of a position, velocity and force (2 or 3)")

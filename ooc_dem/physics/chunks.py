@@ -5,6 +5,7 @@ first..end-1 (the body rows are buffered per chunk, in particle order); ``load_h
 and ``sync_history`` over the same chunks of the whole domain. The chunking never
 changes a result: every particle's sums run in its own partner-id order.
 """
+
 from numba import njit
 
 N_CHUNKS = 64

@@ -12,6 +12,7 @@ goes to the particle itself. What a row holds and how it adds to the sums is the
 dimension's (its row layouts); the pass, the order and the integration are the same in
 every dimension.
 """
+
 import numpy as np
 from numba import prange
 
@@ -21,15 +22,16 @@ from .layout import AX_X, ERR_HIST_OVERFLOW
 from .twins import slot
 
 # ------------------------------------------------ what each dimension binds (its rows)
-no_force = slot("no_force(): a particle's sums at zero: D force components, then R torque "
-                "components (a tuple)")
+no_force = slot("no_force(): a particle's sums at zero: D force components, then R torque components (a tuple)")
 add_body_row = slot("add_body_row(sums, row): the sums plus a body row's force and torque")
-add_pair_as_b = slot("add_pair_as_b(sums, row, w, r): the sums plus a pair row weighted by w "
-                     "(its contact flag), the particle its b (the higher id) of lever arm r")
-add_pair_as_a = slot("add_pair_as_a(sums, row, w, r): the same for the particle as a (the "
-                     "lower id)")
-body_springs_to_history = slot("body_springs_to_history(hist_s, hist_m, i, k, row): entry k "
-                               "of particle i's springs from a body row")
+add_pair_as_b = slot(
+    "add_pair_as_b(sums, row, w, r): the sums plus a pair row weighted by w "
+    "(its contact flag), the particle its b (the higher id) of lever arm r"
+)
+add_pair_as_a = slot("add_pair_as_a(sums, row, w, r): the same for the particle as a (the lower id)")
+body_springs_to_history = slot(
+    "body_springs_to_history(hist_s, hist_m, i, k, row): entry k of particle i's springs from a body row"
+)
 
 
 def advance(i, s, pos, vel, spin, mass, inertia, g, dt, ref, force, torque, keep):
@@ -85,7 +87,7 @@ def gather_integrate(first, end, d, pl, bd, force, torque, gravity, dt, part, er
         over = False
         mx = 0.0
         for i in range(lo, hi):
-            ri = r[i]   # this particle's lever arm
+            ri = r[i]  # this particle's lever arm
             s = no_force()
             k = 0
             # walls and wheel parts (negative ids, already in ascending order)

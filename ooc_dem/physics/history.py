@@ -11,6 +11,7 @@ build and at the end of a run), so the particles always leave a run whole.
 A particle's role in a serial-DDM sub-domain (bit flags, ``ROLE_*``) says which rows are
 reloaded and which histories written back (engine.live).
 """
+
 from numba import njit, prange
 
 from .chunks import N_CHUNKS, chunk_range
@@ -22,10 +23,12 @@ ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED = 1, 2, 4
 ROLE_STABLE = ROLE_OWNED | ROLE_OWNED_BEFORE
 
 # ------------------------------------------------- what each dimension binds (its rows)
-springs_from_history = slot("springs_from_history(row, hist_s, hist_m, i, p): the pair row's "
-                            "springs from entry p of particle i's history")
-pair_springs_to_history = slot("pair_springs_to_history(hist_s, hist_m, i, k, row): entry k "
-                               "of particle i's springs from a pair row")
+springs_from_history = slot(
+    "springs_from_history(row, hist_s, hist_m, i, p): the pair row's springs from entry p of particle i's history"
+)
+pair_springs_to_history = slot(
+    "pair_springs_to_history(hist_s, hist_m, i, k, row): entry k of particle i's springs from a pair row"
+)
 
 
 @njit(inline="always", cache=True)
@@ -132,4 +135,3 @@ def sync_history(n, d, pl, err, role, need):
             hist_n[i] = min(k, cap)
         if over:
             err[ERR_HIST_OVERFLOW] = 1
-

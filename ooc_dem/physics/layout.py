@@ -23,6 +23,7 @@ Records:
 - the kernels' argument records (named tuples of arrays): ``Discs``, ``Pairs``,
   ``Bodies``, ``Forces``, ``KernelParams``
 """
+
 from __future__ import annotations
 
 from collections import namedtuple
@@ -70,7 +71,7 @@ def spin_width(dim: int) -> int:
 
 
 # components of the spin (N, R): 2D has the one about z in column SP_Z; 3D has all three
-SP_Z = 0                      # 2D
+SP_Z = 0  # 2D
 SP_X3, SP_Y3, SP_Z3 = 0, 1, 2  # 3D
 
 
@@ -134,8 +135,7 @@ N_TYPES = 3
 
 # -------------------------------------------------------------------- wheel
 # width, z0: the wheel's extent across the bin, centred on z = z0 (3D only; 2D ignores them)
-WHEEL_GEOMETRY = record_dtype(("enabled", "radius", "lug_in", "lug_out", "cap", "nlugs", "mass",
-                         "width", "z0"))
+WHEEL_GEOMETRY = record_dtype(("enabled", "radius", "lug_in", "lug_out", "cap", "nlugs", "mass", "width", "z0"))
 WG_ENABLED, WG_R, WG_LUG_IN, WG_LUG_OUT, WG_CAP, WG_NLUGS, WG_MASS, WG_WIDTH, WG_Z0 = range(9)
 WG_SIZE = len(WHEEL_GEOMETRY.names)
 
@@ -148,11 +148,9 @@ WHEEL_CONTROLS = record_dtype(("settle", "omega", "slipmode", "drawbar", "ramp",
 WC_SETTLE, WC_OMEGA, WC_SLIPMODE, WC_DRAWBAR, WC_RAMP, WC_SLIP = range(6)
 WC_SIZE = len(WHEEL_CONTROLS.names)
 
-WHEEL_RECORD = record_dtype(("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar",
-                       "contacts"))
+WHEEL_RECORD = record_dtype(("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar", "contacts"))
 REC_COLUMNS = WHEEL_RECORD.names
-(REC_T, REC_X, REC_Y, REC_VX, REC_VY, REC_WZ, REC_THETA, REC_FX, REC_FY, REC_TQ, REC_DB,
- REC_NC) = range(12)
+(REC_T, REC_X, REC_Y, REC_VX, REC_VY, REC_WZ, REC_THETA, REC_FX, REC_FY, REC_TQ, REC_DB, REC_NC) = range(12)
 N_REC = len(REC_COLUMNS)
 
 # unit vector of each lug at the current wheel angle (wheel.lug_directions)
@@ -168,7 +166,7 @@ ERR_NBR_OVERFLOW = ERR_PAIR_CAPACITY
 # ------------------------------------------------------------- partner ids
 # partner ids of the bodies (negative, so they sort before every particle): the wheel's
 # parts and the walls both dimensions have (3D adds its side walls, d3.layout)
-ID_LUG0 = -1000        # lug k has id ID_LUG0 + k
+ID_LUG0 = -1000  # lug k has id ID_LUG0 + k
 ID_RIM = -100
 ID_WALL_RIGHT = -3
 ID_WALL_LEFT = -2
@@ -191,8 +189,9 @@ LAW_ROW = LAW_BLOCK + 8
 
 # the discs of one domain (views of a state.Particles): pos/vel (N, D), spin (N, R),
 # hist_id (N, C), hist_s (N, C, S), hist_m (N, C, M)
-Discs = namedtuple("Discs", ["pos", "vel", "spin", "r", "mass", "inertia", "mat", "gid",
-                             "hist_n", "hist_id", "hist_s", "hist_m"])
+Discs = namedtuple(
+    "Discs", ["pos", "vel", "spin", "r", "mass", "inertia", "mat", "gid", "hist_n", "hist_id", "hist_s", "hist_m"]
+)
 # the model's kernel parameters: dt, gravity (D,), skin, and the records CONTACT_PARAMS
 # table, WALLS, WHEEL_GEOMETRY, WHEEL_CONTROLS (engine.stepper.Model.kernel_params)
 KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc"])
@@ -208,5 +207,4 @@ Bodies = namedtuple("Bodies", ["rows", "count"])
 
 def discs_of(p) -> Discs:
     """The kernel view of a state.Particles (no copy)."""
-    return Discs(p.pos, p.vel, p.spin, p.r, p.mass, p.inertia, p.mat, p.id,
-                 p.hist_n, p.hist_id, p.hist_s, p.hist_m)
+    return Discs(p.pos, p.vel, p.spin, p.r, p.mass, p.inertia, p.mat, p.id, p.hist_n, p.hist_id, p.hist_s, p.hist_m)

@@ -19,6 +19,7 @@ in partner-id order.
 The grid has three axes in every dimension (a 2D grid is one cell deep in z); a
 dimension gives its cell of a particle and its memory-order key (``Slot``s below).
 """
+
 import sys
 from types import SimpleNamespace
 
@@ -30,10 +31,13 @@ from .layout import AX_X
 from .twins import slot, bindings, no_parfors, serial_twin, slots_of, specialise
 
 # ----------------------------------------------- what each dimension binds (its geometry)
-cell_of = slot("cell_of(pos, i, lo, cell, ncx, ncy, ncz): particle i's cell (cx, cy, cz), "
-               "clipped to the grid (cz = 0 in 2D)")
-order_key = slot("order_key(pos, i, lo, cell): the int64 key of particle i's cell in the "
-                 "memory order (lo: the lowest coordinate of each axis)")
+cell_of = slot(
+    "cell_of(pos, i, lo, cell, ncx, ncy, ncz): particle i's cell (cx, cy, cz), clipped to the grid (cz = 0 in 2D)"
+)
+order_key = slot(
+    "order_key(pos, i, lo, cell): the int64 key of particle i's cell in the "
+    "memory order (lo: the lowest coordinate of each axis)"
+)
 GRID_CELLS = slot("GRID_CELLS: a grid of n particles has at most GRID_CELLS n + 64 cells")
 
 # particles a chunk of the scan runs through with one pair of candidate buffers
@@ -159,8 +163,9 @@ def bin_cells(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list):
     cell_start[0] = 0
 
 
-def scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
-         half_off, pair_b, inc_off, inc, fill, room):
+def scan(
+    pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin, half_off, pair_b, inc_off, inc, fill, room
+):
     """fill False: count each particle's partners with higher / lower ids into
     half_off[i + 1] / inc_off[i + 1]. fill True: write them at the offsets, sorted by id.
 
@@ -217,17 +222,53 @@ def build_pairs(pos, r, gid, n, skin, half_off, pair_b, pair_a, inc_off, inc_k, 
     cell_start = np.zeros(ncx * ncy * ncz + 1, np.int32)
     cell_list = np.empty(n, np.int32)
     bin_cells(pos, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list)
-    room = 3 ** DIM * fullest_cell(cell_start, ncx * ncy * ncz)   # both passes' buffers
-    scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
-         half_off, pair_b, inc_off, inc_k, False, room)
+    room = 3**DIM * fullest_cell(cell_start, ncx * ncy * ncz)  # both passes' buffers
+    scan(
+        pos,
+        r,
+        gid,
+        n,
+        lo,
+        cell,
+        ncx,
+        ncy,
+        ncz,
+        cell_start,
+        cell_list,
+        skin,
+        half_off,
+        pair_b,
+        inc_off,
+        inc_k,
+        False,
+        room,
+    )
     for i in range(n):
         half_off[i + 1] += half_off[i]
         inc_off[i + 1] += inc_off[i]
     npairs = half_off[n]
     if npairs > pair_b.shape[0] or npairs > inc_k.shape[0] or npairs > pair_a.shape[0]:
         return npairs
-    scan(pos, r, gid, n, lo, cell, ncx, ncy, ncz, cell_start, cell_list, skin,
-         half_off, pair_b, inc_off, inc_k, True, room)
+    scan(
+        pos,
+        r,
+        gid,
+        n,
+        lo,
+        cell,
+        ncx,
+        ncy,
+        ncz,
+        cell_start,
+        cell_list,
+        skin,
+        half_off,
+        pair_b,
+        inc_off,
+        inc_k,
+        True,
+        room,
+    )
     pair_slots(n, half_off, pair_b, pair_a, inc_off, inc_k)
     for i in range(n):
         for a in range(DIM):
@@ -243,11 +284,12 @@ def instantiate(name: str, *modules) -> SimpleNamespace:
     # one cell's and one sort's compiled code serves both the parallel and the serial build
     bind["grid"] = specialise(grid, f"grid_{name}", bind)
     bind["bin_cells"] = specialise(bin_cells, f"bin_cells_{name}", bind)
-    serial = dict(bind, scan=specialise(scan, f"scan_{name}_serial", bind, parallel=no_parfors()),
-                  pair_slots=pair_slots_serial)
+    serial = dict(
+        bind, scan=specialise(scan, f"scan_{name}_serial", bind, parallel=no_parfors()), pair_slots=pair_slots_serial
+    )
     bind["scan"] = specialise(scan, f"scan_{name}", bind, parallel=True)
     return SimpleNamespace(
         build_pairs=specialise(build_pairs, f"build_pairs_{name}", bind),
-        build_pairs_serial=specialise(build_pairs, f"build_pairs_{name}_serial", serial,
-                                      parallel=no_parfors()),
-        spatial_order=specialise(spatial_order, f"spatial_order_{name}", bind))
+        build_pairs_serial=specialise(build_pairs, f"build_pairs_{name}_serial", serial, parallel=no_parfors()),
+        spatial_order=specialise(spatial_order, f"spatial_order_{name}", bind),
+    )

@@ -26,6 +26,7 @@ write conflicts); ``produce`` is the first: one row per contact at time n.
 A producer only reads the time-n state and writes rows, so it can be rerun without
 changing anything.
 """
+
 import numpy as np
 from numba import njit, prange
 
@@ -35,24 +36,29 @@ from .layout import AX_X, ERR_BODY_CAPACITY, LAW_BLOCK, LAW_ROW, N_TYPES
 from .twins import slot
 
 # ---------------------------------- what each dimension binds (its law, rows and bodies)
-LawIn = slot("LawIn: the rows of a block's law inputs (IntEnum): dx (then the other axes' "
-             "offsets), vrx (then the others), ra, rb, ma, mb, ia, ib, material")
+LawIn = slot(
+    "LawIn: the rows of a block's law inputs (IntEnum): dx (then the other axes' "
+    "offsets), vrx (then the others), ra, rb, ma, mb, ia, ib, material"
+)
 N_LAW_IN = slot("N_LAW_IN: the rows of a block's law inputs")
 N_LAW_OUT = slot("N_LAW_OUT: the rows of a block's law results")
 LAW_IN_WA = slot("LAW_IN_WA: the LawIn row of a's first spin component (SPIN rows)")
 LAW_IN_WB = slot("LAW_IN_WB: the LawIn row of b's first spin component (SPIN rows)")
-CHUNKS_PER_GROUP = slot("CHUNKS_PER_GROUP: chunks whose pairs share one set of block "
-                        "columns (allocated once a group)")
-springs_into_block = slot("springs_into_block(law_in, t, row, on_last): pair t's springs of "
-                          "the last step, its row's if on_last else zero")
-block_law = slot("block_law(k, law_in, law_out, dt, rows, cp, uniform): the law on a filled "
-                 "block of k pairs (uniform: one material pair)")
+CHUNKS_PER_GROUP = slot("CHUNKS_PER_GROUP: chunks whose pairs share one set of block columns (allocated once a group)")
+springs_into_block = slot(
+    "springs_into_block(law_in, t, row, on_last): pair t's springs of the last step, its row's if on_last else zero"
+)
+block_law = slot(
+    "block_law(k, law_in, law_out, dt, rows, cp, uniform): the law on a filled "
+    "block of k pairs (uniform: one material pair)"
+)
 put_pair_rows = slot("put_pair_rows(k, slot, law_out, rows): a block's results into their rows")
-body_scene = slot("body_scene(walls, wg, ws): the walls' and the wheel's geometry this step, "
-                  "as a tuple")
-body_rows = slot("body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt): particle i's rows "
-                 "with the walls and the wheel from body row bat on (bend: the chunk's end); "
-                 "returns (next row, whether one did not fit)")
+body_scene = slot("body_scene(walls, wg, ws): the walls' and the wheel's geometry this step, as a tuple")
+body_rows = slot(
+    "body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt): particle i's rows "
+    "with the walls and the wheel from body row bat on (bend: the chunk's end); "
+    "returns (next row, whether one did not fit)"
+)
 
 
 @njit(inline="always", cache=True)
@@ -169,16 +175,16 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
             err[ERR_BODY_CAPACITY] = 1
             any_full[0] = True
     if any_full[0]:
-        return   # no pair row made: rerunnable after growing the body rows
+        return  # no pair row made: rerunnable after growing the body rows
     # ---------------------------------------------------------- pairs (i = a, lower id)
     for grp in prange(N_CHUNKS // CHUNKS_PER_GROUP):
         lo, hi = chunks_range(grp * CHUNKS_PER_GROUP, (grp + 1) * CHUNKS_PER_GROUP, first, end)
         law_in = np.empty((N_LAW_IN, LAW_ROW))
         law_out = np.empty((N_LAW_OUT, LAW_ROW))
-        slot = np.empty(LAW_ROW, np.int64)      # the pair's slot in the list
-        side_a = np.empty(LAW_ROW, np.int64)    # its particles a and b
+        slot = np.empty(LAW_ROW, np.int64)  # the pair's slot in the list
+        side_a = np.empty(LAW_ROW, np.int64)  # its particles a and b
         side_b = np.empty(LAW_ROW, np.int64)
-        was_on = np.empty(LAW_ROW, np.uint8)    # in contact at the last step
+        was_on = np.empty(LAW_ROW, np.uint8)  # in contact at the last step
         k = 0
         # the group's pairs in one loop (a loop per particle would end at a count that
         # varies from particle to particle, another mispredicted branch)

@@ -15,6 +15,7 @@ wheel's contact geometry, the cell geometry. A dimension's package (``physics.d2
 (``twins.specialise``) and compiles each template once for the dimension, plus the
 one-thread twins serial DDM runs its sub-domains with.
 """
+
 from types import SimpleNamespace
 
 import numpy as np
@@ -33,8 +34,7 @@ sync_history = slot("sync_history: the dimension's (physics.history)")
 build_pairs = slot("build_pairs: the dimension's neighbour build (physics.neighbors)")
 
 
-def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role,
-              spans):
+def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role, spans):
     """Advance particles 0..len(d.gid)-1 (and the wheel when kp.wg.enabled) nsteps from
     global step step0.
 
@@ -67,13 +67,14 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     gy = kp.gravity[AX_Y]
     wheel = wg[0].enabled > 0.5
     nlugs = int(wg[0].nlugs)
-    lugdir = np.empty(max(1, nlugs), LUG_DIRECTION)   # set by lug_directions before use
-    part = np.empty(N_CHUNKS)                          # scratch of gather_integrate
+    lugdir = np.empty(max(1, nlugs), LUG_DIRECTION)  # set by lug_directions before use
+    part = np.empty(N_CHUNKS)  # scratch of gather_integrate
     every = role[:0]
-    whole = role.shape[0] == 0   # the particles leave whole (no caller-side sync)
+    whole = role.shape[0] == 0  # the particles leave whole (no caller-side sync)
     if rebuild_now:
-        npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a,
-                             pl.inc_off, pl.inc_k, pl.ref)
+        npairs = build_pairs(
+            d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a, pl.inc_off, pl.inc_k, pl.ref
+        )
         if npairs > pl.pair_b.shape[0]:
             err[ERR_PAIR_CAPACITY] = npairs
             return 0, 0
@@ -98,18 +99,18 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
             if whole:
                 sync_history(n, d, pl, err, every, 0)
             return s, rebuilds
-        disp2 = gather_integrate(first, end, d, pl, bd, forces.force, forces.torque, kp.gravity,
-                                 dt, part, err)
+        disp2 = gather_integrate(first, end, d, pl, bd, forces.force, forces.torque, kp.gravity, dt, part, err)
         if err[ERR_HIST_OVERFLOW] != 0:
-            return s, rebuilds   # fatal; step s is not done (its wheel is not advanced)
+            return s, rebuilds  # fatal; step s is not done (its wheel is not advanced)
         if wheel:
             wfx, wfy, wtq, cnt = wheel_reaction(d.gid, bd)
             record_and_integrate_wheel(rec, s, t, ws, wg, wc, wfx, wfy, wtq, cnt, gy, dt)
         if disp2 > half2:
             rebuilds += 1
             sync_history(n, d, pl, err, every, 0)
-            npairs = build_pairs(d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b,
-                                 pl.pair_a, pl.inc_off, pl.inc_k, pl.ref)
+            npairs = build_pairs(
+                d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a, pl.inc_off, pl.inc_k, pl.ref
+            )
             if npairs > pl.pair_b.shape[0]:
                 err[ERR_PAIR_CAPACITY] = npairs
                 return s + 1, rebuilds
@@ -120,8 +121,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
 
 
 # what a dimension's package gives instantiate: every Slot of these templates' modules
-DIMENSION_SLOTS = tuple(sorted({name for mod in (history, gather, produce_mod)
-                                for name in slots_of(mod)}))
+DIMENSION_SLOTS = tuple(sorted({name for mod in (history, gather, produce_mod) for name in slots_of(mod)}))
 
 
 def instantiate(name: str, *modules) -> SimpleNamespace:
@@ -136,24 +136,23 @@ def instantiate(name: str, *modules) -> SimpleNamespace:
     compiled without a parallel region, calling each other's twins."""
     par = bindings(DIMENSION_SLOTS, *modules)
     # the phases' inline helpers (no parallel loop): one compilation serves both variants
-    for t in (produce_mod.list_pair, produce_mod.fill_block, produce_mod.pair_rows,
-              gather.advance):
+    for t in (produce_mod.list_pair, produce_mod.fill_block, produce_mod.pair_rows, gather.advance):
         par[t.__name__] = specialise(t, f"{t.__name__}_{name}", par, inline="always")
     ser = dict(par)
-    for phase in (history.load_history, history.sync_history, gather.gather_integrate,
-                  produce_mod.produce):
+    for phase in (history.load_history, history.sync_history, gather.gather_integrate, produce_mod.produce):
         par[phase.__name__] = specialise(phase, f"{phase.__name__}_{name}", par, parallel=True)
-        ser[phase.__name__] = specialise(phase, f"{phase.__name__}_{name}_serial", ser,
-                                         parallel=no_parfors())
+        ser[phase.__name__] = specialise(phase, f"{phase.__name__}_{name}_serial", ser, parallel=no_parfors())
     build = bindings(("build_pairs", "build_pairs_serial"), *modules)
     par["build_pairs"] = build["build_pairs"]
     ser["build_pairs"] = build["build_pairs_serial"]
     # nogil: an out-of-core sweep reads and writes slabs in other threads while this runs
     return SimpleNamespace(
-        produce=par["produce"], gather_integrate=par["gather_integrate"],
-        load_history=par["load_history"], sync_history=par["sync_history"],
+        produce=par["produce"],
+        gather_integrate=par["gather_integrate"],
+        load_history=par["load_history"],
+        sync_history=par["sync_history"],
         build_pairs=par["build_pairs"],
         run_steps=specialise(run_steps, f"run_steps_{name}", par, nogil=True),
-        run_steps_serial=specialise(run_steps, f"run_steps_{name}_serial", ser,
-                                    parallel=no_parfors()),
-        sync_history_serial=ser["sync_history"])
+        run_steps_serial=specialise(run_steps, f"run_steps_{name}_serial", ser, parallel=no_parfors()),
+        sync_history_serial=ser["sync_history"],
+    )

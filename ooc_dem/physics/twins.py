@@ -11,6 +11,7 @@ own, so it is compiled again without ``parallel`` (``prange`` becomes ``range``)
 the kernels it calls replaced by their own serial twins. Every variant is the same
 source, so the arithmetic and the bits are the same.
 """
+
 from __future__ import annotations
 
 import types
@@ -34,8 +35,16 @@ warnings.filterwarnings("ignore", message=TWIN_WARNING, category=NumbaPerformanc
 # never as a dict: numba builds its options from a dict by popping the keys, so one
 # shared dict is empty after the first compilation and every later twin would get the
 # default (every transformation on: a parallel region inside each "serial" step)
-NO_PARFORS = {"comprehension": False, "prange": False, "numpy": False, "reduction": False,
-              "inplace_binop": False, "setitem": False, "stencil": False, "fusion": False}
+NO_PARFORS = {
+    "comprehension": False,
+    "prange": False,
+    "numpy": False,
+    "reduction": False,
+    "inplace_binop": False,
+    "setitem": False,
+    "stencil": False,
+    "fusion": False,
+}
 
 
 def no_parfors() -> ParallelOptions:

@@ -11,6 +11,7 @@ shape (1,)); its axle is along z in both dimensions (3D reads the geometry's wid
 z0). Each dimension's contact with the wheel's rim and lugs is its own (``d2.bodies``,
 ``d3.bodies``).
 """
+
 import math
 
 import numpy as np
@@ -64,7 +65,7 @@ def wheel_reaction(gid, bd):
         end = at + bcount[ch]
         while at < end:
             i = body[at].disc
-            if body[at].pid > ID_RIM:   # a wall: no wheel rows for this particle
+            if body[at].pid > ID_RIM:  # a wall: no wheel rows for this particle
                 at += 1
                 continue
             wfx_i = 0.0

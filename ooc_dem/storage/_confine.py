@@ -35,8 +35,7 @@ _PART_RE = re.compile(r"^[A-Za-z0-9_.+\-]+$")
 # revision, part, extension
 _EPOCH_NAME_RE = re.compile(r"^e(\d{12,})(?:\.r(\d+))?(?:\.p(\d+))?\.([a-z0-9]+)$")
 # O_NONBLOCK: opening a FIFO for reading must not wait for a writer (it is refused after fstat)
-_OPEN_FLAGS = (os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
-               | getattr(os, "O_CLOEXEC", 0))
+_OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
 
 
 def _short(v: object) -> str:
@@ -57,9 +56,11 @@ def rel_path(value: object, what: str) -> str:
     parts = value.split("/")
     for p in parts:
         if p in ("", ".", "..") or not _PART_RE.match(p):
-            raise StoreError(f"{what}: path {_short(value)} has a forbidden part {_short(p)} "
-                             f"(parts are non-empty names of letters, digits and _ . + -, "
-                             f"not . or ..)")
+            raise StoreError(
+                f"{what}: path {_short(value)} has a forbidden part {_short(p)} "
+                f"(parts are non-empty names of letters, digits and _ . + -, "
+                f"not . or ..)"
+            )
     return value
 
 
@@ -78,14 +79,18 @@ def epoch_path(value: object, exts: str | Iterable[str], step: int, what: str, p
     name = parts[-1]
     m = _EPOCH_NAME_RE.match(name)
     if len(parts) != 2 or parts[0] != EPOCH_DIR or m is None or m.group(4) not in exts:
-        raise StoreError(f"{what}: path {_short(value)} is not an epoch path "
-                         f"({EPOCH_DIR}/e<step, 12+ digits>[.r<n>][.p<k>].{'|'.join(exts)})")
+        raise StoreError(
+            f"{what}: path {_short(value)} is not an epoch path "
+            f"({EPOCH_DIR}/e<step, 12+ digits>[.r<n>][.p<k>].{'|'.join(exts)})"
+        )
     if int(m.group(1)) != step:
         raise StoreError(f"{what}: path {_short(value)} names step {int(m.group(1))}, the entry says {step}")
     got = None if m.group(3) is None else int(m.group(3))
     if got != part:
-        raise StoreError(f"{what}: path {_short(value)} is "
-                         + (f"not part {part} of its epoch" if part is not None else "a part, not an epoch"))
+        raise StoreError(
+            f"{what}: path {_short(value)} is "
+            + (f"not part {part} of its epoch" if part is not None else "a part, not an epoch")
+        )
     return path
 
 
@@ -118,8 +123,9 @@ class Resolver:
         except OSError as e:
             raise StoreError(f"{self.edir}: cannot examine ({e.strerror or e})") from None
         if stat.S_ISLNK(st.st_mode):
-            raise StoreError(f"{self.edir}: is a symbolic link; a store's {EPOCH_DIR}/ must be a "
-                             f"real directory (refusing to use it)")
+            raise StoreError(
+                f"{self.edir}: is a symbolic link; a store's {EPOCH_DIR}/ must be a real directory (refusing to use it)"
+            )
         if not stat.S_ISDIR(st.st_mode):
             raise StoreError(f"{self.edir}: is not a directory")
 
@@ -128,14 +134,14 @@ class Resolver:
         p = os.path.join(self.root, *rel_parts(rel, what))
         real = os.path.realpath(p)
         if not real.startswith(self._real_edir + os.sep):
-            raise StoreError(f"{what}: {rel!r} resolves to {real}, outside the store's "
-                             f"{EPOCH_DIR}/ directory (refusing to use it)")
+            raise StoreError(
+                f"{what}: {rel!r} resolves to {real}, outside the store's {EPOCH_DIR}/ directory (refusing to use it)"
+            )
         return p
 
     def has_no_links(self, p: str) -> bool:
         """Whether no part of `p` (a path from `path`) below the store root is a symbolic link."""
-        return os.path.realpath(p) == os.path.join(os.path.dirname(self._real_edir),
-                                                   os.path.relpath(p, self.root))
+        return os.path.realpath(p) == os.path.join(os.path.dirname(self._real_edir), os.path.relpath(p, self.root))
 
 
 def open_regular(path: str, what: str | None = None) -> int:
@@ -170,7 +176,7 @@ def read_regular(path: str, limit: int, what: str | None = None) -> bytes:
         if size > limit:
             raise StoreError(f"{where}: {size} bytes, more than the {limit} allowed")
         chunks, got = [], 0
-        while got <= limit:        # never more than limit + 1 bytes, even if the file grows
+        while got <= limit:  # never more than limit + 1 bytes, even if the file grows
             b = os.read(fd, min(1 << 20, limit + 1 - got))
             if not b:
                 break
@@ -200,7 +206,7 @@ def digest_regular(path: str, size: int, name: str, what: str | None = None) -> 
         mv = memoryview(buf)
         left = size
         while left:
-            k = os.readv(fd, [mv[:min(left, len(buf))]])
+            k = os.readv(fd, [mv[: min(left, len(buf))]])
             if not k:
                 raise StoreError(f"{where}: shorter than recorded {size} bytes (truncated?)")
             h.update(mv[:k])

@@ -12,17 +12,38 @@ from typing import Literal
 
 from . import _hdf5, _zarr, _zarr_zip
 from ._confine import Resolver, digest_regular, read_regular
-from ._util import (EPOCH_DIR, EPOCH_NAME_RE, FORMAT, LOCK_FILE, MANIFEST, MANIFEST_TMP,
-                    MAX_MANIFEST_BYTES, TMP_NAME_RE, EpochFormat, FormatReader, FormatWriter, JSONObject,
-                    StoreError, drop_page_cache, file_checksum, file_entries, fsync_path, parse_json,
-                    remove_path, to_json, write_error)
+from ._util import (
+    EPOCH_DIR,
+    EPOCH_NAME_RE,
+    FORMAT,
+    LOCK_FILE,
+    MANIFEST,
+    MANIFEST_TMP,
+    MAX_MANIFEST_BYTES,
+    TMP_NAME_RE,
+    EpochFormat,
+    FormatReader,
+    FormatWriter,
+    JSONObject,
+    StoreError,
+    drop_page_cache,
+    file_checksum,
+    file_entries,
+    fsync_path,
+    parse_json,
+    remove_path,
+    to_json,
+    write_error,
+)
 
 # what each backend writes, and every epoch format it reads (by the epoch name's extension):
 # zarr epochs were directories before (``_zarr``, ~20 files and directories per group),
 # one zip archive per epoch since (``_zarr_zip``); both are read
 FORMATS: dict[str, EpochFormat] = {"hdf5": _hdf5, "zarr": _zarr_zip}
-READ_FORMATS: dict[str, dict[str, EpochFormat]] = {"hdf5": {_hdf5.EXT: _hdf5},
-                                                   "zarr": {_zarr_zip.EXT: _zarr_zip, _zarr.EXT: _zarr}}
+READ_FORMATS: dict[str, dict[str, EpochFormat]] = {
+    "hdf5": {_hdf5.EXT: _hdf5},
+    "zarr": {_zarr_zip.EXT: _zarr_zip, _zarr.EXT: _zarr},
+}
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 
 
@@ -38,8 +59,8 @@ def read_manifest_file(mpath: str) -> object:
     """The parsed JSON of a MANIFEST.json: a regular file of at most MAX_MANIFEST_BYTES."""
     try:
         return parse_json(read_regular(mpath, MAX_MANIFEST_BYTES), mpath)
-    except StoreError as e:             # messages are "<mpath>: <reason>"
-        raise ManifestUnreadable(mpath, str(e)[len(mpath) + 2:]) from None
+    except StoreError as e:  # messages are "<mpath>: <reason>"
+        raise ManifestUnreadable(mpath, str(e)[len(mpath) + 2 :]) from None
 
 
 def _is_real_dir(path: str) -> bool:
@@ -62,8 +83,7 @@ def classify(root: str) -> tuple[str, object]:
         return "empty", None
     mpath = os.path.join(root, MANIFEST)
     edir = os.path.join(root, EPOCH_DIR)
-    looks_ours = _is_real_dir(edir) and all(
-        EPOCH_NAME_RE.match(n) or TMP_NAME_RE.match(n) for n in os.listdir(edir))
+    looks_ours = _is_real_dir(edir) and all(EPOCH_NAME_RE.match(n) or TMP_NAME_RE.match(n) for n in os.listdir(edir))
     if os.path.lexists(mpath):
         try:
             m = read_manifest_file(mpath)
@@ -87,7 +107,7 @@ def wipe(root: str) -> None:
     The lock file stays: the caller holds it (see _lock)."""
     for n in (MANIFEST, MANIFEST_TMP):
         remove_path(os.path.join(root, n))
-    remove_path(os.path.join(root, EPOCH_DIR))    # a symbolic link is unlinked, not followed
+    remove_path(os.path.join(root, EPOCH_DIR))  # a symbolic link is unlinked, not followed
 
 
 def _walk_epoch(base: str) -> tuple[dict[str, str], list[str]]:
@@ -137,14 +157,14 @@ class Place:
         data = to_json(m, f"{self.mpath}: manifest", indent=1).encode()
         tmp = os.path.join(self.root, MANIFEST_TMP)
         try:
-            remove_path(tmp)       # exclusive create below: never written through a planted link
+            remove_path(tmp)  # exclusive create below: never written through a planted link
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NOFOLLOW, 0o644)
             with open(fd, "wb") as f:
                 f.write(data)
                 f.flush()
                 if durable:
                     os.fsync(f.fileno())
-            os.replace(tmp, self.mpath)          # the commit point
+            os.replace(tmp, self.mpath)  # the commit point
             if durable:
                 fsync_path(self.root)
         except OSError as e:
@@ -162,7 +182,7 @@ class Place:
 
     def new_writer(self, step: int, basename: str, compression: str | None = None) -> FormatWriter:
         tmp = self.tmp_name(basename)
-        remove_path(tmp)                         # leftover of an earlier process with our pid
+        remove_path(tmp)  # leftover of an earlier process with our pid
         os.makedirs(self.edir, exist_ok=True)
         return self.fmt.Writer(tmp, step, compression)
 
@@ -176,7 +196,7 @@ class Place:
             raise write_error(tmp, e) from e
         final = os.path.join(self.edir, basename)
         try:
-            remove_path(final)                  # never an epoch named by the manifest (see Store)
+            remove_path(final)  # never an epoch named by the manifest (see Store)
             os.rename(tmp, final)
             if durable:
                 fsync_path(self.edir)
@@ -282,9 +302,8 @@ class Place:
         if self.fmt_of(base).IS_DIR:
             found, odd = _walk_epoch(base)
             problems += odd
-            listed = {f["path"][len(entry["path"]) + 1:] for f in entry["files"]}
-            problems += [f"{found[r]}: unexpected file (not in manifest)"
-                         for r in sorted(found) if r not in listed]
+            listed = {f["path"][len(entry["path"]) + 1 :] for f in entry["files"]}
+            problems += [f"{found[r]}: unexpected file (not in manifest)" for r in sorted(found) if r not in listed]
         return problems
 
     # ------------------------------------------------------------------ leftovers
@@ -298,8 +317,12 @@ class Place:
             out.append((tmp, None))
         if not _is_real_dir(self.edir):
             return out
-        named = {x["path"].rpartition("/")[2] for e in (m.get("current"), m.get("previous")) if e
-                 for x in [e, *e.get("parts", ())]}
+        named = {
+            x["path"].rpartition("/")[2]
+            for e in (m.get("current"), m.get("previous"))
+            if e
+            for x in [e, *e.get("parts", ())]
+        }
         for n in sorted(os.listdir(self.edir)):
             t = TMP_NAME_RE.match(n)
             if t:
@@ -313,7 +336,7 @@ class Place:
         self.resolver.check_epoch_dir()
         removed = []
         for p, _pid in self.leftovers(m):
-            remove_path(p)                  # a symbolic link is unlinked, never followed
+            remove_path(p)  # a symbolic link is unlinked, never followed
             removed.append(p)
         if not os.path.lexists(self.edir):
             os.makedirs(self.edir, exist_ok=True)

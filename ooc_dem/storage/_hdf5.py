@@ -8,8 +8,7 @@ import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
 from . import writeguard
-from ._util import (ATTRS_KEY, FORMAT, attrs_text, drop_page_cache, file_digest, fsync_path, remove_path,
-                    start_writeback)
+from ._util import ATTRS_KEY, FORMAT, attrs_text, drop_page_cache, file_digest, fsync_path, remove_path, start_writeback
 
 if TYPE_CHECKING:
     import h5py
@@ -23,11 +22,13 @@ CHUNK_BYTES = 1 << 20
 # name -> h5py create_dataset keywords (built-in filters only: every h5py reads them)
 FILTERS: dict[str, dict[str, Any]] = {
     "gzip": {"compression": "gzip", "compression_opts": 4, "shuffle": True},
-    "lzf": {"compression": "lzf", "shuffle": True}}
+    "lzf": {"compression": "lzf", "shuffle": True},
+}
 
 
-def _h5py() -> Any:     # h5py: no type information
+def _h5py() -> Any:  # h5py: no type information
     import h5py
+
     return h5py
 
 
@@ -40,6 +41,7 @@ _MDC_BYTES = 1 << 20
 
 # Files are opened with no file locking (stores live on network/scratch filesystems), a small
 # chunk cache and no SWMR.
+
 
 def _small_metadata_cache(f: h5py.File) -> h5py.File:
     cfg = f.id.get_mdc_config()
@@ -84,7 +86,8 @@ class Writer:
         """Refuse a group that cannot fit before writing it (an OSError, which the store
         turns into a one-line StoreError); a failure during the write is the guard's."""
         import os
-        need = int(nbytes) + 8192   # datasets plus headroom for HDF5 object headers
+
+        need = int(nbytes) + 8192  # datasets plus headroom for HDF5 object headers
         writeguard.check_room(self.path, need, os.path.getsize(self.path) + need)
 
     def write_group(self, group: str, arrays: dict[str, NDArray[Any]], attrs_json: str) -> None:
@@ -95,7 +98,7 @@ class Writer:
         g.attrs[ATTRS_KEY] = attrs_json
         for name, a in arrays.items():
             if self.filters is None or a.ndim == 0 or a.size == 0:
-                g.create_dataset(name, data=a)   # contiguous layout: row ranges are read in place
+                g.create_dataset(name, data=a)  # contiguous layout: row ranges are read in place
                 continue
             row = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
             rows = int(min(a.shape[0], max(1, CHUNK_BYTES // max(1, row))))
@@ -127,7 +130,7 @@ class Writer:
 class Reader:
     def __init__(self, path: str) -> None:
         self.path = path
-        self._objs: dict[str, Any] = {}     # path -> object of one group, checked once (see _get)
+        self._objs: dict[str, Any] = {}  # path -> object of one group, checked once (see _get)
         self._objs_group: str | None = None
         self.f: h5py.File | None = _open_read(path)
 
@@ -200,7 +203,7 @@ class Reader:
 
     def read_range(self, group: str, name: str, start: int, stop: int, out: NDArray[Any]) -> None:
         if stop > start:
-            self._ds(group, name).read_direct(out, np.s_[start:stop], np.s_[0:stop - start])
+            self._ds(group, name).read_direct(out, np.s_[start:stop], np.s_[0 : stop - start])
 
     def after_read(self) -> None:
         drop_page_cache(self.path)

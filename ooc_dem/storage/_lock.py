@@ -22,7 +22,7 @@ from ._util import LOCK_FILE, StoreError
 # that moment retries for this long before it concludes that another writer holds the store
 _ACQUIRE_GRACE_S = 0.5
 _RETRY_S = 0.01
-_PID_TEXT_MAX = 32          # the lock file holds the holder's pid as text, nothing more
+_PID_TEXT_MAX = 32  # the lock file holds the holder's pid as text, nothing more
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
 
 
@@ -54,8 +54,7 @@ class StoreLock:
         try:
             fd = _open(self.path, os.O_RDWR | os.O_CREAT)
         except OSError as e:
-            raise StoreError(f"{self.path}: cannot open the store's lock file "
-                             f"({e.strerror or e})") from None
+            raise StoreError(f"{self.path}: cannot open the store's lock file ({e.strerror or e})") from None
         deadline = time.monotonic() + _ACQUIRE_GRACE_S
         while True:
             try:
@@ -68,15 +67,18 @@ class StoreLock:
                     continue
                 os.close(fd)
                 if pid == os.getpid():
-                    raise StoreError(f"{root}: this process already has this store open for "
-                                     f"writing (close that Store first)") from None
-                raise StoreError(f"{root}: another process is writing this store "
-                                 f"(pid {pid if pid is not None else 'unknown'}); wait for it to "
-                                 f"finish or stop it") from None
+                    raise StoreError(
+                        f"{root}: this process already has this store open for writing (close that Store first)"
+                    ) from None
+                raise StoreError(
+                    f"{root}: another process is writing this store "
+                    f"(pid {pid if pid is not None else 'unknown'}); wait for it to "
+                    f"finish or stop it"
+                ) from None
             except OSError as e:
                 os.close(fd)
                 raise StoreError(f"{self.path}: cannot lock the store ({e.strerror or e})") from None
-        try:   # the pid is for messages only: the lock itself is the flock
+        try:  # the pid is for messages only: the lock itself is the flock
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         except OSError:
@@ -86,9 +88,9 @@ class StoreLock:
     def release(self) -> None:
         fd, self._fd = self._fd, None
         if fd is not None:
-            os.close(fd)      # closing the last fd of the description drops the flock
+            os.close(fd)  # closing the last fd of the description drops the flock
 
-    def __del__(self) -> None:    # a Store dropped without close() must not keep the store locked
+    def __del__(self) -> None:  # a Store dropped without close() must not keep the store locked
         self.release()
 
 
@@ -101,7 +103,7 @@ def live_writer(root: str) -> int | None:
     try:
         fd = _open(path, os.O_RDONLY)
     except OSError:
-        return None          # no lock file (or not a file): nobody can hold it
+        return None  # no lock file (or not a file): nobody can hold it
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)

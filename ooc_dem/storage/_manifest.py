@@ -13,8 +13,19 @@ from typing import TYPE_CHECKING, TypeAlias
 import numpy as np
 
 from . import _confine
-from ._util import (EPOCH_DIR, FORMAT, MANIFEST, MAX_PARTS, SUPPORTED_VERSIONS, JSONObject, StoreError,
-                    StrPath, check_array_name, file_checksum, part_basename)
+from ._util import (
+    EPOCH_DIR,
+    FORMAT,
+    MANIFEST,
+    MAX_PARTS,
+    SUPPORTED_VERSIONS,
+    JSONObject,
+    StoreError,
+    StrPath,
+    check_array_name,
+    file_checksum,
+    part_basename,
+)
 from ._util import show as _show
 
 if TYPE_CHECKING:
@@ -41,8 +52,8 @@ _MAX_RATIO = 64
 MAX_INT64 = 2**63 - 1
 _MAX_NDIM = 32
 _MAX_DOMAIN_ID = 10**9 - 1
-_MAX_NAME_CHARS = 200          # ARRAY_NAME_RE's limit, checked first to keep messages short
-_DOMAIN_KEY_RE = re.compile(r"^(0|[1-9][0-9]{0,8})$")   # str(d) of a domain id d >= 0
+_MAX_NAME_CHARS = 200  # ARRAY_NAME_RE's limit, checked first to keep messages short
+_DOMAIN_KEY_RE = re.compile(r"^(0|[1-9][0-9]{0,8})$")  # str(d) of a domain id d >= 0
 
 
 def now() -> str:
@@ -59,7 +70,7 @@ def store_key(path: StrPath) -> str:
 
 
 def _int(v: object, what: str, lo: int = 0, hi: int = MAX_INT64) -> int:
-    if type(v) is not int or not lo <= v <= hi:      # (bool is an int subclass: refused)
+    if type(v) is not int or not lo <= v <= hi:  # (bool is an int subclass: refused)
         raise StoreError(f"{what}: must be an integer in [{lo}, {hi}], got {_show(v)}")
     return v
 
@@ -82,8 +93,9 @@ def _check_arrays(arrays: object, what: str, min_ndim: int) -> int:
             raise StoreError(f"{where}: malformed (must be [shape, dtype], got {_show(spec)})")
         shape, dtype = spec
         if not (isinstance(shape, list) and min_ndim <= len(shape) <= _MAX_NDIM):
-            raise StoreError(f"{where}: malformed shape {_show(shape)} (a list of {min_ndim} to "
-                             f"{_MAX_NDIM} non-negative integers)")
+            raise StoreError(
+                f"{where}: malformed shape {_show(shape)} (a list of {min_ndim} to {_MAX_NDIM} non-negative integers)"
+            )
         count = 1
         for n in shape:
             count *= _int(n, f"{where} shape")
@@ -94,8 +106,9 @@ def _check_arrays(arrays: object, what: str, min_ndim: int) -> int:
             except (TypeError, ValueError):
                 dt = None
         if dt is None or dt.kind not in "biufc" or dt.fields is not None or dt.str != dtype:
-            raise StoreError(f"{where}: dtype {_show(dtype)} is not a numeric numpy dtype string "
-                             f"(such as '<f8', '<i8', '|b1')")
+            raise StoreError(
+                f"{where}: dtype {_show(dtype)} is not a numeric numpy dtype string (such as '<f8', '<i8', '|b1')"
+            )
         nbytes += count * dt.itemsize
         if nbytes > MAX_INT64:
             raise StoreError(f"{where}: arrays larger than 2**63 bytes")
@@ -110,12 +123,14 @@ def _check_entry(entry: object, role: str, where: str, place: Place, ext: Sequen
     if "format_version" in e:
         v = e["format_version"]
         if type(v) is not int or v not in SUPPORTED_VERSIONS:
-            raise StoreError(f"{what}: unsupported format_version {_show(v)} (this code reads "
-                             f"{', '.join(map(str, SUPPORTED_VERSIONS))})")
+            raise StoreError(
+                f"{what}: unsupported format_version {_show(v)} (this code reads "
+                f"{', '.join(map(str, SUPPORTED_VERSIONS))})"
+            )
     epoch = _confine.epoch_path(e.get("path"), ext, step, what)
     files = e.get("files")
     if not isinstance(files, list):
-        raise StoreError(f"{what}: malformed \"files\" (must be a list of file entries)")
+        raise StoreError(f'{what}: malformed "files" (must be a list of file entries)')
     comp = e.get("compression")
     if comp is not None and (not isinstance(comp, str) or comp not in COMPRESSIONS[place.backend]):
         raise StoreError(f"{what}: unknown compression {_show(comp)}")
@@ -145,8 +160,7 @@ def _check_entry(entry: object, role: str, where: str, place: Place, ext: Sequen
     # some of its domain groups; part k is "epochs/<the epoch's name>.p<k>"
     parts = e.get("parts", [])
     if not isinstance(parts, list) or len(parts) > MAX_PARTS or (parts and place.is_memory):
-        raise StoreError(f"{what}: malformed \"parts\" (must be a list of at most {MAX_PARTS} part "
-                         f"entries, on disk)")
+        raise StoreError(f'{what}: malformed "parts" (must be a list of at most {MAX_PARTS} part entries, on disk)')
     for k, part in enumerate(parts, start=1):
         pw = f"{what} part {k}"
         part = _dict(part, pw)
@@ -155,7 +169,7 @@ def _check_entry(entry: object, role: str, where: str, place: Place, ext: Sequen
             raise StoreError(f"{pw}: path {_show(ppath)} is not part {k} of epoch {epoch}")
         pfiles = part.get("files")
         if not isinstance(pfiles, list):
-            raise StoreError(f"{pw}: malformed \"files\" (must be a list of file entries)")
+            raise StoreError(f'{pw}: malformed "files" (must be a list of file entries)')
         check_files(ppath, pfiles, pw)
         if not place.is_memory:
             place.resolver.path(ppath, pw)
@@ -163,8 +177,10 @@ def _check_entry(entry: object, role: str, where: str, place: Place, ext: Sequen
     needed = 0
     for d, info in domains.items():
         if not (isinstance(d, str) and _DOMAIN_KEY_RE.match(d)):
-            raise StoreError(f"{what}: domain key {_show(d)} is not a domain id "
-                             f"(0 to {_MAX_DOMAIN_ID}, written without sign or leading zeros)")
+            raise StoreError(
+                f"{what}: domain key {_show(d)} is not a domain id "
+                f"(0 to {_MAX_DOMAIN_ID}, written without sign or leading zeros)"
+            )
         info = _dict(info, f"{what} domain {d}")
         _int(info.get("n"), f"{what} domain {d} n")
         if "part" in info:
@@ -175,8 +191,10 @@ def _check_entry(entry: object, role: str, where: str, place: Place, ext: Sequen
         needed += _check_arrays(_dict(g, f"{what} globals").get("arrays"), f"{what} globals arrays", 0)
     # uncompressed arrays' bytes are all in the files; compressed ones at most _MAX_RATIO x
     if needed > stored * (1 if comp is None else _MAX_RATIO):
-        raise StoreError(f"{what}: arrays need {needed} bytes but its files hold only {stored}"
-                         + ("" if comp is None else f" ({comp}, at most {_MAX_RATIO}x)"))
+        raise StoreError(
+            f"{what}: arrays need {needed} bytes but its files hold only {stored}"
+            + ("" if comp is None else f" ({comp}, at most {_MAX_RATIO}x)")
+        )
     if not isinstance(e.get("committed_at", ""), str):
         raise StoreError(f"{what}: malformed committed_at {_show(e.get('committed_at'))}")
     if not place.is_memory:
@@ -186,35 +204,39 @@ def _check_entry(entry: object, role: str, where: str, place: Place, ext: Sequen
         place.resolver.path(epoch, what)
 
 
-def validate_manifest(m: object, where: str, backends: Sequence[str],
-                      place_for: Callable[[str], Place]) -> tuple[JSONObject, Place]:
+def validate_manifest(
+    m: object, where: str, backends: Sequence[str], place_for: Callable[[str], Place]
+) -> tuple[JSONObject, Place]:
     """Check everything later code relies on, so that it can trust the manifest's entries.
 
     `place_for(backend)` gives the place whose paths the entries must resolve in.
     Returns (manifest, place)."""
     if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise StoreError(f"{where}: not an ooc-dem store (MANIFEST.json has no "
-                         f"\"format\": \"{FORMAT}\")")
+        raise StoreError(f'{where}: not an ooc-dem store (MANIFEST.json has no "format": "{FORMAT}")')
     v = m.get("format_version")
     if type(v) is not int or v not in SUPPORTED_VERSIONS:
-        raise StoreError(f"{where}: unsupported format_version {_show(v)} (this code reads "
-                         f"{', '.join(map(str, SUPPORTED_VERSIONS))})")
+        raise StoreError(
+            f"{where}: unsupported format_version {_show(v)} (this code reads "
+            f"{', '.join(map(str, SUPPORTED_VERSIONS))})"
+        )
     backend = m.get("backend")
     if not isinstance(backend, str) or backend not in backends:
-        raise StoreError(f"{where}: MANIFEST.json names backend {_show(backend)}, "
-                         f"expected one of {', '.join(backends)}")
+        raise StoreError(
+            f"{where}: MANIFEST.json names backend {_show(backend)}, expected one of {', '.join(backends)}"
+        )
     place = place_for(backend)
     if not place.is_memory:
         place.resolver.check_epoch_dir()
     if not isinstance(m.get("meta", {}), dict):
-        raise StoreError(f"{where}: MANIFEST.json missing or unreadable (malformed: meta is not "
-                         f"an object)")
+        raise StoreError(f"{where}: MANIFEST.json missing or unreadable (malformed: meta is not an object)")
     if not isinstance(m.get("created_at", ""), str):
         raise StoreError(f"{where}: MANIFEST.json missing or unreadable (malformed: created_at)")
     comp = m.get("compression")
     if comp is not None and (not isinstance(comp, str) or comp not in COMPRESSIONS[backend]):
-        raise StoreError(f"{where}: MANIFEST.json names compression {_show(comp)}, expected one "
-                         f"of the {backend} backend's ({', '.join(COMPRESSIONS[backend]) or 'none'})")
+        raise StoreError(
+            f"{where}: MANIFEST.json names compression {_show(comp)}, expected one "
+            f"of the {backend} backend's ({', '.join(COMPRESSIONS[backend]) or 'none'})"
+        )
     cur, prev = m.get("current"), m.get("previous")
     ext = READ_EXTS[backend]
     for role, e in (("current", cur), ("previous", prev)):
@@ -227,13 +249,11 @@ def validate_manifest(m: object, where: str, backends: Sequence[str],
         if prev["path"] == cur["path"]:
             raise StoreError(f"{what}: previous and current epoch are the same path {cur['path']!r}")
         if not prev["step"] < cur["step"]:
-            raise StoreError(f"{what}: previous epoch step {prev['step']} is not older than the "
-                             f"current {cur['step']}")
+            raise StoreError(f"{what}: previous epoch step {prev['step']} is not older than the current {cur['step']}")
     m.setdefault("meta", {})
     m.setdefault("previous", None)
     m.setdefault("current", None)
     return m, place
-
 
 
 def files_of(e: JSONObject) -> list[JSONObject]:

@@ -13,16 +13,16 @@ from typing import Any, Literal, TypedDict
 import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
-from ._util import (DIGEST, EPOCH_DIR, JSONObject, StoreError, bytes_digest, file_checksum, parse_json,
-                    to_json)
+from ._util import DIGEST, EPOCH_DIR, JSONObject, StoreError, bytes_digest, file_checksum, parse_json, to_json
 
 _REGISTRY: dict[str, "Backing"] = {}
 
 
 class Group(TypedDict):
     """A group of an epoch in memory."""
+
     arrays: dict[str, NDArray[Any]]
-    attrs: str      # JSON
+    attrs: str  # JSON
 
 
 class Backing:
@@ -36,8 +36,7 @@ def _file_entries(base: str, groups: dict[str, Group]) -> list[JSONObject]:
     files = []
     for g, content in groups.items():
         for name, a in content["arrays"].items():
-            files.append({"path": f"{base}/{g}/{name}", "size": int(a.nbytes),
-                          DIGEST: bytes_digest(a.tobytes())})
+            files.append({"path": f"{base}/{g}/{name}", "size": int(a.nbytes), DIGEST: bytes_digest(a.tobytes())})
         raw = content["attrs"].encode()
         files.append({"path": f"{base}/{g}/.attrs", "size": len(raw), DIGEST: bytes_digest(raw)})
     return files
@@ -48,8 +47,7 @@ class Writer:
         self.groups: dict[str, Group] = {}
 
     def write_group(self, group: str, arrays: dict[str, NDArray[Any]], attrs_json: str) -> None:
-        self.groups[group] = {"arrays": {n: np.array(a, copy=True) for n, a in arrays.items()},
-                              "attrs": attrs_json}
+        self.groups[group] = {"arrays": {n: np.array(a, copy=True) for n, a in arrays.items()}, "attrs": attrs_json}
 
     def abort(self) -> None:
         self.groups = {}
@@ -143,7 +141,7 @@ class Place:
         return []
 
     def leftovers(self, m: JSONObject) -> list[tuple[str, int | None]]:
-        return []          # nothing is written under a temporary name
+        return []  # nothing is written under a temporary name
 
     def check_files(self, entry: JSONObject) -> list[str]:
         problems: list[str] = []
@@ -154,7 +152,7 @@ class Place:
         listed = {f["path"] for f in entry["files"]}
         problems += [f"{self.key}/{p}: unexpected (not in manifest)" for p in sorted(actual - listed)]
         for f in entry["files"]:
-            rest = f["path"][len(entry["path"]) + 1:]
+            rest = f["path"][len(entry["path"]) + 1 :]
             g, _, name = rest.rpartition("/")
             grp = groups.get(g)
             where = f"{self.key}/{f['path']}"

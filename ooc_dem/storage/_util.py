@@ -21,8 +21,8 @@ if TYPE_CHECKING:
 from ..errors import OocDemError
 
 FORMAT = "ooc-dem-store"
-FORMAT_VERSION = 2                 # written; what the arrays mean is the application's business
-SUPPORTED_VERSIONS = (1, 2)        # read: an epoch records the version it was written in
+FORMAT_VERSION = 2  # written; what the arrays mean is the application's business
+SUPPORTED_VERSIONS = (1, 2)  # read: an epoch records the version it was written in
 MANIFEST = "MANIFEST.json"
 MANIFEST_TMP = "MANIFEST.json.tmp"
 EPOCH_DIR = "epochs"
@@ -42,7 +42,7 @@ MAX_JSON_DEPTH = 100
 # rewrite the manifest). Epochs are written with XXH3-128, which runs at memory speed
 # (27 GB/s on this machine against sha256's 1.8 GB/s), so the commit's read-back and
 # `verify` are bound by the disk; sha256, what older stores recorded, is still checked.
-DIGESTS = {"xxh3_128": 32, "sha256": 64}       # name -> hex digits
+DIGESTS = {"xxh3_128": 32, "sha256": 64}  # name -> hex digits
 _LOWER_HEX = re.compile(r"[0-9a-f]+")
 DIGEST = "xxh3_128"
 
@@ -59,7 +59,8 @@ _RESERVED_NAMES = {"zarr.json"}
 _DISK_FULL_ERRNOS = {errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)}
 _DISK_FULL_TEXT = re.compile(
     r"errno = (%s)\b|No space left|File too large|Disk quota exceeded"
-    % "|".join(str(e) for e in sorted(_DISK_FULL_ERRNOS)))
+    % "|".join(str(e) for e in sorted(_DISK_FULL_ERRNOS))
+)
 
 
 class StoreError(OocDemError):
@@ -163,6 +164,7 @@ GLOBALS_GROUP = "globals"
 
 # --------------------------------------------------------------------------- errors
 
+
 def is_disk_full(exc: BaseException) -> bool:
     if isinstance(exc, OSError) and exc.errno in _DISK_FULL_ERRNOS:
         return True
@@ -172,7 +174,7 @@ def is_disk_full(exc: BaseException) -> bool:
 def write_error(path: StrPath, exc: BaseException) -> StoreError:
     """StoreError for a failed write of `path` (disk full is named as such)."""
     detail = " ".join(str(exc).split()) or type(exc).__name__
-    m = re.search(r"errno = (\d+), error message = '([^']*)'", detail)   # HDF5's verbose form
+    m = re.search(r"errno = (\d+), error message = '([^']*)'", detail)  # HDF5's verbose form
     if m:
         detail = f"[Errno {m.group(1)}] {m.group(2)}"
     elif len(detail) > 240:
@@ -183,6 +185,7 @@ def write_error(path: StrPath, exc: BaseException) -> StoreError:
 
 
 # --------------------------------------------------------------------------- JSON
+
 
 def _json_default(o: object) -> object:
     if isinstance(o, np.generic):
@@ -223,7 +226,7 @@ def parse_json(data: bytes, what: str) -> object:
         obj = json.loads(data)
     except RecursionError:
         raise StoreError(f"{what}: JSON nested too deeply") from None
-    except ValueError as e:     # JSONDecodeError, UnicodeDecodeError, int digit limit
+    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError, int digit limit
         raise StoreError(f"{what}: not valid JSON ({' '.join(str(e).split())[:200]})") from None
     if json_depth(obj) > MAX_JSON_DEPTH:
         raise StoreError(f"{what}: JSON nested deeper than {MAX_JSON_DEPTH} levels")
@@ -232,10 +235,10 @@ def parse_json(data: bytes, what: str) -> object:
 
 # --------------------------------------------------------------------------- arrays
 
+
 def check_array_name(name: object, where: str) -> str:
     if not isinstance(name, str) or not ARRAY_NAME_RE.match(name) or name in _RESERVED_NAMES:
-        raise StoreError(f"{where}: invalid array name {name!r} "
-                         f"(letters, digits, _ . + -; not starting with . or -)")
+        raise StoreError(f"{where}: invalid array name {name!r} (letters, digits, _ . + -; not starting with . or -)")
     return name
 
 
@@ -284,8 +287,13 @@ def normalize_rows(rows: object, n: int, where: str) -> Rows:
     return idx
 
 
-def gather_rows(read_range: Callable[[int, int, NDArray[Any]], object], idx: NDArray[np.int64],
-                shape: tuple[int, ...], dtype: DTypeLike, window_bytes: int = 1 << 20) -> NDArray[Any]:
+def gather_rows(
+    read_range: Callable[[int, int, NDArray[Any]], object],
+    idx: NDArray[np.int64],
+    shape: tuple[int, ...],
+    dtype: DTypeLike,
+    window_bytes: int = 1 << 20,
+) -> NDArray[Any]:
     """Read rows `idx` using read_range(start, stop, out_view) over windows of nearby rows.
 
     Only the rows spanned by each window are read (windows are at most
@@ -308,7 +316,7 @@ def gather_rows(read_range: Callable[[int, int, NDArray[Any]], object], idx: NDA
         j = int(np.searchsorted(idx, start + max_span, side="left"))
         stop = int(idx[j - 1]) + 1
         if stop - start == j - i and np.all(np.diff(idx[i:j]) == 1):
-            read_range(start, stop, out[i:j])           # contiguous run: read straight into place
+            read_range(start, stop, out[i:j])  # contiguous run: read straight into place
         else:
             if buf is None or buf.shape[0] < stop - start:
                 buf = np.empty((max(stop - start, 1),) + tuple(shape[1:]), dtype=dtype)
@@ -325,6 +333,7 @@ def gather_rows(read_range: Callable[[int, int, NDArray[Any]], object], idx: NDA
 
 # --------------------------------------------------------------------------- files
 
+
 def drop_page_cache(path: StrPath, sync: bool = False) -> None:
     """Ask the kernel to drop cached pages of `path` (a file, or every file under a directory).
 
@@ -340,7 +349,7 @@ def drop_page_cache(path: StrPath, sync: bool = False) -> None:
             for f in files:
                 drop_page_cache(os.path.join(root, f), sync)
         return
-    try:   # never blocks on a FIFO, never follows a link: a hint is not worth a risk
+    try:  # never blocks on a FIFO, never follows a link: a hint is not worth a risk
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0))
     except OSError:
         return
@@ -357,6 +366,7 @@ def drop_page_cache(path: StrPath, sync: bool = False) -> None:
 def _sync_file_range() -> Callable[[int, int, int, int], int] | None:
     """libc's sync_file_range (Linux), or None."""
     import ctypes
+
     try:
         f = ctypes.CDLL(None, use_errno=True).sync_file_range
     except (AttributeError, OSError):
@@ -392,6 +402,7 @@ def new_digest(name: str = DIGEST) -> Digest:
     """A fresh hash object of checksum `name` (one of ``DIGESTS``)."""
     if name == "xxh3_128":
         import xxhash
+
         return xxhash.xxh3_128()
     return hashlib.new(name)
 
@@ -414,8 +425,7 @@ def file_checksum(entry: Mapping[str, object], what: str) -> tuple[str, str]:
     value that digest's hex length in lowercase; StoreError otherwise (hostile manifests)."""
     names = [k for k in DIGESTS if k in entry]
     if len(names) != 1:
-        raise StoreError(f"{what}: {'no' if not names else 'more than one'} checksum "
-                         f"(one of {', '.join(DIGESTS)})")
+        raise StoreError(f"{what}: {'no' if not names else 'more than one'} checksum (one of {', '.join(DIGESTS)})")
     name = names[0]
     hexv = entry[name]
     if not (isinstance(hexv, str) and len(hexv) == DIGESTS[name] and _LOWER_HEX.fullmatch(hexv)):
@@ -426,8 +436,7 @@ def file_checksum(entry: Mapping[str, object], what: str) -> tuple[str, str]:
 def file_entries(rel: str, inner: Iterable[tuple[str, int, str]]) -> list[JSONObject]:
     """Manifest file entries of an epoch at `rel` from its writer's [(relpath inside, size,
     digest)] ("" = the epoch is the file itself)."""
-    return [{"path": rel if r == "" else f"{rel}/{r}", "size": size, DIGEST: digest}
-            for r, size, digest in inner]
+    return [{"path": rel if r == "" else f"{rel}/{r}", "size": size, DIGEST: digest} for r, size, digest in inner]
 
 
 def file_digest(path: StrPath, drop_cache: bool = True, name: str = DIGEST) -> tuple[int, str]:

@@ -14,8 +14,20 @@ import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
 from ._confine import open_regular, read_regular
-from ._util import (ATTRS_KEY, FORMAT, JSONObject, StoreError, attrs_text, bytes_digest, drop_page_cache,
-                    file_digest, fsync_tree, parse_json, pread_into, remove_path)
+from ._util import (
+    ATTRS_KEY,
+    FORMAT,
+    JSONObject,
+    StoreError,
+    attrs_text,
+    bytes_digest,
+    drop_page_cache,
+    file_digest,
+    fsync_tree,
+    parse_json,
+    pread_into,
+    remove_path,
+)
 
 if TYPE_CHECKING:
     import zarr
@@ -51,8 +63,7 @@ def _array_metadata(a: np.ndarray) -> bytes:
     meta = {
         "shape": list(a.shape),
         "data_type": a.dtype.name,
-        "chunk_grid": {"name": "regular",
-                       "configuration": {"chunk_shape": [max(1, s) for s in a.shape]}},
+        "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": [max(1, s) for s in a.shape]}},
         "chunk_key_encoding": {"name": "default", "configuration": {"separator": "/"}},
         "fill_value": fill,
         "codecs": [bytes_codec],
@@ -80,9 +91,9 @@ class Writer:
         if compression is not None:
             raise ValueError("the zarr directory layout is written uncompressed only")
         self.path = path
-        self._hashed: dict[str, tuple[int, int, str]] = {}   # rel -> (size, mtime_ns, digest)
-        self._zgroups: zarr.Group | None = None               # zarr handles, only for fallbacks
-        os.makedirs(path)                                     # a new directory, as zarr's "w-"
+        self._hashed: dict[str, tuple[int, int, str]] = {}  # rel -> (size, mtime_ns, digest)
+        self._zgroups: zarr.Group | None = None  # zarr handles, only for fallbacks
+        os.makedirs(path)  # a new directory, as zarr's "w-"
         self._write_group_doc("", {"ooc_dem_format": FORMAT, "step": int(step)})
         self._write_group_doc("domains", {})
 
@@ -101,6 +112,7 @@ class Writer:
     def _zarr_group(self, group: str) -> zarr.Group:
         import zarr
         from zarr.storage import LocalStore
+
         if self._zgroups is None:
             self._zgroups = zarr.open_group(store=LocalStore(self.path), mode="r+", zarr_format=3)
         node = self._zgroups[group]
@@ -119,10 +131,16 @@ class Writer:
                 self._write_raw(gdir, f"{group}/{name}", name, a)
                 continue
             arr = self._zarr_group(group).create_array(
-                name, shape=a.shape, dtype=a.dtype,
+                name,
+                shape=a.shape,
+                dtype=a.dtype,
                 chunks=tuple(max(1, s) for s in a.shape),  # one chunk per array
-                shards=None, filters=None, compressors=None, fill_value=0,
-                config={"write_empty_chunks": True})         # every non-empty array has its chunk file
+                shards=None,
+                filters=None,
+                compressors=None,
+                fill_value=0,
+                config={"write_empty_chunks": True},
+            )  # every non-empty array has its chunk file
             if a.size:
                 arr[...] = a
         # hash the group's files while they are hot, then drop them from the page cache
@@ -164,6 +182,7 @@ class Writer:
 
 class _Member:
     """An array of an epoch group: shape, dtype, and its chunk file when it can be read raw."""
+
     __slots__ = ("shape", "dtype", "raw", "name")
 
     def __init__(self, shape: tuple[int, ...], dtype: np.dtype[Any], raw: str | None, name: str) -> None:
@@ -196,10 +215,13 @@ def check_codecs(meta: JSONObject, where: str, compressors: tuple[str, ...] = ()
     bad = [n for i, n in enumerate(names) if not (n == "bytes" if i == 0 else (i == 1 and n in compressors))]
     if bad:
         shown = bad[0] if isinstance(bad[0], str) else json.dumps(bad[0])
-        raise ValueError(f"{where}: codec {shown[:40]!r} is not one ooc-dem writes "
-                         f"(bytes{''.join(f', {c}' for c in compressors)}; refused)")
-    if not (isinstance(first, dict) and set(first) <= {"endian"}
-            and first.get("endian", "little") in ("little", "big")):
+        raise ValueError(
+            f"{where}: codec {shown[:40]!r} is not one ooc-dem writes "
+            f"(bytes{''.join(f', {c}' for c in compressors)}; refused)"
+        )
+    if not (
+        isinstance(first, dict) and set(first) <= {"endian"} and first.get("endian", "little") in ("little", "big")
+    ):
         raise ValueError(f"{where}: malformed bytes codec configuration")
     if meta.get("storage_transformers"):
         raise ValueError(f"{where}: storage transformers are not written by ooc-dem (refused)")
@@ -209,8 +231,7 @@ def _member(adir: str, meta: JSONObject, name: str) -> _Member:
     """Parse array metadata; `raw` is the chunk path for an uncompressed one-chunk array in
     native byte order (what the writer produces), else None (read through zarr)."""
     shape, dtype = meta.get("shape"), meta.get("data_type")
-    if not (isinstance(shape, list) and all(type(v) is int and v >= 0 for v in shape)
-            and isinstance(dtype, str)):
+    if not (isinstance(shape, list) and all(type(v) is int and v >= 0 for v in shape) and isinstance(dtype, str)):
         raise ValueError(f"{adir}: malformed array metadata (shape, data_type)")
     check_codecs(meta, adir)
     shape = tuple(shape)
@@ -219,13 +240,18 @@ def _member(adir: str, meta: JSONObject, name: str) -> _Member:
     codecs = meta.get("codecs") or []
     grid = meta.get("chunk_grid") or {}
     cke = meta.get("chunk_key_encoding") or {}
-    if (len(codecs) == 1 and codecs[0].get("name") == "bytes"
-            and (codecs[0].get("configuration") or {}).get("endian", sys.byteorder) == sys.byteorder
-            and dtype.isnative and not meta.get("storage_transformers")
-            and grid.get("name") == "regular"
-            and tuple(grid.get("configuration", {}).get("chunk_shape", ())) == tuple(max(1, v) for v in shape)
-            and cke.get("name") == "default"
-            and (cke.get("configuration") or {}).get("separator", "/") == "/" and len(shape) >= 1):
+    if (
+        len(codecs) == 1
+        and codecs[0].get("name") == "bytes"
+        and (codecs[0].get("configuration") or {}).get("endian", sys.byteorder) == sys.byteorder
+        and dtype.isnative
+        and not meta.get("storage_transformers")
+        and grid.get("name") == "regular"
+        and tuple(grid.get("configuration", {}).get("chunk_shape", ())) == tuple(max(1, v) for v in shape)
+        and cke.get("name") == "default"
+        and (cke.get("configuration") or {}).get("separator", "/") == "/"
+        and len(shape) >= 1
+    ):
         raw = os.path.join(adir, "c", *(["0"] * len(shape)))
     return _Member(shape, dtype, raw, name)
 
@@ -257,8 +283,10 @@ class Reader:
         if self._zroot is None:
             import zarr
             from zarr.storage import LocalStore
-            self._zroot = zarr.open_group(store=LocalStore(self.path, read_only=True), mode="r",
-                                          zarr_format=3, use_consolidated=False)
+
+            self._zroot = zarr.open_group(
+                store=LocalStore(self.path, read_only=True), mode="r", zarr_format=3, use_consolidated=False
+            )
         return self._zroot
 
     def _group_meta(self, group: str) -> tuple[JSONObject, dict[str, _Member]] | None:
@@ -284,7 +312,8 @@ class Reader:
                 if am.get("node_type") == "array":
                     m = _member(adir, am, f"{group}/{name}")
                     if m.raw is not None and os.path.realpath(m.raw) != os.path.join(
-                            self._real, os.path.relpath(m.raw, self.path)):
+                        self._real, os.path.relpath(m.raw, self.path)
+                    ):
                         raise ValueError(f"{m.raw}: reached through a symbolic link (not allowed)")
                     members[name] = m
             attributes = meta.get("attributes") or {}
@@ -323,6 +352,7 @@ class Reader:
 
     def _via_zarr(self, a: _Member) -> AnyArray:
         import zarr
+
         node = self._zarr_root()[a.name]
         if not isinstance(node, zarr.Array):
             raise ValueError(f"{self.path}: {a.name}: not an array")
@@ -330,7 +360,7 @@ class Reader:
 
     def _pread(self, raw: str, what: str, out: NDArray[Any], offset: int) -> None:
         try:
-            fd = open_regular(raw)     # a regular file (no link, no FIFO): reads are bounded
+            fd = open_regular(raw)  # a regular file (no link, no FIFO): reads are bounded
         except StoreError as e:
             if str(e).endswith(": missing"):
                 raise StoreError(f"{raw}: chunk file missing ({what})") from None
@@ -360,7 +390,7 @@ class Reader:
         a, raw = self._array(group, name)
         if raw is not None:
             row_bytes = out.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
-            self._pread(raw, f"{group}/{name}", out, start * row_bytes)   # only the asked rows
+            self._pread(raw, f"{group}/{name}", out, start * row_bytes)  # only the asked rows
         else:
             out[...] = self._via_zarr(a)[start:stop]
 

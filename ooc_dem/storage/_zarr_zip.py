@@ -32,8 +32,7 @@ import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
 from ._confine import open_regular
-from ._util import (ATTRS_KEY, FORMAT, JSONObject, attrs_text, drop_page_cache, new_digest, pread_into,
-                    remove_path)
+from ._util import ATTRS_KEY, FORMAT, JSONObject, attrs_text, drop_page_cache, new_digest, pread_into, remove_path
 from ._zarr import check_codecs, recorded_step
 
 if TYPE_CHECKING:
@@ -53,9 +52,9 @@ _MAX_DOC_BYTES = 1 << 20
 # the page cache was dropped are latency-bound); at most _SPAN_CACHE bytes are kept
 _SPAN_BYTES = 1 << 20
 _SPAN_CACHE = 8 << 20
-_ZIP_TIME = (1980, 1, 1, 0, 0, 0)      # fixed: the same state gives the same bytes
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed: the same state gives the same bytes
 _NOFOLLOW = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
-_LOCAL_HEADER = struct.Struct("<4s2B4HL2L2H")   # zip local file header, 30 bytes
+_LOCAL_HEADER = struct.Struct("<4s2B4HL2L2H")  # zip local file header, 30 bytes
 
 
 class _Codec(Protocol):
@@ -66,8 +65,9 @@ class _Codec(Protocol):
     def decode(self, buf: bytes, /, out: NDArray[Any]) -> object: ...
 
 
-def _numcodecs() -> Any:     # numcodecs: no type information
+def _numcodecs() -> Any:  # numcodecs: no type information
     import numcodecs
+
     return numcodecs
 
 
@@ -76,15 +76,16 @@ def _zstd_doc(itemsize: int) -> JSONObject:
 
 
 def _blosc_doc(itemsize: int) -> JSONObject:
-    return {"name": "blosc", "configuration": {"typesize": int(itemsize), "cname": "lz4",
-                                               "clevel": 5, "shuffle": "shuffle", "blocksize": 0}}
+    return {
+        "name": "blosc",
+        "configuration": {"typesize": int(itemsize), "cname": "lz4", "clevel": 5, "shuffle": "shuffle", "blocksize": 0},
+    }
 
 
 # name -> (zarr v3 codec document after "bytes", for an itemsize; numcodecs codec factory)
 CODECS: dict[str, tuple[Callable[[int], JSONObject], Callable[[], _Codec]]] = {
     "zstd": (_zstd_doc, lambda: _numcodecs().Zstd(level=3)),
-    "blosc": (_blosc_doc, lambda: _numcodecs().Blosc(cname="lz4", clevel=5,
-                                                      shuffle=_numcodecs().Blosc.SHUFFLE)),
+    "blosc": (_blosc_doc, lambda: _numcodecs().Blosc(cname="lz4", clevel=5, shuffle=_numcodecs().Blosc.SHUFFLE)),
 }
 
 
@@ -137,8 +138,7 @@ def _array_doc(a: NDArray[Any], rows: int, codec: str | None) -> bytes:
 
 
 def _group_doc(attributes: JSONObject) -> bytes:
-    return json.dumps({"attributes": attributes, "zarr_format": 3, "node_type": "group"},
-                      indent=2).encode()
+    return json.dumps({"attributes": attributes, "zarr_format": 3, "node_type": "group"}, indent=2).encode()
 
 
 class _HashingStream:
@@ -207,14 +207,14 @@ class Writer:
         for name, a in arrays.items():
             self._write_array(f"{group}/{name}", a)
         self._f.flush()
-        drop_page_cache(self.path)           # starts write-back, drops clean pages
+        drop_page_cache(self.path)  # starts write-back, drops clean pages
 
     def _write_array(self, prefix: str, a: NDArray[Any]) -> None:
         encoder = self._encoder
         rows = _chunk_rows(a, encoder is not None)
         self._put(f"{prefix}/zarr.json", _array_doc(a, rows, self.codec))
         if a.size == 0:
-            return                      # zarr: an absent chunk is the fill value, nothing to store
+            return  # zarr: an absent chunk is the fill value, nothing to store
         data = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
         if a.ndim == 0:
             data = data.reshape(1)
@@ -223,10 +223,10 @@ class Writer:
             return
         n = data.shape[0]
         for i, lo in enumerate(range(0, n, rows)):
-            part = data[lo:lo + rows]
+            part = data[lo : lo + rows]
             if len(part) < rows and a.ndim:  # zarr stores edge chunks whole, padded with fill
                 pad = np.zeros((rows,) + data.shape[1:], data.dtype)
-                pad[:len(part)] = part
+                pad[: len(part)] = part
                 part = pad
             self._put(_chunk_key(prefix, i, a.ndim), encoder.encode(part))
 
@@ -245,7 +245,7 @@ class Writer:
         zf, self._zip = getattr(self, "_zip", None), None
         try:
             if zf is not None:
-                zf.fp = None             # do not write a central directory into a discarded file
+                zf.fp = None  # do not write a central directory into a discarded file
             self._f.close()
         except Exception:  # noqa: BLE001 - the file is being thrown away
             pass
@@ -253,6 +253,7 @@ class Writer:
 
 
 # ============================================================================ reading
+
 
 def _zstd_content_size(buf: bytes) -> int | None:
     """The decompressed size a zstd frame header declares (None: not declared or no frame)."""
@@ -264,7 +265,7 @@ def _zstd_content_size(buf: bytes) -> int | None:
     size = (1 if single else 0, 2, 4, 8)[fcs_flag]
     if size == 0 or len(buf) < pos + size:
         return None
-    v = int.from_bytes(buf[pos:pos + size], "little")
+    v = int.from_bytes(buf[pos : pos + size], "little")
     return v + 256 if size == 2 else v
 
 
@@ -276,18 +277,18 @@ class _Member:
     """An array of an epoch group: shape, dtype, and how its chunks are read directly:
     ``codec`` None (one uncompressed chunk at a file offset) or "zstd"/"blosc" (chunks of
     ``rows`` rows); ``direct`` False: read through the zarr library."""
+
     __slots__ = ("shape", "dtype", "direct", "codec", "rows", "key")
 
-    def __init__(self, shape: tuple[int, ...], dtype: np.dtype[Any], direct: bool, codec: str | None,
-                 rows: int, key: str) -> None:
-        self.shape, self.dtype, self.direct, self.codec, self.rows, self.key = \
-            shape, dtype, direct, codec, rows, key
+    def __init__(
+        self, shape: tuple[int, ...], dtype: np.dtype[Any], direct: bool, codec: str | None, rows: int, key: str
+    ) -> None:
+        self.shape, self.dtype, self.direct, self.codec, self.rows, self.key = shape, dtype, direct, codec, rows, key
 
 
 def _member(key: str, meta: JSONObject) -> _Member:
     shape, data_type = meta.get("shape"), meta.get("data_type")
-    if not (isinstance(shape, list) and all(type(v) is int and v >= 0 for v in shape)
-            and isinstance(data_type, str)):
+    if not (isinstance(shape, list) and all(type(v) is int and v >= 0 for v in shape) and isinstance(data_type, str)):
         raise ValueError(f"{key}: malformed array metadata (shape, data_type)")
     shape = tuple(shape)
     try:
@@ -298,19 +299,27 @@ def _member(key: str, meta: JSONObject) -> _Member:
     codecs = meta["codecs"]
     grid = meta.get("chunk_grid") or {}
     cke = meta.get("chunk_key_encoding") or {}
-    chunk_shape = grid.get("configuration", {}).get("chunk_shape", None) \
-        if isinstance(grid.get("configuration"), dict) else None
-    simple = (isinstance(codecs, list) and codecs and isinstance(codecs[0], dict)
-              and codecs[0].get("name") == "bytes"
-              and ((codecs[0].get("configuration") or {}).get("endian", sys.byteorder) == sys.byteorder
-                   or dtype.itemsize == 1)
-              and dtype.isnative and not meta.get("storage_transformers")
-              and grid.get("name") == "regular" and isinstance(chunk_shape, list)
-              and all(type(v) is int and v >= 1 for v in chunk_shape)
-              and len(chunk_shape) == len(shape)
-              and tuple(chunk_shape[1:]) == tuple(max(1, v) for v in shape[1:])
-              and cke.get("name") == "default"
-              and (cke.get("configuration") or {}).get("separator", "/") == "/")
+    chunk_shape = (
+        grid.get("configuration", {}).get("chunk_shape", None) if isinstance(grid.get("configuration"), dict) else None
+    )
+    simple = (
+        isinstance(codecs, list)
+        and codecs
+        and isinstance(codecs[0], dict)
+        and codecs[0].get("name") == "bytes"
+        and (
+            (codecs[0].get("configuration") or {}).get("endian", sys.byteorder) == sys.byteorder or dtype.itemsize == 1
+        )
+        and dtype.isnative
+        and not meta.get("storage_transformers")
+        and grid.get("name") == "regular"
+        and isinstance(chunk_shape, list)
+        and all(type(v) is int and v >= 1 for v in chunk_shape)
+        and len(chunk_shape) == len(shape)
+        and tuple(chunk_shape[1:]) == tuple(max(1, v) for v in shape[1:])
+        and cke.get("name") == "default"
+        and (cke.get("configuration") or {}).get("separator", "/") == "/"
+    )
     if len(codecs) == 2 and not simple:
         # compressed chunks are decoded here only, where a chunk's declared size is checked
         # before it is inflated; zarr would inflate any size
@@ -331,7 +340,7 @@ class Reader:
 
     def __init__(self, path: str) -> None:
         self.path = path
-        self._fd = open_regular(path)     # a regular file (not a link, FIFO...): reads are bounded
+        self._fd = open_regular(path)  # a regular file (not a link, FIFO...): reads are bounded
         try:
             self._size = os.fstat(self._fd).st_size
             try:
@@ -355,7 +364,7 @@ class Reader:
             self._children: dict[str, list[str]] = {}
             for key in self._entries:
                 if key.endswith("/zarr.json"):
-                    group, _, name = key[:-len("/zarr.json")].rpartition("/")
+                    group, _, name = key[: -len("/zarr.json")].rpartition("/")
                     if name:
                         self._children.setdefault(group, []).append(name)
             meta = self._doc("zarr.json")
@@ -378,8 +387,9 @@ class Reader:
         off = self._offsets.get(key)
         if off is None:
             if zi.compress_type != zipfile.ZIP_STORED:
-                raise ValueError(f"{self.path}: {key}: zip entry is compressed by the archive "
-                                 f"(not what ooc-dem or zarr write)")
+                raise ValueError(
+                    f"{self.path}: {key}: zip entry is compressed by the archive (not what ooc-dem or zarr write)"
+                )
             head = bytearray(_LOCAL_HEADER.size)
             self._pread(np.frombuffer(head, np.uint8), zi.header_offset, self.path)
             fields = _LOCAL_HEADER.unpack(bytes(head))
@@ -404,7 +414,7 @@ class Reader:
         n = out.nbytes
         for lo, buf in self._spans.values():
             if lo <= offset and offset + n <= lo + len(buf):
-                out.reshape(-1).view(np.uint8)[:] = buf[offset - lo:offset - lo + n]
+                out.reshape(-1).view(np.uint8)[:] = buf[offset - lo : offset - lo + n]
                 return
         pread_into(self._fd, out, offset, what)
 
@@ -482,14 +492,15 @@ class Reader:
         return a
 
     def _via_zarr(self, a: _Member) -> AnyArray:
-        if a.codec is not None:   # bounded decoding only (_read_rows)
-            raise ValueError(f"{self.path}: {a.key}: compressed array of dtype {a.dtype.str}, "
-                             f"not the one expected")
+        if a.codec is not None:  # bounded decoding only (_read_rows)
+            raise ValueError(f"{self.path}: {a.key}: compressed array of dtype {a.dtype.str}, not the one expected")
         if self._zroot is None:
             import zarr
             from zarr.storage import ZipStore
-            self._zroot = zarr.open_group(store=ZipStore(self.path, mode="r"), mode="r",
-                                          zarr_format=3, use_consolidated=False)
+
+            self._zroot = zarr.open_group(
+                store=ZipStore(self.path, mode="r"), mode="r", zarr_format=3, use_consolidated=False
+            )
         node = self._zroot[a.key]
         if not isinstance(node, zarr.Array):
             raise ValueError(f"{self.path}: {a.key}: not an array")
@@ -524,17 +535,16 @@ class Reader:
                 _off, size = self._data_offset(key)
             except KeyError:
                 raise ValueError(f"{self.path}: {key}: chunk missing") from None
-            enc = self._bytes(key, buf.nbytes + (1 << 16))   # never more than a chunk's worth
+            enc = self._bytes(key, buf.nbytes + (1 << 16))  # never more than a chunk's worth
             declared = _zstd_content_size(enc) if a.codec == "zstd" else _blosc_size(enc)
             if declared != buf.nbytes:
-                raise ValueError(f"{self.path}: {key}: chunk decodes to {declared} bytes, "
-                                 f"expected {buf.nbytes}")
+                raise ValueError(f"{self.path}: {key}: chunk decodes to {declared} bytes, expected {buf.nbytes}")
             try:
                 dec.decode(enc, out=buf)
             except (RuntimeError, ValueError) as e:
                 raise ValueError(f"{self.path}: {key}: cannot decode ({e})") from None
             lo, hi = max(start, i * rows), min(stop, (i + 1) * rows)
-            flat_out[lo - start:hi - start] = buf[lo - i * rows:hi - i * rows]
+            flat_out[lo - start : hi - start] = buf[lo - i * rows : hi - i * rows]
 
     def read_full(self, group: str, name: str, shape: tuple[int, ...], dtype: DTypeLike) -> NDArray[Any]:
         a = self._array(group, name)
@@ -554,7 +564,7 @@ class Reader:
             return
         a = self._array(group, name)
         if a.direct and a.dtype == out.dtype:
-            self._read_rows(a, start, stop, out)    # only the asked rows (or their chunks)
+            self._read_rows(a, start, stop, out)  # only the asked rows (or their chunks)
         else:
             out[...] = self._via_zarr(a)[start:stop]
 

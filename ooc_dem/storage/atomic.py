@@ -6,6 +6,7 @@ file or symlink planted in a run directory (which may come from someone else) ca
 never redirect the write; `os.replace` then replaces the target's directory entry
 itself, not whatever a symlink there points to.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -24,7 +25,7 @@ def new_temp(path: str | os.PathLike[str]) -> Path:
     try:
         umask = os.umask(0)
         os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)   # not mkstemp's private 0600: outputs are for reading
+        os.fchmod(fd, 0o666 & ~umask)  # not mkstemp's private 0600: outputs are for reading
     finally:
         os.close(fd)
     return Path(name)
@@ -44,5 +45,5 @@ def write_replacing(path: str | os.PathLike[str], write: Callable[[Path], object
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         if isinstance(e, OSError) and e.filename is None and e.errno is not None:
-            raise OSError(e.errno, e.strerror, os.fspath(path)) from None   # name the file
+            raise OSError(e.errno, e.strerror, os.fspath(path)) from None  # name the file
         raise

@@ -15,10 +15,25 @@ from numpy.typing import NDArray
 
 from . import _memory
 from ._manifest import files_of
-from ._util import (EPOCH_DIR, FORMAT_VERSION, GLOBALS_GROUP, MAX_PARTS, FormatReader, FormatWriter,
-                    JSONObject, StoreError, array_meta,
-                    domain_group, gather_rows, normalize_rows, part_basename, prepare_arrays,
-                    remove_path, to_json, write_error)
+from ._util import (
+    EPOCH_DIR,
+    FORMAT_VERSION,
+    GLOBALS_GROUP,
+    MAX_PARTS,
+    FormatReader,
+    FormatWriter,
+    JSONObject,
+    StoreError,
+    array_meta,
+    domain_group,
+    gather_rows,
+    normalize_rows,
+    part_basename,
+    prepare_arrays,
+    remove_path,
+    to_json,
+    write_error,
+)
 from ._util import TMP_NAME_RE as _TMP_RE
 from ._util import show as _show
 
@@ -46,6 +61,7 @@ class OwningStore(Protocol):
 
     def _where(self, e: JSONObject) -> str: ...
 
+
 _IO_ERRORS = (OSError, RuntimeError, KeyError, ValueError, TypeError)
 
 # an open epoch file of a disk store, or a memory store's epoch
@@ -53,6 +69,7 @@ EpochFile: TypeAlias = "FormatReader | _memory.Reader"
 
 
 # ============================================================================ writer
+
 
 class EpochWriter:
     """Writes one epoch of ``store`` (the Store that began it) under temporary names;
@@ -82,7 +99,7 @@ class EpochWriter:
         return self
 
     def __exit__(self, *exc: object) -> Literal[False]:
-        if self._state == "open":   # exception, or left without commit(): discard the epoch
+        if self._state == "open":  # exception, or left without commit(): discard the epoch
             self.abort()
         return False
 
@@ -118,8 +135,7 @@ class EpochWriter:
         attrs_json = to_json(dict(attrs or {}), f"{where} attrs")
         self._write(domain_group(d), arrs, attrs_json)
         first = next(iter(arrs.values()), None)
-        self._domains[str(d)] = {"n": 0 if first is None else int(first.shape[0]),
-                                 "arrays": array_meta(arrs)}
+        self._domains[str(d)] = {"n": 0 if first is None else int(first.shape[0]), "arrays": array_meta(arrs)}
 
     @property
     def basename(self) -> str:
@@ -142,10 +158,14 @@ class EpochWriter:
         name = part_basename(self._basename, k)
         tmp = part.get("tmp", "")
         m = _TMP_RE.match(os.path.basename(tmp)) if isinstance(tmp, str) else None
-        if part.get("path") != f"{EPOCH_DIR}/{name}" or m is None or m.group(1) != name \
-                or os.path.dirname(tmp) != place.edir:
+        if (
+            part.get("path") != f"{EPOCH_DIR}/{name}"
+            or m is None
+            or m.group(1) != name
+            or os.path.dirname(tmp) != place.edir
+        ):
             raise StoreError(f"{where}: part {k} was not written as part {k} of this epoch ({name})")
-        self._parts[k] = part   # its tmp is ours to remove from now on (abort)
+        self._parts[k] = part  # its tmp is ours to remove from now on (abort)
         for d, info in part["domains"].items():
             if d in self._domains:
                 self.abort()
@@ -198,6 +218,7 @@ class EpochWriter:
 
 # ============================================================================ reader
 
+
 def own_step_problem(r: EpochFile, where: str, step: int) -> str | None:
     """The problem of a file of epoch `step` (its main file or a part, open as `r`) whose
     writer recorded another step in it, or none: a file of another epoch put in its place
@@ -211,8 +232,7 @@ def own_step_problem(r: EpochFile, where: str, step: int) -> str | None:
         return f"{where}: root attribute 'step' unreadable ({type(ex).__name__}: {ex})"
     if type(got) is int and got == step:
         return None
-    return (f"{where}: the file records step {_show(got)}, not the epoch's {step} (a file of "
-            f"another epoch)")
+    return f"{where}: the file records step {_show(got)}, not the epoch's {step} (a file of another epoch)"
 
 
 class EpochReader:
@@ -230,8 +250,7 @@ class EpochReader:
         try:
             self._r = store._place.open_reader(entry)
         except Exception as ex:  # noqa: BLE001
-            raise StoreError(f"{self._where}: cannot open epoch {self.step} "
-                             f"({type(ex).__name__}: {ex})") from ex
+            raise StoreError(f"{self._where}: cannot open epoch {self.step} ({type(ex).__name__}: {ex})") from ex
         own = own_step_problem(self._r, self._where, self.step)
         if own:
             self._r.close()
@@ -256,8 +275,7 @@ class EpochReader:
     def _dom(self, d: int) -> JSONObject:
         info: JSONObject | None = self._e["domains"].get(str(operator.index(d)))
         if info is None:
-            raise StoreError(f"{self._where}: epoch {self.step} has no domain {d} "
-                             f"(has {self.domains()})")
+            raise StoreError(f"{self._where}: epoch {self.step} has no domain {d} (has {self.domains()})")
         return info
 
     def _check(self) -> EpochFile:
@@ -277,8 +295,9 @@ class EpochReader:
             try:
                 r = self._store._place.open_reader(sub)
             except Exception as ex:  # noqa: BLE001
-                raise StoreError(f"{self._store._where(sub)}: cannot open part {k} of epoch {self.step} "
-                                 f"({type(ex).__name__}: {ex})") from ex
+                raise StoreError(
+                    f"{self._store._where(sub)}: cannot open part {k} of epoch {self.step} ({type(ex).__name__}: {ex})"
+                ) from ex
             own = own_step_problem(r, self._store._where(sub), self.step)
             if own:
                 r.close()
@@ -300,7 +319,7 @@ class EpochReader:
         main = self._check()
         r = main if r is None else r
         try:
-            if g not in self._attrs_json:   # a group's name is unique across the epoch's files
+            if g not in self._attrs_json:  # a group's name is unique across the epoch's files
                 self._attrs_json[g] = r.attrs_json(g)
             a = self._attrs_json[g]
             return json.loads(a) if a is not None else {}
@@ -310,8 +329,9 @@ class EpochReader:
     def domain_attrs(self, d: int) -> JSONObject:
         return self._attrs(domain_group(operator.index(d)), self._reader(d))
 
-    def _read(self, g: str, arrays: JSONObject, names: Iterable[str] | None, rows: object,
-              r: EpochFile | None = None) -> dict[str, NDArray[Any]]:
+    def _read(
+        self, g: str, arrays: JSONObject, names: Iterable[str] | None, rows: object, r: EpochFile | None = None
+    ) -> dict[str, NDArray[Any]]:
         main = self._check()
         reader = main if r is None else r
         if names is None:
@@ -322,8 +342,7 @@ class EpochReader:
         try:
             for n in names:
                 if n not in arrays:
-                    raise StoreError(f"{self._where}: epoch {self.step} /{g} has no array {n!r} "
-                                     f"(has {list(arrays)})")
+                    raise StoreError(f"{self._where}: epoch {self.step} /{g} has no array {n!r} (has {list(arrays)})")
                 shape, dtype = tuple(arrays[n][0]), np.dtype(arrays[n][1])
                 if rows is None:
                     out[n] = reader.read_full(g, n, shape, dtype)
@@ -331,25 +350,24 @@ class EpochReader:
                 if not shape:
                     raise StoreError(f"{self._where}: /{g}/{n} is 0-d; rows do not apply")
                 sel = normalize_rows(rows, shape[0], f"{self._where}: /{g}/{n}")
-                if sel is None or isinstance(sel, tuple):    # (None: every row)
+                if sel is None or isinstance(sel, tuple):  # (None: every row)
                     start, stop = (0, shape[0]) if sel is None else sel
                     a = np.empty((stop - start,) + shape[1:], dtype=dtype)
                     reader.read_range(g, n, start, stop, a)
                 else:
-                    a = gather_rows(lambda s, e, o: reader.read_range(g, n, s, e, o),
-                                    sel, shape, dtype)
+                    a = gather_rows(lambda s, e, o: reader.read_range(g, n, s, e, o), sel, shape, dtype)
                 out[n] = a
         except StoreError:
             raise
         except _IO_ERRORS as ex:
-            raise StoreError(f"{self._where}: epoch {self.step} /{g}: read failed "
-                             f"({type(ex).__name__}: {ex})") from ex
+            raise StoreError(f"{self._where}: epoch {self.step} /{g}: read failed ({type(ex).__name__}: {ex})") from ex
         finally:
             reader.after_read()
         return out
 
-    def read_domain(self, d: int, names: list[str] | None = None,
-                    rows: slice | NDArray[Any] | None = None) -> dict[str, NDArray[Any]]:
+    def read_domain(
+        self, d: int, names: list[str] | None = None, rows: slice | NDArray[Any] | None = None
+    ) -> dict[str, NDArray[Any]]:
         """Arrays of domain d (all, or `names`); `rows` reads only those rows (first axis)."""
         info = self._dom(d)
         return self._read(domain_group(operator.index(d)), info["arrays"], names, rows, self._reader(d))

@@ -8,16 +8,34 @@ import operator
 from collections.abc import Iterable, Mapping
 
 from ._manifest import EXT
-from ._util import (EPOCH_DIR, MAX_PARTS, JSONObject, StoreError, StrPath, array_meta, domain_group,
-                    file_entries, part_basename, prepare_arrays, remove_path, to_json, write_error)
+from ._util import (
+    EPOCH_DIR,
+    MAX_PARTS,
+    JSONObject,
+    StoreError,
+    StrPath,
+    array_meta,
+    domain_group,
+    file_entries,
+    part_basename,
+    prepare_arrays,
+    remove_path,
+    to_json,
+    write_error,
+)
 from ._util import show as _show
 from . import _confine
 from .store import open_store
 
 
-def write_part(path: StrPath, step: int, basename: str, part: int,
-               domains: Iterable[tuple[int, Mapping[str, object], Mapping[str, object] | None]],
-               durable: bool = False) -> JSONObject:
+def write_part(
+    path: StrPath,
+    step: int,
+    basename: str,
+    part: int,
+    domains: Iterable[tuple[int, Mapping[str, object], Mapping[str, object] | None]],
+    durable: bool = False,
+) -> JSONObject:
     """Phase 1 of an epoch written by several processes (e.g. MPI ranks): this process
     writes part ``part`` (>= 1) of epoch ``basename`` (``EpochWriter.basename`` of the writer
     the store's owner holds) under a temporary name in the store's epochs/ directory, from
@@ -35,8 +53,7 @@ def write_part(path: StrPath, step: int, basename: str, part: int,
         if not (type(part) is int and 1 <= part <= MAX_PARTS):
             raise StoreError(f"{store.path}: part {_show(part)} is not a part number (1 to {MAX_PARTS})")
         name = part_basename(basename, part)
-        _confine.epoch_path(f"{EPOCH_DIR}/{name}", EXT[store.backend], step, f"{store.path}: epoch {step}",
-                            part=part)
+        _confine.epoch_path(f"{EPOCH_DIR}/{name}", EXT[store.backend], step, f"{store.path}: epoch {step}", part=part)
         place.resolver.check_epoch_dir()
         tmp = place.tmp_name(name)
         remove_path(tmp)

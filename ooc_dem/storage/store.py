@@ -15,19 +15,33 @@ from typing import Literal
 import numpy as np
 
 from . import _disk, _lock, _memory
-from ._manifest import (BACKENDS, COMPRESSIONS, EXT, MAX_INT64, Place, files_of, now, store_key,
-                        validate_manifest)
-from ._util import (EPOCH_DIR, FORMAT, FORMAT_VERSION, GLOBALS_GROUP, LOCK_FILE, MANIFEST, MANIFEST_TMP,
-                    MAX_JSON_DEPTH, JSONObject, StoreError, StrPath, domain_group, epoch_basename,
-                    json_depth, json_roundtrip, write_error)
+from ._manifest import BACKENDS, COMPRESSIONS, EXT, MAX_INT64, Place, files_of, now, store_key, validate_manifest
+from ._util import (
+    EPOCH_DIR,
+    FORMAT,
+    FORMAT_VERSION,
+    GLOBALS_GROUP,
+    LOCK_FILE,
+    MANIFEST,
+    MANIFEST_TMP,
+    MAX_JSON_DEPTH,
+    JSONObject,
+    StoreError,
+    StrPath,
+    domain_group,
+    epoch_basename,
+    json_depth,
+    json_roundtrip,
+    write_error,
+)
 from .epoch import EpochReader, EpochWriter, own_step_problem
 from .writeguard import shortfall
 
 
 # ============================================================================ open / create
 
-def create_store(path: StrPath, backend: str, meta: Mapping[str, object],
-                 compression: str | None = None) -> "Store":
+
+def create_store(path: StrPath, backend: str, meta: Mapping[str, object], compression: str | None = None) -> "Store":
     """Create a new, empty store at `path` and hold its write lock until closed.
 
     An existing ooc-dem store at `path` is replaced (its manifest and epochs are
@@ -43,14 +57,19 @@ def create_store(path: StrPath, backend: str, meta: Mapping[str, object],
         raise StoreError(f"{key}: meta must be a dict")
     if compression is not None and compression not in COMPRESSIONS[backend]:
         have = ", ".join(COMPRESSIONS[backend]) or "none"
-        raise StoreError(f"{key}: compression {compression!r} is not one of the {backend} "
-                         f"backend's ({have})")
-    manifest = {"format": FORMAT, "format_version": FORMAT_VERSION, "backend": backend,
-                "meta": json_roundtrip(dict(meta), f"{key}: meta"),
-                "created_at": now(), "current": None, "previous": None}
+        raise StoreError(f"{key}: compression {compression!r} is not one of the {backend} backend's ({have})")
+    manifest = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "backend": backend,
+        "meta": json_roundtrip(dict(meta), f"{key}: meta"),
+        "created_at": now(),
+        "current": None,
+        "previous": None,
+    }
     if compression is not None:
         manifest["compression"] = compression
-    if json_depth(manifest) > MAX_JSON_DEPTH:    # it could not be opened again
+    if json_depth(manifest) > MAX_JSON_DEPTH:  # it could not be opened again
         raise StoreError(f"{key}: meta nested deeper than {MAX_JSON_DEPTH - 1} levels")
     if backend == "memory":
         backing = _memory.Backing()
@@ -60,18 +79,16 @@ def create_store(path: StrPath, backend: str, meta: Mapping[str, object],
         return Store(mem, key, manifest)
     kind, why = _disk.classify(key)
     if kind == "foreign":
-        raise StoreError(f"{key}: refusing to create a store here: path exists and is not an "
-                         f"ooc-dem store ({why})")
+        raise StoreError(f"{key}: refusing to create a store here: path exists and is not an ooc-dem store ({why})")
     try:
         os.makedirs(key, exist_ok=True)
     except OSError as e:
         raise write_error(key, e) from e
-    lock = _lock.StoreLock(key)         # before anything is deleted: not under a running writer
+    lock = _lock.StoreLock(key)  # before anything is deleted: not under a running writer
     try:
         kind, why = _disk.classify(key)
         if kind == "foreign":
-            raise StoreError(f"{key}: refusing to create a store here: path exists and is not an "
-                             f"ooc-dem store ({why})")
+            raise StoreError(f"{key}: refusing to create a store here: path exists and is not an ooc-dem store ({why})")
         try:
             if kind in ("store", "damaged"):
                 _disk.wipe(key)
@@ -85,7 +102,6 @@ def create_store(path: StrPath, backend: str, meta: Mapping[str, object],
         lock.release()
         raise
     return Store(place, key, manifest, lock)
-
 
 
 def open_store(path: StrPath, repair: bool = True) -> "Store":
@@ -106,13 +122,12 @@ def open_store(path: StrPath, repair: bool = True) -> "Store":
         return store
     if key.startswith("mem://"):
         raise StoreError(f"{key}: no such memory store in this process")
-    m, place = validate_manifest(_classify_existing(key), key, ("hdf5", "zarr"),
-                                 lambda b: _disk.Place(key, b))
+    m, place = validate_manifest(_classify_existing(key), key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
     if not repair:
         return Store(place, key, m, writable=False)
-    lock = _lock.StoreLock(key)   # only now: a store refused above is left exactly as it was
+    lock = _lock.StoreLock(key)  # only now: a store refused above is left exactly as it was
     try:
-        info = _classify_existing(key)   # again: a writer may have committed meanwhile
+        info = _classify_existing(key)  # again: a writer may have committed meanwhile
         m, place = validate_manifest(info, key, ("hdf5", "zarr"), lambda b: _disk.Place(key, b))
         store = Store(place, key, m, lock)
         try:
@@ -144,6 +159,7 @@ def drop_memory_store(path: StrPath) -> bool:
 
 # ============================================================================ Store
 
+
 class Problem(str):
     """One problem ``Store.verify`` found: the one-line message (the string itself) and
     ``step``, the epoch it belongs to (None for a problem of no one epoch, such as a step
@@ -160,31 +176,33 @@ class Problem(str):
 @dataclasses.dataclass(frozen=True)
 class EpochInfo:
     """One committed epoch of a manifest, as `Store.list_epochs` reports it (no data read)."""
-    role: str                   # "previous" or "current"
+
+    role: str  # "previous" or "current"
     step: int
-    path: str                   # relative to the store: "epochs/<name>"
-    location: str               # where it is (the store path joined with `path`)
-    nbytes: int                 # total recorded size of its files
+    path: str  # relative to the store: "epochs/<name>"
+    location: str  # where it is (the store path joined with `path`)
+    nbytes: int  # total recorded size of its files
     n_domains: int
-    problems: tuple[str, ...]   # missing, special or wrong-sized files (sizes only, no checksums)
+    problems: tuple[str, ...]  # missing, special or wrong-sized files (sizes only, no checksums)
 
 
 @dataclasses.dataclass(frozen=True)
 class Leftover:
     """What an interrupted write left in a store (`open_store(repair=True)` deletes it)."""
+
     path: str
-    pid: int | None             # the writing process of a ``*.tmp-<pid>`` temporary
-    running: bool               # whether that process is running (it may still be writing)
+    pid: int | None  # the writing process of a ``*.tmp-<pid>`` temporary
+    running: bool  # whether that process is running (it may still be writing)
 
 
 def _pid_running(pid: int) -> bool:
-    if pid == os.getpid():      # our own pid on a leftover: an earlier process that had it
+    if pid == os.getpid():  # our own pid on a leftover: an earlier process that had it
         return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:     # exists, belongs to someone else
+    except PermissionError:  # exists, belongs to someone else
         return True
     except OverflowError:
         return False
@@ -194,19 +212,20 @@ def _pid_running(pid: int) -> bool:
 class Store:
     """A run's epochs. See the package docstring for layout and guarantees."""
 
-    def __init__(self, place: Place, path: str, manifest: JSONObject, lock: _lock.StoreLock | None = None,
-                 writable: bool = True):
+    def __init__(
+        self, place: Place, path: str, manifest: JSONObject, lock: _lock.StoreLock | None = None, writable: bool = True
+    ):
         self._place: Place = place
         self.path = path
         self.backend: str = manifest["backend"]
         self._m = manifest
-        self.warnings: list[str] = []     # e.g. fallback to the previous epoch
-        self.repaired: list[str] = []     # what open_store(repair=True) deleted
+        self.warnings: list[str] = []  # e.g. fallback to the previous epoch
+        self.repaired: list[str] = []  # what open_store(repair=True) deleted
         self._verified: set[str] = set()  # epoch paths known good (written or verified here)
         self._writer: EpochWriter | None = None
         self._readers: weakref.WeakSet[EpochReader] = weakref.WeakSet()
         self._closed = False
-        self._lock = lock                 # the store's write lock (disk stores open for writing)
+        self._lock = lock  # the store's write lock (disk stores open for writing)
         self.writable = writable
 
     def __repr__(self) -> str:
@@ -230,8 +249,9 @@ class Store:
     def _check_writable(self) -> None:
         self._check_open()
         if not self.writable:
-            raise StoreError(f"{self.path}: store was opened read-only (repair=False); open it "
-                             f"with repair=True to write")
+            raise StoreError(
+                f"{self.path}: store was opened read-only (repair=False); open it with repair=True to write"
+            )
 
     def _entries(self) -> list[JSONObject]:
         """previous, current (those present in the manifest), oldest first."""
@@ -241,8 +261,9 @@ class Store:
         for e in self._entries():
             if e["step"] == step:
                 return e
-        raise StoreError(f"{self.path}: epoch {step} is not in the manifest "
-                         f"(have {[e['step'] for e in self._entries()]})")
+        raise StoreError(
+            f"{self.path}: epoch {step} is not in the manifest (have {[e['step'] for e in self._entries()]})"
+        )
 
     # ------------------------------------------------------------------ queries
     def epochs(self) -> list[int]:
@@ -271,9 +292,17 @@ class Store:
         for role, e in (("previous", self._m["previous"]), ("current", self._m["current"])):
             if e is not None:
                 subs = files_of(e)
-                out.append(EpochInfo(role, e["step"], e["path"], self._where(e),
-                                     sum(f["size"] for x in subs for f in x["files"]), len(e["domains"]),
-                                     tuple(p for x in subs for p in self._place.size_problems(x))))
+                out.append(
+                    EpochInfo(
+                        role,
+                        e["step"],
+                        e["path"],
+                        self._where(e),
+                        sum(f["size"] for x in subs for f in x["files"]),
+                        len(e["domains"]),
+                        tuple(p for x in subs for p in self._place.size_problems(x)),
+                    )
+                )
         return out
 
     def leftovers(self, manifest: JSONObject | None = None) -> list[Leftover]:
@@ -283,8 +312,7 @@ class Store:
         rather than when this Store was opened (a run may be writing the store)."""
         self._check_open()
         m = self._m if manifest is None else manifest
-        return [Leftover(p, pid, pid is not None and _pid_running(pid))
-                for p, pid in self._place.leftovers(m)]
+        return [Leftover(p, pid, pid is not None and _pid_running(pid)) for p, pid in self._place.leftovers(m)]
 
     def live_writers(self) -> list[int]:
         """Pids of processes writing this store: the holder of its write lock (0 if its pid is
@@ -315,12 +343,14 @@ class Store:
         if not 0 <= step <= MAX_INT64:
             raise StoreError(f"{self.path}: epoch step must be in [0, 2**63), got {step}")
         if self._writer is not None and self._writer._state == "open":
-            raise StoreError(f"{self.path}: epoch {self._writer.step} is still being written "
-                             f"(commit or abort it first)")
+            raise StoreError(
+                f"{self.path}: epoch {self._writer.step} is still being written (commit or abort it first)"
+            )
         prev = self._m["previous"]
         if prev is not None and step <= prev["step"]:
-            raise StoreError(f"{self.path}: cannot write epoch {step}: not newer than the previous "
-                             f"committed epoch {prev['step']}")
+            raise StoreError(
+                f"{self.path}: cannot write epoch {step}: not newer than the previous committed epoch {prev['step']}"
+            )
         # never reuse the name of an epoch the manifest still names (no in-place modification)
         named = {os.path.basename(e["path"]) for e in self._entries()}
         rev = 0
@@ -361,22 +391,30 @@ class Store:
         except OSError as e:
             raise write_error(self._place.edir, e) from e
         if short is not None:
-            raise StoreError(f"{where}: disk full or file too large (epoch {step} {short[1]}; "
-                             f"committed epochs are untouched)")
+            raise StoreError(
+                f"{where}: disk full or file too large (epoch {step} {short[1]}; committed epochs are untouched)"
+            )
 
     def _commit(self, w: "EpochWriter", durable: bool) -> None:
         if sorted(w._parts) != list(range(1, len(w._parts) + 1)):
             raise StoreError(f"{self.path}: epoch {w.step} has parts {sorted(w._parts)}, not 1 to {len(w._parts)}")
-        place, writer = self._place, w._w      # the writer place.new_writer made
+        place, writer = self._place, w._w  # the writer place.new_writer made
         if place.is_memory and isinstance(writer, _memory.Writer):
             rel, files = place.publish(writer, w._basename, durable)
         elif not place.is_memory and not isinstance(writer, _memory.Writer):
             rel, files = place.publish(writer, w._basename, durable)
         else:
             raise StoreError(f"{self.path}: epoch {w.step} was begun in another kind of store")
-        entry: JSONObject = {"step": w.step, "path": rel, "files": files, "domains": w._domains,
-                 "globals": w._globals, "committed_at": now(), "format_version": FORMAT_VERSION}
-        if w._parts and not self._place.is_memory:   # (add_part refuses parts of a memory store)
+        entry: JSONObject = {
+            "step": w.step,
+            "path": rel,
+            "files": files,
+            "domains": w._domains,
+            "globals": w._globals,
+            "committed_at": now(),
+            "format_version": FORMAT_VERSION,
+        }
+        if w._parts and not self._place.is_memory:  # (add_part refuses parts of a memory store)
             # phase 2 of the parts' commit: every part is complete (its writer finished it and
             # reported its checksums); they take their names, then the manifest names them all
             entry["parts"] = []
@@ -395,13 +433,15 @@ class Store:
         # an epoch of an older store keeps the version it was written in (named in its entry)
         # when the manifest moves on to this code's version
         old_v = self._m.get("format_version", FORMAT_VERSION)
-        old_cur, old_prev = ({**e, "format_version": e.get("format_version", old_v)}
-                             if e is not None else None for e in (old_cur, old_prev))
+        old_cur, old_prev = (
+            {**e, "format_version": e.get("format_version", old_v)} if e is not None else None
+            for e in (old_cur, old_prev)
+        )
         if old_cur is None:
             new_prev = None
         elif w.step > old_cur["step"]:
             new_prev = old_cur
-        else:                       # rewrite of a step <= current: current is replaced
+        else:  # rewrite of a step <= current: current is replaced
             new_prev = old_prev
         new_m = dict(self._m, current=entry, previous=new_prev, format_version=FORMAT_VERSION)
         try:
@@ -413,7 +453,7 @@ class Store:
         self._m = new_m
         self._verified.add(rel)
         keep = {rel} | ({new_prev["path"]} if new_prev else set())
-        for e in (old_cur, old_prev):                  # only after the new manifest is in place
+        for e in (old_cur, old_prev):  # only after the new manifest is in place
             if e is not None and e["path"] not in keep:
                 self._verified.discard(e["path"])
                 try:
@@ -434,8 +474,9 @@ class Store:
         if problems and not structure_if_damaged:
             return problems
         for k, x in enumerate(subs):
-            groups = [(domain_group(int(d)), info["arrays"]) for d, info in e["domains"].items()
-                      if info.get("part", 0) == k]
+            groups = [
+                (domain_group(int(d)), info["arrays"]) for d, info in e["domains"].items() if info.get("part", 0) == k
+            ]
             if k == 0 and e.get("globals") is not None:
                 groups.append((GLOBALS_GROUP, e["globals"]["arrays"]))
             problems += self._group_problems(x, groups)
@@ -462,9 +503,11 @@ class Store:
                         if info is None:
                             problems.append(f"{self._where(e)}: array /{g}/{name} missing")
                         elif tuple(info[0]) != tuple(shape) or np.dtype(info[1]) != np.dtype(dtype):
-                            problems.append(f"{self._where(e)}: array /{g}/{name} is {info[0]} "
-                                            f"{np.dtype(info[1])}, manifest says {tuple(shape)} "
-                                            f"{np.dtype(dtype)}")
+                            problems.append(
+                                f"{self._where(e)}: array /{g}/{name} is {info[0]} "
+                                f"{np.dtype(info[1])}, manifest says {tuple(shape)} "
+                                f"{np.dtype(dtype)}"
+                            )
                     a = r.attrs_json(g)
                     if a is None:
                         problems.append(f"{self._where(e)}: attrs of /{g} missing")
@@ -526,12 +569,14 @@ class Store:
                 self.warnings.append(
                     f"{self.path}: current epoch {cur['step']} failed verification ({bad[0]}"
                     f"{f' and {len(bad) - 1} more problem(s)' if len(bad) > 1 else ''}); "
-                    f"using previous epoch {prev['step']}")
+                    f"using previous epoch {prev['step']}"
+                )
                 return EpochReader(self, prev)
-            raise StoreError(f"{self.path}: epoch {cur['step']} is corrupt ({bad[0]}) and previous "
-                             f"epoch {prev['step']} too ({bad_prev[0]})")
-        raise StoreError(f"{self.path}: epoch {cur['step']} is corrupt ({bad[0]}) and there is no "
-                         f"previous epoch")
+            raise StoreError(
+                f"{self.path}: epoch {cur['step']} is corrupt ({bad[0]}) and previous "
+                f"epoch {prev['step']} too ({bad_prev[0]})"
+            )
+        raise StoreError(f"{self.path}: epoch {cur['step']} is corrupt ({bad[0]}) and there is no previous epoch")
 
     def _bad(self, e: JSONObject) -> list[str]:
         if e["path"] in self._verified:
@@ -559,7 +604,7 @@ class Store:
         if keep >= 2 or prev is None:
             return []
         new_m = dict(self._m, previous=None)
-        self._place.write_manifest(new_m, durable=False)   # first forget it, then delete it
+        self._place.write_manifest(new_m, durable=False)  # first forget it, then delete it
         self._m = new_m
         self._verified.discard(prev["path"])
         for x in files_of(prev):
@@ -577,7 +622,6 @@ class Store:
         lock, self._lock = self._lock, None
         if lock is not None:
             lock.release()
-
 
 
 def store_owns(root: StrPath, name: str) -> bool:

@@ -14,6 +14,7 @@ EFBIG: Python ignores SIGXFSZ, so a write past the limit fails instead of killin
   afterwards in memory (so HDF5 reads back what it wrote and closes cleanly), and
   ``check``/``close_h5`` raise the recorded error as an ordinary OSError once HDF5 is done.
 """
+
 from __future__ import annotations
 
 import errno
@@ -80,7 +81,7 @@ class GuardedFile(io.RawIOBase):
         self._fd = os.open(self.name, flags, 0o666)
         self._pos = 0
         self._eof = os.fstat(self._fd).st_size
-        self._late: list[tuple[int, bytes]] = []    # writes after the failure, in order
+        self._late: list[tuple[int, bytes]] = []  # writes after the failure, in order
         self.error: OSError | None = None
 
     def readable(self) -> bool:
@@ -108,13 +109,13 @@ class GuardedFile(io.RawIOBase):
             chunk = os.pread(self._fd, n - got, self._pos + got)
             if not chunk:
                 break
-            view[got:got + len(chunk)] = chunk
+            view[got : got + len(chunk)] = chunk
             got += len(chunk)
         view[got:n] = bytes(n - got)
-        for at, data in self._late:          # what HDF5 wrote after the failure, in order
+        for at, data in self._late:  # what HDF5 wrote after the failure, in order
             lo, hi = max(at, self._pos), min(at + len(data), self._pos + n)
             if lo < hi:
-                view[lo - self._pos:hi - self._pos] = data[lo - at:hi - at]
+                view[lo - self._pos : hi - self._pos] = data[lo - at : hi - at]
         self._pos += n
         return n
 
@@ -159,11 +160,11 @@ class GuardedFile(io.RawIOBase):
         super().close()
 
 
-def create_h5(path: str | os.PathLike[str], exclusive: bool = True,
-              **kwargs: Any) -> tuple[h5py.File, GuardedFile]:
+def create_h5(path: str | os.PathLike[str], exclusive: bool = True, **kwargs: Any) -> tuple[h5py.File, GuardedFile]:
     """(h5py.File, GuardedFile) writing `path`: created (exclusive) or, with
     exclusive=False, an existing file truncated. kwargs go to h5py.File."""
     import h5py
+
     guard = GuardedFile(path, truncate=not exclusive)
     try:
         f = h5py.File(guard, "w", **kwargs)

@@ -10,6 +10,7 @@ checks the last: a command that leaves the working directory, environment, umask
 limits, signal handlers, numba's thread count, ``sys.path``, an open file or a thread behind
 fails the test that ran it; so does one still running after its ``timeout``.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -32,8 +33,9 @@ def run_cli(*args, check=False, timeout=900, env=None):
     e = dict(os.environ)
     if env:
         e.update(env)
-    cp = subprocess.run([sys.executable, "-m", "ooc_dem.cli", *map(str, args)], capture_output=True,
-                        text=True, timeout=timeout, env=e)
+    cp = subprocess.run(
+        [sys.executable, "-m", "ooc_dem.cli", *map(str, args)], capture_output=True, text=True, timeout=timeout, env=e
+    )
     if check and cp.returncode != 0:
         raise AssertionError(f"ooc-dem {' '.join(map(str, args))} failed ({cp.returncode}):\n{cp.stderr}")
     return cp
@@ -42,6 +44,7 @@ def run_cli(*args, check=False, timeout=900, env=None):
 @dataclasses.dataclass
 class CliResult:
     """A finished in-process `ooc-dem`: what the tests read of a CompletedProcess."""
+
     args: list
     returncode: int
     stdout: str
@@ -60,11 +63,16 @@ def cli_in_process(*args, check=False, timeout=900) -> CliResult:
     every warning a fresh interpreter would print written to stderr. A command still running
     after ``timeout`` seconds fails the test (at its next Python bytecode: SIGALRM)."""
     from ooc_dem import cli
+
     argv = [str(a) for a in args]
     before = _process_state()
     try:
-        with _alarm(timeout, argv), _captured() as out, warnings.catch_warnings(record=True) as caught, \
-                _argv([cli.__file__, *argv]):
+        with (
+            _alarm(timeout, argv),
+            _captured() as out,
+            warnings.catch_warnings(record=True) as caught,
+            _argv([cli.__file__, *argv]),
+        ):
             # what a fresh interpreter hides by default; everything else it would print
             for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
                 warnings.filterwarnings("ignore", category=category)
@@ -74,7 +82,7 @@ def cli_in_process(*args, check=False, timeout=900) -> CliResult:
                 code = e.code
             except (KeyboardInterrupt, CliTimeout):
                 raise
-            except BaseException:   # what the interpreter would print before exiting 1
+            except BaseException:  # what the interpreter would print before exiting 1
                 traceback.print_exc()
                 code = 1
             if code is not None and not isinstance(code, int):
@@ -87,8 +95,10 @@ def cli_in_process(*args, check=False, timeout=900) -> CliResult:
     changed = _changes(before, _process_state())
     if changed:
         _restore(before)
-        pytest.fail(f"in-process `ooc-dem {' '.join(argv)}` left this process changed ({'; '.join(changed)}): "
-                    f"run it in a fresh interpreter (run_cli)")
+        pytest.fail(
+            f"in-process `ooc-dem {' '.join(argv)}` left this process changed ({'; '.join(changed)}): "
+            f"run it in a fresh interpreter (run_cli)"
+        )
     res = CliResult(argv, 0 if code is None else code, out["stdout"], out["stderr"])
     if check and res.returncode != 0:
         raise AssertionError(f"ooc-dem {' '.join(argv)} failed ({res.returncode}):\n{res.stderr}")
@@ -100,8 +110,10 @@ def one_line_error(cp, *needles) -> str:
     code 2 (not a signal), exactly one non-empty line on stderr, no traceback, every needle in
     that line; return it."""
     if cp.returncode < 0:
-        pytest.fail(f"killed by {signal.Signals(-cp.returncode).name} instead of exit 2; stderr ends: "
-                    f"{cp.stderr.strip()[-600:]}")
+        pytest.fail(
+            f"killed by {signal.Signals(-cp.returncode).name} instead of exit 2; stderr ends: "
+            f"{cp.stderr.strip()[-600:]}"
+        )
     assert cp.returncode == 2, (cp.returncode, cp.stdout[-2000:], cp.stderr[-3000:])
     assert "Traceback" not in cp.stderr, cp.stderr[-3000:]
     lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
@@ -115,6 +127,7 @@ def one_line_error(cp, *needles) -> str:
 def _alarm(timeout, argv):
     def expired(signum, frame):
         raise CliTimeout(f"in-process `ooc-dem {' '.join(argv)}` still running after {timeout} s")
+
     previous = signal.signal(signal.SIGALRM, expired)
     signal.setitimer(signal.ITIMER_REAL, timeout)
     try:
@@ -150,7 +163,7 @@ def _captured():
         yield out
     finally:
         for fd, name, fd_before, stream_before, tmp in reversed(saved):
-            getattr(sys, name).close()   # flushes; the descriptor stays (closefd=False)
+            getattr(sys, name).close()  # flushes; the descriptor stays (closefd=False)
             os.dup2(fd_before, fd)
             os.close(fd_before)
             setattr(sys, name, stream_before)
@@ -181,14 +194,21 @@ def _open_files() -> list[str]:
 
 
 def _process_state() -> dict:
-    state = {"working directory": os.getcwd(), "environment": dict(os.environ), "umask": _umask(),
-             "resource limits": {n: resource.getrlimit(getattr(resource, n)) for n in dir(resource)
-                                 if n.startswith("RLIMIT_")},
-             "signal handlers": {s.name: signal.getsignal(s) for s in signal.valid_signals()
-                                 if isinstance(s, signal.Signals)},
-             "sys.path": list(sys.path), "open files": _open_files(),
-             # a library's daemon thread (zarr's event loop) lives as long as the process anyway
-             "threads": {t.ident: t.name for t in threading.enumerate() if not t.daemon}}
+    state = {
+        "working directory": os.getcwd(),
+        "environment": dict(os.environ),
+        "umask": _umask(),
+        "resource limits": {
+            n: resource.getrlimit(getattr(resource, n)) for n in dir(resource) if n.startswith("RLIMIT_")
+        },
+        "signal handlers": {
+            s.name: signal.getsignal(s) for s in signal.valid_signals() if isinstance(s, signal.Signals)
+        },
+        "sys.path": list(sys.path),
+        "open files": _open_files(),
+        # a library's daemon thread (zarr's event loop) lives as long as the process anyway
+        "threads": {t.ident: t.name for t in threading.enumerate() if not t.daemon},
+    }
     if "numba" in sys.modules:
         state["numba threads"] = sys.modules["numba"].get_num_threads()
     return state
@@ -198,7 +218,7 @@ def _changes(before: dict, after: dict) -> list[str]:
     changed = []
     for what, was in before.items():
         now = after.get(what)
-        if what == "threads":   # a thread that ended is no change; one still running is
+        if what == "threads":  # a thread that ended is no change; one still running is
             now = {k: v for k, v in now.items() if k not in was}
             if now:
                 changed.append(f"threads still running: {sorted(now.values())}")

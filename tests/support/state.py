@@ -1,10 +1,12 @@
 """Particle states compared bit for bit."""
+
 import numpy as np
 
 
 def state_arrays(p):
     """Every state array of a Particles set, sorted by id, history slots beyond the count zeroed."""
     from ooc_dem.model.state import clean_history
+
     q = p.sorted_by_id()
     clean_history(q)
     return q.arrays()

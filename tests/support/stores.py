@@ -1,4 +1,5 @@
 """Run directories seen from outside: the committed step, and edits of their files."""
+
 import hashlib
 import json
 import os
@@ -28,14 +29,20 @@ def zarr_epochs_as_directories(store) -> None:
         if not e or not e["path"].endswith(".zip"):
             continue
         src = store / e["path"]
-        rel = e["path"][:-len(".zip")] + ".zarr"
+        rel = e["path"][: -len(".zip")] + ".zarr"
         with zipfile.ZipFile(src) as zf:
             zf.extractall(store / rel)
         src.unlink()
         files = sorted(p for p in (store / rel).rglob("*") if p.is_file())
         e["path"] = rel
-        e["files"] = [{"path": p.relative_to(store).as_posix(), "size": p.stat().st_size,
-                       "sha256": hashlib.sha256(p.read_bytes()).hexdigest()} for p in files]
+        e["files"] = [
+            {
+                "path": p.relative_to(store).as_posix(),
+                "size": p.stat().st_size,
+                "sha256": hashlib.sha256(p.read_bytes()).hexdigest(),
+            }
+            for p in files
+        ]
     (store / "MANIFEST.json").write_text(json.dumps(m, indent=1))
 
 

@@ -68,6 +68,7 @@ expectations), ``strategies`` (hypothesis), ``known`` (the bugs found by hand), 
 check one case), ``runner`` (a strategy's run). tools/ is not part of the wheel: tools/fuzz.py
 imports this package from beside it, the tests through pyproject's pytest ``pythonpath``.
 """
+
 from __future__ import annotations
 
 from .common import CASE_TIMEOUT, MEM_BOUND, SIZE_BOUND, GiB
@@ -78,8 +79,26 @@ from .runner import BUDGET, STRATEGY_BASES, STRATEGY_NAMES, bases_for, harness_i
 from .strategies import build_strategies
 from .values import scenario_keys, scenario_values
 
-__all__ = ["BUDGET", "CASE_TIMEOUT", "KNOWN", "MEM_BOUND", "SIZE_BOUND", "STRATEGY_BASES", "STRATEGY_NAMES",
-           "Fuzzer", "GiB", "Worker", "WorkerDied", "bases_for", "build_strategies", "child_env",
-           "failure_class", "run_strategy", "scenario_keys", "scenario_values", "short"]
+__all__ = [
+    "BUDGET",
+    "CASE_TIMEOUT",
+    "KNOWN",
+    "MEM_BOUND",
+    "SIZE_BOUND",
+    "STRATEGY_BASES",
+    "STRATEGY_NAMES",
+    "Fuzzer",
+    "GiB",
+    "Worker",
+    "WorkerDied",
+    "bases_for",
+    "build_strategies",
+    "child_env",
+    "failure_class",
+    "run_strategy",
+    "scenario_keys",
+    "scenario_values",
+    "short",
+]
 
 harness_is_test_code()

@@ -1,5 +1,6 @@
 """Edits of a world applied before the command: manifest JSON, run files, paths and links; the
 array-file edits are file_edits'."""
+
 from __future__ import annotations
 
 import copy
@@ -10,7 +11,18 @@ import shutil
 from pathlib import Path
 
 from .common import _dumps, _sha
-from .file_edits import _decode_value, _edit_array, _edit_attrs, _edit_bomb_npz, _edit_npz_array, _edit_npz_member, _edit_traj, _edit_zarr_codec, _epoch_entry, _write_npz
+from .file_edits import (
+    _decode_value,
+    _edit_array,
+    _edit_attrs,
+    _edit_bomb_npz,
+    _edit_npz_array,
+    _edit_npz_member,
+    _edit_traj,
+    _edit_zarr_codec,
+    _epoch_entry,
+    _write_npz,
+)
 from .world import World
 
 
@@ -71,7 +83,7 @@ def _fix_checksums(world: World, rels: list[str]):
             if f["path"] in rels:
                 p = world.run / f["path"]
                 f["size"] = p.stat().st_size
-                f.pop("xxh3_128", None)          # an older store's checksum, still accepted
+                f.pop("xxh3_128", None)  # an older store's checksum, still accepted
                 f["sha256"] = _sha(p)
     world.write_manifest(m)
 
@@ -83,7 +95,7 @@ def apply_edit(world: World, ed: dict) -> None:
         try:
             world.manifest()
         except (ValueError, UnicodeDecodeError, RecursionError, OSError):
-            return                         # an earlier edit made the manifest unreadable
+            return  # an earlier edit made the manifest unreadable
     if op == "manifest_set":
         m = world.manifest()
         value = json.loads(json.dumps(ed["value"]).replace("$ABS", str(world.w)))
@@ -175,7 +187,7 @@ def apply_edit(world: World, ed: dict) -> None:
                 p.unlink()
         elif "summary_set" in ed:
             if p.is_symlink() or not p.is_file():
-                return   # an earlier edit made it a link (to /dev/zero, say): never read it here
+                return  # an earlier edit made it a link (to /dev/zero, say): never read it here
             s = json.loads(p.read_text())
             p.write_text(_dumps(_set(s, ed["summary_set"], _decode_value(ed["value"]))))
     elif op == "runfile_link":

@@ -1,5 +1,6 @@
 """Edits of the array files of a world: epoch arrays and attributes (HDF5 and zarr), npz members
 and inflation bombs, trajectory frames, zarr codecs."""
+
 from __future__ import annotations
 
 import contextlib
@@ -16,6 +17,7 @@ from .world import World
 
 def _write_npz(path, spec):
     import numpy as np
+
     arrays = {}
     for name, kind in spec.items():
         if kind == "nan":
@@ -40,6 +42,7 @@ def _write_npz(path, spec):
 
 def _semantic(arr, kind, rows):
     import numpy as np
+
     a = np.array(arr)
     n = len(a)
     idx = [min(int(r * n), n - 1) for r in rows] if n else []
@@ -60,7 +63,7 @@ def _semantic(arr, kind, rows):
     elif kind == "all_99":
         a[...] = 99
     elif kind == "neg":
-        a[idx] = -(10 ** 6)
+        a[idx] = -(10**6)
     elif kind == "huge":
         a[idx] = np.iinfo(a.dtype).max if a.dtype.kind in "iu" else 1e308
     elif kind == "zero":
@@ -101,8 +104,18 @@ def _semantic(arr, kind, rows):
 
 
 # finite absurd values and out-of-range indices (each written at the drawn rows)
-EXTREMES = {"1e300": 1e300, "5e-324": 5e-324, "-5e-324": -5e-324, "999": 999, "i32max": 2 ** 31 - 1,
-            "minus7": -7, "minus1": -1, "1e-300": 1e-300, "1e150": 1e150, "3e8": 300_000_000}
+EXTREMES = {
+    "1e300": 1e300,
+    "5e-324": 5e-324,
+    "-5e-324": -5e-324,
+    "999": 999,
+    "i32max": 2**31 - 1,
+    "minus7": -7,
+    "minus1": -1,
+    "1e-300": 1e-300,
+    "1e150": 1e150,
+    "3e8": 300_000_000,
+}
 
 
 @contextlib.contextmanager
@@ -111,6 +124,7 @@ def _zarr_tree(path):
     versions), or its zip archive unpacked into a scratch directory and packed again (stored
     entries, the edited tree's files) when the edit is done."""
     import zipfile
+
     path = Path(path)
     if path.is_dir():
         yield path
@@ -127,6 +141,7 @@ def _zarr_tree(path):
 
 def _edit_array(world: World, ed: dict):
     import numpy as np
+
     m = world.manifest()
     e = _epoch_entry(m, ed["which"])
     if not e:
@@ -134,9 +149,12 @@ def _edit_array(world: World, ed: dict):
     group = ed["group"]
     if world.manifest().get("backend") == "hdf5":
         import h5py
+
         p = world.run / e["path"]
         with h5py.File(p, "r+") as f:
-            gname = "globals" if group == "globals" else f"domains/{sorted(f['domains'])[ed['dom'] % len(f['domains'])]}"
+            gname = (
+                "globals" if group == "globals" else f"domains/{sorted(f['domains'])[ed['dom'] % len(f['domains'])]}"
+            )
             g = f[gname]
             names = sorted(g)
             name = ed["name"] if ed["name"] in g else names[ed.get("name_i", 0) % len(names)]
@@ -158,14 +176,20 @@ def _edit_array(world: World, ed: dict):
             name = ed["name"] if ed["name"] in names else names[ed.get("name_i", 0) % len(names)]
             adir = gdir / name
             meta = json.loads((adir / "zarr.json").read_text())
-            dt = np.dtype({"float64": "<f8", "int64": "<i8", "int32": "<i4", "float32": "<f4",
-                           "bool": "|b1", "uint8": "|u1"}.get(meta["data_type"], "<f8"))
+            dt = np.dtype(
+                {"float64": "<f8", "int64": "<i8", "int32": "<i4", "float32": "<f4", "bool": "|b1", "uint8": "|u1"}.get(
+                    meta["data_type"], "<f8"
+                )
+            )
             chunk = adir / "c" / "/".join(["0"] * max(1, len(meta["shape"])))
             if ed["kind"] == "delete":
                 shutil.rmtree(adir)
             else:
-                old = np.frombuffer(chunk.read_bytes(), dtype=dt).reshape(meta["shape"]) if chunk.exists() \
+                old = (
+                    np.frombuffer(chunk.read_bytes(), dtype=dt).reshape(meta["shape"])
+                    if chunk.exists()
                     else np.zeros(meta["shape"], dt)
+                )
                 new = _semantic(old, ed["kind"], ed.get("rows", [0.0]))
                 ed["noop"] = _same_array(old, new)
                 if new.ndim != old.ndim:
@@ -174,8 +198,15 @@ def _edit_array(world: World, ed: dict):
                 chunk.parent.mkdir(parents=True, exist_ok=True)
                 chunk.write_bytes(np.ascontiguousarray(new).astype(new.dtype.newbyteorder("<")).tobytes())
                 if ed.get("update_meta") or new.shape != old.shape or new.dtype != old.dtype:
-                    names_ = {"<f8": "float64", "<i8": "int64", "<i4": "int32", "<f4": "float32", "|b1": "bool",
-                              "|u1": "uint8", "<c16": "complex128"}
+                    names_ = {
+                        "<f8": "float64",
+                        "<i8": "int64",
+                        "<i4": "int32",
+                        "<f4": "float32",
+                        "|b1": "bool",
+                        "|u1": "uint8",
+                        "<c16": "complex128",
+                    }
                     if ed.get("update_meta", True):
                         meta["shape"] = list(new.shape)
                         meta["chunk_grid"]["configuration"]["chunk_shape"] = list(new.shape)
@@ -197,13 +228,15 @@ def _fix_all_checksums(world: World, which: str):
         files = sorted(p for p in base.rglob("*") if p.is_file())
     else:
         files = [base]
-    e["files"] = [{"path": p.relative_to(world.run).as_posix(), "size": p.stat().st_size,
-                   "sha256": _sha(p)} for p in files]
+    e["files"] = [
+        {"path": p.relative_to(world.run).as_posix(), "size": p.stat().st_size, "sha256": _sha(p)} for p in files
+    ]
     world.write_manifest(m)
 
 
 def _sync_meta_hdf5(world, which):
     import h5py
+
     m = world.manifest()
     e = _epoch_entry(m, which)
     with h5py.File(world.run / e["path"], "r") as f:
@@ -222,8 +255,15 @@ def _sync_meta_zarr(world, which):
     m = world.manifest()
     e = _epoch_entry(m, which)
     with _zarr_tree(world.run / e["path"]) as base:
-        strs = {"float64": "<f8", "int64": "<i8", "int32": "<i4", "float32": "<f4", "bool": "|b1",
-                "uint8": "|u1", "complex128": "<c16"}
+        strs = {
+            "float64": "<f8",
+            "int64": "<i8",
+            "int32": "<i4",
+            "float32": "<f4",
+            "bool": "|b1",
+            "uint8": "|u1",
+            "complex128": "<c16",
+        }
 
         def arrays(gdir):
             out = {}
@@ -231,6 +271,7 @@ def _sync_meta_zarr(world, which):
                 meta = json.loads((a / "zarr.json").read_text())
                 out[a.name] = [meta["shape"], strs.get(meta["data_type"], meta["data_type"])]
             return out
+
         for dname in sorted((base / "domains").glob("d*")):
             arr = arrays(dname)
             first = next(iter(arr.values()), None)
@@ -244,11 +285,16 @@ def _edit_attrs(world: World, ed: dict):
     e = _epoch_entry(m, ed["which"])
     if not e:
         return
-    value = ed["value"]          # None: delete the attribute, else the new JSON string
+    value = ed["value"]  # None: delete the attribute, else the new JSON string
     if m.get("backend") == "hdf5":
         import h5py
+
         with h5py.File(world.run / e["path"], "r+") as f:
-            g = f["globals"] if ed["group"] == "globals" else f["domains"][sorted(f["domains"])[ed["dom"] % len(f["domains"])]]
+            g = (
+                f["globals"]
+                if ed["group"] == "globals"
+                else f["domains"][sorted(f["domains"])[ed["dom"] % len(f["domains"])]]
+            )
             if value is None:
                 if "ooc_dem_attrs" in g.attrs:
                     del g.attrs["ooc_dem_attrs"]
@@ -277,6 +323,7 @@ def _bombs_dir(world: World) -> Path:
 def _gzip_zeros(world: World, size: int) -> Path:
     """A gzip stream of ``size`` zero bytes (about size / 1000 bytes), built once a session."""
     import zlib
+
     p = _bombs_dir(world) / f"zeros-{size}.gz"
     if not p.is_file():
         c = zlib.compressobj(1, zlib.DEFLATED, 31)
@@ -304,6 +351,7 @@ def _npz_path(world: World, where: str) -> Path | None:
 def _edit_npz_array(world: World, ed: dict):
     """One array of a bed file (a prepared bed.npz or a bed-cache entry) edited, or the file removed."""
     import numpy as np
+
     p = _npz_path(world, ed["file"])
     if p is None or not p.is_file():
         return
@@ -315,7 +363,7 @@ def _edit_npz_array(world: World, ed: dict):
     name = ed["name"] if ed["name"] in arrays else sorted(arrays)[0]
     if ed["kind"] == "delete":
         del arrays[name]
-    elif ed["kind"] == "drop_disc":           # one disc removed from every array (a consistent tamper)
+    elif ed["kind"] == "drop_disc":  # one disc removed from every array (a consistent tamper)
         i = min(int(ed.get("rows", [0.0])[0] * len(arrays["id"])), len(arrays["id"]) - 1)
         arrays = {k: np.delete(v, i, axis=0) for k, v in arrays.items()}
     else:
@@ -338,6 +386,7 @@ def _edit_npz_member(world: World, ed: dict):
     bytes of deflated zeros under a header declaring all of them (a few MB on disk);
     ``object`` -- a pickled object array; ``shape``/``dtype``/``fortran`` -- wrong layouts."""
     import zipfile
+
     p = world.run / "initial.npz"
     member = ed["member"] + ".npy"
     kept = {}
@@ -369,6 +418,7 @@ def _edit_npz_member(world: World, ed: dict):
         elif what == "object":
             import io
             import numpy as np
+
             b = io.BytesIO()
             np.save(b, np.array([{"a": 1}, None], dtype=object), allow_pickle=True)
             zf.writestr(member, b.getvalue())
@@ -402,6 +452,7 @@ def _edit_traj(world: World, ed: dict):
     dataset re-declared at ``rows`` rows with no data written (a few KB on disk), or removed."""
     import h5py
     import numpy as np
+
     frames = _frames(world)
     if not frames:
         return
@@ -430,8 +481,7 @@ def _edit_traj(world: World, ed: dict):
                 ds = f[name]
                 tail, dt = ds.shape[1:], ds.dtype
                 del f[name]
-                f.create_dataset(name, shape=(rows, *tail), dtype=dt, chunks=(min(rows, 1 << 16), *tail),
-                                 fillvalue=0)
+                f.create_dataset(name, shape=(rows, *tail), dtype=dt, chunks=(min(rows, 1 << 16), *tail), fillvalue=0)
             if ed.get("n_discs"):
                 f.attrs["n_discs"] = rows
 
@@ -439,8 +489,10 @@ def _edit_traj(world: World, ed: dict):
 ZARR_CODECS = {
     "gzip": {"name": "gzip", "configuration": {"level": 5}},
     "zstd": {"name": "zstd", "configuration": {"level": 0, "checksum": False}},
-    "blosc": {"name": "blosc", "configuration": {"cname": "lz4", "clevel": 5, "shuffle": "shuffle",
-                                                  "typesize": 8, "blocksize": 0}},
+    "blosc": {
+        "name": "blosc",
+        "configuration": {"cname": "lz4", "clevel": 5, "shuffle": "shuffle", "typesize": 8, "blocksize": 0},
+    },
     "crc32c": {"name": "crc32c"},
     "unknown": {"name": "frobnicate", "configuration": {}},
 }
@@ -455,6 +507,7 @@ def _edit_zarr_codec(world: World, ed: dict):
     if not e or m.get("backend") != "zarr":
         return
     import gzip
+
     with _zarr_tree(world.run / e["path"]) as base:
         doms = sorted((base / "domains").glob("d*"))
         gdir = base / "globals" if ed["group"] == "globals" else doms[ed["dom"] % len(doms)]
@@ -470,27 +523,50 @@ def _edit_zarr_codec(world: World, ed: dict):
             meta["codecs"] = [bytes_codec, ZARR_CODECS["gzip"]]
             data = None
         elif codec == "sharding":
-            meta["codecs"] = [{"name": "sharding_indexed", "configuration": {
-                "chunk_shape": meta["chunk_grid"]["configuration"]["chunk_shape"],
-                "codecs": [bytes_codec], "index_codecs": [bytes_codec, {"name": "crc32c"}],
-                "index_location": "end"}}]
+            meta["codecs"] = [
+                {
+                    "name": "sharding_indexed",
+                    "configuration": {
+                        "chunk_shape": meta["chunk_grid"]["configuration"]["chunk_shape"],
+                        "codecs": [bytes_codec],
+                        "index_codecs": [bytes_codec, {"name": "crc32c"}],
+                        "index_location": "end",
+                    },
+                }
+            ]
         elif codec == "sharding_many":
             # inner chunks of one row, an index without checksum: the chunk's bytes read as
             # offsets, one read task per inner chunk
-            meta["codecs"] = [{"name": "sharding_indexed", "configuration": {
-                "chunk_shape": [1] * len(meta["shape"]), "codecs": [bytes_codec], "index_codecs": [bytes_codec],
-                "index_location": ed.get("index_location", "end")}}]
+            meta["codecs"] = [
+                {
+                    "name": "sharding_indexed",
+                    "configuration": {
+                        "chunk_shape": [1] * len(meta["shape"]),
+                        "codecs": [bytes_codec],
+                        "index_codecs": [bytes_codec],
+                        "index_location": ed.get("index_location", "end"),
+                    },
+                }
+            ]
         elif codec == "transpose":
-            meta["codecs"] = [{"name": "transpose", "configuration": {"order": list(range(len(meta["shape"])))[::-1]}},
-                              bytes_codec]
+            meta["codecs"] = [
+                {"name": "transpose", "configuration": {"order": list(range(len(meta["shape"])))[::-1]}},
+                bytes_codec,
+            ]
         else:
             meta["codecs"] = [bytes_codec, ZARR_CODECS[codec]]
             if ed.get("encode") and codec == "gzip":
                 data = gzip.compress(raw)
             elif ed.get("encode") and codec in ("zstd", "blosc"):
                 import numcodecs
-                data = bytes((numcodecs.Zstd(level=0) if codec == "zstd" else
-                              numcodecs.Blosc(cname="lz4", clevel=5, shuffle=1, typesize=8)).encode(raw))
+
+                data = bytes(
+                    (
+                        numcodecs.Zstd(level=0)
+                        if codec == "zstd"
+                        else numcodecs.Blosc(cname="lz4", clevel=5, shuffle=1, typesize=8)
+                    ).encode(raw)
+                )
         (adir / "zarr.json").write_text(json.dumps(meta, indent=2))
         target = chunks[0] if chunks else adir / "c" / "/".join(["0"] * max(1, len(meta["shape"])))
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -504,11 +580,11 @@ def _edit_zarr_codec(world: World, ed: dict):
 def _decode_value(v):
     """Values travel as JSON; {"$float": "nan"} and {"$deep": n} stand for what JSON cannot carry."""
     if isinstance(v, dict) and len(v) == 1:
-        (k, x), = v.items()
+        ((k, x),) = v.items()
         if k == "$float":
             return float(x)
         if k in ("$deep_list", "$deep_dict"):
-            return v                      # kept as a marker, written by _dumps
+            return v  # kept as a marker, written by _dumps
         if k == "$many_domains":
             return {str(i): {"n": 1, "arrays": {"x": [[1], "<f8"]}} for i in range(x)}
     if isinstance(v, list):

@@ -1,5 +1,6 @@
 """The parent side of the worker: start it, send a case, read the answer within a timeout while
 watching its memory, kill and restart it."""
+
 from __future__ import annotations
 
 import json
@@ -17,8 +18,11 @@ from .common import CASE_TIMEOUT, GiB, MEM_BOUND, ROOT
 
 def child_env() -> dict:
     """The environment of a child interpreter: this checkout's ooc_dem first, no display."""
-    return dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(
-        [str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+    return dict(
+        os.environ,
+        MPLBACKEND="Agg",
+        PYTHONPATH=os.pathsep.join([str(ROOT)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])),
+    )
 
 
 # the worker's own file, run as a script
@@ -32,11 +36,12 @@ class WorkerDied(Exception):
 class Worker:
     """A long-lived `ooc_dem.cli.main` runner with a per-call timeout and a memory watch."""
 
-    def __init__(self, warmup=(), mem_bound=MEM_BOUND, use_rlimit=True, prepare=None, errlog=None,
-                 script=WORKER_SCRIPT):
+    def __init__(
+        self, warmup=(), mem_bound=MEM_BOUND, use_rlimit=True, prepare=None, errlog=None, script=WORKER_SCRIPT
+    ):
         self.warmup = [list(w) for w in warmup]
-        self.script = script            # run as `python SCRIPT --worker` (a tool may wrap the worker)
-        self.errlog = errlog            # the worker's own stderr (what glibc prints when it aborts)
+        self.script = script  # run as `python SCRIPT --worker` (a tool may wrap the worker)
+        self.errlog = errlog  # the worker's own stderr (what glibc prints when it aborts)
         self.prepare = prepare
         self.mem_bound = mem_bound
         self.use_rlimit = use_rlimit
@@ -52,16 +57,22 @@ class Worker:
         env.pop("PYTHONHASHSEED", None)
         err = open(self.errlog, "wb") if self.errlog else subprocess.DEVNULL
         try:
-            self.proc = subprocess.Popen([sys.executable, str(self.script), "--worker"],
-                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                         stderr=err, env=env, start_new_session=True,
-                                         text=True, bufsize=1)
+            self.proc = subprocess.Popen(
+                [sys.executable, str(self.script), "--worker"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=err,
+                env=env,
+                start_new_session=True,
+                text=True,
+                bufsize=1,
+            )
         finally:
             if self.errlog:
                 err.close()
-        self.proc.stdin.write(json.dumps({"warmup": self.warmup,
-                                          "rlimit_as": self.mem_bound if self.use_rlimit else None})
-                              + "\n")
+        self.proc.stdin.write(
+            json.dumps({"warmup": self.warmup, "rlimit_as": self.mem_bound if self.use_rlimit else None}) + "\n"
+        )
         self.proc.stdin.flush()
         msg = self._read(timeout=300)
         if msg is None or not msg.get("ready"):
@@ -72,6 +83,7 @@ class Worker:
 
     def _read(self, timeout):
         import psutil
+
         deadline = time.monotonic() + timeout
         fd = self.proc.stdout
         try:
@@ -133,14 +145,18 @@ class Worker:
             err = self._dead_stderr()
             self.kill()
             self.kill_cleanup()
-            return {"rc": None, "error": str(e), "elapsed": time.monotonic() - t0,
-                    "stderr": err, "stdout": ""}
+            return {"rc": None, "error": str(e), "elapsed": time.monotonic() - t0, "stderr": err, "stdout": ""}
         if res is None:
             self.kill()
             err = self._dead_stderr()
             self.kill_cleanup()
-            return {"rc": None, "error": f"timeout after {timeout:.0f} s", "elapsed": timeout,
-                    "stderr": err, "stdout": ""}
+            return {
+                "rc": None,
+                "error": f"timeout after {timeout:.0f} s",
+                "elapsed": timeout,
+                "stderr": err,
+                "stdout": "",
+            }
         res["peak_seen"] = self.peak_seen
         return res
 
@@ -149,7 +165,7 @@ class Worker:
             return
         if self.proc.poll() is None:
             try:
-                os.killpg(self.proc.pid, signal.SIGKILL)   # its own session: the worker and children
+                os.killpg(self.proc.pid, signal.SIGKILL)  # its own session: the worker and children
             except (ProcessLookupError, PermissionError):
                 self.proc.kill()
             self.proc.wait()

@@ -2,6 +2,7 @@
 case the parent sends, output captured, RLIMIT_AS and RLIMIT_FSIZE as asked; started as
 `python tools/fuzzlib/worker.py --worker` (this file imports nothing of the package: it runs
 as a script, with this checkout's ooc_dem first on the path)."""
+
 from __future__ import annotations
 
 import json
@@ -28,13 +29,15 @@ def _status() -> dict:
 
 def _worker_main() -> int:
     import resource
+
     proto_in = os.fdopen(os.dup(0), "r", encoding="utf-8")
     proto_out = os.fdopen(os.dup(1), "w", encoding="utf-8")
     null = os.open(os.devnull, os.O_RDONLY)
-    os.dup2(null, 0)                                  # the CLI never reads the protocol
+    os.dup2(null, 0)  # the CLI never reads the protocol
     os.environ.setdefault("MPLBACKEND", "Agg")
     scratch = Path(tempfile.mkdtemp(prefix="ooc-dem-fuzz-worker-"))
     import atexit
+
     atexit.register(shutil.rmtree, scratch, True)
     sys.setrecursionlimit(max(sys.getrecursionlimit(), 1000))
 
@@ -45,9 +48,10 @@ def _worker_main() -> int:
     def call(argv, cwd, env=None, fsize=None):
         from ooc_dem.cli import main
         from ooc_dem.app.profiling import reset_peak
+
         os.chdir(cwd)
         if argv and argv[0] == API_PREFIX:
-            main = _api_main                 # the Python API, judged by the same exit rules
+            main = _api_main  # the Python API, judged by the same exit rules
         saved_env = {k: os.environ.get(k) for k in (env or {})}
         os.environ.update(env or {})
         saved_fsize = resource.getrlimit(resource.RLIMIT_FSIZE)
@@ -100,6 +104,7 @@ def _worker_main() -> int:
                 os.close(saved[1])
         try:
             import matplotlib.pyplot as plt
+
             plt.close("all")
         except Exception:  # noqa: BLE001
             pass
@@ -110,15 +115,25 @@ def _worker_main() -> int:
             with open(p, "rb") as f:
                 data = f.read(65536)
             return data.decode("utf-8", "replace") + (f"\n...[{size} bytes]" if size > 65536 else "")
+
         st = _status()
-        return {"rc": rc if isinstance(rc, int) else 1, "stdout": tail(outp), "stderr": tail(errp),
-                "exc": exc, "elapsed": round(elapsed, 4), "hwm": st.get("VmHWM", 0),
-                "hwm_reset": hwm_reset, "rss": st.get("VmRSS", 0), "rss0": rss0}
+        return {
+            "rc": rc if isinstance(rc, int) else 1,
+            "stdout": tail(outp),
+            "stderr": tail(errp),
+            "exc": exc,
+            "elapsed": round(elapsed, 4),
+            "hwm": st.get("VmHWM", 0),
+            "hwm_reset": hwm_reset,
+            "rss": st.get("VmRSS", 0),
+            "rss0": rss0,
+        }
 
     # warm up: imports and the JIT caches (not counted as cases)
     import numpy  # noqa: F401
     import ooc_dem.cli  # noqa: F401
     from ooc_dem.app import run  # noqa: F401
+
     req = json.loads(proto_in.readline())
     for argv, cwd in req.get("warmup", []):
         call(argv, cwd)
@@ -130,9 +145,17 @@ def _worker_main() -> int:
             resource.setrlimit(resource.RLIMIT_AS, (limit, resource.RLIM_INFINITY))
         except (ValueError, OSError):
             limit = None
-    send({"ready": True, "pid": os.getpid(), "scratch": str(scratch), "baseline_rss": base.get("VmRSS", 0),
-          "vm_size": base.get("VmSize", 0), "rlimit_as": limit,
-          "commands": sorted(_subcommands())})
+    send(
+        {
+            "ready": True,
+            "pid": os.getpid(),
+            "scratch": str(scratch),
+            "baseline_rss": base.get("VmRSS", 0),
+            "vm_size": base.get("VmSize", 0),
+            "rlimit_as": limit,
+            "commands": sorted(_subcommands()),
+        }
+    )
     for line in proto_in:
         if not line.strip():
             continue
@@ -151,6 +174,7 @@ def _api_main(argv) -> int:
     reads, 2 with the exception's one line when it raises one of the package's own exception
     types (docs/api.md); anything else propagates (a traceback: a failure)."""
     from ooc_dem.api import open_run
+
     what, path = argv[1], argv[2]
     try:
         if what == "state":
@@ -159,6 +183,7 @@ def _api_main(argv) -> int:
             open_run(path).summary  # noqa: B018
         elif what == "trajectory":
             from ooc_dem.app.trajectory import Trajectory
+
             with Trajectory.of_run(path) as t:
                 for i in range(len(t)):
                     t[i]
@@ -175,11 +200,13 @@ def _api_main(argv) -> int:
 
 def _subcommands() -> dict:
     from ooc_dem.cli import build_parser
+
     return {name: sub for name, sub in _subparsers(build_parser()).items()}
 
 
 def _subparsers(parser) -> dict:
     import argparse
+
     for a in parser._actions:
         if isinstance(a, argparse._SubParsersAction):
             return dict(a.choices)

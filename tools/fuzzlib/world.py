@@ -1,5 +1,6 @@
 """Base material (finished runs, a bed, a cache: built once) and the world of a case (a fresh copy
 of them, victims and links around), snapshots of a world."""
+
 from __future__ import annotations
 
 import json
@@ -15,26 +16,75 @@ from .handle import Worker
 _RUN20 = ["--steps", "20", "--checkpoint-every", "10", "--no-progress", "--no-figures"]
 BASE_RUNS = {
     "h5": ["run", "quick", *_RUN20, "--set", "output.series_interval=0.00005"],
-    "zarr": ["run", "quick", *_RUN20, "--mode", "ooc", "--domains", "3", "--block", "10", "--backend", "zarr",
-             "--set", "output.series_interval=0.00005"],
+    "zarr": [
+        "run",
+        "quick",
+        *_RUN20,
+        "--mode",
+        "ooc",
+        "--domains",
+        "3",
+        "--block",
+        "10",
+        "--backend",
+        "zarr",
+        "--set",
+        "output.series_interval=0.00005",
+    ],
     # 3D stores: monolithic HDF5 and out-of-core zarr (the same epoch edits as 2D)
     "h5_3d": ["run", "quick-3d", *_RUN20, "--set", "output.series_interval=0.00005"],
-    "zarr_3d": ["run", "quick-3d", *_RUN20, "--mode", "ooc", "--domains", "2", "--block", "10",
-                "--backend", "zarr", "--set", "output.series_interval=0.00005"],
+    "zarr_3d": [
+        "run",
+        "quick-3d",
+        *_RUN20,
+        "--mode",
+        "ooc",
+        "--domains",
+        "2",
+        "--block",
+        "10",
+        "--backend",
+        "zarr",
+        "--set",
+        "output.series_interval=0.00005",
+    ],
     # a frame every 10 steps (frames 0, 10, 20) for the trajectory and film cases
-    "traj": ["run", "quick", *_RUN20, "--set", "output.series_interval=0.00005",
-             "--set", "output.snapshot_interval=0.0001"],
+    "traj": [
+        "run",
+        "quick",
+        *_RUN20,
+        "--set",
+        "output.series_interval=0.00005",
+        "--set",
+        "output.snapshot_interval=0.0001",
+    ],
     # serial DDM (sub-domains in one process, HDF5)
     "ddm": ["run", "quick", *_RUN20, "--mode", "ddm", "--domains", "3", "--set", "output.series_interval=0.00005"],
     # a zarr store whose arrays carry a compression codec (zstd)
-    "zarr_zstd": ["run", "quick", *_RUN20, "--backend", "zarr", "--compression", "zstd",
-                  "--set", "output.series_interval=0.00005"],
+    "zarr_zstd": [
+        "run",
+        "quick",
+        *_RUN20,
+        "--backend",
+        "zarr",
+        "--compression",
+        "zstd",
+        "--set",
+        "output.series_interval=0.00005",
+    ],
     # a prepared bed (`--bed` cases) made with a fresh bed cache (the bed-cache cases)
     "bed": ["prepare", "quick", "--no-progress"],
 }
 # the second store of a world (`compare`, run2)
-OTHER_BASE = {"h5": "zarr", "zarr": "h5", "ddm": "h5", "h5_3d": "zarr_3d", "zarr_3d": "h5_3d", "traj": "h5",
-              "zarr_zstd": "h5"}
+OTHER_BASE = {
+    "h5": "zarr",
+    "zarr": "h5",
+    "ddm": "h5",
+    "h5_3d": "zarr_3d",
+    "zarr_3d": "h5_3d",
+    "traj": "h5",
+    "zarr_zstd": "h5",
+}
 
 TINY_SCENARIO = """\
 [scenario]
@@ -62,7 +112,7 @@ def make_bases(where: Path, names=None) -> dict:
     was prepared with (its entry is the bed-cache cases' material)."""
     where.mkdir(parents=True, exist_ok=True)
     out, todo = {}, []
-    for name in (BASE_RUNS if names is None else names):
+    for name in BASE_RUNS if names is None else names:
         d = where / name
         if not (d / ("bed.npz" if name == "bed" else "summary.json")).is_file():
             shutil.rmtree(d, ignore_errors=True)
@@ -75,8 +125,9 @@ def make_bases(where: Path, names=None) -> dict:
                 env = {"OOC_DEM_CACHE": str(where / "cache")} if name == "bed" else None
                 res = builder.call([*BASE_RUNS[name], "--out", name], where, timeout=1800, env=env)
                 if res.get("rc") != 0:
-                    raise RuntimeError(f"base {name} failed ({res.get('rc')}): "
-                                       f"{(res.get('stderr') or res.get('error') or '')[-2000:]}")
+                    raise RuntimeError(
+                        f"base {name} failed ({res.get('rc')}): {(res.get('stderr') or res.get('error') or '')[-2000:]}"
+                    )
         finally:
             builder.close()
     if "bed" in out:
@@ -103,9 +154,13 @@ class World:
         (v / "a.txt").write_text("precious a\n")
         (v / "sub" / "b.txt").write_text("precious b\n")
         (self.w / "victim_file").write_text("precious file\n")
-        for name, target in (("link_victim", "victim"), ("link_file", "victim_file"),
-                             ("link_zero", "/dev/zero"), ("dev_null", "/dev/null"),
-                             ("dev_full", "/dev/full")):
+        for name, target in (
+            ("link_victim", "victim"),
+            ("link_file", "victim_file"),
+            ("link_zero", "/dev/zero"),
+            ("dev_null", "/dev/null"),
+            ("dev_full", "/dev/full"),
+        ):
             os.symlink(target, self.w / name)
         (self.w / "scenario.toml").write_text(TINY_SCENARIO)
 
@@ -126,8 +181,7 @@ class World:
         for e in (base_m["current"], base_m["previous"]):
             for f in e["files"]:
                 now = self.run / f["path"]
-                if (not now.is_file() or now.is_symlink()
-                        or now.read_bytes() != (self.base / f["path"]).read_bytes()):
+                if not now.is_file() or now.is_symlink() or now.read_bytes() != (self.base / f["path"]).read_bytes():
                     return True
         return False
 

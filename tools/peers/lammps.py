@@ -75,6 +75,7 @@ so they are what ooc-dem computes with, mapped exactly per contact (no mean mass
   lever arm is r - delta/2 (ours r); it re-projects the spring onto the tangent plane only
   when the out-of-plane part exceeds a tolerance (ours every step).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -94,8 +95,12 @@ ROOT = HERE.parents[2]
 BENCH = ROOT / "tools" / "bench.py"
 
 # gran/hooke/history has no rolling resistance: ours is switched off for the comparison
-NO_ROLLING = ["contact.soil_soil.rolling_friction=0", "contact.soil_soil.rolling_damping=0",
-              "contact.soil_wall.rolling_friction=0", "contact.soil_wall.rolling_damping=0"]
+NO_ROLLING = [
+    "contact.soil_soil.rolling_friction=0",
+    "contact.soil_soil.rolling_damping=0",
+    "contact.soil_wall.rolling_friction=0",
+    "contact.soil_wall.rolling_damping=0",
+]
 LMP_NAMES = ("lmp", "lmp_mpi", "lmp_openmpi", "lmp_serial")
 BASELINE_STEPS = 50
 
@@ -117,8 +122,9 @@ def log(msg: str) -> None:
 
 # ------------------------------------------------------------------ LAMMPS binary
 
+
 def find_lmp(name: str | None) -> str:
-    for c in ([name] if name else LMP_NAMES):
+    for c in [name] if name else LMP_NAMES:
         p = c if os.sep in c else shutil.which(c)
         if p and os.path.isfile(p) and os.access(p, os.X_OK):
             return os.path.abspath(p)
@@ -129,8 +135,15 @@ def _run_lmp_serial(lmp: str, workdir: Path, script: str, data: str) -> str:
     (workdir / "probe.data").write_text(data)
     (workdir / "in.probe").write_text(script)
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    out = subprocess.run([lmp, "-in", "in.probe", "-log", "none", "-echo", "none"], cwd=workdir,
-                         env=env, capture_output=True, text=True, timeout=120, check=False)
+    out = subprocess.run(
+        [lmp, "-in", "in.probe", "-log", "none", "-echo", "none"],
+        cwd=workdir,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     return out.stdout + out.stderr
 
 
@@ -138,47 +151,61 @@ def probe(lmp: str, workdir: Path) -> dict:
     """What this binary does: its version, the 2d sphere mass convention (mass of a disc
     of diameter 0.2 and density 1000 read from a data file), wall/gran limit_damping."""
     workdir.mkdir(parents=True, exist_ok=True)
-    data = ("probe\n\n1 atoms\n1 atom types\n\n0 1 xlo xhi\n0 1 ylo yhi\n-0.5 0.5 zlo zhi\n\n"
-            "Atoms # sphere\n\n1 1 0.2 1000 0.5 0.5 0\n")
-    head = ("units si\ndimension 2\nboundary f f p\natom_style sphere\natom_modify map array\n"
-            "read_data probe.data\ncomm_modify vel yes\n"
-            "pair_style gran/hooke/history 2e5 1e5 10 5 0.5 1 limit_damping\npair_coeff * *\n")
+    data = (
+        "probe\n\n1 atoms\n1 atom types\n\n0 1 xlo xhi\n0 1 ylo yhi\n-0.5 0.5 zlo zhi\n\n"
+        "Atoms # sphere\n\n1 1 0.2 1000 0.5 0.5 0\n"
+    )
+    head = (
+        "units si\ndimension 2\nboundary f f p\natom_style sphere\natom_modify map array\n"
+        "read_data probe.data\ncomm_modify vel yes\n"
+        "pair_style gran/hooke/history 2e5 1e5 10 5 0.5 1 limit_damping\npair_coeff * *\n"
+    )
     text = _run_lmp_serial(lmp, workdir, head + 'variable m equal mass[1]\nprint "PROBE_MASS ${m}"\n', data)
     m = re.search(r"PROBE_MASS (\S+)", text)
     v = re.search(r"LAMMPS \(([^)]*)\)", text)
     if not m:
         raise SystemExit(f"{lmp}: the probe run failed (no GRANULAR package / atom_style sphere?):\n{text[-2000:]}")
     mass = float(m.group(1))
-    sphere = 1000 * 4.0 / 3.0 * math.pi * 0.1 ** 3
-    disc = 1000 * math.pi * 0.1 ** 2
+    sphere = 1000 * 4.0 / 3.0 * math.pi * 0.1**3
+    disc = 1000 * math.pi * 0.1**2
     if abs(mass / sphere - 1) < 1e-9:
         conv = "sphere"
     elif abs(mass / disc - 1) < 1e-9:
         conv = "disc"
     else:
         raise SystemExit(f"{lmp}: 2d sphere mass {mass} is neither rho 4/3 pi r^3 nor rho pi r^2")
-    wall = _run_lmp_serial(lmp, workdir, head + "fix w all wall/gran hooke/history 2e5 1e5 10 5 0.5 1 "
-                           "yplane 0 NULL limit_damping\nrun 0\n", data)
-    return {"binary": lmp, "version": v.group(1) if v else None, "mass_convention": conv,
-            "wall_limit_damping": "ERROR" not in wall}
+    wall = _run_lmp_serial(
+        lmp,
+        workdir,
+        head + "fix w all wall/gran hooke/history 2e5 1e5 10 5 0.5 1 yplane 0 NULL limit_damping\nrun 0\n",
+        data,
+    )
+    return {
+        "binary": lmp,
+        "version": v.group(1) if v else None,
+        "mass_convention": conv,
+        "wall_limit_damping": "ERROR" not in wall,
+    }
 
 
 def lammps_volume(conv: str, r):
     """Volume LAMMPS multiplies a data file's density by (per atom)."""
-    return 4.0 / 3.0 * math.pi * r ** 3 if conv == "sphere" else math.pi * r ** 2
+    return 4.0 / 3.0 * math.pi * r**3 if conv == "sphere" else math.pi * r**2
 
 
 # ------------------------------------------------------------------ the law
 
+
 def map_law(sc, bed) -> dict:
     """LAMMPS coefficients of the scenario's soil-soil and soil-wall laws on this bed."""
     import numpy as np
+
     n = len(bed)
     cap = bed.hist_id.shape[1]
     used = np.arange(cap)[None, :] < bed.hist_n[:, None]
     pid = bed.hist_id
     order = np.argsort(bed.id, kind="stable")
-    rows, cols = np.nonzero(used & (pid > bed.id[:, None]))     # each disc-disc contact once
+    rows, cols = np.nonzero(used & (pid > bed.id[:, None]))  # each disc-disc contact once
     k = order[np.clip(np.searchsorted(bed.id, pid[rows, cols], sorter=order), 0, n - 1)]
     mi, mj = bed.mass[rows], bed.mass[k]
     meff_pair = mi * mj / (mi + mj)
@@ -192,39 +219,58 @@ def map_law(sc, bed) -> dict:
         spread = np.sqrt(meff / mref) if len(meff) else np.ones(1)
         gn = 2.0 * pair.damping_n * math.sqrt(pair.kn / mref)
         gt = 2.0 * pair.damping_t * math.sqrt(pair.ks / mref)
-        return {"where": where, "kn": pair.kn, "kt": pair.ks, "gamma_n": gn, "gamma_t": gt,
-                "xmu": pair.friction, "dampflag": 1 if pair.damping_t > 0 else 0,
-                "zeta_n": pair.damping_n, "zeta_t": pair.damping_t, "m_ref": mref,
-                "contacts_used_for_m_ref": len(meff),
-                "lammps_zeta_over_ours_min": round(float(spread.min()), 4),
-                "lammps_zeta_over_ours_max": round(float(spread.max()), 4)}
+        return {
+            "where": where,
+            "kn": pair.kn,
+            "kt": pair.ks,
+            "gamma_n": gn,
+            "gamma_t": gt,
+            "xmu": pair.friction,
+            "dampflag": 1 if pair.damping_t > 0 else 0,
+            "zeta_n": pair.damping_n,
+            "zeta_t": pair.damping_t,
+            "m_ref": mref,
+            "contacts_used_for_m_ref": len(meff),
+            "lammps_zeta_over_ours_min": round(float(spread.min()), 4),
+            "lammps_zeta_over_ours_max": round(float(spread.max()), 4),
+        }
 
     ss, sw = sc.contact.soil_soil, sc.contact.soil_wall
     for name, c in (("soil_soil", ss), ("soil_wall", sw)):
         if c.rolling_friction != 0.0:
-            raise SystemExit(f"contact.{name}.rolling_friction = {c.rolling_friction}: "
-                             f"gran/hooke/history has no rolling resistance; set it to 0")
-    return {"pair": one(ss, meff_pair, 0.5 * mbar, "pair_style gran/hooke/history"),
-            "wall": one(sw, meff_wall, mbar, "fix wall/gran hooke/history (bottom, both ends)"),
-            "dt": sc.physics.dt, "skin": sc.bed.skin, "gravity": sc.physics.gravity,
-            "formula": "gamma = 2 zeta sqrt(k / m_ref), m_ref = (mean_contacts sqrt(m_eff))^2; "
-                       "LAMMPS density_i = m_i / (4/3 pi r_i^3), m_i = rho pi r_i^2 thickness"}
+            raise SystemExit(
+                f"contact.{name}.rolling_friction = {c.rolling_friction}: "
+                f"gran/hooke/history has no rolling resistance; set it to 0"
+            )
+    return {
+        "pair": one(ss, meff_pair, 0.5 * mbar, "pair_style gran/hooke/history"),
+        "wall": one(sw, meff_wall, mbar, "fix wall/gran hooke/history (bottom, both ends)"),
+        "dt": sc.physics.dt,
+        "skin": sc.bed.skin,
+        "gravity": sc.physics.gravity,
+        "formula": "gamma = 2 zeta sqrt(k / m_ref), m_ref = (mean_contacts sqrt(m_eff))^2; "
+        "LAMMPS density_i = m_i / (4/3 pi r_i^3), m_i = rho pi r_i^2 thickness",
+    }
 
 
 def write_data(path: Path, sc, bed, conv: str) -> None:
     import numpy as np
     from ooc_dem.physics.layout import AX_X, AX_Y
+
     n = len(bed)
     order = np.argsort(bed.id, kind="stable")
     r = bed.r[order]
     dens = bed.mass[order] / lammps_volume(conv, r)
     zh = 2.0 * sc.soil.r_max
-    head = (f"ooc-dem settled bed of {sc.name} (tools/peers/lammps.py): {n} discs, "
-            f"mass = rho pi r^2 thickness\n\n{n} atoms\n1 atom types\n\n"
-            f"0 {sc.bin.length!r} xlo xhi\n0 {sc.bin.height!r} ylo yhi\n{-zh!r} {zh!r} zlo zhi\n\n"
-            f"Atoms # sphere\n\n")
-    cols = np.column_stack([np.arange(1, n + 1), np.ones(n), 2.0 * r, dens, bed.pos[order, AX_X], bed.pos[order, AX_Y],
-                            np.zeros(n)])
+    head = (
+        f"ooc-dem settled bed of {sc.name} (tools/peers/lammps.py): {n} discs, "
+        f"mass = rho pi r^2 thickness\n\n{n} atoms\n1 atom types\n\n"
+        f"0 {sc.bin.length!r} xlo xhi\n0 {sc.bin.height!r} ylo yhi\n{-zh!r} {zh!r} zlo zhi\n\n"
+        f"Atoms # sphere\n\n"
+    )
+    cols = np.column_stack(
+        [np.arange(1, n + 1), np.ones(n), 2.0 * r, dens, bed.pos[order, AX_X], bed.pos[order, AX_Y], np.zeros(n)]
+    )
     with open(path, "w") as f:
         f.write(head)
         np.savetxt(f, cols, fmt=["%d", "%d", "%.17g", "%.17g", "%.17g", "%.17g", "%d"])
@@ -239,8 +285,8 @@ def input_script(sc, law: dict, data_name: str, warmup: int, steps: int, wall_li
 
     return f"""# {sc.name}: ooc-dem's bed and contact law in LAMMPS (generated by tools/peers/lammps.py)
 # rolling resistance off on both sides; damping ratio zeta -> gamma = 2 zeta sqrt(k / m_ref)
-# pair: zeta_n {p['zeta_n']} zeta_t {p['zeta_t']} m_ref {p['m_ref']!r} kg
-# wall: zeta_n {w['zeta_n']} zeta_t {w['zeta_t']} m_ref {w['m_ref']!r} kg
+# pair: zeta_n {p["zeta_n"]} zeta_t {p["zeta_t"]} m_ref {p["m_ref"]!r} kg
+# wall: zeta_n {w["zeta_n"]} zeta_t {w["zeta_t"]} m_ref {w["m_ref"]!r} kg
 units           si
 dimension       2
 boundary        f f p
@@ -281,17 +327,19 @@ def overrides_3d(law: str) -> list[str]:
     values (linear: the soil-wall parameters; hertz: the soil's E, nu, restitution), rolling
     resistance off on both pairs (module doc)."""
     from ooc_dem.model.scenario import load_scenario
+
     base = load_scenario("bed3d")
     ss, sw = base.contact.soil_soil, base.contact.soil_wall
-    ov = [f"contact.{p}.{k}=0" for p in ("soil_soil", "soil_wall")
-          for k in ("rolling_friction", "rolling_damping")]
+    ov = [f"contact.{p}.{k}=0" for p in ("soil_soil", "soil_wall") for k in ("rolling_friction", "rolling_damping")]
     if law == "linear":
         ov += ['contact.soil_soil.law="linear"'] + [
-            f"contact.soil_soil.{k}={getattr(sw, k)!r}" for k in ("kn", "ks", "damping_n", "damping_t", "friction")]
+            f"contact.soil_soil.{k}={getattr(sw, k)!r}" for k in ("kn", "ks", "damping_n", "damping_t", "friction")
+        ]
     elif law == "hertz":
         ov += ['contact.soil_wall.law="hertz"'] + [
-            f"contact.soil_wall.{k}={getattr(ss, k)!r}" for k in ("youngs_modulus", "poisson_ratio", "restitution",
-                                                                   "friction")]
+            f"contact.soil_wall.{k}={getattr(ss, k)!r}"
+            for k in ("youngs_modulus", "poisson_ratio", "restitution", "friction")
+        ]
     else:
         raise SystemExit(f"--law {law}: must be one of {', '.join(LAWS_3D)}")
     return ov
@@ -299,16 +347,17 @@ def overrides_3d(law: str) -> list[str]:
 
 def tsuji_alpha(e: float) -> float:
     """LAMMPS's Tsuji damping prefactor of the coefficient e (its polynomial, its order)."""
-    return (1.2728 - 4.2783 * e + 11.087 * e ** 2 - 22.348 * e ** 3 + 27.467 * e ** 4
-            - 18.022 * e ** 5 + 4.8218 * e ** 6)
+    return 1.2728 - 4.2783 * e + 11.087 * e**2 - 22.348 * e**3 + 27.467 * e**4 - 18.022 * e**5 + 4.8218 * e**6
 
 
 def tsuji_coefficient(alpha: float, what: str) -> float:
     """The e' in [0, 1] with tsuji_alpha(e') = alpha (alpha decreases monotonically on [0, 1])."""
     hi_a, lo_a = tsuji_alpha(0.0), tsuji_alpha(1.0)
     if not lo_a <= alpha <= hi_a:
-        raise SystemExit(f"{what}: damping prefactor {alpha:.4g} outside what LAMMPS's tsuji damping "
-                         f"can give ([{lo_a:.4g}, {hi_a:.4g}])")
+        raise SystemExit(
+            f"{what}: damping prefactor {alpha:.4g} outside what LAMMPS's tsuji damping "
+            f"can give ([{lo_a:.4g}, {hi_a:.4g}])"
+        )
     lo, hi = 0.0, 1.0
     for _ in range(200):
         mid = 0.5 * (lo + hi)
@@ -323,8 +372,10 @@ def tsuji_coefficient(alpha: float, what: str) -> float:
 
 def _probe_data_3d() -> str:
     # sphere 1 (r 0.1) pressed 1e-4 into the floor, sphere 2 (r 0.1) 1e-4 onto sphere 1
-    return ("probe\n\n2 atoms\n1 atom types\n\n0 1 xlo xhi\n0 1 ylo yhi\n0 1 zlo zhi\n\n"
-            "Atoms # sphere\n\n1 1 0.2 1000 0.5 0.0999 0.5\n2 1 0.2 1000 0.5 0.2998 0.5\n")
+    return (
+        "probe\n\n2 atoms\n1 atom types\n\n0 1 xlo xhi\n0 1 ylo yhi\n0 1 zlo zhi\n\n"
+        "Atoms # sphere\n\n1 1 0.2 1000 0.5 0.0999 0.5\n2 1 0.2 1000 0.5 0.2998 0.5\n"
+    )
 
 
 def probe_3d(lmp: str, workdir: Path) -> dict:
@@ -335,21 +386,27 @@ def probe_3d(lmp: str, workdir: Path) -> dict:
     E = 1e8, nu = 0.3 (pair force known: 4/3 E/(2(1-nu^2)) sqrt(R*) delta^1.5)."""
     workdir.mkdir(parents=True, exist_ok=True)
     E, nu, d = 1.0e8, 0.3, 1.0e-4
-    head = ("units si\ndimension 3\nboundary f f f\natom_style sphere\natom_modify map array\n"
-            "read_data probe.data\ncomm_modify vel yes\npair_style granular\n")
+    head = (
+        "units si\ndimension 3\nboundary f f f\natom_style sphere\natom_modify map array\n"
+        "read_data probe.data\ncomm_modify vel yes\npair_style granular\n"
+    )
     lin = "hooke 5e4 0.5 tangential linear_history 1e4 1.0 0.5 damping tsuji limit_damping"
     hz = f"hertz/material {E!r} 0.5 {nu!r} tangential mindlin/force 4e7 1.0 0.5 damping tsuji"
-    checks = {"pair hooke/linear_history/tsuji/limit_damping": f"pair_coeff * * {lin}\n",
-              "pair hertz/material/mindlin/force/tsuji": f"pair_coeff * * {hz}\n",
-              "wall/gran granular hooke/linear_history/tsuji/limit_damping":
-                  f"pair_coeff * * {lin}\nfix w all wall/gran granular {lin} yplane 0 NULL\n",
-              "wall/gran granular hertz/material/mindlin/force/tsuji":
-                  f"pair_coeff * * {hz}\nfix w all wall/gran granular {hz} yplane 0 NULL\n"}
+    checks = {
+        "pair hooke/linear_history/tsuji/limit_damping": f"pair_coeff * * {lin}\n",
+        "pair hertz/material/mindlin/force/tsuji": f"pair_coeff * * {hz}\n",
+        "wall/gran granular hooke/linear_history/tsuji/limit_damping": f"pair_coeff * * {lin}\nfix w all wall/gran granular {lin} yplane 0 NULL\n",
+        "wall/gran granular hertz/material/mindlin/force/tsuji": f"pair_coeff * * {hz}\nfix w all wall/gran granular {hz} yplane 0 NULL\n",
+    }
     missing = []
     text = ""
     for what, body in checks.items():
-        text = _run_lmp_serial(lmp, workdir, head + body + "run 0\nvariable f1 equal fy[1]\n"
-                               "variable f2 equal fy[2]\nprint \"PROBE_F ${f1} ${f2}\"\n", _probe_data_3d())
+        text = _run_lmp_serial(
+            lmp,
+            workdir,
+            head + body + 'run 0\nvariable f1 equal fy[1]\nvariable f2 equal fy[2]\nprint "PROBE_F ${f1} ${f2}"\n',
+            _probe_data_3d(),
+        )
         if not re.search(r"PROBE_F \S+ \S+", text):
             missing.append(f"{what}: {(re.findall(r'ERROR.*', text) or ['no output'])[0]}")
     if missing:
@@ -357,27 +414,43 @@ def probe_3d(lmp: str, workdir: Path) -> dict:
     f = re.findall(r"PROBE_F (\S+) (\S+)", text)[-1]
     # the wall's damping force on a sphere moving into the floor, in two successive runs
     moving = _probe_data_3d() + "\nVelocities\n\n1 0 -0.1 0 0 0 0\n2 0 0 0 0 0 0\n"
-    damp = _run_lmp_serial(lmp, workdir, head + f"pair_coeff * * {lin}\nfix w all wall/gran granular {lin} "
-                           "yplane 0 NULL\nvariable f1 equal fy[1]\nrun 0\nprint \"PROBE_D ${f1}\"\n"
-                           "run 0\nprint \"PROBE_D ${f1}\"\n", moving)
+    damp = _run_lmp_serial(
+        lmp,
+        workdir,
+        head + f"pair_coeff * * {lin}\nfix w all wall/gran granular {lin} "
+        'yplane 0 NULL\nvariable f1 equal fy[1]\nrun 0\nprint "PROBE_D ${f1}"\n'
+        'run 0\nprint "PROBE_D ${f1}"\n',
+        moving,
+    )
     fd = [float(x) for x in re.findall(r"PROBE_D (\S+)", damp)]
     if len(fd) != 2:
         raise SystemExit(f"{lmp}: the wall damping probe failed:\n{damp[-2000:]}")
-    f_pair = float(f[1])                     # the upper sphere: the pair force only
-    f_wall = float(f[0]) + f_pair            # the lower one: the floor minus the pair
-    estar_pair = f_pair / (4.0 / 3.0 * math.sqrt(0.05) * d ** 1.5)
-    estar_wall = f_wall / (4.0 / 3.0 * math.sqrt(0.1) * d ** 1.5)
+    f_pair = float(f[1])  # the upper sphere: the pair force only
+    f_wall = float(f[0]) + f_pair  # the lower one: the floor minus the pair
+    estar_pair = f_pair / (4.0 / 3.0 * math.sqrt(0.05) * d**1.5)
+    estar_wall = f_wall / (4.0 / 3.0 * math.sqrt(0.1) * d**1.5)
     if abs(estar_pair * 2 * (1 - nu * nu) / E - 1) > 1e-6:
-        raise SystemExit(f"{lmp}: pair hertz/material E* = {estar_pair:.6g}, expected E/(2(1-nu^2)) = "
-                         f"{E / (2 * (1 - nu * nu)):.6g}")
+        raise SystemExit(
+            f"{lmp}: pair hertz/material E* = {estar_pair:.6g}, expected E/(2(1-nu^2)) = {E / (2 * (1 - nu * nu)):.6g}"
+        )
     v = re.search(r"LAMMPS \(([^)]*)\)", text)
-    return {"binary": lmp, "version": v.group(1) if v else None, "mass_convention": "sphere",
-            "wall_limit_damping": True, "granular_keywords": "all accepted",
-            "wall_estar_over_E": estar_wall / E,
-            "wall_estar_convention": ("E/(2(1-nu^2))" if abs(estar_wall * 2 * (1 - nu * nu) / E - 1) < 1e-6 else
-                                      "E/(2(1-nu))" if abs(estar_wall * 2 * (1 - nu) / E - 1) < 1e-6 else
-                                      "other"),
-            "probe_nu": nu, "wall_tsuji_reapplied_per_run": fd[0] != fd[1]}
+    return {
+        "binary": lmp,
+        "version": v.group(1) if v else None,
+        "mass_convention": "sphere",
+        "wall_limit_damping": True,
+        "granular_keywords": "all accepted",
+        "wall_estar_over_E": estar_wall / E,
+        "wall_estar_convention": (
+            "E/(2(1-nu^2))"
+            if abs(estar_wall * 2 * (1 - nu * nu) / E - 1) < 1e-6
+            else "E/(2(1-nu))"
+            if abs(estar_wall * 2 * (1 - nu) / E - 1) < 1e-6
+            else "other"
+        ),
+        "probe_nu": nu,
+        "wall_tsuji_reapplied_per_run": fd[0] != fd[1],
+    }
 
 
 def map_law_3d(sc, info: dict) -> dict:
@@ -385,16 +458,19 @@ def map_law_3d(sc, info: dict) -> dict:
     (scenario.contact_table_3d), mapped exactly per contact (module doc)."""
     from ooc_dem.physics.d3 import layout as L3
     from ooc_dem.model.scenario_check import contact_table_3d
+
     cp = contact_table_3d(sc)
     out = {}
     for name, (ta, tb), pair, where in (
-            ("pair", (L3.T_SOIL, L3.T_SOIL), sc.contact.soil_soil, "pair_style granular"),
-            ("wall", (L3.T_WALL, L3.T_SOIL), sc.contact.soil_wall,
-             "fix wall/gran granular (floor, end walls, side walls)")):
+        ("pair", (L3.T_SOIL, L3.T_SOIL), sc.contact.soil_soil, "pair_style granular"),
+        ("wall", (L3.T_WALL, L3.T_SOIL), sc.contact.soil_wall, "fix wall/gran granular (floor, end walls, side walls)"),
+    ):
         c = cp[ta, tb]
         if c["mur"] != 0.0:
-            raise SystemExit(f"contact.{'soil_soil' if name == 'pair' else 'soil_wall'}.rolling_friction = "
-                             f"{c['mur']}: rolling resistance is not mapped to LAMMPS (set it to 0)")
+            raise SystemExit(
+                f"contact.{'soil_soil' if name == 'pair' else 'soil_wall'}.rolling_friction = "
+                f"{c['mur']}: rolling resistance is not mapped to LAMMPS (set it to 0)"
+            )
         limit = bool(c["no_tension"] > 0.5)
         if c["law"] == L3.LAW_HERTZ:
             nu = pair.poisson_ratio
@@ -408,52 +484,91 @@ def map_law_3d(sc, info: dict) -> dict:
             elif info["wall_estar_convention"] == "E/(2(1-nu))":
                 e_pass = estar * 2.0 * (1.0 - nu)
             else:
-                raise SystemExit(f"{info['binary']}: its wall hertz/material E* is {info['wall_estar_over_E']:.6g} E "
-                                 f"at nu = {info['probe_nu']}, neither E/(2(1-nu^2)) nor E/(2(1-nu)): "
-                                 f"hertz walls cannot be mapped")
+                raise SystemExit(
+                    f"{info['binary']}: its wall hertz/material E* is {info['wall_estar_over_E']:.6g} E "
+                    f"at nu = {info['probe_nu']}, neither E/(2(1-nu^2)) nor E/(2(1-nu)): "
+                    f"hertz walls cannot be mapped"
+                )
             xgt = math.sqrt(4.0 * gstar / estar)
             kt = 8.0 * gstar
-            words = (f"hertz/material {e_pass!r} {e_lmp!r} {nu!r} tangential mindlin/force {kt!r} {xgt!r} "
-                     f"{float(c['mu'])!r} damping tsuji")
-            d = {"law": "hertz", "estar": estar, "gstar": gstar, "beta": float(c["beta"]),
-                 "E_given": e_pass, "nu": nu, "kt_8gstar": kt}
+            words = (
+                f"hertz/material {e_pass!r} {e_lmp!r} {nu!r} tangential mindlin/force {kt!r} {xgt!r} "
+                f"{float(c['mu'])!r} damping tsuji"
+            )
+            d = {
+                "law": "hertz",
+                "estar": estar,
+                "gstar": gstar,
+                "beta": float(c["beta"]),
+                "E_given": e_pass,
+                "nu": nu,
+                "kt_8gstar": kt,
+            }
         else:
             kn, ks, zn, zt = (float(c[k]) for k in ("kn", "ks", "zn", "zt"))
             alpha = 2.0 * zn
             if zn == 0.0 and zt != 0.0:
-                raise SystemExit(f"{name}: damping_t > 0 with damping_n = 0 cannot be mapped "
-                                 f"(LAMMPS's tangential damping is a multiple of the normal one)")
+                raise SystemExit(
+                    f"{name}: damping_t > 0 with damping_n = 0 cannot be mapped "
+                    f"(LAMMPS's tangential damping is a multiple of the normal one)"
+                )
             e_lmp = tsuji_coefficient(alpha, f"{name} damping_n {zn}")
             xgt = (zt / zn) * math.sqrt(ks / kn) if zn > 0 else 0.0
-            words = (f"hooke {kn!r} {e_lmp!r} tangential linear_history {ks!r} {xgt!r} {float(c['mu'])!r} "
-                     f"damping tsuji")
+            words = f"hooke {kn!r} {e_lmp!r} tangential linear_history {ks!r} {xgt!r} {float(c['mu'])!r} damping tsuji"
             d = {"law": "linear", "kn": kn, "ks": ks, "zeta_n": zn, "zeta_t": zt}
         if limit:
             words += " limit_damping"
-        d.update({"where": where, "lammps": words, "tsuji_coefficient": e_lmp, "alpha_target": alpha,
-                  "alpha_rel_error": (tsuji_alpha(e_lmp) / alpha - 1.0) if alpha else 0.0,
-                  "x_gamma_t": xgt, "mu": float(c["mu"]), "limit_damping": limit,
-                  "rolling": "none (both codes)"})
+        d.update(
+            {
+                "where": where,
+                "lammps": words,
+                "tsuji_coefficient": e_lmp,
+                "alpha_target": alpha,
+                "alpha_rel_error": (tsuji_alpha(e_lmp) / alpha - 1.0) if alpha else 0.0,
+                "x_gamma_t": xgt,
+                "mu": float(c["mu"]),
+                "limit_damping": limit,
+                "rolling": "none (both codes)",
+            }
+        )
         out[name] = d
-    out.update({"dt": sc.physics.dt, "skin": sc.bed.skin, "gravity": sc.physics.gravity,
-                "formula": "tsuji alpha(e') = 2 zeta_n (hooke) or sqrt(5)|beta(e)| (hertz); x_gammat = "
-                           "(zeta_t/zeta_n) sqrt(ks/kn) or sqrt(4 G*/E*); LAMMPS density_i = m_i / (4/3 pi r_i^3)"})
+    out.update(
+        {
+            "dt": sc.physics.dt,
+            "skin": sc.bed.skin,
+            "gravity": sc.physics.gravity,
+            "formula": "tsuji alpha(e') = 2 zeta_n (hooke) or sqrt(5)|beta(e)| (hertz); x_gammat = "
+            "(zeta_t/zeta_n) sqrt(ks/kn) or sqrt(4 G*/E*); LAMMPS density_i = m_i / (4/3 pi r_i^3)",
+        }
+    )
     return out
 
 
 def write_data_3d(path: Path, sc, bed) -> None:
     import numpy as np
     from ooc_dem.physics.layout import AX_X, AX_Y, AX_Z
+
     n = len(bed)
     order = np.argsort(bed.id, kind="stable")
     r = bed.r[order]
-    dens = bed.mass[order] / (4.0 / 3.0 * math.pi * r ** 3)
-    head = (f"ooc-dem settled bed of {sc.name} (tools/peers/lammps.py): {n} spheres\n\n"
-            f"{n} atoms\n1 atom types\n\n"
-            f"0 {sc.bin.length!r} xlo xhi\n0 {sc.bin.height!r} ylo yhi\n0 {sc.bin.width!r} zlo zhi\n\n"
-            f"Atoms # sphere\n\n")
-    cols = np.column_stack([np.arange(1, n + 1), np.ones(n), 2.0 * r, dens, bed.pos[order, AX_X],
-                            bed.pos[order, AX_Y], bed.pos[order, AX_Z]])
+    dens = bed.mass[order] / (4.0 / 3.0 * math.pi * r**3)
+    head = (
+        f"ooc-dem settled bed of {sc.name} (tools/peers/lammps.py): {n} spheres\n\n"
+        f"{n} atoms\n1 atom types\n\n"
+        f"0 {sc.bin.length!r} xlo xhi\n0 {sc.bin.height!r} ylo yhi\n0 {sc.bin.width!r} zlo zhi\n\n"
+        f"Atoms # sphere\n\n"
+    )
+    cols = np.column_stack(
+        [
+            np.arange(1, n + 1),
+            np.ones(n),
+            2.0 * r,
+            dens,
+            bed.pos[order, AX_X],
+            bed.pos[order, AX_Y],
+            bed.pos[order, AX_Z],
+        ]
+    )
     # velocities and spins too (a settled bed's are zero; ours are leapfrog half-step values)
     vel = np.column_stack([np.arange(1, n + 1), bed.vel[order], bed.spin[order]])
     with open(path, "w") as f:
@@ -473,14 +588,16 @@ def input_script_3d(sc, law: dict, data_name: str, warmup: int, steps: int, extr
     closing ``run 0`` only counts contacts (no step is taken)."""
     p, w = law["pair"], law["wall"]
     if warmup > 0:
-        run = (f"variable        tick_step equal step\nvariable        tick_t equal cpu\n"
-               f"fix             tick all print {warmup} \"OOC_TICK ${{tick_step}} ${{tick_t}}\"\n"
-               f"run             {warmup + steps}\nunfix           tick")
+        run = (
+            f"variable        tick_step equal step\nvariable        tick_t equal cpu\n"
+            f'fix             tick all print {warmup} "OOC_TICK ${{tick_step}} ${{tick_t}}"\n'
+            f"run             {warmup + steps}\nunfix           tick"
+        )
     else:
         run = f"run             {steps}"
     return f"""# {sc.name}: ooc-dem's 3D bed and contact law in LAMMPS (generated by tools/peers/lammps.py)
-# law {p['law']} (soil-soil) / {w['law']} (soil-wall); rolling resistance off on both sides;
-# damping: tsuji with e' solving alpha(e') = ours (pair {p['alpha_target']!r}, wall {w['alpha_target']!r})
+# law {p["law"]} (soil-soil) / {w["law"]} (soil-wall); rolling resistance off on both sides;
+# damping: tsuji with e' solving alpha(e') = ours (pair {p["alpha_target"]!r}, wall {w["alpha_target"]!r})
 units           si
 dimension       3
 boundary        f f f
@@ -494,10 +611,10 @@ neigh_modify    delay 0 every 1 check yes
 timestep        {sc.physics.dt!r}
 
 pair_style      granular
-pair_coeff      * * {p['lammps']}
-fix             ends all wall/gran granular {w['lammps']} xplane 0.0 {sc.bin.length!r}
-fix             bottom all wall/gran granular {w['lammps']} yplane 0.0 NULL
-fix             sides all wall/gran granular {w['lammps']} zplane 0.0 {sc.bin.width!r}
+pair_coeff      * * {p["lammps"]}
+fix             ends all wall/gran granular {w["lammps"]} xplane 0.0 {sc.bin.length!r}
+fix             bottom all wall/gran granular {w["lammps"]} yplane 0.0 NULL
+fix             sides all wall/gran granular {w["lammps"]} zplane 0.0 {sc.bin.width!r}
 fix             grav all gravity {sc.physics.gravity!r} vector 0 -1 0
 fix             integrate all nve/sphere
 
@@ -512,6 +629,7 @@ print           "OOC_KINETIC_ENERGY ${{kin}}"
 
 
 # ------------------------------------------------------------------ running LAMMPS
+
 
 def _hwm(pid: int) -> int:
     try:
@@ -529,8 +647,7 @@ def launch_prefix(mpirun: str, ranks: int) -> list[str]:
     --allow-run-as-root, which MPICH's Hydra (the PyPI ``mpich`` wheel of the test extra)
     does not know; each binds with its own spelling."""
     try:
-        banner = subprocess.run([mpirun, "--version"], capture_output=True, text=True,
-                                timeout=30).stdout
+        banner = subprocess.run([mpirun, "--version"], capture_output=True, text=True, timeout=30).stdout
     except (OSError, subprocess.SubprocessError):
         banner = ""
     if "Open MPI" in banner or "OpenRTE" in banner:
@@ -555,10 +672,10 @@ def pick_mpirun(lmp: str, given: str | None = None) -> str | None:
     return shutil.which("mpirun")
 
 
-def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: str, tag: str,
-               warmup: int) -> dict:
+def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: str, tag: str, warmup: int) -> dict:
     """Run one input; peak RSS = sum over the lmp ranks of each rank's VmHWM (polled)."""
     import psutil
+
     (workdir / f"in.{tag}").write_text(script)
     logf = f"log.{tag}"
     cmd = [lmp, "-in", f"in.{tag}", "-log", logf, "-echo", "none"]
@@ -612,36 +729,50 @@ def run_lammps(lmp: str, mpirun: str | None, ranks: int, workdir: Path, script: 
         steps = total - warmup
         el -= at_warm[0] if warmup > 0 else 0.0
     else:
-        k = 1 if warmup > 0 else 0          # the timed run
+        k = 1 if warmup > 0 else 0  # the timed run
         el, procs, steps, atoms = float(loops[k][0]), int(loops[k][1]), int(loops[k][2]), int(loops[k][3])
     # LAMMPS's own profile of the timed run (3D: of the one run): per section, the average
     # time over ranks and its share of the loop, and the max/avg imbalance across ranks
     breakdown = {}
     tables = re.findall(r"MPI task timing breakdown:\n.*\n-+\n((?:\w+\s*\|.*\n)+)", text)
-    timed = 0 if ticks else k   # the table of the run the loop time above was taken from
+    timed = 0 if ticks else k  # the table of the run the loop time above was taken from
     if len(tables) > timed:
         for row in tables[timed].splitlines():
             cells = [c.strip() for c in row.split("|")]
             if len(cells) == 6 and cells[2]:
                 avg, mx = float(cells[2]), float(cells[3] or cells[2])
-                breakdown[cells[0].lower()] = {"avg_s": avg, "percent": float(cells[5]),
-                                               "max_over_avg": round(mx / avg, 3) if avg > 0 else None}
+                breakdown[cells[0].lower()] = {
+                    "avg_s": avg,
+                    "percent": float(cells[5]),
+                    "max_over_avg": round(mx / avg, 3) if avg > 0 else None,
+                }
     if procs != ranks:
-        raise SystemExit(f"LAMMPS ran on {procs} procs where {ranks} were asked ({' '.join(cmd)}): "
-                         f"the launcher is not of the binary's MPI; give the right one with --mpirun")
+        raise SystemExit(
+            f"LAMMPS ran on {procs} procs where {ranks} were asked ({' '.join(cmd)}): "
+            f"the launcher is not of the binary's MPI; give the right one with --mpirun"
+        )
     peak = sum(hwm.values())
-    return {"ranks": procs, "steps": steps, "atoms": atoms, "seconds": el,
-            "particle_steps_per_s": atoms * steps / el, "neighbour_rebuilds": int(builds[k]) if builds else None,
-            "dangerous_builds": int(dang[k]) if dang else None,
-            "contacts_per_particle": float(cpp.group(1)) if cpp else None,
-            "total_mass": float(mtot.group(1)) if mtot else None,
-            "kinetic_energy_end_J": float(kin.group(1)) if kin else None,
-            "peak_rss_bytes": peak, "ranks_seen": len(hwm),
-            "lammps_estimate_bytes": (float(mem[k][1]) * 2 ** 20 * procs) if mem else None,
-            "process_wall_s": round(wall, 2), "timing_breakdown": breakdown}
+    return {
+        "ranks": procs,
+        "steps": steps,
+        "atoms": atoms,
+        "seconds": el,
+        "particle_steps_per_s": atoms * steps / el,
+        "neighbour_rebuilds": int(builds[k]) if builds else None,
+        "dangerous_builds": int(dang[k]) if dang else None,
+        "contacts_per_particle": float(cpp.group(1)) if cpp else None,
+        "total_mass": float(mtot.group(1)) if mtot else None,
+        "kinetic_energy_end_J": float(kin.group(1)) if kin else None,
+        "peak_rss_bytes": peak,
+        "ranks_seen": len(hwm),
+        "lammps_estimate_bytes": (float(mem[k][1]) * 2**20 * procs) if mem else None,
+        "process_wall_s": round(wall, 2),
+        "timing_breakdown": breakdown,
+    }
 
 
 # ------------------------------------------------------------------ running ooc-dem
+
 
 def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[str], family: str = "bed") -> dict:
     """tools/bench.py's measurement (its ``one``) on {family}-n with the overrides applied, plus
@@ -649,10 +780,12 @@ def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[st
     import importlib.util
 
     import numpy as np
+
     spec = importlib.util.spec_from_file_location("ooc_dem_bench", BENCH)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     import ooc_dem.engine.stepper as E
+
     made = []
 
     class Recorded(E.DomainStepper):
@@ -671,8 +804,20 @@ def ours_child(n: int, steps: int, threads: int, warmup: int, overrides: list[st
 
 
 def run_ours(n: int, steps: int, threads: int, warmup: int, overrides: list[str], family: str = "bed") -> dict:
-    cmd = [sys.executable, str(HERE), "--ours", str(n), "--steps", str(steps), "--threads", str(threads),
-           "--warmup", str(warmup), "--family", family] + [f"--set={o}" for o in overrides]
+    cmd = [
+        sys.executable,
+        str(HERE),
+        "--ours",
+        str(n),
+        "--steps",
+        str(steps),
+        "--threads",
+        str(threads),
+        "--warmup",
+        str(warmup),
+        "--family",
+        family,
+    ] + [f"--set={o}" for o in overrides]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
@@ -682,6 +827,7 @@ def run_ours(n: int, steps: int, threads: int, warmup: int, overrides: list[str]
 
 
 # ------------------------------------------------------------------ main
+
 
 def export_case(sc, bed, info: dict, outdir: Path, warmup: int, steps: int, extra: str = ""):
     """Write bed.data for this scenario's bed; returns (law record, input script)."""
@@ -698,10 +844,10 @@ def export_case(sc, bed, info: dict, outdir: Path, warmup: int, steps: int, extr
     return law, script
 
 
-def export_bed(n: int, overrides: list[str], info: dict, outdir: Path, warmup: int, steps: int,
-               family: str = "bed"):
+def export_bed(n: int, overrides: list[str], info: dict, outdir: Path, warmup: int, steps: int, family: str = "bed"):
     from ooc_dem.app.bed import settled_bed
     from ooc_dem.model.scenario import load_scenario
+
     sc = load_scenario(f"{family}-{n}", overrides)
     t = time.time()
     bed = settled_bed(sc)
@@ -716,23 +862,31 @@ def per_particle(peak: int, base: int, n: int, n0: int):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default=None, help="particle counts (default 7000,100000,1000000 in 2D, "
-                                                  "20000 in 3D)")
+    ap.add_argument("--sizes", default=None, help="particle counts (default 7000,100000,1000000 in 2D, 20000 in 3D)")
     ap.add_argument("--steps", type=int, default=500, help="timed steps (both codes)")
     ap.add_argument("--warmup", type=int, default=300, help="untimed steps before them (both codes)")
     ap.add_argument("--lmp", default=None, help="LAMMPS binary (default: lmp, lmp_mpi, lmp_serial on PATH)")
     ap.add_argument("--ranks", default="1,2")
-    ap.add_argument("--mpirun", default=None,
-                    help="MPI launcher of the lmp binary (default: the mpirun beside it, else on PATH)")
+    ap.add_argument(
+        "--mpirun", default=None, help="MPI launcher of the lmp binary (default: the mpirun beside it, else on PATH)"
+    )
     ap.add_argument("--threads", type=int, default=2, help="ooc-dem threads")
-    ap.add_argument("--family", default=None, choices=("bed", "bed3d"),
-                    help="bed: 2D bed-N (discs, default); bed3d: 3D bed3d-N (spheres)")
+    ap.add_argument(
+        "--family",
+        default=None,
+        choices=("bed", "bed3d"),
+        help="bed: 2D bed-N (discs, default); bed3d: 3D bed3d-N (spheres)",
+    )
     ap.add_argument("--dim", type=int, default=None, choices=(2, 3), help="2 = --family bed, 3 = --family bed3d")
-    ap.add_argument("--law", default="linear,hertz",
-                    help="3D: contact law(s) of both pairs, comma-separated: linear (hooke), hertz (hertz/material)")
+    ap.add_argument(
+        "--law",
+        default="linear,hertz",
+        help="3D: contact law(s) of both pairs, comma-separated: linear (hooke), hertz (hertz/material)",
+    )
     ap.add_argument("--out", default=None, help="keep data files, inputs and logs here")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="extra scenario override (both codes)")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="extra scenario override (both codes)"
+    )
     ap.add_argument("--ours", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.family and a.dim and (a.family == "bed3d") != (a.dim == 3):
@@ -743,6 +897,7 @@ def main(argv=None):
         return
     sys.path.insert(0, str(ROOT))
     from ooc_dem.model.scenario import load_scenario
+
     if family == "bed3d":
         laws = [w.strip() for w in a.law.split(",") if w.strip()]
         bad = [w for w in laws if w not in LAWS_3D]
@@ -760,12 +915,16 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     if family == "bed3d":
         info = probe_3d(lmp, out / "probe")
-        log(f"LAMMPS {info['version']} at {lmp}: granular keywords accepted; wall E* = "
-            f"{info['wall_estar_convention']} (compensated)")
+        log(
+            f"LAMMPS {info['version']} at {lmp}: granular keywords accepted; wall E* = "
+            f"{info['wall_estar_convention']} (compensated)"
+        )
     else:
         info = probe(lmp, out / "probe")
-        log(f"LAMMPS {info['version']} at {lmp}: 2d mass convention '{info['mass_convention']}', "
-            f"wall limit_damping {'yes' if info['wall_limit_damping'] else 'no'}")
+        log(
+            f"LAMMPS {info['version']} at {lmp}: 2d mass convention '{info['mass_convention']}', "
+            f"wall limit_damping {'yes' if info['wall_limit_damping'] else 'no'}"
+        )
     load0 = os.getloadavg()
 
     results, baselines = [], {}
@@ -779,12 +938,16 @@ def main(argv=None):
         for r in ranks:
             base_l[r] = run_lammps(lmp, mpirun, r, out / tag0, script0, f"np{r}", 10)
         base_o = run_ours(n0, BASELINE_STEPS, a.threads, 10, overrides, family)
-        log(f"baseline ({n0} particles, law {law_name}): LAMMPS "
+        log(
+            f"baseline ({n0} particles, law {law_name}): LAMMPS "
             + ", ".join(f"{r} rank(s) {v['peak_rss_bytes'] / 2**20:.1f} MiB" for r, v in base_l.items())
-            + f"; ooc-dem {base_o['peak_rss_bytes'] / 2**20:.1f} MiB")
-        baselines[law_name] = {"n": n0, "lammps_peak_rss_bytes": {str(r): v["peak_rss_bytes"]
-                                                                 for r, v in base_l.items()},
-                               "ooc_dem_peak_rss_bytes": base_o["peak_rss_bytes"]}
+            + f"; ooc-dem {base_o['peak_rss_bytes'] / 2**20:.1f} MiB"
+        )
+        baselines[law_name] = {
+            "n": n0,
+            "lammps_peak_rss_bytes": {str(r): v["peak_rss_bytes"] for r, v in base_l.items()},
+            "ooc_dem_peak_rss_bytes": base_o["peak_rss_bytes"],
+        }
 
         for n in sizes:
             tag = f"{family}-{n}" + (f"-{law_name}" if family == "bed3d" else "")
@@ -798,50 +961,86 @@ def main(argv=None):
                 if v["total_mass"]:
                     v["total_mass_over_ours_minus_1"] = float(f"{v['total_mass'] / law['total_mass_ours'] - 1:.3g}")
                 v["peak_rss_bytes_per_particle_above_baseline"] = per_particle(
-                    v["peak_rss_bytes"], base_l[r]["peak_rss_bytes"], n_real, n0)
+                    v["peak_rss_bytes"], base_l[r]["peak_rss_bytes"], n_real, n0
+                )
                 lam[str(r)] = v
                 log(f"{tag}: LAMMPS {r} rank(s): {v['particle_steps_per_s']:.3g} particle-steps/s")
             log(f"{tag}: ooc-dem (tools/bench.py), {a.threads} threads")
             o = run_ours(n, a.steps, a.threads, a.warmup, overrides, family)
             o["peak_rss_bytes_per_particle_above_baseline"] = per_particle(
-                o["peak_rss_bytes"], base_o["peak_rss_bytes"], n_real, n0)
+                o["peak_rss_bytes"], base_o["peak_rss_bytes"], n_real, n0
+            )
             log(f"{tag}: ooc-dem: {o['particle_steps_per_s']:.3g} particle-steps/s")
             ratio = {}
             for r, v in lam.items():
                 ratio[f"speed_vs_{r}_rank"] = round(o["particle_steps_per_s"] / v["particle_steps_per_s"], 3)
-                a_, b_ = o["peak_rss_bytes_per_particle_above_baseline"], v["peak_rss_bytes_per_particle_above_baseline"]
+                a_, b_ = (
+                    o["peak_rss_bytes_per_particle_above_baseline"],
+                    v["peak_rss_bytes_per_particle_above_baseline"],
+                )
                 ratio[f"rss_above_baseline_vs_{r}_rank"] = round(a_ / b_, 3) if a_ and b_ else None
                 ratio[f"rss_vs_{r}_rank"] = round(o["peak_rss_bytes_per_disc"] / v["peak_rss_bytes_per_particle"], 3)
                 if v["contacts_per_particle"]:
                     ratio[f"contacts_vs_{r}_rank_minus_1"] = round(
-                        o["pair_contacts_per_disc"] / v["contacts_per_particle"] - 1, 4)
-            results.append({
-                "n": n_real, "scenario": f"{family}-{n}", "contact_law": law_name,
-                "ooc_dem": {"threads": a.threads, "particle_steps_per_s": o["particle_steps_per_s"],
-                            "seconds": o["seconds"], "steps": o["steps"], "neighbour_rebuilds": o["neighbour_rebuilds"],
-                            "peak_rss_bytes": o["peak_rss_bytes"],
-                            "peak_rss_bytes_per_particle": o["peak_rss_bytes_per_disc"],
-                            "peak_rss_bytes_per_particle_above_baseline": o["peak_rss_bytes_per_particle_above_baseline"],
-                            "contacts_per_particle": o["pair_contacts_per_disc"],
-                            "contacts_per_particle_with_walls": o["contacts_per_disc"],
-                            "kinetic_energy_end_J": o["kinetic_energy_end_J"]},
-                "lammps": lam, "ratio_ooc_dem_over_lammps": ratio, "law": law})
+                        o["pair_contacts_per_disc"] / v["contacts_per_particle"] - 1, 4
+                    )
+            results.append(
+                {
+                    "n": n_real,
+                    "scenario": f"{family}-{n}",
+                    "contact_law": law_name,
+                    "ooc_dem": {
+                        "threads": a.threads,
+                        "particle_steps_per_s": o["particle_steps_per_s"],
+                        "seconds": o["seconds"],
+                        "steps": o["steps"],
+                        "neighbour_rebuilds": o["neighbour_rebuilds"],
+                        "peak_rss_bytes": o["peak_rss_bytes"],
+                        "peak_rss_bytes_per_particle": o["peak_rss_bytes_per_disc"],
+                        "peak_rss_bytes_per_particle_above_baseline": o["peak_rss_bytes_per_particle_above_baseline"],
+                        "contacts_per_particle": o["pair_contacts_per_disc"],
+                        "contacts_per_particle_with_walls": o["contacts_per_disc"],
+                        "kinetic_energy_end_J": o["kinetic_energy_end_J"],
+                    },
+                    "lammps": lam,
+                    "ratio_ooc_dem_over_lammps": ratio,
+                    "law": law,
+                }
+            )
     load1 = os.getloadavg()
     report = {
-        "tool": "tools/peers/lammps.py", "family": family, "dim": 3 if family == "bed3d" else 2,
-        "lammps": info, "mpirun": mpirun,
-        "steps": a.steps, "warmup_steps": a.warmup, "overrides": {w: ov for w, ov in cases},
-        "machine": {"cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in load0],
-                    "loadavg_after": [round(x, 2) for x in load1]},
-        "notes": [("particle-steps/s of the timed steps only (LAMMPS: Loop time of the timed run; "
-                   "ooc-dem: tools/bench.py's timing after its warm-up)"),
-                  ("contacts_per_particle: particle-particle contacts per particle (LAMMPS compute "
-                   "contact/atom; ooc-dem its contact history), walls excluded"),
-                  ("peak RSS: LAMMPS = sum over ranks of each rank's VmHWM; ooc-dem = VmHWM of the "
-                   "bench process; above_baseline = (peak - peak of the one-tile bed) / (N - N_tile)"),
-                  "LAMMPS starts without tangential history (a data file holds none); the warm-up reloads it",
-                  ("kinetic_energy_end_J: translational, after the timed steps (a sanity check of the "
-                   "mapped law, not an equality: ooc-dem's are leapfrog half-step velocities)")],
+        "tool": "tools/peers/lammps.py",
+        "family": family,
+        "dim": 3 if family == "bed3d" else 2,
+        "lammps": info,
+        "mpirun": mpirun,
+        "steps": a.steps,
+        "warmup_steps": a.warmup,
+        "overrides": {w: ov for w, ov in cases},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "loadavg_before": [round(x, 2) for x in load0],
+            "loadavg_after": [round(x, 2) for x in load1],
+        },
+        "notes": [
+            (
+                "particle-steps/s of the timed steps only (LAMMPS: Loop time of the timed run; "
+                "ooc-dem: tools/bench.py's timing after its warm-up)"
+            ),
+            (
+                "contacts_per_particle: particle-particle contacts per particle (LAMMPS compute "
+                "contact/atom; ooc-dem its contact history), walls excluded"
+            ),
+            (
+                "peak RSS: LAMMPS = sum over ranks of each rank's VmHWM; ooc-dem = VmHWM of the "
+                "bench process; above_baseline = (peak - peak of the one-tile bed) / (N - N_tile)"
+            ),
+            "LAMMPS starts without tangential history (a data file holds none); the warm-up reloads it",
+            (
+                "kinetic_energy_end_J: translational, after the timed steps (a sanity check of the "
+                "mapped law, not an equality: ooc-dem's are leapfrog half-step velocities)"
+            ),
+        ],
         "baseline": baselines if family == "bed3d" else baselines["linear"],
         "sizes": results,
         "files": str(out) if keep else None,

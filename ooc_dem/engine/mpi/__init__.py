@@ -53,6 +53,7 @@ sub-domain (one epoch in rank 0's RAM: first cut) and commits the epoch through 
 store exactly as serial DDM does, so any epoch resumes with any number of ranks, or
 serially. A failure on any rank aborts the whole job (``MPI_Abort``), never a hang.
 """
+
 from __future__ import annotations
 
 from .comm import launched, run_everywhere, world
@@ -62,5 +63,16 @@ from .ranks import run_ranks
 from .rows import row_words
 from .shares import rank_domains, rank_intervals, rank_segments, rank_starts
 
-__all__ = ["MpiEngine", "MpiOocEngine", "launched", "rank_domains", "rank_intervals", "rank_segments",
-           "rank_starts", "row_words", "run_everywhere", "run_ranks", "world"]
+__all__ = [
+    "MpiEngine",
+    "MpiOocEngine",
+    "launched",
+    "rank_domains",
+    "rank_intervals",
+    "rank_segments",
+    "rank_starts",
+    "row_words",
+    "run_everywhere",
+    "run_ranks",
+    "world",
+]

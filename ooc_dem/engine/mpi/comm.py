@@ -2,6 +2,7 @@
 rank 0's commands to the other ranks (``send_command``, ``receive_command``), the
 collective operations they run (``collective``: each engine's ``OPS`` table), the wheel's
 broadcast, and the abort on any rank's failure (``run_everywhere``)."""
+
 from __future__ import annotations
 
 import os
@@ -15,9 +16,12 @@ from ...physics.layout import WS_SIZE
 from ..stepper import N_REC, EngineError
 
 # the environment a launcher gives each process: (world size, rank) variable names
-_LAUNCHER_ENV = (("PMI_SIZE", "PMI_RANK"),                                # MPICH hydra, Intel MPI
-                 ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),        # Open MPI
-                 ("MV2_COMM_WORLD_SIZE", "MV2_COMM_WORLD_RANK"))          # MVAPICH
+_LAUNCHER_ENV = (
+    ("PMI_SIZE", "PMI_RANK"),  # MPICH hydra, Intel MPI
+    ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),  # Open MPI
+    ("MV2_COMM_WORLD_SIZE", "MV2_COMM_WORLD_RANK"),
+)  # MVAPICH
+
 
 def launched() -> tuple[int, int]:
     """(world size, rank) as the MPI launcher set them, without initialising MPI;
@@ -48,29 +52,31 @@ def broadcast_wheel(comm, root: int, ws: np.ndarray, rec: np.ndarray, k: int) ->
     if comm.Get_rank() == root:
         buf[:WS_SIZE] = ws
         buf[WS_SIZE] = len(rec)
-        buf[WS_SIZE + 1:WS_SIZE + 1 + rec.size] = rec.ravel()
+        buf[WS_SIZE + 1 : WS_SIZE + 1 + rec.size] = rec.ravel()
     if comm.Get_size() > 1:
         comm.Bcast(buf, root=root)
     rows = int(buf[WS_SIZE])
-    return buf[:WS_SIZE].copy(), buf[WS_SIZE + 1:WS_SIZE + 1 + rows * N_REC].reshape(rows, N_REC).copy()
+    return buf[:WS_SIZE].copy(), buf[WS_SIZE + 1 : WS_SIZE + 1 + rows * N_REC].reshape(rows, N_REC).copy()
 
 
 class WorkerState:
     """Rank 0's knowledge of where the other ranks are: waiting for a command (none sent
     yet, or the last op returned on rank 0, so theirs did too), or inside one, where a
     collective may wait for rank 0."""
+
     idle = True
 
 
 # the commands that are no collective operation: after them the other ranks wait for the next
-STOP = "stop"        # the job is over
-MAKE = "make"        # (engine name, its arguments): make the engine whose operations follow
+STOP = "stop"  # the job is over
+MAKE = "make"  # (engine name, its arguments): make the engine whose operations follow
 
 
 def send_command(comm, command) -> None:
     """Rank 0 -> every rank: its length (a non-blocking broadcast, which the others poll
     with sleeps), then the pickled command (name, args)."""
     from mpi4py import MPI
+
     WorkerState.idle = command[0] in (STOP, MAKE)
     data = bytearray(pickle.dumps(command))
     comm.Ibcast(np.array([len(data)], np.int64), root=0).Wait()
@@ -82,6 +88,7 @@ def receive_command(comm):
     commands rank 0 alone works (commits, outputs); a busy-waiting MPI would take the
     cores from it when ranks share them."""
     from mpi4py import MPI
+
     n = np.zeros(1, np.int64)
     req = comm.Ibcast(n, root=0)
     while not req.Test():
@@ -116,6 +123,7 @@ def run_everywhere(comm, command) -> int:
         rc = command()
     except BaseException:
         import traceback
+
         traceback.print_exc()
         sys.stderr.flush()
         comm.Abort(1)

@@ -1,5 +1,6 @@
 """``MpiEngine`` (``--mode mpi``): serial DDM's sub-domains owned by the ranks, the halo
 refresh across ranks an exchange of disc rows once per block (see the package's docstring)."""
+
 from __future__ import annotations
 
 from typing import Any, Callable, ClassVar
@@ -15,8 +16,7 @@ from ..live import SWEEPS_REBUILD, LiveDomains
 from ..stepper import N_REC, EngineError, Model
 from ..sweep import slab_bounds
 from .comm import announce, collective, world
-from .rows import (claim_ghosts, exchange_fields, largest_move, near_rows, pack, room, row_words, slots_of,
-                   unpack_rows)
+from .rows import claim_ghosts, exchange_fields, largest_move, near_rows, pack, room, row_words, slots_of, unpack_rows
 from .shares import rank_domains, rank_intervals, rank_segments, rank_starts
 
 
@@ -48,24 +48,24 @@ class MpiEngine:
         # (the strip plus the motion a built set tolerates)
         self.strip = self.halo + self.membership_skin
         self.window = self.strip + self.membership_skin
-        self.words = row_words(model.dim, model.hist_cap)   # a disc's row in the exchange buffers
+        self.words = row_words(model.dim, model.hist_cap)  # a disc's row in the exchange buffers
         self.ws = np.zeros(WS_SIZE)
         self.bounds = np.array([-np.inf, np.inf])
-        self.owner = np.zeros(self.D, np.int64)   # the rank of each sub-domain (rank_domains)
-        self.glob = np.zeros(0, np.int64)         # this rank's segments' sub-domains (-1: a ghost)
-        self._iv: list[np.ndarray] = []           # each rank's x intervals (rank_intervals)
-        self.rank_discs: list[int] = []   # discs owned by each rank at the last share-out
+        self.owner = np.zeros(self.D, np.int64)  # the rank of each sub-domain (rank_domains)
+        self.glob = np.zeros(0, np.int64)  # this rank's segments' sub-domains (-1: a ghost)
+        self._iv: list[np.ndarray] = []  # each rank's x intervals (rank_intervals)
+        self.rank_discs: list[int] = []  # discs owned by each rank at the last share-out
         self.live: LiveDomains | None = None
         self.ghost_row = np.zeros(0, np.int64)
         self.stamp = np.zeros(0, np.int64)
         self._tick = 0
-        self.moved = 0.0   # the largest x move of any disc since the local sets were built
+        self.moved = 0.0  # the largest x move of any disc since the local sets were built
         self._fresh = False
-        self._pairs: list[tuple[int, int]] | None = None   # the exchange's (dest, source) pairs for the current ranges
+        self._pairs: list[tuple[int, int]] | None = None  # the exchange's (dest, source) pairs for the current ranges
         self.wslab = -1
         self.n = 0
         self.redecompositions = list(redecompositions or ())
-        self.store = None   # rank 0: where `commit` writes
+        self.store = None  # rank 0: where `commit` writes
         self.preferred_chunk = max(self.K, (2000 // self.K) * self.K)
         self.builds = 0
         self.blocks = 0
@@ -77,6 +77,7 @@ class MpiEngine:
     def default_block(cls, sc, domains: int) -> int:
         """Serial DDM's K (the epochs are serial DDM's)."""
         from ..sweep import DdmEngine
+
         return DdmEngine.default_block(sc, domains)
 
     @classmethod
@@ -91,35 +92,40 @@ class MpiEngine:
     def on_worker(cls, comm, toml: str, hist_cap: int, block: int, domains: int) -> "MpiEngine":
         """A rank other than 0: the engine rank 0 announced (``_open``), serving its operations."""
         from ...model.scenario import scenario_from_toml
+
         sc = scenario_from_toml(toml)
         model = Model.from_scenario(sc)
         model.hist_cap = hist_cap
         return cls(sc, model, block, domains, comm)
 
     @classmethod
-    def create(cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *, domains: int,
-               block: int, store=None) -> "MpiEngine":
+    def create(
+        cls, sc, model: Model, particles: Particles, wheel_state: np.ndarray, *, domains: int, block: int, store=None
+    ) -> "MpiEngine":
         """Rank 0 holds the bed; the scenario's policy splits it (as serial DDM at step 0)."""
         eng = cls._open(sc, model, block, domains, store)
         collective(eng, "start", (None, 0, np.asarray(wheel_state, np.float64)), mine=particles)
         return eng
 
     @classmethod
-    def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *, store,
-               redecompositions=()) -> "MpiEngine":
+    def reopen(
+        cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *, store, redecompositions=()
+    ) -> "MpiEngine":
         """From a committed epoch (any mode's, any rank count): its bounds and K are kept."""
         bounds = np.array([-np.inf, *engine_attrs["bounds"], np.inf])
         eng = cls._open(sc, model, int(engine_attrs["block"]), len(bounds) - 1, store, redecompositions)
         ws = np.asarray(wheel_state, np.float64)
         doms = reader.domains()
-        if eng.R == 1 or store.backend == "memory":   # one process holds the store
+        if eng.R == 1 or store.backend == "memory":  # one process holds the store
             parts = [record_to_particles(reader.read_domain(d), model.hist_cap) for d in doms]
-            collective(eng, "start", (bounds, int(reader.step), ws), mine=Particles.concat(parts, model.dim, model.hist_cap))
+            collective(
+                eng, "start", (bounds, int(reader.step), ws), mine=Particles.concat(parts, model.dim, model.hist_cap)
+            )
             return eng
         # every rank reads its share of the groups itself (contiguous, by the manifest's
         # counts; rank 0 has verified the epoch's checksums): no rank holds the whole bed
         split = rank_starts(np.array([reader.domain_len(d) for d in doms], np.int64), eng.R)
-        shares = [doms[split[r]:split[r + 1]] for r in range(eng.R)]
+        shares = [doms[split[r] : split[r + 1]] for r in range(eng.R)]
         collective(eng, "start_from_store", (bounds, int(reader.step), ws, str(store.path), shares), reader=reader)
         return eng
 
@@ -145,6 +151,7 @@ class MpiEngine:
     def _group(self, q: Particles) -> tuple[dict, dict]:
         """One sub-domain's epoch group: its owned discs in cell order (as serial DDM's groups)."""
         from ..sweep import group_record
+
         return group_record(q, None, self.model.order_cell, self.sc.bin.length)
 
     def write_domains(self, writer) -> None:
@@ -164,14 +171,16 @@ class MpiEngine:
             return
         writer = self.store.begin_epoch(step)
         try:
-            parts = collective(self, "write_parts", (str(self.store.path), int(step), writer.basename, bool(durable)),
-                               writer=writer)
+            parts = collective(
+                self, "write_parts", (str(self.store.path), int(step), writer.basename, bool(durable)), writer=writer
+            )
             failed = [x for x in parts if isinstance(x, str)]
             for part in parts:
                 if not isinstance(part, str):
-                    writer.add_part(part)   # from here on, an abort removes it too
+                    writer.add_part(part)  # from here on, an abort removes it too
             if failed:
                 from ooc_dem.storage import StoreError
+
                 raise StoreError(failed[0])
             writer.write_globals(arrays, attrs)
             writer.commit(durable=durable)
@@ -180,15 +189,21 @@ class MpiEngine:
             raise
 
     def info(self) -> dict:
-        return {"domains": self.D, "block": self.K, "halo_m": self.halo,
-                "bounds": [float(v) for v in self.bounds[1:-1]],
-                "redecompositions": len(self.redecompositions),
-                "ranks": self.R, "rank_domains": [int(r) for r in self.owner],
-                # each rank's owned discs at the last re-cut (the load balance)
-                "rank_discs": list(self.rank_discs),
-                "local_set_builds": self.builds,
-                # rank 0's share of the exchange (a first measure of the halo traffic)
-                "rank0_halo_rows_sent": self.halo_rows_sent, "rank0_messages": self.messages}
+        return {
+            "domains": self.D,
+            "block": self.K,
+            "halo_m": self.halo,
+            "bounds": [float(v) for v in self.bounds[1:-1]],
+            "redecompositions": len(self.redecompositions),
+            "ranks": self.R,
+            "rank_domains": [int(r) for r in self.owner],
+            # each rank's owned discs at the last re-cut (the load balance)
+            "rank_discs": list(self.rank_discs),
+            "local_set_builds": self.builds,
+            # rank 0's share of the exchange (a first measure of the halo traffic)
+            "rank0_halo_rows_sent": self.halo_rows_sent,
+            "rank0_messages": self.messages,
+        }
 
     # ------------------------------------------------------ collective operations
     def _op_start(self, bounds, step: int, ws, mine: Particles | None = None) -> None:
@@ -196,8 +211,7 @@ class MpiEngine:
         mine = Particles.empty(0, m.dim, m.hist_cap) if mine is None else mine
         self.ws = np.array(ws, np.float64)
         self.n = int(self.comm.allreduce(len(mine)))
-        self.bounds = (self._decompose(self._histogram(mine), step) if bounds is None
-                       else np.asarray(bounds, np.float64))
+        self.bounds = self._decompose(self._histogram(mine), step) if bounds is None else np.asarray(bounds, np.float64)
         if len(self.bounds) - 1 != self.D:
             raise EngineError(f"MPI: {len(self.bounds) - 1} slab bounds for {self.D} sub-domains")
         self._distribute(mine, recut=True)
@@ -213,6 +227,7 @@ class MpiEngine:
             if reader is None and mine:
                 from ooc_dem.storage import open_store
                 from ...model.checkpoint import open_epoch
+
                 store = open_store(path, repair=False)
                 reader = open_epoch(store, step, verify=False)
             parts = [record_to_particles(reader.read_domain(d), m.hist_cap) for d in mine]
@@ -248,12 +263,13 @@ class MpiEngine:
             for j, d in enumerate(self.glob):
                 if d >= 0:
                     groups.append((int(d), *self._group(live.p.take(live.owned_rows(j)))))
-        part: dict[str, Any] | str | None = None   # what write_part returned, or its error
+        part: dict[str, Any] | str | None = None  # what write_part returned, or its error
         if self.rank == 0:
             for domain, rec, attrs in groups:
                 writer.write_domain(domain, rec, attrs)
         elif groups:
             from ooc_dem.storage import StoreError, write_part
+
             try:
                 part = write_part(path, step, basename, self._part_number(), groups, durable)
             except StoreError as e:
@@ -284,8 +300,13 @@ class MpiEngine:
         return groups
 
     #: the collective operations by the name rank 0 sends (``comm.collective``)
-    OPS: ClassVar[dict[str, Callable[..., Any]]] = {"start": _op_start, "start_from_store": _op_start_from_store, "advance": _op_advance,
-           "write_parts": _op_write_parts, "gather": _op_gather}
+    OPS: ClassVar[dict[str, Callable[..., Any]]] = {
+        "start": _op_start,
+        "start_from_store": _op_start_from_store,
+        "advance": _op_advance,
+        "write_parts": _op_write_parts,
+        "gather": _op_gather,
+    }
 
     # ----------------------------------------------------------------- the block
     def _redecomposes(self) -> bool:
@@ -304,17 +325,18 @@ class MpiEngine:
         ``_sweep_live``, with the refresh across ranks an exchange)."""
         self.blocks += 1
         wheel = self.sc.wheel.enabled
-        if self._redecomposes() and not wheel_slab_ok(self.bounds, float(self.ws[WS_X]), self.reach,
-                                                      self.margin_required):
+        if self._redecomposes() and not wheel_slab_ok(
+            self.bounds, float(self.ws[WS_X]), self.reach, self.margin_required
+        ):
             mine = self._mine()
             self.bounds = self._decompose(self._histogram(mine), step0)
             self._distribute(mine, recut=True)
         elif wheel and wheel_slab_index(self.bounds, float(self.ws[WS_X])) != self.wslab:
-            self._distribute(self._mine(), recut=True)   # every rebuild re-balances the ranks
+            self._distribute(self._mine(), recut=True)  # every rebuild re-balances the ranks
         elif self.moved > self.membership_skin:
             # a disc may have come within the halo of a sub-domain whose local set lacks it
-            self._distribute(self._mine(), recut=True)   # every rebuild re-balances the ranks
-        elif not self._fresh:   # (local sets just built hold every disc's current state)
+            self._distribute(self._mine(), recut=True)  # every rebuild re-balances the ranks
+        elif not self._fresh:  # (local sets just built hold every disc's current state)
             self._refresh_ghosts()
         rec = np.zeros((0, N_REC))
         live = self.live
@@ -331,9 +353,11 @@ class MpiEngine:
                 unseen = not self._fresh and not live.refresh()
                 if not unseen:
                     r, _ = live.advance(step0, k)
-            if unseen:   # never: self.moved bounds every local row's move
-                raise EngineError(f"MPI rank {self.rank}: a disc moved beyond the membership skin "
-                                  f"unseen at step {step0}: exchange error")
+            if unseen:  # never: self.moved bounds every local row's move
+                raise EngineError(
+                    f"MPI rank {self.rank}: a disc moved beyond the membership skin "
+                    f"unseen at step {step0}: exchange error"
+                )
             if live.wslab >= 0:
                 rec = r
                 self.ws = live.steppers[live.wslab].ws.copy()
@@ -348,24 +372,25 @@ class MpiEngine:
         (every other rank gives -inf there, so the maximum is that rank's values, bit for
         bit). Returns the records."""
         from mpi4py import MPI
+
         wheel = self.sc.wheel.enabled
         buf = np.full(1 + (WS_SIZE + 1 + k * N_REC if wheel else 0), -np.inf)
         live = self.live
         if live is not None:
             buf[0] = largest_move(live.owned_active_rows(), live.p.pos[:, AX_X], live.x_built)
             if wheel and live.wslab >= 0:
-                buf[1:1 + WS_SIZE] = self.ws
+                buf[1 : 1 + WS_SIZE] = self.ws
                 buf[1 + WS_SIZE] = len(rec)
-                buf[2 + WS_SIZE:2 + WS_SIZE + rec.size] = rec.ravel()
+                buf[2 + WS_SIZE : 2 + WS_SIZE + rec.size] = rec.ravel()
         if self.R > 1:
             self.comm.Allreduce(MPI.IN_PLACE, buf, op=MPI.MAX)
             self.messages += 1
         self.moved = float(buf[0])
         if not wheel:
             return rec
-        self.ws = buf[1:1 + WS_SIZE].copy()
+        self.ws = buf[1 : 1 + WS_SIZE].copy()
         rows = int(buf[1 + WS_SIZE])
-        return buf[2 + WS_SIZE:2 + WS_SIZE + rows * N_REC].reshape(rows, N_REC).copy()
+        return buf[2 + WS_SIZE : 2 + WS_SIZE + rows * N_REC].reshape(rows, N_REC).copy()
 
     # ------------------------------------------------------ ownership and exchange
     def _intervals(self, r: int) -> np.ndarray:
@@ -377,17 +402,21 @@ class MpiEngine:
         offset o, send to rank + o and receive from rank - o, then the mirror; a pair
         exchanges when both have sub-domains and one interval of each are within `width`."""
         from mpi4py import MPI
+
         iv = [self._intervals(r) for r in range(self.R)]
-        near = lambda a, b: (0 <= a < self.R and 0 <= b < self.R
-                             and any(max(jb[0] - ja[1], ja[0] - jb[1]) < width for ja in iv[a] for jb in iv[b]))
-        far = max([abs(a - b) for a in range(self.R) for b in range(self.R) if a != b and near(a, b)],
-                  default=0)
+        near = lambda a, b: (
+            0 <= a < self.R
+            and 0 <= b < self.R
+            and any(max(jb[0] - ja[1], ja[0] - jb[1]) < width for ja in iv[a] for jb in iv[b])
+        )
+        far = max([abs(a - b) for a in range(self.R) for b in range(self.R) if a != b and near(a, b)], default=0)
         out = []
         for o in range(1, far + 1):
             for sgn in (1, -1):
                 dest, src = self.rank + sgn * o, self.rank - sgn * o
-                out.append((dest if near(self.rank, dest) else MPI.PROC_NULL,
-                            src if near(src, self.rank) else MPI.PROC_NULL))
+                out.append(
+                    (dest if near(self.rank, dest) else MPI.PROC_NULL, src if near(src, self.rank) else MPI.PROC_NULL)
+                )
         return out
 
     def _exchange(self, sends: list[np.ndarray]) -> list[np.ndarray]:
@@ -396,6 +425,7 @@ class MpiEngine:
         posted first, then each message is received at its probed size (no count message),
         so a block costs one latency, not two per partner."""
         from mpi4py import MPI
+
         pairs = self._pairs
         assert pairs is not None, "the pairs are chosen before the first exchange (_refresh_ghosts)"
         reqs = []
@@ -427,6 +457,7 @@ class MpiEngine:
     def _sum(self, counts: np.ndarray) -> np.ndarray:
         """Element-wise sum of an int64 array over the ranks (exact: any order)."""
         from mpi4py import MPI
+
         out = np.zeros_like(counts)
         self.comm.Allreduce(np.ascontiguousarray(counts), out, op=MPI.SUM)
         return out
@@ -456,28 +487,39 @@ class MpiEngine:
         self.live = None
         self._pairs = None
         self.moved = 0.0
-        self._fresh = True   # the next sweep starts from the states just shared out
+        self._fresh = True  # the next sweep starts from the states just shared out
         self.glob = np.zeros(0, np.int64)
         if (self.owner == self.rank).any():
             lb, self.glob = rank_segments(self.owner, self.bounds, self.rank)
             at = np.flatnonzero(self.glob == self.wslab) if self.wslab >= 0 else np.zeros(0, np.intp)
             wl = int(at[0]) if len(at) else -1
-            real = self.glob >= 0   # the ghosts: copies of the other ranks' discs
-            self.live = LiveDomains(local, lb, self.halo, self.membership_skin, self.model,
-                                    self.model_nowheel, self.ws, wl, active=real,
-                                    whole_refresh=False)
+            real = self.glob >= 0  # the ghosts: copies of the other ranks' discs
+            self.live = LiveDomains(
+                local,
+                lb,
+                self.halo,
+                self.membership_skin,
+                self.model,
+                self.model_nowheel,
+                self.ws,
+                wl,
+                active=real,
+                whole_refresh=False,
+            )
             live = self.live
-            ghosts = np.concatenate([np.arange(live.off[j], live.off[j + 1]) for j in np.flatnonzero(~real)]
-                                    or [np.zeros(0, np.int64)])
+            ghosts = np.concatenate(
+                [np.arange(live.off[j], live.off[j + 1]) for j in np.flatnonzero(~real)] or [np.zeros(0, np.int64)]
+            )
             self.ghost_rows = ghosts
-            self.ghost_row = np.full(len(live.owner_row), -1, np.int64)   # by live.slot
+            self.ghost_row = np.full(len(live.owner_row), -1, np.int64)  # by live.slot
             self.ghost_row[live.slot[ghosts]] = ghosts
-            self.stamp = np.zeros(len(live.p), np.int64)   # the refresh (tick) that last wrote a ghost row
+            self.stamp = np.zeros(len(live.p), np.int64)  # the refresh (tick) that last wrote a ghost row
         owned = len(self.live.owned_active_rows()) if self.live is not None else 0
         total = int(self.comm.allreduce(owned))
         if total != self.n:
-            raise EngineError(f"MPI ranks own {total} of {self.n} discs (bounds {self.bounds.tolist()}): "
-                              f"decomposition error")
+            raise EngineError(
+                f"MPI ranks own {total} of {self.n} discs (bounds {self.bounds.tolist()}): decomposition error"
+            )
         self.builds += 1
 
     def _refresh_ghosts(self) -> None:
@@ -487,7 +529,7 @@ class MpiEngine:
         and takes ownership from x (``live._run_sweeps``' refresh_first)."""
         live = self.live
         pairs = self._pairs
-        if pairs is None:   # fixed between rebuilds (bounds and ranges unchanged)
+        if pairs is None:  # fixed between rebuilds (bounds and ranges unchanged)
             pairs = self._pairs = self._partners(self.window)
             self._send = [np.empty((0, self.words)) for _ in pairs]
             self._recv = [np.empty((0, self.words)) for _ in pairs]
@@ -497,16 +539,20 @@ class MpiEngine:
             owned_rows = live.owned_active_rows()
             sends = []
             for i, (dest, _) in enumerate(pairs):
-                rows = (near_rows(owned_rows, p.pos[:, AX_X], self._intervals(dest), self.window)
-                        if dest >= 0 else np.zeros(0, np.int64))
+                rows = (
+                    near_rows(owned_rows, p.pos[:, AX_X], self._intervals(dest), self.window)
+                    if dest >= 0
+                    else np.zeros(0, np.int64)
+                )
                 self._send[i] = room(self._send[i], len(rows))
                 sends.append(pack(p, rows, self._send[i]))
         else:
             sends = [b[:0] for b in self._send]
         for recv in self._exchange(sends):
             if live is not None and len(recv):
-                rows = claim_ghosts(slots_of(live.uids, recv[:, 0]), self.ghost_row, live.owner_row,
-                                     self.stamp, self._tick)
+                rows = claim_ghosts(
+                    slots_of(live.uids, recv[:, 0]), self.ghost_row, live.owner_row, self.stamp, self._tick
+                )
                 unpack_rows(recv, rows, *exchange_fields(live.p))
         if live is None:
             return
@@ -514,5 +560,7 @@ class MpiEngine:
         ghost_owned = self.ghost_rows[live.owned[self.ghost_rows]]
         missing = self.stamp[ghost_owned] != self._tick
         if missing.any():
-            raise EngineError(f"MPI rank {self.rank}: {int(missing.sum())} halo discs were not sent by "
-                              f"their owners (bounds {self.bounds.tolist()}): exchange error")
+            raise EngineError(
+                f"MPI rank {self.rank}: {int(missing.sum())} halo discs were not sent by "
+                f"their owners (bounds {self.bounds.tolist()}): exchange error"
+            )

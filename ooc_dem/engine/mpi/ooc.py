@@ -1,4 +1,5 @@
 """``MpiOocEngine`` (``--mode mpi-ooc``): out-of-core with each rank streaming its own slabs."""
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Callable, ClassVar, Self
@@ -31,30 +32,45 @@ class MpiOocEngine(OocEngine):
     the wheel's slab broadcasts the wheel's state and the sweep's wheel records."""
 
     name = "mpi-ooc"
-    writes_frame_parts = False   # frames stream the committed epoch's groups on rank 0
+    writes_frame_parts = False  # frames stream the committed epoch's groups on rank 0
 
-    def __init__(self, sc, model: Model, wheel_state: np.ndarray, block: int, bounds, *, store=None,
-                 io_overlap: bool = False, redecompositions=(), comm=None, path=None):
-        super().__init__(sc, model, wheel_state, block, bounds, store=store, io_overlap=io_overlap,
-                         redecompositions=redecompositions)
+    def __init__(
+        self,
+        sc,
+        model: Model,
+        wheel_state: np.ndarray,
+        block: int,
+        bounds,
+        *,
+        store=None,
+        io_overlap: bool = False,
+        redecompositions=(),
+        comm=None,
+        path=None,
+    ):
+        super().__init__(
+            sc, model, wheel_state, block, bounds, store=store, io_overlap=io_overlap, redecompositions=redecompositions
+        )
         self.comm = comm if comm is not None else world()
         self.rank, self.R = self.comm.Get_rank(), self.comm.Get_size()
         self.path = str(path if path is not None else store.path)
-        self._ro_store: Store | None = None   # ranks > 0: the store opened read-only
+        self._ro_store: Store | None = None  # ranks > 0: the store opened read-only
         self.starts = np.zeros(self.R + 1, np.int64)
-        self._epoch_hist: tuple[int, XHistogram] | None = None   # (step, x histogram) of the epoch the sweeps read
+        self._epoch_hist: tuple[int, XHistogram] | None = None  # (step, x histogram) of the epoch the sweeps read
 
     def _announce(self) -> None:
         """Rank 0: the other ranks make their engine like this one (same geometry)."""
-        announce(self, (self.sc.to_toml(), self.model.hist_cap, self.K, [float(v) for v in self.bounds],
-                        self.fixed, self.path))
+        announce(
+            self,
+            (self.sc.to_toml(), self.model.hist_cap, self.K, [float(v) for v in self.bounds], self.fixed, self.path),
+        )
 
     @classmethod
-    def on_worker(cls, comm, toml: str, hist_cap: int, block: int, bounds, fixed: bool,
-                  path: str) -> "MpiOocEngine":
+    def on_worker(cls, comm, toml: str, hist_cap: int, block: int, bounds, fixed: bool, path: str) -> "MpiOocEngine":
         """A rank other than 0: the engine rank 0 announced (``_announce``), serving its
         operations."""
         from ...model.scenario import scenario_from_toml
+
         sc = scenario_from_toml(toml)
         model = Model.from_scenario(sc)
         model.hist_cap = hist_cap
@@ -63,17 +79,35 @@ class MpiOocEngine(OocEngine):
         return eng
 
     @classmethod
-    def reopen(cls, sc, model: Model, reader, wheel_state: np.ndarray, engine_attrs: dict, *,
-               store, io_overlap: bool = False, redecompositions=()) -> Self:
-        eng = super().reopen(sc, model, reader, wheel_state, engine_attrs, store=store, io_overlap=io_overlap,
-                             redecompositions=redecompositions)
+    def reopen(
+        cls,
+        sc,
+        model: Model,
+        reader,
+        wheel_state: np.ndarray,
+        engine_attrs: dict,
+        *,
+        store,
+        io_overlap: bool = False,
+        redecompositions=(),
+    ) -> Self:
+        eng = super().reopen(
+            sc,
+            model,
+            reader,
+            wheel_state,
+            engine_attrs,
+            store=store,
+            io_overlap=io_overlap,
+            redecompositions=redecompositions,
+        )
         eng._announce()
         return eng
 
     def commit(self, step: int, arrays: dict, attrs: dict, durable: bool = False) -> None:
         first = self.committed_step is None
         super().commit(step, arrays, attrs, durable)
-        if first:   # the initial epoch (written by rank 0 alone) is in: the ranks join
+        if first:  # the initial epoch (written by rank 0 alone) is in: the ranks join
             self._announce()
 
     def sweep(self, step0: int, k: int, frame=None) -> np.ndarray:
@@ -83,8 +117,9 @@ class MpiOocEngine(OocEngine):
         # the initial epoch is committed when the engine is made: a sweep reads the last one
         assert self.committed_step is not None, "a sweep before the initial epoch's commit"
         try:
-            return collective(self, "sweep_ranks", (int(step0), int(k), int(self.committed_step), writer.basename,
-                                              self.ws.copy()))
+            return collective(
+                self, "sweep_ranks", (int(step0), int(k), int(self.committed_step), writer.basename, self.ws.copy())
+            )
         except BaseException:
             if self._writer is not None:
                 self._writer.abort()
@@ -97,11 +132,12 @@ class MpiOocEngine(OocEngine):
     def _open_source(self, step: int) -> None:
         """Ranks > 0: the committed epoch `step`, read-only (rank 0 verified it)."""
         from ooc_dem.storage import open_store
+
         if self._store_reader is not None:
             if self._store_reader.step == step:
                 return
             self._store_reader.close()
-        if self._ro_store is not None:   # reopened to see the epochs rank 0 committed since
+        if self._ro_store is not None:  # reopened to see the epochs rank 0 committed since
             self._ro_store.close()
         self._ro_store = open_store(self.path, repair=False)
         self._store_reader = open_epoch(self._ro_store, step, verify=False)
@@ -148,13 +184,17 @@ class MpiOocEngine(OocEngine):
                 self._write_group(d, rec, attrs)
         elif hi_d > lo_d:
             from ooc_dem.storage import StoreError, write_part
+
             owners = [r for r in range(1, self.R) if self.starts[r + 1] > self.starts[r]]
             try:
                 part = write_part(self.path, step0 + k, basename, owners.index(self.rank) + 1, groups())
             except StoreError as e:
                 failure = f"rank {self.rank}: {e}"
-        got = self.comm.gather((part, failure, done["owned"], done["resident"]), root=0) if self.R > 1 \
+        got = (
+            self.comm.gather((part, failure, done["owned"], done["resident"]), root=0)
+            if self.R > 1
             else [(part, failure, done["owned"], done["resident"])]
+        )
         rec_wheel = self._share_sweep_wheel(wslab, done, k)
         if self.rank != 0:
             return None
@@ -166,11 +206,14 @@ class MpiOocEngine(OocEngine):
         failed = [f for _p, f, _o, _r in got if f]
         if failed:
             from ooc_dem.storage import StoreError
+
             raise StoreError(failed[0])
         owned_total = sum(o for _p, _f, o, _r in got)
         if self._n is not None and owned_total != self._n:
-            raise EngineError(f"sweep at step {step0} kept {owned_total} of {self._n} discs "
-                              f"(bounds {self.bounds.tolist()}): decomposition error")
+            raise EngineError(
+                f"sweep at step {step0} kept {owned_total} of {self._n} discs "
+                f"(bounds {self.bounds.tolist()}): decomposition error"
+            )
         self._note_resident([x for _p, _f, _o, r in got for x in r])
         return rec_wheel
 

@@ -1,5 +1,6 @@
 """Running a command on MPI ranks: rank 0 runs it (and drives its engine), the others
 serve that engine's collective operations until rank 0 says stop."""
+
 from __future__ import annotations
 
 import os

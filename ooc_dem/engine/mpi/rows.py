@@ -1,6 +1,7 @@
 """The exchange rows of MPI mode: one float64 row per disc (its id and the fields a refresh
 copies), packed and unpacked by compiled kernels, and the kernels that find the rows a
 rank sends and claims."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -10,7 +11,6 @@ from ...model.state import Particles, fields
 
 # the state fields a refresh copies (id, r, mass, inertia and mat are fixed per disc)
 _MOVING = ("pos", "vel", "spin", "hist_n", "hist_id", "hist_s", "hist_m")
-
 
 
 def row_words(dim: int, cap: int) -> int:
@@ -113,7 +113,7 @@ def pack(p: Particles, rows, buf: np.ndarray) -> np.ndarray:
     """The rows' exchange rows in buf's first len(rows) rows (a view)."""
     rows = np.asarray(rows, np.int64)
     _pack_rows(buf, rows, *exchange_fields(p))
-    return buf[:len(rows)]
+    return buf[: len(rows)]
 
 
 @njit(cache=True)

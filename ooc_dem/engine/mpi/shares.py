@@ -1,6 +1,7 @@
 """How MPI mode shares the sub-domains out over the ranks: contiguous ranges cut by disc
 count, or a scattered share-out when one sub-domain is too large for a cut to balance;
 each rank's x intervals and its local decomposition (own sub-domains and ghosts)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,7 +48,7 @@ def rank_domains(counts: np.ndarray, ranks: int) -> np.ndarray:
     scattered = np.zeros(D, np.int64)
     load = np.zeros(ranks, np.int64)
     for d in sorted(range(D), key=lambda d: (-counts[d], d)):
-        r = int(np.argmin(load))   # the first of the least loaded
+        r = int(np.argmin(load))  # the first of the least loaded
         scattered[d] = r
         load[r] += counts[d]
     busiest = lambda own: int(np.bincount(own, weights=counts, minlength=ranks).max())
@@ -76,7 +77,7 @@ def rank_segments(owner: np.ndarray, bounds: np.ndarray, r: int) -> tuple[np.nda
     glob: list[int] = []
     for d in range(len(owner)):
         if owner[d] != r and glob and glob[-1] < 0:
-            lb[-1] = bounds[d + 1]   # the ghost before grows
+            lb[-1] = bounds[d + 1]  # the ghost before grows
         else:
             glob.append(int(d) if owner[d] == r else -1)
             lb.append(bounds[d + 1])

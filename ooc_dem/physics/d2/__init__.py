@@ -7,6 +7,7 @@ only what is 2D's own and binds it there: the records (``layout``), the contact 
 walls' and the wheel's contact geometry (``bodies``) and the cell geometry of the
 neighbour build (``neighbors``).
 """
+
 import sys
 
 from .. import check_kernel_module

@@ -8,13 +8,26 @@ right wall -3, left -2, bottom -1; a disc's rows in that ascending order), with 
 disc's springs from its history (zero for a new contact). A wheel row also holds the
 torque on the wheel about its centre (the wheel's force is (-bx, -by)).
 """
+
 import math
 
 from numba import njit
 
 from ..history import lookup
-from ..layout import (AX_X, AX_Y, HM_R, HS_T, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT,
-                      ID_WALL_RIGHT, SP_Z, T_WALL, T_WHEEL)
+from ..layout import (
+    AX_X,
+    AX_Y,
+    HM_R,
+    HS_T,
+    ID_LUG0,
+    ID_RIM,
+    ID_WALL_BOTTOM,
+    ID_WALL_LEFT,
+    ID_WALL_RIGHT,
+    SP_Z,
+    T_WALL,
+    T_WHEEL,
+)
 from ..wheel import lug_axis_offset
 from .contact import contact
 
@@ -67,17 +80,50 @@ def body_scene(walls, wg, ws):
     reach = g.lug_out + g.cap
     if R > reach:
         reach = R
-    return (wl.length, wl.left > 0.5, wl.right > 0.5, wl.bottom > 0.5, g.enabled > 0.5, R,
-            g.lug_in, g.lug_out, g.cap, int(g.nlugs), g.mass, s0.x, s0.y, s0.vx, s0.vy, s0.wz,
-            reach)
+    return (
+        wl.length,
+        wl.left > 0.5,
+        wl.right > 0.5,
+        wl.bottom > 0.5,
+        g.enabled > 0.5,
+        R,
+        g.lug_in,
+        g.lug_out,
+        g.cap,
+        int(g.nlugs),
+        g.mass,
+        s0.x,
+        s0.y,
+        s0.vx,
+        s0.vy,
+        s0.wz,
+        reach,
+    )
 
 
 @njit(inline="always", cache=True)
 def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     """Disc i's rows with the wheel's lugs and rim, then the walls, from body row bat on
     (bend: its chunk's end). Returns (the next row, whether a row did not fit)."""
-    (length, has_left, has_right, has_bottom, wheel_on, R, lug_in, lug_out, cap_r, nlugs, wmass,
-     X, Y, VX, VY, WZ, reach) = scene
+    (
+        length,
+        has_left,
+        has_right,
+        has_bottom,
+        wheel_on,
+        R,
+        lug_in,
+        lug_out,
+        cap_r,
+        nlugs,
+        wmass,
+        X,
+        Y,
+        VX,
+        VY,
+        WZ,
+        reach,
+    ) = scene
     pos = d.pos
     xi = pos[i, AX_X]
     yi = pos[i, AX_Y]
@@ -85,8 +131,7 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     # most discs touch neither a wall nor the wheel: test that on the position first
     # (ri > t is exactly a wall's own test ri - t > 0, and the wheel's test is the one
     # below, so no contact is skipped or added)
-    near_wall = ((has_right and ri > length - xi) or (has_left and ri > xi)
-                 or (has_bottom and ri > yi))
+    near_wall = (has_right and ri > length - xi) or (has_left and ri > xi) or (has_bottom and ri > yi)
     dxw = xi - X
     dyw = yi - Y
     d2 = dxw * dxw + dyw * dyw
@@ -125,11 +170,41 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
                 vax = VX - WZ * (py - Y)
                 vay = VY + WZ * (px - X)
                 fn, ft, s_new, mom, m_new = contact(
-                    cp[T_WHEEL, ti], nx, ny, delta, vxi - vax, vyi - vay, WZ, wi, cap_r,
-                    ri, meff, ii, ri, s_old, m_old, dt)
+                    cp[T_WHEEL, ti],
+                    nx,
+                    ny,
+                    delta,
+                    vxi - vax,
+                    vyi - vay,
+                    WZ,
+                    wi,
+                    cap_r,
+                    ri,
+                    meff,
+                    ii,
+                    ri,
+                    s_old,
+                    m_old,
+                    dt,
+                )
                 # reaction on the wheel at q = p + cap_r n, about the centre
-                bat, over = _wheel_row(body, bat, bend, i, pid, fn, ft, s_new, mom, m_new, nx,
-                                       ny, px + cap_r * nx - X, py + cap_r * ny - Y, ri)
+                bat, over = _wheel_row(
+                    body,
+                    bat,
+                    bend,
+                    i,
+                    pid,
+                    fn,
+                    ft,
+                    s_new,
+                    mom,
+                    m_new,
+                    nx,
+                    ny,
+                    px + cap_r * nx - X,
+                    py + cap_r * ny - Y,
+                    ri,
+                )
                 full = full or over
         dw = math.sqrt(d2)
         delta = R + ri - dw
@@ -138,10 +213,9 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             nx = dxw / dw
             ny = dyw / dw
             fn, ft, s_new, mom, m_new = contact(
-                cp[T_WHEEL, ti], nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri,
-                meff, ii, ri, s_old, m_old, dt)
-            bat, over = _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom, m_new, nx,
-                                   ny, R * nx, R * ny, ri)
+                cp[T_WHEEL, ti], nx, ny, delta, vxi - VX, vyi - VY, WZ, wi, R, ri, meff, ii, ri, s_old, m_old, dt
+            )
+            bat, over = _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom, m_new, nx, ny, R * nx, R * ny, ri)
             full = full or over
     # ------------------------------------------------------ walls
     for wall in range(3 if near_wall else 0):
@@ -170,11 +244,10 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
         if delta > 0.0:
             p, s_old, m_old = _springs(hist_id, hist_s, hist_m, i, hn, p, pid)
             fn, ft, s_new, mom, m_new = contact(
-                cp[T_WALL, ti], nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri,
-                mi, ii, ri, s_old, m_old, dt)
+                cp[T_WALL, ti], nx, ny, delta, vxi, vyi, 0.0, wi, 0.0, ri, mi, ii, ri, s_old, m_old, dt
+            )
             if bat < bend:
-                _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx,
-                          ri * ft + mom, s_new, m_new, 0.0)
+                _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx, ri * ft + mom, s_new, m_new, 0.0)
                 bat += 1
             else:
                 full = True

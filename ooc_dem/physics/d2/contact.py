@@ -15,6 +15,7 @@ mode bit-identical (docs/design.md §3).
 The parameters of a material pair are one ``layout.CONTACT_PARAMS`` record
 ``c`` (fields kn, ks, zn, zt, mu, mur, zr).
 """
+
 import math
 
 from numba import njit
@@ -62,8 +63,9 @@ def rolling_moment(wrel, fn, m_old, ieff, reff, ks, mur, zr, dt):
 
 
 @njit(inline="always", cache=True)
-def contact_force(nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff,
-                  s_old, m_old, kn, ks, zn, zt, mu, mur, zr, dt):
+def contact_force(
+    nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff, s_old, m_old, kn, ks, zn, zt, mu, mur, zr, dt
+):
     """Forces of one contact in canonical orientation.
 
     n = (nx, ny) is the unit normal from a to b, delta > 0 the overlap,
@@ -87,5 +89,27 @@ def contact_force(nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff,
 @njit(inline="always", cache=True)
 def contact(c, nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff, s_old, m_old, dt):
     """``contact_force`` with the material pair's parameters as one CONTACT_PARAMS record."""
-    return contact_force(nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff, s_old, m_old,
-                         c.kn, c.ks, c.zn, c.zt, c.mu, c.mur, c.zr, dt)
+    return contact_force(
+        nx,
+        ny,
+        delta,
+        vrx,
+        vry,
+        wa,
+        wb,
+        ra,
+        rb,
+        meff,
+        ieff,
+        reff,
+        s_old,
+        m_old,
+        c.kn,
+        c.ks,
+        c.zn,
+        c.zt,
+        c.mu,
+        c.mur,
+        c.zr,
+        dt,
+    )

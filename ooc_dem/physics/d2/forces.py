@@ -8,6 +8,7 @@ tangential spring force and the rolling spring moment); a body row
 (``layout.BODY_ROW``) the force and torque on the disc and its springs. A disc's sums
 are (fx, fy, torque about z).
 """
+
 import math
 
 import numpy as np
@@ -48,7 +49,7 @@ def law_block(uniform):
         bx_, by_, ta_, tb_ = law_out[LawOut.bx], law_out[LawOut.by], law_out[LawOut.ta], law_out[LawOut.tb]
         s_, m_ = law_out[LawOut.s], law_out[LawOut.m]
         for t in range(k):
-            if uniform:   # a constant: one record for the block, or each pair's columns
+            if uniform:  # a constant: one record for the block, or each pair's columns
                 c = c0
             else:
                 c = LawParams(kn[t], ks[t], zn[t], zt[t], mu[t], mur[t], zr[t])
@@ -63,8 +64,8 @@ def law_block(uniform):
             ny = dy / dd
             meff, ieff, reff = effective(ma_[t], mb_[t], ia_[t], ib_[t], ra, rb)
             fn, ft, s_new, mom, m_new = contact(
-                c, nx, ny, rs - dd, vrx_[t], vry_[t], wa_[t], wb_[t], ra, rb, meff, ieff, reff,
-                s_old_[t], m_old_[t], dt)
+                c, nx, ny, rs - dd, vrx_[t], vry_[t], wa_[t], wb_[t], ra, rb, meff, ieff, reff, s_old_[t], m_old_[t], dt
+            )
             bx_[t] = fn * nx + ft * ny
             by_[t] = fn * ny - ft * nx
             ta_[t] = ra * ft - mom
@@ -77,8 +78,8 @@ def law_block(uniform):
     return njit(error_model="numpy", cache=True)(block)
 
 
-law_block_one = law_block(True)      # one record for the block
-law_block_each = law_block(False)    # each pair's parameters in its columns
+law_block_one = law_block(True)  # one record for the block
+law_block_each = law_block(False)  # each pair's parameters in its columns
 
 
 @njit(inline="always", cache=True)
@@ -86,7 +87,7 @@ def law_rows(k, law_in, law_out, dt, cp, uniform):
     """The block law on a filled block of k pairs (LawIn columns up to the material pair):
     uniform (one material pair, in column 0): its record for the whole block; else each
     pair's parameters are copied into its columns first."""
-    k = np.int64(k)   # never a literal: one compiled block law per signature
+    k = np.int64(k)  # never a literal: one compiled block law per signature
     if uniform:
         m0 = np.int64(law_in[LawIn.material, 0])
         law_block_one(k, law_in, law_out, dt, cp[m0 // N_TYPES, m0 % N_TYPES])

@@ -8,6 +8,7 @@ Records:
 - ``BODY_ROW``        one disc-wall / disc-wheel-part contact of a step
 - ``LawIn`` / ``LawOut`` the columns of a block of pairs for the block law
 """
+
 from __future__ import annotations
 
 
@@ -18,8 +19,8 @@ from ..layout import LAW_BLOCK, LAW_ROW, N_TYPES, field_indices, field_tuple, re
 
 F8 = "<f8"
 
-DIM = 2    # axes x (travel), y (vertical)
-SPIN = 1   # the spin about z
+DIM = 2  # axes x (travel), y (vertical)
+SPIN = 1  # the spin about z
 
 # ----------------------------------------------------------- contact parameters
 CONTACT_PARAMS = record_dtype(("kn", "ks", "zn", "zt", "mu", "mur", "zr"))
@@ -38,8 +39,9 @@ PAIR_ROW = record_dtype(("bx", "by", "ta", "tb", "s", "m"))
 # one disc-body contact (the body is always the lower id): disc row index, body id,
 # force and torque on the disc, new springs, and the torque on the wheel about its
 # centre (wheel parts only; the wheel's force is (-bx, -by))
-BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8"), ("bx", F8), ("by", F8), ("tq", F8),
-                     ("s", F8), ("m", F8), ("wt", F8)])
+BODY_ROW = np.dtype(
+    [("disc", "<i8"), ("pid", "<i8"), ("bx", F8), ("by", F8), ("tq", F8), ("s", F8), ("m", F8), ("wt", F8)]
+)
 
 
 def pair_row_layout(cp) -> np.dtype:
@@ -55,8 +57,11 @@ def pair_row_layout(cp) -> np.dtype:
 # the contact table (type_a * N_TYPES + type_b) and that pair's parameters
 # (CONTACT_PARAMS fields in their order; filled only for a block of several material
 # pairs); LawOut: the pair row's fields (PAIR_ROW).
-LawIn = field_indices("LawIn", ("dx", "dy", "vrx", "vry", "wa", "wb", "ra", "rb", "ma", "mb", "ia", "ib",
-                          "s_old", "m_old", "material") + CONTACT_PARAMS.names)
+LawIn = field_indices(
+    "LawIn",
+    ("dx", "dy", "vrx", "vry", "wa", "wb", "ra", "rb", "ma", "mb", "ia", "ib", "s_old", "m_old", "material")
+    + CONTACT_PARAMS.names,
+)
 LawOut = field_indices("LawOut", PAIR_ROW.names)
 N_LAW_IN = len(LawIn)
 N_LAW_OUT = len(LawOut)

@@ -1,6 +1,7 @@
 """The 2D cell geometry of the neighbour build (numba, no I/O), and that build compiled
 for discs (``physics.neighbors``: the half pair list with its CSR index): the grid is
 one cell deep in z; the memory order sorts discs by cell column, then row."""
+
 import sys
 
 from numba import njit

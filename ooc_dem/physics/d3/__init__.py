@@ -10,6 +10,7 @@ Hertz-Mindlin), the pair law on blocks and what a 3D contact row holds (``forces
 the walls' and the wheel's contact geometry (``bodies``), the cell geometry of the
 neighbour build (``neighbors``), and the time-step check of its laws (``timestep``).
 """
+
 import sys
 
 from .. import check_kernel_module

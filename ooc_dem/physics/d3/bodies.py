@@ -12,6 +12,7 @@ The wheel's contact point q moves with V + W x (q - C), W = (0, 0, wz); the law 
 wheel as body a with lever arm 0 and spin W. A wheel row also holds the torque on the
 wheel about its axle (the wheel's force is (-bx, -by); its z force goes to the axle).
 """
+
 import math
 
 import numpy as np
@@ -21,8 +22,17 @@ from ..history import lookup
 from ..layout import AX_X, AX_Y, AX_Z, SP_X3, SP_Y3, SP_Z3
 from ..wheel import lug_axis_offset
 from .contact import contact
-from .layout import (ID_LUG0, ID_RIM, ID_WALL_BACK, ID_WALL_BOTTOM, ID_WALL_FRONT, ID_WALL_LEFT,
-                     ID_WALL_RIGHT, T_WALL, T_WHEEL)
+from .layout import (
+    ID_LUG0,
+    ID_RIM,
+    ID_WALL_BACK,
+    ID_WALL_BOTTOM,
+    ID_WALL_FRONT,
+    ID_WALL_LEFT,
+    ID_WALL_RIGHT,
+    T_WALL,
+    T_WHEEL,
+)
 
 # a wall's or the wheel's contact: a few a step, so one compiled call instead of a copy of
 # the law inlined at each of body_rows' three sites (a smaller produce compiles faster);
@@ -37,8 +47,15 @@ def _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid):
     new contact); returns (p, sx, sy, sz, mx, my, mz), p the advanced merge pointer."""
     p, found = lookup(hist_id, i, hn, p, pid)
     if found:
-        return (p, hist_s[i, p, AX_X], hist_s[i, p, AX_Y], hist_s[i, p, AX_Z], hist_m[i, p, AX_X],
-                hist_m[i, p, AX_Y], hist_m[i, p, AX_Z])
+        return (
+            p,
+            hist_s[i, p, AX_X],
+            hist_s[i, p, AX_Y],
+            hist_s[i, p, AX_Z],
+            hist_m[i, p, AX_X],
+            hist_m[i, p, AX_Y],
+            hist_m[i, p, AX_Z],
+        )
     return p, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
@@ -58,8 +75,7 @@ def _wall(wall):
 
 
 @njit(inline="always", cache=True)
-def _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
-              mnz, nx, ny, nz, ri):
+def _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri):
     """Body row of a sphere's wall or wheel contact: force and torque on the sphere, its
     new springs, no wheel torque."""
     row = body[bat]
@@ -83,34 +99,89 @@ def _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz
 
 
 @njit(inline="always", cache=True)
-def _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
-               mnz, nx, ny, nz, ri, qx, qy):
+def _wheel_row(
+    body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri, qx, qy
+):
     """Body row of a sphere-wheel-part contact (``_body_row``) with the torque on the wheel
     about its axle from the reaction at q (relative to the axle point (X, Y)) minus the
     rolling moment's z part."""
-    _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
-              mnz, nx, ny, nz, ri)
+    _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri)
     row = body[bat]
     row.wt = qx * (-row.by) - qy * (-row.bx) - moz
 
 
 @njit(inline="always", cache=True)
-def _wheel_contact(body, bat, bend, i, pid, hist_id, hist_s, hist_m, hn, p, cpw, nx, ny, nz,
-                   delta, qx, qy, VX, VY, WZ, vxi, vyi, vzi, wxi, wyi, wzi, ri, meff, ii, dt):
+def _wheel_contact(
+    body,
+    bat,
+    bend,
+    i,
+    pid,
+    hist_id,
+    hist_s,
+    hist_m,
+    hn,
+    p,
+    cpw,
+    nx,
+    ny,
+    nz,
+    delta,
+    qx,
+    qy,
+    VX,
+    VY,
+    WZ,
+    vxi,
+    vyi,
+    vzi,
+    wxi,
+    wyi,
+    wzi,
+    ri,
+    meff,
+    ii,
+    dt,
+):
     """Sphere i's contact with wheel part pid (a lug or the rim) at normal n, overlap delta
     and contact point q (relative to the axle point): its springs from the history (p: the
     history cursor), the law, and its body row at bat when bat < bend. Returns (p, the rows
     written: 1, or 0 when the buffer is full)."""
     p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid)
     (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = body_contact(
-        cpw, nx, ny, nz, delta, vxi - (VX - WZ * qy), vyi - (VY + WZ * qx), vzi, 0.0, 0.0, WZ,
-        wxi, wyi, wzi, 0.0, ri, meff, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
+        cpw,
+        nx,
+        ny,
+        nz,
+        delta,
+        vxi - (VX - WZ * qy),
+        vyi - (VY + WZ * qx),
+        vzi,
+        0.0,
+        0.0,
+        WZ,
+        wxi,
+        wyi,
+        wzi,
+        0.0,
+        ri,
+        meff,
+        ii,
+        ri,
+        s0x,
+        s0y,
+        s0z,
+        m0x,
+        m0y,
+        m0z,
+        dt,
+    )
     if bat < bend:
-        _wheel_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny,
-                   mnz, nx, ny, nz, ri, qx, qy)
+        _wheel_row(
+            body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri, qx, qy
+        )
         return p, 1
     return p, 0
-
 
 
 @njit(inline="always", cache=True)
@@ -121,25 +192,40 @@ def body_scene(walls, wg, ws):
     velocity and spin, and its reach (the farthest point of a lug or the rim from the
     axle)."""
     wl = walls[0]
-    flags = np.array([wl.back > 0.5, wl.front > 0.5, wl.right > 0.5, wl.left > 0.5,
-                      wl.bottom > 0.5])
+    flags = np.array([wl.back > 0.5, wl.front > 0.5, wl.right > 0.5, wl.left > 0.5, wl.bottom > 0.5])
     g = wg[0]
     w0 = ws[0]
     R = g.radius
     reach = g.lug_out + g.cap
     if R > reach:
         reach = R
-    return (wl.length, wl.width, flags, g.enabled > 0.5, R, g.lug_in, g.lug_out, g.cap,
-            int(g.nlugs), g.mass, g.z0 - 0.5 * g.width, g.z0 + 0.5 * g.width, w0.x, w0.y,
-            w0.vx, w0.vy, w0.wz, reach)
+    return (
+        wl.length,
+        wl.width,
+        flags,
+        g.enabled > 0.5,
+        R,
+        g.lug_in,
+        g.lug_out,
+        g.cap,
+        int(g.nlugs),
+        g.mass,
+        g.z0 - 0.5 * g.width,
+        g.z0 + 0.5 * g.width,
+        w0.x,
+        w0.y,
+        w0.vx,
+        w0.vy,
+        w0.wz,
+        reach,
+    )
 
 
 @njit(inline="always", cache=True)
 def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     """Sphere i's rows with the wheel's lugs and rim, then the walls, from body row bat on
     (bend: its chunk's end). Returns (the next row, whether a row did not fit)."""
-    (length, width, flags, wheel_on, R, lug_in, lug_out, cap_r, nlugs, wmass, zlo, zhi, X, Y,
-     VX, VY, WZ, reach) = scene
+    (length, width, flags, wheel_on, R, lug_in, lug_out, cap_r, nlugs, wmass, zlo, zhi, X, Y, VX, VY, WZ, reach) = scene
     pos = d.pos
     xi = pos[i, AX_X]
     yi = pos[i, AX_Y]
@@ -148,15 +234,18 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     # most spheres touch neither a wall nor the wheel: test that on the position
     # first (ri > t is exactly a wall's own test ri - t > 0, and the wheel's test
     # is the one below, so no contact is skipped or added)
-    near_wall = ((flags[0] and ri > width - zi) or (flags[1] and ri > zi)
-                 or (flags[2] and ri > length - xi) or (flags[3] and ri > xi)
-                 or (flags[4] and ri > yi))
+    near_wall = (
+        (flags[0] and ri > width - zi)
+        or (flags[1] and ri > zi)
+        or (flags[2] and ri > length - xi)
+        or (flags[3] and ri > xi)
+        or (flags[4] and ri > yi)
+    )
     dxw = xi - X
     dyw = yi - Y
     d2 = dxw * dxw + dyw * dyw
     zm = cap_r + ri
-    near_wheel = (wheel_on and d2 < (reach + ri) * (reach + ri) and zi > zlo - zm
-                  and zi < zhi + zm)
+    near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri) and zi > zlo - zm and zi < zhi + zm
     full = False
     if not (near_wall or near_wheel):
         return bat, full
@@ -180,7 +269,7 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             ux = lugdir[lug].ux
             uy = lugdir[lug].uy
             sproj = lug_axis_offset(dxw, dyw, ux, uy, lug_in, lug_out)
-            px = sproj * ux        # the lug's closest axis point, relative to C
+            px = sproj * ux  # the lug's closest axis point, relative to C
             py = sproj * uy
             ddx = dxw - px
             ddy = dyw - py
@@ -192,10 +281,37 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
                 ny = ddy / dd
                 nz = ddz / dd
                 p, wrote = _wheel_contact(
-                    body, bat, bend, i, ID_LUG0 + lug, hist_id, hist_s, hist_m, hn, p,
-                    cp[T_WHEEL, ti], nx, ny, nz, delta, px + cap_r * nx,
-                    py + cap_r * ny, VX, VY, WZ, vxi, vyi, vzi, wxi, wyi, wzi, ri,
-                    meff, ii, dt)
+                    body,
+                    bat,
+                    bend,
+                    i,
+                    ID_LUG0 + lug,
+                    hist_id,
+                    hist_s,
+                    hist_m,
+                    hn,
+                    p,
+                    cp[T_WHEEL, ti],
+                    nx,
+                    ny,
+                    nz,
+                    delta,
+                    px + cap_r * nx,
+                    py + cap_r * ny,
+                    VX,
+                    VY,
+                    WZ,
+                    vxi,
+                    vyi,
+                    vzi,
+                    wxi,
+                    wyi,
+                    wzi,
+                    ri,
+                    meff,
+                    ii,
+                    dt,
+                )
                 bat += wrote
                 full = full or wrote == 0
         # the rim: the closest point of the solid cylinder
@@ -203,18 +319,18 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
         delta = -1.0
         nx = ny = nz = qx = qy = 0.0
         if zi >= zlo and zi <= zhi:
-            if rho > 0.0:         # the curved surface (radial normal)
+            if rho > 0.0:  # the curved surface (radial normal)
                 nx = dxw / rho
                 ny = dyw / rho
                 delta = R + ri - rho
                 qx = R * nx
                 qy = R * ny
-        elif rho <= R:            # an end face
+        elif rho <= R:  # an end face
             nz = 1.0 if zi > zhi else -1.0
             delta = ri - abs(zi - zc)
             qx = dxw
             qy = dyw
-        else:                     # an end face's edge circle
+        else:  # an end face's edge circle
             qx = R * dxw / rho
             qy = R * dyw / rho
             ex = dxw - qx
@@ -228,9 +344,37 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
                 delta = ri - de
         if delta > 0.0:
             p, wrote = _wheel_contact(
-                body, bat, bend, i, ID_RIM, hist_id, hist_s, hist_m, hn, p,
-                cp[T_WHEEL, ti], nx, ny, nz, delta, qx, qy, VX, VY, WZ, vxi, vyi, vzi,
-                wxi, wyi, wzi, ri, meff, ii, dt)
+                body,
+                bat,
+                bend,
+                i,
+                ID_RIM,
+                hist_id,
+                hist_s,
+                hist_m,
+                hn,
+                p,
+                cp[T_WHEEL, ti],
+                nx,
+                ny,
+                nz,
+                delta,
+                qx,
+                qy,
+                VX,
+                VY,
+                WZ,
+                vxi,
+                vyi,
+                vzi,
+                wxi,
+                wyi,
+                wzi,
+                ri,
+                meff,
+                ii,
+                dt,
+            )
             bat += wrote
             full = full or wrote == 0
     # ------------------------------------------------------ walls
@@ -250,14 +394,37 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             delta = ri - yi
         if delta <= 0.0:
             continue
-        p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p,
-                                                        pid)
+        p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid)
         (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = body_contact(
-            cp[T_WALL, ti], nx, ny, nz, delta, vxi, vyi, vzi, 0.0, 0.0, 0.0,
-            wxi, wyi, wzi, 0.0, ri, mi, ii, ri, s0x, s0y, s0z, m0x, m0y, m0z, dt)
+            cp[T_WALL, ti],
+            nx,
+            ny,
+            nz,
+            delta,
+            vxi,
+            vyi,
+            vzi,
+            0.0,
+            0.0,
+            0.0,
+            wxi,
+            wyi,
+            wzi,
+            0.0,
+            ri,
+            mi,
+            ii,
+            ri,
+            s0x,
+            s0y,
+            s0z,
+            m0x,
+            m0y,
+            m0z,
+            dt,
+        )
         if bat < bend:
-            _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz,
-                      mnx, mny, mnz, nx, ny, nz, ri)
+            _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri)
             bat += 1
         else:
             full = True

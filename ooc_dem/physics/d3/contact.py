@@ -26,6 +26,7 @@ velocity of b's contact point w.r.t. a's is vr - (ra wa + rb wb) x n (lever arms
 ra, rb from the centres to the contact along +-n). The force on b is fn n - Ft, a gets
 the exact negation; the torque on a is ra (n x Ft) - M, on b rb (n x Ft) + M.
 """
+
 import math
 
 from numba import njit
@@ -73,8 +74,34 @@ def law_coefficients(c, delta, meff, reff):
 
 
 @njit(inline="always", cache=True)
-def contact(c, nx, ny, nz, delta, vrx, vry, vrz, wax, way, waz, wbx, wby, wbz, ra, rb,
-            meff, ieff, reff, s_x, s_y, s_z, m_x, m_y, m_z, dt):
+def contact(
+    c,
+    nx,
+    ny,
+    nz,
+    delta,
+    vrx,
+    vry,
+    vrz,
+    wax,
+    way,
+    waz,
+    wbx,
+    wby,
+    wbz,
+    ra,
+    rb,
+    meff,
+    ieff,
+    reff,
+    s_x,
+    s_y,
+    s_z,
+    m_x,
+    m_y,
+    m_z,
+    dt,
+):
     """One contact in canonical orientation (module doc).
 
     c: CONTACT_PARAMS record; n: unit normal a -> b; delta > 0: overlap; vr: velocity
@@ -91,7 +118,7 @@ def contact(c, nx, ny, nz, delta, vrx, vry, vrz, wax, way, waz, wbx, wby, wbz, r
     fn = fe - cn * vn
     if fn < 0.0 and c.no_tension > 0.5:
         fn = 0.0
-    fc = max(0.0, fn)     # compressive part: friction and rolling limits
+    fc = max(0.0, fn)  # compressive part: friction and rolling limits
     # ------------------------------------------------------- tangential
     # slip velocity of the contact point: vr - (ra wa + rb wb) x n, tangential part
     wx = ra * wax + rb * wbx

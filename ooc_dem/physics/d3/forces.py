@@ -11,6 +11,7 @@ contact table the row leaves the rolling parts out (PAIR_ROW_SLIDING) and the ke
 read them as zeros. A body row (``layout.BODY_ROW``) holds the force and torque on the
 sphere and its springs. A sphere's sums are (fx, fy, fz, tx, ty, tz).
 """
+
 import math
 
 import numpy as np
@@ -20,8 +21,16 @@ from numba.extending import overload
 from ..layout import AX_X, AX_Y, AX_Z
 from ..produce import copy_pair_params, effective
 from .contact import contact
-from .layout import (LAW_BLOCK, LAW_HERTZ, LAW_LINEAR, LAW_ROW, N_TYPES,  # noqa: F401
-                     LawIn, LawOut, LawParams)
+from .layout import (
+    LAW_BLOCK,  # noqa: F401
+    LAW_HERTZ,
+    LAW_LINEAR,
+    LAW_ROW,  # noqa: F401
+    N_TYPES,  # noqa: F401
+    LawIn,
+    LawOut,
+    LawParams,
+)
 
 # the LawIn rows of the spheres' spins (three components each)
 LAW_IN_WA = LawIn.wax
@@ -29,8 +38,6 @@ LAW_IN_WB = LawIn.wbx
 # produce gives each chunk its own law-block columns (one chunk a group: 64 parallel
 # pieces of pairs)
 CHUNKS_PER_GROUP = 1
-
-
 
 
 # ---------------------------------------------------------- the row's rolling parts
@@ -65,6 +72,7 @@ def _has_rolling(row):
 @overload(put_rolling, inline="always")
 def _put_rolling(row, mox, moy, moz, mnx, mny, mnz):
     if _rolling_type(row):
+
         def impl(row, mox, moy, moz, mnx, mny, mnz):
             row.mox = mox
             row.moy = moy
@@ -72,6 +80,7 @@ def _put_rolling(row, mox, moy, moz, mnx, mny, mnz):
             row.mx = mnx
             row.my = mny
             row.mz = mnz
+
         return impl
     return lambda row, mox, moy, moz, mnx, mny, mnz: None
 
@@ -83,8 +92,7 @@ def _rolling_of(row):
     return lambda row: (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-
-LAW_MIXED = -1   # law_block's law when a block's pairs do not all have one law
+LAW_MIXED = -1  # law_block's law when a block's pairs do not all have one law
 
 
 def law_block(fixed, uniform):
@@ -121,14 +129,36 @@ def law_block(fixed, uniform):
         zr, estar, gstar = law_in[LawIn.zr], law_in[LawIn.estar], law_in[LawIn.gstar]
         beta, no_tension = law_in[LawIn.beta], law_in[LawIn.no_tension]
         for t in range(k):
-            if uniform:   # a constant: one record for the block, or each pair's columns
-                c = LawParams(c0.law if fixed == LAW_MIXED else fixed, c0.kn, c0.ks, c0.zn,
-                              c0.zt, c0.mu, c0.mur, c0.zr, c0.estar, c0.gstar, c0.beta,
-                              c0.no_tension)
+            if uniform:  # a constant: one record for the block, or each pair's columns
+                c = LawParams(
+                    c0.law if fixed == LAW_MIXED else fixed,
+                    c0.kn,
+                    c0.ks,
+                    c0.zn,
+                    c0.zt,
+                    c0.mu,
+                    c0.mur,
+                    c0.zr,
+                    c0.estar,
+                    c0.gstar,
+                    c0.beta,
+                    c0.no_tension,
+                )
             else:
-                c = LawParams(law_[t] if fixed == LAW_MIXED else fixed, kn[t], ks[t], zn[t],
-                              zt[t], mu[t], mur[t], zr[t], estar[t], gstar[t], beta[t],
-                              no_tension[t])
+                c = LawParams(
+                    law_[t] if fixed == LAW_MIXED else fixed,
+                    kn[t],
+                    ks[t],
+                    zn[t],
+                    zt[t],
+                    mu[t],
+                    mur[t],
+                    zr[t],
+                    estar[t],
+                    gstar[t],
+                    beta[t],
+                    no_tension[t],
+                )
             # the contact geometry and effective quantities (produce's distance test made d2)
             dx = dx_[t]
             dy = dy_[t]
@@ -143,9 +173,33 @@ def law_block(fixed, uniform):
             nz = dz / dd
             meff, ieff, reff = effective(ma_[t], mb_[t], ia_[t], ib_[t], ra, rb)
             (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = contact(
-                c, nx, ny, nz, rs - dd, vrx_[t], vry_[t], vrz_[t], wax_[t], way_[t], waz_[t],
-                wbx_[t], wby_[t], wbz_[t], ra, rb, meff, ieff, reff, s_x_[t], s_y_[t], s_z_[t],
-                m_x_[t], m_y_[t], m_z_[t], dt)
+                c,
+                nx,
+                ny,
+                nz,
+                rs - dd,
+                vrx_[t],
+                vry_[t],
+                vrz_[t],
+                wax_[t],
+                way_[t],
+                waz_[t],
+                wbx_[t],
+                wby_[t],
+                wbz_[t],
+                ra,
+                rb,
+                meff,
+                ieff,
+                reff,
+                s_x_[t],
+                s_y_[t],
+                s_z_[t],
+                m_x_[t],
+                m_y_[t],
+                m_z_[t],
+                dt,
+            )
             bx[t] = fn * nx - ftx
             by[t] = fn * ny - fty
             bz[t] = fn * nz - ftz
@@ -155,7 +209,7 @@ def law_block(fixed, uniform):
             sx_[t] = snx
             sy_[t] = sny
             sz_[t] = snz
-            if rolling:   # a constant: without rolling parts the rolling law is compiled out
+            if rolling:  # a constant: without rolling parts the rolling law is compiled out
                 mox_[t] = mox
                 moy_[t] = moy
                 moz_[t] = moz
@@ -172,7 +226,7 @@ def law_block(fixed, uniform):
 law_block_linear = law_block(LAW_LINEAR, False)
 law_block_hertz = law_block(LAW_HERTZ, False)
 law_block_mixed = law_block(LAW_MIXED, False)
-law_block_linear_one = law_block(LAW_LINEAR, True)   # one record for the block
+law_block_linear_one = law_block(LAW_LINEAR, True)  # one record for the block
 law_block_hertz_one = law_block(LAW_HERTZ, True)
 
 
@@ -182,18 +236,18 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
     uniform (one material pair, in column 0): its record for the whole block; else each
     pair's parameters are copied into its columns first. Either way the block's one law
     is compiled alone when it has one."""
-    k = np.int64(k)   # never a literal: one compiled block law per signature
+    k = np.int64(k)  # never a literal: one compiled block law per signature
     if uniform:
         m0 = np.int64(law_in[LawIn.material, 0])
         c0 = cp[m0 // N_TYPES, m0 % N_TYPES]
-        if c0.law == LAW_HERTZ:   # as contact.contact decides: any other law is linear
+        if c0.law == LAW_HERTZ:  # as contact.contact decides: any other law is linear
             law_block_hertz_one(k, law_in, law_out, dt, rows, c0)
         else:
             law_block_linear_one(k, law_in, law_out, dt, rows, c0)
         return
     # LawIn has the record's fields in their order from LawIn.law on
     copy_pair_params(k, law_in, LawIn.material, LawIn.law, cp)
-    laws = 0   # the laws of the block's pairs, a bit set (1 << law)
+    laws = 0  # the laws of the block's pairs, a bit set (1 << law)
     for t in range(k):
         laws |= 1 << np.int64(law_in[LawIn.law, t])
     if laws == 1 << LAW_LINEAR:
@@ -202,7 +256,6 @@ def law_rows(k, law_in, law_out, dt, rows, cp, uniform):
         law_block_hertz(k, law_in, law_out, dt, rows, None)
     else:
         law_block_mixed(k, law_in, law_out, dt, rows, None)
-
 
 
 @njit(inline="always", cache=True)
@@ -220,8 +273,15 @@ def put_pair_rows(k, slot, law_out, rows):
         row.sx = law_out[LawOut.sx, t]
         row.sy = law_out[LawOut.sy, t]
         row.sz = law_out[LawOut.sz, t]
-        put_rolling(row, law_out[LawOut.mox, t], law_out[LawOut.moy, t], law_out[LawOut.moz, t],
-                    law_out[LawOut.mx, t], law_out[LawOut.my, t], law_out[LawOut.mz, t])
+        put_rolling(
+            row,
+            law_out[LawOut.mox, t],
+            law_out[LawOut.moy, t],
+            law_out[LawOut.moz, t],
+            law_out[LawOut.mx, t],
+            law_out[LawOut.my, t],
+            law_out[LawOut.mz, t],
+        )
 
 
 @njit(inline="always", cache=True)
@@ -294,8 +354,7 @@ def no_force():
 @njit(inline="always", cache=True)
 def add_body_row(s, row):
     """The sums plus a body row's force and torque on the sphere."""
-    return (s[0] + row.bx, s[1] + row.by, s[2] + row.bz, s[3] + row.tx, s[4] + row.ty,
-            s[5] + row.tz)
+    return (s[0] + row.bx, s[1] + row.by, s[2] + row.bz, s[3] + row.tx, s[4] + row.ty, s[5] + row.tz)
 
 
 @njit(inline="always", cache=True)
@@ -303,9 +362,14 @@ def _add_pair(s, row, w, side, r):
     """The sums plus a pair row weighted by w (its contact flag): side 1.0 for b (+force,
     r_b c + M), -1.0 for a (-force, r_a c - M). x + (-1.0 * y) is x - y, exactly."""
     mox, moy, moz, _, _, _ = rolling_of(row)
-    return (s[0] + side * row.bx * w, s[1] + side * row.by * w, s[2] + side * row.bz * w,
-            s[3] + (r * row.cx + side * mox) * w, s[4] + (r * row.cy + side * moy) * w,
-            s[5] + (r * row.cz + side * moz) * w)
+    return (
+        s[0] + side * row.bx * w,
+        s[1] + side * row.by * w,
+        s[2] + side * row.bz * w,
+        s[3] + (r * row.cx + side * mox) * w,
+        s[4] + (r * row.cy + side * moy) * w,
+        s[5] + (r * row.cz + side * moz) * w,
+    )
 
 
 @njit(inline="always", cache=True)

@@ -27,6 +27,7 @@ the sum order): back (z=width) -5, front (z=0) -4, right (x=length) -3,
 left (x=0) -2, bottom (y=0) -1 (the 2D ids are kept for the 2D walls); the wheel's
 parts have the 2D ids (lug k: ID_LUG0 + k = -1000 + k, rim ID_RIM = -100), below every wall.
 """
+
 from __future__ import annotations
 
 import math
@@ -36,17 +37,36 @@ import numpy as np
 # the records both dimensions share (physics.layout): the wheel's, the error flags, the
 # material types, the law blocks' sizes, the partner ids of the wheel's parts and of the
 # walls 2D has too
-from ..layout import (ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY,  # noqa: F401
-                      ERRORS, ID_LUG0, ID_RIM, ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT,
-                      LAW_BLOCK, LAW_ROW, N_ERR, N_TYPES, T_SOIL, T_WALL, T_WHEEL,
-                      WHEEL_CONTROLS, WHEEL_GEOMETRY, WHEEL_RECORD, WHEEL_STATE, record,
-                      record_dtype)
+from ..layout import (
+    ERR_BODY_CAPACITY,  # noqa: F401
+    ERR_HIST_OVERFLOW,  # noqa: F401
+    ERR_PAIR_CAPACITY,  # noqa: F401
+    ERRORS,  # noqa: F401
+    ID_LUG0,  # noqa: F401
+    ID_RIM,  # noqa: F401
+    ID_WALL_BOTTOM,  # noqa: F401
+    ID_WALL_LEFT,  # noqa: F401
+    ID_WALL_RIGHT,  # noqa: F401
+    LAW_BLOCK,  # noqa: F401
+    LAW_ROW,  # noqa: F401
+    N_ERR,  # noqa: F401
+    N_TYPES,
+    T_SOIL,  # noqa: F401
+    T_WALL,  # noqa: F401
+    T_WHEEL,  # noqa: F401
+    WHEEL_CONTROLS,  # noqa: F401
+    WHEEL_GEOMETRY,  # noqa: F401
+    WHEEL_RECORD,  # noqa: F401
+    WHEEL_STATE,  # noqa: F401
+    record,  # noqa: F401
+    record_dtype,
+)
 from ..layout import Bodies, Discs, Forces, KernelParams, Pairs, field_indices, field_tuple  # noqa: F401
 
 F8 = "<f8"
 
-DIM = 3    # axes x (travel), y (vertical), z (across the bin)
-SPIN = 3   # the spin about x, y and z
+DIM = 3  # axes x (travel), y (vertical), z (across the bin)
+SPIN = 3  # the spin about x, y and z
 
 
 # ----------------------------------------------------------- contact parameters
@@ -57,8 +77,9 @@ LAW_HERTZ = 1
 # which is what makes the restitution of the Tsuji law exactly the target e
 # (validation-3d.md section 3; clamped, e = 0.3 gives 0.397). Friction and rolling
 # limits use max(Fn, 0).
-CONTACT_PARAMS = record_dtype(("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr",
-                         "estar", "gstar", "beta", "no_tension"))
+CONTACT_PARAMS = record_dtype(
+    ("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr", "estar", "gstar", "beta", "no_tension")
+)
 N_FIELDS = len(CONTACT_PARAMS.names)
 
 # ------------------------------------------------------------------- walls
@@ -82,10 +103,11 @@ M_WIDTH = 3
 # rolling spring (m*). Without rolling resistance in the contact table (every mur = 0)
 # the moment and rolling spring are exactly zero: the row then leaves them out
 # (PAIR_ROW_SLIDING, 72 bytes against 120), the kernels read them as zeros.
-PAIR_ROW_ROLLING = record_dtype(("bx", "by", "bz", "cx", "cy", "cz", "mox", "moy", "moz",
-                           "sx", "sy", "sz", "mx", "my", "mz"))
+PAIR_ROW_ROLLING = record_dtype(
+    ("bx", "by", "bz", "cx", "cy", "cz", "mox", "moy", "moz", "sx", "sy", "sz", "mx", "my", "mz")
+)
 PAIR_ROW_SLIDING = record_dtype(("bx", "by", "bz", "cx", "cy", "cz", "sx", "sy", "sz"))
-PAIR_ROW = PAIR_ROW_ROLLING   # the general layout (any contact table)
+PAIR_ROW = PAIR_ROW_ROLLING  # the general layout (any contact table)
 
 
 def pair_row_layout(cp) -> np.dtype:
@@ -104,10 +126,37 @@ def pair_row_layout(cp) -> np.dtype:
 # table (type_a * N_TYPES + type_b) and that pair's parameters (the CONTACT_PARAMS fields,
 # in their order; filled only for a block of several material pairs: an indexed load in
 # the loop would stop the SIMD); LawOut: the pair row's fields (PAIR_ROW_ROLLING).
-LawIn = field_indices("LawIn", ("dx", "dy", "dz", "vrx", "vry", "vrz", "wax", "way", "waz",
-                          "wbx", "wby", "wbz", "ra", "rb", "ma", "mb", "ia", "ib",
-                          "s_x", "s_y", "s_z", "m_x", "m_y", "m_z", "material")
-                + CONTACT_PARAMS.names)
+LawIn = field_indices(
+    "LawIn",
+    (
+        "dx",
+        "dy",
+        "dz",
+        "vrx",
+        "vry",
+        "vrz",
+        "wax",
+        "way",
+        "waz",
+        "wbx",
+        "wby",
+        "wbz",
+        "ra",
+        "rb",
+        "ma",
+        "mb",
+        "ia",
+        "ib",
+        "s_x",
+        "s_y",
+        "s_z",
+        "m_x",
+        "m_y",
+        "m_z",
+        "material",
+    )
+    + CONTACT_PARAMS.names,
+)
 LawOut = field_indices("LawOut", PAIR_ROW_ROLLING.names)
 N_LAW_IN = len(LawIn)
 N_LAW_OUT = len(LawOut)
@@ -120,9 +169,10 @@ LawParams = field_tuple("LawParams", CONTACT_PARAMS.names)
 # body id, force and torque on the sphere, new springs, and (wheel parts only) the torque
 # on the wheel about its axle z (the wheel's force is (-bx, -by); its z force goes to the
 # axle)
-BODY_ROW = np.dtype([("disc", "<i8"), ("pid", "<i8")]
-                    + [(n, F8) for n in ("bx", "by", "bz", "tx", "ty", "tz",
-                                         "sx", "sy", "sz", "mx", "my", "mz", "wt")])
+BODY_ROW = np.dtype(
+    [("disc", "<i8"), ("pid", "<i8")]
+    + [(n, F8) for n in ("bx", "by", "bz", "tx", "ty", "tz", "sx", "sy", "sz", "mx", "my", "mz", "wt")]
+)
 
 # ------------------------------------------------------- kernel argument records
 # the shared named tuples of physics.layout: Discs (pos/vel/spin (N, 3), hist_s/hist_m
@@ -171,8 +221,20 @@ def hertz_params(E1, nu1, e, mu=0.0, mur=0.0, zr=0.0, E2=math.inf, nu2=0.0, no_t
     restitution e (validation-3d.md section 3); E2 = inf for a rigid wall. By default
     the damping may pull while overlapping (restitution = e exactly); no_tension=True
     clamps the force at zero (the restitution is then higher than e at low e)."""
-    return (LAW_HERTZ, 0.0, 0.0, 0.0, 0.0, mu, mur, zr, effective_modulus(E1, nu1, E2, nu2),
-            effective_shear_modulus(E1, nu1, E2, nu2), beta_of_restitution(e), float(no_tension))
+    return (
+        LAW_HERTZ,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        mu,
+        mur,
+        zr,
+        effective_modulus(E1, nu1, E2, nu2),
+        effective_shear_modulus(E1, nu1, E2, nu2),
+        beta_of_restitution(e),
+        float(no_tension),
+    )
 
 
 def contact_table(pairs: dict) -> np.ndarray:

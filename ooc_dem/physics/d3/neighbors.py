@@ -1,6 +1,7 @@
 """The 3D cell geometry of the neighbour build (numba, no I/O), and that build compiled
 for spheres (``physics.neighbors``: the half pair list with its CSR index): the memory
 order sorts spheres by cell along x, then y, then z (slabs run along x)."""
+
 import sys
 
 from numba import njit

@@ -20,6 +20,7 @@ Stiffnesses:
   a wave-speed estimate that does not depend on the impact speed and is usually
   quoted with a safety factor of 0.1-0.3) is given for information only.
 """
+
 from __future__ import annotations
 
 import math
@@ -71,8 +72,7 @@ def critical_dt(cp, m_min, r_min, v_max=1.0, contacts=1.0, types=None):
             law = "linear"
             if kn <= 0.0 and kt <= 0.0:
                 continue
-        for mode, w2, z in (("normal", contacts * kn / m_min, zn),
-                            ("tangential", 3.5 * contacts * kt / m_min, zt)):
+        for mode, w2, z in (("normal", contacts * kn / m_min, zn), ("tangential", 3.5 * contacts * kt / m_min, zt)):
             lim = leapfrog_limit(w2, z)
             if lim < worst:
                 worst, which = lim, f"{law} pair {a}-{b}, {mode} mode"
@@ -83,7 +83,9 @@ def check_dt(dt, cp, m_min, r_min, v_max=1.0, contacts=1.0, types=None):
     """Raise ValueError when dt exceeds the critical step; returns the critical step."""
     crit, which = critical_dt(cp, m_min, r_min, v_max, contacts, types)
     if dt > crit:
-        raise ValueError(f"dt = {dt!r} is above the stability limit {crit:.3e} s of the stiffest "
-                         f"contact ({which}; lightest sphere m = {m_min:.3g} kg, r = {r_min:.3g} m, "
-                         f"{contacts} contacts, v_max = {v_max} m/s); use dt <= {crit:.3e}")
+        raise ValueError(
+            f"dt = {dt!r} is above the stability limit {crit:.3e} s of the stiffest "
+            f"contact ({which}; lightest sphere m = {m_min:.3g} kg, r = {r_min:.3g} m, "
+            f"{contacts} contacts, v_max = {v_max} m/s); use dt <= {crit:.3e}"
+        )
     return crit

@@ -26,7 +26,7 @@ def _table(law):
         from ooc_dem.physics.d2 import layout as L
 
         tab = np.zeros(1, L.CONTACT_PARAMS)
-        tab[0] = (2.0e5, 2.0e5 / 3.0, 0.7, 0.5, 0.5, 0.1, 0.3)
+        tab[0] = L.linear_params(2.0e5, 2.0e5 / 3.0, 0.7, 0.5, 0.5, 0.1, 0.3)
         return np.rec.array(tab)[0]
     from ooc_dem.physics.d3 import layout as L3
 

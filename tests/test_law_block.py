@@ -24,9 +24,9 @@ def _table():
     rolling resistance, 1-1 and 0-1 without, other stiffness, damping and friction."""
     cp = np.zeros((L.N_TYPES, L.N_TYPES), L.CONTACT_PARAMS)
     params = {
-        (0, 0): (5e4, 1.6e4, 0.3, 0.3, 0.5, 0.1, 0.3),
-        (1, 1): (8e4, 2.0e4, 0.2, 0.25, 0.4, 0.0, 0.0),
-        (0, 1): (6e4, 1.8e4, 0.25, 0.3, 0.45, 0.0, 0.0),
+        (0, 0): L.linear_params(5e4, 1.6e4, 0.3, 0.3, 0.5, 0.1, 0.3),
+        (1, 1): L.linear_params(8e4, 2.0e4, 0.2, 0.25, 0.4, 0.0, 0.0),
+        (0, 1): L.linear_params(6e4, 1.8e4, 0.25, 0.3, 0.45, 0.0, 0.0),
     }
     for (a, b), p in params.items():
         cp[a, b] = p

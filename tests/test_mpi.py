@@ -4,7 +4,6 @@ with SIGKILL takes the job down."""
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -15,6 +14,7 @@ import psutil
 import pytest
 
 from support.cli import one_line_error, run_cli
+from support.mpi import ENV, mpiexec, run_mpi
 from support.stores import committed_step
 
 # bed-600: 4 equal slabs; the wheel run: a fast slip-controlled wheel set down on the
@@ -41,33 +41,6 @@ WHEEL_STEPS = 600
 OOC_WHEEL = [*WHEEL, "--block", "10", "--set", "output.snapshot_interval=0.002"]  # + frames every 200 steps
 OOC_WHEEL_STEPS = 600
 QUIET = ["--no-progress", "--no-figures"]
-# one numba thread a rank: ranks are the parallelism (and 3 ranks share 2 cores here)
-ENV = {"NUMBA_NUM_THREADS": "1"}
-
-
-def mpiexec() -> str:
-    """The mpiexec of this interpreter's environment (the mpich wheel puts it beside python)."""
-    here = os.path.join(os.path.dirname(sys.executable), "mpiexec")
-    found = here if os.path.exists(here) else shutil.which("mpiexec")
-    assert found, "no mpiexec: install the test extra (pip install '.[test]' brings the mpich wheel)"
-    return found
-
-
-def run_mpi(ranks: int, *args, timeout=240, check=True):
-    env = {**os.environ, **ENV}
-    cp = subprocess.run(
-        [mpiexec(), "-n", str(ranks), sys.executable, "-m", "ooc_dem.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env=env,
-    )
-    if check and cp.returncode != 0:
-        raise AssertionError(
-            f"mpiexec -n {ranks} ooc-dem {' '.join(map(str, args))} failed "
-            f"({cp.returncode}):\n{cp.stdout[-2000:]}\n{cp.stderr[-3000:]}"
-        )
-    return cp
 
 
 def summary(run) -> dict:

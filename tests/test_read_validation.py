@@ -239,7 +239,7 @@ def test_a_part_of_another_epoch_is_refused_naming_the_part(tmp_path):
     checksum and domain entries made to match it) is refused by verify, hash, export and
     resume in one line naming the part, and by a reader that skips verification (as the
     ranks' do) when it opens the part."""
-    from test_mpi import run_mpi
+    from support.mpi import run_mpi
 
     run = tmp_path / "mpi"
     run_mpi(

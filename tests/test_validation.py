@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from ooc_dem.engine.stepper import DomainStepper, Model
-from ooc_dem.physics.d2.contact import KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT, contact_force
+from ooc_dem.physics.d2.contact import KN, KS, MU, MUR, N_FIELDS, NO_TENSION, ZN, ZR, ZT, contact_force
 from ooc_dem.physics.layout import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, WG_SIZE
 from ooc_dem.physics.layout import WC_SIZE
 from ooc_dem.model.state import Particles
@@ -61,6 +61,7 @@ def pair_params(kn=KN0, ks=None, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0) -> np.
     v[KN] = kn
     v[KS] = kn / 3.0 if ks is None else ks
     v[ZN], v[ZT], v[MU], v[MUR], v[ZR] = zn, zt, mu, mur, zr
+    v[NO_TENSION] = 1.0  # the paper's clamped law
     return v
 
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..physics import kernels
 from ..physics import layout as L
-from ..physics.d2.layout import CONTACT_PARAMS, N_FIELDS, WALLS
+from ..model.schema import clamps
+from ..physics.d2.layout import CONTACT_PARAMS, N_FIELDS, WALLS, linear_params
 from ..physics.layout import (
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,  # noqa: F401
@@ -113,8 +114,11 @@ class Model:
         cp = np.zeros((L.N_TYPES, L.N_TYPES, N_FIELDS))
         table = record(cp, CONTACT_PARAMS)
 
+        thickness = sc.physics.thickness
+
         def put(a, b, pair):
-            vals = (
+            # the discs' cohesion per unit of chord: the energy density over their thickness
+            vals = linear_params(
                 pair.kn,
                 pair.ks,
                 pair.damping_n,
@@ -122,6 +126,8 @@ class Model:
                 pair.friction,
                 pair.rolling_friction,
                 pair.rolling_damping,
+                no_tension=clamps(pair),
+                kc=pair.cohesion * thickness,
             )
             table[a, b] = vals
             table[b, a] = vals

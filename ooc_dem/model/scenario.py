@@ -158,6 +158,10 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
             if not isinstance(node, dict):
                 raise ScenarioError(f"--set {show(item)}: {show_key(p)} is not a section")
         node[parts[-1]] = _parse_value(text.strip(), item)
+        # the linear law's damping is stated either way: the override replaces the other
+        other = {"restitution": "damping_n", "damping_n": "restitution"}.get(parts[-1])
+        if parts[0] == "contact" and other:
+            node.pop(other, None)
     return data
 
 

@@ -13,6 +13,7 @@ import dataclasses
 import math
 from typing import Any
 
+from .materials import resolve_materials
 from .schema import (
     LAWS,
     MAX_BLOCK,
@@ -26,6 +27,7 @@ from .schema import (
     Scenario,
     ScenarioError,
     big,
+    clamps,
     show,
     show_key,
     steps_for_duration,
@@ -123,6 +125,9 @@ _PAIR_CONSTRAINTS = {
     "youngs_modulus": _within(1.0, 1e13),
     "poisson_ratio": _within(-0.99, 0.49),
     "restitution": _within(0.0, 1.0, lo_open=True),
+    "youngs_modulus_2": (lambda v: v == 0.0 or 1.0 <= v <= 1e13, "0 (the same as the first surface) or in [1, 1e13]"),
+    "poisson_ratio_2": _within(-0.99, 0.49),
+    "cohesion": _within(0.0, 1e9),
 }
 
 
@@ -156,6 +161,9 @@ def _coerce(path: str, value: Any, typ) -> Any:
     raise ScenarioError(f"{path} = {show(value)}: must be {_type_name(typ)}")
 
 
+_OPTIONAL_TYPES = {("ContactPair", "no_tension"): bool}
+
+
 def _build(cls, data: Any, path: str, defaults):
     if not isinstance(data, dict):
         raise ScenarioError(f"{path} = {show(data)}: must be a table")
@@ -174,7 +182,12 @@ def _build(cls, data: Any, path: str, defaults):
         if dataclasses.is_dataclass(default):
             kwargs[name] = _build(type(default), data[name], sub, default)
         else:
-            kwargs[name] = _coerce(sub, data[name], type(default))
+            # an optional key (default None) holds the type its annotation names
+            typ = _OPTIONAL_TYPES.get((cls.__name__, name), type(default))
+            if data[name] is None and (cls.__name__, name) in _OPTIONAL_TYPES:
+                kwargs[name] = None  # a dict (not TOML) may hold an unset optional key
+            else:
+                kwargs[name] = _coerce(sub, data[name], typ)
     return cls(**kwargs)
 
 
@@ -189,6 +202,18 @@ def _check_ranges(sc: Scenario) -> None:
             v = getattr(p, key)
             if not pred(v):
                 raise ScenarioError(f"contact.{pair}.{key} = {show(v)}: must be {allowed}")
+    if sc.dim == 3:
+        for pair in ("soil_soil", "soil_wall", "soil_wheel"):
+            p = getattr(sc.contact, pair)
+            # the linear law's cohesion grows as fast as its spring (k_c 2 pi R* per unit of
+            # overlap): past kn no overlap balances it and the grains sink into each other
+            r_star = sc.soil.r_max if pair != "soil_soil" else 0.5 * sc.soil.r_max
+            if p.law == "linear" and p.cohesion > 0.0 and 2.0 * math.pi * p.cohesion * r_star >= p.kn:
+                raise ScenarioError(
+                    f"contact.{pair}.cohesion = {show(p.cohesion)}: with the linear law it must stay below "
+                    f"kn / (2 pi R*) = {p.kn / (2.0 * math.pi * r_star):.4g} J/m^3 (R* = {r_star!r} m), "
+                    f"or the cohesion outgrows the spring; use the hertz law"
+                )
     if sc.dim == 2:
         for pair in ("soil_soil", "soil_wall", "soil_wheel"):
             if getattr(sc.contact, pair).law != "linear":
@@ -449,6 +474,7 @@ def contact_params_3d(pair: ContactPair) -> tuple:
     from ..physics.d3 import layout as L3
 
     if pair.law == "hertz":
+        second = pair.youngs_modulus_2 > 0.0
         return L3.hertz_params(
             pair.youngs_modulus,
             pair.poisson_ratio,
@@ -456,12 +482,21 @@ def contact_params_3d(pair: ContactPair) -> tuple:
             mu=pair.friction,
             mur=pair.rolling_friction,
             zr=pair.rolling_damping,
-            E2=pair.youngs_modulus,
-            nu2=pair.poisson_ratio,
-            no_tension=False,
+            E2=pair.youngs_modulus_2 if second else pair.youngs_modulus,
+            nu2=pair.poisson_ratio_2 if second else pair.poisson_ratio,
+            no_tension=clamps(pair),
+            kc=pair.cohesion,
         )
     return L3.linear_params(
-        pair.kn, pair.ks, pair.damping_n, pair.damping_t, pair.friction, pair.rolling_friction, pair.rolling_damping
+        pair.kn,
+        pair.ks,
+        pair.damping_n,
+        pair.damping_t,
+        pair.friction,
+        pair.rolling_friction,
+        pair.rolling_damping,
+        no_tension=clamps(pair),
+        kc=pair.cohesion,
     )
 
 
@@ -518,7 +553,8 @@ def _critical_step_3d(sc: Scenario) -> tuple[float, str]:
 
 
 def scenario_from_dict(data: dict) -> Scenario:
-    """The Scenario of a dict of sections (keys absent: the defaults), checked."""
-    sc = _build(Scenario, data, "", Scenario())
+    """The Scenario of a dict of sections (keys absent: the defaults; [materials] folded into
+    the contact pairs, model.materials), checked."""
+    sc = _build(Scenario, resolve_materials(data), "", Scenario())
     _check_ranges(sc)
     return sc

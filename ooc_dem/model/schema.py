@@ -135,7 +135,14 @@ class ContactPair:
     law: str = "linear"  # "linear" (kn, ks, damping_*) or "hertz" (3D: Hertz-Mindlin)
     youngs_modulus: float = 1.0e7  # Pa, hertz: both surfaces of the pair
     poisson_ratio: float = 0.3  # hertz
-    restitution: float = 0.5  # hertz: coefficient of restitution (sets the damping)
+    restitution: float = (
+        0.5  # hertz: coefficient of restitution (sets the damping); linear: sets damping_n if that is not given
+    )
+    youngs_modulus_2: float = 0.0  # Pa, hertz: the second surface (wall, wheel); 0: the same as the first
+    poisson_ratio_2: float = 0.0  # hertz: the second surface; with youngs_modulus_2 = 0 unused
+    cohesion: float = 0.0  # J/m^3, simplified-JKR cohesion energy density (0: none)
+    # clamp the normal force at zero (the damping cannot pull); unset: default_no_tension(law)
+    no_tension: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -255,6 +262,8 @@ class Scenario:
             if d[sec].get(key) == default:
                 del d[sec][key]
         for pair in d["contact"].values():
+            if pair.get("no_tension") in (None, default_no_tension(pair.get("law", "linear"))):
+                pair.pop("no_tension", None)
             for key, neutral in _PAIR_HASH_NEUTRAL.items():
                 if pair.get(key) == neutral:
                     del pair[key]
@@ -294,7 +303,28 @@ _HASH_NEUTRAL = {
     ("physics", "history_capacity"): 0,
     ("wheel", "z0"): 0.0,
 }
-_PAIR_HASH_NEUTRAL = {"law": "linear", "youngs_modulus": 1.0e7, "poisson_ratio": 0.3, "restitution": 0.5}
+_PAIR_HASH_NEUTRAL = {
+    "law": "linear",
+    "youngs_modulus": 1.0e7,
+    "poisson_ratio": 0.3,
+    "restitution": 0.5,
+    "youngs_modulus_2": 0.0,
+    "poisson_ratio_2": 0.0,
+    "cohesion": 0.0,
+}
+
+
+def default_no_tension(law: str) -> bool:
+    """The no-tension clamp a pair has unless it says: on for the linear law (the paper's),
+    off for Hertz (its Tsuji damping then gives exactly the stated restitution)."""
+    return law != "hertz"
+
+
+def clamps(pair: ContactPair) -> bool:
+    """Whether the pair's normal force is clamped at zero (its no_tension, else the law's default)."""
+    return default_no_tension(pair.law) if pair.no_tension is None else pair.no_tension
+
+
 LAWS = ("linear", "hertz")
 REPOSE_MEASUREMENT_KEYS = ("fit_low", "fit_high", "sectors", "bin_width")
 
@@ -331,7 +361,8 @@ def dict_to_toml(d: dict) -> str:
         return toml_string(str(v))
 
     def emit(prefix, table):
-        scal = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        # an unset optional key (None) is not written: absent, it reads back as unset
+        scal = {k: v for k, v in table.items() if not isinstance(v, dict) and v is not None}
         subs = {k: v for k, v in table.items() if isinstance(v, dict)}
         if prefix and scal:
             lines.append(f"[{prefix}]")

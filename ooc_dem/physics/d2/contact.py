@@ -2,7 +2,9 @@
 (disc-disc pairs, walls, wheel rim and lugs), as LAMMPS's granular_model composes
 its sub-models:
 
-- ``normal_force``      linear spring-dashpot (Voigt), no tension;
+- ``normal_force``      linear spring-dashpot (Voigt), clamped at zero force unless the
+                        pair's ``no_tension`` is off, less the cohesion
+                        (``physics.cohesion``: k_c times the contact's chord);
 - ``tangential_force``  tangential spring with history and a Coulomb limit;
 - ``rolling_moment``    elastic-plastic rolling resistance (limit mu_r r_eff Fn).
 
@@ -13,23 +15,32 @@ evaluation (b the force, a its exact negation), which is what makes every execut
 mode bit-identical (docs/design.md §3).
 
 The parameters of a material pair are one ``layout.CONTACT_PARAMS`` record
-``c`` (fields kn, ks, zn, zt, mu, mur, zr).
+``c`` (fields kn, ks, zn, zt, mu, mur, zr, no_tension, kc).
 """
 
 import math
 
 from numba import njit
 
-from .layout import CONTACT_PARAMS, KN, KS, MU, MUR, N_FIELDS, ZN, ZR, ZT  # noqa: F401
+from ..cohesion import contact_radius_sq
+from .layout import CONTACT_PARAMS, KC, KN, KS, MU, MUR, N_FIELDS, NO_TENSION, ZN, ZR, ZT  # noqa: F401
 
 
 @njit(inline="always", cache=True)
-def normal_force(delta, vn, meff, kn, zn):
-    """Normal force of overlap delta > 0 at normal approach speed -vn (no tension)."""
+def normal_force(delta, vn, meff, kn, zn, no_tension):
+    """Repulsive normal force of overlap delta > 0 at normal approach speed -vn: clamped at
+    zero when no_tension is set (the damping cannot pull), else the plain Voigt force."""
     fn = kn * delta - 2.0 * zn * math.sqrt(meff * kn) * vn
-    if fn < 0.0:
+    if fn < 0.0 and no_tension > 0.5:
         fn = 0.0
     return fn
+
+
+@njit(inline="always", cache=True)
+def cohesive_force(kc, ra, rb, delta):
+    """The simplified-JKR attraction: kc (cohesion energy density times the discs'
+    thickness) times the contact's chord 2 a (ra = 0: a disc on a wall)."""
+    return kc * 2.0 * math.sqrt(contact_radius_sq(ra, rb, delta))
 
 
 @njit(inline="always", cache=True)
@@ -64,13 +75,37 @@ def rolling_moment(wrel, fn, m_old, ieff, reff, ks, mur, zr, dt):
 
 @njit(inline="always", cache=True)
 def contact_force(
-    nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff, s_old, m_old, kn, ks, zn, zt, mu, mur, zr, dt
+    nx,
+    ny,
+    delta,
+    vrx,
+    vry,
+    wa,
+    wb,
+    ra,
+    rb,
+    meff,
+    ieff,
+    reff,
+    s_old,
+    m_old,
+    kn,
+    ks,
+    zn,
+    zt,
+    mu,
+    mur,
+    zr,
+    dt,
+    no_tension=1.0,
+    kc=0.0,
 ):
     """Forces of one contact in canonical orientation.
 
     n = (nx, ny) is the unit normal from a to b, delta > 0 the overlap,
     (vrx, vry) the velocity of b's centre relative to a's contact-frame centre,
-    wa, wb the spins, ra, rb the lever arms from each centre to the contact.
+    wa, wb the spins, ra, rb the lever arms from each centre to the contact (0 for a wall),
+    which are also the radii of the cohesion's contact chord.
     Returns (fn, ft, s_new, M, m_new): the force on b is fn*n - ft*t with
     t = (-ny, nx); a gets the exact negation; the torque on each disc from the
     tangential force is r*ft; the rolling moment M acts on b and -M on a.
@@ -80,9 +115,12 @@ def contact_force(
     ty = nx
     vn = vrx * nx + vry * ny
     vt = vrx * tx + vry * ty - (wa * ra + wb * rb)
-    fn = normal_force(delta, vn, meff, kn, zn)
-    ft, s = tangential_force(vt, fn, s_old, meff, ks, zt, mu, dt)
-    moment, m_new = rolling_moment(wb - wa, fn, m_old, ieff, reff, ks, mur, zr, dt)
+    fn = normal_force(delta, vn, meff, kn, zn, no_tension)
+    fc = max(fn, 0.0)  # compressive part: the friction and rolling limits (fn when clamped)
+    ft, s = tangential_force(vt, fc, s_old, meff, ks, zt, mu, dt)
+    moment, m_new = rolling_moment(wb - wa, fc, m_old, ieff, reff, ks, mur, zr, dt)
+    if kc > 0.0:
+        fn -= cohesive_force(kc, ra, rb, delta)
     return fn, ft, s, moment, m_new
 
 
@@ -112,4 +150,6 @@ def contact(c, nx, ny, delta, vrx, vry, wa, wb, ra, rb, meff, ieff, reff, s_old,
         c.mur,
         c.zr,
         dt,
+        c.no_tension,
+        c.kc,
     )

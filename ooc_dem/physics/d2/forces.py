@@ -46,13 +46,14 @@ def law_block(uniform):
         s_old_, m_old_ = law_in[LawIn.s_old], law_in[LawIn.m_old]
         kn, ks, zn, zt = law_in[LawIn.kn], law_in[LawIn.ks], law_in[LawIn.zn], law_in[LawIn.zt]
         mu, mur, zr = law_in[LawIn.mu], law_in[LawIn.mur], law_in[LawIn.zr]
+        no_tension, kc = law_in[LawIn.no_tension], law_in[LawIn.kc]
         bx_, by_, ta_, tb_ = law_out[LawOut.bx], law_out[LawOut.by], law_out[LawOut.ta], law_out[LawOut.tb]
         s_, m_ = law_out[LawOut.s], law_out[LawOut.m]
         for t in range(k):
             if uniform:  # a constant: one record for the block, or each pair's columns
                 c = c0
             else:
-                c = LawParams(kn[t], ks[t], zn[t], zt[t], mu[t], mur[t], zr[t])
+                c = LawParams(kn[t], ks[t], zn[t], zt[t], mu[t], mur[t], zr[t], no_tension[t], kc[t])
             dx = dx_[t]
             dy = dy_[t]
             ra = ra_[t]

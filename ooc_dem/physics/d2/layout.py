@@ -23,9 +23,18 @@ DIM = 2  # axes x (travel), y (vertical)
 SPIN = 1  # the spin about z
 
 # ----------------------------------------------------------- contact parameters
-CONTACT_PARAMS = record_dtype(("kn", "ks", "zn", "zt", "mu", "mur", "zr"))
-KN, KS, ZN, ZT, MU, MUR, ZR = range(7)
+# no_tension = 1: the normal force is clamped at zero (the damping cannot pull); kc: the
+# cohesion energy density times the discs' thickness (physics.cohesion; 0: none)
+CONTACT_PARAMS = record_dtype(("kn", "ks", "zn", "zt", "mu", "mur", "zr", "no_tension", "kc"))
+KN, KS, ZN, ZT, MU, MUR, ZR, NO_TENSION, KC = range(9)
 N_FIELDS = len(CONTACT_PARAMS.names)
+
+
+def linear_params(kn, ks, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0, no_tension=True, kc=0.0):
+    """One CONTACT_PARAMS tuple (clamped at zero force unless no_tension=False; kc: the
+    cohesion energy density times the discs' thickness)."""
+    return (kn, ks, zn, zt, mu, mur, zr, float(no_tension), kc)
+
 
 # ------------------------------------------------------------------- walls
 WALLS = record_dtype(("length", "left", "right", "bottom"))

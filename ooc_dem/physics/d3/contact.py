@@ -7,7 +7,8 @@
   With the pair's ``no_tension`` set the force is clamped at zero (the 2D law);
   without it the damping may pull while the bodies overlap (LAMMPS granular without
   ``limit_damping``), which makes the Tsuji restitution exactly e.
-  The friction and rolling limits use the compressive part max(Fn, 0).
+  The friction and rolling limits use the compressive part max(Fn, 0). The cohesion
+  (``physics.cohesion``: kc times the contact area pi a^2) is then subtracted from Fn.
 - tangential: the spring is a 3-vector force. Each step it is first projected onto
   the current tangent plane and rescaled to keep its magnitude (LAMMPS
   ``rotate_rescale_vec``, Luding 2008), then incremented by kt vt dt (kt = ks, or
@@ -31,6 +32,7 @@ import math
 
 from numba import njit
 
+from ..cohesion import contact_radius_sq
 from .layout import LAW_HERTZ
 
 SQRT_5_6 = math.sqrt(5.0 / 6.0)
@@ -51,6 +53,13 @@ def project_rescale(sx, sy, sz, nx, ny, nz):
         return 0.0, 0.0, 0.0
     f = math.sqrt(mag2 / p2)
     return px * f, py * f, pz * f
+
+
+@njit(inline="always", cache=True)
+def cohesive_force(kc, ra, rb, delta):
+    """The simplified-JKR attraction: kc (cohesion energy density) times the contact area
+    pi a^2 (ra = 0: a sphere on a wall or a wheel part)."""
+    return kc * math.pi * contact_radius_sq(ra, rb, delta)
 
 
 @njit(inline="always", cache=True)
@@ -109,7 +118,7 @@ def contact(
     effective mass, inertia, radius; s, m: stored tangential spring force and rolling
     spring moment (3-vectors). Returns
     (fn, ftx, fty, ftz, snx, sny, snz, Mx, My, Mz, mnx, mny, mnz): the normal force
-    (negative only without no_tension), the
+    (negative without no_tension or with cohesion), the
     tangential force Ft (force on b = fn n - Ft), the new spring, the rolling moment on
     b (a gets -M) and the new rolling spring."""
     fe, cn, kt, ct = law_coefficients(c, delta, meff, reff)
@@ -182,4 +191,6 @@ def contact(
             mnx = mox
             mny = moy
             mnz = moz
+    if c.kc > 0.0:
+        fn -= cohesive_force(c.kc, ra, rb, delta)
     return fn, ftx, fty, ftz, sx, sy, sz, mox, moy, moz, mnx, mny, mnz

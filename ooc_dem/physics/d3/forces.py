@@ -127,7 +127,7 @@ def law_block(fixed, uniform):
         law_, kn, ks = law_in[LawIn.law], law_in[LawIn.kn], law_in[LawIn.ks]
         zn, zt, mu, mur = law_in[LawIn.zn], law_in[LawIn.zt], law_in[LawIn.mu], law_in[LawIn.mur]
         zr, estar, gstar = law_in[LawIn.zr], law_in[LawIn.estar], law_in[LawIn.gstar]
-        beta, no_tension = law_in[LawIn.beta], law_in[LawIn.no_tension]
+        beta, no_tension, kc = law_in[LawIn.beta], law_in[LawIn.no_tension], law_in[LawIn.kc]
         for t in range(k):
             if uniform:  # a constant: one record for the block, or each pair's columns
                 c = LawParams(
@@ -143,6 +143,7 @@ def law_block(fixed, uniform):
                     c0.gstar,
                     c0.beta,
                     c0.no_tension,
+                    c0.kc,
                 )
             else:
                 c = LawParams(
@@ -158,6 +159,7 @@ def law_block(fixed, uniform):
                     gstar[t],
                     beta[t],
                     no_tension[t],
+                    kc[t],
                 )
             # the contact geometry and effective quantities (produce's distance test made d2)
             dx = dx_[t]

@@ -77,8 +77,9 @@ LAW_HERTZ = 1
 # which is what makes the restitution of the Tsuji law exactly the target e
 # (validation-3d.md section 3; clamped, e = 0.3 gives 0.397). Friction and rolling
 # limits use max(Fn, 0).
+# kc: the cohesion energy density (physics.cohesion; 0: none).
 CONTACT_PARAMS = record_dtype(
-    ("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr", "estar", "gstar", "beta", "no_tension")
+    ("law", "kn", "ks", "zn", "zt", "mu", "mur", "zr", "estar", "gstar", "beta", "no_tension", "kc")
 )
 N_FIELDS = len(CONTACT_PARAMS.names)
 
@@ -210,13 +211,14 @@ def zeta_of_restitution(e):
     return -beta_of_restitution(e)
 
 
-def linear_params(kn, ks, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0, no_tension=True):
+def linear_params(kn, ks, zn=0.0, zt=0.0, mu=0.0, mur=0.0, zr=0.0, no_tension=True, kc=0.0):
     """One CONTACT_PARAMS tuple of the linear spring-dashpot law (the 2D law's parameters;
-    clamped at zero force like the 2D law unless no_tension=False)."""
-    return (LAW_LINEAR, kn, ks, zn, zt, mu, mur, zr, 0.0, 0.0, 0.0, float(no_tension))
+    clamped at zero force like the 2D law unless no_tension=False; kc: cohesion energy
+    density)."""
+    return (LAW_LINEAR, kn, ks, zn, zt, mu, mur, zr, 0.0, 0.0, 0.0, float(no_tension), kc)
 
 
-def hertz_params(E1, nu1, e, mu=0.0, mur=0.0, zr=0.0, E2=math.inf, nu2=0.0, no_tension=False):
+def hertz_params(E1, nu1, e, mu=0.0, mur=0.0, zr=0.0, E2=math.inf, nu2=0.0, no_tension=False, kc=0.0):
     """One CONTACT_PARAMS tuple of Hertz-Mindlin from Young's moduli, Poisson ratios and
     restitution e (validation-3d.md section 3); E2 = inf for a rigid wall. By default
     the damping may pull while overlapping (restitution = e exactly); no_tension=True
@@ -234,6 +236,7 @@ def hertz_params(E1, nu1, e, mu=0.0, mur=0.0, zr=0.0, E2=math.inf, nu2=0.0, no_t
         effective_shear_modulus(E1, nu1, E2, nu2),
         beta_of_restitution(e),
         float(no_tension),
+        kc,
     )
 
 

@@ -179,10 +179,14 @@ def main():
             for _ in range(a.repeat):
                 for tree in trees:
                     env = dict(os.environ, PYTHONPATH=tree + os.pathsep + here)
+                    # each tree measured by its own copy of this script (its imports are its own)
+                    script = os.path.join(tree, "tools", "kernel_bench.py")
+                    if not os.path.exists(script):
+                        script = os.path.abspath(__file__)
                     out = subprocess.run(
                         [
                             sys.executable,
-                            os.path.abspath(__file__),
+                            script,
                             "--one",
                             a.family,
                             str(n),

@@ -19,8 +19,6 @@ from support.cli import run_cli
 from support.stores import committed_step
 from support.mpi import ENV, mpiexec
 
-pytestmark = pytest.mark.slow
-
 CASES = {
     "2d": (
         "quick",

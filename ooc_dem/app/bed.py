@@ -1,7 +1,8 @@
 """Soil bed generation: random loose fill of the bin, deposited under gravity.
 
-Discs with radii uniform in [r_min, r_max] are placed on a loose jittered grid
-and settle under gravity until the mean speed falls below ``bed.settle_speed``.
+Discs with radii drawn from ``soil.grading`` between r_min and r_max (uniform by
+default; model/grading.py) are placed on a loose jittered grid and settle under
+gravity until the mean speed falls below ``bed.settle_speed``.
 Large beds (``bed.tile`` > 0) are made of side-by-side copies of one settled
 tile: every disc of a tile stays clear of the tile's walls, so copies never
 overlap, and a tile can be produced per sub-domain without holding the bed.
@@ -32,6 +33,7 @@ from numpy.typing import NDArray
 from ..engine.stepper import DomainStepper, Model
 from ..errors import OocDemError
 from ..physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
+from ..model.grading import draw_radii, grading_of_soil
 from ..model.scenario_check import scenario_from_dict, tile_grid, tile_scenario
 from ..model.schema import MAX_STEPS, Scenario, ScenarioError
 from ..model.state import Particles
@@ -63,7 +65,7 @@ def initial_fill(sc: Scenario) -> Particles:
         raise ScenarioError(
             f"bin.height = {sc.bin.height}: the loose fill of {s.n} discs needs {top:.3f} m; raise bin.height"
         )
-    r = rng.uniform(s.r_min, s.r_max, s.n)
+    r = draw_radii(grading_of_soil(s), s.n, rng, sc.dim)  # uniform: rng.uniform(r_min, r_max, n)
     k = np.arange(s.n)
     col = k % ncol
     row = k // ncol
@@ -101,7 +103,7 @@ def initial_fill_3d(sc: Scenario) -> Particles:
         raise ScenarioError(
             f"bin.height = {sc.bin.height}: the loose fill of {s.n} spheres needs {top:.3f} m; raise bin.height"
         )
-    r = rng.uniform(s.r_min, s.r_max, s.n)
+    r = draw_radii(grading_of_soil(s), s.n, rng, sc.dim)  # uniform: rng.uniform(r_min, r_max, n)
     k = np.arange(s.n)
     layer, inlayer = k // per, k % per
     ix, iz = inlayer % nx, inlayer // nx

@@ -105,6 +105,7 @@ SIEVE = {"sizes": (1e-3, 2e-3, 4e-3), "passing": (0, 40, 100)}
         (Grading("normal", 1e-3, 2e-3, r_mean=1.5e-3, r_std=0.0), "r_std"),
         (Grading("normal", 1e-3, 2e-3, r_mean=2.5e-3, r_std=1e-4), "r_mean"),
         (Grading("lognormal", 1e-3, 2e-3, r_median=1.5e-3, gsd=1.0), "gsd"),
+        (Grading("normal", 1e-3, 2e-3, r_mean=1.5e-3, r_std=1e-12), "too narrow"),
         (Grading("lognormal", 1e-3, 2e-3, r_median=0.5e-3, gsd=1.2), "r_median"),
         (Grading("sieve", 0.5e-3, 2e-3, sizes=(1e-3,), passing=(0,)), "2 to"),
         (Grading("sieve", 0.5e-3, 2e-3, sizes=(2e-3, 1e-3), passing=(0, 100)), "increase"),

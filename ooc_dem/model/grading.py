@@ -48,7 +48,8 @@ PARAMETERS = {
 MAX_SIEVES = 1000  # pairs of a sieve curve (a sieve series has a few dozen at most)
 
 # points of a tabulated number CDF per decade of radius: the inverse is linear between
-# them, far finer than any sieve series or than a bed's spread of sizes needs
+# them, far finer than any sieve series or than a bed's spread of sizes needs (a spread
+# below their spacing, 0.06 % of the radius, is drawn as that spacing)
 _POINTS_PER_DECADE = 4000
 
 
@@ -97,6 +98,13 @@ def check_grading(g: Grading, key: Callable[[str], str] = str) -> str | None:
             return f"{key('gsd')} = {g.gsd!r}: the geometric standard deviation must be finite and > 1"
     else:
         return _check_sieve(g, key)
+    if not _tabulated(g, 3)[1][-1] > 0:  # a spread far below the grid's spacing, all of it between two points
+        spread = key("r_std") if g.kind == "normal" else key("gsd")
+        return (
+            f"{spread} = {g.r_std if g.kind == 'normal' else g.gsd!r}: too narrow to draw from "
+            f"(no mass on a grid of {_POINTS_PER_DECADE} radii a decade); for grains of one size use "
+            f"{key('kind')} = 'uniform' with close {key('r_min')} and {key('r_max')}"
+        )
     return None
 
 
@@ -152,14 +160,24 @@ def draw_radii(g: Grading, n: int, rng: np.random.Generator, k: int) -> NDArray[
 def number_cdf(g: Grading, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(ln r, the fraction of particles by number with a smaller radius) of a non-uniform
     grading on a fine grid of ln r over [r_min, r_max]; draws invert it by linear interpolation."""
+    log_r, cdf = _tabulated(g, k)
+    if not cdf[-1] > 0:
+        raise ValueError(f"{g.kind}: no particle between r_min = {g.r_min!r} and r_max = {g.r_max!r}")
+    return log_r, cdf / cdf[-1]
+
+
+def _tabulated(g: Grading, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(ln r, the number CDF not yet normalised) on number_cdf's grid."""
     lo, hi = g.r_min, g.r_max
     m = max(2, int(math.log10(hi / lo) * _POINTS_PER_DECADE) + 1)
     log_r = np.linspace(math.log(lo), math.log(hi), m)
     r = np.exp(log_r)
     if g.kind == "normal":
-        density = np.exp(-0.5 * ((r - g.r_mean) / g.r_std) ** 2) * r  # per unit ln r
+        with np.errstate(over="ignore", under="ignore"):  # far tails of a narrow law: 0
+            density = np.exp(-0.5 * ((r - g.r_mean) / g.r_std) ** 2) * r  # per unit ln r
     elif g.kind == "lognormal":
-        density = np.exp(-0.5 * ((log_r - math.log(g.r_median)) / math.log(g.gsd)) ** 2)
+        with np.errstate(over="ignore", under="ignore"):
+            density = np.exp(-0.5 * ((log_r - math.log(g.r_median)) / math.log(g.gsd)) ** 2)
     else:
         # mass per unit ln d: the slope of the log-linear passing curve between two sieves,
         # none below the first sieve or above the last (the curve says nothing there)
@@ -170,9 +188,7 @@ def number_cdf(g: Grading, k: int) -> tuple[NDArray[np.float64], NDArray[np.floa
         inside = (x >= log_d[0]) & (x <= log_d[-1])
         density = np.where(inside, slope[seg], 0.0) * np.exp(-k * log_r)  # number = mass / d^k
     cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(log_r))])
-    if not cdf[-1] > 0:
-        raise ValueError(f"{g.kind}: no particle between r_min = {lo!r} and r_max = {hi!r}")
-    return log_r, cdf / cdf[-1]
+    return log_r, cdf
 
 
 def passing(radii: ArrayLike, diameters: ArrayLike, k: int) -> NDArray[np.float64]:

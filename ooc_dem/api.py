@@ -59,8 +59,16 @@ def _override_items(overrides: Mapping[Any, object], prefix: str = "") -> Iterat
             text = repr(float(value))  # inf and nan are TOML too: refused as "must be finite"
         elif isinstance(value, str):
             text = toml_string(value)
+        elif isinstance(value, (list, tuple)) and all(
+            isinstance(x, numbers.Real) and not isinstance(x, bool) for x in value
+        ):  # an array of numbers (soil.grading.sizes, soil.grading.passing)
+            text = (
+                "[" + ", ".join(str(int(x)) if isinstance(x, numbers.Integral) else repr(float(x)) for x in value) + "]"
+            )
         else:
-            raise ScenarioError(f"{full} = {show(value)}: must be a number, a string or true/false")
+            raise ScenarioError(
+                f"{full} = {show(value)}: must be a number, a string, true/false or an array of numbers"
+            )
         yield f"{full}={text}"
 
 

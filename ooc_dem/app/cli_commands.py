@@ -42,7 +42,7 @@ def cmd_scenarios(args):
 
 def cmd_prepare(args):
     import numpy as np
-    from .bed import settled_bed, surface_height, wheel_footprint
+    from .bed import bed_info, settled_bed, surface_height, wheel_footprint
     from .plan import check_bed_memory
 
     sc = _load(args)
@@ -56,7 +56,7 @@ def cmd_prepare(args):
     np.savez(out / "bed.npz", **columns)
     (out / "scenario.toml").write_text(sc.to_toml(), encoding="utf-8")
     surf = surface_height(bed, sc.bin.length, sc.soil.r_max, across=wheel_footprint(sc))
-    info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf, "bed_hash": sc.bed_hash()}
+    info = bed_info(sc, bed, surf)
     (out / "bed.json").write_text(json.dumps(info, indent=2))
     print(json.dumps(info))
     return 0
@@ -157,8 +157,25 @@ def _print_run_result(summary, out):
         f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
         f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}"
     )
+    if isinstance(summary.get("bed"), dict):
+        print(bed_line(summary["bed"]))
     print(f"state hash: {summary['state_hash']}")
     print(f"output: {out}  (shown by `ooc-dem report {out}`; in Python: ooc_dem.open_run({str(out)!r}))")
+
+
+def bed_line(info: dict[str, Any]) -> str:
+    """One line of a bed's report (bed.json, summary.json's ``bed``)."""
+    g = info.get("grading") or {}
+
+    def num(v: Any, fmt: str, scale: float = 1.0) -> str:
+        return format(v * scale, fmt) if isinstance(v, (int, float)) else "?"
+
+    return (
+        f"bed: bulk density {num(info.get('bulk_density_kg_m3'), '.0f')} kg/m3, porosity "
+        f"{num(info.get('porosity'), '.3f')}, coordination number {num(info.get('coordination_number'), '.2f')}, "
+        f"d10/d50/d60 {num(g.get('d10_m'), '.3f', 1e3)}/{num(g.get('d50_m'), '.3f', 1e3)}/"
+        f"{num(g.get('d60_m'), '.3f', 1e3)} mm, Cu {num(g.get('cu'), '.2f')}"
+    )
 
 
 def cmd_resume(args):
@@ -217,6 +234,8 @@ def cmd_report(args):
     if "slip" in summary:
         figs = make_figures(out)
         print(print_table(summary))
+        if isinstance(summary.get("bed"), dict):
+            print(bed_line(summary["bed"]))
         for fig in figs:
             print(f"figure: {fig}")
     else:

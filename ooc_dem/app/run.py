@@ -10,6 +10,7 @@ the metrics and commits the epochs. ``resume.py`` reads what a resume continues 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import sys
 import time
@@ -27,10 +28,11 @@ from ..model.checkpoint import read_all_particles  # noqa: F401  (a run's whole 
 from ..model.scenario import Scenario
 from ..model.state import Particles
 from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE, WS_X, WS_Y
-from .bed import settled_bed, surface_height, wheel_footprint
+from .bed import TiledBedMeasure, bed_info, settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
 from .plan import RunError, RunOptions, plan_run, streamable
 from .resume import check_engine_attrs, open_resume_epoch, stored_run
+from .runfiles import read_bed_info
 
 if TYPE_CHECKING:
     from ooc_dem.storage.store import Store
@@ -101,7 +103,7 @@ class Progress:
 
 
 # what `run` puts into its output directory before the first commit
-_RUN_SETUP_FILES = ("initial.npz", "scenario.toml")
+_RUN_SETUP_FILES = ("initial.npz", "scenario.toml", "bed.json")
 
 
 def _stopped_before_first_commit(out: Path) -> bool:
@@ -134,6 +136,7 @@ class StreamedBed:
     def __init__(self, sc: Scenario):
         self.sc = sc
         self.surfaces: list[float] | None = None
+        self.measure = TiledBedMeasure(sc)  # the bed report, measured on the first pass
 
     def __iter__(self):
         from .bed import tiled_bed_parts
@@ -149,6 +152,7 @@ class StreamedBed:
                 measured.append(
                     surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max, x_origin=x0, across=band)
                 )
+                self.measure.add(p)
             yield p
 
 
@@ -185,6 +189,7 @@ class Simulation:
         self.metrics: WheelMetrics | None = None
         self.step = 0
         self.surface = 0.0
+        self.bed_info: dict[str, Any] | None = None  # bed.json: the bed's report (summary.json's "bed")
         self.wall_time = 0.0
         # trajectory frames (trajectory.py): every frame_every steps, 0 = none
         from .trajectory import frame_every
@@ -248,6 +253,7 @@ class Simulation:
             bed = settled_bed(self.sc, progress=self._bed_progress())
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
         self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max, across=wheel_footprint(self.sc))
+        self.bed_info = bed_info(sc, bed, self.surface)
         try:
             self.store = create_store(self.out, self._store_backend(), self._meta(), compression=self.opts.compression)
         except StoreError as e:
@@ -266,6 +272,7 @@ class Simulation:
             **extra,
         )
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
+        (self.out / "bed.json").write_text(json.dumps(self.bed_info, indent=2), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:
             from .metrics import WheelMetrics
@@ -298,6 +305,8 @@ class Simulation:
         # create_streamed passed over the bed once: its surfaces are measured
         assert bed.surfaces is not None, "the streamed bed was not passed over"
         self.surface = float(np.mean(bed.surfaces))
+        self.bed_info = bed.measure.info(self.surface)
+        (self.out / "bed.json").write_text(json.dumps(self.bed_info, indent=2), encoding="utf-8")
         self.step = 0
         self.commit()
         self._start_trajectory()
@@ -501,7 +510,8 @@ class Simulation:
     def finish(self) -> dict:
         """Write series.csv, summary.json and the figures from the committed final state
         (``outputs.py``: each under a temporary name, renamed when complete)."""
-        results = dict(self.metrics.summary()) if self.metrics is not None else {}
+        results: dict[str, Any] = {"bed": self.bed_info} if self.bed_info is not None else {}
+        results.update(self.metrics.summary() if self.metrics is not None else {})
         if self.sc.repose.enabled:  # the angle-of-repose test (docs/reference/repose3d.md)
             from .repose import heap_outputs
 
@@ -594,6 +604,7 @@ def _reopen(
     """resume_simulation's work on an open store (None: the run was already finished)."""
     sc, opts = stored_run(store, path, steps, until, progress, figures, mode)
     sim = Simulation(sc, path, opts)  # the stored options planned and checked as a run's
+    sim.bed_info = read_bed_info(path)  # the bed's report, for summary.json (None: an older run)
     epoch = open_resume_epoch(store, path, sc)
     try:
         sim._continue_from(store, epoch, path)

@@ -4,13 +4,15 @@ come from anyone), so each is checked against what ooc-dem writes and refused in
 
 * ``run_file(out, name)``: a regular file inside the run directory (no symlink out of it);
 * ``read_summary`` (``summary.json``), ``read_series`` (``series.csv``), ``read_initial`` and
-  ``read_initial_z`` (``initial.npz``), ``read_run_scenario`` (``scenario.toml``);
+  ``read_initial_z`` (``initial.npz``), ``read_run_scenario`` (``scenario.toml``),
+  ``read_bed_info`` (``bed.json``);
 * ``read_final`` / ``read_final_particles``: the last committed epoch of the run's store.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import stat
 import warnings
@@ -29,6 +31,7 @@ class RunFileError(OocDemError, ValueError):
 
 MAX_SUMMARY_BYTES = 16 << 20  # summary.json is a few kB; anything this big is not ours
 MAX_SCENARIO_BYTES = 1 << 20
+MAX_BED_INFO_BYTES = 64 << 10  # bed.json is under 1 kB
 MAX_HEADER_CHARS = 4096
 SERIES_NEEDED = ("slip", "net_traction", "gross_traction", "torque", "sinkage")  # the series figure's
 INITIAL_ARRAYS = ("id", "x", "y", "r", "surface")
@@ -137,10 +140,49 @@ def validate_summary(summary, f, complete: bool = True) -> dict:
             ws = w.get("window_s")
             if ws is not None and not (isinstance(ws, list) and len(ws) == 2 and all(map(_is_number, ws))):
                 raise RunFileError(f"{f}: '{where}.window_s' must be [start, end] in s or null")
+    if "bed" in summary:
+        validate_bed_info(summary["bed"], f, "'bed'")
     surf = summary.get("surface_height")
     if surf is not None and not (isinstance(surf, dict) and (surf.get("value") is None or _is_number(surf["value"]))):
         raise RunFileError(f"{f}: 'surface_height' must be an object with a numeric value")
     return summary
+
+
+def validate_bed_info(info, f, what: str = "bed.json") -> dict:
+    """``info`` as bed.json holds it (bed.bed_info: one level of numbers, strings and null,
+    and the grading's numbers), or RunFileError naming ``f``."""
+    if not isinstance(info, dict) or len(info) > 64:
+        raise RunFileError(f"{f}: {what} must be an object of at most 64 keys")
+    for key, v in info.items():
+        ok = (
+            v is None
+            or (_is_number(v) and math.isfinite(v))
+            or (isinstance(v, str) and len(v) <= 200)
+            or (
+                key == "grading"
+                and isinstance(v, dict)
+                and len(v) <= 16
+                and all(_is_number(x) and math.isfinite(x) for x in v.values())
+            )
+        )
+        if not ok:
+            raise RunFileError(f"{f}: {what}: {str(key)[:40]!r} must be a finite number, a short string or null")
+    return info
+
+
+def read_bed_info(out: str | os.PathLike[str]) -> dict | None:
+    """The run's ``bed.json`` (the bed's report, summary.json's ``bed``), validated; None if
+    absent (a run made before beds reported themselves)."""
+    f = run_file(out, "bed.json")
+    if f is None:
+        return None
+    if f.stat().st_size > MAX_BED_INFO_BYTES:
+        raise RunFileError(f"{f}: {f.stat().st_size} bytes, too large for a bed report (at most {MAX_BED_INFO_BYTES})")
+    try:
+        info = json.loads(f.read_bytes())
+    except (ValueError, RecursionError) as e:
+        raise RunFileError(f"{f}: not valid JSON ({one_line(e)})") from None
+    return validate_bed_info(info, f)
 
 
 @overload

@@ -17,6 +17,9 @@ from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 from support.cli import cli_in_process, run_cli
 from support.state import assert_same_state
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 
 def mono(sc, p, ws, steps):
     st_ = DomainStepper(p.take(np.arange(len(p))), Model.from_scenario(sc), ws)

@@ -18,6 +18,9 @@ from ooc_dem.storage import open_store
 
 from support.state import assert_same_state
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 
 def run(sc, out, bed, steps, **kw):
     opts = RunOptions(steps=steps, progress=False, figures=False, **kw)

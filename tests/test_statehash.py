@@ -380,6 +380,7 @@ def test_reading_every_group_holds_no_memory_per_group(tmp_path):
     assert grown < 12 * 2**20, f"{grown / 2**20:.1f} MiB for {len(names)} groups"
 
 
+@pytest.mark.slow
 def test_resume_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
     """Reopening an out-of-core run (the store's checks, the epoch's validation, the
     engine's geometry from the stored summaries) holds about one group, whatever N is:

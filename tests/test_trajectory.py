@@ -15,6 +15,9 @@ from support.cli import cli_in_process, one_line_error, run_cli
 from ooc_dem.app.trajectory import ROW_FIELDS, TRAJECTORY_FILE, Trajectory, TrajectoryWriter, frame_name, wheel_outline
 from ooc_dem.app.trajectory_format import TRAJECTORY_DIR
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 STEPS = 600
 # 123 steps: a multiple neither of the block K = 10 nor of the epoch interval (250): the frame
 # steps cut the advances (and the out-of-core sweeps) where nothing else would

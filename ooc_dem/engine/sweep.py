@@ -36,7 +36,8 @@ from ..physics.layout import AX_X, WS_X
 from ..model.state import DISC_FIELDS, HIST_FIELDS
 from ..model.state import Particles
 from .interface import write_epoch
-from .live import SWEEPS_REBUILD, LiveDomains, sweeps_kernel
+from .live import LiveDomains
+from .live_kernels import SWEEPS_REBUILD, sweeps_kernel
 from .stepper import N_REC, Model
 
 

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from ooc_dem.storage.writeguard import check_room
 
-from .plots import LAYER_COLOURS
+from .drawing import LAYER_COLOURS
 from .runfiles import read_initial, read_run_scenario, run_file
 from .trajectory import Trajectory, TrajectoryError, wheel_outline
 
@@ -51,7 +51,7 @@ def animate(
     Returns (the file, the number of frames)."""
     from .outfile import ExportError, check_targets
     from ..model.fields import layer_index
-    from .plots import _n_layers, _pyplot
+    from .drawing import layer_count, pyplot
 
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else default_out(run_dir)
@@ -83,7 +83,7 @@ def animate(
         surface = (
             read_initial(init, len(first["id"]), sc)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
         )
-        layer = layer_index(y0, surface, _n_layers(surface, r0))
+        layer = layer_index(y0, surface, layer_count(surface, r0))
         from matplotlib.colors import to_rgba_array
 
         palette = to_rgba_array(list(LAYER_COLOURS) + ["#4a7fbf"])  # the layers, then "unknown disc"
@@ -103,7 +103,7 @@ def animate(
         W = WIDTH_PX
         H = max(16, int(round(W * (yb - ya) / (xb - xa) / 16.0)) * 16)
         yb = ya + (xb - xa) * H / W  # equal scale in x and y
-        plt = _pyplot()
+        plt = pyplot()
         dpi = 100
         fig = plt.figure(figsize=(W / dpi, H / dpi), dpi=dpi)
         ax = fig.add_axes([0, 0, 1, 1])

@@ -149,7 +149,7 @@ def cmd_check(args):
 
 
 def _print_run_result(summary, out):
-    from .plots import print_table
+    from .tables import print_table
 
     if "slip" in summary:
         print(print_table(summary))
@@ -210,7 +210,9 @@ def cmd_animate(args):
 
 
 def cmd_report(args):
-    from .plots import make_figures, print_table, read_summary
+    from .plots import make_figures
+    from .runfiles import read_summary
+    from .tables import print_table
 
     out = Path(args.store)
     summary = read_summary(out)  # validated: a hostile or foreign file is a one-line error

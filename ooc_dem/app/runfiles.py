@@ -165,7 +165,7 @@ def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict | N
     return validate_summary(summary, f, complete)
 
 
-def read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
+def read_csv(path: str | os.PathLike[str], needed=()) -> dict[str, np.ndarray]:
     """Columns of a comma-separated file with a one-line header; ``name [unit]`` -> ``name``."""
     path = Path(path)
     try:

@@ -183,11 +183,11 @@ def test_streamed_hash_equals_in_memory_hash(bare, tmp_path, id_cap, monkeypatch
     """`checkpoint hash` streams an epoch group by group (their lane sums added; the ids
     checked unique in ranges of at most max(id_cap, 2 x a group) ids): it must be the hash
     of all the discs gathered in RAM, history included."""
-    from ooc_dem.model import checkpoint
+    from ooc_dem.model import state_check
     from ooc_dem.model.checkpoint import hash_epoch, hash_particles
 
     if id_cap is not None:
-        monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", id_cap)
+        monkeypatch.setattr(state_check, "ID_CHECK_CAP", id_cap)
     sc, bed, _ = bare
     _, p, arrays, _ = run(sc, tmp_path / "o", bed, 30, mode="ooc", backend="hdf5", domains=6, block=10)
     assert p.hist_n.sum() > len(p)  # a loaded bed: the history is part of the hash

@@ -129,7 +129,7 @@ def _checkpoint_prune(args) -> int:
 
 
 def _checkpoint_export(store, args) -> int:
-    from ..model.checkpoint import StateError
+    from ..model.state_check import StateError
     from .export import ExportError, check_targets, export_snapshot, infer_format, output_files, read_snapshot
 
     fmt = args.format or infer_format(args.out)
@@ -138,7 +138,8 @@ def _checkpoint_export(store, args) -> int:
     out = Path(args.out)
     try:
         check_targets(output_files(fmt, out), out)  # before reading anything
-        from ..model.checkpoint import open_epoch, stored_layout, validate_epoch
+        from ..model.checkpoint import open_epoch, stored_layout
+        from ..model.state_check import validate_epoch
 
         dim, cap, bounds = stored_layout(store.meta or {}, args.store)
         reader = open_epoch(store, args.epoch)
@@ -165,7 +166,8 @@ def _warn_fallback(store) -> None:
 
 
 def cmd_checkpoint(args):
-    from ..model.checkpoint import hash_epoch, open_epoch, stored_layout, validate_globals
+    from ..model.checkpoint import hash_epoch, open_epoch, stored_layout
+    from ..model.state_check import validate_globals
     from ooc_dem.storage import open_store
 
     if args.ckpt_command == "prune":

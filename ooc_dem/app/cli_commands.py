@@ -81,7 +81,7 @@ def _settle_progress(sc):
 
 def load_bed(path: str | os.PathLike[str], sc: Scenario) -> Particles:
     from .bed import read_bed
-    from ..model.checkpoint import StateError
+    from ..model.state_check import StateError
 
     f = Path(path) / "bed.npz"
     if not f.is_file():

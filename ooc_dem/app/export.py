@@ -40,7 +40,7 @@ import numpy as np
 
 from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room
 
-from ..model.checkpoint import StateError, check_unique_sorted, validate_globals
+from ..model.state_check import StateError, check_unique_sorted, validate_globals
 from ..physics.layout import spin_width
 from .export_formats import Snapshot, output_files, read_records, record_dtype, vector_columns, write_snapshot
 from .outfile import ExportError, check_targets, write_failure

@@ -72,7 +72,8 @@ def stored_run(
 ) -> tuple[Scenario, RunOptions]:
     """The scenario and run options a store's meta holds (checked), with the new total
     steps (``steps`` or ``until``) and mode (``mode``: one of the stored mode's family)."""
-    from ..model.checkpoint import StateError, stored_scenario
+    from ..model.checkpoint import stored_scenario
+    from ..model.state_check import StateError
 
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":
@@ -136,7 +137,8 @@ def open_resume_epoch(store, path: Path, sc: Scenario) -> ResumeEpoch:
     """The last intact epoch of the store, validated against the stored layout and written
     by scenario ``sc``."""
     from ooc_dem.storage import StoreError
-    from ..model.checkpoint import StateError, stored_layout, validate_epoch
+    from ..model.checkpoint import stored_layout
+    from ..model.state_check import StateError, validate_epoch
 
     reader = None
     try:

@@ -545,7 +545,8 @@ class Simulation:
         return self._engine().n_discs()
 
     def state_hash(self) -> str:
-        from ..model.checkpoint import hash_epoch, state_bounds
+        from ..model.checkpoint import hash_epoch
+        from ..model.state_check import state_bounds
         from ooc_dem.storage import open_store
 
         store = open_store(self.out, repair=False)  # read-only: this run holds the write lock

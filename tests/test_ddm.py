@@ -6,7 +6,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ooc_dem.app.bed import initial_fill, settled_bed
-from ooc_dem.app.run import place_wheel
+from ooc_dem.app.run_setup import place_wheel
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.engine.sweep import sweep_run
 from ooc_dem.physics.layout import ID_WALL_BOTTOM

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from ooc_dem.app.bed import settled_bed
-from ooc_dem.model.checkpoint import particles_to_record, record_rows, records_to_particles
+from ooc_dem.model.checkpoint import particles_to_record, read_all_particles, record_rows, records_to_particles
 from ooc_dem.model.decomposition import group_order
-from ooc_dem.app.run import RunOptions, Simulation, read_all_particles
+from ooc_dem.app.run import RunOptions, Simulation
 from ooc_dem.model.scenario import load_scenario
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 from ooc_dem.storage import open_store

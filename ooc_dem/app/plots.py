@@ -88,7 +88,7 @@ def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
 
 
 def _placement(sc, x, y, r):
-    """The wheel's initial centre, as the engine places it (run.place_wheel): above x0 with the
+    """The wheel's initial centre, as the engine places it (run_setup.place_wheel): above x0 with the
     lug tips drop_gap above the highest disc under the wheel; theta = 0."""
     w = sc.wheel
     if len(x) == 0:

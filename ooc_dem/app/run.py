@@ -10,7 +10,6 @@ the metrics and commits the epochs. ``resume.py`` reads what a resume continues 
 from __future__ import annotations
 
 import dataclasses
-import os
 import sys
 import time
 from pathlib import Path
@@ -23,145 +22,29 @@ from ..engine.interface import Engine
 from ..engine.modes import MODES, Mode
 from ..engine.stepper import EngineError, Model
 from ..model.checkpoint import FORMAT_VERSION, open_epoch
-from ..model.checkpoint import read_all_particles  # noqa: F401  (a run's whole state, as the tests read it)
 from ..model.scenario import Scenario
 from ..model.state import Particles
-from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE, WS_X, WS_Y
+from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE
 from .bed import settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
 from .plan import RunError, RunOptions, plan_run, streamable
+from .progress import Progress, settling_progress
 from .resume import check_engine_attrs, open_resume_epoch, stored_run
+from .run_setup import StreamedBed, place_wheel, stopped_before_first_commit
 
 if TYPE_CHECKING:
     from ooc_dem.storage.store import Store
 
     from .metrics import WheelMetrics
-    from .trajectory import TrajectoryWriter
+    from .trajectory import FrameParts, TrajectoryWriter
 
 __all__ = [
-    "FrameParts",
     "RunError",
     "RunOptions",
     "Simulation",
-    "StreamedBed",
-    "place_wheel",
     "plan_run",
     "resume_simulation",
 ]
-
-
-def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
-    """Wheel centre above the bed under x0, lug tips drop_gap above the highest disc (3D:
-    the highest sphere under the wheel's footprint, across its width too)."""
-    w = sc.wheel
-    ws = np.zeros(WS_SIZE)
-    x, y = bed.pos[:, AX_X], bed.pos[:, AX_Y]
-    under = np.abs(x - w.x0) < w.lug_tip_radius + sc.soil.r_max
-    if sc.dim == 3:
-        from ..engine.stepper import wheel_z0
-
-        under &= np.abs(bed.pos[:, AX_Z] - wheel_z0(sc)) < 0.5 * w.width + sc.soil.r_max
-    top = float((y[under] + bed.r[under]).max()) if under.any() else float((y + bed.r).max())
-    ws[WS_X] = w.x0
-    ws[WS_Y] = top + w.lug_tip_radius + w.drop_gap
-    return ws
-
-
-class Progress:
-    """tqdm bar over simulated time, with steps/s; silent when disabled."""
-
-    def __init__(self, enabled: bool, total_steps: int, dt: float, label: str):
-        self.bar = None
-        self.dt = dt
-        if enabled and total_steps > 0:
-            from tqdm import tqdm
-
-            self.bar = tqdm(
-                total=total_steps,
-                desc=label,
-                unit="step",
-                unit_scale=True,
-                mininterval=1.0,
-                file=sys.stderr,
-                dynamic_ncols=True,
-                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} steps "
-                "[{elapsed}<{remaining}, {rate_fmt}] {postfix}",
-            )
-
-    def update(self, step: int, n: int, **post):
-        if self.bar is not None:
-            self.bar.set_postfix_str(
-                f"t={step * self.dt:.4f} s " + " ".join(f"{k}={v}" for k, v in post.items()), refresh=False
-            )
-            self.bar.update(n)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-
-
-# what `run` puts into its output directory before the first commit
-_RUN_SETUP_FILES = ("initial.npz", "scenario.toml")
-
-
-def _stopped_before_first_commit(out: Path) -> bool:
-    """Whether `out` is a run that was stopped (killed, disk full) before its first commit.
-
-    Such a directory holds nothing to lose: a store with no committed epoch and the run's own
-    set-up files. `run --out` may start afresh there (create_store replaces the store and
-    refuses if a live writer holds it); anything else in the directory makes it a user's.
-    """
-    from ooc_dem.storage import StoreError, open_store, store_owns
-
-    try:
-        store = open_store(out, repair=False)
-    except StoreError:
-        return False
-    try:
-        if store.current() is not None or store.meta.get("engine") != "ooc-dem":
-            return False
-    finally:
-        store.close()
-    own = set(_RUN_SETUP_FILES) | {n + ".tmp" for n in _RUN_SETUP_FILES}
-    return all(n in own or store_owns(out, n) for n in os.listdir(out))
-
-
-class StreamedBed:
-    """The scenario's tiled bare bed as x-ordered parts for an out-of-core engine's
-    ``create_streamed``: generated again on each pass over it, never whole in RAM. The
-    first pass measures each part's surface height (its own columns, its own x origin)."""
-
-    def __init__(self, sc: Scenario):
-        self.sc = sc
-        self.surfaces: list[float] | None = None
-
-    def __iter__(self):
-        from .bed import tiled_bed_parts
-
-        # the first pass measures: its list is filled as the parts go by
-        measured: list[float] | None = [] if self.surfaces is None else None
-        if measured is not None:
-            self.surfaces = measured
-        band = wheel_footprint(self.sc)
-        for p in tiled_bed_parts(self.sc, tiles_per_part=8):
-            if measured is not None:
-                x0 = p.pos[:, AX_X].min()
-                measured.append(
-                    surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max, x_origin=x0, across=band)
-                )
-            yield p
-
-
-class FrameParts:
-    """The parts of the trajectory frame at ``step``, as an engine writes them during an
-    advance (``engine.interface.FrameParts``)."""
-
-    def __init__(self, frames, step: int):
-        self.frames = frames
-        self.step = step
-
-    def write_part(self, part: dict) -> None:
-        self.frames.write_part(self.step, part)
 
 
 class Simulation:
@@ -234,7 +117,7 @@ class Simulation:
         tiled bare bed writes its bed into the store tile by tile (never the whole bed in RAM)."""
         from ooc_dem.storage import StoreError, create_store
 
-        if self.out.exists() and any(self.out.iterdir()) and not _stopped_before_first_commit(self.out):
+        if self.out.exists() and any(self.out.iterdir()) and not stopped_before_first_commit(self.out):
             raise RunError(
                 f"--out {self.out}: directory exists and is not empty (use a new directory, "
                 f"or `ooc-dem resume {self.out}` to continue a run)"
@@ -245,7 +128,7 @@ class Simulation:
         if self.plan.streamed_bed:  # planned for a streamed bed, but the whole bed will be in RAM
             self.plan = plan_run(sc, self.opts, streamed=False)
         if bed is None:
-            bed = settled_bed(self.sc, progress=self._bed_progress())
+            bed = settled_bed(self.sc, progress=settling_progress(self.sc) if self.opts.progress else None)
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
         self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max, across=wheel_footprint(self.sc))
         try:
@@ -321,9 +204,11 @@ class Simulation:
         if self.frames is not None and self.frames.due(self.step):
             self._write_frame(parts_written=False)
 
-    def _frame_parts(self, step: int) -> "FrameParts | None":
+    def _frame_parts(self, step: int) -> FrameParts | None:
         """Where an engine that writes frame parts puts the discs of the frame due at
         ``step`` (None: no frame is due then, or the engine writes none)."""
+        from .trajectory import FrameParts
+
         if self.frames is None or not self._engine().writes_frame_parts or not self.frames.due(step):
             return None
         return FrameParts(self.frames, step)
@@ -396,24 +281,6 @@ class Simulation:
         if self.mode.decomposes:
             check_engine_attrs(attrs.get("engine"), len(epoch.reader.domains()), at)
         self.engine = self._reopen_engine(epoch.reader, epoch.arrays, attrs)
-
-    def _bed_progress(self):
-        if not self.opts.progress:
-            return None
-        state = {"last": 0.0}
-
-        def cb(t, speed):
-            if time.time() - state["last"] > 1.0:
-                state["last"] = time.time()
-                print(
-                    f"\rsettling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s "
-                    f"(target {self.sc.bed.settle_speed:.1e})",
-                    end="",
-                    file=sys.stderr,
-                    flush=True,
-                )
-
-        return cb
 
     # ------------------------------------------------------------ checkpoint
     def commit(self) -> None:

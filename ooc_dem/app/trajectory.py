@@ -287,6 +287,18 @@ class TrajectoryWriter:
         self._discard()
 
 
+class FrameParts:
+    """The parts of the trajectory frame at ``step``, as an engine writes them during an
+    advance (``engine.interface.FrameParts``)."""
+
+    def __init__(self, frames: TrajectoryWriter, step: int):
+        self.frames = frames
+        self.step = step
+
+    def write_part(self, part: dict) -> None:
+        self.frames.write_part(self.step, part)
+
+
 # ------------------------------------------------------------------ wheel outline
 
 

@@ -299,7 +299,7 @@ def test_strip_reads_are_exact_in_any_row_order():
     """A halo strip is read from the candidate rows that the running max / min of x bound,
     then filtered by x: the discs with lo <= x < hi and no other, whether the group is in
     cell order, x order or shuffled (a foreign store's)."""
-    from ooc_dem.engine.sweep import RamEpochs, _read_rows, group_attrs
+    from ooc_dem.engine.sweep import RamEpochs, group_attrs, read_strip
 
     p = settled_bed(load_scenario("quick"))
     x = p.pos[:, AX_X]
@@ -309,7 +309,7 @@ def test_strip_reads_are_exact_in_any_row_order():
         ram = RamEpochs(p.hist_cap)
         ram.write_particles(0, g, group_attrs(g.pos[:, AX_X]))
         for lo, hi in [(-1.0, 9.0), (0.1, 0.2), (0.25, 0.2500001), (x.min(), x.max()), (9.0, 10.0)]:
-            rec = _read_rows(ram, 0, lo, hi)
+            rec = read_strip(ram, 0, lo, hi)
             want = np.sort(p.id[(x >= lo) & (x < hi)])
             got = np.zeros(0, np.int64) if rec is None else np.sort(rec["id"])
             assert np.array_equal(got, want), (lo, hi)

@@ -32,7 +32,6 @@ def snapshot_columns(dim: int) -> tuple[str, ...]:
     return ("id", *v["pos"], *v["vel"], *v["spin"], "r", "mass", "mat")
 
 
-CSV_COLUMNS = snapshot_columns(2)  # id, x, y, vx, vy, w, r, mass, mat
 WHEEL_NAMES = WS_NAMES  # layout.WHEEL_STATE: x, y, vx, vy, theta, wz
 _ROWS_PER_WRITE = 65536
 

@@ -80,7 +80,7 @@ class RamEpochs:
         self.current[d] = (record_to_particles(arrays, self.hist_cap), attrs)
 
 
-def _read_rows(src, d, lo: float, hi: float) -> dict | None:
+def read_strip(src, d, lo: float, hi: float) -> dict | None:
     """The store record of group d's discs with lo <= x < hi. Groups are written in cell
     order (``group_order``: x sorted up to one cell column), so these rows lie in one short
     candidate range: after the last row whose running maximum of x is below lo, before the

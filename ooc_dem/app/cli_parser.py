@@ -48,7 +48,7 @@ def _nonneg_int(text):
 
 
 def _show(text) -> str:
-    from ..model.scenario import show
+    from ..model.schema import show
 
     return show(text, 40)
 
@@ -56,7 +56,7 @@ def _show(text) -> str:
 def _count(lo: int, hi: int):
     """An integer flag in [lo, hi]; integral scientific notation (1e6) is accepted."""
     from decimal import Decimal, InvalidOperation
-    from ..model.scenario import big
+    from ..model.schema import big
 
     def parse(text):
         allowed = f"an integer in [{lo}, {big(hi)}]" if hi >= 10**6 else f"an integer in [{lo}, {hi}]"
@@ -97,7 +97,7 @@ def _positive_float(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..model.scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
+    from ..model.schema import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
 
     p = _Parser(
         prog="ooc-dem",

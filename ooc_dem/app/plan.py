@@ -12,7 +12,9 @@ from dataclasses import dataclass
 from ..engine import budget
 from ..errors import OocDemError
 from ..engine.modes import MODES, mode_names
-from ..model.scenario import MAX_DOMAINS, MAX_STEPS, Scenario, big, critical_time_step, show, steps_for_duration
+from ..model.scenario import Scenario
+from ..model.scenario_check import critical_time_step
+from ..model.schema import MAX_DOMAINS, MAX_STEPS, big, show, steps_for_duration
 from ..storage import BACKENDS
 from .metrics import N_SERIES
 

@@ -12,7 +12,8 @@ from typing import Any
 
 from ..engine.modes import MODES, switching_families
 from ..model.checkpoint import SUPPORTED_VERSIONS, open_epoch
-from ..model.scenario import Scenario, show, steps_for_duration
+from ..model.scenario import Scenario
+from ..model.schema import show, steps_for_duration
 from ..storage import BACKENDS
 from .plan import RunError, RunOptions, total_steps
 

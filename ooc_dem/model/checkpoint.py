@@ -10,6 +10,8 @@ epoch is validated as it is read (state_check.py).
 
 from __future__ import annotations
 
+from typing import Any, TypeAlias
+
 import numpy as np
 
 from . import statehash
@@ -176,7 +178,12 @@ class V1Epoch:
         return out
 
 
-def open_epoch(store, step: int | None = None, verify: bool = True):
+# an epoch open for reading as open_epoch gives it: a store's EpochReader, or a format-1 one seen
+# through V1Epoch (the same methods, not the same type)
+OpenEpoch: TypeAlias = Any
+
+
+def open_epoch(store, step: int | None = None, verify: bool = True) -> OpenEpoch:
     """``store.read_epoch`` seen in the current format (a format-1 epoch through V1Epoch)."""
     reader = store.read_epoch(step, verify=verify)
     v = getattr(reader, "format_version", FORMAT_VERSION)

@@ -9,12 +9,19 @@ Everything runs headless (Agg backend); discs are drawn at their true radii with
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..storage.atomic import write_replacing
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.collections import EllipseCollection
+    from matplotlib.figure import Figure
+    from numpy.typing import ArrayLike
 
 LAYER_COLOURS = ("#e3c79a", "#8a5a2b")  # light sand / dark soil, alternating
 DPI = 150
@@ -30,7 +37,17 @@ def pyplot() -> Any:
     return plt
 
 
-def draw_discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=1, alpha=None):
+def draw_discs(
+    ax: Axes,
+    x: ArrayLike,
+    y: ArrayLike,
+    r: ArrayLike,
+    facecolors: str | Iterable[str],
+    edgecolor: str = "#3a2a1a",
+    linewidth: float = 0.15,
+    zorder: float = 1,
+    alpha: float | None = None,
+) -> EllipseCollection:
     """All discs as one EllipseCollection at true radius (data units)."""
     from matplotlib.collections import EllipseCollection
     from matplotlib.colors import to_rgba_array
@@ -55,20 +72,20 @@ def draw_discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zor
 
 
 def draw_wheel(
-    ax,
-    x,
-    y,
-    theta,
-    radius,
-    n_lugs,
-    lug_tip_radius,
-    lug_thickness=0.002,
-    fill=True,
-    zorder=5,
-    color="k",
-    alpha=1.0,
-    linestyle="-",
-):
+    ax: Axes,
+    x: float,
+    y: float,
+    theta: float,
+    radius: float,
+    n_lugs: int,
+    lug_tip_radius: float,
+    lug_thickness: float = 0.002,
+    fill: bool = True,
+    zorder: float = 5,
+    color: str = "k",
+    alpha: float = 1.0,
+    linestyle: str = "-",
+) -> None:
     """Rim circle plus ``n_lugs`` radial lugs (from R to the tip) at angles theta + 2 pi k / n."""
     from matplotlib.patches import Circle, Polygon
 
@@ -128,7 +145,7 @@ def layer_count(depth: float, r: np.ndarray) -> int:
 FIGURE_BYTES = 16 << 10
 
 
-def save_figure(fig, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
     # under a temporary name, renamed when complete: a kill never leaves a torn figure that a
     # resume would take for a finished one
     write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"), need=FIGURE_BYTES)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 from ..engine import budget
 from ..errors import OocDemError
@@ -81,7 +82,7 @@ class RunPlan:
     memory_available_bytes: int
     memory_budget_bytes: int | None = None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
 
@@ -244,7 +245,7 @@ def check_bed_memory(sc: Scenario) -> int:
     return need
 
 
-def _memory_message(sc, opts, steps, need, have, streamed) -> str:
+def _memory_message(sc: Scenario, opts: RunOptions, steps: int, need: int, have: int, streamed: bool) -> str:
     series_rows = steps // max(1, int(round(sc.output.series_interval / sc.physics.dt))) + 1
     series = _series_bytes(sc, steps)
     if series > need / 2:

@@ -17,13 +17,16 @@ import math
 import os
 import stat
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..model.fields import displacements, gridded_displacement, layer_index
 from ..physics.layout import AX_X, AX_Y, AX_Z, WS_THETA, WS_X, WS_Y
 from .drawing import LAYER_COLOURS, draw_discs, draw_wheel, layer_count, panel_size, pyplot, save_figure
 from .runfiles import (
+    InitialBed,
     RunFileError,
     has_store,
     read_final,
@@ -38,8 +41,21 @@ from .runfiles import (
     summary_window,
 )
 
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
+    from ..model.state import Particles
 
-def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
+# a state as the figures draw it: id, x, y, r and the wheel state (None: no wheel to draw)
+Drawn: TypeAlias = tuple[
+    NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None
+]
+# the same as make_figures is given it, any numeric arrays
+FinalArrays: TypeAlias = tuple[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any] | None]
+# a run's series.csv as read_series gives it: its columns by name
+Series: TypeAlias = dict[str, NDArray[np.float64]]
+
+
+def _series_figure(series: Series, summary: dict[str, Any] | None, sc: Scenario | None, path: Path) -> Path:
     plt = pyplot()
     t = series["t_travel"] if "t_travel" in series else series["t"]  # read_series: one is there
     steady = summary_window(summary, "slip", "steady")
@@ -87,7 +103,9 @@ def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
     return save_figure(fig, path)
 
 
-def _placement(sc, x, y, r):
+def _placement(
+    sc: Scenario, x: NDArray[np.float64], y: NDArray[np.float64], r: NDArray[np.float64]
+) -> tuple[float, float]:
     """The wheel's initial centre, as the engine places it (run_setup.place_wheel): above x0 with the
     lug tips drop_gap above the highest disc under the wheel; theta = 0."""
     w = sc.wheel
@@ -98,7 +116,15 @@ def _placement(sc, x, y, r):
     return w.x0, top + w.lug_tip_radius + w.drop_gap
 
 
-def _zoom(sc, series, ws_final, bed_x, bed_y, bed_r, surface):
+def _zoom(
+    sc: Scenario | None,
+    series: Series | None,
+    ws_final: NDArray[np.float64] | None,
+    bed_x: NDArray[np.float64],
+    bed_y: NDArray[np.float64],
+    bed_r: NDArray[np.float64],
+    surface: float,
+) -> tuple[float, float, float, float]:
     """(x0, x1, y0, y1): from the wheel's start - 1.5 R to its final x + 1.5 R, floor to wheel top."""
     lo_x = float(np.min(bed_x - bed_r)) if len(bed_x) else 0.0
     hi_x = float(np.max(bed_x + bed_r)) if len(bed_x) else 1.0
@@ -121,7 +147,7 @@ def _zoom(sc, series, ws_final, bed_x, bed_y, bed_r, surface):
     return xa, xb, y0 - pad, y1 + pad
 
 
-def _deformation_figure(init, final, sc, series, path: Path):
+def _deformation_figure(init: InitialBed, final: Drawn, sc: Scenario | None, series: Series | None, path: Path) -> Path:
     plt = pyplot()
     iid, ix, iy, ir, surface = init
     fid, fx, fy, fr, ws = final
@@ -146,8 +172,9 @@ def _deformation_figure(init, final, sc, series, path: Path):
     draw_discs(a0, ix[m0], iy[m0], ir[m0], colours[m0])
     m1 = (fx + fr > xa) & (fx - fr < xb)
     draw_discs(a1, fx[m1], fy[m1], fr[m1], fcol[m1])
-    wheel_on = sc is not None and sc.wheel.enabled and ws is not None
-    if wheel_on:
+    wheel_ws = ws if sc is not None and sc.wheel.enabled else None  # None: no wheel drawn
+    wheel_on = wheel_ws is not None
+    if sc is not None and wheel_ws is not None:
         w = sc.wheel
         x_start, y_start = _placement(sc, ix, iy, ir)
         draw_wheel(
@@ -163,7 +190,16 @@ def _deformation_figure(init, final, sc, series, path: Path):
             color="0.35",
             linestyle="--",
         )
-        draw_wheel(a1, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
+        draw_wheel(
+            a1,
+            wheel_ws[WS_X],
+            wheel_ws[WS_Y],
+            wheel_ws[WS_THETA],
+            w.radius,
+            w.n_lugs,
+            w.lug_tip_radius,
+            w.lug_thickness,
+        )
     for ax in axes:
         ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=3)
         ax.set_xlim(xa, xb)
@@ -177,13 +213,15 @@ def _deformation_figure(init, final, sc, series, path: Path):
         fontsize=10,
     )
     title = "final state: each disc keeps its initial layer colour"
-    if wheel_on:
-        title += f"; wheel at x = {ws[WS_X]:.3f} m, θ = {math.degrees(ws[WS_THETA]):.0f}°"
+    if wheel_ws is not None:
+        title += f"; wheel at x = {wheel_ws[WS_X]:.3f} m, θ = {math.degrees(wheel_ws[WS_THETA]):.0f}°"
     a1.set_title(title, fontsize=10)
     return save_figure(fig, path)
 
 
-def _displacement_figure(init, final, sc, series, path: Path):
+def _displacement_figure(
+    init: InitialBed, final: Drawn, sc: Scenario | None, series: Series | None, path: Path
+) -> Path:
     plt = pyplot()
     iid, ix, iy, ir, surface = init
     fid, fx, fy, fr, ws = final
@@ -233,14 +271,15 @@ def _displacement_figure(init, final, sc, series, path: Path):
             color="k",
             fontproperties={"size": 8},
         )
-    wheel_on = sc is not None and sc.wheel.enabled and ws is not None
-    if wheel_on:
+    wheel_ws = ws if sc is not None and sc.wheel.enabled else None  # None: no wheel drawn
+    wheel_on = wheel_ws is not None
+    if sc is not None and wheel_ws is not None:
         w = sc.wheel
         draw_wheel(
             ax,
-            ws[WS_X],
-            ws[WS_Y],
-            ws[WS_THETA],
+            wheel_ws[WS_X],
+            wheel_ws[WS_Y],
+            wheel_ws[WS_THETA],
             w.radius,
             w.n_lugs,
             w.lug_tip_radius,
@@ -280,7 +319,7 @@ SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE = "series.png", "deformat
 FIGURE_NAMES = (SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE)
 
 
-def figure_files(sc) -> tuple[str, ...]:
+def figure_files(sc: Scenario) -> tuple[str, ...]:
     """The files ``make_figures`` writes for a wheel run of scenario sc, relative to its
     directory (3D adds the mid-width slice, rut and lateral-flow views and the wheel mesh)."""
     names: tuple[str, ...] = FIGURE_NAMES
@@ -292,7 +331,7 @@ def figure_files(sc) -> tuple[str, ...]:
     return tuple(f"figures/{n}" for n in names) + beside
 
 
-def make_figures(out_dir, final=None) -> list[Path]:
+def make_figures(out_dir: str | os.PathLike[str], final: FinalArrays | None = None) -> list[Path]:
     """Write the run's figures into ``OUT/figures/``; return their paths.
 
     ``final`` = (id, x, y, r, wheel_state) skips reading the store's last epoch.
@@ -338,7 +377,14 @@ def make_figures(out_dir, final=None) -> list[Path]:
     return written
 
 
-def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
+def _views_3d(
+    out: Path,
+    sc: Scenario,
+    init: tuple[InitialBed, NDArray[np.float64]],
+    final_p: Particles,
+    ws: NDArray[np.float64],
+    series: Series | None,
+) -> list[Path]:
     """The 3D views of a run (module doc). init: (id, x, y, r, surface) and z of the
     initial bed; final_p: the final Particles."""
     from ..engine.stepper import wheel_z0

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 from ..model.scenario import Scenario
 from .bed import SettleProgress
@@ -14,7 +15,7 @@ class Progress:
     """tqdm bar over simulated time, with steps/s; silent when disabled."""
 
     def __init__(self, enabled: bool, total_steps: int, dt: float, label: str):
-        self.bar = None
+        self.bar: Any = None  # a tqdm bar (tqdm is untyped here)
         self.dt = dt
         if enabled and total_steps > 0:
             from tqdm import tqdm
@@ -31,14 +32,14 @@ class Progress:
                 "[{elapsed}<{remaining}, {rate_fmt}] {postfix}",
             )
 
-    def update(self, step: int, n: int, **post):
+    def update(self, step: int, n: int, **post: str) -> None:
         if self.bar is not None:
             self.bar.set_postfix_str(
                 f"t={step * self.dt:.4f} s " + " ".join(f"{k}={v}" for k, v in post.items()), refresh=False
             )
             self.bar.update(n)
 
-    def close(self):
+    def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
 

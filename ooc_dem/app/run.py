@@ -10,18 +10,20 @@ the metrics and commits the epochs. ``resume.py`` reads what a resume continues 
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .. import __version__
 from ..engine.interface import Engine
 from ..engine.modes import MODES, Mode
 from ..engine.stepper import EngineError, Model
-from ..model.checkpoint import FORMAT_VERSION, open_epoch
+from ..model.checkpoint import FORMAT_VERSION, OpenEpoch, open_epoch
 from ..model.scenario import Scenario
 from ..model.state import Particles
 from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE
@@ -29,7 +31,7 @@ from .bed import settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
 from .plan import RunError, RunOptions, plan_run, streamable
 from .progress import Progress, settling_progress
-from .resume import check_engine_attrs, open_resume_epoch, stored_run
+from .resume import ResumeEpoch, check_engine_attrs, open_resume_epoch, stored_run
 from .run_setup import StreamedBed, place_wheel, stopped_before_first_commit
 
 if TYPE_CHECKING:
@@ -70,13 +72,13 @@ class Simulation:
         self.surface = 0.0
         self.wall_time = 0.0
         # trajectory frames (trajectory.py): every frame_every steps, 0 = none
-        from .trajectory import frame_every
+        from .trajectory_format import frame_every
 
         self.frame_every = frame_every(sc)
         self.frames: TrajectoryWriter | None = None
 
     @property
-    def redecompositions(self) -> list:
+    def redecompositions(self) -> list[dict[str, Any]]:
         """Every decomposition the engine has chosen ({"step", "bounds"}), stored with each epoch."""
         return self.engine.redecompositions if self.engine is not None else []
 
@@ -86,7 +88,7 @@ class Simulation:
         return self.engine
 
     # ------------------------------------------------------------------ setup
-    def _meta(self) -> dict:
+    def _meta(self) -> dict[str, Any]:
         o = self.opts
         return {
             "engine": "ooc-dem",
@@ -216,7 +218,7 @@ class Simulation:
     def _write_frame(self, parts_written: bool) -> None:
         """Commit the frame of the current step; ``parts_written``: the engine wrote its parts
         during the advance (out-of-core, into ``_frame_parts``)."""
-        from .trajectory import ROW_FIELDS
+        from .trajectory_format import ROW_FIELDS
 
         # only called for a due frame, so the trajectory is open
         assert self.frames is not None, "no trajectory open"
@@ -228,13 +230,13 @@ class Simulation:
             # one part at a time (out-of-core: each group of the committed epoch; never the whole bed)
             self.frames.write_frame(self.step, t, ws, self._engine().state_parts(ROW_FIELDS))
 
-    def _engine_options(self) -> dict:
+    def _engine_options(self) -> dict[str, bool]:
         """The run's options the mode's engine takes besides its geometry (out-of-core:
         --io-overlap)."""
         return {"io_overlap": self.opts.io_overlap} if self.mode.out_of_core else {}
 
-    def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
-        return self.mode.engine.create(
+    def _make_engine(self, particles: Particles, ws: NDArray[np.float64]) -> Engine:
+        engine: Engine = self.mode.engine.create(
             self.sc,
             self.model,
             particles,
@@ -244,10 +246,11 @@ class Simulation:
             store=self.store,
             **self._engine_options(),
         )
+        return engine
 
-    def _reopen_engine(self, reader, arrays: dict, attrs: dict) -> Engine:
+    def _reopen_engine(self, reader: OpenEpoch, arrays: dict[str, NDArray[Any]], attrs: dict[str, Any]) -> Engine:
         """The engine continuing from the committed epoch ``reader`` reads (checked)."""
-        return self.mode.engine.reopen(
+        engine: Engine = self.mode.engine.reopen(
             self.sc,
             self.model,
             reader,
@@ -257,8 +260,9 @@ class Simulation:
             redecompositions=list(attrs.get("redecompositions", [])),
             **self._engine_options(),
         )
+        return engine
 
-    def _continue_from(self, store, epoch, where) -> None:
+    def _continue_from(self, store: Store, epoch: ResumeEpoch, where: Path) -> None:
         """Take up the committed epoch a resume reads (``resume.open_resume_epoch``): its
         step, surface, wall time, wheel metrics and the engine continuing from it."""
         attrs = epoch.attrs
@@ -307,13 +311,13 @@ class Simulation:
         except StoreError as e:
             raise RunError(str(e)) from None
 
-    def fold(self, rec, step0: int) -> None:
+    def fold(self, rec: NDArray[np.float64], step0: int) -> None:
         """Fold per-step wheel records into the metrics (sequential: block-size independent)."""
         if self.metrics is not None:
             self.metrics.add(rec, step0)
 
     # ------------------------------------------------------------------- run
-    def run(self) -> dict:
+    def run(self) -> dict[str, Any]:
         if self.engine is None:
             self.start()
         engine = self._engine()
@@ -336,7 +340,7 @@ class Simulation:
                 self.fold(rec, step0)
                 self.step = step0 + n
                 self.wall_time = time.time() - t_start
-                post = {}
+                post: dict[str, str] = {}
                 if self.sc.wheel.enabled and len(rec):
                     post["x"] = f"{rec[-1, REC_X]:.4f}"
                 bar.update(self.step, n, **post)
@@ -365,7 +369,7 @@ class Simulation:
         if self.store is not None:
             self.store.close()
 
-    def finish(self) -> dict:
+    def finish(self) -> dict[str, Any]:
         """Write series.csv, summary.json and the figures from the committed final state
         (``outputs.py``: each under a temporary name, renamed when complete)."""
         results = dict(self.metrics.summary()) if self.metrics is not None else {}
@@ -426,13 +430,13 @@ class Simulation:
 
 
 def resume_simulation(
-    path,
+    path: str | os.PathLike[str],
     steps: int | None = None,
     until: float | None = None,
     progress: bool = True,
     figures: bool = True,
     mode: str | None = None,
-) -> "Simulation | None":
+) -> Simulation | None:
     """Reopen a run's store at its last intact epoch and return a Simulation ready to run.
 
     Returns None (after a message) when the run is already finished; if its outputs
@@ -457,8 +461,14 @@ def resume_simulation(
 
 
 def _reopen(
-    store, path: Path, steps, until, progress: bool, figures: bool, mode: str | None = None
-) -> "Simulation | None":
+    store: Store,
+    path: Path,
+    steps: int | None,
+    until: float | None,
+    progress: bool,
+    figures: bool,
+    mode: str | None = None,
+) -> Simulation | None:
     """resume_simulation's work on an open store (None: the run was already finished)."""
     sc, opts = stored_run(store, path, steps, until, progress, figures, mode)
     sim = Simulation(sc, path, opts)  # the stored options planned and checked as a run's
@@ -472,7 +482,7 @@ def _reopen(
     # the trajectory continues from the resumed step: later frames dropped, this one written
     # if a kill came between the epoch's commit and the frame's
     if sim.frame_every:
-        from .trajectory import TrajectoryError
+        from .trajectory_format import TrajectoryError
 
         try:
             sim._start_trajectory(resumed=True)

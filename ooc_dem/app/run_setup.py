@@ -6,6 +6,7 @@ first commit left (``stopped_before_first_commit``: `run --out` may start afresh
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -68,7 +69,7 @@ class StreamedBed:
         self.sc = sc
         self.surfaces: list[float] | None = None
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Particles]:
         from .bed import tiled_bed_parts
 
         # the first pass measures: its list is filled as the parts go by

@@ -4,6 +4,7 @@ the paper's Table 3 (Nakashima 2008), with the paper's values beside a ``paper20
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from .runfiles import summary_value, summary_window
 
@@ -18,7 +19,7 @@ PAPER_TABLE3 = {
 }
 
 
-def print_table(summary: dict, reference: dict | None = None) -> str:
+def print_table(summary: dict[str, Any], reference: dict[str, float] | None = None) -> str:
     """Table-3-style text table of a run's ``summary.json`` (returned, not printed).
 
     Columns: the whole-travel and the steady window, each labelled with its
@@ -37,7 +38,7 @@ def print_table(summary: dict, reference: dict | None = None) -> str:
     if reference:
         heads.append("paper 2008 (no DDM)")
 
-    def fmt(v, scale=1.0, digits=3):
+    def fmt(v: float | None, scale: float = 1.0, digits: int = 3) -> str:
         if v is None:
             return "—"
         try:
@@ -77,7 +78,7 @@ def print_table(summary: dict, reference: dict | None = None) -> str:
     header = ["quantity"] + heads
     widths = [max(len(r[k]) for r in rows + [header]) for k in range(len(header))]
 
-    def line(r):
+    def line(r: list[str]) -> str:
         return "  ".join([r[0].ljust(widths[0])] + [r[k].rjust(widths[k]) for k in range(1, len(r))])
 
     name = summary.get("scenario", "")

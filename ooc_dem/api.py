@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     import pandas as pd
     from numpy.typing import NDArray
 
-    from .app.trajectory import Trajectory
+    from .app.trajectory_read import Trajectory
     from .model.scenario import Scenario
     from .storage import Store
 
@@ -232,7 +232,7 @@ class RunResult:
             The run wrote no trajectory, or the file is unreadable or not ooc-dem's
             (a ``RunFileError``).
         """
-        from .app.trajectory import Trajectory
+        from .app.trajectory_read import Trajectory
 
         return Trajectory.of_run(self.path)
 

@@ -294,7 +294,8 @@ def read_bed(path: str | os.PathLike[str], sc: Scenario, label: str) -> Particle
     convert to the state's without loss, and the bed must pass ``check_bed``. A format-1 bed
     (x, y, vx, vy, w, hist_ft, hist_mr) is read as such and converted. Anything else raises
     StateError, one line starting with ``label`` and the file."""
-    from ..model.checkpoint import StateError, check_bed
+    from ..model.checkpoint import check_bed
+    from ..model.state_check import StateError
     from ..storage.npzfile import npz_member_names, read_npz_members
     from ..model.schema import MAX_HIST_CAP
     from ..model.state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
@@ -339,7 +340,7 @@ def _cached(
     # loads: Particles converts it (state.upgrade_v1)
     beds = cache_dir() / "beds"
     path = beds / f"{sc.bed_hash()}.v2.npz"
-    from ..model.checkpoint import StateError
+    from ..model.state_check import StateError
 
     for f in (path, beds / f"{sc.bed_hash()}.npz"):
         if f.is_file():

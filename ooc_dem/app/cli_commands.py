@@ -3,6 +3,7 @@ arguments and returns the exit code; a user error is a ``CliError`` (one line)."
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -14,15 +15,17 @@ from .cli_parser import EXIT_OOM, CliError
 if TYPE_CHECKING:
     from ..model.scenario import Scenario
     from ..model.state import Particles
+    from .bed import SettleProgress
+    from .plan import RunOptions
 
 
-def _load(args):
+def _load(args: argparse.Namespace) -> Scenario:
     from ..model.scenario import load_scenario
 
     return load_scenario(args.scenario, args.set)
 
 
-def cmd_scenarios(args):
+def cmd_scenarios(args: argparse.Namespace) -> int:
     from ..model.scenario import builtin_names, load_scenario
 
     for name in builtin_names():
@@ -40,7 +43,7 @@ def cmd_scenarios(args):
     return 0
 
 
-def cmd_prepare(args):
+def cmd_prepare(args: argparse.Namespace) -> int:
     import numpy as np
     from .bed import bed_info, settled_bed, surface_height, wheel_footprint
     from .plan import check_bed_memory
@@ -62,12 +65,12 @@ def cmd_prepare(args):
     return 0
 
 
-def _settle_progress(sc):
+def _settle_progress(sc: Scenario) -> SettleProgress:
     import time
 
     state = {"last": 0.0}
 
-    def cb(t, speed):
+    def cb(t: float, speed: float) -> None:
         if time.time() - state["last"] > 1.0:
             state["last"] = time.time()
             print(
@@ -81,7 +84,7 @@ def _settle_progress(sc):
 
 def load_bed(path: str | os.PathLike[str], sc: Scenario) -> Particles:
     from .bed import read_bed
-    from ..model.checkpoint import StateError
+    from ..model.state_check import StateError
 
     f = Path(path) / "bed.npz"
     if not f.is_file():
@@ -92,7 +95,7 @@ def load_bed(path: str | os.PathLike[str], sc: Scenario) -> Particles:
         raise CliError(str(e)) from None
 
 
-def _run_options(args):
+def _run_options(args: argparse.Namespace) -> RunOptions:
     from .plan import RunOptions
 
     return RunOptions(
@@ -112,7 +115,7 @@ def _run_options(args):
     )
 
 
-def cmd_run(args):
+def cmd_run(args: argparse.Namespace) -> int:
     from .run import Simulation
 
     sc = _load(args)
@@ -138,7 +141,7 @@ def cmd_run(args):
     return 0
 
 
-def cmd_check(args):
+def cmd_check(args: argparse.Namespace) -> int:
     """`run`'s validation and planning (Simulation's own plan_run), without a run."""
     from .plan import plan_run
 
@@ -148,8 +151,8 @@ def cmd_check(args):
     return 0
 
 
-def _print_run_result(summary, out):
-    from .plots import print_table
+def _print_run_result(summary: dict[str, Any], out: str | os.PathLike[str]) -> None:
+    from .tables import print_table
 
     if "slip" in summary:
         print(print_table(summary))
@@ -178,7 +181,7 @@ def bed_line(info: dict[str, Any]) -> str:
     )
 
 
-def cmd_resume(args):
+def cmd_resume(args: argparse.Namespace) -> int:
     from .run import resume_simulation
 
     sim = resume_simulation(
@@ -196,10 +199,11 @@ def cmd_resume(args):
     return 0
 
 
-def cmd_export_trajectory(args):
-    from .export import ExportError
+def cmd_export_trajectory(args: argparse.Namespace) -> int:
+    from .outfile import ExportError
     from .runfiles import read_run_scenario
-    from .trajectory import Trajectory, write_xdmf
+    from .trajectory import write_xdmf
+    from .trajectory_read import Trajectory
 
     with Trajectory.of_run(args.run) as traj:
         try:
@@ -214,9 +218,9 @@ def cmd_export_trajectory(args):
     return 0
 
 
-def cmd_animate(args):
+def cmd_animate(args: argparse.Namespace) -> int:
     from .animate import animate
-    from .export import ExportError
+    from .outfile import ExportError
 
     try:
         out, n = animate(args.run, args.out, fps=args.fps, progress=not args.no_progress)
@@ -226,8 +230,10 @@ def cmd_animate(args):
     return 0
 
 
-def cmd_report(args):
-    from .plots import make_figures, print_table, read_summary
+def cmd_report(args: argparse.Namespace) -> int:
+    from .plots import make_figures
+    from .runfiles import read_summary
+    from .tables import print_table
 
     out = Path(args.store)
     summary = read_summary(out)  # validated: a hostile or foreign file is a one-line error
@@ -243,14 +249,14 @@ def cmd_report(args):
     return 0
 
 
-def cmd_compare(args):
+def cmd_compare(args: argparse.Namespace) -> int:
     from .compare import compare_runs
 
     print(compare_runs(args.a, args.b))
     return 0
 
 
-def cmd_sweep(args):
+def cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep_slip import run_slip_sweep
 
     try:
@@ -265,7 +271,7 @@ def cmd_sweep(args):
     return 0
 
 
-def cmd_profile(args):
+def cmd_profile(args: argparse.Namespace) -> int:
     from .profiling import PROFILED_MODES, profile
 
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]

@@ -17,12 +17,18 @@ import os
 import stat
 import warnings
 from pathlib import Path
-from typing import Literal, overload
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias, overload
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import OocDemError
 from ..physics.layout import AX_X, AX_Y
+
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
+    from ..model.state import Particles
 
 
 class RunFileError(OocDemError, ValueError):
@@ -36,8 +42,23 @@ MAX_HEADER_CHARS = 4096
 SERIES_NEEDED = ("slip", "net_traction", "gross_traction", "torque", "sinkage")  # the series figure's
 INITIAL_ARRAYS = ("id", "x", "y", "r", "surface")
 
+# an initial bed as read_initial gives it: id, x, y, r and the surface height
+InitialBed: TypeAlias = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]
+# a final state as read_final gives it: id, x, y, r and the wheel state
+FinalState: TypeAlias = tuple[
+    NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
+]
 
-def run_file(out, name: str, required: bool = False) -> Path | None:
+
+@overload
+def run_file(out: str | os.PathLike[str], name: str, required: Literal[True]) -> Path: ...
+
+
+@overload
+def run_file(out: str | os.PathLike[str], name: str, required: bool = False) -> Path | None: ...
+
+
+def run_file(out: str | os.PathLike[str], name: str, required: bool = False) -> Path | None:
     """``out/name`` if it is a regular file inside ``out`` (a symlink may not lead outside the run
     directory, and a FIFO or device is never opened); None if absent and not required."""
     out = Path(out)
@@ -59,18 +80,18 @@ def run_file(out, name: str, required: bool = False) -> Path | None:
     return f
 
 
-def one_line(e) -> str:
+def one_line(e: object) -> str:
     """An error's text on one line, at most 160 characters."""
     text = " ".join(str(e).split()) or type(e).__name__
     return text if len(text) <= 160 else text[:157] + "..."
 
 
-def _is_number(v) -> bool:
+def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 # what Simulation.finish writes; `report` and `compare` need all of it
-SUMMARY_FIELDS = {
+SUMMARY_FIELDS: dict[str, type | Callable[[object], bool]] = {
     "scenario": str,
     "scenario_hash": str,
     "mode": str,
@@ -95,7 +116,7 @@ WHEEL_QUANTITIES = (
 WINDOWS = ("whole_travel", "steady", "static")
 
 
-def _type_ok(v, want) -> bool:
+def _type_ok(v: object, want: type | Callable[[object], bool]) -> bool:
     if want is int:
         return isinstance(v, int) and not isinstance(v, bool)
     if isinstance(want, type):
@@ -103,7 +124,7 @@ def _type_ok(v, want) -> bool:
     return want(v)
 
 
-def validate_summary(summary, f, complete: bool = True) -> dict:
+def validate_summary(summary: object, f: str | os.PathLike[str], complete: bool = True) -> dict[str, Any]:
     """``summary`` as Simulation.finish writes it, or RunFileError naming ``f`` and the key.
     ``complete``: every key finish writes must be there (not only well-typed when present)."""
     if not isinstance(summary, dict):
@@ -148,7 +169,7 @@ def validate_summary(summary, f, complete: bool = True) -> dict:
     return summary
 
 
-def validate_bed_info(info, f, what: str = "bed.json") -> dict:
+def validate_bed_info(info: Any, f: str | os.PathLike[str], what: str = "bed.json") -> dict[str, Any]:
     """``info`` as bed.json holds it (bed.bed_info: one level of numbers, strings and null,
     and the grading's numbers), or RunFileError naming ``f``."""
     if not isinstance(info, dict) or len(info) > 64:
@@ -170,7 +191,7 @@ def validate_bed_info(info, f, what: str = "bed.json") -> dict:
     return info
 
 
-def read_bed_info(out: str | os.PathLike[str]) -> dict | None:
+def read_bed_info(out: str | os.PathLike[str]) -> dict[str, Any] | None:
     """The run's ``bed.json`` (the bed's report, summary.json's ``bed``), validated; None if
     absent (a run made before beds reported themselves)."""
     f = run_file(out, "bed.json")
@@ -186,14 +207,14 @@ def read_bed_info(out: str | os.PathLike[str]) -> dict | None:
 
 
 @overload
-def read_summary(out: str | os.PathLike[str], complete: Literal[True] = ...) -> dict: ...
+def read_summary(out: str | os.PathLike[str], complete: Literal[True] = ...) -> dict[str, Any]: ...
 
 
 @overload
-def read_summary(out: str | os.PathLike[str], complete: bool) -> dict | None: ...
+def read_summary(out: str | os.PathLike[str], complete: bool) -> dict[str, Any] | None: ...
 
 
-def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict | None:
+def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict[str, Any] | None:
     """The run's ``summary.json``, validated (None if absent and not ``complete``)."""
     f = run_file(out, "summary.json", required=complete)
     if f is None:
@@ -207,7 +228,7 @@ def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict | N
     return validate_summary(summary, f, complete)
 
 
-def read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
+def read_csv(path: str | os.PathLike[str], needed: Sequence[str] = ()) -> dict[str, NDArray[np.float64]]:
     """Columns of a comma-separated file with a one-line header; ``name [unit]`` -> ``name``."""
     path = Path(path)
     try:
@@ -234,7 +255,7 @@ def read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
     return {n: data[:, k] for k, n in enumerate(names)}
 
 
-def read_series(path) -> dict[str, np.ndarray]:
+def read_series(path: str | os.PathLike[str]) -> dict[str, NDArray[np.float64]]:
     """``series.csv`` as a dict of column arrays keyed by name without unit (``t_travel``, ``slip``...)."""
     cols = read_csv(path, SERIES_NEEDED)
     if "t_travel" not in cols and "t" not in cols:
@@ -247,7 +268,7 @@ def read_series(path) -> dict[str, np.ndarray]:
 MAX_INITIAL_COORD = 1e6
 
 
-def read_initial(path, n: int | None = None, sc=None) -> tuple:
+def read_initial(path: str | os.PathLike[str], n: int | None = None, sc: Scenario | None = None) -> InitialBed:
     """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as
     written, sizes read from its headers before anything is allocated (``n``: the run's disc
     count when known), distinct ids, finite positions, radii > 0 and a surface above the
@@ -274,7 +295,7 @@ def read_initial(path, n: int | None = None, sc=None) -> tuple:
     return iid, x, y, r, surface
 
 
-def summary_window(summary: dict | None, key: str, name: str) -> tuple[float, float] | None:
+def summary_window(summary: dict[str, Any] | None, key: str, name: str) -> tuple[float, float] | None:
     """(start, end) in s of window ``name`` of quantity ``key`` of a summary (None if absent)."""
     if summary is None:
         return None
@@ -285,7 +306,7 @@ def summary_window(summary: dict | None, key: str, name: str) -> tuple[float, fl
         return None
 
 
-def read_run_scenario(out: Path):
+def read_run_scenario(out: str | os.PathLike[str]) -> Scenario | None:
     """The run's ``scenario.toml``, checked (None if absent)."""
     f = run_file(out, "scenario.toml")
     if f is None:
@@ -313,13 +334,13 @@ def has_store(out: Path) -> bool:
     return True
 
 
-def read_final(out: Path):
+def read_final(out: str | os.PathLike[str]) -> FinalState:
     """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
     p, ws = read_final_particles(out)
     return p.id.copy(), p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.r.copy(), ws
 
 
-def read_final_particles(out: Path):
+def read_final_particles(out: str | os.PathLike[str]) -> tuple[Particles, NDArray[np.float64]]:
     """(Particles, wheel_state) of the last committed epoch of the run's store."""
     from ooc_dem.storage import open_store
     from ..model.checkpoint import read_epoch_particles
@@ -333,8 +354,10 @@ def read_final_particles(out: Path):
     return p, ws
 
 
-def summary_value(summary, key, name):
+def summary_value(summary: dict[str, Any] | None, key: str, name: str) -> float | None:
     """The value of quantity ``key`` over window ``name`` of a summary (None if absent)."""
+    if summary is None:
+        return None
     try:
         v = summary[key][name]["value"]
         return None if v is None else float(v)
@@ -342,7 +365,7 @@ def summary_value(summary, key, name):
         return None
 
 
-def read_initial_z(path, n: int):
+def read_initial_z(path: str | os.PathLike[str], n: int) -> NDArray[np.float64] | None:
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
     from ..storage.npzfile import npz_member_names, read_npz_members
 

@@ -105,6 +105,7 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("output", "steady_end"): _NONNEG,
     ("output", "run_steps"): _COUNT(MAX_STEPS),
     ("output", "snapshot_interval"): _NONNEG,
+    ("bed", "fill_friction"): (lambda v: v == -1.0 or 0.0 <= v <= 100.0, "-1 (the contact's friction) or in [0, 100]"),
     ("decomposition", "policy"): (lambda v: v in ("wheel", "equal"), "one of 'wheel', 'equal'"),
     ("decomposition", "domains"): (lambda v: 1 <= v <= MAX_DOMAINS, f"an integer in [1, {MAX_DOMAINS}]"),
     ("decomposition", "block"): (lambda v: 1 <= v <= MAX_BLOCK, f"an integer in [1, {MAX_BLOCK}]"),

@@ -139,6 +139,8 @@ class Bed:
     tile: int = 0  # >0: build the bed by tiling a settled tile of this many discs
     skin: float = 0.0006  # m, Verlet skin of the neighbour lists
     tiles_across: int = 1  # 3D tiled beds: tiles across the width (z)
+    # soil-soil friction while the bed is poured (< 0: the contact's own): lower pours denser
+    fill_friction: float = -1.0
 
 
 @dataclass(frozen=True)
@@ -321,6 +323,7 @@ _HASH_NEUTRAL = {
     ("physics", "history_capacity"): 0,
     ("wheel", "z0"): 0.0,
     ("soil", "grading"): dataclasses.asdict(SoilGrading()),  # added with gradings
+    ("bed", "fill_friction"): -1.0,
 }
 _PAIR_HASH_NEUTRAL = {
     "law": "linear",

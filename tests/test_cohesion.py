@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import pytest
 from scipy.optimize import brentq, minimize_scalar
@@ -23,18 +22,11 @@ from ooc_dem.physics.d2.contact import contact_force
 from ooc_dem.physics.d3 import layout as L3
 from ooc_dem.physics.layout import AX_X, AX_Y, WC_SIZE, WG_SIZE
 from support.sim3d import Sim, make_spheres
+from support.threads import one_numba_thread  # noqa: F401
 
 E, NU = 1.0e7, 0.3
 RHO = 2650.0
 R3 = 0.005
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(old)
 
 
 def lens_a2(ra, rb, d):

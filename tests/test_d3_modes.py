@@ -13,18 +13,15 @@ Every comparison is ``np.array_equal`` on every state array plus the canonical h
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
 import sys
 import time
 
 import numba
 import numpy as np
 import pytest
+from support.runs import kill_after_first_commit
 from support.cli import cli_in_process, run_cli
 from support.state import assert_same_state
-from support.stores import committed_step
 
 import ooc_dem
 from ooc_dem.app.bed import initial_fill
@@ -175,22 +172,8 @@ def test_sigkill_then_resume_gives_the_same_bits(runs, tmp_path):
         "--no-progress",
         "--no-figures",
     ]
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=dict(os.environ), start_new_session=True
-    )
-    deadline = time.time() + 300
-    killed = False
-    while time.time() < deadline and proc.poll() is None:
-        if committed_step(out) > 0:
-            time.sleep(0.3)
-            proc.send_signal(signal.SIGKILL)
-            killed = True
-            break
-        time.sleep(0.05)
-    proc.wait(timeout=60)
-    if not killed:
+    if not kill_after_first_commit(cmd, out, timeout=300):
         pytest.skip("the run finished before it could be killed")
-    assert proc.returncode == -9
     cp = run_cli("resume", out, "--no-progress", "--no-figures", check=True)
     assert f"state hash: {ref}" in cp.stdout
     cli_in_process("checkpoint", "verify", out, check=True)

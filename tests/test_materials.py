@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import pytest
 
@@ -20,14 +19,7 @@ from ooc_dem.physics.d3 import layout as L3
 from ooc_dem.physics.layout import AX_X, AX_Y, T_SOIL, T_WHEEL, WC_SIZE, WG_SIZE
 from support.cli import cli_in_process, one_line_error
 from support.sim3d import Sim, make_spheres
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(old)
+from support.threads import one_numba_thread  # noqa: F401
 
 
 def _estar(e1, n1, e2, n2):

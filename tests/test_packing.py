@@ -3,22 +3,13 @@ reached with. Grains that slide past each other while they fall pack denser."""
 
 from __future__ import annotations
 
-import numba
-import pytest
 
 from ooc_dem.app.bed import initial_fill, pour_scenario, settle
 from ooc_dem.model.bedreport import bed_report
 from ooc_dem.model.scenario import load_scenario
+from support.threads import one_numba_thread  # noqa: F401
 
 SMALL = ["soil.n=600", "bin.length=0.12", "wheel.enabled=false"]
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(old)
 
 
 def _porosity(sc):

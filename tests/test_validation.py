@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import pytest
 
@@ -32,6 +31,7 @@ from ooc_dem.physics.layout import ID_WALL_BOTTOM, ID_WALL_LEFT, ID_WALL_RIGHT, 
 from ooc_dem.physics.layout import WC_SIZE
 from ooc_dem.model.state import Particles
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
+from support.threads import one_numba_thread  # noqa: F401
 
 G = 9.81
 R = 0.01
@@ -43,14 +43,6 @@ KN0 = 1.0e5
 KS0 = KN0 / 3.0
 TC_WALL = math.pi * math.sqrt(M / KN0)  # undamped disc-wall contact time
 TC_PAIR = math.pi * math.sqrt(0.5 * M / KN0)  # undamped equal-disc contact time
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(old)
 
 
 # --------------------------------------------------------------------- helpers

@@ -23,8 +23,8 @@ import numpy as np
 
 from ..physics import kernels
 from ..physics import layout as L
-from ..model.schema import clamps
-from ..physics.d2.layout import CONTACT_PARAMS, N_FIELDS, WALLS, linear_params
+from ..model.scenario_check import contact_params_2d
+from ..physics.d2.layout import CONTACT_PARAMS, N_FIELDS, WALLS
 from ..physics.layout import (
     ERR_BODY_CAPACITY,
     ERR_HIST_OVERFLOW,  # noqa: F401
@@ -117,18 +117,7 @@ class Model:
         thickness = sc.physics.thickness
 
         def put(a, b, pair):
-            # the discs' cohesion per unit of chord: the energy density over their thickness
-            vals = linear_params(
-                pair.kn,
-                pair.ks,
-                pair.damping_n,
-                pair.damping_t,
-                pair.friction,
-                pair.rolling_friction,
-                pair.rolling_damping,
-                no_tension=clamps(pair),
-                kc=pair.cohesion * thickness,
-            )
+            vals = contact_params_2d(pair, thickness)
             table[a, b] = vals
             table[b, a] = vals
 

@@ -517,7 +517,12 @@ def contact_params_3d(pair: ContactPair) -> tuple:
             no_tension=clamps(pair),
             kc=pair.cohesion,
         )
-    return L3.linear_params(
+    return L3.linear_params(*_linear_args(pair), no_tension=clamps(pair), kc=pair.cohesion)
+
+
+def _linear_args(pair: ContactPair) -> tuple[float, float, float, float, float, float, float]:
+    """The linear law's parameters of a contact section, in the kernels' order."""
+    return (
         pair.kn,
         pair.ks,
         pair.damping_n,
@@ -525,9 +530,16 @@ def contact_params_3d(pair: ContactPair) -> tuple:
         pair.friction,
         pair.rolling_friction,
         pair.rolling_damping,
-        no_tension=clamps(pair),
-        kc=pair.cohesion,
     )
+
+
+def contact_params_2d(pair: ContactPair, thickness: float) -> tuple:
+    """The 2D kernels' CONTACT_PARAMS tuple of a contact section (physics.d2.layout): the
+    linear law, the discs' cohesion per unit of chord (the energy density times their
+    thickness)."""
+    from ..physics.d2 import layout as L2
+
+    return L2.linear_params(*_linear_args(pair), no_tension=clamps(pair), kc=pair.cohesion * thickness)
 
 
 def contact_table_3d(sc: Scenario):

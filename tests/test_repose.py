@@ -99,7 +99,6 @@ def test_a_flat_layer_has_no_flank():
         (["bin.width=0.2"], "bin.width"),  # < 4 column radii
         (["bin.height=0.05"], "bin.height"),  # the column's loose fill does not fit
         (["bed.tile=500"], "bed.tile"),
-        (["physics.dim=2", 'contact.soil_soil.law="linear"', 'contact.soil_wall.law="linear"'], "repose.enabled"),
         (["repose.radius=0.05"], "repose.radius"),  # unknown key
     ],
 )
@@ -188,3 +187,16 @@ def test_resume_writes_a_missing_repose_figure(tiny_run, capsys):
     assert "figures" in capsys.readouterr().out
     assert (out / "figures" / REPOSE_FIGURE).read_bytes()[:4] == b"\x89PNG"
     assert json.loads((out / "summary.json").read_text())["repose"] == before["repose"]
+
+
+def test_report_prints_the_3d_angle(tiny_run):
+    from ooc_dem.app.repose import angle_line
+    from tests.support.cli import cli_in_process
+
+    _, _, out = tiny_run
+    rp = json.loads((out / "summary.json").read_text())["repose"]
+    cp = cli_in_process("report", out, check=True)
+    line = (
+        f"angle of repose {rp['angle_deg']:.1f} deg ({rp['sectors_fitted']} sectors, sd {rp['angle_std_deg']:.1f} deg)"
+    )
+    assert line == angle_line(rp) and line in cp.stdout.splitlines(), cp.stdout

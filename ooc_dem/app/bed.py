@@ -19,7 +19,8 @@ part by part): surface height, bulk density, porosity, coordination number and g
 The angle-of-repose test (``repose.enabled``, docs/reference/repose3d.md) starts from a
 column: a square box of side 2 ``repose.column_radius`` filled and settled like any bed,
 cut to the cylinder of that radius, its ``soil.n`` lowest spheres kept and set down at
-the centre of the bin's floor (``settled_column``).
+the centre of the bin's floor (``settled_column``); in 2D a box of width 2
+``column_radius`` holding the column's ``soil.n`` discs.
 """
 
 from __future__ import annotations
@@ -241,19 +242,22 @@ def settled_column(sc: Scenario, progress: SettleProgress | None = None) -> Part
     """The repose test's column at rest on the floor of sc's bin, centred (module doc).
 
     Settled in ``column_scenario``'s box, the spheres whose centres lie within
-    column_radius - r_max of the box's axis are kept (the cylinder holds them whole), of
-    those the soil.n lowest, ids renumbered 0..n-1 in their old order (so every history
+    column_radius - r_max of the box's axis are kept (the cylinder holds them whole; in 2D
+    the box of width 2 column_radius is the column and every disc is kept), of those the
+    soil.n lowest, ids renumbered 0..n-1 in their old order (so every history
     stays sorted by partner id). Contacts with the box's four side walls are dropped (those
     walls are gone), as are contacts with cut spheres; the floor's are kept (it stays)."""
-    from ..physics.d3.layout import ID_WALL_BOTTOM
-    from ..physics.layout import AX_Z
+    from ..physics.layout import AX_Z, ID_WALL_BOTTOM
 
     csc = column_scenario(sc)
     col, _ = settle(csc, initial_fill(csc), progress)
     col = _zero_motion(col).sorted_by_id()
     R = sc.repose.column_radius
-    radial = np.hypot(col.pos[:, AX_X] - R, col.pos[:, AX_Z] - R)
-    inside = np.flatnonzero(radial <= R - sc.soil.r_max)
+    if sc.dim == 3:
+        radial = np.hypot(col.pos[:, AX_X] - R, col.pos[:, AX_Z] - R)
+        inside = np.flatnonzero(radial <= R - sc.soil.r_max)
+    else:  # the box of width 2R is the column: every disc is inside
+        inside = np.flatnonzero(np.abs(col.pos[:, AX_X] - R) <= R)
     if len(inside) < sc.soil.n:
         raise BedError(
             f"soil.n = {sc.soil.n}: the settled repose column holds only {len(inside)} spheres "
@@ -282,7 +286,8 @@ def settled_column(sc: Scenario, progress: SettleProgress | None = None) -> Part
         q.hist_n[i] = k
     q.id[:] = np.arange(len(q))
     q.pos[:, AX_X] += 0.5 * sc.bin.length - R
-    q.pos[:, AX_Z] += 0.5 * sc.bin.width - R
+    if sc.dim == 3:
+        q.pos[:, AX_Z] += 0.5 * sc.bin.width - R
     return q
 
 

@@ -162,8 +162,18 @@ def _print_run_result(summary: dict[str, Any], out: str | os.PathLike[str]) -> N
     )
     if isinstance(summary.get("bed"), dict):
         print(bed_line(summary["bed"]))
+    _print_repose(summary)
     print(f"state hash: {summary['state_hash']}")
     print(f"output: {out}  (shown by `ooc-dem report {out}`; in Python: ooc_dem.open_run({str(out)!r}))")
+
+
+def _print_repose(summary: dict[str, Any]) -> None:
+    """The angle of repose in one line, when the summary holds one (2D or 3D)."""
+    from .repose import angle_line
+
+    line = angle_line(summary.get("repose"))
+    if line is not None:
+        print(line)
 
 
 def bed_line(info: dict[str, Any]) -> str:
@@ -246,6 +256,7 @@ def cmd_report(args: argparse.Namespace) -> int:
             print(f"figure: {fig}")
     else:
         print(json.dumps(summary, indent=2))
+    _print_repose(summary)
     return 0
 
 

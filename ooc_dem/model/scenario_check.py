@@ -368,8 +368,6 @@ def _check_repose(sc: Scenario) -> None:
         )
     if not rp.enabled:
         return
-    if sc.dim != 3:
-        raise ScenarioError("repose.enabled = true: the angle-of-repose test is 3D (set physics.dim = 3)")
     if sc.bed.tile:
         raise ScenarioError(
             f"bed.tile = {sc.bed.tile}: the repose column is settled whole (bed.tile = 0 with repose.enabled = true)"
@@ -379,7 +377,8 @@ def _check_repose(sc: Scenario) -> None:
             f"repose.column_radius = {rp.column_radius!r}: must be at least two sphere "
             f"diameters (2 soil.r_max = {2 * s.r_max!r}) so that the column holds spheres"
         )
-    for key, size in (("bin.length", sc.bin.length), ("bin.width", sc.bin.width)):
+    spans = (("bin.length", sc.bin.length), ("bin.width", sc.bin.width))[: sc.dim - 1]
+    for key, size in spans:
         if size < 4 * rp.column_radius:
             raise ScenarioError(
                 f"{key} = {size!r}: the heap spreads beyond the column; the bin must be at "
@@ -389,7 +388,7 @@ def _check_repose(sc: Scenario) -> None:
     if top > sc.bin.height:
         raise ScenarioError(
             f"bin.height = {sc.bin.height!r}: the loose fill of the repose column ({n_fill} "
-            f"spheres in a {2 * rp.column_radius:g} m square, cut to soil.n = {s.n}) needs "
+            f"{'spheres' if sc.dim == 3 else 'discs'} {2 * rp.column_radius:g} m across, cut to soil.n = {s.n}) needs "
             f"{top:.3f} m; raise bin.height or repose.column_radius"
         )
     if rp.bin_width < s.r_min or rp.bin_width > rp.column_radius:
@@ -409,12 +408,15 @@ REPOSE_FILL_MARGIN = 1.15
 def repose_fill(sc: Scenario) -> tuple[int, float]:
     """(spheres filled into the repose column's square box of side 2 column_radius, height of
     that loose fill (initial_fill_3d's grid of pitch 2.2 r_max)); the settled fill is cut to the
-    cylinder and its soil.n lowest spheres kept (bed.settled_column)."""
+    cylinder and its soil.n lowest spheres kept (bed.settled_column). In 2D the box of width
+    2 column_radius is the column: soil.n discs in initial_fill's rows."""
     s, R = sc.soil, sc.repose.column_radius
-    inner = max(R - s.r_max, 0.5 * s.r_max)
-    n_fill = int(math.ceil(REPOSE_FILL_MARGIN * s.n * (2 * R / inner) ** 2 / math.pi))
     pitch = 2.2 * s.r_max
     across = max(1, int((2 * R - 2 * s.r_max) / pitch))
+    if sc.dim == 2:  # the box is the column: its discs are all kept (initial_fill's rows)
+        return s.n, 2 * s.r_max + (-(-s.n // across) - 1) * pitch
+    inner = max(R - s.r_max, 0.5 * s.r_max)
+    n_fill = int(math.ceil(REPOSE_FILL_MARGIN * s.n * (2 * R / inner) ** 2 / math.pi))
     rows = -(-n_fill // (across * across))
     return n_fill, 2 * s.r_max + (rows - 1) * pitch
 

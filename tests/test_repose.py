@@ -191,7 +191,7 @@ def test_resume_writes_a_missing_repose_figure(tiny_run, capsys):
 
 def test_report_prints_the_3d_angle(tiny_run):
     from ooc_dem.app.repose import angle_line
-    from tests.support.cli import cli_in_process
+    from support.cli import cli_in_process
 
     _, _, out = tiny_run
     rp = json.loads((out / "summary.json").read_text())["repose"]
@@ -199,4 +199,4 @@ def test_report_prints_the_3d_angle(tiny_run):
     line = (
         f"angle of repose {rp['angle_deg']:.1f} deg ({rp['sectors_fitted']} sectors, sd {rp['angle_std_deg']:.1f} deg)"
     )
-    assert line == angle_line(rp) and line in cp.stdout.splitlines(), cp.stdout
+    assert line == angle_line(rp) and line in cp.stderr.splitlines(), cp.stderr

@@ -152,4 +152,5 @@ def test_report_prints_the_angle(tiny_2d_run):
     out, _ = tiny_2d_run
     rp = json.loads((out / "summary.json").read_text())["repose"]
     cp = cli_in_process("report", out, check=True)
-    assert angle_line(rp) in cp.stdout.splitlines(), cp.stdout
+    assert angle_line(rp) in cp.stderr.splitlines(), cp.stderr
+    assert json.loads(cp.stdout)["repose"] == rp  # stdout stays the summary as JSON

@@ -8,7 +8,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 from .cli_parser import EXIT_OOM, CliError
 
@@ -167,13 +167,13 @@ def _print_run_result(summary: dict[str, Any], out: str | os.PathLike[str]) -> N
     print(f"output: {out}  (shown by `ooc-dem report {out}`; in Python: ooc_dem.open_run({str(out)!r}))")
 
 
-def _print_repose(summary: dict[str, Any]) -> None:
+def _print_repose(summary: dict[str, Any], stream: TextIO | None = None) -> None:
     """The angle of repose in one line, when the summary holds one (2D or 3D)."""
     from .repose import angle_line
 
     line = angle_line(summary.get("repose"))
     if line is not None:
-        print(line)
+        print(line, file=stream or sys.stdout)
 
 
 def bed_line(info: dict[str, Any]) -> str:
@@ -254,9 +254,12 @@ def cmd_report(args: argparse.Namespace) -> int:
             print(bed_line(summary["bed"]))
         for fig in figs:
             print(f"figure: {fig}")
+        _print_repose(summary)
     else:
+        # a bare run's report is its summary as JSON (stdout stays parseable); the angle of
+        # repose goes beside it, to stderr
         print(json.dumps(summary, indent=2))
-    _print_repose(summary)
+        _print_repose(summary, sys.stderr)
     return 0
 
 

@@ -280,6 +280,7 @@ def _run_sweeps(
     status = SWEEPS_DONE
     done = nsweeps
     every_disc = np.zeros((0, 2), np.int64)  # run_steps' spans: each step advances every disc
+    no_plates = L.Plates(np.empty(0, L.PLATE), np.empty(0, L.PLATE_RECORD))  # plates: DomainStepper only
     for sw in range(nsweeps):
         if sw > 0 or refresh_first:
             moved, count = refresh_own_pieces(
@@ -337,6 +338,7 @@ def _run_sweeps(
                     bd,
                     forces,
                     ws,
+                    no_plates,
                     err,
                     rec,
                     flags[F_REBUILD] != 0,

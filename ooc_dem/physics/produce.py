@@ -5,8 +5,8 @@ A step's forces come in two phases (Nishiura & Sakaguchi 2011, J. Comput. Phys.
 230:1923: a pair list with a per-particle pair-index table, Newton's third law without
 write conflicts); ``produce`` is the first: one row per contact at time n.
 
-- Body rows first, in a pass of their own: each particle's contacts with the walls and
-  the wheel's parts (the dimension's ``body_rows``: its geometry and law) go to per-chunk
+- Body rows first, in a pass of their own: each particle's contacts with the wheel's
+  parts, the plates and the walls (the dimension's ``body_rows``: its geometry and law) go to per-chunk
   buffers (``layout.Bodies``) in particle order, ascending partner id within a particle.
   When a chunk's buffer is full, err[ERR_BODY_CAPACITY] is set and no pair row is made:
   the pair rows still hold the springs of the last step, so the step can be rerun after
@@ -53,10 +53,12 @@ block_law = slot(
     "block of k pairs (uniform: one material pair)"
 )
 put_pair_rows = slot("put_pair_rows(k, slot, law_out, rows): a block's results into their rows")
-body_scene = slot("body_scene(walls, wg, ws): the walls' and the wheel's geometry this step, as a tuple")
+body_scene = slot(
+    "body_scene(walls, wg, ws, plates): the walls', the wheel's and the plates' geometry this step, as a tuple"
+)
 body_rows = slot(
     "body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt): particle i's rows "
-    "with the walls and the wheel from body row bat on (bend: the chunk's end); "
+    "with the wheel, the plates and the walls from body row bat on (bend: the chunk's end); "
     "returns (next row, whether one did not fit)"
 )
 
@@ -146,21 +148,22 @@ def pair_rows(k, law_in, law_out, slot, side_a, side_b, was_on, d, rows, cp, dt)
     put_pair_rows(k, slot, law_out, rows)
 
 
-def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
+def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err):
     """Phase 1: one row per contact of particles first..end-1 at time n (module doc): their
     wall and wheel rows and the rows of their own half lists (pairs whose lower id is one
     of them).
 
     d: layout.Discs, pl: layout.Pairs (half list + rows), bd: layout.Bodies (per-chunk
     body rows), cp: the dimension's CONTACT_PARAMS table [type_a, type_b], walls: its
-    WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE records (1,), lugdir:
+    WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE records (1,), plates: the
+    PLATE table (physics.plates; length 0: none), lugdir:
     LUG_DIRECTION of each lug at the wheel's angle. Sets err[ERR_BODY_CAPACITY] when a
     chunk's body buffer is full (grow, rerun): then no pair row is made."""
     pos, r = d.pos, d.r
     half_off, pair_a, pair_b, on, rows = pl.half_off, pl.pair_a, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
-    scene = body_scene(walls, wg, ws)
+    scene = body_scene(walls, wg, ws, plates)
     any_full = np.zeros(1, np.bool_)
     for ch in prange(N_CHUNKS):
         lo, hi = chunk_range(ch, first, end)

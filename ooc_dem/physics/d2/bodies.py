@@ -1,12 +1,13 @@
 """A disc's contacts with the bodies (numba, no I/O): the bin's walls (floor y = 0, end
-walls x = 0 and x = length) and the wheel's rim (a circle of radius R about the axle)
-and lugs (capsules of radius cap along each lug's direction from lug_in to lug_out),
-made into body rows (``layout.BODY_ROW``) for ``physics.produce``.
+walls x = 0 and x = length, each with an on-flag), the wheel's rim (a circle of radius R
+about the axle) and lugs (capsules of radius cap along each lug's direction from lug_in
+to lug_out), and the plates (``physics.plates``: segments along x or y with one active
+side), made into body rows (``layout.BODY_ROW``) for ``physics.produce``.
 
 Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM,
-right wall -3, left -2, bottom -1; a disc's rows in that ascending order), with the
-disc's springs from its history (zero for a new contact). A wheel row also holds the
-torque on the wheel about its centre (the wheel's force is (-bx, -by)).
+plates ID_PLATE0 + k, right wall -3, left -2, bottom -1; a disc's rows in that ascending
+order), with the disc's springs from its history (zero for a new contact). A wheel row
+also holds the torque on the wheel about its centre (the wheel's force is (-bx, -by)).
 """
 
 import math
@@ -20,6 +21,7 @@ from ..layout import (
     HM_R,
     HS_T,
     ID_LUG0,
+    ID_PLATE0,
     ID_RIM,
     ID_WALL_BOTTOM,
     ID_WALL_LEFT,
@@ -28,6 +30,7 @@ from ..layout import (
     T_WALL,
     T_WHEEL,
 )
+from ..plates import plates_box
 from ..wheel import lug_axis_offset
 from .contact import contact
 
@@ -69,14 +72,22 @@ def _wheel_row(body, bat, bend, i, pid, fn, ft, s, mom, m, nx, ny, qx, qy, ri):
 
 
 @njit(inline="always", cache=True)
-def body_scene(walls, wg, ws):
-    """The walls' and the wheel's geometry this step (body_rows' scene): the bin's length
-    and which walls there are; whether there is a wheel, its radius, lugs, mass, centre,
-    velocity and spin, and its reach (the farthest point of a lug or the rim)."""
+def body_force(row):
+    """A body row's force on its disc as (fx, fy, fz) (physics.plates; fz = 0)."""
+    return row.bx, row.by, 0.0
+
+
+@njit(inline="always", cache=True)
+def body_scene(walls, wg, ws, plates):
+    """The walls', the wheel's and the plates' geometry this step (body_rows' scene): the
+    bin's length and which walls there are; whether there is a wheel, its radius, lugs,
+    mass, centre, velocity and spin, and its reach (the farthest point of a lug or the
+    rim); the plates' table and the box around them (``plates.plates_box``)."""
     wl = walls[0]
     g = wg[0]
     s0 = ws[0]
     R = g.radius
+    box = plates_box(plates)
     reach = g.lug_out + g.cap
     if R > reach:
         reach = R
@@ -98,13 +109,22 @@ def body_scene(walls, wg, ws):
         s0.vy,
         s0.wz,
         reach,
+        plates,
+        plates.shape[0] > 0,
+        box[0],
+        box[1],
+        box[2],
+        box[3],
+        box[4],
+        box[5],
     )
 
 
 @njit(inline="always", cache=True)
 def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
-    """Disc i's rows with the wheel's lugs and rim, then the walls, from body row bat on
-    (bend: its chunk's end). Returns (the next row, whether a row did not fit)."""
+    """Disc i's rows with the wheel's lugs and rim, then the plates, then the walls, from
+    body row bat on (bend: its chunk's end). Returns (the next row, whether a row did not
+    fit)."""
     (
         length,
         has_left,
@@ -123,6 +143,14 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
         VY,
         WZ,
         reach,
+        plates,
+        has_plates,
+        x_lo,
+        x_hi,
+        y_lo,
+        y_hi,
+        z_lo,
+        z_hi,
     ) = scene
     pos = d.pos
     xi = pos[i, AX_X]
@@ -136,8 +164,11 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     dyw = yi - Y
     d2 = dxw * dxw + dyw * dyw
     near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri)
+    near_plate = False
+    if has_plates:
+        near_plate = xi + ri > x_lo and xi - ri < x_hi and yi + ri > y_lo and yi - ri < y_hi
     full = False
-    if not (near_wall or near_wheel):
+    if not (near_wall or near_wheel or near_plate):
         return bat, full
     vxi = d.vel[i, AX_X]
     vyi = d.vel[i, AX_Y]
@@ -217,6 +248,31 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             )
             bat, over = _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom, m_new, nx, ny, R * nx, R * ny, ri)
             full = full or over
+    # ------------------------------------------------------ plates
+    for k in range(plates.shape[0] if near_plate else 0):
+        pk = plates[k]
+        if pk.axis == AX_X:  # the face's normal along x, its extent along y
+            h = (xi - pk.pos) * pk.side
+            along = yi
+            nx = pk.side
+            ny = 0.0
+        else:
+            h = (yi - pk.pos) * pk.side
+            along = xi
+            nx = 0.0
+            ny = pk.side
+        delta = ri - h
+        if delta > 0.0 and h > 0.0 and along >= pk.lo1 and along <= pk.hi1:
+            pid = ID_PLATE0 + k
+            p, s_old, m_old = _springs(hist_id, hist_s, hist_m, i, hn, p, pid)
+            fn, ft, s_new, mom, m_new = contact(
+                cp[T_WALL, ti], nx, ny, delta, vxi - pk.vx, vyi - pk.vy, 0.0, wi, 0.0, ri, mi, ii, ri, s_old, m_old, dt
+            )
+            if bat < bend:
+                _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx, ri * ft + mom, s_new, m_new, 0.0)
+                bat += 1
+            else:
+                full = True
     # ------------------------------------------------------ walls
     for wall in range(3 if near_wall else 0):
         # ascending ids: right (-3), left (-2), bottom (-1)

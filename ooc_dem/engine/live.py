@@ -36,7 +36,16 @@ from numba.typed import List
 from ..model.decomposition import group_order
 from ..physics import layout as L
 from ..physics.history import ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED, ROLE_STABLE
-from ..physics.layout import AX_X, ERR_BODY_CAPACITY, ERR_PAIR_CAPACITY, WHEEL_RECORD, record
+from ..physics.layout import (
+    AX_X,
+    ERR_BODY_CAPACITY,
+    ERR_PAIR_CAPACITY,
+    PLATE,
+    PLATE_RECORD,
+    WHEEL_RECORD,
+    Plates,
+    record,
+)
 from ..physics.twins import serial_twin, slot
 from ..model.state import Particles
 from .stepper import N_REC, DomainStepper, EngineError, Model
@@ -280,7 +289,7 @@ def _run_sweeps(
     status = SWEEPS_DONE
     done = nsweeps
     every_disc = np.zeros((0, 2), np.int64)  # run_steps' spans: each step advances every disc
-    no_plates = L.Plates(np.empty(0, L.PLATE), np.empty(0, L.PLATE_RECORD))  # plates: DomainStepper only
+    no_plates = Plates(np.empty(0, PLATE), np.empty(0, PLATE_RECORD))  # plates: DomainStepper only
     for sw in range(nsweeps):
         if sw > 0 or refresh_first:
             moved, count = refresh_own_pieces(

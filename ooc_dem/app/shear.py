@@ -2,7 +2,8 @@
 
 A split box is filled with the scenario's soil (its grading, density and contact laws) by
 pouring: the box's scenario (``box_scenario``: the bin cut to the box, soil.n grains, no
-wheel) is settled as any bed is (``bed.settled_bed``). The fixed end walls (and in 3D the
+wheel) is settled as any bed is (``bed.settled_bed``), without cohesion
+(``pour_scenario``: the bonds act from the consolidation on). The fixed end walls (and in 3D the
 side walls) are then switched off and the box is built of plates (``physics.plates``),
 split at half the sample's height:
 
@@ -15,10 +16,14 @@ split at half the sample's height:
   body under the load N = sigma A (A = L b, 2D: b the discs' thickness, or L W in 3D),
   its mass critically damped on its contacts (``lid_mass``).
 
+The box's faces are frictionless (the soil_wall pair's friction and rolling friction are
+set to 0 in the box's scenario): the shear force is then the soil's own resistance across
+the shear plane, with no friction of the box's rims on the grains.
+
 Each normal stress sigma starts from the same poured sample: the lid comes down and
 consolidates it until its force holds N to 1 % (the upper half at rest), then the upper
 half moves by ``displacement`` L. The shear force T is the x force the grains push back on
-the upper half's plates with (the lid's friction included); tau = T / A_c and
+the upper half's plates with; tau = T / A_c and
 sigma_n = N / A_c on the corrected area A_c = (L - u) b (3D (L - u) W), u the displacement
 (one area for both, so the friction angle does not depend on the choice). The peak is the
 largest tau of the series (means over ``ROWS`` windows), the residual the mean over the
@@ -135,7 +140,7 @@ def box_length(sc: Scenario, grains: int) -> float:
 
 def box_scenario(sc: Scenario, grains: int) -> Scenario:
     """The scenario the box's sample is poured in: the bin cut to the box (3D: L x L), tall
-    enough for the loose fill, ``grains`` grains, no wheel, no tiling."""
+    enough for the loose fill, ``grains`` grains, no wheel, no tiling, frictionless walls."""
     from ..model.scenario_check import scenario_from_dict
 
     length = box_length(sc, grains)
@@ -153,6 +158,23 @@ def box_scenario(sc: Scenario, grains: int) -> Scenario:
     d["bed"]["tile"] = 0
     d["wheel"]["enabled"] = False
     d["repose"]["enabled"] = False
+    # the box is no part of the soil: frictionless, so that the force on the upper half is
+    # the soil's resistance across the shear plane (a rim sliding over the other half's
+    # grains would add its friction, about mu_wall (2 u / L) sigma A)
+    d["contact"]["soil_wall"]["friction"] = 0.0
+    d["contact"]["soil_wall"]["rolling_friction"] = 0.0
+    return scenario_from_dict(d)
+
+
+def pour_scenario(box_sc: Scenario) -> Scenario:
+    """The box's scenario without cohesion: the sample is poured cohesionless (cohesive
+    grains poured loose clump and may never come to rest), its bonds act from the
+    consolidation on; so every cohesion is tested on the same poured sample."""
+    from ..model.scenario_check import scenario_from_dict
+
+    d = box_sc.to_dict()
+    for pair in d["contact"].values():
+        pair["cohesion"] = 0.0
     return scenario_from_dict(d)
 
 
@@ -411,7 +433,7 @@ def run_shear(
     bsc = box_scenario(sc, grains)
     if progress is not None:
         progress(f"pouring {grains} grains into a {bsc.bin.length:.4g} m box")
-    bed = settled_bed(bsc, use_cache=use_cache)
+    bed = settled_bed(pour_scenario(bsc), use_cache=use_cache)
     box = box_of(bsc, bed)
     walls_off = {"left": False, "right": False} | ({"front": False, "back": False} if sc.dim == 3 else {})
     model = Model.from_scenario(bsc).without_wheel().with_walls(**walls_off)

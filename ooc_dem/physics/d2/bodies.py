@@ -71,6 +71,50 @@ def _wheel_row(body, bat, bend, i, pid, fn, ft, s, mom, m, nx, ny, qx, qy, ri):
     return bat, True
 
 
+@njit(cache=True)
+def plate_rows(i, d, cp, plates, body, bat, bend, p, dt):
+    """Disc i's rows with the plates (physics.plates: the centre in front of the face within
+    the radius, its projection within the extent) from body row bat on, p its history cursor.
+    Returns (the next row, p, whether a row did not fit). A call of its own, not inlined: the
+    few discs near a plate take it, the others' loop stays as small as without plates."""
+    xi = d.pos[i, AX_X]
+    yi = d.pos[i, AX_Y]
+    ri = d.r[i]
+    vxi = d.vel[i, AX_X]
+    vyi = d.vel[i, AX_Y]
+    wi = d.spin[i, SP_Z]
+    mi = d.mass[i]
+    ii = d.inertia[i]
+    ti = d.mat[i]
+    hn = d.hist_n[i]
+    full = False
+    for k in range(plates.shape[0]):
+        pk = plates[k]
+        if pk.axis == AX_X:  # the face's normal along x, its extent along y
+            h = (xi - pk.pos) * pk.side
+            along = yi
+            nx = pk.side
+            ny = 0.0
+        else:
+            h = (yi - pk.pos) * pk.side
+            along = xi
+            nx = 0.0
+            ny = pk.side
+        delta = ri - h
+        if delta > 0.0 and h > 0.0 and along >= pk.lo1 and along <= pk.hi1:
+            pid = ID_PLATE0 + k
+            p, s_old, m_old = _springs(d.hist_id, d.hist_s, d.hist_m, i, hn, p, pid)
+            fn, ft, s_new, mom, m_new = contact(
+                cp[T_WALL, ti], nx, ny, delta, vxi - pk.vx, vyi - pk.vy, 0.0, wi, 0.0, ri, mi, ii, ri, s_old, m_old, dt
+            )
+            if bat < bend:
+                _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx, ri * ft + mom, s_new, m_new, 0.0)
+                bat += 1
+            else:
+                full = True
+    return bat, p, full
+
+
 @njit(inline="always", cache=True)
 def body_force(row):
     """A body row's force on its disc as (fx, fy, fz) (physics.plates; fz = 0)."""
@@ -249,30 +293,9 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             bat, over = _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom, m_new, nx, ny, R * nx, R * ny, ri)
             full = full or over
     # ------------------------------------------------------ plates
-    for k in range(plates.shape[0] if near_plate else 0):
-        pk = plates[k]
-        if pk.axis == AX_X:  # the face's normal along x, its extent along y
-            h = (xi - pk.pos) * pk.side
-            along = yi
-            nx = pk.side
-            ny = 0.0
-        else:
-            h = (yi - pk.pos) * pk.side
-            along = xi
-            nx = 0.0
-            ny = pk.side
-        delta = ri - h
-        if delta > 0.0 and h > 0.0 and along >= pk.lo1 and along <= pk.hi1:
-            pid = ID_PLATE0 + k
-            p, s_old, m_old = _springs(hist_id, hist_s, hist_m, i, hn, p, pid)
-            fn, ft, s_new, mom, m_new = contact(
-                cp[T_WALL, ti], nx, ny, delta, vxi - pk.vx, vyi - pk.vy, 0.0, wi, 0.0, ri, mi, ii, ri, s_old, m_old, dt
-            )
-            if bat < bend:
-                _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx, ri * ft + mom, s_new, m_new, 0.0)
-                bat += 1
-            else:
-                full = True
+    if near_plate:
+        bat, p, over = plate_rows(i, d, cp, plates, body, bat, bend, p, dt)
+        full = full or over
     # ------------------------------------------------------ walls
     for wall in range(3 if near_wall else 0):
         # ascending ids: right (-3), left (-2), bottom (-1)

@@ -186,6 +186,81 @@ def _wheel_contact(
     return p, 0
 
 
+@njit(cache=True)
+def plate_rows(i, d, cp, plates, body, bat, bend, p, dt):
+    """Sphere i's rows with the plates (physics.plates: the centre in front of the face
+    within the radius, its projection within the extent) from body row bat on, p its history
+    cursor. Returns (the next row, p, whether a row did not fit). A call of its own, not
+    inlined: the few spheres near a plate take it, the others' loop stays as without plates."""
+    xi = d.pos[i, AX_X]
+    yi = d.pos[i, AX_Y]
+    zi = d.pos[i, AX_Z]
+    ri = d.r[i]
+    vxi = d.vel[i, AX_X]
+    vyi = d.vel[i, AX_Y]
+    vzi = d.vel[i, AX_Z]
+    wxi = d.spin[i, SP_X3]
+    wyi = d.spin[i, SP_Y3]
+    wzi = d.spin[i, SP_Z3]
+    mi = d.mass[i]
+    ii = d.inertia[i]
+    ti = d.mat[i]
+    hist_id, hist_s, hist_m = d.hist_id, d.hist_s, d.hist_m
+    hn = d.hist_n[i]
+    full = False
+    for k in range(plates.shape[0]):
+        pk = plates[k]
+        a = int(pk.axis)
+        o1, o2 = other_axes(a)
+        h = (_component(a, xi, yi, zi) - pk.pos) * pk.side
+        along1 = _component(o1, xi, yi, zi)
+        along2 = _component(o2, xi, yi, zi)
+        delta = ri - h
+        if not (delta > 0.0 and h > 0.0 and along1 >= pk.lo1 and along1 <= pk.hi1):
+            continue
+        if not (along2 >= pk.lo2 and along2 <= pk.hi2):
+            continue
+        pid = ID_PLATE0 + k
+        nx = pk.side if a == AX_X else 0.0
+        ny = pk.side if a == AX_Y else 0.0
+        nz = pk.side if a == AX_Z else 0.0
+        p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid)
+        (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = body_contact(
+            cp[T_WALL, ti],
+            nx,
+            ny,
+            nz,
+            delta,
+            vxi - pk.vx,
+            vyi - pk.vy,
+            vzi - pk.vz,
+            0.0,
+            0.0,
+            0.0,
+            wxi,
+            wyi,
+            wzi,
+            0.0,
+            ri,
+            mi,
+            ii,
+            ri,
+            s0x,
+            s0y,
+            s0z,
+            m0x,
+            m0y,
+            m0z,
+            dt,
+        )
+        if bat < bend:
+            _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri)
+            bat += 1
+        else:
+            full = True
+    return bat, p, full
+
+
 @njit(inline="always", cache=True)
 def body_force(row):
     """A body row's force on its sphere as (fx, fy, fz) (physics.plates)."""
@@ -443,56 +518,9 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             bat += wrote
             full = full or wrote == 0
     # ------------------------------------------------------ plates
-    for k in range(plates.shape[0] if near_plate else 0):
-        pk = plates[k]
-        a = int(pk.axis)
-        o1, o2 = other_axes(a)
-        h = (_component(a, xi, yi, zi) - pk.pos) * pk.side
-        along1 = _component(o1, xi, yi, zi)
-        along2 = _component(o2, xi, yi, zi)
-        delta = ri - h
-        if not (delta > 0.0 and h > 0.0 and along1 >= pk.lo1 and along1 <= pk.hi1):
-            continue
-        if not (along2 >= pk.lo2 and along2 <= pk.hi2):
-            continue
-        pid = ID_PLATE0 + k
-        nx = pk.side if a == AX_X else 0.0
-        ny = pk.side if a == AX_Y else 0.0
-        nz = pk.side if a == AX_Z else 0.0
-        p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid)
-        (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = body_contact(
-            cp[T_WALL, ti],
-            nx,
-            ny,
-            nz,
-            delta,
-            vxi - pk.vx,
-            vyi - pk.vy,
-            vzi - pk.vz,
-            0.0,
-            0.0,
-            0.0,
-            wxi,
-            wyi,
-            wzi,
-            0.0,
-            ri,
-            mi,
-            ii,
-            ri,
-            s0x,
-            s0y,
-            s0z,
-            m0x,
-            m0y,
-            m0z,
-            dt,
-        )
-        if bat < bend:
-            _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri)
-            bat += 1
-        else:
-            full = True
+    if near_plate:
+        bat, p, over = plate_rows(i, d, cp, plates, body, bat, bend, p, dt)
+        full = full or over
     # ------------------------------------------------------ walls
     for wall in range(5 if near_wall else 0):
         if not flags[wall]:

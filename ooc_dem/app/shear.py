@@ -58,7 +58,10 @@ from ..physics.plates import plate
 from ..storage.atomic import write_replacing
 
 if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
     from ..model.schema import Scenario
+    from ..model.state import Particles
 
 SHEAR_JSON = "shear.json"
 FIG_TAU = "shear_tau_displacement.png"
@@ -135,7 +138,7 @@ def box_length(sc: Scenario, grains: int) -> float:
         area = grains * math.pi * r * r / PACKING[2]
         return math.sqrt(area / HEIGHT_OVER_LENGTH)
     volume = grains * 4.0 / 3.0 * math.pi * r**3 / PACKING[3]
-    return (volume / HEIGHT_OVER_LENGTH) ** (1.0 / 3.0)
+    return float((volume / HEIGHT_OVER_LENGTH) ** (1.0 / 3.0))
 
 
 def box_scenario(sc: Scenario, grains: int) -> Scenario:
@@ -252,7 +255,7 @@ def box_plates(box: Box, travel: float, load: float, mass: float, vmax: float) -
     return Plates(table, upper, names.index("lid"))
 
 
-def box_of(sc: Scenario, bed) -> Box:
+def box_of(sc: Scenario, bed: Particles) -> Box:
     from .bed import surface_height
 
     length = sc.bin.length
@@ -295,14 +298,17 @@ def _window_means(rec: np.ndarray, plates: Plates, rows: int) -> dict[str, np.nd
     u = rec["pos"][:, up[0]]  # the upper left face's x: the displacement
     k = len(rec) // rows
     cut = k * rows
-    mean = lambda a: a[:cut].reshape(rows, k).mean(axis=1)  # noqa: E731
+
+    def mean(a: np.ndarray) -> np.ndarray:
+        return np.asarray(a[:cut].reshape(rows, k).mean(axis=1))
+
     return {"T": mean(t_force), "N": mean(n_force), "lid": mean(lid_y), "u": u[k - 1 : cut : k] + 0.0}
 
 
 def shear_one(
     sc: Scenario,
     model: Model,
-    bed,
+    bed: Particles,
     box: Box,
     sigma: float,
     speed: float,
@@ -371,7 +377,7 @@ def shear_one(
     }
 
 
-def mohr_coulomb(sigma, tau) -> dict[str, Any]:
+def mohr_coulomb(sigma: ArrayLike, tau: ArrayLike) -> dict[str, Any]:
     """Least-squares line tau = c + sigma tan(phi): c (Pa), phi (degrees), tan(phi), with
     their standard errors (from the fit's residuals, n - 2 degrees of freedom; None with
     two points) and R^2."""

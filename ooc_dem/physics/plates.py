@@ -162,7 +162,17 @@ def plates_step(s, t, gid, bd, pt, dt):
         p.hi2 += v2
 
 
-def plate(axis, side, pos, extent, extent2=(0.0, 0.0), velocity=(0.0, 0.0, 0.0), load=None, mass=0.0, vmax=0.0):
+def plate(
+    axis: int,
+    side: float,
+    pos: float,
+    extent: tuple[float, float],
+    extent2: tuple[float, float] = (0.0, 0.0),
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    load: float | None = None,
+    mass: float = 0.0,
+    vmax: float = 0.0,
+) -> np.ndarray:
     """One ``layout.PLATE`` record (a (1,) array): normal axis (AX_X, AX_Y, AX_Z) and side
     (+1: the particles are at larger coordinates than pos), its position along the axis,
     its extent (lo, hi) along the first other axis and extent2 along the second (3D), its

@@ -149,3 +149,14 @@ def test_cli_shear_writes_the_report_and_figures(tmp_path):
 def test_cli_shear_refuses_bad_input(tmp_path, args, needle):
     cp = cli_in_process("shear", "quick", "--out", tmp_path / "o", "--no-progress", *args)
     one_line_error(cp, needle)
+
+
+def test_3d_box_shears_spheres():
+    """3D: the same box with its side faces, on quick-3d's spheres (Hertz-Mindlin, mu = 0.5,
+    rolling 0.1): the lid holds each stress and the residual friction angle is a frictional
+    soil's (measured 35 deg with 1000 spheres; here 400, checked in [20, 50] deg)."""
+    res = run_shear(load_scenario("quick-3d"), ShearOptions(grains=400, displacement=0.08, **FAST))
+    assert res["dim"] == 3 and res["box"]["width"] == res["box"]["length"]
+    assert 20.0 <= res["residual_fit"]["phi_deg"] <= 50.0, res["residual_fit"]
+    for t in res["tests"]:
+        assert t["residual"]["sigma"] == pytest.approx(t["sigma"] / (1 - 0.07), rel=0.05)

@@ -23,6 +23,7 @@ from .app.cli_commands import (
     cmd_run,
     cmd_scenarios,
     cmd_shear,
+    cmd_sinkage,
     cmd_sweep,
 )
 from .app.cli_parser import EXIT_USAGE, CliError, build_parser, one_line as _one_line
@@ -43,6 +44,7 @@ COMMANDS = {
     "compare": cmd_compare,
     "sweep": cmd_sweep,
     "shear": cmd_shear,
+    "sinkage": cmd_sinkage,
     "profile": cmd_profile,
 }
 

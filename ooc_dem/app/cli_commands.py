@@ -277,6 +277,30 @@ def cmd_shear(args):
     return 0
 
 
+def cmd_sinkage(args):
+    from .sinkage import SinkageOptions, run_sinkage
+
+    try:
+        widths = tuple(float(s) for s in args.widths.split(",") if s.strip())
+    except ValueError:
+        raise CliError(f"--widths {args.widths!r}: must be comma-separated numbers (m)") from None
+    opts = SinkageOptions(widths=widths, depth=args.depth or 0.0, speed=args.speed)
+    opts.check()
+    sc = _load(args)
+    say = None if args.no_progress else (lambda text: print(f"ooc-dem sinkage: {text}", file=sys.stderr, flush=True))
+    out = Path(args.out)
+    result = run_sinkage(sc, opts, out, figures=not args.no_figures, progress=say)
+    fit = result["bekker"]
+    for k in fit["k_per_width"]:
+        print(f"b = {k['width']:g} m: k = {k['k']:.4g}")
+    print(
+        f"Bekker: n = {fit['n']:.3f}, k_c = {fit['k_c']:.4g} N/m^(n+1), k_phi = {fit['k_phi']:.4g} N/m^(n+2) "
+        f"(R^2 of log p {fit['r2_log_p']:.3f})"
+    )
+    print(f"report: {out / 'sinkage.json'}")
+    return 0
+
+
 def cmd_profile(args):
     from .profiling import PROFILED_MODES, profile
 

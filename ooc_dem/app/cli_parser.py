@@ -304,6 +304,21 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--no-figures", action="store_true")
     q.add_argument("--no-progress", action="store_true")
 
+    q = sub.add_parser(
+        "sinkage", help="plate sinkage test of the scenario's bed: pressure-sinkage curves, Bekker k_c, k_phi and n"
+    )
+    add_scenario_args(q)
+    q.add_argument(
+        "--widths", default="", help="comma-separated plate widths in m (default: 1/4 and 1/2 of the bed depth)"
+    )
+    q.add_argument(
+        "--depth", type=_positive_float, default=None, help="final sinkage in m (default: 1/5 of the bed depth)"
+    )
+    q.add_argument("--speed", type=_positive_float, default=0.01, help="the plate's speed in m/s (default 0.01)")
+    q.add_argument("--out", required=True)
+    q.add_argument("--no-figures", action="store_true")
+    q.add_argument("--no-progress", action="store_true")
+
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)
     q.add_argument("--slips", required=True, help="comma-separated slips, e.g. 0.1,0.2,0.4")

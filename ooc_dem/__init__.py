@@ -63,7 +63,7 @@ _LAZY = {
     "ScenarioError": ".model.scenario",
     "RunError": ".app.run",
     "EngineError": ".engine.stepper",
-    "StateError": ".model.checkpoint",
+    "StateError": ".model.state_check",
     "BedError": ".app.bed",
     "RunFileError": ".app.runfiles",
     "StoreError": ".storage",

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     import pandas as pd
     from numpy.typing import NDArray
 
-    from .app.trajectory import Trajectory
+    from .app.trajectory_read import Trajectory
     from .model.scenario import Scenario
     from .storage import Store
 
@@ -59,8 +59,16 @@ def _override_items(overrides: Mapping[Any, object], prefix: str = "") -> Iterat
             text = repr(float(value))  # inf and nan are TOML too: refused as "must be finite"
         elif isinstance(value, str):
             text = toml_string(value)
+        elif isinstance(value, (list, tuple)) and all(
+            isinstance(x, numbers.Real) and not isinstance(x, bool) for x in value
+        ):  # an array of numbers (soil.grading.sizes, soil.grading.passing)
+            text = (
+                "[" + ", ".join(str(int(x)) if isinstance(x, numbers.Integral) else repr(float(x)) for x in value) + "]"
+            )
         else:
-            raise ScenarioError(f"{full} = {show(value)}: must be a number, a string or true/false")
+            raise ScenarioError(
+                f"{full} = {show(value)}: must be a number, a string, true/false or an array of numbers"
+            )
         yield f"{full}={text}"
 
 
@@ -224,7 +232,7 @@ class RunResult:
             The run wrote no trajectory, or the file is unreadable or not ooc-dem's
             (a ``RunFileError``).
         """
-        from .app.trajectory import Trajectory
+        from .app.trajectory_read import Trajectory
 
         return Trajectory.of_run(self.path)
 

@@ -40,6 +40,7 @@ def readme_example() -> str:
 # ----------------------------------------------------------------- the README example
 
 
+@pytest.mark.slow
 def test_readme_example_runs(tmp_path):
     code = readme_example()
     assert len(code.strip().splitlines()) <= 10, "the notebook example should stay ten lines"
@@ -289,6 +290,7 @@ def test_open_store_is_read_only(short_run):
         ooc_dem.open_store(short_run.path / "epochs")
 
 
+@pytest.mark.slow
 def test_resume_of_stopped_run_equals_uninterrupted(tmp_path):
     whole = ooc_dem.run("quick", out=tmp_path / "whole", overrides=SHORT, steps=4000, checkpoint_every=1000)
     part = ooc_dem.run(

@@ -20,6 +20,9 @@ from ooc_dem.app.run import RunError, RunOptions, plan_run
 from ooc_dem.engine.memlimit import _own_cgroup, parse_size, run_limited
 from ooc_dem.model.scenario import load_scenario
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 # the planner's estimate of a whole run's peak (baseline included) against the measured peak

@@ -63,7 +63,7 @@ def _column(p, k):
 
 def _epoch_data(store, step=None):
     """(Particles sorted by id, wheel_state, step) straight from the store."""
-    from ooc_dem.app.run import read_all_particles
+    from ooc_dem.model.checkpoint import read_all_particles
     from ooc_dem.storage import open_store
 
     with open_store(store, repair=False) as st:

@@ -19,6 +19,7 @@ from support.cli import run_cli
 from support.stores import committed_step
 from support.mpi import ENV, mpiexec
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
 pytestmark = pytest.mark.slow
 
 CASES = {

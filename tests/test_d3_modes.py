@@ -36,6 +36,9 @@ from ooc_dem.physics.layout import AX_Y
 from ooc_dem.model.scenario import load_scenario
 from ooc_dem.model.state import Particles
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 STEPS = 400
 FILL = ["soil.n=1200", "bin.length=0.06", "bin.width=0.04"]
 

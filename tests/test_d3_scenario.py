@@ -12,7 +12,8 @@ from test_hostile_input import MAX_STEPS, SCENARIO_KEYS, _hostile_values
 from ooc_dem import cli
 from ooc_dem.engine.stepper import Model
 from ooc_dem.physics.d3 import layout as L3
-from ooc_dem.model.scenario import ScenarioError, critical_time_step, load_scenario
+from ooc_dem.model.scenario import ScenarioError, load_scenario
+from ooc_dem.model.scenario_check import critical_time_step
 
 
 @pytest.mark.parametrize("key,default", SCENARIO_KEYS, ids=[k for k, _ in SCENARIO_KEYS])

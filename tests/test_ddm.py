@@ -6,7 +6,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ooc_dem.app.bed import initial_fill, settled_bed
-from ooc_dem.app.run import place_wheel
+from ooc_dem.app.run_setup import place_wheel
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.engine.sweep import sweep_run
 from ooc_dem.physics.layout import ID_WALL_BOTTOM
@@ -16,6 +16,9 @@ from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 
 from support.cli import cli_in_process, run_cli
 from support.state import assert_same_state
+
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
 
 
 def mono(sc, p, ws, steps):
@@ -167,7 +170,7 @@ def test_compiled_sweeps_give_the_monolithic_bits(threads):
 
 def test_one_step_sweeps_keep_rows_through_pair_rebuilds(wheel_case, monkeypatch):
     """One-step sweeps keep every pair row from sweep to sweep and copy no history
-    between them (live._run_sweeps, keep_rows); when a refresh moves a halo disc past
+    between them (live_kernels._run_sweeps, keep_rows); when a refresh moves a halo disc past
     its sub-domain's rebuild threshold, that pair list is rebuilt and its rows reloaded
     from the discs' histories, which the sub-domain writes back from its own rows first.
     Forced at every sweep here (threshold 0): still the monolithic bits."""
@@ -196,7 +199,8 @@ def test_sweeps_after_the_first_call_go_straight_to_the_compiled_overload(bare_b
     overload must be found (else the saving is silently lost), and calls one sweep at a
     time through it keep the monolithic bits."""
     from ooc_dem.model.decomposition import XHistogram, equal_bounds
-    from ooc_dem.engine.live import LiveDomains, sweeps_kernel
+    from ooc_dem.engine.live import LiveDomains
+    from ooc_dem.engine.live_kernels import sweeps_kernel
     from ooc_dem.physics.layout import WS_SIZE
 
     sc, bed = bare_bed

@@ -1,11 +1,15 @@
 """tools/ddm_cost.py: serial DDM against monolithic at a run's last epoch."""
 
+import pytest
 import json
 import subprocess
 import sys
 from pathlib import Path
 
 from support.cli import run_cli
+
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "ddm_cost.py"
 

@@ -44,7 +44,7 @@ def test_every_exception_class_derives_from_the_base():
 
 def test_the_second_bases_callers_catch_are_kept():
     from ooc_dem.app.runfiles import RunFileError
-    from ooc_dem.model.checkpoint import StateError
+    from ooc_dem.model.state_check import StateError
     from ooc_dem.model.schema import ScenarioError
 
     assert all(issubclass(c, ValueError) for c in (ScenarioError, StateError, RunFileError))

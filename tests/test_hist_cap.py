@@ -9,7 +9,7 @@ import pytest
 
 from ooc_dem.app.bed import settled_bed
 from ooc_dem.model.checkpoint import particles_to_record, record_to_particles
-from ooc_dem.app.run import place_wheel
+from ooc_dem.app.run_setup import place_wheel
 from ooc_dem.engine.stepper import DomainStepper, EngineError, Model
 from ooc_dem.model.scenario import load_scenario
 from ooc_dem.model.state import HIST_CAP, HIST_CAP_BY_DIM, bytes_per_disc, fields, state_hash

@@ -14,6 +14,9 @@ import pytest
 
 import ooc_dem
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 PATH = Path(__file__).resolve().parents[1] / "tools" / "influence_zone.py"
 
 

@@ -40,6 +40,9 @@ import pytest
 
 from support.cli import cli_in_process, run_cli
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 QUICK = [
     "wheel.control=slip",
     "wheel.slip=0.2",

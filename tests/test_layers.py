@@ -253,7 +253,7 @@ def is_app_code(f) -> bool:
 def test_app_code_is_recognised():
     from ooc_dem.app.run import Simulation
     from ooc_dem.engine.sweep import SlabSweep
-    from ooc_dem.app.run import FrameParts
+    from ooc_dem.app.trajectory import FrameParts
 
     assert is_app_code(Simulation.commit) and is_app_code(FrameParts(None, 0).write_part)
     assert not is_app_code(lambda: None)

@@ -17,6 +17,9 @@ from support.cli import one_line_error, run_cli
 from support.mpi import ENV, mpiexec, run_mpi
 from support.stores import committed_step
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 # bed-600: 4 equal slabs; the wheel run: a fast slip-controlled wheel set down on the
 # quick bed, so that its slab is redefined within 600 steps (test_ddm's wheel case)
 BED = ["bed-600"]

@@ -9,14 +9,17 @@ import numpy as np
 import pytest
 
 from ooc_dem.app.bed import settled_bed
-from ooc_dem.model.checkpoint import particles_to_record, record_rows, records_to_particles
+from ooc_dem.model.checkpoint import particles_to_record, read_all_particles, record_rows, records_to_particles
 from ooc_dem.model.decomposition import group_order
-from ooc_dem.app.run import RunOptions, Simulation, read_all_particles
+from ooc_dem.app.run import RunOptions, Simulation
 from ooc_dem.model.scenario import load_scenario
 from ooc_dem.physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z  # noqa: F401
 from ooc_dem.storage import open_store
 
 from support.state import assert_same_state
+
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
 
 
 def run(sc, out, bed, steps, **kw):
@@ -183,11 +186,11 @@ def test_streamed_hash_equals_in_memory_hash(bare, tmp_path, id_cap, monkeypatch
     """`checkpoint hash` streams an epoch group by group (their lane sums added; the ids
     checked unique in ranges of at most max(id_cap, 2 x a group) ids): it must be the hash
     of all the discs gathered in RAM, history included."""
-    from ooc_dem.model import checkpoint
+    from ooc_dem.model import state_check
     from ooc_dem.model.checkpoint import hash_epoch, hash_particles
 
     if id_cap is not None:
-        monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", id_cap)
+        monkeypatch.setattr(state_check, "ID_CHECK_CAP", id_cap)
     sc, bed, _ = bare
     _, p, arrays, _ = run(sc, tmp_path / "o", bed, 30, mode="ooc", backend="hdf5", domains=6, block=10)
     assert p.hist_n.sum() > len(p)  # a loaded bed: the history is part of the hash
@@ -299,7 +302,7 @@ def test_strip_reads_are_exact_in_any_row_order():
     """A halo strip is read from the candidate rows that the running max / min of x bound,
     then filtered by x: the discs with lo <= x < hi and no other, whether the group is in
     cell order, x order or shuffled (a foreign store's)."""
-    from ooc_dem.engine.sweep import RamEpochs, _read_rows, group_attrs
+    from ooc_dem.engine.sweep import RamEpochs, group_attrs, read_strip
 
     p = settled_bed(load_scenario("quick"))
     x = p.pos[:, AX_X]
@@ -309,7 +312,7 @@ def test_strip_reads_are_exact_in_any_row_order():
         ram = RamEpochs(p.hist_cap)
         ram.write_particles(0, g, group_attrs(g.pos[:, AX_X]))
         for lo, hi in [(-1.0, 9.0), (0.1, 0.2), (0.25, 0.2500001), (x.min(), x.max()), (9.0, 10.0)]:
-            rec = _read_rows(ram, 0, lo, hi)
+            rec = read_strip(ram, 0, lo, hi)
             want = np.sort(p.id[(x >= lo) & (x < hi)])
             got = np.zeros(0, np.int64) if rec is None else np.sort(rec["id"])
             assert np.array_equal(got, want), (lo, hi)

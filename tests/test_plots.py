@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from ooc_dem.model.fields import displacements, gridded_displacement, layer_index
-from ooc_dem.app.plots import make_figures, print_table, sweep_plot
+from ooc_dem.app.plots import make_figures
+from ooc_dem.app.sweep_slip import sweep_plot
+from ooc_dem.app.tables import print_table
 from ooc_dem.app.runfiles import read_series
 from ooc_dem.model.scenario import load_scenario
 

@@ -1,10 +1,14 @@
 """Memory profiler: real subprocesses, real RSS; out-of-core keeps one sub-domain resident."""
 
+import pytest
 import json
 
 
 from support.cli import cli_in_process, run_cli
 from ooc_dem.model.state import bytes_per_disc
+
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
 
 
 def test_profile_report(tmp_path):

@@ -166,6 +166,7 @@ def test_tiny_heap_run_writes_the_angle_and_the_figure(tiny_run):
     assert np.allclose(rp["axis_m"], [0.06, 0.06], atol=0.005)
 
 
+@pytest.mark.slow
 def test_tiny_heap_measured_alike_in_every_mode(tiny_run, tmp_path):
     # serial DDM ends in the monolithic run's bits; the heap's measurement (from the state in
     # id order) is then the same to the bit as well

@@ -17,6 +17,9 @@ import pytest
 
 from support.cli import cli_in_process, run_cli
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # (torture mode name, steps, checkpoint every, block): sized so that an uninterrupted run

@@ -8,6 +8,9 @@ from pathlib import Path
 import pytest
 from support.cli import run_cli
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "skin_scan.py"
 
 

@@ -26,8 +26,9 @@ import pytest
 import xxhash
 
 from support.cli import cli_in_process, one_line_error, run_cli
-from ooc_dem.model import checkpoint, statehash
-from ooc_dem.model.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record, validate_epoch
+from ooc_dem.model import state_check, statehash
+from ooc_dem.model.checkpoint import hash_epoch, hash_particles, open_epoch, particles_to_record
+from ooc_dem.model.state_check import validate_epoch
 from ooc_dem.model.decomposition import XHistogram, equal_bounds, x_summary
 from ooc_dem.app import export, export_formats
 from ooc_dem.engine.sweep import RamEpochs, group_of, x_histogram
@@ -144,7 +145,7 @@ def test_hash_verify_and_bounds_memory_scales_with_the_group_not_n(tmp_path, mon
     bed would make them 4x). ID_CHECK_CAP is lowered to 0 so the id check holds its floor
     of two groups' ids (its default, 2**16 ids, is a constant whatever N is, but larger than
     these groups)."""
-    monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", 0)
+    monkeypatch.setattr(state_check, "ID_CHECK_CAP", 0)
     hash_particles(_state(5, 0), None, 0)  # compile the digest kernel outside the measurement
     peaks = {}
     for groups in (4, 16):
@@ -225,7 +226,7 @@ def test_export_refuses_an_id_held_by_two_groups(tmp_path):
     w.commit()
     store.close()
     with open_epoch(open_store(str(tmp_path / "s"), repair=False)) as reader:
-        with pytest.raises(checkpoint.StateError, match=f"disc id {int(p.id[0])} appears more than once"):
+        with pytest.raises(state_check.StateError, match=f"disc id {int(p.id[0])} appears more than once"):
             export.read_snapshot(reader, "t", tmp_path)
     cp = cli_in_process("checkpoint", "export", tmp_path / "s", "--out", tmp_path / "e.csv")
     one_line_error(cp, "appears more than once")
@@ -273,7 +274,7 @@ def test_bounds_from_summaries_and_from_an_older_store_agree(tmp_path):
 
 
 def test_ids_repeated_across_groups_are_refused_in_bounded_memory(tmp_path, monkeypatch):
-    monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", 0)
+    monkeypatch.setattr(state_check, "ID_CHECK_CAP", 0)
     _write_store(tmp_path / "s", 6, 500)
     with h5py.File(next((tmp_path / "s" / "epochs").glob("*.h5")), "r+") as f:
         a, b = f["domains/d0001/id"][:], f["domains/d0004/id"][:]
@@ -282,7 +283,7 @@ def test_ids_repeated_across_groups_are_refused_in_bounded_memory(tmp_path, monk
     store = open_store(str(tmp_path / "s"), repair=False)
     with open_epoch(store, verify=False) as reader:
         for fn in (lambda: hash_epoch(reader), lambda: validate_epoch(reader, "t")):
-            with pytest.raises(checkpoint.StateError, match=f"disc id {int(b[3])} appears more than once"):
+            with pytest.raises(state_check.StateError, match=f"disc id {int(b[3])} appears more than once"):
                 fn()
     store.close()
 
@@ -380,6 +381,7 @@ def test_reading_every_group_holds_no_memory_per_group(tmp_path):
     assert grown < 12 * 2**20, f"{grown / 2**20:.1f} MiB for {len(names)} groups"
 
 
+@pytest.mark.slow
 def test_resume_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
     """Reopening an out-of-core run (the store's checks, the epoch's validation, the
     engine's geometry from the stored summaries) holds about one group, whatever N is:
@@ -389,7 +391,7 @@ def test_resume_memory_scales_with_the_group_not_n(tmp_path, monkeypatch):
     from ooc_dem.app.run import RunOptions, Simulation, resume_simulation
     from ooc_dem.model.scenario import load_scenario
 
-    monkeypatch.setattr(checkpoint, "ID_CHECK_CAP", 0)
+    monkeypatch.setattr(state_check, "ID_CHECK_CAP", 0)
     peaks, hashes = {}, {}
     for groups in (4, 16):
         sc = load_scenario(f"bed-{3000 * groups}", ["decomposition.policy=equal"])

@@ -37,7 +37,7 @@ def test_one_and_two_threads_bit_identical():
 
 def test_wheel_run_thread_independent():
     """The wheel's forces are summed canonically: same wheel records with 1 and 2 threads."""
-    from ooc_dem.app.run import place_wheel
+    from ooc_dem.app.run_setup import place_wheel
 
     sc = load_scenario("quick", ["wheel.settle_time=0.0", "wheel.drawbar_ramp=0.0"])
     bed = settled_bed(sc)

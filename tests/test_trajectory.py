@@ -12,8 +12,13 @@ import numpy as np
 import pytest
 
 from support.cli import cli_in_process, one_line_error, run_cli
-from ooc_dem.app.trajectory import ROW_FIELDS, TRAJECTORY_FILE, Trajectory, TrajectoryWriter, frame_name, wheel_outline
+from ooc_dem.app.trajectory import TrajectoryWriter, wheel_outline
+from ooc_dem.app.trajectory_format import ROW_FIELDS, TRAJECTORY_FILE, frame_name
+from ooc_dem.app.trajectory_read import Trajectory
 from ooc_dem.app.trajectory_format import TRAJECTORY_DIR
+
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
 
 STEPS = 600
 # 123 steps: a multiple neither of the block K = 10 nor of the epoch interval (250): the frame

@@ -228,6 +228,7 @@ def _umask() -> int:
 # ------------------------------------------------------------------ kills around the commits
 
 
+@pytest.mark.slow
 def test_resume_finishes_outputs_lost_after_the_final_commit(base_run, tmp_path):
     """A SIGKILL between the final commit and the outputs leaves exactly this: a committed final
     epoch and no (or a torn) summary.json, series.csv and figures."""

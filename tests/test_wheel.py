@@ -8,6 +8,9 @@ import pytest
 from support.cli import run_cli
 from support.runs import WHEEL_TEST
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 
 def _settings(extra=()):
     out = []

@@ -26,6 +26,9 @@ from ooc_dem.physics.layout import ID_LUG0, ID_RIM, REC_FX, REC_FY, REC_NC, REC_
 from ooc_dem.model.scenario import ScenarioError, load_scenario
 from ooc_dem.model.state import Particles
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 R = 0.1
 Z0 = 0.06  # quick-3d: bin width 0.12, wheel width 0.06 centred at mid-width
 

@@ -21,6 +21,9 @@ import pytest
 
 from support.cli import one_line_error
 
+# mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 # 1 KB, 8 KB, ... 2 MB: an epoch of `quick` is 250 kB, a frame 110 kB, its GIF 400 kB
 LIMITS = [1 << (10 + 3 * k) for k in range(5)]

@@ -8,7 +8,7 @@ memory limit (a memory cgroup, ooc_dem.engine.memlimit). Prints one JSON object.
 
 The run itself is `ooc-dem run bed-N --mode ooc` (the same Simulation, plan and streamed
 set-up: tiles written into the store as they are made) in a child process; the child
-times each sweep's parts - reading the slab and its halo (``_read_rows``), computing
+times each sweep's parts - reading the slab and its halo (``read_strip``), computing
 (``DomainStepper`` construction and ``advance``), writing the owned discs and committing
 (the epoch writer's ``write_domain``, ``commit``), and the rest (``other_s``: assembling
 the slab in RAM) - by wrapping those functions, so the engine carries no timing code. Reported: the plan (D, K, expected peak), set-up time, per-sweep read /
@@ -69,7 +69,7 @@ def child(a) -> dict:
     )
     sim = Simulation(sc, a.out, opts)
     now = {"read": 0.0, "compute": 0.0, "write": 0.0}
-    _timed(ooc, "_read_rows", now, "read")
+    _timed(ooc, "read_strip", now, "read")
     _timed(stepper.DomainStepper, "__init__", now, "compute")  # its neighbour lists
     _timed(stepper.DomainStepper, "advance", now, "compute")
     sweeps = []

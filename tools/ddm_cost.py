@@ -13,7 +13,7 @@ JIT warm-up, on ``--threads`` threads:
   ``same_state``: their states after the steps are equal (positions and velocities);
 - ``rows``: the DDM local sets (owned discs plus halo) per sub-domain, ``rows_per_disc``
   their sum over the discs;
-- ``refresh_us``: the sweep's halo refresh and ownership (``live.refresh_own_pieces``);
+- ``refresh_us``: the sweep's halo refresh and ownership (``live_kernels.refresh_own_pieces``);
 - ``blocked_us``: {K: microseconds a step} of the sub-domains' local sets stepped K steps
   each in turn, nothing refreshed between them. Timing only (the halos go stale): what
   stepping a sub-domain several times while it is in cache gains a row, the premise of
@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     import numpy as np
     from numba import njit
     from ooc_dem.model.checkpoint import read_all_particles
-    from ooc_dem.engine import live
+    from ooc_dem.engine import live_kernels
     from ooc_dem.engine.monolithic import MonolithicEngine
     from ooc_dem.engine.stepper import Model
     from ooc_dem.engine.sweep import DdmEngine
@@ -146,7 +146,7 @@ def main(argv=None) -> int:
     ):
         c = 0
         for _ in range(k):
-            c += live.refresh_own_pieces(
+            c += live_kernels.refresh_own_pieces(
                 pieces,
                 ids,
                 owner_row,

@@ -140,7 +140,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from ooc_dem.api import load_scenario
     from ooc_dem.engine.stepper import wheel_z0
-    from ooc_dem.app.trajectory import Trajectory, TrajectoryError
+    from ooc_dem.app.trajectory_format import TrajectoryError
+    from ooc_dem.app.trajectory_read import Trajectory
     from ooc_dem.model.scenario import ScenarioError
 
     run = Path(a.run)

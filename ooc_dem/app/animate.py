@@ -21,9 +21,11 @@ from numpy.typing import NDArray
 
 from ooc_dem.storage.writeguard import check_room
 
-from .plots import LAYER_COLOURS
+from .drawing import LAYER_COLOURS
 from .runfiles import read_initial, read_run_scenario, run_file
-from .trajectory import Trajectory, TrajectoryError, wheel_outline
+from .trajectory import wheel_outline
+from .trajectory_format import TrajectoryError
+from .trajectory_read import Trajectory
 
 if TYPE_CHECKING:
     from imageio.core.format import Format
@@ -51,7 +53,7 @@ def animate(
     Returns (the file, the number of frames)."""
     from .outfile import ExportError, check_targets
     from ..model.fields import layer_index
-    from .plots import _n_layers, _pyplot
+    from .drawing import layer_count, pyplot
 
     run_dir = Path(run_dir)
     out = Path(out) if out is not None else default_out(run_dir)
@@ -83,7 +85,7 @@ def animate(
         surface = (
             read_initial(init, len(first["id"]), sc)[4] if init is not None else float(np.max(y0 + r0, initial=0.0))
         )
-        layer = layer_index(y0, surface, _n_layers(surface, r0))
+        layer = layer_index(y0, surface, layer_count(surface, r0))
         from matplotlib.colors import to_rgba_array
 
         palette = to_rgba_array(list(LAYER_COLOURS) + ["#4a7fbf"])  # the layers, then "unknown disc"
@@ -96,14 +98,14 @@ def animate(
             xa, xb = float(np.min(x0 - r0, initial=0.0)), float(np.max(x0 + r0, initial=1.0))
         ya = 0.0
         yb = max(surface, float(np.max(y0 + r0, initial=0.0)))
-        wheel = sc is not None and sc.wheel.enabled
-        if wheel:
-            yb = max(yb, float(np.max(traj.wheel_states[:, 1])) + sc.wheel.lug_tip_radius)
+        wheel = sc.wheel if sc is not None and sc.wheel.enabled else None  # None: no wheel drawn
+        if wheel is not None:
+            yb = max(yb, float(np.max(traj.wheel_states[:, 1])) + wheel.lug_tip_radius)
         yb += 0.03 * (yb - ya)
         W = WIDTH_PX
         H = max(16, int(round(W * (yb - ya) / (xb - xa) / 16.0)) * 16)
         yb = ya + (xb - xa) * H / W  # equal scale in x and y
-        plt = _pyplot()
+        plt = pyplot()
         dpi = 100
         fig = plt.figure(figsize=(W / dpi, H / dpi), dpi=dpi)
         ax = fig.add_axes([0, 0, 1, 1])
@@ -116,7 +118,13 @@ def animate(
 
         coll = None
         wpatch = Polygon(
-            np.zeros((3, 2)), closed=True, facecolor="#b8c4d0", edgecolor="k", linewidth=0.8, zorder=5, visible=wheel
+            np.zeros((3, 2)),
+            closed=True,
+            facecolor="#b8c4d0",
+            edgecolor="k",
+            linewidth=0.8,
+            zorder=5,
+            visible=wheel is not None,
         )
         ax.add_patch(wpatch)
         label = ax.text(
@@ -176,8 +184,8 @@ def animate(
                         coll.set_offsets(pos)
                     ws = fr["wheel_state"]
                     text = f"t = {fr['time']:7.3f} s"
-                    if wheel:
-                        w = sc.wheel
+                    if wheel is not None:
+                        w = wheel
                         wpatch.set_xy(
                             wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
                         )

@@ -1,7 +1,8 @@
 """Soil bed generation: random loose fill of the bin, deposited under gravity.
 
-Discs with radii uniform in [r_min, r_max] are placed on a loose jittered grid
-and settle under gravity until the mean speed falls below ``bed.settle_speed``.
+Discs with radii drawn from ``soil.grading`` between r_min and r_max (uniform by
+default; model/grading.py) are placed on a loose jittered grid and settle under
+gravity until the mean speed falls below ``bed.settle_speed``.
 Large beds (``bed.tile`` > 0) are made of side-by-side copies of one settled
 tile: every disc of a tile stays clear of the tile's walls, so copies never
 overlap, and a tile can be produced per sub-domain without holding the bed.
@@ -11,6 +12,10 @@ the box (length x width) bottom up; tiled beds repeat the tile along x and
 ``bed.tiles_across`` times across the width (z), mirrored in x and in z every other
 tile.
 
+A settled bed reports itself (``bed_info``; ``TiledBedMeasure`` for a tiled bed streamed
+part by part): surface height, bulk density, porosity, coordination number and grading
+(model/bedreport.py).
+
 The angle-of-repose test (``repose.enabled``, docs/reference/repose3d.md) starts from a
 column: a square box of side 2 ``repose.column_radius`` filled and settled like any bed,
 cut to the cylinder of that radius, its ``soil.n`` lowest spheres kept and set down at
@@ -19,20 +24,25 @@ the centre of the bin's floor (``settled_column``).
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 import os
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..engine.stepper import DomainStepper, Model
 from ..errors import OocDemError
-from ..physics.layout import AX_X, AX_Y, AX_Z, HM_R, HS_T, SP_Z
-from ..model.scenario_check import scenario_from_dict, tile_grid, tile_scenario
+from ..physics.layout import AX_X, AX_Y, HM_R, HS_T, SP_Z
+from ..model.bedreport import BedMeasure, bed_report, top_layer_height
+from ..model.bedreport import surface_height as surface_height  # its home: the bed's measures
+from ..model.grading import draw_radii, grading_of_soil
+from ..model.scenario_check import scenario_from_dict, tile_grid, tile_scenario, tile_size
 from ..model.schema import MAX_STEPS, Scenario, ScenarioError
 from ..model.state import Particles
 
@@ -63,7 +73,7 @@ def initial_fill(sc: Scenario) -> Particles:
         raise ScenarioError(
             f"bin.height = {sc.bin.height}: the loose fill of {s.n} discs needs {top:.3f} m; raise bin.height"
         )
-    r = rng.uniform(s.r_min, s.r_max, s.n)
+    r = draw_radii(grading_of_soil(s), s.n, rng, sc.dim)  # uniform: rng.uniform(r_min, r_max, n)
     k = np.arange(s.n)
     col = k % ncol
     row = k // ncol
@@ -101,7 +111,7 @@ def initial_fill_3d(sc: Scenario) -> Particles:
         raise ScenarioError(
             f"bin.height = {sc.bin.height}: the loose fill of {s.n} spheres needs {top:.3f} m; raise bin.height"
         )
-    r = rng.uniform(s.r_min, s.r_max, s.n)
+    r = draw_radii(grading_of_soil(s), s.n, rng, sc.dim)  # uniform: rng.uniform(r_min, r_max, n)
     k = np.arange(s.n)
     layer, inlayer = k // per, k % per
     ix, iz = inlayer % nx, inlayer // nx
@@ -125,34 +135,6 @@ def mean_speed(p: Particles) -> float:
     return float(np.mean(np.sqrt(np.einsum("ij,ij->i", p.vel, p.vel))))
 
 
-def surface_height(
-    p: Particles, length: float, r_max: float, x_origin: float = 0.0, across: tuple[float, float] | None = None
-) -> float:
-    """Mean height of the top of the bed: the max of y + r in cells of 4 r_max along x
-    (from x_origin over length), the end cells (walls) excluded. ``across`` = (z_lo, z_hi),
-    3D: only the spheres in that band (the wheel's footprint), split into cells of about
-    4 r_max across it too, so the surface is the mean of the local tops under the wheel,
-    not the highest sphere anywhere across the bin's width."""
-    cell = 4 * r_max
-    ncol = max(1, int(length / cell))
-    x = p.pos[:, AX_X]
-    y_top = p.pos[:, AX_Y] + p.r
-    col = np.clip(((x - x_origin) / cell).astype(np.int64), 0, ncol - 1)
-    nrow, row = 1, np.zeros(len(p), np.int64)
-    if across is not None:
-        lo, hi = across
-        z = p.pos[:, AX_Z]
-        inside = (z >= lo) & (z < hi)
-        col, y_top, z = col[inside], y_top[inside], z[inside]
-        nrow = max(1, int((hi - lo) / cell))
-        row = np.clip(((z - lo) * (nrow / (hi - lo))).astype(np.int64), 0, nrow - 1)
-    top = np.full((ncol, nrow), -np.inf)
-    np.maximum.at(top, (col, row), y_top)
-    inner = top[1:-1] if ncol > 4 else top
-    inner = inner[np.isfinite(inner)]
-    return float(np.mean(inner)) if len(inner) else 0.0
-
-
 def wheel_footprint(sc: Scenario) -> tuple[float, float] | None:
     """The band across the bin (z) the 3D wheel rolls over, for ``surface_height``; None
     in 2D or without a wheel (the whole bed is under the wheel's width)."""
@@ -164,9 +146,59 @@ def wheel_footprint(sc: Scenario) -> tuple[float, float] | None:
     return (z0 - half, z0 + half)
 
 
+def bed_info(sc: Scenario, bed: Particles, surface: float) -> dict[str, Any]:
+    """bed.json of a settled bed whole in memory: its scenario, size, surface height (the
+    wheel's reference: ``surface_height`` under the wheel), bed hash and report (bulk
+    density, porosity, coordination number, grading: model/bedreport.py)."""
+    report = bed_report(bed, sc.bin.length, sc.soil.r_max, sc.physics.thickness, sc.bin.width)
+    if sc.repose.enabled:  # a column standing in a wide bin: no bed filling the bin to measure
+        report.update(bulk_density_kg_m3=None, porosity=None)
+    return _info(sc, len(bed), surface, report)
+
+
+def _info(sc: Scenario, n: int, surface: float, report: dict[str, Any]) -> dict[str, Any]:
+    return {"scenario": sc.name, "n_discs": n, "surface_height_m": surface, "bed_hash": sc.bed_hash(), **report}
+
+
+class TiledBedMeasure:
+    """The report of a tiled bed measured part by part as ``tiled_bed_parts`` yields them
+    (never whole in memory): each part below its own top layer, over the tile columns it
+    spans (model/bedreport.BedMeasure)."""
+
+    def __init__(self, sc: Scenario) -> None:
+        self.sc = sc
+        self.measure = BedMeasure(sc.dim, sc.physics.thickness, sc.bin.width)
+        self.tile_length = tile_size(sc)[0]
+        self.across = tile_grid(sc)[1]
+
+    def add(self, part: Particles) -> None:
+        sc = self.sc
+        x0 = float(part.pos[:, AX_X].min())
+        band = (0.0, sc.bin.width) if sc.dim == 3 else None
+        plane = top_layer_height(part, float(part.pos[:, AX_X].max()) - x0, sc.soil.r_max, x_origin=x0, across=band)
+        # grain ids are tile * bed.tile + the tile's own id, tiles numbered across z first
+        columns = len(np.unique(part.id // sc.bed.tile // self.across))
+        self.measure.add(part, plane, columns * self.tile_length)
+
+    def info(self, surface: float) -> dict[str, Any]:
+        """bed.json of the bed measured (``surface``: its surface height as the run took it)."""
+        return _info(self.sc, self.measure.n, surface, self.measure.report())
+
+
+def pour_scenario(sc: Scenario) -> Scenario:
+    """The scenario a bed is poured with: its own, or with bed.fill_friction as the soil-soil
+    friction (grains that slide past each other while they fall pack denser: the usual way
+    to reach a measured bulk density; the run then steps the contact's own friction)."""
+    if sc.bed.fill_friction < 0.0:
+        return sc
+    pair = dataclasses.replace(sc.contact.soil_soil, friction=sc.bed.fill_friction)
+    return dataclasses.replace(sc, contact=dataclasses.replace(sc.contact, soil_soil=pair))
+
+
 def settle(sc: Scenario, p: Particles, progress: SettleProgress | None = None) -> tuple[Particles, int]:
-    """Deposit under gravity until the mean speed < settle_speed. Returns (bed, steps)."""
-    model = Model.from_scenario(sc).without_wheel()
+    """Deposit under gravity until the mean speed < settle_speed (with bed.fill_friction, if
+    set). Returns (bed, steps)."""
+    model = Model.from_scenario(pour_scenario(sc)).without_wheel()
     stepper = DomainStepper(p, model)
     dt = sc.physics.dt
     # bed.max_settle_time / dt is at most MAX_STEPS (scenario validation); the fixed
@@ -275,7 +307,8 @@ def read_bed(path: str | os.PathLike[str], sc: Scenario, label: str) -> Particle
     convert to the state's without loss, and the bed must pass ``check_bed``. A format-1 bed
     (x, y, vx, vy, w, hist_ft, hist_mr) is read as such and converted. Anything else raises
     StateError, one line starting with ``label`` and the file."""
-    from ..model.checkpoint import StateError, check_bed
+    from ..model.checkpoint import check_bed
+    from ..model.state_check import StateError
     from ..storage.npzfile import npz_member_names, read_npz_members
     from ..model.schema import MAX_HIST_CAP
     from ..model.state import FIELD_DTYPES, HIST_FIELDS, V1_ARRAYS, field_tails, is_v1
@@ -320,7 +353,7 @@ def _cached(
     # loads: Particles converts it (state.upgrade_v1)
     beds = cache_dir() / "beds"
     path = beds / f"{sc.bed_hash()}.v2.npz"
-    from ..model.checkpoint import StateError
+    from ..model.state_check import StateError
 
     for f in (path, beds / f"{sc.bed_hash()}.npz"):
         if f.is_file():

@@ -2,29 +2,34 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from .cli_parser import CliError, one_line as _one_line
 
+if TYPE_CHECKING:
+    from ooc_dem.storage import Leftover, Store
 
-def _store_leftovers(store, manifest: dict | None = None) -> list:
+
+def _store_leftovers(store: Store, manifest: dict[str, Any] | None = None) -> list[Leftover]:
     """Temporaries and unnamed epoch files of a store (what `resume` would delete)."""
     return store.leftovers(manifest)
 
 
-def _live_writers(store) -> list[int]:
+def _live_writers(store: Store) -> list[int]:
     """Pids of running processes writing the store (its lock holder, temporaries' writers)."""
     return store.live_writers()
 
 
-def _read_manifest(store) -> dict:
+def _read_manifest(store: Store) -> dict[str, Any]:
     """The store's validated manifest as it is now (a run may have committed since opening)."""
     return store.manifest(fresh=True)
 
 
-def _checkpoint_list(store, path) -> None:
+def _checkpoint_list(store: Store, path: str) -> None:
     infos = store.list_epochs()
     if not infos:
         print(f"{path}: no committed epoch")
@@ -49,7 +54,7 @@ def _checkpoint_list(store, path) -> None:
             print(f"{line}  UNREADABLE ({_one_line(ex)}) ({info.role})")
 
 
-def _checkpoint_verify(store, args) -> int:
+def _checkpoint_verify(store: Store, args: argparse.Namespace) -> int:
     problems = store.verify(args.epoch)
     if args.epoch is None and store.current() is None:
         print(f"{args.store}: no committed epoch (nothing to verify)")
@@ -89,7 +94,7 @@ def _checkpoint_verify(store, args) -> int:
     return 0
 
 
-def _checkpoint_prune(args) -> int:
+def _checkpoint_prune(args: argparse.Namespace) -> int:
     from ooc_dem.storage import open_store
 
     with open_store(args.store, repair=False) as looking:
@@ -128,9 +133,11 @@ def _checkpoint_prune(args) -> int:
         store.close()
 
 
-def _checkpoint_export(store, args) -> int:
-    from ..model.checkpoint import StateError
-    from .export import ExportError, check_targets, export_snapshot, infer_format, output_files, read_snapshot
+def _checkpoint_export(store: Store, args: argparse.Namespace) -> int:
+    from ..model.state_check import StateError
+    from .export import export_snapshot, infer_format, read_snapshot
+    from .export_formats import output_files
+    from .outfile import ExportError, check_targets
 
     fmt = args.format or infer_format(args.out)
     if fmt is None:
@@ -138,7 +145,8 @@ def _checkpoint_export(store, args) -> int:
     out = Path(args.out)
     try:
         check_targets(output_files(fmt, out), out)  # before reading anything
-        from ..model.checkpoint import open_epoch, stored_layout, validate_epoch
+        from ..model.checkpoint import open_epoch, stored_layout
+        from ..model.state_check import validate_epoch
 
         dim, cap, bounds = stored_layout(store.meta or {}, args.store)
         reader = open_epoch(store, args.epoch)
@@ -159,13 +167,14 @@ def _checkpoint_export(store, args) -> int:
     return 0
 
 
-def _warn_fallback(store) -> None:
+def _warn_fallback(store: Store) -> None:
     for w in store.warnings:
         print(f"ooc-dem: warning: {_one_line(w)}", file=sys.stderr)
 
 
-def cmd_checkpoint(args):
-    from ..model.checkpoint import hash_epoch, open_epoch, stored_layout, validate_globals
+def cmd_checkpoint(args: argparse.Namespace) -> int:
+    from ..model.checkpoint import hash_epoch, open_epoch, stored_layout
+    from ..model.state_check import validate_globals
     from ooc_dem.storage import open_store
 
     if args.ckpt_command == "prune":

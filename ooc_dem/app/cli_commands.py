@@ -3,6 +3,7 @@ arguments and returns the exit code; a user error is a ``CliError`` (one line)."
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -14,15 +15,17 @@ from .cli_parser import EXIT_OOM, CliError
 if TYPE_CHECKING:
     from ..model.scenario import Scenario
     from ..model.state import Particles
+    from .bed import SettleProgress
+    from .plan import RunOptions
 
 
-def _load(args):
+def _load(args: argparse.Namespace) -> Scenario:
     from ..model.scenario import load_scenario
 
     return load_scenario(args.scenario, args.set)
 
 
-def cmd_scenarios(args):
+def cmd_scenarios(args: argparse.Namespace) -> int:
     from ..model.scenario import builtin_names, load_scenario
 
     for name in builtin_names():
@@ -40,9 +43,9 @@ def cmd_scenarios(args):
     return 0
 
 
-def cmd_prepare(args):
+def cmd_prepare(args: argparse.Namespace) -> int:
     import numpy as np
-    from .bed import settled_bed, surface_height, wheel_footprint
+    from .bed import bed_info, settled_bed, surface_height, wheel_footprint
     from .plan import check_bed_memory
 
     sc = _load(args)
@@ -56,18 +59,18 @@ def cmd_prepare(args):
     np.savez(out / "bed.npz", **columns)
     (out / "scenario.toml").write_text(sc.to_toml(), encoding="utf-8")
     surf = surface_height(bed, sc.bin.length, sc.soil.r_max, across=wheel_footprint(sc))
-    info = {"scenario": sc.name, "n_discs": len(bed), "surface_height_m": surf, "bed_hash": sc.bed_hash()}
+    info = bed_info(sc, bed, surf)
     (out / "bed.json").write_text(json.dumps(info, indent=2))
     print(json.dumps(info))
     return 0
 
 
-def _settle_progress(sc):
+def _settle_progress(sc: Scenario) -> SettleProgress:
     import time
 
     state = {"last": 0.0}
 
-    def cb(t, speed):
+    def cb(t: float, speed: float) -> None:
         if time.time() - state["last"] > 1.0:
             state["last"] = time.time()
             print(
@@ -81,7 +84,7 @@ def _settle_progress(sc):
 
 def load_bed(path: str | os.PathLike[str], sc: Scenario) -> Particles:
     from .bed import read_bed
-    from ..model.checkpoint import StateError
+    from ..model.state_check import StateError
 
     f = Path(path) / "bed.npz"
     if not f.is_file():
@@ -92,7 +95,7 @@ def load_bed(path: str | os.PathLike[str], sc: Scenario) -> Particles:
         raise CliError(str(e)) from None
 
 
-def _run_options(args):
+def _run_options(args: argparse.Namespace) -> RunOptions:
     from .plan import RunOptions
 
     return RunOptions(
@@ -112,7 +115,7 @@ def _run_options(args):
     )
 
 
-def cmd_run(args):
+def cmd_run(args: argparse.Namespace) -> int:
     from .run import Simulation
 
     sc = _load(args)
@@ -138,7 +141,7 @@ def cmd_run(args):
     return 0
 
 
-def cmd_check(args):
+def cmd_check(args: argparse.Namespace) -> int:
     """`run`'s validation and planning (Simulation's own plan_run), without a run."""
     from .plan import plan_run
 
@@ -148,8 +151,8 @@ def cmd_check(args):
     return 0
 
 
-def _print_run_result(summary, out):
-    from .plots import print_table
+def _print_run_result(summary: dict[str, Any], out: str | os.PathLike[str]) -> None:
+    from .tables import print_table
 
     if "slip" in summary:
         print(print_table(summary))
@@ -157,11 +160,28 @@ def _print_run_result(summary, out):
         f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
         f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}"
     )
+    if isinstance(summary.get("bed"), dict):
+        print(bed_line(summary["bed"]))
     print(f"state hash: {summary['state_hash']}")
     print(f"output: {out}  (shown by `ooc-dem report {out}`; in Python: ooc_dem.open_run({str(out)!r}))")
 
 
-def cmd_resume(args):
+def bed_line(info: dict[str, Any]) -> str:
+    """One line of a bed's report (bed.json, summary.json's ``bed``)."""
+    g = info.get("grading") or {}
+
+    def num(v: Any, fmt: str, scale: float = 1.0) -> str:
+        return format(v * scale, fmt) if isinstance(v, (int, float)) else "?"
+
+    return (
+        f"bed: bulk density {num(info.get('bulk_density_kg_m3'), '.0f')} kg/m3, porosity "
+        f"{num(info.get('porosity'), '.3f')}, coordination number {num(info.get('coordination_number'), '.2f')}, "
+        f"d10/d50/d60 {num(g.get('d10_m'), '.3f', 1e3)}/{num(g.get('d50_m'), '.3f', 1e3)}/"
+        f"{num(g.get('d60_m'), '.3f', 1e3)} mm, Cu {num(g.get('cu'), '.2f')}"
+    )
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
     from .run import resume_simulation
 
     sim = resume_simulation(
@@ -179,10 +199,11 @@ def cmd_resume(args):
     return 0
 
 
-def cmd_export_trajectory(args):
-    from .export import ExportError
+def cmd_export_trajectory(args: argparse.Namespace) -> int:
+    from .outfile import ExportError
     from .runfiles import read_run_scenario
-    from .trajectory import Trajectory, write_xdmf
+    from .trajectory import write_xdmf
+    from .trajectory_read import Trajectory
 
     with Trajectory.of_run(args.run) as traj:
         try:
@@ -197,9 +218,9 @@ def cmd_export_trajectory(args):
     return 0
 
 
-def cmd_animate(args):
+def cmd_animate(args: argparse.Namespace) -> int:
     from .animate import animate
-    from .export import ExportError
+    from .outfile import ExportError
 
     try:
         out, n = animate(args.run, args.out, fps=args.fps, progress=not args.no_progress)
@@ -209,14 +230,18 @@ def cmd_animate(args):
     return 0
 
 
-def cmd_report(args):
-    from .plots import make_figures, print_table, read_summary
+def cmd_report(args: argparse.Namespace) -> int:
+    from .plots import make_figures
+    from .runfiles import read_summary
+    from .tables import print_table
 
     out = Path(args.store)
     summary = read_summary(out)  # validated: a hostile or foreign file is a one-line error
     if "slip" in summary:
         figs = make_figures(out)
         print(print_table(summary))
+        if isinstance(summary.get("bed"), dict):
+            print(bed_line(summary["bed"]))
         for fig in figs:
             print(f"figure: {fig}")
     else:
@@ -224,14 +249,14 @@ def cmd_report(args):
     return 0
 
 
-def cmd_compare(args):
+def cmd_compare(args: argparse.Namespace) -> int:
     from .compare import compare_runs
 
     print(compare_runs(args.a, args.b))
     return 0
 
 
-def cmd_sweep(args):
+def cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep_slip import run_slip_sweep
 
     try:
@@ -246,7 +271,7 @@ def cmd_sweep(args):
     return 0
 
 
-def cmd_shear(args):
+def cmd_shear(args: argparse.Namespace) -> int:
     from .shear import ShearOptions, mohr_coulomb_line, run_shear
 
     try:
@@ -277,7 +302,7 @@ def cmd_shear(args):
     return 0
 
 
-def cmd_sinkage(args):
+def cmd_sinkage(args: argparse.Namespace) -> int:
     from .sinkage import SinkageOptions, run_sinkage
 
     try:
@@ -301,7 +326,7 @@ def cmd_sinkage(args):
     return 0
 
 
-def cmd_profile(args):
+def cmd_profile(args: argparse.Namespace) -> int:
     from .profiling import PROFILED_MODES, profile
 
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]

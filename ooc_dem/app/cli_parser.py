@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
+from typing import NoReturn
 
 from ..errors import OocDemError
 
@@ -16,18 +18,18 @@ class CliError(OocDemError):
     pass
 
 
-def one_line(text) -> str:
+def one_line(text: object) -> str:
     """A message on one line (a user error is one line on stderr)."""
     return " ".join(str(text).split())
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, no usage dump
+    def error(self, message: str) -> NoReturn:  # one line, no usage dump
         print(f"ooc-dem: error: {message} (see `{self.prog} --help`)", file=sys.stderr)
         sys.exit(EXIT_USAGE)
 
 
-def _positive_int(text):
+def _positive_int(text: str) -> int:
     try:
         v = int(text)
     except ValueError:
@@ -37,7 +39,7 @@ def _positive_int(text):
     return v
 
 
-def _nonneg_int(text):
+def _nonneg_int(text: str) -> int:
     try:
         v = int(text)
     except ValueError:
@@ -47,18 +49,18 @@ def _nonneg_int(text):
     return v
 
 
-def _show(text) -> str:
-    from ..model.scenario import show
+def _show(text: object) -> str:
+    from ..model.schema import show
 
     return show(text, 40)
 
 
-def _count(lo: int, hi: int):
+def _count(lo: int, hi: int) -> Callable[[str], int]:
     """An integer flag in [lo, hi]; integral scientific notation (1e6) is accepted."""
     from decimal import Decimal, InvalidOperation
-    from ..model.scenario import big
+    from ..model.schema import big
 
-    def parse(text):
+    def parse(text: str) -> int:
         allowed = f"an integer in [{lo}, {big(hi)}]" if hi >= 10**6 else f"an integer in [{lo}, {hi}]"
         t = text.strip().replace("_", "")
         try:
@@ -76,7 +78,7 @@ def _count(lo: int, hi: int):
     return parse
 
 
-def _size(text):
+def _size(text: str) -> int:
     """A memory size: 2GB, 1.5G, 512MiB, 300MB or bytes."""
     from ..engine.memlimit import parse_size
 
@@ -86,7 +88,7 @@ def _size(text):
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
-def _positive_float(text):
+def _positive_float(text: str) -> float:
     try:
         v = float(text)
     except ValueError:
@@ -97,7 +99,7 @@ def _positive_float(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from ..model.scenario import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
+    from ..model.schema import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
 
     p = _Parser(
         prog="ooc-dem",
@@ -110,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from ..engine.modes import MODES, mode_names, switching_families
 
-    def add_scenario_args(q):
+    def add_scenario_args(q: argparse.ArgumentParser) -> None:
         q.add_argument("scenario", help="built-in name (see `ooc-dem scenarios`) or a TOML file")
         q.add_argument(
             "--set",
@@ -120,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
             help="override a scenario value (repeatable)",
         )
 
-    def add_plan_args(q):
+    def add_plan_args(q: argparse.ArgumentParser) -> None:
         """The options `run` and `check` share (check validates them exactly as run would)."""
         q.add_argument(
             "--mode",

@@ -33,14 +33,18 @@ temporary name and renamed when complete.
 
 from __future__ import annotations
 
+import os
 import tempfile
 from pathlib import Path
+from typing import IO
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room
 
-from ..model.checkpoint import StateError, check_unique_sorted, validate_globals
+from ..model.checkpoint import OpenEpoch
+from ..model.state_check import StateError, check_unique_sorted, validate_globals
 from ..physics.layout import spin_width
 from .export_formats import Snapshot, output_files, read_records, record_dtype, vector_columns, write_snapshot
 from .outfile import ExportError, check_targets, write_failure
@@ -49,11 +53,11 @@ FORMATS = ("xdmf", "vtk", "csv")
 _SUFFIX_FORMAT = {".xdmf": "xdmf", ".xmf": "xdmf", ".vtk": "vtk", ".vtp": "vtk", ".csv": "csv"}
 
 
-def infer_format(out) -> str | None:
+def infer_format(out: str | os.PathLike[str]) -> str | None:
     return _SUFFIX_FORMAT.get(Path(out).suffix.lower())
 
 
-def _group_records(reader, d, source: str, dim: int | None) -> tuple[np.ndarray, int]:
+def _group_records(reader: OpenEpoch, d: int, source: str, dim: int | None) -> tuple[NDArray[np.void], int]:
     """One domain group's discs as export records sorted by id (and the dimension)."""
     names = ["id", "pos", "vel", "spin", "r", "mass", "mat"]
     p = reader.read_domain(d, names)
@@ -82,21 +86,23 @@ def _group_records(reader, d, source: str, dim: int | None) -> tuple[np.ndarray,
     return rec, dim
 
 
-def _flush(records, out) -> None:
+def _flush(records: IO[bytes], out: str | os.PathLike[str]) -> None:
     try:
         records.flush()
     except OSError as e:
         raise ExportError(write_failure(out, e)) from None
 
 
-def _spill(records, rec: np.ndarray, out) -> None:
+def _spill(records: IO[bytes], rec: NDArray[np.void], out: str | os.PathLike[str]) -> None:
     try:
         records.write(rec.tobytes())
     except OSError as e:
         raise ExportError(write_failure(out, e)) from None
 
 
-def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 << 20) -> Snapshot:
+def read_snapshot(
+    reader: OpenEpoch, source: str = "", workdir: str | os.PathLike[str] = ".", buffer_bytes: int = 64 << 20
+) -> Snapshot:
     """The columns (``snapshot_columns(dim)``) of every domain group of an epoch reader
     (format 2: see checkpoint.open_epoch), sorted by id, in bounded memory.
 
@@ -110,13 +116,14 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
     validate_globals(arrays, attrs, f"{source}: epoch {reader.step}")
     where = f"{source}: epoch {reader.step}"
 
-    def temp():
+    def temp() -> IO[bytes]:
         try:
             return tempfile.TemporaryFile(dir=workdir)
         except OSError as e:
             raise ExportError(f"{workdir}: cannot create a temporary export file ({e.strerror})") from None
 
-    runs_file, runs, dim = temp(), [], None  # runs: (first record, count)
+    runs_file, dim = temp(), None
+    runs: list[tuple[int, int]] = []  # (first record, count)
     lo: dict[str, int | None] = {"id": None, "mat": None}
     hi = dict(lo)
     try:
@@ -158,7 +165,7 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
         runs_file.close()
         raise
     info = {"source": str(source), "mode": str(attrs.get("mode", ""))}
-    ranges = {k: (lo[k], hi[k]) for k in lo if lo[k] is not None}
+    ranges = {k: (low, high) for k in lo if (low := lo[k]) is not None and (high := hi[k]) is not None}
     return Snapshot(
         attrs["step"],
         float(attrs.get("time", 0.0)),
@@ -171,7 +178,15 @@ def read_snapshot(reader, source: str = "", workdir=".", buffer_bytes: int = 64 
     )
 
 
-def _merge_runs(src, runs, dtype, dst, where: str, rows: int, out) -> None:
+def _merge_runs(
+    src: IO[bytes],
+    runs: list[tuple[int, int]],
+    dtype: np.dtype[np.void],
+    dst: IO[bytes],
+    where: str,
+    rows: int,
+    out: str | os.PathLike[str],
+) -> None:
     """Merge sorted runs of `src` into `dst` in id order, `rows` to 2 x rows of each run in RAM.
 
     Each round takes, from every run's buffer, the records up to the smallest last id among
@@ -209,7 +224,7 @@ def _merge_runs(src, runs, dtype, dst, where: str, rows: int, out) -> None:
             _spill(dst, batch, out)
 
 
-def export_snapshot(snap: Snapshot, fmt: str, out) -> list[Path]:
+def export_snapshot(snap: Snapshot, fmt: str, out: str | os.PathLike[str]) -> list[Path]:
     """Write `snap` as `fmt` to `out`; returns the files written."""
     out = Path(out)
     if fmt not in FORMATS:

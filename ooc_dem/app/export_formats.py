@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import IO, Any, Literal, TypeAlias
 from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ooc_dem.storage.writeguard import close_h5, create_h5
 
@@ -17,6 +20,11 @@ from ..storage.atomic import new_temp
 from ..physics.layout import AXIS_NAMES, WS_NAMES, axes, spin_width
 from ..model.state import FIELD_DTYPES
 from .outfile import AtomicFile, ExportError, remove_file, write_failure
+
+# a slice of a snapshot: its columns by name (snapshot_columns)
+Chunk: TypeAlias = dict[str, NDArray[Any]]
+# the arrays a text writer puts on each line, from a slice (its first row, its columns)
+ColumnsOf: TypeAlias = Callable[[int, Chunk], Sequence[NDArray[Any]]]
 
 
 def vector_columns(dim: int) -> dict[str, list[str]]:
@@ -32,7 +40,6 @@ def snapshot_columns(dim: int) -> tuple[str, ...]:
     return ("id", *v["pos"], *v["vel"], *v["spin"], "r", "mass", "mat")
 
 
-CSV_COLUMNS = snapshot_columns(2)  # id, x, y, vx, vy, w, r, mass, mat
 WHEEL_NAMES = WS_NAMES  # layout.WHEEL_STATE: x, y, vx, vy, theta, wz
 _ROWS_PER_WRITE = 65536
 
@@ -46,7 +53,17 @@ class Snapshot:
     leaves nothing behind.
     """
 
-    def __init__(self, step, time, wheel_state, info, dim, records, n, int_ranges):
+    def __init__(
+        self,
+        step: int,
+        time: float,
+        wheel_state: NDArray[np.float64],
+        info: dict[str, str],
+        dim: int,
+        records: IO[bytes],
+        n: int,
+        int_ranges: dict[str, tuple[int, int]],
+    ) -> None:
         self.step = step
         self.time = time
         self.wheel_state = wheel_state
@@ -61,7 +78,7 @@ class Snapshot:
     def __len__(self) -> int:
         return self._n
 
-    def chunks(self, rows: int | None = None):
+    def chunks(self, rows: int | None = None) -> Iterator[tuple[int, Chunk]]:
         """(first row, {column: array}) of consecutive slices of at most `rows` discs."""
         rows = rows or _ROWS_PER_WRITE
         for start in range(0, self._n, rows):
@@ -71,22 +88,22 @@ class Snapshot:
     def close(self) -> None:
         self._records.close()
 
-    def __enter__(self):
+    def __enter__(self) -> Snapshot:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> Literal[False]:
         self.close()
         return False
 
 
-def record_dtype(dim: int) -> np.dtype:
+def record_dtype(dim: int) -> np.dtype[np.void]:
     """One exported disc: the snapshot's columns with the state's dtypes."""
     vec = vector_columns(dim)
     of = {name: FIELD_DTYPES[k] for k, names in vec.items() for name in names}
     return np.dtype([(c, of.get(c, FIELD_DTYPES.get(c))) for c in snapshot_columns(dim)])
 
 
-def read_records(f, dtype: np.dtype, start: int, count: int) -> np.ndarray:
+def read_records(f: IO[bytes], dtype: np.dtype[np.void], start: int, count: int) -> NDArray[np.void]:
     size = dtype.itemsize
     buf = bytearray(count * size)
     view, done = memoryview(buf), 0
@@ -123,7 +140,7 @@ def _fmt(a: np.ndarray) -> list[str]:
     return [repr(v) for v in a.tolist()] if a.dtype.kind == "f" else [str(v) for v in a.tolist()]
 
 
-def _write_columns(f, snap: Snapshot, columns_of, sep: str) -> None:
+def _write_columns(f: IO[str], snap: Snapshot, columns_of: ColumnsOf, sep: str) -> None:
     """One line per disc (id order): the arrays ``columns_of(first_row, chunk)`` gives for
     each slice of the snapshot, their values joined by sep."""
     for start, chunk in snap.chunks():
@@ -131,7 +148,12 @@ def _write_columns(f, snap: Snapshot, columns_of, sep: str) -> None:
         f.write("".join(sep.join(row) + "\n" for row in zip(*texts)))
 
 
-def _index(start: int, chunk: dict) -> np.ndarray:
+def _columns(names: Sequence[str]) -> ColumnsOf:
+    """The columns ``names`` of each slice, in that order."""
+    return lambda s, c: [c[k] for k in names]
+
+
+def _index(start: int, chunk: Chunk) -> NDArray[np.int64]:
     """The rows' positions in the export (0-based), for connectivity."""
     return np.arange(start, start + len(chunk["id"]), dtype=np.int64)
 
@@ -158,22 +180,22 @@ def _xml_comment(text: str) -> str:
     return escape(text).replace("--", "- -")
 
 
-def _xyz(c: dict, prefix: str = "") -> list[np.ndarray]:
+def _xyz(c: Chunk, prefix: str = "") -> list[NDArray[Any]]:
     """The x, y, z columns of a vector (zeros for an axis the run does not have)."""
     n = len(c["id"])
     return [c.get(prefix + a, np.zeros(n)) for a in AXIS_NAMES]
 
 
-def _xyz_array(c: dict, prefix: str = "") -> np.ndarray:
+def _xyz_array(c: Chunk, prefix: str = "") -> NDArray[np.float64]:
     return np.stack(_xyz(c, prefix), axis=1).astype(np.float64)
 
 
-def _spin(c: dict) -> list[np.ndarray]:
+def _spin(c: Chunk) -> list[NDArray[Any]]:
     """The spin's columns: [w] (2D, about z) or [wx, wy, wz] (3D)."""
     return [c["w"]] if "w" in c else [c["w" + a] for a in AXIS_NAMES]
 
 
-def _spin_array(c: dict) -> np.ndarray:
+def _spin_array(c: Chunk) -> NDArray[Any]:
     """The spin as written: (N,) in 2D, (N, 3) in 3D."""
     cols = _spin(c)
     return cols[0] if len(cols) == 1 else np.stack(cols, axis=1).astype(np.float64)
@@ -188,7 +210,7 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
         raise ExportError(f"--out {out}: the file name must not contain ':' (XDMF HDF references)")
     n = len(snap)
     # each dataset from a slice of the snapshot (rows first..): written slice by slice
-    data = {
+    data: dict[str, Callable[[int, Chunk], NDArray[Any]]] = {
         "positions": lambda s, c: _xyz_array(c),
         "velocity": lambda s, c: _xyz_array(c, "v"),
         "radius": lambda s, c: c["r"],
@@ -235,7 +257,7 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
             raise ExportError(write_failure(h5, e)) from None
         raise
 
-    def item(name, dims, kind, size):
+    def item(name: str, dims: str, kind: str, size: int) -> str:
         typ = "Int" if kind in "iu" else "Float"
         return (
             f'<DataItem Dimensions="{dims}" DataType="{typ}" Precision="{size}" '
@@ -319,14 +341,22 @@ def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
         f.write(f"FIELD point_arrays {len(more)}\n")
         for name, cols in more:
             f.write(f"{name} {len(cols)} {n} {_vtk_legacy_type(snap, cols[0])}\n")
-            _write_columns(f, snap, lambda s, c, cols=cols: [c[k] for k in cols], " ")
+            _write_columns(f, snap, _columns(cols), " ")
     return out
 
 
 _VTP_TYPE = {"f8": "Float64", "i8": "Int64", "i4": "Int32"}
 
 
-def _vtp_array(f, snap: Snapshot, name, columns_of, dtype: np.dtype, ncomp: int = 1, indent="        ") -> None:
+def _vtp_array(
+    f: IO[str],
+    snap: Snapshot,
+    name: str,
+    columns_of: ColumnsOf,
+    dtype: np.dtype[Any],
+    ncomp: int = 1,
+    indent: str = "        ",
+) -> None:
     t = _VTP_TYPE[f"{dtype.kind}{dtype.itemsize}"]
     nm = f' Name="{name}"' if name else ""
     f.write(f'{indent}<DataArray type="{t}"{nm} NumberOfComponents="{ncomp}" format="ascii">\n')
@@ -357,9 +387,9 @@ def _write_vtp(snap: Snapshot, out: Path) -> Path:
         )
         f.write('      <PointData Scalars="radius" Vectors="velocity">\n')
         for name, col in (("radius", "r"), ("id", "id"), ("mass", "mass"), ("material", "mat")):
-            _vtp_array(f, snap, name, lambda s, c, col=col: [c[col]], snap.dtype[col])
+            _vtp_array(f, snap, name, _columns([col]), snap.dtype[col])
         spin = _spin_columns(snap.dim)
-        _vtp_array(f, snap, "spin", lambda s, c: [c[k] for k in spin], f8, len(spin))
+        _vtp_array(f, snap, "spin", _columns(spin), f8, len(spin))
         _vtp_array(f, snap, "velocity", lambda s, c: _xyz(c, "v"), f8, 3)
         f.write("      </PointData>\n      <Points>\n")
         _vtp_array(f, snap, "positions", lambda s, c: _xyz(c), f8, 3)
@@ -379,5 +409,5 @@ def _write_csv(snap: Snapshot, out: Path) -> Path:
         f.write(f"# step={snap.step} time={float(snap.time)!r}\n")
         f.write("# wheel_state " + ",".join(f"{k}={float(v)!r}" for k, v in zip(WHEEL_NAMES, snap.wheel_state)) + "\n")
         f.write(",".join(snap.columns) + "\n")
-        _write_columns(f, snap, lambda s, c: [c[k] for k in snap.columns], ",")
+        _write_columns(f, snap, _columns(snap.columns), ",")
     return out

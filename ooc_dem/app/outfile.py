@@ -100,7 +100,7 @@ class AtomicFile:
         return False
 
 
-def remove_file(p) -> None:
+def remove_file(p: str | os.PathLike[str]) -> None:
     """Unlink `p` if it is there."""
     try:
         os.unlink(p)
@@ -108,7 +108,7 @@ def remove_file(p) -> None:
         pass
 
 
-def write_failure(path, e: BaseException) -> str:
+def write_failure(path: str | os.PathLike[str], e: BaseException) -> str:
     """The one-line message of an OSError `e` writing `path`."""
     detail = getattr(e, "strerror", None) or " ".join(str(e).split()) or type(e).__name__
     return f"{path}: cannot write ({detail})"

@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 from ..engine import budget
 from ..errors import OocDemError
 from ..engine.modes import MODES, mode_names
-from ..model.scenario import MAX_DOMAINS, MAX_STEPS, Scenario, big, critical_time_step, show, steps_for_duration
+from ..model.scenario import Scenario
+from ..model.scenario_check import critical_time_step
+from ..model.schema import MAX_DOMAINS, MAX_STEPS, big, show, steps_for_duration
 from ..storage import BACKENDS
 from .metrics import N_SERIES
 
@@ -79,7 +82,7 @@ class RunPlan:
     memory_available_bytes: int
     memory_budget_bytes: int | None = None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
 
@@ -242,7 +245,7 @@ def check_bed_memory(sc: Scenario) -> int:
     return need
 
 
-def _memory_message(sc, opts, steps, need, have, streamed) -> str:
+def _memory_message(sc: Scenario, opts: RunOptions, steps: int, need: int, have: int, streamed: bool) -> str:
     series_rows = steps // max(1, int(round(sc.output.series_interval / sc.physics.dt))) + 1
     series = _series_bytes(sc, steps)
     if series > need / 2:

@@ -1,15 +1,14 @@
-"""Matplotlib figures and text tables of a wheel run.
+"""The figures of a wheel run.
 
 * ``make_figures(out_dir)`` writes ``OUT/figures/series.png`` (time series),
   ``deformation.png`` (the paper's Figs. 5-6: initial bed in horizontal layers,
   final bed with each disc in its initial layer colour, the wheel with its lugs)
-  and ``displacement.png`` (gridded displacement vectors).
-* ``print_table(summary)`` formats ``summary.json`` like the paper's Table 3.
-* ``sweep_plot(csv, png)`` draws a drawbar-pull--slip curve.
+  and ``displacement.png`` (gridded displacement vectors); a 3D run adds its mid-width
+  slice, rut and lateral-flow views and the wheel mesh (views3d.py).
 
-Everything runs headless (Agg backend); discs are drawn at their true radii with
-one ``EllipseCollection``, so ~10^4 discs render in about a second. The run's files are
-read through runfiles.py (validated: a run directory is untrusted input).
+The drawing itself (headless pyplot, discs at true radii, the wheel) is drawing.py's; the
+run's files are read through runfiles.py (validated: a run directory is untrusted input).
+The text table of a run is tables.py's, the drawbar-pull--slip curve sweep_slip.py's.
 """
 
 from __future__ import annotations
@@ -18,18 +17,18 @@ import math
 import os
 import stat
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
-
-from ..storage.atomic import write_replacing
+from numpy.typing import NDArray
 
 from ..model.fields import displacements, gridded_displacement, layer_index
 from ..physics.layout import AX_X, AX_Y, AX_Z, WS_THETA, WS_X, WS_Y
+from .drawing import LAYER_COLOURS, draw_discs, draw_wheel, layer_count, panel_size, pyplot, save_figure
 from .runfiles import (
+    InitialBed,
     RunFileError,
     has_store,
-    read_csv,
     read_final,
     read_final_particles,
     read_initial,
@@ -42,136 +41,22 @@ from .runfiles import (
     summary_window,
 )
 
-LAYER_COLOURS = ("#e3c79a", "#8a5a2b")  # light sand / dark soil, alternating
-DPI = 150
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
+    from ..model.state import Particles
+
+# a state as the figures draw it: id, x, y, r and the wheel state (None: no wheel to draw)
+Drawn: TypeAlias = tuple[
+    NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None
+]
+# the same as make_figures is given it, any numeric arrays
+FinalArrays: TypeAlias = tuple[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any] | None]
+# a run's series.csv as read_series gives it: its columns by name
+Series: TypeAlias = dict[str, NDArray[np.float64]]
 
 
-# ------------------------------------------------------------------ helpers
-
-
-def _pyplot() -> Any:
-    """matplotlib.pyplot on the Agg backend (no display), imported when first needed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _discs(ax, x, y, r, facecolors, edgecolor="#3a2a1a", linewidth=0.15, zorder=1, alpha=None):
-    """All discs as one EllipseCollection at true radius (data units)."""
-    from matplotlib.collections import EllipseCollection
-    from matplotlib.colors import to_rgba_array
-
-    facecolors = to_rgba_array(facecolors if isinstance(facecolors, str) else list(facecolors))
-    d = 2.0 * np.asarray(r, dtype=np.float64)
-    coll = EllipseCollection(
-        d,
-        d,
-        np.zeros_like(d),
-        units="xy",
-        offsets=np.column_stack([x, y]),
-        offset_transform=ax.transData,
-        facecolors=facecolors,
-        edgecolors=edgecolor,
-        linewidths=linewidth,
-        zorder=zorder,
-        alpha=alpha,
-    )
-    ax.add_collection(coll)
-    return coll
-
-
-def draw_wheel(
-    ax,
-    x,
-    y,
-    theta,
-    radius,
-    n_lugs,
-    lug_tip_radius,
-    lug_thickness=0.002,
-    fill=True,
-    zorder=5,
-    color="k",
-    alpha=1.0,
-    linestyle="-",
-):
-    """Rim circle plus ``n_lugs`` radial lugs (from R to the tip) at angles theta + 2 pi k / n."""
-    from matplotlib.patches import Circle, Polygon
-
-    ax.add_patch(
-        Circle(
-            (x, y),
-            radius,
-            facecolor="#b8c4d0" if fill else "none",
-            edgecolor=color,
-            linewidth=1.0,
-            zorder=zorder,
-            alpha=alpha,
-            linestyle=linestyle,
-        )
-    )
-    half = 0.5 * lug_thickness
-    for k in range(int(n_lugs)):
-        phi = theta + 2.0 * math.pi * k / n_lugs
-        ux, uy = math.cos(phi), math.sin(phi)
-        nx, ny = -uy, ux
-        pts = [
-            (x + ux * rr + nx * s, y + uy * rr + ny * s)
-            for rr, s in ((radius, -half), (lug_tip_radius, -half), (lug_tip_radius, half), (radius, half))
-        ]
-        ax.add_patch(
-            Polygon(
-                pts,
-                closed=True,
-                facecolor=color if fill else "none",
-                edgecolor=color,
-                linewidth=0.8,
-                zorder=zorder + 0.1,
-                alpha=alpha,
-                linestyle=linestyle,
-            )
-        )
-    ax.plot([x], [y], marker="+", color=color, markersize=6, zorder=zorder + 0.2, alpha=alpha)
-
-
-def _panel_size(xr: float, yr: float, max_w: float = 10.0, max_h: float = 6.0) -> tuple[float, float]:
-    """Inches (width, height) of an equal-aspect panel of data size xr x yr within max_w x max_h."""
-    aspect = yr / xr if xr > 0 else 1.0
-    w, h = max_w, max_w * aspect
-    if h > max_h:
-        w, h = max_h / aspect, max_h
-    return max(w, 4.0), max(h, 1.5)
-
-
-def _n_layers(depth: float, r: np.ndarray) -> int:
-    """About four mean disc diameters per layer, 4..16 layers."""
-    d = 2.0 * float(np.mean(r)) if len(r) else depth / 8
-    return int(np.clip(round(depth / (4.0 * d)), 4, 16))
-
-
-# the least a figure takes (PNG, measured 40-200 kB): checked against the free space and the
-# file-size limit before it is drawn to disk
-FIGURE_BYTES = 16 << 10
-
-
-def _save(fig, path: Path) -> Path:
-    # under a temporary name, renamed when complete: a kill never leaves a torn figure that a
-    # resume would take for a finished one
-    write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"), need=FIGURE_BYTES)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return path
-
-
-# ------------------------------------------------------------------ figures
-
-
-def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
-    plt = _pyplot()
+def _series_figure(series: Series, summary: dict[str, Any] | None, sc: Scenario | None, path: Path) -> Path:
+    plt = pyplot()
     t = series["t_travel"] if "t_travel" in series else series["t"]  # read_series: one is there
     steady = summary_window(summary, "slip", "steady")
     if steady is None and sc is not None:
@@ -215,11 +100,13 @@ def _series_figure(series: dict, summary: dict | None, sc, path: Path) -> Path:
     if steady is not None:
         title += f"  (shaded: steady window {steady[0]:g}–{steady[1]:g} s)"
     fig.suptitle(title, fontsize=11)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
-def _placement(sc, x, y, r):
-    """The wheel's initial centre, as the engine places it (run.place_wheel): above x0 with the
+def _placement(
+    sc: Scenario, x: NDArray[np.float64], y: NDArray[np.float64], r: NDArray[np.float64]
+) -> tuple[float, float]:
+    """The wheel's initial centre, as the engine places it (run_setup.place_wheel): above x0 with the
     lug tips drop_gap above the highest disc under the wheel; theta = 0."""
     w = sc.wheel
     if len(x) == 0:
@@ -229,7 +116,15 @@ def _placement(sc, x, y, r):
     return w.x0, top + w.lug_tip_radius + w.drop_gap
 
 
-def _zoom(sc, series, ws_final, bed_x, bed_y, bed_r, surface):
+def _zoom(
+    sc: Scenario | None,
+    series: Series | None,
+    ws_final: NDArray[np.float64] | None,
+    bed_x: NDArray[np.float64],
+    bed_y: NDArray[np.float64],
+    bed_r: NDArray[np.float64],
+    surface: float,
+) -> tuple[float, float, float, float]:
     """(x0, x1, y0, y1): from the wheel's start - 1.5 R to its final x + 1.5 R, floor to wheel top."""
     lo_x = float(np.min(bed_x - bed_r)) if len(bed_x) else 0.0
     hi_x = float(np.max(bed_x + bed_r)) if len(bed_x) else 1.0
@@ -252,11 +147,11 @@ def _zoom(sc, series, ws_final, bed_x, bed_y, bed_r, surface):
     return xa, xb, y0 - pad, y1 + pad
 
 
-def _deformation_figure(init, final, sc, series, path: Path):
-    plt = _pyplot()
+def _deformation_figure(init: InitialBed, final: Drawn, sc: Scenario | None, series: Series | None, path: Path) -> Path:
+    plt = pyplot()
     iid, ix, iy, ir, surface = init
     fid, fx, fy, fr, ws = final
-    n_layers = _n_layers(surface, ir)
+    n_layers = layer_count(surface, ir)
     layer = layer_index(iy, surface, n_layers)
     colours = np.array(LAYER_COLOURS)[layer % 2]
     # final discs take the layer colour of the same id
@@ -268,17 +163,18 @@ def _deformation_figure(init, final, sc, series, path: Path):
         fcol[known] = colours[order][pos[known]]
 
     xa, xb, ya, yb = _zoom(sc, series, ws, ix, iy, ir, surface)
-    width_in, panel_h = _panel_size(xb - xa, yb - ya)
+    width_in, panel_h = panel_size(xb - xa, yb - ya)
     fig, axes = plt.subplots(
         2, 1, figsize=(width_in + 0.8, 2 * panel_h + 1.0), sharex=True, sharey=True, constrained_layout=True
     )
     a0, a1 = axes
     m0 = (ix + ir > xa) & (ix - ir < xb)
-    _discs(a0, ix[m0], iy[m0], ir[m0], colours[m0])
+    draw_discs(a0, ix[m0], iy[m0], ir[m0], colours[m0])
     m1 = (fx + fr > xa) & (fx - fr < xb)
-    _discs(a1, fx[m1], fy[m1], fr[m1], fcol[m1])
-    wheel_on = sc is not None and sc.wheel.enabled and ws is not None
-    if wheel_on:
+    draw_discs(a1, fx[m1], fy[m1], fr[m1], fcol[m1])
+    wheel_ws = ws if sc is not None and sc.wheel.enabled else None  # None: no wheel drawn
+    wheel_on = wheel_ws is not None
+    if sc is not None and wheel_ws is not None:
         w = sc.wheel
         x_start, y_start = _placement(sc, ix, iy, ir)
         draw_wheel(
@@ -294,7 +190,16 @@ def _deformation_figure(init, final, sc, series, path: Path):
             color="0.35",
             linestyle="--",
         )
-        draw_wheel(a1, ws[WS_X], ws[WS_Y], ws[WS_THETA], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
+        draw_wheel(
+            a1,
+            wheel_ws[WS_X],
+            wheel_ws[WS_Y],
+            wheel_ws[WS_THETA],
+            w.radius,
+            w.n_lugs,
+            w.lug_tip_radius,
+            w.lug_thickness,
+        )
     for ax in axes:
         ax.axhline(surface, color="0.3", lw=0.6, ls=":", zorder=3)
         ax.set_xlim(xa, xb)
@@ -308,14 +213,16 @@ def _deformation_figure(init, final, sc, series, path: Path):
         fontsize=10,
     )
     title = "final state: each disc keeps its initial layer colour"
-    if wheel_on:
-        title += f"; wheel at x = {ws[WS_X]:.3f} m, θ = {math.degrees(ws[WS_THETA]):.0f}°"
+    if wheel_ws is not None:
+        title += f"; wheel at x = {wheel_ws[WS_X]:.3f} m, θ = {math.degrees(wheel_ws[WS_THETA]):.0f}°"
     a1.set_title(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
-def _displacement_figure(init, final, sc, series, path: Path):
-    plt = _pyplot()
+def _displacement_figure(
+    init: InitialBed, final: Drawn, sc: Scenario | None, series: Series | None, path: Path
+) -> Path:
+    plt = pyplot()
     iid, ix, iy, ir, surface = init
     fid, fx, fy, fr, ws = final
     dx, dy = displacements(iid, ix, iy, fid, fx, fy)
@@ -332,10 +239,10 @@ def _displacement_figure(init, final, sc, series, path: Path):
     big = float(np.percentile(mag[finite], 98)) if finite.any() else 0.0
     scale = 1.0 if big <= 1.5 * cell or big == 0.0 else big / (1.5 * cell)
 
-    width_in, panel_h = _panel_size(xb - xa, yb - ya)
+    width_in, panel_h = panel_size(xb - xa, yb - ya)
     fig, ax = plt.subplots(figsize=(width_in + 2.0, panel_h + 0.9), constrained_layout=True)
     m0 = (ix + ir > xa) & (ix - ir < xb)
-    _discs(ax, ix[m0], iy[m0], ir[m0], "#eeeeee", edgecolor="#cccccc", linewidth=0.1, zorder=0)
+    draw_discs(ax, ix[m0], iy[m0], ir[m0], "#eeeeee", edgecolor="#cccccc", linewidth=0.1, zorder=0)
     if finite.any():
         q = ax.quiver(
             grid.x[finite],
@@ -364,14 +271,15 @@ def _displacement_figure(init, final, sc, series, path: Path):
             color="k",
             fontproperties={"size": 8},
         )
-    wheel_on = sc is not None and sc.wheel.enabled and ws is not None
-    if wheel_on:
+    wheel_ws = ws if sc is not None and sc.wheel.enabled else None  # None: no wheel drawn
+    wheel_on = wheel_ws is not None
+    if sc is not None and wheel_ws is not None:
         w = sc.wheel
         draw_wheel(
             ax,
-            ws[WS_X],
-            ws[WS_Y],
-            ws[WS_THETA],
+            wheel_ws[WS_X],
+            wheel_ws[WS_Y],
+            wheel_ws[WS_THETA],
             w.radius,
             w.n_lugs,
             w.lug_tip_radius,
@@ -392,7 +300,7 @@ def _displacement_figure(init, final, sc, series, path: Path):
         f"position; arrows {how}" + ("; wheel at its final position" if wheel_on else ""),
         fontsize=9,
     )
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _nice(v: float) -> float:
@@ -411,7 +319,7 @@ SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE = "series.png", "deformat
 FIGURE_NAMES = (SERIES_FIGURE, DEFORMATION_FIGURE, DISPLACEMENT_FIGURE)
 
 
-def figure_files(sc) -> tuple[str, ...]:
+def figure_files(sc: Scenario) -> tuple[str, ...]:
     """The files ``make_figures`` writes for a wheel run of scenario sc, relative to its
     directory (3D adds the mid-width slice, rut and lateral-flow views and the wheel mesh)."""
     names: tuple[str, ...] = FIGURE_NAMES
@@ -423,7 +331,7 @@ def figure_files(sc) -> tuple[str, ...]:
     return tuple(f"figures/{n}" for n in names) + beside
 
 
-def make_figures(out_dir, final=None) -> list[Path]:
+def make_figures(out_dir: str | os.PathLike[str], final: FinalArrays | None = None) -> list[Path]:
     """Write the run's figures into ``OUT/figures/``; return their paths.
 
     ``final`` = (id, x, y, r, wheel_state) skips reading the store's last epoch.
@@ -469,7 +377,14 @@ def make_figures(out_dir, final=None) -> list[Path]:
     return written
 
 
-def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
+def _views_3d(
+    out: Path,
+    sc: Scenario,
+    init: tuple[InitialBed, NDArray[np.float64]],
+    final_p: Particles,
+    ws: NDArray[np.float64],
+    series: Series | None,
+) -> list[Path]:
     """The 3D views of a run (module doc). init: (id, x, y, r, surface) and z of the
     initial bed; final_p: the final Particles."""
     from ..engine.stepper import wheel_z0
@@ -507,7 +422,7 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
             fig_dir / MIDWIDTH_FIGURE,
         )
     )
-    plt = _pyplot()
+    plt = pyplot()
     cell, nx, nz = _grid(sc)
     extent = (0.0, nx * cell, 0.0, nz * cell)
     w = sc.wheel
@@ -538,138 +453,6 @@ def _views_3d(out, sc, init, final_p, ws, series) -> list[Path]:
         ax.set_ylabel("z [m] (across)")
         ax.set_title(f"{sc.name}: {label}; dashed: wheel width, dotted/solid: start/final axle x", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.8)
-        written.append(_save(fig, fig_dir / name))
+        written.append(save_figure(fig, fig_dir / name))
     written.append(write_wheel_vtk(out / WHEEL_MESH, sc, ws))
     return written
-
-
-# ------------------------------------------------------------------ tables
-
-# Nakashima (2008) Table 3, without DDM, whole 45 s of travel
-PAPER_TABLE3 = {
-    "slip": 0.736,
-    "net_traction": 9.968,
-    "gross_traction": 12.697,
-    "motion_resistance": 12.697 - 9.968,
-    "wall_time_s": 6844.0,
-}
-
-
-def print_table(summary: dict, reference: dict | None = None) -> str:
-    """Table-3-style text table of a run's ``summary.json`` (returned, not printed).
-
-    Columns: the whole-travel and the steady window, each labelled with its
-    bounds (s of travel). For the ``paper2008`` scenario a column with the
-    paper's values (without DDM) is added unless ``reference`` is given; pass
-    ``reference={}`` to suppress it.
-    """
-    cols = ("whole_travel", "steady")
-    heads = []
-    for c in cols:
-        w = summary_window(summary, "slip", c) or summary_window(summary, "net_traction", c)
-        label = "whole travel" if c == "whole_travel" else "steady"
-        heads.append(f"{label} {w[0]:g}–{w[1]:g} s" if w else label)
-    if reference is None:
-        reference = PAPER_TABLE3 if summary.get("scenario") == "paper2008" else {}
-    if reference:
-        heads.append("paper 2008 (no DDM)")
-
-    def fmt(v, scale=1.0, digits=3):
-        if v is None:
-            return "—"
-        try:
-            v = float(v) * scale
-        except (TypeError, ValueError):
-            return "—"
-        return "nan" if not math.isfinite(v) else f"{v:.{digits}f}"
-
-    rows = []
-    spec = (
-        ("wheel slip (-)", "slip", 1.0, 3),
-        ("net traction (N)", "net_traction", 1.0, 3),
-        ("gross traction (N)", "gross_traction", 1.0, 3),
-        ("motion resistance (N)", "motion_resistance", 1.0, 3),
-        ("torque (N m)", "torque", 1.0, 4),
-    )
-    for label, key, scale, digits in spec:
-        row = [label] + [fmt(summary_value(summary, key, c), scale, digits) for c in cols]
-        if reference:
-            row.append(fmt(reference.get(key), 1.0, digits))
-        rows.append(row)
-    static = summary_value(summary, "sinkage", "static")
-    row = ["static sinkage (mm)", fmt(static, 1e3, 1), ""]
-    if reference:
-        row.append("—")
-    rows.append(row)
-    row = ["travelling sinkage (mm)"] + [fmt(summary_value(summary, "sinkage", c), 1e3, 1) for c in cols]
-    if reference:
-        row.append("—")
-    rows.append(row)
-    if summary.get("wall_time_s") is not None:
-        row = ["wall time (s)", fmt(summary["wall_time_s"], 1.0, 1), ""]
-        if reference:
-            row.append(fmt(reference.get("wall_time_s"), 1.0, 0))
-        rows.append(row)
-
-    header = ["quantity"] + heads
-    widths = [max(len(r[k]) for r in rows + [header]) for k in range(len(header))]
-
-    def line(r):
-        return "  ".join([r[0].ljust(widths[0])] + [r[k].rjust(widths[k]) for k in range(1, len(r))])
-
-    name = summary.get("scenario", "")
-    extra = ", ".join(str(summary[k]) for k in ("mode", "backend") if summary.get(k))
-    title = f"Wheel performance — {name}" + (f" ({extra})" if extra else "")
-    out = [title, line(header), "  ".join("-" * w for w in widths)] + [line(r) for r in rows]
-    notes = ["windows in s of travel (0 = end of the wheel's settling); motion resistance = gross − net"]
-    sw = summary_window(summary, "sinkage", "static")
-    if static is not None:
-        notes.append(
-            "static sinkage: mean at the end of settling (ω = 0)" + (f", t = {sw[0]:g}–{sw[1]:g} s" if sw else "")
-        )
-    if reference:
-        notes.append("paper 2008: Nakashima, CIGR Ejournal PM 08 006, Table 3 (whole 45 s, 2008 Mac Pro)")
-    return "\n".join(out + [""] + notes)
-
-
-# ------------------------------------------------------------------ sweep
-
-
-def sweep_plot(csv_path, png_path) -> Path:
-    """Drawbar pull (net traction) and gross traction vs slip, and sinkage vs slip.
-
-    ``csv_path`` has a header with columns ``slip,drawbar_pull`` and optionally
-    ``gross_traction`` and ``sinkage`` (m); unit suffixes like ``drawbar_pull [N]``
-    are accepted.
-    """
-    plt = _pyplot()
-    cols = read_csv(csv_path, ("slip", "drawbar_pull"))
-    order = np.argsort(cols["slip"], kind="stable")
-    s = cols["slip"][order]
-    has_sink = "sinkage" in cols
-    fig, axes = plt.subplots(
-        2 if has_sink else 1,
-        1,
-        sharex=True,
-        squeeze=False,
-        figsize=(7, 7 if has_sink else 4.5),
-        constrained_layout=True,
-    )
-    ax = axes[0, 0]
-    ax.plot(s, cols["drawbar_pull"][order], "o-", color="C1", label="drawbar pull (net traction)")
-    if "gross_traction" in cols:
-        ax.plot(s, cols["gross_traction"][order], "s--", color="C2", label="gross traction (torque / R)")
-    ax.axhline(0.0, color="0.5", lw=0.6)
-    ax.set_ylabel("force [N]")
-    ax.legend(fontsize=8, loc="best")
-    ax.grid(True, lw=0.3, alpha=0.6)
-    ax.set_title("drawbar pull – slip", fontsize=11)
-    if has_sink:
-        a2 = axes[1, 0]
-        a2.plot(s, 1e3 * cols["sinkage"][order], "^-", color="C4")
-        a2.set_ylabel("sinkage [mm]")
-        a2.grid(True, lw=0.3, alpha=0.6)
-    axes[-1, 0].set_xlabel("slip s [-]")
-    png_path = Path(png_path)
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    return _save(fig, png_path)

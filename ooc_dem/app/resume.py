@@ -8,13 +8,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from numpy.typing import NDArray
 
 from ..engine.modes import MODES, switching_families
 from ..model.checkpoint import SUPPORTED_VERSIONS, open_epoch
-from ..model.scenario import Scenario, show, steps_for_duration
+from ..model.scenario import Scenario
+from ..model.schema import show, steps_for_duration
 from ..storage import BACKENDS
 from .plan import RunError, RunOptions, total_steps
+
+if TYPE_CHECKING:
+    from ooc_dem.storage import Store
 
 
 # the run options a store's meta must hold, with the types a resume accepts
@@ -29,7 +35,7 @@ _RUN_OPTION_TYPES = {
 }  # None: a store written before it existed
 
 
-def _stored_run_options(meta: dict, path) -> dict:
+def _stored_run_options(meta: dict[str, Any], path: Path) -> dict[str, Any]:
     """The run options recorded in a store's meta, checked (a store is untrusted input)."""
     stored = meta.get("run")
     if not isinstance(stored, dict):
@@ -51,7 +57,7 @@ def _stored_run_options(meta: dict, path) -> dict:
     return run
 
 
-def check_engine_attrs(engine, n_domains: int, where: str) -> None:
+def check_engine_attrs(engine: object, n_domains: int, where: str) -> None:
     """The decomposition a sweep engine resumes from: block K and the slab bounds."""
     if not isinstance(engine, dict):
         raise RunError(f"{where}: globals attribute 'engine' missing")
@@ -68,11 +74,18 @@ def check_engine_attrs(engine, n_domains: int, where: str) -> None:
 
 
 def stored_run(
-    store, path: Path, steps: int | None, until: float | None, progress: bool, figures: bool, mode: str | None = None
+    store: Store,
+    path: Path,
+    steps: int | None,
+    until: float | None,
+    progress: bool,
+    figures: bool,
+    mode: str | None = None,
 ) -> tuple[Scenario, RunOptions]:
     """The scenario and run options a store's meta holds (checked), with the new total
     steps (``steps`` or ``until``) and mode (``mode``: one of the stored mode's family)."""
-    from ..model.checkpoint import StateError, stored_scenario
+    from ..model.checkpoint import stored_scenario
+    from ..model.state_check import StateError
 
     meta = store.meta or {}
     if meta.get("engine") != "ooc-dem":
@@ -128,15 +141,16 @@ class ResumeEpoch:
 
     reader: Any  # a store's epoch reader, or a format-1 one seen through V1Epoch (open_epoch)
     hist_cap: int
-    arrays: dict
-    attrs: dict
+    arrays: dict[str, NDArray[Any]]
+    attrs: dict[str, Any]
 
 
-def open_resume_epoch(store, path: Path, sc: Scenario) -> ResumeEpoch:
+def open_resume_epoch(store: Store, path: Path, sc: Scenario) -> ResumeEpoch:
     """The last intact epoch of the store, validated against the stored layout and written
     by scenario ``sc``."""
     from ooc_dem.storage import StoreError
-    from ..model.checkpoint import StateError, stored_layout, validate_epoch
+    from ..model.checkpoint import stored_layout
+    from ..model.state_check import StateError, validate_epoch
 
     reader = None
     try:

@@ -10,6 +10,7 @@ the metrics and commits the epochs. ``resume.py`` reads what a resume continues 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import sys
 import time
@@ -17,151 +18,37 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .. import __version__
 from ..engine.interface import Engine
 from ..engine.modes import MODES, Mode
 from ..engine.stepper import EngineError, Model
-from ..model.checkpoint import FORMAT_VERSION, open_epoch
-from ..model.checkpoint import read_all_particles  # noqa: F401  (a run's whole state, as the tests read it)
+from ..model.checkpoint import FORMAT_VERSION, OpenEpoch, open_epoch
 from ..model.scenario import Scenario
 from ..model.state import Particles
-from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE, WS_X, WS_Y
-from .bed import settled_bed, surface_height, wheel_footprint
+from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE
+from .bed import bed_info, settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
 from .plan import RunError, RunOptions, plan_run, streamable
-from .resume import check_engine_attrs, open_resume_epoch, stored_run
+from .progress import Progress, settling_progress
+from .resume import ResumeEpoch, check_engine_attrs, open_resume_epoch, stored_run
+from .run_setup import StreamedBed, place_wheel, stopped_before_first_commit
+from .runfiles import read_bed_info
 
 if TYPE_CHECKING:
     from ooc_dem.storage.store import Store
 
     from .metrics import WheelMetrics
-    from .trajectory import TrajectoryWriter
+    from .trajectory import FrameParts, TrajectoryWriter
 
 __all__ = [
-    "FrameParts",
     "RunError",
     "RunOptions",
     "Simulation",
-    "StreamedBed",
-    "place_wheel",
     "plan_run",
     "resume_simulation",
 ]
-
-
-def place_wheel(sc: Scenario, bed: Particles) -> np.ndarray:
-    """Wheel centre above the bed under x0, lug tips drop_gap above the highest disc (3D:
-    the highest sphere under the wheel's footprint, across its width too)."""
-    w = sc.wheel
-    ws = np.zeros(WS_SIZE)
-    x, y = bed.pos[:, AX_X], bed.pos[:, AX_Y]
-    under = np.abs(x - w.x0) < w.lug_tip_radius + sc.soil.r_max
-    if sc.dim == 3:
-        from ..engine.stepper import wheel_z0
-
-        under &= np.abs(bed.pos[:, AX_Z] - wheel_z0(sc)) < 0.5 * w.width + sc.soil.r_max
-    top = float((y[under] + bed.r[under]).max()) if under.any() else float((y + bed.r).max())
-    ws[WS_X] = w.x0
-    ws[WS_Y] = top + w.lug_tip_radius + w.drop_gap
-    return ws
-
-
-class Progress:
-    """tqdm bar over simulated time, with steps/s; silent when disabled."""
-
-    def __init__(self, enabled: bool, total_steps: int, dt: float, label: str):
-        self.bar = None
-        self.dt = dt
-        if enabled and total_steps > 0:
-            from tqdm import tqdm
-
-            self.bar = tqdm(
-                total=total_steps,
-                desc=label,
-                unit="step",
-                unit_scale=True,
-                mininterval=1.0,
-                file=sys.stderr,
-                dynamic_ncols=True,
-                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} steps "
-                "[{elapsed}<{remaining}, {rate_fmt}] {postfix}",
-            )
-
-    def update(self, step: int, n: int, **post):
-        if self.bar is not None:
-            self.bar.set_postfix_str(
-                f"t={step * self.dt:.4f} s " + " ".join(f"{k}={v}" for k, v in post.items()), refresh=False
-            )
-            self.bar.update(n)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-
-
-# what `run` puts into its output directory before the first commit
-_RUN_SETUP_FILES = ("initial.npz", "scenario.toml")
-
-
-def _stopped_before_first_commit(out: Path) -> bool:
-    """Whether `out` is a run that was stopped (killed, disk full) before its first commit.
-
-    Such a directory holds nothing to lose: a store with no committed epoch and the run's own
-    set-up files. `run --out` may start afresh there (create_store replaces the store and
-    refuses if a live writer holds it); anything else in the directory makes it a user's.
-    """
-    from ooc_dem.storage import StoreError, open_store, store_owns
-
-    try:
-        store = open_store(out, repair=False)
-    except StoreError:
-        return False
-    try:
-        if store.current() is not None or store.meta.get("engine") != "ooc-dem":
-            return False
-    finally:
-        store.close()
-    own = set(_RUN_SETUP_FILES) | {n + ".tmp" for n in _RUN_SETUP_FILES}
-    return all(n in own or store_owns(out, n) for n in os.listdir(out))
-
-
-class StreamedBed:
-    """The scenario's tiled bare bed as x-ordered parts for an out-of-core engine's
-    ``create_streamed``: generated again on each pass over it, never whole in RAM. The
-    first pass measures each part's surface height (its own columns, its own x origin)."""
-
-    def __init__(self, sc: Scenario):
-        self.sc = sc
-        self.surfaces: list[float] | None = None
-
-    def __iter__(self):
-        from .bed import tiled_bed_parts
-
-        # the first pass measures: its list is filled as the parts go by
-        measured: list[float] | None = [] if self.surfaces is None else None
-        if measured is not None:
-            self.surfaces = measured
-        band = wheel_footprint(self.sc)
-        for p in tiled_bed_parts(self.sc, tiles_per_part=8):
-            if measured is not None:
-                x0 = p.pos[:, AX_X].min()
-                measured.append(
-                    surface_height(p, p.pos[:, AX_X].max() - x0, self.sc.soil.r_max, x_origin=x0, across=band)
-                )
-            yield p
-
-
-class FrameParts:
-    """The parts of the trajectory frame at ``step``, as an engine writes them during an
-    advance (``engine.interface.FrameParts``)."""
-
-    def __init__(self, frames, step: int):
-        self.frames = frames
-        self.step = step
-
-    def write_part(self, part: dict) -> None:
-        self.frames.write_part(self.step, part)
 
 
 class Simulation:
@@ -185,15 +72,16 @@ class Simulation:
         self.metrics: WheelMetrics | None = None
         self.step = 0
         self.surface = 0.0
+        self.bed_info: dict[str, Any] | None = None  # bed.json: the bed's report (summary.json's "bed")
         self.wall_time = 0.0
         # trajectory frames (trajectory.py): every frame_every steps, 0 = none
-        from .trajectory import frame_every
+        from .trajectory_format import frame_every
 
         self.frame_every = frame_every(sc)
         self.frames: TrajectoryWriter | None = None
 
     @property
-    def redecompositions(self) -> list:
+    def redecompositions(self) -> list[dict[str, Any]]:
         """Every decomposition the engine has chosen ({"step", "bounds"}), stored with each epoch."""
         return self.engine.redecompositions if self.engine is not None else []
 
@@ -203,7 +91,7 @@ class Simulation:
         return self.engine
 
     # ------------------------------------------------------------------ setup
-    def _meta(self) -> dict:
+    def _meta(self) -> dict[str, Any]:
         o = self.opts
         return {
             "engine": "ooc-dem",
@@ -234,7 +122,7 @@ class Simulation:
         tiled bare bed writes its bed into the store tile by tile (never the whole bed in RAM)."""
         from ooc_dem.storage import StoreError, create_store
 
-        if self.out.exists() and any(self.out.iterdir()) and not _stopped_before_first_commit(self.out):
+        if self.out.exists() and any(self.out.iterdir()) and not stopped_before_first_commit(self.out):
             raise RunError(
                 f"--out {self.out}: directory exists and is not empty (use a new directory, "
                 f"or `ooc-dem resume {self.out}` to continue a run)"
@@ -245,9 +133,10 @@ class Simulation:
         if self.plan.streamed_bed:  # planned for a streamed bed, but the whole bed will be in RAM
             self.plan = plan_run(sc, self.opts, streamed=False)
         if bed is None:
-            bed = settled_bed(self.sc, progress=self._bed_progress())
+            bed = settled_bed(self.sc, progress=settling_progress(self.sc) if self.opts.progress else None)
         ws = place_wheel(self.sc, bed) if self.sc.wheel.enabled else np.zeros(WS_SIZE)
         self.surface = surface_height(bed, self.sc.bin.length, self.sc.soil.r_max, across=wheel_footprint(self.sc))
+        self.bed_info = bed_info(sc, bed, self.surface)
         try:
             self.store = create_store(self.out, self._store_backend(), self._meta(), compression=self.opts.compression)
         except StoreError as e:
@@ -266,6 +155,7 @@ class Simulation:
             **extra,
         )
         (self.out / "scenario.toml").write_text(self.sc.to_toml(), encoding="utf-8")
+        (self.out / "bed.json").write_text(json.dumps(self.bed_info, indent=2), encoding="utf-8")
         self.engine = self._make_engine(bed, ws)
         if self.sc.wheel.enabled:
             from .metrics import WheelMetrics
@@ -298,6 +188,8 @@ class Simulation:
         # create_streamed passed over the bed once: its surfaces are measured
         assert bed.surfaces is not None, "the streamed bed was not passed over"
         self.surface = float(np.mean(bed.surfaces))
+        self.bed_info = bed.measure.info(self.surface)
+        (self.out / "bed.json").write_text(json.dumps(self.bed_info, indent=2), encoding="utf-8")
         self.step = 0
         self.commit()
         self._start_trajectory()
@@ -321,9 +213,11 @@ class Simulation:
         if self.frames is not None and self.frames.due(self.step):
             self._write_frame(parts_written=False)
 
-    def _frame_parts(self, step: int) -> "FrameParts | None":
+    def _frame_parts(self, step: int) -> FrameParts | None:
         """Where an engine that writes frame parts puts the discs of the frame due at
         ``step`` (None: no frame is due then, or the engine writes none)."""
+        from .trajectory import FrameParts
+
         if self.frames is None or not self._engine().writes_frame_parts or not self.frames.due(step):
             return None
         return FrameParts(self.frames, step)
@@ -331,7 +225,7 @@ class Simulation:
     def _write_frame(self, parts_written: bool) -> None:
         """Commit the frame of the current step; ``parts_written``: the engine wrote its parts
         during the advance (out-of-core, into ``_frame_parts``)."""
-        from .trajectory import ROW_FIELDS
+        from .trajectory_format import ROW_FIELDS
 
         # only called for a due frame, so the trajectory is open
         assert self.frames is not None, "no trajectory open"
@@ -343,13 +237,13 @@ class Simulation:
             # one part at a time (out-of-core: each group of the committed epoch; never the whole bed)
             self.frames.write_frame(self.step, t, ws, self._engine().state_parts(ROW_FIELDS))
 
-    def _engine_options(self) -> dict:
+    def _engine_options(self) -> dict[str, bool]:
         """The run's options the mode's engine takes besides its geometry (out-of-core:
         --io-overlap)."""
         return {"io_overlap": self.opts.io_overlap} if self.mode.out_of_core else {}
 
-    def _make_engine(self, particles: Particles, ws: np.ndarray) -> Engine:
-        return self.mode.engine.create(
+    def _make_engine(self, particles: Particles, ws: NDArray[np.float64]) -> Engine:
+        engine: Engine = self.mode.engine.create(
             self.sc,
             self.model,
             particles,
@@ -359,10 +253,11 @@ class Simulation:
             store=self.store,
             **self._engine_options(),
         )
+        return engine
 
-    def _reopen_engine(self, reader, arrays: dict, attrs: dict) -> Engine:
+    def _reopen_engine(self, reader: OpenEpoch, arrays: dict[str, NDArray[Any]], attrs: dict[str, Any]) -> Engine:
         """The engine continuing from the committed epoch ``reader`` reads (checked)."""
-        return self.mode.engine.reopen(
+        engine: Engine = self.mode.engine.reopen(
             self.sc,
             self.model,
             reader,
@@ -372,8 +267,9 @@ class Simulation:
             redecompositions=list(attrs.get("redecompositions", [])),
             **self._engine_options(),
         )
+        return engine
 
-    def _continue_from(self, store, epoch, where) -> None:
+    def _continue_from(self, store: Store, epoch: ResumeEpoch, where: Path) -> None:
         """Take up the committed epoch a resume reads (``resume.open_resume_epoch``): its
         step, surface, wall time, wheel metrics and the engine continuing from it."""
         attrs = epoch.attrs
@@ -396,24 +292,6 @@ class Simulation:
         if self.mode.decomposes:
             check_engine_attrs(attrs.get("engine"), len(epoch.reader.domains()), at)
         self.engine = self._reopen_engine(epoch.reader, epoch.arrays, attrs)
-
-    def _bed_progress(self):
-        if not self.opts.progress:
-            return None
-        state = {"last": 0.0}
-
-        def cb(t, speed):
-            if time.time() - state["last"] > 1.0:
-                state["last"] = time.time()
-                print(
-                    f"\rsettling bed: t = {t:.3f} s, mean speed {speed:.2e} m/s "
-                    f"(target {self.sc.bed.settle_speed:.1e})",
-                    end="",
-                    file=sys.stderr,
-                    flush=True,
-                )
-
-        return cb
 
     # ------------------------------------------------------------ checkpoint
     def commit(self) -> None:
@@ -440,13 +318,13 @@ class Simulation:
         except StoreError as e:
             raise RunError(str(e)) from None
 
-    def fold(self, rec, step0: int) -> None:
+    def fold(self, rec: NDArray[np.float64], step0: int) -> None:
         """Fold per-step wheel records into the metrics (sequential: block-size independent)."""
         if self.metrics is not None:
             self.metrics.add(rec, step0)
 
     # ------------------------------------------------------------------- run
-    def run(self) -> dict:
+    def run(self) -> dict[str, Any]:
         if self.engine is None:
             self.start()
         engine = self._engine()
@@ -469,7 +347,7 @@ class Simulation:
                 self.fold(rec, step0)
                 self.step = step0 + n
                 self.wall_time = time.time() - t_start
-                post = {}
+                post: dict[str, str] = {}
                 if self.sc.wheel.enabled and len(rec):
                     post["x"] = f"{rec[-1, REC_X]:.4f}"
                 bar.update(self.step, n, **post)
@@ -498,10 +376,11 @@ class Simulation:
         if self.store is not None:
             self.store.close()
 
-    def finish(self) -> dict:
+    def finish(self) -> dict[str, Any]:
         """Write series.csv, summary.json and the figures from the committed final state
         (``outputs.py``: each under a temporary name, renamed when complete)."""
-        results = dict(self.metrics.summary()) if self.metrics is not None else {}
+        results: dict[str, Any] = {"bed": self.bed_info} if self.bed_info is not None else {}
+        results.update(self.metrics.summary() if self.metrics is not None else {})
         if self.sc.repose.enabled:  # the angle-of-repose test (docs/reference/repose3d.md)
             from .repose import heap_outputs
 
@@ -545,7 +424,8 @@ class Simulation:
         return self._engine().n_discs()
 
     def state_hash(self) -> str:
-        from ..model.checkpoint import hash_epoch, state_bounds
+        from ..model.checkpoint import hash_epoch
+        from ..model.state_check import state_bounds
         from ooc_dem.storage import open_store
 
         store = open_store(self.out, repair=False)  # read-only: this run holds the write lock
@@ -558,13 +438,13 @@ class Simulation:
 
 
 def resume_simulation(
-    path,
+    path: str | os.PathLike[str],
     steps: int | None = None,
     until: float | None = None,
     progress: bool = True,
     figures: bool = True,
     mode: str | None = None,
-) -> "Simulation | None":
+) -> Simulation | None:
     """Reopen a run's store at its last intact epoch and return a Simulation ready to run.
 
     Returns None (after a message) when the run is already finished; if its outputs
@@ -589,11 +469,18 @@ def resume_simulation(
 
 
 def _reopen(
-    store, path: Path, steps, until, progress: bool, figures: bool, mode: str | None = None
-) -> "Simulation | None":
+    store: Store,
+    path: Path,
+    steps: int | None,
+    until: float | None,
+    progress: bool,
+    figures: bool,
+    mode: str | None = None,
+) -> Simulation | None:
     """resume_simulation's work on an open store (None: the run was already finished)."""
     sc, opts = stored_run(store, path, steps, until, progress, figures, mode)
     sim = Simulation(sc, path, opts)  # the stored options planned and checked as a run's
+    sim.bed_info = read_bed_info(path)  # the bed's report, for summary.json (None: an older run)
     epoch = open_resume_epoch(store, path, sc)
     try:
         sim._continue_from(store, epoch, path)
@@ -604,7 +491,7 @@ def _reopen(
     # the trajectory continues from the resumed step: later frames dropped, this one written
     # if a kill came between the epoch's commit and the frame's
     if sim.frame_every:
-        from .trajectory import TrajectoryError
+        from .trajectory_format import TrajectoryError
 
         try:
             sim._start_trajectory(resumed=True)

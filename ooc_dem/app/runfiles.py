@@ -4,23 +4,31 @@ come from anyone), so each is checked against what ooc-dem writes and refused in
 
 * ``run_file(out, name)``: a regular file inside the run directory (no symlink out of it);
 * ``read_summary`` (``summary.json``), ``read_series`` (``series.csv``), ``read_initial`` and
-  ``read_initial_z`` (``initial.npz``), ``read_run_scenario`` (``scenario.toml``);
+  ``read_initial_z`` (``initial.npz``), ``read_run_scenario`` (``scenario.toml``),
+  ``read_bed_info`` (``bed.json``);
 * ``read_final`` / ``read_final_particles``: the last committed epoch of the run's store.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import stat
 import warnings
 from pathlib import Path
-from typing import Literal, overload
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias, overload
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import OocDemError
 from ..physics.layout import AX_X, AX_Y
+
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
+    from ..model.state import Particles
 
 
 class RunFileError(OocDemError, ValueError):
@@ -29,12 +37,28 @@ class RunFileError(OocDemError, ValueError):
 
 MAX_SUMMARY_BYTES = 16 << 20  # summary.json is a few kB; anything this big is not ours
 MAX_SCENARIO_BYTES = 1 << 20
+MAX_BED_INFO_BYTES = 64 << 10  # bed.json is under 1 kB
 MAX_HEADER_CHARS = 4096
 SERIES_NEEDED = ("slip", "net_traction", "gross_traction", "torque", "sinkage")  # the series figure's
 INITIAL_ARRAYS = ("id", "x", "y", "r", "surface")
 
+# an initial bed as read_initial gives it: id, x, y, r and the surface height
+InitialBed: TypeAlias = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]
+# a final state as read_final gives it: id, x, y, r and the wheel state
+FinalState: TypeAlias = tuple[
+    NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
+]
 
-def run_file(out, name: str, required: bool = False) -> Path | None:
+
+@overload
+def run_file(out: str | os.PathLike[str], name: str, required: Literal[True]) -> Path: ...
+
+
+@overload
+def run_file(out: str | os.PathLike[str], name: str, required: bool = False) -> Path | None: ...
+
+
+def run_file(out: str | os.PathLike[str], name: str, required: bool = False) -> Path | None:
     """``out/name`` if it is a regular file inside ``out`` (a symlink may not lead outside the run
     directory, and a FIFO or device is never opened); None if absent and not required."""
     out = Path(out)
@@ -56,18 +80,18 @@ def run_file(out, name: str, required: bool = False) -> Path | None:
     return f
 
 
-def one_line(e) -> str:
+def one_line(e: object) -> str:
     """An error's text on one line, at most 160 characters."""
     text = " ".join(str(e).split()) or type(e).__name__
     return text if len(text) <= 160 else text[:157] + "..."
 
 
-def _is_number(v) -> bool:
+def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 # what Simulation.finish writes; `report` and `compare` need all of it
-SUMMARY_FIELDS = {
+SUMMARY_FIELDS: dict[str, type | Callable[[object], bool]] = {
     "scenario": str,
     "scenario_hash": str,
     "mode": str,
@@ -92,7 +116,7 @@ WHEEL_QUANTITIES = (
 WINDOWS = ("whole_travel", "steady", "static")
 
 
-def _type_ok(v, want) -> bool:
+def _type_ok(v: object, want: type | Callable[[object], bool]) -> bool:
     if want is int:
         return isinstance(v, int) and not isinstance(v, bool)
     if isinstance(want, type):
@@ -100,7 +124,7 @@ def _type_ok(v, want) -> bool:
     return want(v)
 
 
-def validate_summary(summary, f, complete: bool = True) -> dict:
+def validate_summary(summary: object, f: str | os.PathLike[str], complete: bool = True) -> dict[str, Any]:
     """``summary`` as Simulation.finish writes it, or RunFileError naming ``f`` and the key.
     ``complete``: every key finish writes must be there (not only well-typed when present)."""
     if not isinstance(summary, dict):
@@ -137,21 +161,60 @@ def validate_summary(summary, f, complete: bool = True) -> dict:
             ws = w.get("window_s")
             if ws is not None and not (isinstance(ws, list) and len(ws) == 2 and all(map(_is_number, ws))):
                 raise RunFileError(f"{f}: '{where}.window_s' must be [start, end] in s or null")
+    if "bed" in summary:
+        validate_bed_info(summary["bed"], f, "'bed'")
     surf = summary.get("surface_height")
     if surf is not None and not (isinstance(surf, dict) and (surf.get("value") is None or _is_number(surf["value"]))):
         raise RunFileError(f"{f}: 'surface_height' must be an object with a numeric value")
     return summary
 
 
-@overload
-def read_summary(out: str | os.PathLike[str], complete: Literal[True] = ...) -> dict: ...
+def validate_bed_info(info: Any, f: str | os.PathLike[str], what: str = "bed.json") -> dict[str, Any]:
+    """``info`` as bed.json holds it (bed.bed_info: one level of numbers, strings and null,
+    and the grading's numbers), or RunFileError naming ``f``."""
+    if not isinstance(info, dict) or len(info) > 64:
+        raise RunFileError(f"{f}: {what} must be an object of at most 64 keys")
+    for key, v in info.items():
+        ok = (
+            v is None
+            or (_is_number(v) and math.isfinite(v))
+            or (isinstance(v, str) and len(v) <= 200)
+            or (
+                key == "grading"
+                and isinstance(v, dict)
+                and len(v) <= 16
+                and all(_is_number(x) and math.isfinite(x) for x in v.values())
+            )
+        )
+        if not ok:
+            raise RunFileError(f"{f}: {what}: {str(key)[:40]!r} must be a finite number, a short string or null")
+    return info
+
+
+def read_bed_info(out: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """The run's ``bed.json`` (the bed's report, summary.json's ``bed``), validated; None if
+    absent (a run made before beds reported themselves)."""
+    f = run_file(out, "bed.json")
+    if f is None:
+        return None
+    if f.stat().st_size > MAX_BED_INFO_BYTES:
+        raise RunFileError(f"{f}: {f.stat().st_size} bytes, too large for a bed report (at most {MAX_BED_INFO_BYTES})")
+    try:
+        info = json.loads(f.read_bytes())
+    except (ValueError, RecursionError) as e:
+        raise RunFileError(f"{f}: not valid JSON ({one_line(e)})") from None
+    return validate_bed_info(info, f)
 
 
 @overload
-def read_summary(out: str | os.PathLike[str], complete: bool) -> dict | None: ...
+def read_summary(out: str | os.PathLike[str], complete: Literal[True] = ...) -> dict[str, Any]: ...
 
 
-def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict | None:
+@overload
+def read_summary(out: str | os.PathLike[str], complete: bool) -> dict[str, Any] | None: ...
+
+
+def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict[str, Any] | None:
     """The run's ``summary.json``, validated (None if absent and not ``complete``)."""
     f = run_file(out, "summary.json", required=complete)
     if f is None:
@@ -165,7 +228,7 @@ def read_summary(out: str | os.PathLike[str], complete: bool = True) -> dict | N
     return validate_summary(summary, f, complete)
 
 
-def read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
+def read_csv(path: str | os.PathLike[str], needed: Sequence[str] = ()) -> dict[str, NDArray[np.float64]]:
     """Columns of a comma-separated file with a one-line header; ``name [unit]`` -> ``name``."""
     path = Path(path)
     try:
@@ -192,7 +255,7 @@ def read_csv(path: Path, needed=()) -> dict[str, np.ndarray]:
     return {n: data[:, k] for k, n in enumerate(names)}
 
 
-def read_series(path) -> dict[str, np.ndarray]:
+def read_series(path: str | os.PathLike[str]) -> dict[str, NDArray[np.float64]]:
     """``series.csv`` as a dict of column arrays keyed by name without unit (``t_travel``, ``slip``...)."""
     cols = read_csv(path, SERIES_NEEDED)
     if "t_travel" not in cols and "t" not in cols:
@@ -205,7 +268,7 @@ def read_series(path) -> dict[str, np.ndarray]:
 MAX_INITIAL_COORD = 1e6
 
 
-def read_initial(path, n: int | None = None, sc=None) -> tuple:
+def read_initial(path: str | os.PathLike[str], n: int | None = None, sc: Scenario | None = None) -> InitialBed:
     """``initial.npz`` (id, x, y, r, surface), checked: never unpickled, shapes and dtypes as
     written, sizes read from its headers before anything is allocated (``n``: the run's disc
     count when known), distinct ids, finite positions, radii > 0 and a surface above the
@@ -232,7 +295,7 @@ def read_initial(path, n: int | None = None, sc=None) -> tuple:
     return iid, x, y, r, surface
 
 
-def summary_window(summary: dict | None, key: str, name: str) -> tuple[float, float] | None:
+def summary_window(summary: dict[str, Any] | None, key: str, name: str) -> tuple[float, float] | None:
     """(start, end) in s of window ``name`` of quantity ``key`` of a summary (None if absent)."""
     if summary is None:
         return None
@@ -243,7 +306,7 @@ def summary_window(summary: dict | None, key: str, name: str) -> tuple[float, fl
         return None
 
 
-def read_run_scenario(out: Path):
+def read_run_scenario(out: str | os.PathLike[str]) -> Scenario | None:
     """The run's ``scenario.toml``, checked (None if absent)."""
     f = run_file(out, "scenario.toml")
     if f is None:
@@ -271,13 +334,13 @@ def has_store(out: Path) -> bool:
     return True
 
 
-def read_final(out: Path):
+def read_final(out: str | os.PathLike[str]) -> FinalState:
     """(id, x, y, r, wheel_state) of the last committed epoch of the run's store."""
     p, ws = read_final_particles(out)
     return p.id.copy(), p.pos[:, AX_X].copy(), p.pos[:, AX_Y].copy(), p.r.copy(), ws
 
 
-def read_final_particles(out: Path):
+def read_final_particles(out: str | os.PathLike[str]) -> tuple[Particles, NDArray[np.float64]]:
     """(Particles, wheel_state) of the last committed epoch of the run's store."""
     from ooc_dem.storage import open_store
     from ..model.checkpoint import read_epoch_particles
@@ -291,8 +354,10 @@ def read_final_particles(out: Path):
     return p, ws
 
 
-def summary_value(summary, key, name):
+def summary_value(summary: dict[str, Any] | None, key: str, name: str) -> float | None:
     """The value of quantity ``key`` over window ``name`` of a summary (None if absent)."""
+    if summary is None:
+        return None
     try:
         v = summary[key][name]["value"]
         return None if v is None else float(v)
@@ -300,7 +365,7 @@ def summary_value(summary, key, name):
         return None
 
 
-def read_initial_z(path, n: int):
+def read_initial_z(path: str | os.PathLike[str], n: int) -> NDArray[np.float64] | None:
     """The initial bed's z (3D runs write it to initial.npz), checked; None without it."""
     from ..storage.npzfile import npz_member_names, read_npz_members
 

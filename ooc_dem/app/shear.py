@@ -256,7 +256,7 @@ def box_plates(box: Box, travel: float, load: float, mass: float, vmax: float) -
 
 
 def box_of(sc: Scenario, bed: Particles) -> Box:
-    from .bed import surface_height
+    from ..model.bedreport import surface_height
 
     length = sc.bin.length
     width = sc.bin.length if sc.dim == 3 else sc.physics.thickness

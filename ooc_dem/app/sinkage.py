@@ -167,7 +167,8 @@ def run_sinkage(
 ) -> dict[str, Any]:
     """The pressure-sinkage test of a scenario's bed at each width (module doc): the result
     (also written to OUT/sinkage.json, with the figure, when ``out`` is given)."""
-    from .bed import settled_bed, surface_height
+    from ..model.bedreport import surface_height
+    from .bed import settled_bed
 
     opts.check()
     if out is not None and out.exists() and any(out.iterdir()):

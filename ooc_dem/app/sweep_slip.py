@@ -1,16 +1,22 @@
 """Drawbar pull - slip curve: slip-controlled runs (prescribed forward speed v = (1 - s) R omega).
 
 Each slip is one monolithic run in OUT/slip_<s>/ from the same settled bed; the
-drawbar pull is the steady-window mean net traction.
+drawbar pull is the steady-window mean net traction. ``sweep_plot(csv, png)`` draws the
+curve.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from .drawing import pyplot, save_figure
 from .run import RunError, RunOptions, Simulation
+from .runfiles import read_csv
 from ..model.scenario import Scenario, load_scenario
 
 if TYPE_CHECKING:
@@ -114,8 +120,6 @@ def run_slip_sweep(
                 f"{r['slip']!r},{r['drawbar_pull']!r},{r['gross_traction']!r},{r['sinkage']!r},"
                 f"{r['vertical_force']!r}\n"
             )
-    from .plots import sweep_plot
-
     sweep_plot(csv, out / "drawbar_pull_slip.png")
     (out / "sweep.json").write_text(
         json.dumps(
@@ -131,3 +135,43 @@ def run_slip_sweep(
     )
     print(f"curve: {csv}  figure: {out / 'drawbar_pull_slip.png'}")
     return rows
+
+
+def sweep_plot(csv_path: str | os.PathLike[str], png_path: str | os.PathLike[str]) -> Path:
+    """Drawbar pull (net traction) and gross traction vs slip, and sinkage vs slip.
+
+    ``csv_path`` has a header with columns ``slip,drawbar_pull`` and optionally
+    ``gross_traction`` and ``sinkage`` (m); unit suffixes like ``drawbar_pull [N]``
+    are accepted.
+    """
+    plt = pyplot()
+    cols = read_csv(csv_path, ("slip", "drawbar_pull"))
+    order = np.argsort(cols["slip"], kind="stable")
+    s = cols["slip"][order]
+    has_sink = "sinkage" in cols
+    fig, axes = plt.subplots(
+        2 if has_sink else 1,
+        1,
+        sharex=True,
+        squeeze=False,
+        figsize=(7, 7 if has_sink else 4.5),
+        constrained_layout=True,
+    )
+    ax = axes[0, 0]
+    ax.plot(s, cols["drawbar_pull"][order], "o-", color="C1", label="drawbar pull (net traction)")
+    if "gross_traction" in cols:
+        ax.plot(s, cols["gross_traction"][order], "s--", color="C2", label="gross traction (torque / R)")
+    ax.axhline(0.0, color="0.5", lw=0.6)
+    ax.set_ylabel("force [N]")
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(True, lw=0.3, alpha=0.6)
+    ax.set_title("drawbar pull – slip", fontsize=11)
+    if has_sink:
+        a2 = axes[1, 0]
+        a2.plot(s, 1e3 * cols["sinkage"][order], "^-", color="C4")
+        a2.set_ylabel("sinkage [mm]")
+        a2.grid(True, lw=0.3, alpha=0.6)
+    axes[-1, 0].set_xlabel("slip s [-]")
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    return save_figure(fig, png_path)

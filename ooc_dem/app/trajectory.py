@@ -32,10 +32,12 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ooc_dem.storage.writeguard import H5_OVERHEAD, GuardedFile, check_room, close_h5, create_h5
 
@@ -61,8 +63,12 @@ from .trajectory_format import (
 )
 from .trajectory_read import Trajectory
 
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
+    from ..model.state import Particles
 
-def _fsync(path) -> None:
+
+def _fsync(path: str | os.PathLike[str]) -> None:
     fd = os.open(os.fspath(path), os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -78,14 +84,14 @@ class TrajectoryWriter:
     ``end(step, time, ws)`` publishes it.
     """
 
-    def __init__(self, folder: Path, sc, dim: int, n: int, every: int, durable: bool = False):
+    def __init__(self, folder: Path, sc: Scenario, dim: int, n: int, every: int, durable: bool = False) -> None:
         self.folder = folder
         self.path = folder
         self.every = every
         self.dim = dim
         self.n = n
         self.durable = durable
-        self.header = {
+        self.header: dict[str, Any] = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
             "dim": dim,
@@ -105,7 +111,9 @@ class TrajectoryWriter:
 
     # ---- opening
     @classmethod
-    def create(cls, out, sc, dim: int, n: int, durable: bool = False) -> "TrajectoryWriter | None":
+    def create(
+        cls, out: str | os.PathLike[str], sc: Scenario, dim: int, n: int, durable: bool = False
+    ) -> TrajectoryWriter | None:
         """A new trajectory for a run starting at step 0 (None if the scenario has none);
         frames a stopped run left in its own folder are deleted (our names only)."""
         every = frame_every(sc)
@@ -116,7 +124,9 @@ class TrajectoryWriter:
         return w
 
     @classmethod
-    def reopen(cls, out, sc, dim: int, n: int, step: int, durable: bool = False) -> "TrajectoryWriter | None":
+    def reopen(
+        cls, out: str | os.PathLike[str], sc: Scenario, dim: int, n: int, step: int, durable: bool = False
+    ) -> TrajectoryWriter | None:
         """The trajectory of a run resumed at ``step``: frames after it and leftover temporaries
         are deleted; a published frame that does not belong to this run (unreadable, another
         scenario or interval) is set aside as ``*.damaged`` with a warning."""
@@ -168,7 +178,7 @@ class TrajectoryWriter:
             return
         have = set(self.steps)
         try:
-            with Trajectory(run_file(out, TRAJECTORY_FILE)) as old:
+            with Trajectory(run_file(out, TRAJECTORY_FILE, required=True)) as old:
                 if (
                     old.dim != self.dim
                     or old.frame_every != self.every
@@ -234,10 +244,13 @@ class TrajectoryWriter:
             return self._begin(step)
         return self._tmp
 
-    def write_part(self, step: int, arrays) -> None:
+    def write_part(self, step: int, arrays: Particles | dict[str, NDArray[Any]]) -> None:
         """Append discs of the frame at ``step`` to its temporary file: ``arrays`` has id, pos,
         vel, spin, r, mat (a ``Particles`` or a store record)."""
-        get = (lambda k: getattr(arrays, k)) if not isinstance(arrays, dict) else arrays.__getitem__
+
+        def get(k: str) -> NDArray[Any]:
+            return arrays[k] if isinstance(arrays, dict) else getattr(arrays, k)
+
         _, f, guard = self._frame(step)
         ids = np.asarray(get("id"))
         m = len(ids)
@@ -254,7 +267,7 @@ class TrajectoryWriter:
             self._discard()
             raise
 
-    def end(self, step: int, time: float, wheel_state) -> None:
+    def end(self, step: int, time: float, wheel_state: NDArray[np.float64]) -> None:
         """Publish the frame at ``step`` (its rows written by write_part): its step, time and
         wheel state, close, (fsync,) rename into place (, fsync the folder)."""
         tmp, f, guard = self._frame(step)
@@ -276,7 +289,13 @@ class TrajectoryWriter:
             _fsync(self.folder)
         self.steps = [s for s in self.steps if s < step] + [int(step)]
 
-    def write_frame(self, step: int, time: float, wheel_state, parts) -> None:
+    def write_frame(
+        self,
+        step: int,
+        time: float,
+        wheel_state: NDArray[np.float64],
+        parts: Iterable[Particles | dict[str, NDArray[Any]]],
+    ) -> None:
         """A whole frame from an iterable of parts."""
         self._discard()
         for p in parts:
@@ -285,6 +304,18 @@ class TrajectoryWriter:
 
     def close(self) -> None:
         self._discard()
+
+
+class FrameParts:
+    """The parts of the trajectory frame at ``step``, as an engine writes them during an
+    advance (``engine.interface.FrameParts``)."""
+
+    def __init__(self, frames: TrajectoryWriter, step: int) -> None:
+        self.frames = frames
+        self.step = step
+
+    def write_part(self, part: dict[str, NDArray[Any]]) -> None:
+        self.frames.write_part(self.step, part)
 
 
 # ------------------------------------------------------------------ wheel outline
@@ -327,11 +358,11 @@ def wheel_outline(
 # ------------------------------------------------------------------ XDMF
 
 
-def _xml_numbers(a) -> str:
+def _xml_numbers(a: NDArray[np.float64]) -> str:
     return " ".join(repr(float(v)) for v in np.asarray(a, np.float64).ravel())
 
 
-def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
+def write_xdmf(traj: Trajectory, out: str | os.PathLike[str], sc: Scenario | None = None) -> Path:
     """An XDMF 2 temporal collection over ``traj`` (ParaView, VTK's vtkXdmfReader): one
     spatial collection a frame, at the frame's time, holding the discs (Polyvertex points;
     velocity, spin, radius, id, material) as HyperSlab references into the frame's HDF5 file
@@ -369,7 +400,7 @@ def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
         "r": ("Float", 8),
         "mat": ("Int", 4),
     }
-    wheel = sc is not None and sc.wheel.enabled and dim == 2
+    wheel = sc.wheel if sc is not None and sc.wheel.enabled and dim == 2 else None  # 2D: its outline drawn
 
     def slab(i: int, name: str, start: int, m: int, width: int | None, ind: str) -> str:
         nt, prec = num[name]
@@ -419,8 +450,8 @@ def write_xdmf(traj: Trajectory, out, sc=None) -> Path:
                 f.write(slab(i, name, start, m, width, ind + " "))
                 f.write(f"{ind}</Attribute>\n")
             f.write("    </Grid>\n")
-            if wheel:
-                w = sc.wheel
+            if wheel is not None:
+                w = wheel
                 ws = traj.wheel_states[i]
                 poly = wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
                 P = len(poly)

@@ -8,12 +8,21 @@ import os
 import re
 import stat
 from pathlib import Path
-from typing import Any, Literal, overload
+from typing import TYPE_CHECKING, Any, Literal, TypeAlias, overload
 
 import numpy as np
 
 from ..physics.layout import WS_SIZE, axes, spin_width
 from .runfiles import RunFileError, one_line
+
+if TYPE_CHECKING:
+    from ..model.scenario import Scenario
+
+# an open HDF5 file, group or dataset of h5py (untyped in this environment: its names are Any)
+H5Object: TypeAlias = Any
+# a frame file's header as open_frame checks it (dim, frame_every_steps, dt, scenario_hash,
+# step, time, wheel_state, rows, n_discs): values of several types, read from the file
+FrameHeader: TypeAlias = dict[str, Any]
 
 TRAJECTORY_DIR = "trajectory"
 TRAJECTORY_FILE = "trajectory.h5"  # format version 1 (read, and migrated on resume)
@@ -47,7 +56,7 @@ class TrajectoryError(RunFileError):
     """A trajectory file is missing, unreadable or not what ooc-dem writes (one line)."""
 
 
-def frame_every(sc) -> int:
+def frame_every(sc: Scenario) -> int:
     """Steps between frames (0: no trajectory): output.snapshot_interval in whole steps."""
     iv = sc.output.snapshot_interval
     if not iv:
@@ -77,7 +86,7 @@ def row_tails(dim: int) -> dict[str, tuple[int, ...]]:
     }
 
 
-def h5py_module():
+def h5py_module() -> Any:
     """h5py, imported when first needed."""
     import h5py
 
@@ -135,7 +144,7 @@ def row_bytes(dim: int) -> int:
     return sum(DTYPES[k].itemsize * int(np.prod(row_tails(dim)[k], dtype=np.int64)) for k in ROW_FIELDS)
 
 
-def check_row_bytes(f, path, rows: int, dim: int) -> None:
+def check_row_bytes(f: H5Object, path: str | os.PathLike[str], rows: int, dim: int) -> None:
     """Refuse a file whose datasets declare more rows than it holds: the writer's datasets are
     unfiltered, so every row's bytes are in the file, and a read allocates no more than the
     file's own size (nor more than this machine's memory)."""
@@ -149,11 +158,11 @@ def check_row_bytes(f, path, rows: int, dim: int) -> None:
         raise TrajectoryError(f"{path}: {rows} rows declared ({need} bytes), the file holds {size} bytes (refused)")
 
 
-def _is_count(a) -> bool:
+def _is_count(a: object) -> bool:
     return isinstance(a, (int, np.integer)) and not isinstance(a, bool) and 0 <= int(a) <= MAX_ROWS
 
 
-def _check_frame_file(f, path, step: int | None = None) -> dict:
+def _check_frame_file(f: H5Object, path: str | os.PathLike[str], step: int | None = None) -> FrameHeader:
     """The header and datasets of one frame file, as ooc-dem writes them (untrusted input);
     returns its header (dim, frame_every_steps, dt, scenario_hash, step, time, wheel_state, rows)."""
     attrs = f.attrs
@@ -216,7 +225,7 @@ def _check_frame_file(f, path, step: int | None = None) -> dict:
     }
 
 
-def open_frame(path, step: int | None = None):
+def open_frame(path: str | os.PathLike[str], step: int | None = None) -> tuple[H5Object, FrameHeader]:
     """(open h5py file, header) of a frame file, checked (``step``: the step its name says)."""
     h5py = h5py_module()
     try:
@@ -231,7 +240,7 @@ def open_frame(path, step: int | None = None):
     return f, head
 
 
-def checked_dataset(f, k: str, tail: tuple, path):
+def checked_dataset(f: H5Object, k: str, tail: tuple[int, ...], path: str | os.PathLike[str]) -> H5Object:
     """Dataset k of an open trajectory file, refused unless it is a hard-linked, local
     dataset of our dtype with row shape ``tail`` (one-line TrajectoryError)."""
     h5py = h5py_module()

@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from collections.abc import Iterator
+from typing import Any, TypeAlias
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..physics.layout import WS_SIZE
 from .runfiles import one_line, run_file
 from .trajectory_format import (
     FORMAT_NAME,
+    H5Object,
     FORMAT_VERSION,
+    FrameHeader,
     INDEX_FIELDS,
     LEGACY_VERSION,
     MAX_ROWS,
@@ -30,11 +34,15 @@ from .trajectory_format import (
     trajectory_folder,
 )
 
+# one frame as Trajectory gives it: its row arrays by name (id, pos, vel, spin, r, mat) sorted
+# by id, and its step (int), time (float) and wheel_state
+Frame: TypeAlias = dict[str, Any]
+
 
 # format version 1: RUN/trajectory.h5, all frames in one file (read only)
 
 
-def _check_legacy_layout(f, path) -> None:
+def _check_legacy_layout(f: H5Object, path: Path) -> None:
     """The attributes and datasets of a trajectory, as ooc-dem writes them (untrusted input)."""
     attrs = f.attrs
     fmt = attrs.get("format")
@@ -60,7 +68,7 @@ def _check_legacy_layout(f, path) -> None:
         checked_dataset(f, k, tail, path)
 
 
-def _check_legacy_index(f, path, F: int) -> dict[str, np.ndarray]:
+def _check_legacy_index(f: H5Object, path: Path, F: int) -> dict[str, NDArray[Any]]:
     """The committed frame index, checked: contiguous rows within the datasets, steps rising."""
     for k in INDEX_FIELDS:
         if f[k].shape[0] < F:
@@ -96,11 +104,17 @@ class Trajectory:
     ``wheel_state``; iterating reads one frame at a time. Only published frames are seen
     (``path``: the ``trajectory/`` folder, or a version-1 ``trajectory.h5``)."""
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         path = Path(path)
         self.path = path
-        self.f = None
-        self.files = None
+        self.f: H5Object = None  # the open version-1 file (None: a folder of frames, or closed)
+        self.files: list[Path] | None = None
+        self.n_frames: int
+        self.index: dict[str, NDArray[Any]]
+        self.dim: int | None  # None: no frame to say
+        self.frame_every: int | None
+        self.dt: float | None
+        self.scenario_hash: str | None
         if os.path.isdir(path):
             self._open_folder(path)
         else:
@@ -109,7 +123,7 @@ class Trajectory:
     def _open_folder(self, folder: Path) -> None:
         frames, _ = scan_frames(folder)
         self.files = list(frames.values())
-        heads: list[dict[str, Any]] = []
+        heads: list[FrameHeader] = []
         for s, p in frames.items():
             f, head = open_frame(p, s)
             f.close()
@@ -130,7 +144,7 @@ class Trajectory:
             "frame_rows": np.array([h["rows"] for h in heads], np.int64),
             "wheel_state": (np.array([h["wheel_state"] for h in heads], np.float64) if F else np.zeros((0, WS_SIZE))),
         }
-        h0 = heads[0] if heads else {}
+        h0: FrameHeader = heads[0] if heads else {}
         self.dim = h0.get("dim")
         self.frame_every = h0.get("frame_every_steps")
         self.dt = h0.get("dt")
@@ -155,7 +169,7 @@ class Trajectory:
         self.scenario_hash = str(self.f.attrs.get("scenario_hash", ""))
 
     @classmethod
-    def of_run(cls, run_dir) -> "Trajectory":
+    def of_run(cls, run_dir: str | os.PathLike[str]) -> Trajectory:
         """The trajectory of a run directory: ``trajectory/``, else a version-1
         ``trajectory.h5`` (TrajectoryError if it has none)."""
         run_dir = Path(run_dir)
@@ -172,15 +186,15 @@ class Trajectory:
         return cls(f)
 
     @property
-    def steps(self) -> np.ndarray:
+    def steps(self) -> NDArray[np.int64]:
         return self.index["frame_step"]
 
     @property
-    def times(self) -> np.ndarray:
+    def times(self) -> NDArray[np.float64]:
         return self.index["frame_time"]
 
     @property
-    def wheel_states(self) -> np.ndarray:
+    def wheel_states(self) -> NDArray[np.float64]:
         return self.index["wheel_state"]
 
     def __len__(self) -> int:
@@ -198,7 +212,7 @@ class Trajectory:
         """The number of rows of the row datasets in ``file(i)``."""
         return self._legacy_file()["id"].shape[0] if self.files is None else self.rows(i)[1]
 
-    def __getitem__(self, i: int) -> dict:
+    def __getitem__(self, i: int) -> Frame:
         if not -self.n_frames <= i < self.n_frames:
             raise IndexError(f"frame {i}: the trajectory has {self.n_frames}")
         i %= self.n_frames
@@ -228,7 +242,7 @@ class Trajectory:
         out["wheel_state"] = self.wheel_states[i].copy()
         return out
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Frame]:
         for i in range(self.n_frames):
             yield self[i]
 
@@ -243,8 +257,8 @@ class Trajectory:
             self.f.close()
             self.f = None
 
-    def __enter__(self):
+    def __enter__(self) -> Trajectory:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()

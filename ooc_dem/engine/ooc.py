@@ -13,7 +13,7 @@ from ..model.state import Particles
 from ..physics.layout import AX_X
 from .stepper import N_REC, DomainStepper, EngineError, Model
 from . import sweep
-from .sweep import SlabSweep, _read_rows, auto_block, group_of, group_record
+from .sweep import SlabSweep, auto_block, group_of, group_record, read_strip
 
 if TYPE_CHECKING:
     from ..storage.epoch import EpochWriter
@@ -216,7 +216,7 @@ class OocEngine(SlabSweep):
         (group_order), so the slab is already in the kernels' cache-friendly order: no
         spatial re-sort."""
         lo, hi = self.bounds[d], self.bounds[d + 1]
-        pieces = [q for g in src.domains() if (q := _read_rows(src, g, lo - self.halo, hi + self.halo)) is not None]
+        pieces = [q for g in src.domains() if (q := read_strip(src, g, lo - self.halo, hi + self.halo)) is not None]
         return records_to_particles(pieces, self.model.hist_cap, self.model.dim)
 
     def _advance_slab(self, src, d: int, step0: int, k: int, wslab: int, local=None):

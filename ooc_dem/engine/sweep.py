@@ -36,7 +36,8 @@ from ..physics.layout import AX_X, WS_X
 from ..model.state import DISC_FIELDS, HIST_FIELDS
 from ..model.state import Particles
 from .interface import write_epoch
-from .live import SWEEPS_REBUILD, LiveDomains, sweeps_kernel
+from .live import LiveDomains
+from .live_kernels import SWEEPS_REBUILD, sweeps_kernel
 from .stepper import N_REC, Model
 
 
@@ -79,7 +80,7 @@ class RamEpochs:
         self.current[d] = (record_to_particles(arrays, self.hist_cap), attrs)
 
 
-def _read_rows(src, d, lo: float, hi: float) -> dict | None:
+def read_strip(src, d, lo: float, hi: float) -> dict | None:
     """The store record of group d's discs with lo <= x < hi. Groups are written in cell
     order (``group_order``: x sorted up to one cell column), so these rows lie in one short
     candidate range: after the last row whose running maximum of x is below lo, before the

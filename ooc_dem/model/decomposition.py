@@ -179,7 +179,7 @@ def group_order(pos: np.ndarray, cell: float) -> np.ndarray:
     read from them (strips in x order) is already in the kernels' cache-friendly order
     (neighbours close in memory: 16 % faster steps than x order at 500k discs) and needs
     no re-sort; x stays sorted up to one column, so strips stay contiguous
-    (engine.sweep._read_rows). Memory order never changes a result (docs/design.md section 3)."""
+    (engine.sweep.read_strip). Memory order never changes a result (docs/design.md section 3)."""
     if not len(pos):
         return np.zeros(0, np.int64)
     # one int64 key per particle: the x column in the high bits, then y (and z) rows in

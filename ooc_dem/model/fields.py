@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 
 def layer_index(y0, surface: float, n_layers: int, bottom: float = 0.0) -> np.ndarray:
@@ -39,7 +40,14 @@ def layer_index(y0, surface: float, n_layers: int, bottom: float = 0.0) -> np.nd
     return np.clip(k, 0, n_layers - 1).astype(np.int64)
 
 
-def displacements(initial_id, initial_x, initial_y, final_id, final_x, final_y):
+def displacements(
+    initial_id: ArrayLike,
+    initial_x: ArrayLike,
+    initial_y: ArrayLike,
+    final_id: ArrayLike,
+    final_x: ArrayLike,
+    final_y: ArrayLike,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Displacement ``(dx, dy)`` of every initial disc, matched by global id.
 
     The result is aligned with the *initial* arrays. Discs missing from the final

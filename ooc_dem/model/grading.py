@@ -7,14 +7,17 @@ goes as d^k (k = 3 for spheres, 2 for discs of a fixed thickness), so the number
 is the mass density divided by d^k. Every distribution is truncated to [r_min, r_max]:
 the time-step check and the neighbour grid rely on those bounds.
 
-Distributions (``Grading.kind``):
+Distributions (``Grading.kind``; the scenario's ``[soil.grading]``, docs/reference/grading.md):
 - ``uniform``: radii uniform in [r_min, r_max] (one ``rng.uniform`` call: the draw the
   beds were made with before gradings existed, so their bits stay).
-- ``normal``: radius ~ N(mean, std), truncated to [r_min, r_max].
-- ``lognormal``: ln(radius) ~ N(ln(median), ln(geometric std)), truncated.
-- ``sieve``: a sieve curve, (diameter, percent passing by mass) pairs, increasing in both,
-  from 0 % to 100 %; between two sieves the mass is spread log-uniformly in diameter (the
-  usual reading of a grading curve drawn on a log axis).
+- ``normal``: radius ~ N(r_mean, r_std), truncated to [r_min, r_max].
+- ``lognormal``: ln(radius) ~ N(ln(r_median), ln(gsd)), truncated.
+- ``sieve``: a sieve curve, openings ``sizes`` (diameters, increasing) and the percent by
+  mass ``passing`` each (not decreasing, in [0, 100]); between two sieves the mass is spread
+  log-uniformly in diameter (the usual reading of a grading curve drawn on a log axis).
+  Truncated like the others: only the curve's mass between diameters 2 r_min and 2 r_max
+  is drawn (none below its first sieve or above its last), so a measured curve is entered
+  as measured and its fines or its largest stones are cut off by the bounds.
 
 A truncated draw inverts the distribution's number CDF, tabulated over [r_min, r_max]: one
 uniform number a particle (no rejection loop, so the random stream does not depend on the
@@ -24,14 +27,29 @@ parameters).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:
+    from .schema import Soil
 
 KINDS = ("uniform", "normal", "lognormal", "sieve")
+# the parameters each kind reads (the others must stay at their defaults)
+PARAMETERS = {
+    "uniform": (),
+    "normal": ("r_mean", "r_std"),
+    "lognormal": ("r_median", "gsd"),
+    "sieve": ("sizes", "passing"),
+}
+MAX_SIEVES = 1000  # pairs of a sieve curve (a sieve series has a few dozen at most)
 
 # points of a tabulated number CDF per decade of radius: the inverse is linear between
-# them, far finer than any sieve series or than a bed's spread of sizes needs
+# them, far finer than any sieve series or than a bed's spread of sizes needs (a spread
+# below their spacing, 0.06 % of the radius, is drawn as that spacing)
 _POINTS_PER_DECADE = 4000
 
 
@@ -39,57 +57,94 @@ _POINTS_PER_DECADE = 4000
 class Grading:
     """A radius distribution truncated to [r_min, r_max] (SI: metres).
 
-    ``mean``/``std``: the normal law's radius mean and standard deviation; ``median``/
+    ``r_mean``/``r_std``: the normal law's radius mean and standard deviation; ``r_median``/
     ``gsd``: the log-normal law's median radius and geometric standard deviation (> 1);
-    ``sieve``: ((diameter, percent passing by mass), ...) for the sieve curve."""
+    ``sizes``/``passing``: the sieve curve, openings (diameters) and percent passing by mass."""
 
     kind: str = "uniform"
     r_min: float = 0.0
     r_max: float = 0.0
-    mean: float = 0.0
-    std: float = 0.0
-    median: float = 0.0
+    r_mean: float = 0.0
+    r_std: float = 0.0
+    r_median: float = 0.0
     gsd: float = 0.0
-    sieve: tuple[tuple[float, float], ...] = ()
+    sizes: tuple[float, ...] = ()
+    passing: tuple[float, ...] = ()
 
 
-def check_grading(g: Grading) -> str | None:
-    """What is wrong with a grading (one line), or None."""
+def check_grading(g: Grading, key: Callable[[str], str] = str) -> str | None:
+    """What is wrong with a grading (one line), or None. ``key`` names a field in the
+    message (the scenario's soil.r_min, soil.grading.r_std, ...)."""
     if g.kind not in KINDS:
-        return f"kind {g.kind!r}: must be one of {', '.join(KINDS)}"
-    if g.kind == "sieve":
-        return _check_sieve(g.sieve)
-    if not (0 < g.r_min <= g.r_max) or not math.isfinite(g.r_max):
-        return f"r_min = {g.r_min!r}, r_max = {g.r_max!r}: must be finite with 0 < r_min <= r_max"
+        return f"{key('kind')} = {g.kind!r}: must be one of {', '.join(map(repr, KINDS))}"
+    lo, hi = g.r_min, g.r_max
+    if not (0 < lo <= hi < math.inf):
+        return f"{key('r_min')} = {lo!r}, {key('r_max')} = {hi!r}: must be finite with 0 < r_min <= r_max"
+    if g.kind == "uniform":
+        return None
+    if not lo < hi:
+        return f"{key('kind')} = {g.kind!r}: a distribution needs {key('r_min')} < {key('r_max')} (both {lo!r})"
     if g.kind == "normal":
-        if not (math.isfinite(g.mean) and math.isfinite(g.std) and g.std > 0):
-            return f"normal: mean = {g.mean!r}, std = {g.std!r}: std must be finite and > 0"
-    if g.kind == "lognormal":
-        if not (math.isfinite(g.median) and g.median > 0 and math.isfinite(g.gsd) and g.gsd > 1):
-            return f"lognormal: median = {g.median!r}, gsd = {g.gsd!r}: median > 0 and gsd > 1 needed"
+        if not lo <= g.r_mean <= hi:
+            return f"{key('r_mean')} = {g.r_mean!r}: must lie in [{key('r_min')}, {key('r_max')}] = [{lo!r}, {hi!r}]"
+        if not (0 < g.r_std < math.inf):
+            return f"{key('r_std')} = {g.r_std!r}: must be finite and > 0"
+    elif g.kind == "lognormal":
+        if not lo <= g.r_median <= hi:
+            return (
+                f"{key('r_median')} = {g.r_median!r}: must lie in [{key('r_min')}, {key('r_max')}] = [{lo!r}, {hi!r}]"
+            )
+        if not (1 < g.gsd < math.inf):
+            return f"{key('gsd')} = {g.gsd!r}: the geometric standard deviation must be finite and > 1"
+    else:
+        return _check_sieve(g, key)
+    if not _tabulated(g, 3)[1][-1] > 0:  # a spread far below the grid's spacing, all of it between two points
+        spread = key("r_std") if g.kind == "normal" else key("gsd")
+        return (
+            f"{spread} = {g.r_std if g.kind == 'normal' else g.gsd!r}: too narrow to draw from "
+            f"(no mass on a grid of {_POINTS_PER_DECADE} radii a decade); for grains of one size use "
+            f"{key('kind')} = 'uniform' with close {key('r_min')} and {key('r_max')}"
+        )
     return None
 
 
-def _check_sieve(sieve) -> str | None:
-    if len(sieve) < 2:
-        return "sieve: at least two (diameter, percent passing) pairs are needed"
-    d = [float(a) for a, _ in sieve]
-    p = [float(b) for _, b in sieve]
-    if not all(math.isfinite(x) and x > 0 for x in d):
-        return f"sieve: diameters {d}: must be finite and > 0"
+def _check_sieve(g: Grading, key: Callable[[str], str]) -> str | None:
+    d, p = g.sizes, g.passing
+    if len(d) < 2 or len(d) > MAX_SIEVES:
+        return f"{key('sizes')}: {len(d)} sieves; a sieve curve has 2 to {MAX_SIEVES}"
+    if len(p) != len(d):
+        return f"{key('passing')}: {len(p)} values for {len(d)} {key('sizes')}: one percent a sieve"
+    if not all(0 < x < math.inf for x in d):
+        return f"{key('sizes')} = {_short(d)}: openings must be finite and > 0 (m)"
     if any(b <= a for a, b in zip(d, d[1:])):
-        return f"sieve: diameters {d}: must increase"
-    if any(b < a for a, b in zip(p, p[1:])) or p[0] != 0 or p[-1] != 100:
-        return f"sieve: percent passing {p}: must not decrease and must run from 0 to 100"
+        return f"{key('sizes')} = {_short(d)}: openings must increase"
+    if not all(0 <= x <= 100 for x in p):
+        return f"{key('passing')} = {_short(p)}: percents must lie in [0, 100]"
+    if any(b < a for a, b in zip(p, p[1:])):
+        return f"{key('passing')} = {_short(p)}: percents passing must not decrease with the opening"
+    lo, hi = curve_passing(g, [2 * g.r_min, 2 * g.r_max])
+    if not hi > lo:
+        return (
+            f"{key('sizes')}, {key('passing')}: no mass between the diameters 2 {key('r_min')} = "
+            f"{2 * g.r_min!r} and 2 {key('r_max')} = {2 * g.r_max!r} (the curve passes {lo:g} % and {hi:g} %)"
+        )
     return None
 
 
-def sieve_bounds(sieve) -> tuple[float, float]:
-    """(r_min, r_max) of a sieve curve: half its smallest and largest diameters."""
-    return 0.5 * float(sieve[0][0]), 0.5 * float(sieve[-1][0])
+def _short(values: Sequence[float], limit: int = 8) -> str:
+    """An array as a one-line message shows it (the first ``limit`` values)."""
+    shown = ", ".join(repr(v) for v in values[:limit])
+    return f"[{shown}{', ...' if len(values) > limit else ''}]"
 
 
-def draw_radii(g: Grading, n: int, rng: np.random.Generator, k: int) -> np.ndarray:
+def curve_passing(g: Grading, diameters: ArrayLike) -> NDArray[np.float64]:
+    """Percent passing of sieve grading g's curve at the given diameters: log-linear between
+    its sieves, flat outside them (untruncated: the curve as entered)."""
+    log_d = np.log(np.asarray(g.sizes, np.float64))
+    return np.interp(np.log(np.asarray(diameters, np.float64)), log_d, np.asarray(g.passing, np.float64))
+
+
+def draw_radii(g: Grading, n: int, rng: np.random.Generator, k: int) -> NDArray[np.float64]:
     """n radii of grading g, drawn from rng; k: the exponent of mass in size (3 spheres,
     2 discs), used only where a grading is given by mass (sieve)."""
     problem = check_grading(g)
@@ -99,39 +154,44 @@ def draw_radii(g: Grading, n: int, rng: np.random.Generator, k: int) -> np.ndarr
         return rng.uniform(g.r_min, g.r_max, n)
     log_r, cdf = number_cdf(g, k)
     r = np.exp(np.interp(rng.random(n), cdf, log_r))
-    lo, hi = radius_bounds(g)
-    return np.clip(r, lo, hi)
+    return np.clip(r, g.r_min, g.r_max)
 
 
-def radius_bounds(g: Grading) -> tuple[float, float]:
-    """The smallest and largest radius grading g can draw."""
-    return sieve_bounds(g.sieve) if g.kind == "sieve" else (g.r_min, g.r_max)
-
-
-def number_cdf(g: Grading, k: int) -> tuple[np.ndarray, np.ndarray]:
+def number_cdf(g: Grading, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(ln r, the fraction of particles by number with a smaller radius) of a non-uniform
-    grading on a fine grid of ln r over its bounds; draws invert it by linear interpolation."""
-    lo, hi = radius_bounds(g)
-    m = max(2, int(math.log10(hi / lo) * _POINTS_PER_DECADE) + 1) if hi > lo else 2
-    log_r = np.linspace(math.log(lo), math.log(hi), m)
-    r = np.exp(log_r)
-    if g.kind == "normal":
-        density = np.exp(-0.5 * ((r - g.mean) / g.std) ** 2) * r  # per unit ln r
-    elif g.kind == "lognormal":
-        density = np.exp(-0.5 * ((log_r - math.log(g.median)) / math.log(g.gsd)) ** 2)
-    else:
-        # mass per unit ln d: the slope of the log-linear passing curve between two sieves
-        log_d = np.log([a for a, _ in g.sieve])
-        slope = np.diff([b for _, b in g.sieve]) / np.diff(log_d)
-        seg = np.clip(np.searchsorted(log_d, log_r + math.log(2.0), side="right") - 1, 0, len(slope) - 1)
-        density = slope[seg] * np.exp(-k * log_r)  # number = mass / d^k
-    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(log_r))])
+    grading on a fine grid of ln r over [r_min, r_max]; draws invert it by linear interpolation."""
+    log_r, cdf = _tabulated(g, k)
     if not cdf[-1] > 0:
-        raise ValueError(f"{g.kind}: no particle between r_min = {lo!r} and r_max = {hi!r}")
+        raise ValueError(f"{g.kind}: no particle between r_min = {g.r_min!r} and r_max = {g.r_max!r}")
     return log_r, cdf / cdf[-1]
 
 
-def passing(radii: np.ndarray, diameters, k: int) -> np.ndarray:
+def _tabulated(g: Grading, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(ln r, the number CDF not yet normalised) on number_cdf's grid."""
+    lo, hi = g.r_min, g.r_max
+    m = max(2, int(math.log10(hi / lo) * _POINTS_PER_DECADE) + 1)
+    log_r = np.linspace(math.log(lo), math.log(hi), m)
+    r = np.exp(log_r)
+    if g.kind == "normal":
+        with np.errstate(over="ignore", under="ignore"):  # far tails of a narrow law: 0
+            density = np.exp(-0.5 * ((r - g.r_mean) / g.r_std) ** 2) * r  # per unit ln r
+    elif g.kind == "lognormal":
+        with np.errstate(over="ignore", under="ignore"):
+            density = np.exp(-0.5 * ((log_r - math.log(g.r_median)) / math.log(g.gsd)) ** 2)
+    else:
+        # mass per unit ln d: the slope of the log-linear passing curve between two sieves,
+        # none below the first sieve or above the last (the curve says nothing there)
+        log_d = np.log(np.asarray(g.sizes, np.float64))
+        slope = np.diff(np.asarray(g.passing, np.float64)) / np.diff(log_d)
+        x = log_r + math.log(2.0)
+        seg = np.clip(np.searchsorted(log_d, x, side="right") - 1, 0, len(slope) - 1)
+        inside = (x >= log_d[0]) & (x <= log_d[-1])
+        density = np.where(inside, slope[seg], 0.0) * np.exp(-k * log_r)  # number = mass / d^k
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(log_r))])
+    return log_r, cdf
+
+
+def passing(radii: ArrayLike, diameters: ArrayLike, k: int) -> NDArray[np.float64]:
     """Percent by mass of particles of the given radii finer than each diameter (a sieve
     analysis of a bed; mass as d^k)."""
     d = 2.0 * np.sort(np.asarray(radii, np.float64))
@@ -141,17 +201,41 @@ def passing(radii: np.ndarray, diameters, k: int) -> np.ndarray:
     return 100.0 * cum[idx]
 
 
-def characteristic_diameters(radii: np.ndarray, k: int, percents=(10, 50, 60)) -> dict[str, float]:
+def characteristic_diameters(
+    radii: ArrayLike, k: int, percents: Sequence[float] = (10, 50, 60), counts: ArrayLike | None = None
+) -> dict[str, float]:
     """d10, d50, d60, ... of a bed: the diameters that the given percents of its mass pass
-    (linear in the cumulative mass between particles), and the uniformity coefficient
-    cu = d60 / d10 when both are asked for."""
-    d = 2.0 * np.sort(np.asarray(radii, np.float64))
+    (linear in the cumulative mass between sizes), and the uniformity coefficient
+    cu = d60 / d10 when both are asked for. ``counts``: how many particles have each of the
+    (distinct, increasing) ``radii``; without it every radius is one particle."""
+    if counts is None:
+        r, c = np.unique(np.asarray(radii, np.float64), return_counts=True)
+    else:
+        r, c = np.asarray(radii, np.float64), np.asarray(counts, np.float64)
+    d = 2.0 * r
     if d.size == 0:
         raise ValueError("no particles")
-    m = d**k
-    # the cumulative mass fraction at each particle's centre of mass share (a midpoint rule)
+    m = c * d**k
+    # the cumulative mass fraction at the middle of each size's share (a midpoint rule)
     cum = (np.cumsum(m) - 0.5 * m) / m.sum()
     out = {f"d{p:g}": float(np.interp(p / 100.0, cum, d)) for p in percents}
     if "d10" in out and "d60" in out:
         out["cu"] = out["d60"] / out["d10"]
     return out
+
+
+def grading_of_soil(soil: Soil) -> Grading:
+    """The Grading of a scenario's [soil] section: its [soil.grading] between soil.r_min and
+    soil.r_max."""
+    g = soil.grading
+    return Grading(
+        kind=g.kind,
+        r_min=soil.r_min,
+        r_max=soil.r_max,
+        r_mean=g.r_mean,
+        r_std=g.r_std,
+        r_median=g.r_median,
+        gsd=g.gsd,
+        sizes=tuple(g.sizes),
+        passing=tuple(g.passing),
+    )

@@ -4,9 +4,10 @@ A scenario is a built-in (``ooc_dem/scenarios/*.toml``, ``bed-N``, ``bed3d-N``) 
 file, with ``--set``-style overrides; every value is checked (model/scenario_check.py) and a
 bad one raises ``ScenarioError`` with one line naming the key, the value and what is allowed.
 
-This module is the scenario's public face: loading, and the names callers use from
-model/schema.py (the dataclasses, the limits, the message helpers) and
-model/scenario_check.py (building and checking, the critical time step).
+This module loads scenarios; the sections, limits and message helpers are model/schema.py's,
+building and checking (and the critical time step) model/scenario_check.py's. ``Scenario``
+and ``ScenarioError`` are the package's public names (``ooc_dem.Scenario``,
+``ooc_dem.ScenarioError``) and are taken from here.
 """
 
 from __future__ import annotations
@@ -17,36 +18,16 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from .scenario_check import critical_time_step, scenario_from_dict
-from .schema import (
-    MAX_BLOCK,
-    MAX_DOMAINS,
-    MAX_SCENARIO_FILE,
-    MAX_STEPS,
-    NAME_RE,
-    Scenario,
-    ScenarioError,
-    big,
-    show,
-    show_key,
-    steps_for_duration,
-)
+from .scenario_check import scenario_from_dict
+from .schema import MAX_SCENARIO_FILE, NAME_RE, Scenario, ScenarioError, show, show_key
 
 __all__ = [
-    "MAX_BLOCK",
-    "MAX_DOMAINS",
-    "MAX_STEPS",
     "Scenario",
     "ScenarioError",
     "apply_overrides",
-    "big",
     "builtin_names",
-    "critical_time_step",
     "load_scenario",
-    "scenario_from_dict",
     "scenario_from_toml",
-    "show",
-    "steps_for_duration",
 ]
 
 

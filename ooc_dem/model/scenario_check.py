@@ -13,6 +13,7 @@ import dataclasses
 import math
 from typing import Any
 
+from .grading import KINDS, MAX_SIEVES, PARAMETERS, check_grading, grading_of_soil
 from .materials import resolve_materials
 from .schema import (
     LAWS,
@@ -26,6 +27,7 @@ from .schema import (
     ContactPair,
     Scenario,
     ScenarioError,
+    SoilGrading,
     big,
     clamps,
     show,
@@ -103,6 +105,7 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("output", "steady_end"): _NONNEG,
     ("output", "run_steps"): _COUNT(MAX_STEPS),
     ("output", "snapshot_interval"): _NONNEG,
+    ("bed", "fill_friction"): (lambda v: v == -1.0 or 0.0 <= v <= 100.0, "-1 (the contact's friction) or in [0, 100]"),
     ("decomposition", "policy"): (lambda v: v in ("wheel", "equal"), "one of 'wheel', 'equal'"),
     ("decomposition", "domains"): (lambda v: 1 <= v <= MAX_DOMAINS, f"an integer in [1, {MAX_DOMAINS}]"),
     ("decomposition", "block"): (lambda v: 1 <= v <= MAX_BLOCK, f"an integer in [1, {MAX_BLOCK}]"),
@@ -151,6 +154,12 @@ def _coerce(path: str, value: Any, typ) -> Any:
             if not math.isfinite(v):
                 raise ScenarioError(f"{path} = {show(value)}: must be a finite number")
             return v + 0.0  # -0.0 -> 0.0: one spelling of zero in the stored TOML and the hash
+    elif typ is tuple:  # an array of numbers (the sieve curve)
+        if isinstance(value, (list, tuple)):
+            if len(value) > MAX_SIEVES:
+                raise ScenarioError(f"{path}: an array of {len(value)} values; at most {MAX_SIEVES}")
+            return tuple(_coerce(f"{path}[{k}]", v, float) for k, v in enumerate(value))
+        raise ScenarioError(f"{path} = {show(value)}: must be an array of numbers")
     elif typ is str:
         if isinstance(value, str):
             try:
@@ -249,6 +258,7 @@ def _check_ranges(sc: Scenario) -> None:
             )
         if sc.physics.gravity <= 0:
             raise ScenarioError("physics.gravity = 0: a wheel needs gravity > 0 (its mass is load / g)")
+    _check_grading(sc)
     _check_repose(sc)
     _check_tile(sc)
     o = sc.output
@@ -326,6 +336,26 @@ def _check_tile(sc: Scenario) -> None:
             f"of the soil.n = {sc.soil.n} discs, {size}, and such a tile is refused "
             f"({e}); raise bed.tile"
         ) from None
+
+
+def _check_grading(sc: Scenario) -> None:
+    """[soil.grading]: a known kind, only its own keys set, and its values (model/grading.py)."""
+    g = sc.soil.grading
+    if g.kind not in KINDS:
+        raise ScenarioError(f"soil.grading.kind = {show(g.kind)}: must be one of {', '.join(map(repr, KINDS))}")
+    default = SoilGrading()
+    for kind, keys in PARAMETERS.items():
+        for key in keys:
+            if kind != g.kind and getattr(g, key) != getattr(default, key):
+                raise ScenarioError(
+                    f"soil.grading.{key} = {show(getattr(g, key))}: a key of kind = {kind!r}, "
+                    f"not of soil.grading.kind = {g.kind!r}"
+                )
+    problem = check_grading(
+        grading_of_soil(sc.soil), key=lambda k: f"soil.{k}" if k in ("r_min", "r_max") else f"soil.grading.{k}"
+    )
+    if problem is not None:
+        raise ScenarioError(problem)
 
 
 def _check_repose(sc: Scenario) -> None:

@@ -54,6 +54,9 @@ def show(value: Any, limit: int = 60) -> str:
         return "<a table>"
     if isinstance(value, list):
         return "<an array>"
+    if isinstance(value, tuple):  # a coerced array of numbers (soil.grading.sizes)
+        shown = ", ".join(show(v) for v in value[:6])
+        return f"[{shown}{', ...' if len(value) > 6 else ''}]"
     return f"<a {type(value).__name__}>"
 
 
@@ -106,12 +109,27 @@ class Bin:
 
 
 @dataclass(frozen=True)
+class SoilGrading:
+    """How the radii are drawn between soil.r_min and soil.r_max (model/grading.py,
+    docs/reference/grading.md); each kind reads only its own keys."""
+
+    kind: str = "uniform"  # "uniform", "normal", "lognormal" or "sieve"
+    r_mean: float = 0.0  # m, normal: mean radius
+    r_std: float = 0.0  # m, normal: standard deviation of the radius
+    r_median: float = 0.0  # m, lognormal: median radius
+    gsd: float = 0.0  # lognormal: geometric standard deviation of the radius (> 1)
+    sizes: tuple[float, ...] = ()  # m, sieve: openings (diameters), increasing
+    passing: tuple[float, ...] = ()  # %, sieve: percent by mass passing each opening
+
+
+@dataclass(frozen=True)
 class Soil:
     n: int = 6986
     r_min: float = 0.0018
     r_max: float = 0.0022
     density: float = 2650.0
     seed: int = 2008
+    grading: SoilGrading = SoilGrading()
 
 
 @dataclass(frozen=True)
@@ -121,6 +139,8 @@ class Bed:
     tile: int = 0  # >0: build the bed by tiling a settled tile of this many discs
     skin: float = 0.0006  # m, Verlet skin of the neighbour lists
     tiles_across: int = 1  # 3D tiled beds: tiles across the width (z)
+    # soil-soil friction while the bed is poured (< 0: the contact's own): lower pours denser
+    fill_friction: float = -1.0
 
 
 @dataclass(frozen=True)
@@ -255,8 +275,8 @@ class Scenario:
         return dict_to_toml(self.to_dict())
 
     def _hash_dict(self) -> dict:
-        """to_dict() without the keys added for 3D while they hold their defaults (so a 2D
-        scenario keeps the hash and bed cache name it had before they existed)."""
+        """to_dict() without the keys added for 3D (and [soil.grading]) while they hold their
+        defaults (so a 2D scenario keeps the hash and bed cache name it had before they existed)."""
         d = self.to_dict()
         for (sec, key), default in _HASH_NEUTRAL.items():
             if d[sec].get(key) == default:
@@ -294,7 +314,7 @@ class Scenario:
         return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:16]
 
 
-# keys whose default value is left out of the hashes (added with the 3D engine)
+# keys whose default value is left out of the hashes (added with the 3D engine and later)
 _HASH_NEUTRAL = {
     ("physics", "dim"): 2,
     ("physics", "impact_speed"): 1.0,
@@ -302,6 +322,8 @@ _HASH_NEUTRAL = {
     ("bed", "tiles_across"): 1,
     ("physics", "history_capacity"): 0,
     ("wheel", "z0"): 0.0,
+    ("soil", "grading"): dataclasses.asdict(SoilGrading()),  # added with gradings
+    ("bed", "fill_friction"): -1.0,
 }
 _PAIR_HASH_NEUTRAL = {
     "law": "linear",
@@ -348,10 +370,12 @@ def toml_string(text: str) -> str:
 
 
 def dict_to_toml(d: dict) -> str:
-    """Minimal TOML writer for the scenario tree (tables of scalars)."""
+    """Minimal TOML writer for the scenario tree (tables of scalars and arrays of them)."""
     lines: list[str] = []
 
     def scalar(v):
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(scalar(x) for x in v) + "]"
         if isinstance(v, bool):
             return "true" if v else "false"
         if isinstance(v, float):

@@ -19,7 +19,7 @@ XXH64 (the xxHash algorithm, checked against the ``xxhash`` package in the tests
 compiled with numba here because a Python call per disc would dominate. This is an
 equality check between runs, NOT a security boundary: XXH64 is not collision-resistant
 against someone who crafts a state on purpose, and the lane sums can be steered by such
-a person. Untrusted stores are protected by validation (checkpoint.py), not by the hash.
+a person. Untrusted stores are protected by validation (state_check.py), not by the hash.
 
 Version 1 (engines before this hash) was an unprefixed SHA-256 of the state sorted by id; it
 needed all ids in RAM.

@@ -183,7 +183,8 @@ from ._manifest import BACKENDS, COMPRESSIONS
 from ._util import StoreError, drop_page_cache
 from .epoch import EpochReader, EpochWriter
 from .parts import write_part
-from .store import EpochInfo, Leftover, Problem, Store, create_store, drop_memory_store, open_store, store_owns
+from .opening import create_store, drop_memory_store, open_store, store_owns
+from .store import EpochInfo, Leftover, Problem, Store
 
 __all__ = [
     "BACKENDS",

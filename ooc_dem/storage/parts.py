@@ -25,7 +25,7 @@ from ._util import (
 )
 from ._util import show as _show
 from . import _confine
-from .store import open_store
+from .opening import open_store
 
 
 def write_part(

@@ -182,7 +182,7 @@ def _api_main(argv) -> int:
         elif what == "summary":
             open_run(path).summary  # noqa: B018
         elif what == "trajectory":
-            from ooc_dem.app.trajectory import Trajectory
+            from ooc_dem.app.trajectory_read import Trajectory
 
             with Trajectory.of_run(path) as t:
                 for i in range(len(t)):

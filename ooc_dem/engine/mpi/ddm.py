@@ -12,7 +12,8 @@ from ...model.decomposition import XHistogram, owner, wheel_slab_index, wheel_sl
 from ...model.state import Particles
 from ...physics.layout import AX_X, WS_SIZE, WS_X
 from ..interface import write_epoch
-from ..live import SWEEPS_REBUILD, LiveDomains
+from ..live import LiveDomains
+from ..live_kernels import SWEEPS_REBUILD
 from ..stepper import N_REC, EngineError, Model
 from ..sweep import slab_bounds
 from .comm import announce, collective, world
@@ -526,7 +527,7 @@ class MpiEngine:
         """Ghost rows <- the owners' time-n rows (the exchange); the rebuild decision was
         taken before, over all ranks, from the last block's largest move. The sweep that
         follows refreshes the halo rows of this rank's sub-domains from their owners' rows
-        and takes ownership from x (``live._run_sweeps``' refresh_first)."""
+        and takes ownership from x (``live_kernels._run_sweeps``' refresh_first)."""
         live = self.live
         pairs = self._pairs
         if pairs is None:  # fixed between rebuilds (bounds and ranges unchanged)

@@ -7,7 +7,7 @@ square b x b at the bin's mid-width) at the bin's mid-length, moving down at a c
 speed: its bottom face and its side faces (so that the grains pushed aside cannot pass
 over it) are plates (``physics.plates``) of the walls' law, prescribed in velocity. The
 sinkage z is the depth of the bottom face below the bed's mean surface
-(``bed.surface_height``), the pressure p the bottom face's normal force over its area
+(``bedreport.surface_height``), the pressure p the bottom face's normal force over its area
 (2D: b times the thickness). Each width starts from the same bed.
 
 The fit (``bekker``): log p = n log z + log k_j for each width b_j, least squares with one

@@ -221,3 +221,53 @@ def test_3d_a_sphere_rests_on_a_plate_within_its_rectangle_only():
     assert q.pos[0, AX_Y] == pytest.approx(0.1 + R - w / KN, abs=1e-9)
     assert q.pos[1, AX_Y] < 0.1 - R
     assert q.pos[0, AX_Z] == 0.0
+
+
+def test_with_walls_switches_fixed_walls():
+    m = model2(walls=(1.0, 1.0, 1.0, 1.0)).with_walls(left=False)
+    assert m.walls.tolist() == [1.0, 0.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match="no wall 'front' in 2D"):
+        model2().with_walls(front=False)
+
+
+def test_3d_a_box_of_plates_is_the_walls_bit_for_bit():
+    """3D: the end and side walls off and plates in their planes (in the walls' order:
+    back, front, right, left): settling spheres move exactly as between the walls."""
+    from ooc_dem.physics.d3 import layout as L3
+
+    pair = L3.hertz_params(1e7, 0.3, 0.5, mu=0.5, mur=0.1, zr=0.3)
+    cp = L3.contact_table({(0, 0): pair, (1, 0): L3.linear_params(KN, KN / 3, 0.5, 0.5, 0.5)})
+    cpf = np.ascontiguousarray(cp).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES, L3.N_FIELDS).copy()
+    length, width = 0.1, 0.1
+
+    def model(on):
+        walls = L3.walls_record(length, width, on, on, True, on, on).view(np.float64).copy()
+        return Model(
+            DT, np.array([0.0, -G, 0.0]), 0.2 * R, cpf, walls, np.zeros(WG_SIZE), np.zeros(WC_SIZE), False, R, 3
+        )
+
+    rng = np.random.default_rng(9)
+    n = 120
+    k = np.arange(n)
+    pos = np.column_stack(
+        [0.012 + (k % 4) * 2.3 * R, R + (k // 16) * 2.3 * R, 0.012 + ((k // 4) % 4) * 2.3 * R]
+    ) + rng.uniform(0, 0.1 * R, (n, 3))
+    base = Particles.new(pos, rng.uniform(0.8 * R, R, n), RHO, B)
+    base.vel[:] = rng.normal(0, 0.05, (n, 3))
+    big = (-1.0, 1.0)
+    plates = np.concatenate(
+        [
+            plate(AX_Z, -1, width, big, big),  # back
+            plate(AX_Z, 1, 0.0, big, big),  # front
+            plate(AX_X, -1, length, big, big),  # right
+            plate(AX_X, 1, 0.0, big, big),  # left
+        ]
+    )
+    walls = DomainStepper(base.take(np.arange(n)), model(True))
+    boxed = DomainStepper(base.take(np.arange(n)), model(False), plates=plates)
+    for st in (walls, boxed):
+        st.advance(0, 8000)
+    assert boxed.plate_records["contacts"].sum() > 0
+    a, b = walls.p.sorted_by_id(), boxed.p.sorted_by_id()
+    for key in ("pos", "vel", "spin", "hist_n", "hist_s", "hist_m"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key

@@ -83,6 +83,14 @@ def plates_box(table):
     return lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
 
 
+@njit(inline="always", cache=True)
+def plate_scene(table):
+    """The plates' part of a step's scene (the dimensions' body_rows): the table and the box
+    around its plates (``plates_box``)."""
+    x_lo, x_hi, y_lo, y_hi, z_lo, z_hi = plates_box(table)
+    return table, x_lo, x_hi, y_lo, y_hi, z_lo, z_hi
+
+
 def plates_step(s, t, gid, bd, pt, dt):
     """Step s's plate records (``layout.PLATE_RECORD`` rows s P .. s P + P - 1: each plate at
     the step's start and the particles' force on it), then the plates' motion (module doc).

@@ -142,7 +142,13 @@ def instantiate(name: str, *modules) -> SimpleNamespace:
     compiled without a parallel region, calling each other's twins."""
     par = bindings(DIMENSION_SLOTS, *modules)
     # the phases' inline helpers (no parallel loop): one compilation serves both variants
-    for t in (produce_mod.list_pair, produce_mod.fill_block, produce_mod.pair_rows, gather.advance):
+    for t in (
+        produce_mod.list_pair,
+        produce_mod.fill_block,
+        produce_mod.pair_rows,
+        produce_mod.body_chunk,
+        gather.advance,
+    ):
         par[t.__name__] = specialise(t, f"{t.__name__}_{name}", par, inline="always")
     ser = dict(par)
     for phase in (history.load_history, history.sync_history, gather.gather_integrate, produce_mod.produce):

@@ -30,7 +30,6 @@ from ..layout import (
     T_WALL,
     T_WHEEL,
 )
-from ..plates import plates_box
 from ..wheel import lug_axis_offset
 from .contact import contact
 
@@ -122,16 +121,14 @@ def body_force(row):
 
 
 @njit(inline="always", cache=True)
-def body_scene(walls, wg, ws, plates):
-    """The walls', the wheel's and the plates' geometry this step (body_rows' scene): the
-    bin's length and which walls there are; whether there is a wheel, its radius, lugs,
-    mass, centre, velocity and spin, and its reach (the farthest point of a lug or the
-    rim); the plates' table and the box around them (``plates.plates_box``)."""
+def body_scene(walls, wg, ws):
+    """The walls' and the wheel's geometry this step (body_rows' scene): the bin's length
+    and which walls there are; whether there is a wheel, its radius, lugs, mass, centre,
+    velocity and spin, and its reach (the farthest point of a lug or the rim)."""
     wl = walls[0]
     g = wg[0]
     s0 = ws[0]
     R = g.radius
-    box = plates_box(plates)
     reach = g.lug_out + g.cap
     if R > reach:
         reach = R
@@ -153,22 +150,14 @@ def body_scene(walls, wg, ws, plates):
         s0.vy,
         s0.wz,
         reach,
-        plates,
-        plates.shape[0] > 0,
-        box[0],
-        box[1],
-        box[2],
-        box[3],
-        box[4],
-        box[5],
     )
 
 
 @njit(inline="always", cache=True)
-def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
-    """Disc i's rows with the wheel's lugs and rim, then the plates, then the walls, from
-    body row bat on (bend: its chunk's end). Returns (the next row, whether a row did not
-    fit)."""
+def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt):
+    """Disc i's rows with the wheel's lugs and rim, then the plates (with_plates: a
+    constant; pscene: ``plates.plate_scene``), then the walls, from body row bat on (bend:
+    its chunk's end). Returns (the next row, whether a row did not fit)."""
     (
         length,
         has_left,
@@ -187,14 +176,6 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
         VY,
         WZ,
         reach,
-        plates,
-        has_plates,
-        x_lo,
-        x_hi,
-        y_lo,
-        y_hi,
-        z_lo,
-        z_hi,
     ) = scene
     pos = d.pos
     xi = pos[i, AX_X]
@@ -209,7 +190,8 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     d2 = dxw * dxw + dyw * dyw
     near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri)
     near_plate = False
-    if has_plates:
+    if with_plates:
+        _, x_lo, x_hi, y_lo, y_hi, z_lo, z_hi = pscene
         near_plate = xi + ri > x_lo and xi - ri < x_hi and yi + ri > y_lo and yi - ri < y_hi
     full = False
     if not (near_wall or near_wheel or near_plate):
@@ -294,7 +276,7 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             full = full or over
     # ------------------------------------------------------ plates
     if near_plate:
-        bat, p, over = plate_rows(i, d, cp, plates, body, bat, bend, p, dt)
+        bat, p, over = plate_rows(i, d, cp, pscene[0], body, bat, bend, p, dt)
         full = full or over
     # ------------------------------------------------------ walls
     for wall in range(3 if near_wall else 0):

@@ -21,7 +21,7 @@ from numba import njit
 
 from ..history import lookup
 from ..layout import AX_X, AX_Y, AX_Z, ID_PLATE0, SP_X3, SP_Y3, SP_Z3
-from ..plates import other_axes, plates_box
+from ..plates import other_axes
 from ..wheel import lug_axis_offset
 from .contact import contact
 from .layout import (
@@ -278,18 +278,17 @@ def _component(a, x, y, z):
 
 
 @njit(inline="always", cache=True)
-def body_scene(walls, wg, ws, plates):
-    """The walls', the wheel's and the plates' geometry this step (body_rows' scene): the
-    box's length and width and which walls there are (in ascending id order: back, front,
-    right, left, bottom); whether there is a wheel, its radius, lugs, mass, z span, axle
-    point, velocity and spin, and its reach (the farthest point of a lug or the rim from
-    the axle); the plates' table and the box around them (``plates.plates_box``)."""
+def body_scene(walls, wg, ws):
+    """The walls' and the wheel's geometry this step (body_rows' scene): the box's length
+    and width and which walls there are (in ascending id order: back, front, right, left,
+    bottom); whether there is a wheel, its radius, lugs, mass, z span, axle point,
+    velocity and spin, and its reach (the farthest point of a lug or the rim from the
+    axle)."""
     wl = walls[0]
     flags = np.array([wl.back > 0.5, wl.front > 0.5, wl.right > 0.5, wl.left > 0.5, wl.bottom > 0.5])
     g = wg[0]
     w0 = ws[0]
     R = g.radius
-    box = plates_box(plates)
     reach = g.lug_out + g.cap
     if R > reach:
         reach = R
@@ -312,22 +311,14 @@ def body_scene(walls, wg, ws, plates):
         w0.vy,
         w0.wz,
         reach,
-        plates,
-        plates.shape[0] > 0,
-        box[0],
-        box[1],
-        box[2],
-        box[3],
-        box[4],
-        box[5],
     )
 
 
 @njit(inline="always", cache=True)
-def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
-    """Sphere i's rows with the wheel's lugs and rim, then the plates, then the walls, from
-    body row bat on (bend: its chunk's end). Returns (the next row, whether a row did not
-    fit)."""
+def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt):
+    """Sphere i's rows with the wheel's lugs and rim, then the plates (with_plates: a
+    constant; pscene: ``plates.plate_scene``), then the walls, from body row bat on (bend:
+    its chunk's end). Returns (the next row, whether a row did not fit)."""
     (
         length,
         width,
@@ -347,14 +338,6 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
         VY,
         WZ,
         reach,
-        plates,
-        has_plates,
-        x_lo,
-        x_hi,
-        y_lo,
-        y_hi,
-        z_lo,
-        z_hi,
     ) = scene
     pos = d.pos
     xi = pos[i, AX_X]
@@ -377,7 +360,8 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     zm = cap_r + ri
     near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri) and zi > zlo - zm and zi < zhi + zm
     near_plate = False
-    if has_plates:
+    if with_plates:
+        _, x_lo, x_hi, y_lo, y_hi, z_lo, z_hi = pscene
         near_plate = (
             xi + ri > x_lo
             and xi - ri < x_hi
@@ -519,7 +503,7 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             full = full or wrote == 0
     # ------------------------------------------------------ plates
     if near_plate:
-        bat, p, over = plate_rows(i, d, cp, plates, body, bat, bend, p, dt)
+        bat, p, over = plate_rows(i, d, cp, pscene[0], body, bat, bend, p, dt)
         full = full or over
     # ------------------------------------------------------ walls
     for wall in range(5 if near_wall else 0):

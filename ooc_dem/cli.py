@@ -22,6 +22,8 @@ from .app.cli_commands import (
     cmd_resume,
     cmd_run,
     cmd_scenarios,
+    cmd_shear,
+    cmd_sinkage,
     cmd_sweep,
 )
 from .app.cli_parser import EXIT_USAGE, CliError, build_parser, one_line as _one_line
@@ -41,6 +43,8 @@ COMMANDS = {
     "report": cmd_report,
     "compare": cmd_compare,
     "sweep": cmd_sweep,
+    "shear": cmd_shear,
+    "sinkage": cmd_sinkage,
     "profile": cmd_profile,
 }
 

@@ -285,6 +285,61 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_shear(args: argparse.Namespace) -> int:
+    from .shear import ShearOptions, mohr_coulomb_line, run_shear
+
+    try:
+        sigmas = tuple(float(s) for s in args.sigma.split(",") if s.strip())
+    except ValueError:
+        raise CliError(f"--sigma {args.sigma!r}: must be comma-separated numbers (Pa)") from None
+    opts = ShearOptions(
+        sigmas=sigmas,
+        grains=args.grains,
+        inertial=args.inertial,
+        speed=args.speed or 0.0,
+        displacement=args.displacement,
+    )
+    opts.check()
+    sc = _load(args)
+    say = None if args.no_progress else (lambda text: print(f"ooc-dem shear: {text}", file=sys.stderr, flush=True))
+    out = Path(args.out)
+    result = run_shear(sc, opts, out, figures=not args.no_figures, progress=say)
+    for t in result["tests"]:
+        print(
+            f"sigma = {t['sigma']:g} Pa: peak tau = {t['peak']['tau']:.4g} Pa (sigma_n {t['peak']['sigma']:.4g}), "
+            f"residual tau = {t['residual']['tau']:.4g} Pa (sigma_n {t['residual']['sigma']:.4g}), "
+            f"I = {t['inertial_number']:.2g}"
+        )
+    print(mohr_coulomb_line("peak", result["peak_fit"]))
+    print(mohr_coulomb_line("residual", result["residual_fit"]))
+    print(f"report: {out / 'shear.json'}")
+    return 0
+
+
+def cmd_sinkage(args: argparse.Namespace) -> int:
+    from .sinkage import SinkageOptions, run_sinkage
+
+    try:
+        widths = tuple(float(s) for s in args.widths.split(",") if s.strip())
+    except ValueError:
+        raise CliError(f"--widths {args.widths!r}: must be comma-separated numbers (m)") from None
+    opts = SinkageOptions(widths=widths, depth=args.depth or 0.0, speed=args.speed)
+    opts.check()
+    sc = _load(args)
+    say = None if args.no_progress else (lambda text: print(f"ooc-dem sinkage: {text}", file=sys.stderr, flush=True))
+    out = Path(args.out)
+    result = run_sinkage(sc, opts, out, figures=not args.no_figures, progress=say)
+    fit = result["bekker"]
+    for k in fit["k_per_width"]:
+        print(f"b = {k['width']:g} m: k = {k['k']:.4g}")
+    print(
+        f"Bekker: n = {fit['n']:.3f}, k_c = {fit['k_c']:.4g} N/m^(n+1), k_phi = {fit['k_phi']:.4g} N/m^(n+2) "
+        f"(R^2 of log p {fit['r2_log_p']:.3f})"
+    )
+    print(f"report: {out / 'sinkage.json'}")
+    return 0
+
+
 def cmd_profile(args: argparse.Namespace) -> int:
     from .profiling import PROFILED_MODES, profile
 

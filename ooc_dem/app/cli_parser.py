@@ -281,6 +281,46 @@ def build_parser() -> argparse.ArgumentParser:
         f"reported as killed by the limit, exit code {EXIT_OOM}",
     )
 
+    q = sub.add_parser(
+        "shear", help="direct shear box test of the scenario's soil: peak and residual strength, Mohr-Coulomb c and phi"
+    )
+    add_scenario_args(q)
+    q.add_argument(
+        "--sigma", default="5e3,10e3,20e3", help="comma-separated normal stresses in Pa (default 5e3,10e3,20e3)"
+    )
+    q.add_argument("--grains", type=_nonneg_int, default=0, help="grains in the box (default: the scenario's soil.n)")
+    q.add_argument(
+        "--inertial",
+        type=_positive_float,
+        default=1e-3,
+        help="inertial number aimed at the smallest stress; sets the shear speed (default 1e-3)",
+    )
+    q.add_argument("--speed", type=_positive_float, default=None, help="shear speed in m/s (instead of --inertial)")
+    q.add_argument(
+        "--displacement",
+        type=_positive_float,
+        default=0.10,
+        help="shear displacement as a fraction of the box's length (default 0.10)",
+    )
+    q.add_argument("--out", required=True)
+    q.add_argument("--no-figures", action="store_true")
+    q.add_argument("--no-progress", action="store_true")
+
+    q = sub.add_parser(
+        "sinkage", help="plate sinkage test of the scenario's bed: pressure-sinkage curves, Bekker k_c, k_phi and n"
+    )
+    add_scenario_args(q)
+    q.add_argument(
+        "--widths", default="", help="comma-separated plate widths in m (default: 1/4 and 1/2 of the bed depth)"
+    )
+    q.add_argument(
+        "--depth", type=_positive_float, default=None, help="final sinkage in m (default: 1/5 of the bed depth)"
+    )
+    q.add_argument("--speed", type=_positive_float, default=0.01, help="the plate's speed in m/s (default 0.01)")
+    q.add_argument("--out", required=True)
+    q.add_argument("--no-figures", action="store_true")
+    q.add_argument("--no-progress", action="store_true")
+
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)
     q.add_argument("--slips", required=True, help="comma-separated slips, e.g. 0.1,0.2,0.4")

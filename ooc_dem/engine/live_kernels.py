@@ -16,7 +16,7 @@ from numba import njit, prange
 from numba.typed import List
 
 from ..physics.history import ROLE_OWNED, ROLE_OWNED_BEFORE, ROLE_SHARED
-from ..physics.layout import AX_X, ERR_PAIR_CAPACITY
+from ..physics.layout import AX_X, ERR_PAIR_CAPACITY, PLATE, PLATE_RECORD, Plates
 from ..physics.twins import serial_twin, slot
 
 
@@ -258,6 +258,7 @@ def _run_sweeps(
     status = SWEEPS_DONE
     done = nsweeps
     every_disc = np.zeros((0, 2), np.int64)  # run_steps' spans: each step advances every disc
+    no_plates = Plates(np.empty(0, PLATE), np.empty(0, PLATE_RECORD))  # plates: DomainStepper only
     for sw in range(nsweeps):
         if sw > 0 or refresh_first:
             moved, count = refresh_own_pieces(
@@ -315,6 +316,7 @@ def _run_sweeps(
                     bd,
                     forces,
                     ws,
+                    no_plates,
                     err,
                     rec,
                     flags[F_REBUILD] != 0,

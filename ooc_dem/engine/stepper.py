@@ -16,6 +16,7 @@ the kernel module: it hands it the named records of physics.layout.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numba
@@ -69,6 +70,7 @@ from ..physics.layout import (
     KernelParams,
     Pairs,
     discs_of,
+    field_names,
     record,
     spin_width,
 )
@@ -198,6 +200,20 @@ class Model:
         """The step-kernel module of this model's dimension (run_steps, spatial_order)."""
         return kernels(self.dim)
 
+    def with_walls(self, **on: bool) -> "Model":
+        """A copy with the named fixed walls switched on (True) or off (False): ``left``
+        (x = 0), ``right`` (x = length), ``bottom`` (y = 0), 3D also ``front`` (z = 0) and
+        ``back`` (z = width); so that a box can be built of plates (``physics.plates``)."""
+        _, wallt = self.layouts()
+        flags = tuple(n for n in field_names(wallt) if n not in ("length", "width"))
+        walls = np.array(self.walls, np.float64)
+        rec = record(walls, wallt)
+        for name, flag in on.items():
+            if name not in flags:
+                raise ValueError(f"with_walls: no wall {name!r} in {self.dim}D (walls: {', '.join(flags)})")
+            rec[name] = 1.0 if flag else 0.0
+        return dataclasses.replace(self, walls=walls)
+
     def without_wheel(self) -> "Model":
         wg = self.wg.copy()
         record(wg, WHEEL_GEOMETRY)["enabled"] = 0.0
@@ -273,8 +289,12 @@ class DomainStepper:
         reorder: bool = True,
         keep_forces: bool = False,
         pairs_hint: int = 0,
+        plates: np.ndarray | None = None,
     ):
-        """keep_forces: keep each step's contact forces and torques in ``force`` (N, D) and
+        """plates: a ``layout.PLATE`` table (``physics.plates``: at most layout.MAX_PLATES
+        rigid plates), copied; ``self.plates`` is the live table (the step moves the plates;
+        a caller may change a plate's velocity, mode or load between advances), and each
+        advance leaves its plates' rows in ``plate_records`` (steps, P). keep_forces: keep each step's contact forces and torques in ``force`` (N, D) and
         ``torque`` (N, R) (diagnostics and tests; 24 bytes a disc in 2D). pairs_hint: the
         candidate pairs expected (e.g. from a like slab), so that the first build fills the
         list at once instead of counting, growing it and building again; a wrong hint
@@ -299,6 +319,10 @@ class DomainStepper:
         self.n = len(particles)
         n = self.n
         self.ws = np.zeros(WS_SIZE) if wheel_state is None else np.array(wheel_state, dtype=np.float64)
+        self.plates = np.zeros(0, L.PLATE) if plates is None else np.array(plates, dtype=L.PLATE).reshape(-1)
+        if len(self.plates) > L.MAX_PLATES:
+            raise EngineError(f"{len(self.plates)} plates: at most {L.MAX_PLATES}")
+        self.plate_records = np.zeros((0, len(self.plates)), L.PLATE_RECORD)
         self._idx = L.index_dtype(n)
         self.half_off = np.zeros(n + 1, self._idx)
         self.inc_off = np.zeros(n + 1, self._idx)
@@ -364,6 +388,7 @@ class DomainStepper:
         ones by the block's end; the rest are left as they are); None: all, every step."""
         m = self.model
         rec = np.zeros((nsteps if m.wheel_enabled else 0, N_REC))
+        self.plate_records = np.zeros((nsteps if len(self.plates) else 0, len(self.plates)), L.PLATE_RECORD)
         # small domains run on one thread: a parallel launch costs more than it saves
         # there, and the result is the same whatever the thread count (docs/design.md §3)
         threads = numba.get_num_threads()
@@ -398,6 +423,8 @@ class DomainStepper:
 
     def _run(self, nsteps, step0, rec, spans=L.NO_CONE) -> int:
         recv = record(rec, WHEEL_RECORD) if len(rec) else np.zeros(1, WHEEL_RECORD)  # unused
+        n_plates = len(self.plates)
+        prec = self.plate_records.reshape(-1)  # step s's plate k at row s P + k
         done = 0
         while True:
             kp, d, pl, bd, forces, ws, err = self.kernel_args()
@@ -410,6 +437,7 @@ class DomainStepper:
                 bd,
                 forces,
                 ws,
+                L.Plates(self.plates, prec[done * n_plates :]),
                 err,
                 recv[done:] if len(rec) else recv,
                 not self._built,

@@ -20,6 +20,8 @@ Records:
 - ``WHEEL_RECORD``    one row per step of a wheel run
 - ``LUG_DIRECTION``   unit vector of one lug at the current wheel angle
 - ``ERRORS``          kernel error flags
+- ``PLATE``           one rigid plate of the plates' table (``physics.plates``)
+- ``PLATE_RECORD``    one plate's row of one step
 - the kernels' argument records (named tuples of arrays): ``Discs``, ``Pairs``,
   ``Bodies``, ``Forces``, ``KernelParams``
 """
@@ -156,6 +158,24 @@ N_REC = len(REC_COLUMNS)
 # unit vector of each lug at the current wheel angle (wheel.lug_directions)
 LUG_DIRECTION = record_dtype(("ux", "uy"))
 
+# ------------------------------------------------------------------- plates
+# A plate (physics.plates) is a finite, axis-aligned rigid rectangle (2D: a segment) with
+# one active face: its normal is +-e_axis (side = +1 or -1: the particles are on that side
+# of pos along the axis); it spans lo1..hi1 along the first other axis and lo2..hi2 along
+# the second (in ascending axis order; 2D: lo2, hi2 are unused), and moves with (vx, vy,
+# vz) (2D: vz unused). mode PLATE_PRESCRIBED: that velocity as given; PLATE_FORCE: along
+# its normal it is a rigid body of the given mass pushed onto the particles by a constant
+# load (N), its normal speed at most vmax (0: no limit); its other components as given.
+PLATE = record_dtype(
+    ("axis", "side", "pos", "lo1", "hi1", "lo2", "hi2", "vx", "vy", "vz", "mode", "load", "mass", "vmax")
+)
+PLATE_PRESCRIBED, PLATE_FORCE = 0, 1
+MAX_PLATES = 16  # a table holds at most this many (ids -90 .. -75)
+# one plate's row of one step: its state at the step's start (pos, the low ends of its
+# extents), the velocity it moved with, the particles' force on it (fx, fy, fz; 2D: fz = 0),
+# the normal force N they press on it with (= -f . normal) and how many touch it
+PLATE_RECORD = record_dtype(("t", "pos", "lo1", "lo2", "vx", "vy", "vz", "fx", "fy", "fz", "load", "contacts"))
+
 # ------------------------------------------------------------------- errors
 ERRORS = record_dtype(("hist_overflow", "pair_capacity", "body_capacity"), "<i8")
 ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, ERR_BODY_CAPACITY = range(3)
@@ -165,9 +185,11 @@ ERR_NBR_OVERFLOW = ERR_PAIR_CAPACITY
 
 # ------------------------------------------------------------- partner ids
 # partner ids of the bodies (negative, so they sort before every particle): the wheel's
-# parts and the walls both dimensions have (3D adds its side walls, d3.layout)
+# parts, the plates and the walls both dimensions have (3D adds its side walls, d3.layout).
+# A particle's body rows are summed in ascending id: lugs, rim, plates, walls
 ID_LUG0 = -1000  # lug k has id ID_LUG0 + k
 ID_RIM = -100
+ID_PLATE0 = -90  # plate k of the table has id ID_PLATE0 + k (above the rim, below every wall)
 ID_WALL_RIGHT = -3
 ID_WALL_LEFT = -2
 ID_WALL_BOTTOM = -1
@@ -197,12 +219,20 @@ Discs = namedtuple(
 KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc"])
 # per-particle contact force (N, D) and torque (N, R) of the last step; length 0 when not kept
 Forces = namedtuple("Forces", ["force", "torque"])
+# the plates' table (PLATE, (P,): their state, moved by the step) and their records of the
+# steps (PLATE_RECORD, step s's plate k at row s P + k); P = 0: no plates (NO_PLATES)
+Plates = namedtuple("Plates", ["table", "rec"])
 # half pair list + CSR index (physics.neighbors: build_pairs), the build positions, and the
 # pairs' rows of the current step (slot = position in pair_b; on[k] = in contact)
 # (ref: the positions (N, D) at the last build)
 Pairs = namedtuple("Pairs", ["half_off", "pair_b", "pair_a", "inc_off", "inc_k", "ref", "on", "rows"])
 # body rows of the current step: chunks.N_CHUNKS buffers of equal capacity, count[c] used
 Bodies = namedtuple("Bodies", ["rows", "count"])
+
+
+def no_plates() -> Plates:
+    """An empty plates argument (no plate: the step is that of a run without plates)."""
+    return Plates(np.zeros(0, PLATE), np.zeros(0, PLATE_RECORD))
 
 
 def discs_of(p) -> Discs:

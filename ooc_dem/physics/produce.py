@@ -5,8 +5,8 @@ A step's forces come in two phases (Nishiura & Sakaguchi 2011, J. Comput. Phys.
 230:1923: a pair list with a per-particle pair-index table, Newton's third law without
 write conflicts); ``produce`` is the first: one row per contact at time n.
 
-- Body rows first, in a pass of their own: each particle's contacts with the walls and
-  the wheel's parts (the dimension's ``body_rows``: its geometry and law) go to per-chunk
+- Body rows first, in a pass of their own: each particle's contacts with the wheel's
+  parts, the plates and the walls (the dimension's ``body_rows``: its geometry and law) go to per-chunk
   buffers (``layout.Bodies``) in particle order, ascending partner id within a particle.
   When a chunk's buffer is full, err[ERR_BODY_CAPACITY] is set and no pair row is made:
   the pair rows still hold the springs of the last step, so the step can be rerun after
@@ -32,6 +32,7 @@ from numba import njit, prange
 
 from .axes import DIM, SPIN
 from .chunks import N_CHUNKS, chunk_range, chunks_range
+from .plates import plate_scene
 from .layout import AX_X, ERR_BODY_CAPACITY, LAW_BLOCK, LAW_ROW, N_TYPES
 from .twins import slot
 
@@ -55,9 +56,10 @@ block_law = slot(
 put_pair_rows = slot("put_pair_rows(k, slot, law_out, rows): a block's results into their rows")
 body_scene = slot("body_scene(walls, wg, ws): the walls' and the wheel's geometry this step, as a tuple")
 body_rows = slot(
-    "body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt): particle i's rows "
-    "with the walls and the wheel from body row bat on (bend: the chunk's end); "
-    "returns (next row, whether one did not fit)"
+    "body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt): particle i's rows "
+    "with the wheel, the plates and the walls from body row bat on (bend: the chunk's end); "
+    "with_plates: a constant at each call (False: no plate, and the plates' code folds away), "
+    "pscene: plates.plate_scene of the table; returns (next row, whether one did not fit)"
 )
 
 
@@ -146,14 +148,31 @@ def pair_rows(k, law_in, law_out, slot, side_a, side_b, was_on, d, rows, cp, dt)
     put_pair_rows(k, slot, law_out, rows)
 
 
-def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
+def body_chunk(ch, first, end, d, cp, scene, with_plates, pscene, lugdir, body, bcount, bcap, dt, err, any_full):
+    """Chunk ch's body rows (the first pass of ``produce``); with_plates is a constant at
+    each call, so that a step without plates compiles to the loop it had before plates."""
+    lo, hi = chunk_range(ch, first, end)
+    bat = ch * bcap
+    bend = bat + bcap
+    full = False
+    for i in range(lo, hi):
+        bat, over = body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt)
+        full = full or over
+    bcount[ch] = bat - ch * bcap
+    if full:
+        err[ERR_BODY_CAPACITY] = 1
+        any_full[0] = True
+
+
+def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err):
     """Phase 1: one row per contact of particles first..end-1 at time n (module doc): their
     wall and wheel rows and the rows of their own half lists (pairs whose lower id is one
     of them).
 
     d: layout.Discs, pl: layout.Pairs (half list + rows), bd: layout.Bodies (per-chunk
     body rows), cp: the dimension's CONTACT_PARAMS table [type_a, type_b], walls: its
-    WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE records (1,), lugdir:
+    WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE records (1,), plates: the
+    PLATE table (physics.plates; length 0: none), lugdir:
     LUG_DIRECTION of each lug at the wheel's angle. Sets err[ERR_BODY_CAPACITY] when a
     chunk's body buffer is full (grow, rerun): then no pair row is made."""
     pos, r = d.pos, d.r
@@ -161,19 +180,15 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, lugdir, dt, err):
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     scene = body_scene(walls, wg, ws)
+    pscene = plate_scene(plates)
     any_full = np.zeros(1, np.bool_)
-    for ch in prange(N_CHUNKS):
-        lo, hi = chunk_range(ch, first, end)
-        bat = ch * bcap
-        bend = bat + bcap
-        full = False
-        for i in range(lo, hi):
-            bat, over = body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt)
-            full = full or over
-        bcount[ch] = bat - ch * bcap
-        if full:
-            err[ERR_BODY_CAPACITY] = 1
-            any_full[0] = True
+    # two loops, the flag a constant in each: without plates the plates' code is not there
+    if plates.shape[0] == 0:
+        for ch in prange(N_CHUNKS):
+            body_chunk(ch, first, end, d, cp, scene, False, pscene, lugdir, body, bcount, bcap, dt, err, any_full)
+    else:
+        for ch in prange(N_CHUNKS):
+            body_chunk(ch, first, end, d, cp, scene, True, pscene, lugdir, body, bcount, bcap, dt, err, any_full)
     if any_full[0]:
         return  # no pair row made: rerunnable after growing the body rows
     # ---------------------------------------------------------- pairs (i = a, lower id)

@@ -4,7 +4,8 @@ and ``instantiate``, which compiles the whole step machinery for one dimension.
 A step: the wheel's controls and lug directions (``physics.wheel``), ``produce`` (one
 row per contact), ``gather_integrate`` (each particle sums its rows in ascending
 partner-id order and is advanced), the wheel's reaction summed in ascending particle id,
-the wheel's record and leapfrog, and a rebuild of the half pair list when some particle
+the wheel's record and leapfrog, the plates' records and motion (``physics.plates``,
+when there are plates), and a rebuild of the half pair list when some particle
 has moved half the skin.
 
 The machinery's templates (this module's ``run_steps``; ``produce``, ``gather``,
@@ -20,7 +21,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from . import gather, history, produce as produce_mod
+from . import gather, history, plates as plates_mod, produce as produce_mod
 from .chunks import N_CHUNKS
 from .layout import AX_Y, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, LUG_DIRECTION
 from .twins import slot, bindings, no_parfors, slots_of, specialise
@@ -32,16 +33,18 @@ gather_integrate = slot("gather_integrate: the dimension's phase 2 (physics.gath
 load_history = slot("load_history: the dimension's (physics.history)")
 sync_history = slot("sync_history: the dimension's (physics.history)")
 build_pairs = slot("build_pairs: the dimension's neighbour build (physics.neighbors)")
+plates_step = slot("plates_step: the dimension's (physics.plates)")
 
 
-def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, pairs_done, role, spans):
+def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, pt, err, rec, rebuild_now, pairs_done, role, spans):
     """Advance particles 0..len(d.gid)-1 (and the wheel when kp.wg.enabled) nsteps from
     global step step0.
 
     kp: layout.KernelParams (dt, gravity (D,), skin, the dimension's CONTACT_PARAMS table
     cp and WALLS, wg, wc); d: layout.Discs; pl: Pairs; bd: Bodies; forces: layout.Forces
-    (length 0: not kept); ws: WHEEL_STATE record; rec: WHEEL_RECORD rows, one per step
-    (wheel runs). Returns (steps done, rebuilds). Stops early with err[ERR_PAIR_CAPACITY]
+    (length 0: not kept); ws: WHEEL_STATE record; pt: layout.Plates (the plates' table,
+    moved, and their records: P rows a step; P = 0, ``layout.no_plates()``: none); rec:
+    WHEEL_RECORD rows, one per step (wheel runs). Returns (steps done, rebuilds). Stops early with err[ERR_PAIR_CAPACITY]
     = pairs needed (grow the pair list, call again with rebuild_now),
     err[ERR_BODY_CAPACITY] (grow the body buffers, call again with pairs_done: that step
     is redone, nothing was advanced) or err[ERR_HIST_OVERFLOW] (fatal). pairs_done: the
@@ -71,6 +74,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
     part = np.empty(N_CHUNKS)  # scratch of gather_integrate
     every = role[:0]
     whole = role.shape[0] == 0  # the particles leave whole (no caller-side sync)
+    has_plates = pt.table.shape[0] > 0
     if rebuild_now:
         npairs = build_pairs(
             d.pos, d.r, d.gid, n, skin, pl.half_off, pl.pair_b, pl.pair_a, pl.inc_off, pl.inc_k, pl.ref
@@ -92,7 +96,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
         if s < spans.shape[0]:
             first = spans[s, 0]
             end = spans[s, 1]
-        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, lugdir, dt, err)
+        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, pt.table, lugdir, dt, err)
         if err[ERR_BODY_CAPACITY] != 0:
             # no pair row of this step was made (produce): the rows still hold the springs
             # of the last step, so the sync leaves the particles whole; nothing was advanced
@@ -105,6 +109,8 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
         if wheel:
             wfx, wfy, wtq, cnt = wheel_reaction(d.gid, bd)
             record_and_integrate_wheel(rec, s, t, ws, wg, wc, wfx, wfy, wtq, cnt, gy, dt)
+        if has_plates:
+            plates_step(s, t, d.gid, bd, pt, dt)
         if disp2 > half2:
             rebuilds += 1
             sync_history(n, d, pl, err, every, 0)
@@ -121,12 +127,12 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, err, rec, rebuild_now, p
 
 
 # what a dimension's package gives instantiate: every Slot of these templates' modules
-DIMENSION_SLOTS = tuple(sorted({name for mod in (history, gather, produce_mod) for name in slots_of(mod)}))
+DIMENSION_SLOTS = tuple(sorted({name for mod in (history, gather, produce_mod, plates_mod) for name in slots_of(mod)}))
 
 
 def instantiate(name: str, *modules) -> SimpleNamespace:
     """The step machinery compiled for one dimension (``name``: 'd2', 'd3'): the templates
-    of ``physics.history``, ``gather``, ``produce`` and ``run_steps`` with the dimension's
+    of ``physics.history``, ``gather``, ``produce``, ``plates`` and ``run_steps`` with the dimension's
     kernels and constants bound (every DIMENSION_SLOTS name, from ``modules``: its layout,
     rows, bodies and geometry, the last with its neighbour build ``build_pairs`` and
     ``build_pairs_serial``, ``neighbors.instantiate``). Returns the phases
@@ -136,12 +142,20 @@ def instantiate(name: str, *modules) -> SimpleNamespace:
     compiled without a parallel region, calling each other's twins."""
     par = bindings(DIMENSION_SLOTS, *modules)
     # the phases' inline helpers (no parallel loop): one compilation serves both variants
-    for t in (produce_mod.list_pair, produce_mod.fill_block, produce_mod.pair_rows, gather.advance):
+    for t in (
+        produce_mod.list_pair,
+        produce_mod.fill_block,
+        produce_mod.pair_rows,
+        produce_mod.body_chunk,
+        gather.advance,
+    ):
         par[t.__name__] = specialise(t, f"{t.__name__}_{name}", par, inline="always")
     ser = dict(par)
     for phase in (history.load_history, history.sync_history, gather.gather_integrate, produce_mod.produce):
         par[phase.__name__] = specialise(phase, f"{phase.__name__}_{name}", par, parallel=True)
         ser[phase.__name__] = specialise(phase, f"{phase.__name__}_{name}_serial", ser, parallel=no_parfors())
+    # one-thread code in both variants (a few plates' sums, after the parallel phases)
+    par["plates_step"] = ser["plates_step"] = specialise(plates_mod.plates_step, f"plates_step_{name}", par)
     build = bindings(("build_pairs", "build_pairs_serial"), *modules)
     par["build_pairs"] = build["build_pairs"]
     ser["build_pairs"] = build["build_pairs_serial"]

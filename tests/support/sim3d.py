@@ -12,7 +12,7 @@ import numpy as np
 from ooc_dem.engine.stepper import EngineError
 from ooc_dem.physics import d3
 from ooc_dem.physics.d3 import N_CHUNKS
-from ooc_dem.physics.layout import EVERY_PARTICLE, NO_CONE, index_dtype
+from ooc_dem.physics.layout import EVERY_PARTICLE, NO_CONE, index_dtype, no_plates
 from ooc_dem.physics.d3.layout import (
     BODY_ROW,
     ERR_BODY_CAPACITY,
@@ -190,6 +190,7 @@ class Sim:
                 self.bodies,
                 self.forces,
                 self.ws,
+                no_plates(),
                 self.err,
                 self.rec,
                 not self._built,

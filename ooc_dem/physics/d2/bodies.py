@@ -1,12 +1,13 @@
 """A disc's contacts with the bodies (numba, no I/O): the bin's walls (floor y = 0, end
-walls x = 0 and x = length) and the wheel's rim (a circle of radius R about the axle)
-and lugs (capsules of radius cap along each lug's direction from lug_in to lug_out),
-made into body rows (``layout.BODY_ROW``) for ``physics.produce``.
+walls x = 0 and x = length, each with an on-flag), the wheel's rim (a circle of radius R
+about the axle) and lugs (capsules of radius cap along each lug's direction from lug_in
+to lug_out), and the plates (``physics.plates``: segments along x or y with one active
+side), made into body rows (``layout.BODY_ROW``) for ``physics.produce``.
 
 Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM,
-right wall -3, left -2, bottom -1; a disc's rows in that ascending order), with the
-disc's springs from its history (zero for a new contact). A wheel row also holds the
-torque on the wheel about its centre (the wheel's force is (-bx, -by)).
+plates ID_PLATE0 + k, right wall -3, left -2, bottom -1; a disc's rows in that ascending
+order), with the disc's springs from its history (zero for a new contact). A wheel row
+also holds the torque on the wheel about its centre (the wheel's force is (-bx, -by)).
 """
 
 import math
@@ -20,6 +21,7 @@ from ..layout import (
     HM_R,
     HS_T,
     ID_LUG0,
+    ID_PLATE0,
     ID_RIM,
     ID_WALL_BOTTOM,
     ID_WALL_LEFT,
@@ -68,6 +70,56 @@ def _wheel_row(body, bat, bend, i, pid, fn, ft, s, mom, m, nx, ny, qx, qy, ri):
     return bat, True
 
 
+@njit(cache=True)
+def plate_rows(i, d, cp, plates, body, bat, bend, p, dt):
+    """Disc i's rows with the plates (physics.plates: the centre in front of the face within
+    the radius, its projection within the extent) from body row bat on, p its history cursor.
+    Returns (the next row, p, whether a row did not fit). A call of its own, not inlined: the
+    few discs near a plate take it, the others' loop stays as small as without plates."""
+    xi = d.pos[i, AX_X]
+    yi = d.pos[i, AX_Y]
+    ri = d.r[i]
+    vxi = d.vel[i, AX_X]
+    vyi = d.vel[i, AX_Y]
+    wi = d.spin[i, SP_Z]
+    mi = d.mass[i]
+    ii = d.inertia[i]
+    ti = d.mat[i]
+    hn = d.hist_n[i]
+    full = False
+    for k in range(plates.shape[0]):
+        pk = plates[k]
+        if pk.axis == AX_X:  # the face's normal along x, its extent along y
+            h = (xi - pk.pos) * pk.side
+            along = yi
+            nx = pk.side
+            ny = 0.0
+        else:
+            h = (yi - pk.pos) * pk.side
+            along = xi
+            nx = 0.0
+            ny = pk.side
+        delta = ri - h
+        if delta > 0.0 and h > 0.0 and along >= pk.lo1 and along <= pk.hi1:
+            pid = ID_PLATE0 + k
+            p, s_old, m_old = _springs(d.hist_id, d.hist_s, d.hist_m, i, hn, p, pid)
+            fn, ft, s_new, mom, m_new = contact(
+                cp[T_WALL, ti], nx, ny, delta, vxi - pk.vx, vyi - pk.vy, 0.0, wi, 0.0, ri, mi, ii, ri, s_old, m_old, dt
+            )
+            if bat < bend:
+                _body_row(body, bat, i, pid, fn * nx + ft * ny, fn * ny - ft * nx, ri * ft + mom, s_new, m_new, 0.0)
+                bat += 1
+            else:
+                full = True
+    return bat, p, full
+
+
+@njit(inline="always", cache=True)
+def body_force(row):
+    """A body row's force on its disc as (fx, fy, fz) (physics.plates; fz = 0)."""
+    return row.bx, row.by, 0.0
+
+
 @njit(inline="always", cache=True)
 def body_scene(walls, wg, ws):
     """The walls' and the wheel's geometry this step (body_rows' scene): the bin's length
@@ -102,9 +154,10 @@ def body_scene(walls, wg, ws):
 
 
 @njit(inline="always", cache=True)
-def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
-    """Disc i's rows with the wheel's lugs and rim, then the walls, from body row bat on
-    (bend: its chunk's end). Returns (the next row, whether a row did not fit)."""
+def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt):
+    """Disc i's rows with the wheel's lugs and rim, then the plates (with_plates: a
+    constant; pscene: ``plates.plate_scene``), then the walls, from body row bat on (bend:
+    its chunk's end). Returns (the next row, whether a row did not fit)."""
     (
         length,
         has_left,
@@ -136,8 +189,12 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     dyw = yi - Y
     d2 = dxw * dxw + dyw * dyw
     near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri)
+    near_plate = False
+    if with_plates:
+        _, x_lo, x_hi, y_lo, y_hi, z_lo, z_hi = pscene
+        near_plate = xi + ri > x_lo and xi - ri < x_hi and yi + ri > y_lo and yi - ri < y_hi
     full = False
-    if not (near_wall or near_wheel):
+    if not (near_wall or near_wheel or near_plate):
         return bat, full
     vxi = d.vel[i, AX_X]
     vyi = d.vel[i, AX_Y]
@@ -217,6 +274,10 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             )
             bat, over = _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom, m_new, nx, ny, R * nx, R * ny, ri)
             full = full or over
+    # ------------------------------------------------------ plates
+    if near_plate:
+        bat, p, over = plate_rows(i, d, cp, pscene[0], body, bat, bend, p, dt)
+        full = full or over
     # ------------------------------------------------------ walls
     for wall in range(3 if near_wall else 0):
         # ascending ids: right (-3), left (-2), bottom (-1)

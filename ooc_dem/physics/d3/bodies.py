@@ -1,13 +1,14 @@
 """A sphere's contacts with the bodies (numba, no I/O): the box's walls (floor y = 0,
-end walls x = 0 and x = length, side walls z = 0 and z = width, each with an on-flag)
-and the wheel (axle along z, spanning z0 -+ width/2: a rim cylinder of radius R, its
+end walls x = 0 and x = length, side walls z = 0 and z = width, each with an on-flag),
+the wheel (axle along z, spanning z0 -+ width/2: a rim cylinder of radius R, its
 end faces included, and nlugs plates: the points within cap of the rectangle
-X + s u (s in lug_in..lug_out) times that z span), made into body rows
+X + s u (s in lug_in..lug_out) times that z span) and the plates (``physics.plates``:
+axis-aligned rectangles with one active face), made into body rows
 (``layout.BODY_ROW``) for ``physics.produce``.
 
-Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM, then
-the walls back -5, front -4, right -3, left -2, bottom -1; a sphere's rows in that
-ascending order), with the sphere's springs from its history (zero for a new contact).
+Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM, the
+plates ID_PLATE0 + k, then the walls back -5, front -4, right -3, left -2, bottom -1; a
+sphere's rows in that ascending order), with the sphere's springs from its history (zero for a new contact).
 The wheel's contact point q moves with V + W x (q - C), W = (0, 0, wz); the law sees the
 wheel as body a with lever arm 0 and spin W. A wheel row also holds the torque on the
 wheel about its axle (the wheel's force is (-bx, -by); its z force goes to the axle).
@@ -19,7 +20,8 @@ import numpy as np
 from numba import njit
 
 from ..history import lookup
-from ..layout import AX_X, AX_Y, AX_Z, SP_X3, SP_Y3, SP_Z3
+from ..layout import AX_X, AX_Y, AX_Z, ID_PLATE0, SP_X3, SP_Y3, SP_Z3
+from ..plates import other_axes
 from ..wheel import lug_axis_offset
 from .contact import contact
 from .layout import (
@@ -184,6 +186,97 @@ def _wheel_contact(
     return p, 0
 
 
+@njit(cache=True)
+def plate_rows(i, d, cp, plates, body, bat, bend, p, dt):
+    """Sphere i's rows with the plates (physics.plates: the centre in front of the face
+    within the radius, its projection within the extent) from body row bat on, p its history
+    cursor. Returns (the next row, p, whether a row did not fit). A call of its own, not
+    inlined: the few spheres near a plate take it, the others' loop stays as without plates."""
+    xi = d.pos[i, AX_X]
+    yi = d.pos[i, AX_Y]
+    zi = d.pos[i, AX_Z]
+    ri = d.r[i]
+    vxi = d.vel[i, AX_X]
+    vyi = d.vel[i, AX_Y]
+    vzi = d.vel[i, AX_Z]
+    wxi = d.spin[i, SP_X3]
+    wyi = d.spin[i, SP_Y3]
+    wzi = d.spin[i, SP_Z3]
+    mi = d.mass[i]
+    ii = d.inertia[i]
+    ti = d.mat[i]
+    hist_id, hist_s, hist_m = d.hist_id, d.hist_s, d.hist_m
+    hn = d.hist_n[i]
+    full = False
+    for k in range(plates.shape[0]):
+        pk = plates[k]
+        a = int(pk.axis)
+        o1, o2 = other_axes(a)
+        h = (_component(a, xi, yi, zi) - pk.pos) * pk.side
+        along1 = _component(o1, xi, yi, zi)
+        along2 = _component(o2, xi, yi, zi)
+        delta = ri - h
+        if not (delta > 0.0 and h > 0.0 and along1 >= pk.lo1 and along1 <= pk.hi1):
+            continue
+        if not (along2 >= pk.lo2 and along2 <= pk.hi2):
+            continue
+        pid = ID_PLATE0 + k
+        nx = pk.side if a == AX_X else 0.0
+        ny = pk.side if a == AX_Y else 0.0
+        nz = pk.side if a == AX_Z else 0.0
+        p, s0x, s0y, s0z, m0x, m0y, m0z = _body_springs(hist_id, hist_s, hist_m, i, hn, p, pid)
+        (fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz) = body_contact(
+            cp[T_WALL, ti],
+            nx,
+            ny,
+            nz,
+            delta,
+            vxi - pk.vx,
+            vyi - pk.vy,
+            vzi - pk.vz,
+            0.0,
+            0.0,
+            0.0,
+            wxi,
+            wyi,
+            wzi,
+            0.0,
+            ri,
+            mi,
+            ii,
+            ri,
+            s0x,
+            s0y,
+            s0z,
+            m0x,
+            m0y,
+            m0z,
+            dt,
+        )
+        if bat < bend:
+            _body_row(body, bat, i, pid, fn, ftx, fty, ftz, snx, sny, snz, mox, moy, moz, mnx, mny, mnz, nx, ny, nz, ri)
+            bat += 1
+        else:
+            full = True
+    return bat, p, full
+
+
+@njit(inline="always", cache=True)
+def body_force(row):
+    """A body row's force on its sphere as (fx, fy, fz) (physics.plates)."""
+    return row.bx, row.by, row.bz
+
+
+@njit(inline="always", cache=True)
+def _component(a, x, y, z):
+    """Component a (AX_X, AX_Y, AX_Z) of the vector (x, y, z)."""
+    if a == AX_X:
+        return x
+    if a == AX_Y:
+        return y
+    return z
+
+
 @njit(inline="always", cache=True)
 def body_scene(walls, wg, ws):
     """The walls' and the wheel's geometry this step (body_rows' scene): the box's length
@@ -222,10 +315,30 @@ def body_scene(walls, wg, ws):
 
 
 @njit(inline="always", cache=True)
-def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
-    """Sphere i's rows with the wheel's lugs and rim, then the walls, from body row bat on
-    (bend: its chunk's end). Returns (the next row, whether a row did not fit)."""
-    (length, width, flags, wheel_on, R, lug_in, lug_out, cap_r, nlugs, wmass, zlo, zhi, X, Y, VX, VY, WZ, reach) = scene
+def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt):
+    """Sphere i's rows with the wheel's lugs and rim, then the plates (with_plates: a
+    constant; pscene: ``plates.plate_scene``), then the walls, from body row bat on (bend:
+    its chunk's end). Returns (the next row, whether a row did not fit)."""
+    (
+        length,
+        width,
+        flags,
+        wheel_on,
+        R,
+        lug_in,
+        lug_out,
+        cap_r,
+        nlugs,
+        wmass,
+        zlo,
+        zhi,
+        X,
+        Y,
+        VX,
+        VY,
+        WZ,
+        reach,
+    ) = scene
     pos = d.pos
     xi = pos[i, AX_X]
     yi = pos[i, AX_Y]
@@ -246,8 +359,19 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
     d2 = dxw * dxw + dyw * dyw
     zm = cap_r + ri
     near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri) and zi > zlo - zm and zi < zhi + zm
+    near_plate = False
+    if with_plates:
+        _, x_lo, x_hi, y_lo, y_hi, z_lo, z_hi = pscene
+        near_plate = (
+            xi + ri > x_lo
+            and xi - ri < x_hi
+            and yi + ri > y_lo
+            and yi - ri < y_hi
+            and zi + ri > z_lo
+            and zi - ri < z_hi
+        )
     full = False
-    if not (near_wall or near_wheel):
+    if not (near_wall or near_wheel or near_plate):
         return bat, full
     vxi = d.vel[i, AX_X]
     vyi = d.vel[i, AX_Y]
@@ -377,6 +501,10 @@ def body_rows(i, d, cp, scene, lugdir, body, bat, bend, dt):
             )
             bat += wrote
             full = full or wrote == 0
+    # ------------------------------------------------------ plates
+    if near_plate:
+        bat, p, over = plate_rows(i, d, cp, pscene[0], body, bat, bend, p, dt)
+        full = full or over
     # ------------------------------------------------------ walls
     for wall in range(5 if near_wall else 0):
         if not flags[wall]:

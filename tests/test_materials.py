@@ -12,7 +12,7 @@ import pytest
 from ooc_dem.engine.stepper import DomainStepper, Model
 from ooc_dem.model.materials import restitution_of_zeta, zeta_of_restitution
 from ooc_dem.model.scenario import load_scenario
-from ooc_dem.model.scenario_check import contact_table_3d
+from ooc_dem.model.contacts import contact_table_3d
 from ooc_dem.model.schema import ScenarioError, clamps
 from ooc_dem.model.state import Particles
 from ooc_dem.physics.d3 import layout as L3

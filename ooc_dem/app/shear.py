@@ -186,7 +186,7 @@ def contact_scales(sc: Scenario, force: float) -> tuple[float, float]:
     contact with a plate (the soil_wall pair) carrying ``force``: the linear law's kn and
     2 zeta sqrt(m kn); Hertz's tangent stiffness 2 E* sqrt(R delta) at that force and its
     Tsuji damping 2 sqrt(5/6) |beta| sqrt(m k). m: the mean grain's mass."""
-    from ..model.scenario_check import contact_table_3d
+    from ..model.contacts import contact_table_3d
 
     r = 0.5 * (sc.soil.r_min + sc.soil.r_max)
     if sc.dim == 2:

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..physics import kernels
 from ..physics import layout as L
-from ..model.scenario_check import contact_params_2d
+from ..model.contacts import contact_params_2d
 from ..physics.d2.layout import CONTACT_PARAMS, N_FIELDS, WALLS
 from ..physics.layout import (
     ERR_BODY_CAPACITY,
@@ -150,7 +150,7 @@ class Model:
         pair, the box of floor, end walls and side walls (z = 0, bin.width), and the wheel
         (the 2D records; its width and lateral centre z0 span the rim and the lugs)."""
         from ..physics.d3 import layout as L3
-        from ..model.scenario_check import contact_table_3d
+        from ..model.contacts import contact_table_3d
 
         table = contact_table_3d(sc)
         cp = np.ascontiguousarray(table).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES, L3.N_FIELDS).copy()

@@ -47,7 +47,7 @@ and the soil-wall contacts (overrides of bed3d, values taken from bed3d itself):
   (``mindlin/force``: the spring is a force incremented by 8 G* a vt dt, as ours; no
   ``limit_damping``: our Hertz law lets the damping pull, so that the restitution is e).
 
-The coefficients come from the kernel's own CONTACT_PARAMS table (scenario.contact_table_3d),
+The coefficients come from the kernel's own CONTACT_PARAMS table (model.contacts.contact_table_3d),
 so they are what ooc-dem computes with, mapped exactly per contact (no mean mass):
 
 - normal damping: LAMMPS ``tsuji`` damping is alpha(e') sqrt(m_eff Fe/delta) (Fe/delta
@@ -455,9 +455,9 @@ def probe_3d(lmp: str, workdir: Path) -> dict:
 
 def map_law_3d(sc, info: dict) -> dict:
     """LAMMPS ``granular`` coefficients of the kernel's soil-soil and soil-wall records
-    (scenario.contact_table_3d), mapped exactly per contact (module doc)."""
+    (model.contacts.contact_table_3d), mapped exactly per contact (module doc)."""
     from ooc_dem.physics.d3 import layout as L3
-    from ooc_dem.model.scenario_check import contact_table_3d
+    from ooc_dem.model.contacts import contact_table_3d
 
     cp = contact_table_3d(sc)
     out = {}

@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     from ooc_dem.engine.sweep import DdmEngine
     from ooc_dem.physics import kernels
     from ooc_dem.physics.history import ROLE_STABLE
-    from ooc_dem.physics.layout import WHEEL_RECORD
+    from ooc_dem.physics.layout import PLATE, PLATE_RECORD, WHEEL_RECORD, Plates
     from ooc_dem.model.scenario import load_scenario
     from ooc_dem.storage import open_store
 
@@ -205,13 +205,27 @@ def main(argv=None) -> int:
         return 0
 
     @njit
-    def blocks(nsteps, K, s0, doms, recs, stable, every):
+    def blocks(nsteps, K, s0, doms, recs, stable, every, no_plates):
         s = 0
         while s < nsteps:
             for j in range(len(doms)):
                 kp, d, pl, bd, forces, ws, err, flags, roles = doms[j]
                 step_serial(
-                    K, s0 + s, kp, d, pl, bd, forces, ws, err, recs[j], False, False, stable[: d.gid.shape[0]], every
+                    K,
+                    s0 + s,
+                    kp,
+                    d,
+                    pl,
+                    bd,
+                    forces,
+                    ws,
+                    no_plates,
+                    err,
+                    recs[j],
+                    False,
+                    False,
+                    stable[: d.gid.shape[0]],
+                    every,
                 )
             s += K
         return s
@@ -219,6 +233,7 @@ def main(argv=None) -> int:
     from numba.typed import List
 
     every = np.zeros((0, 2), np.int64)
+    no_plates = Plates(np.empty(0, PLATE), np.empty(0, PLATE_RECORD))  # the sub-domains have no plates
     blocked = {}
     for K in blocks_k:
         n = max(K, (a.steps // 2 // K) * K)
@@ -228,9 +243,9 @@ def main(argv=None) -> int:
             doms = lv._domain_list()
             stable = np.full(max(lv.resident()), ROLE_STABLE, np.int8)
             recs = List([np.zeros(n + K, WHEEL_RECORD) for _ in range(lv.D)])
-            blocks(K, K, step0 + warm, doms, recs, stable, every)
+            blocks(K, K, step0 + warm, doms, recs, stable, every, no_plates)
             t = time.perf_counter()
-            blocks(n, K, step0 + warm + K, doms, recs, stable, every)
+            blocks(n, K, step0 + warm + K, doms, recs, stable, every, no_plates)
             best = min(best, (time.perf_counter() - t) / n * 1e6)
         blocked[K] = round(best, 1)
     out["blocked_us"] = blocked

@@ -73,7 +73,10 @@ def cli_in_process(*args, check=False, timeout=900) -> CliResult:
             warnings.catch_warnings(record=True) as caught,
             _argv([cli.__file__, *argv]),
         ):
-            # what a fresh interpreter hides by default; everything else it would print
+            # a fresh interpreter's filters, whatever an earlier test left in this process's: it
+            # hides these by default and prints everything else
+            warnings.resetwarnings()
+            warnings.simplefilter("default")
             for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
                 warnings.filterwarnings("ignore", category=category)
             try:

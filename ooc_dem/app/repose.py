@@ -280,6 +280,27 @@ def heap_outputs(
     return entry
 
 
+def _angle_box(ax: Any, m: dict[str, Any] | None, entry: dict[str, Any], fits: str) -> None:
+    """The figure's box: the angle, its spread, which fits made it (``fits``) and the heap's
+    height; or why there is no angle."""
+    if m is None:
+        ax.text(
+            0.5, 0.9, f"no angle: {entry.get('note', '')}", transform=ax.transAxes, ha="center", fontsize=8, wrap=True
+        )
+        return
+    ax.text(
+        0.98,
+        0.95,
+        f"angle of repose {m['angle_deg']:.1f}° ± {m['angle_std_deg']:.1f}° (sd)\n{fits}\n"
+        f"H = {m['heap_height_m'] * 1e3:.1f} mm = {entry['heap_height_diameters']:.1f} d",
+        transform=ax.transAxes,
+        ha="right",
+        va="top",
+        fontsize=10,
+        bbox={"fc": "w", "ec": "0.6"},
+    )
+
+
 def repose_figure(
     pos: NDArray[np.float64], r: NDArray[np.float64], m: dict[str, Any] | None, entry: dict[str, Any], path: Path
 ) -> Path:
@@ -315,22 +336,12 @@ def repose_figure(
                 ax.plot(xs * 1e3, (fit["intercept_m"] + fit["slope"] * xs) * 1e3, "-", color=col, lw=2.2)
         for f in (m["fit_low"], m["fit_high"]):
             ax.axhline(f * H * 1e3, color="k", ls=":", lw=0.8)
-        ax.text(
-            0.98,
-            0.95,
-            f"angle of repose {m['angle_deg']:.1f}° ± {m['angle_std_deg']:.1f}° (sd)\n"
-            f"{m['sectors_fitted']} of {m['sectors']} sectors, flank {m['fit_low']:g}–{m['fit_high']:g} H\n"
-            f"H = {H * 1e3:.1f} mm = {entry['heap_height_diameters']:.1f} d",
-            transform=ax.transAxes,
-            ha="right",
-            va="top",
-            fontsize=10,
-            bbox={"fc": "w", "ec": "0.6"},
-        )
-    else:
-        ax.text(
-            0.5, 0.9, f"no angle: {entry.get('note', '')}", transform=ax.transAxes, ha="center", fontsize=8, wrap=True
-        )
+    fits = (
+        ""
+        if m is None
+        else f"{m['sectors_fitted']} of {m['sectors']} sectors, flank {m['fit_low']:g}–{m['fit_high']:g} H"
+    )
+    _angle_box(ax, m, entry, fits)
     ax.set_xlabel("distance from the heap's axis ρ [mm]")
     ax.set_ylabel("height y [mm]")
     ax.set_title(
@@ -385,22 +396,8 @@ def repose_figure_2d(
                 ax.plot((cx + side * xs) * 1e3, (fit["intercept_m"] + fit["slope"] * xs) * 1e3, "-", color=col, lw=2.2)
         for f in (m["fit_low"], m["fit_high"]):
             ax.axhline(f * H * 1e3, color="k", ls=":", lw=0.8)
-        ax.text(
-            0.98,
-            0.95,
-            f"angle of repose {m['angle_deg']:.1f}° ± {m['angle_std_deg']:.1f}° (sd)\n"
-            f"{m['sectors_fitted']} flanks, {m['fit_low']:g}–{m['fit_high']:g} H\n"
-            f"H = {H * 1e3:.1f} mm = {entry['heap_height_diameters']:.1f} d",
-            transform=ax.transAxes,
-            ha="right",
-            va="top",
-            fontsize=10,
-            bbox={"fc": "w", "ec": "0.6"},
-        )
-    else:
-        ax.text(
-            0.5, 0.9, f"no angle: {entry.get('note', '')}", transform=ax.transAxes, ha="center", fontsize=8, wrap=True
-        )
+    fits = "" if m is None else f"{m['sectors_fitted']} flanks, {m['fit_low']:g}–{m['fit_high']:g} H"
+    _angle_box(ax, m, entry, fits)
     ax.axvline(cx * 1e3, color="0.5", lw=0.5)
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("height y [mm]")

@@ -316,6 +316,27 @@ def cmd_shear(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate import CalibrateOptions, LabSoil, calibration_lines, run_calibrate
+
+    try:
+        sigmas = tuple(float(s) for s in args.sigma.split(",") if s.strip())
+    except ValueError:
+        raise CliError(f"--sigma {args.sigma!r}: must be comma-separated numbers (Pa)") from None
+    lab = LabSoil(friction_angle=args.friction_angle, cohesion=args.cohesion, bulk_density=args.bulk_density)
+    opts = CalibrateOptions(sigmas=sigmas, grains=args.grains, envelope=args.envelope, evaluations=args.evaluations)
+    lab.check()
+    opts.check()
+    sc = _load(args)
+    say = None if args.no_progress else (lambda text: print(f"ooc-dem calibrate: {text}", file=sys.stderr, flush=True))
+    out = Path(args.out)
+    result = run_calibrate(sc, lab, out, progress=say, opts=opts)
+    for line in calibration_lines(result):
+        print(line)
+    print(f"report: {out / 'calibration.json'}  scenario fragment: {out / 'calibrated.toml'}")
+    return 0
+
+
 def cmd_sinkage(args: argparse.Namespace) -> int:
     from .sinkage import SinkageOptions, run_sinkage
 

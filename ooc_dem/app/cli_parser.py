@@ -98,6 +98,16 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _nonneg_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{_show(text)} is not a number") from None
+    if not v >= 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"{_show(text)} must be a finite number >= 0")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ..model.schema import MAX_BLOCK, MAX_DOMAINS, MAX_STEPS
 
@@ -304,6 +314,26 @@ def build_parser() -> argparse.ArgumentParser:
     )
     q.add_argument("--out", required=True)
     q.add_argument("--no-figures", action="store_true")
+    q.add_argument("--no-progress", action="store_true")
+
+    q = sub.add_parser(
+        "calibrate",
+        help="calibrate the scenario's soil to a lab sheet (friction angle, cohesion, bulk density) "
+        "with pours and shear box tests; writes the scenario fragment",
+    )
+    add_scenario_args(q)
+    q.add_argument("--friction-angle", type=_positive_float, required=True, help="target friction angle in degrees")
+    q.add_argument("--cohesion", type=_nonneg_float, default=0.0, help="target cohesion in Pa (default 0)")
+    q.add_argument(
+        "--bulk-density", type=_nonneg_float, default=0.0, help="target bulk density in kg/m^3 (default: not a target)"
+    )
+    q.add_argument(
+        "--sigma", default="3e3,6e3,9e3,12e3", help="the shear tests' normal stresses in Pa (default 3e3,6e3,9e3,12e3)"
+    )
+    q.add_argument("--grains", type=_nonneg_int, default=2000, help="grains in the shear box (default 2000)")
+    q.add_argument("--envelope", choices=["peak", "residual"], default="peak", help="the envelope calibrated")
+    q.add_argument("--evaluations", type=_nonneg_int, default=5, help="shear tests at most (default 5)")
+    q.add_argument("--out", required=True)
     q.add_argument("--no-progress", action="store_true")
 
     q = sub.add_parser(

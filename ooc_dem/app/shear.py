@@ -274,6 +274,26 @@ def box_of(sc: Scenario, bed: Particles) -> Box:
     )
 
 
+def poured_sample(
+    sc: Scenario, grains: int, use_cache: bool = True, progress: Callable[[str], object] | None = None
+) -> Particles:
+    """The box's sample of ``grains`` grains poured (and cached) as ``run_shear`` pours it."""
+    from .bed import settled_bed
+
+    bsc = box_scenario(sc, grains)
+    if progress is not None:
+        progress(f"pouring {grains} grains into a {bsc.bin.length:.4g} m box")
+    return settled_bed(pour_scenario(bsc), use_cache=use_cache)
+
+
+def sample_report(box_sc: Scenario, bed: Particles) -> dict[str, Any]:
+    """The poured sample's bed report (model/bedreport.py: bulk density, porosity,
+    coordination number, grading), measured over the whole box as poured."""
+    from ..model.bedreport import bed_report
+
+    return bed_report(bed, box_sc.bin.length, box_sc.soil.r_max, box_sc.physics.thickness, box_sc.bin.width)
+
+
 # ------------------------------------------------------------------- the test
 def shear_speed(sc: Scenario, box: Box, opts: ShearOptions) -> float:
     """The shear speed: --speed, else the one giving I = opts.inertial at the smallest stress."""
@@ -427,19 +447,22 @@ def run_shear(
     figures: bool = True,
     use_cache: bool = True,
     progress: Callable[[str], object] | None = None,
+    sample: Particles | None = None,
 ) -> dict[str, Any]:
     """The direct shear test of a scenario's soil at each of opts.sigmas (module doc): the
-    result (also written to OUT/shear.json, with the figures, when ``out`` is given)."""
-    from .bed import settled_bed
-
+    result (also written to OUT/shear.json, with the figures, when ``out`` is given).
+    ``sample``: a sample poured before (``poured_sample``) to test instead of pouring one,
+    e.g. the same sample with other contact parameters."""
     opts.check()
     if out is not None and out.exists() and any(out.iterdir()):
         raise ShearError(f"--out {out}: directory exists and is not empty")
     grains = opts.grains or sc.soil.n
     bsc = box_scenario(sc, grains)
-    if progress is not None:
-        progress(f"pouring {grains} grains into a {bsc.bin.length:.4g} m box")
-    bed = settled_bed(pour_scenario(bsc), use_cache=use_cache)
+    if sample is None:
+        sample = poured_sample(sc, grains, use_cache, progress)
+    elif len(sample) != grains:
+        raise ShearError(f"a sample of {len(sample)} grains given for a box of {grains}")
+    bed = sample
     box = box_of(bsc, bed)
     walls_off = {"left": False, "right": False} | ({"front": False, "back": False} if sc.dim == 3 else {})
     model = Model.from_scenario(bsc).without_wheel().with_walls(**walls_off)
@@ -451,6 +474,7 @@ def run_shear(
         "grains": grains,
         "options": asdict(opts),
         "box": asdict(box),
+        "sample": sample_report(bsc, bed),
         "shear_speed": speed,
         "dt": sc.physics.dt,
         "area": "corrected: (L - u) times the width (2D: the discs' thickness); tau and sigma alike",

@@ -227,10 +227,11 @@ def _secant(x0: float, y0: float, x1: float, y1: float, target: float) -> float 
     return x1 + (target - y1) * (x1 - x0) / (y1 - y0)
 
 
-def _miss(ev: dict[str, Any], lab: LabSoil, opts: CalibrateOptions) -> float:
-    """An evaluation's distance from the targets in units of the tolerances."""
+def _miss(ev: dict[str, Any], lab: LabSoil, opts: CalibrateOptions, cohesion: bool = True) -> float:
+    """An evaluation's distance from the targets in units of the tolerances (``cohesion``
+    False: the friction angle's only)."""
     m = abs(float(ev["phi_deg"]) - lab.friction_angle) / opts.angle_tolerance
-    if lab.cohesion > 0:
+    if cohesion and lab.cohesion > 0:
         m = max(m, abs(float(ev["c"]) - lab.cohesion) / (opts.cohesion_tolerance * lab.cohesion))
     return m
 
@@ -298,13 +299,16 @@ def run_calibrate(
     mu0 = sc.contact.soil_soil.friction
     a = evaluate(mu0, 0.0)
     c_floor = a["c"]
+    # a cohesion the cohesionless sample already exceeds is out of reach of k >= 0: the
+    # search then keeps k = 0 and spends its tests on the friction angle (a note says so)
+    reach_c = lab.cohesion > 0 and c_floor <= lab.cohesion * (1.0 + opts.cohesion_tolerance)
     b: dict[str, Any] | None = None
-    while len(evaluations) < opts.evaluations and _miss(evaluations[-1], lab, opts) > 1.0:
+    while len(evaluations) < opts.evaluations and _miss(evaluations[-1], lab, opts, reach_c) > 1.0:
         last = evaluations[-1]
         if b is None:  # the first step: a proportional mu and a Rumpf-type k
             mu = last["friction"] * tan_t / math.tan(math.radians(last["phi_deg"]))
             k = 0.0
-            if lab.cohesion > 0:
+            if reach_c:
                 solid = 1.0 - float(measured["porosity"])
                 k = cohesion_guess(
                     sc,
@@ -324,16 +328,16 @@ def run_calibrate(
             )
             mu = last["friction"] * tan_t / math.tan(math.radians(last["phi_deg"])) if step_mu is None else step_mu
             k = last["cohesion_energy"]
-            if lab.cohesion > 0:
+            if reach_c:
                 step_k = _secant(prev["cohesion_energy"], prev["c"], last["cohesion_energy"], last["c"], lab.cohesion)
                 if step_k is not None:
                     k = step_k
         mu = min(max(mu, MU_RANGE[0]), MU_RANGE[1])
         k = max(k, 0.0)
         b = evaluate(mu, k)
-    best_i = min(range(len(evaluations)), key=lambda i: _miss(evaluations[i], lab, opts))
+    best_i = min(range(len(evaluations)), key=lambda i: _miss(evaluations[i], lab, opts, reach_c))
     best = evaluations[best_i]
-    notes += _limits(lab, opts, evaluations, best, c_floor)
+    notes += _limits(lab, opts, evaluations, best, c_floor, reach_c)
     overrides = [f"contact.soil_soil.friction={best['friction']!r}"]
     if lab.cohesion > 0 or sc.contact.soil_soil.cohesion > 0:
         overrides.append(f"contact.soil_soil.cohesion={best['cohesion_energy']!r}")
@@ -385,14 +389,22 @@ def _errors(lab: LabSoil, achieved: dict[str, Any]) -> dict[str, Any]:
 
 
 def _limits(
-    lab: LabSoil, opts: CalibrateOptions, evaluations: list[dict[str, Any]], best: dict[str, Any], c_floor: float
+    lab: LabSoil,
+    opts: CalibrateOptions,
+    evaluations: list[dict[str, Any]],
+    best: dict[str, Any],
+    c_floor: float,
+    reach_c: bool,
 ) -> list[str]:
     """What the search met and could not get past (module doc)."""
     notes = []
-    if lab.cohesion > 0 and c_floor > lab.cohesion * (1.0 + opts.cohesion_tolerance):
+    if lab.cohesion > 0 and not reach_c:
+        se = evaluations[0]["c_se"]
         notes.append(
-            f"cohesion: the cohesionless sample already shows c = {c_floor:.0f} Pa over these stresses "
-            f"(> the target {lab.cohesion:g}); k >= 0 cannot lower it"
+            f"cohesion: the cohesionless sample already shows c = {c_floor:.0f}"
+            + ("" if se is None else f" +- {se:.0f}")
+            + f" Pa over these stresses (> the target {lab.cohesion:g} Pa): k >= 0 cannot lower it; "
+            "cohesion left at 0, only the friction angle searched"
         )
     if best["c_se"] is not None and lab.cohesion > 0 and best["c_se"] > opts.cohesion_tolerance * lab.cohesion:
         notes.append(
@@ -405,7 +417,7 @@ def _limits(
             f"friction angle: friction {MU_RANGE[1]:g} reaches only {top['phi_deg']:.1f} deg with this rolling "
             f"friction; raise contact.soil_soil.rolling_friction"
         )
-    if _miss(best, lab, opts) > 1.0:
+    if _miss(best, lab, opts, reach_c) > 1.0:
         notes.append(f"not within tolerance after {len(evaluations)} shear tests (the nearest is reported)")
     return notes
 

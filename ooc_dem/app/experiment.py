@@ -1,0 +1,454 @@
+"""`ooc-dem experiment FILE --out DIR`: a single-wheel testbed experiment reproduced end to
+end (docs/reference/experiment.md).
+
+The soil is calibrated from the file's lab properties only (``calibrate.run_calibrate``;
+never from the wheel data), or the calibration's overrides are given in the file; then one
+scenario per wheel (the base scenario, the DEM choices, the calibrated overrides, the
+wheel), its bed settled once (the bed cache), and for each wheel and slip a slip-controlled
+run in OUT/<wheel>/slip_<s>/ as `ooc-dem sweep` makes them: a finished run is reused, a
+stopped one resumed from its last committed epoch, any other started. Under mpiexec the
+runs fan out over the ranks (run i on rank i mod R). The statistics
+(``experiment_stats``) and the report (``experiment_report``) follow.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import OocDemError
+from ..model.scenario import Scenario, ScenarioError, load_scenario
+from .experiment_file import Experiment, ExperimentError, WheelSpec
+from .plan import RunError, RunOptions, plan_run, total_steps
+
+if TYPE_CHECKING:
+    from mpi4py import MPI
+
+CALIBRATION_DIR = "calibration"
+FALLBACK_SOLID_FRACTION = 0.6  # of a poured bed, when the file gives no bulk density
+
+
+# ------------------------------------------------------------------ the model set-up
+
+
+def engine_slip(exp: Experiment, wheel: WheelSpec, slip: float) -> float:
+    """The slip the engine prescribes (v = (1 - s_engine) R_rim omega) for the file's slip
+    ``slip`` in its convention (v = (1 - s) R omega, R the rim's or the lug tips' radius)."""
+    if exp.conventions.slip_radius == "lug_tip" and wheel.tip_radius != wheel.radius:
+        return 1.0 - (1.0 - slip) * wheel.tip_radius / wheel.radius
+    return slip
+
+
+def run_dir_name(slip: float) -> str:
+    return f"slip_{slip:.3f}"
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """The bin, the bed and the wheel's start, the same for every wheel (one settled bed)."""
+
+    length: float
+    width: float
+    height: float
+    x0: float
+    n: int
+    tile: int
+    tiles_across: int
+    solid_fraction: float
+    travel: float  # m, the longest travel of any run
+
+    def overrides(self) -> list[str]:
+        return [
+            f"bin.length={self.length!r}",
+            f"bin.width={self.width!r}",
+            f"bin.height={self.height!r}",
+            f"soil.n={self.n}",
+            f"bed.tile={self.tile}",
+            f"bed.tiles_across={self.tiles_across}",
+            f"wheel.x0={self.x0!r}",
+        ]
+
+
+def _mean_sphere_volume(base: Scenario) -> float:
+    """The mean volume of the soil's spheres (its grading drawn, a fixed seed)."""
+    from ..model.grading import draw_radii, grading_of_soil
+
+    r = draw_radii(grading_of_soil(base.soil), 200_000, np.random.default_rng(0), base.dim)
+    return float(np.mean(4.0 / 3.0 * math.pi * r**3))
+
+
+def geometry(exp: Experiment, base: Scenario) -> Geometry:
+    """The bin and bed from the DEM choices' lengths and rules (docs/reference/experiment.md)."""
+    d, src = exp.dem, exp.source
+    tip = max(w.tip_radius for w in exp.wheels)
+    travel = max(
+        (1.0 - engine_slip(exp, w, s)) * w.radius * d.omega * d.travel_time
+        for w in exp.wheels
+        for s in exp.slips_of(w.name)
+    )
+    x0 = d.start_margin + tip
+    need = x0 + travel + tip + d.end_margin
+    length = d.bin_length or need
+    if length < need - 1e-12:
+        raise ExperimentError(
+            f"{src}: [dem].bin_length = {d.bin_length!r}: the wheel starts at x0 = {x0:.4f} m and travels up to "
+            f"{travel:.4f} m; with its lug tips and end_margin the bin must be >= {need:.4f} m long"
+        )
+    width = d.bin_width or max(w.width for w in exp.wheels) + 2.0 * d.side_margin
+    if width < max(w.width for w in exp.wheels) + 4.0 * d.r_max:
+        raise ExperimentError(f"{src}: [dem].bin_width = {width!r}: narrower than the widest wheel + 2 particles")
+    phi = d.solid_fraction or (
+        min(0.74, exp.soil.bulk_density / d.particle_density) if exp.soil.bulk_density > 0 else FALLBACK_SOLID_FRACTION
+    )
+    n_est = phi * length * width * d.bed_depth / _mean_sphere_volume(base)
+    nx = max(1, round(length / d.tile_size))
+    nz = max(1, round(width / d.tile_size))
+    if nx * nz > 1:
+        tile = math.ceil(n_est / (nx * nz))
+        n = tile * nx * nz  # whole tiles: tile_grid gives nx along, nz across
+    else:
+        tile, n, nz = 0, max(1, round(n_est)), 1
+    # the loose fill a tile (or the bed) is poured from: initial_fill_3d's grid of pitch 2.2 r_max
+    pitch = 2.2 * d.r_max
+    tl, tw = length / nx, width / nz
+    per_layer = max(1, int((tl - 2 * d.r_max) / pitch)) * max(1, int((tw - 2 * d.r_max) / pitch))
+    fill_top = 2 * d.r_max + (math.ceil((tile or n) / per_layer) - 1) * pitch
+    height = max(1.05 * fill_top, d.bed_depth + 2.0 * tip + 0.05)
+    return Geometry(
+        length=round(length, 4),
+        width=round(width, 4),
+        height=math.ceil(height * 100.0) / 100.0,
+        x0=round(x0, 4),
+        n=n,
+        tile=tile,
+        tiles_across=nz,
+        solid_fraction=phi,
+        travel=travel,
+    )
+
+
+def dem_overrides(exp: Experiment) -> list[str]:
+    """The DEM choices as scenario overrides (before the geometry's, the user's own and the
+    calibration's)."""
+    d = exp.dem
+    ov = [
+        "scenario.description=" + json.dumps(f"{exp.name}: {exp.reference}"[:200]),
+        f"soil.r_min={d.r_min!r}",
+        f"soil.r_max={d.r_max!r}",
+        f"soil.density={d.particle_density!r}",
+        f"wheel.omega={d.omega!r}",
+        f"wheel.settle_time={d.settle_time!r}",
+        f"wheel.travel_time={d.travel_time!r}",
+        "wheel.control=slip",
+        "wheel.z0=0.0",
+        f"output.steady_start={d.steady_start!r}",
+        f"output.steady_end={d.steady_end!r}",
+        f"output.series_interval={d.series_interval!r}",
+        "output.snapshot_interval=0.0",  # no trajectory: the runs' series are what is compared
+    ]
+    if d.dt:
+        ov.append(f"physics.dt={d.dt!r}")
+    for key, value in d.grading:
+        ov.append(f"soil.grading.{key}={json.dumps(value)}")
+    return ov
+
+
+def wheel_overrides(w: WheelSpec) -> list[str]:
+    ov = [
+        f"wheel.radius={w.radius!r}",
+        f"wheel.width={w.width!r}",
+        f"wheel.load={w.load!r}",
+        f"wheel.n_lugs={w.n_lugs}",
+        f"wheel.lug_tip_radius={w.tip_radius!r}",
+    ]
+    if w.n_lugs:
+        ov.append(f"wheel.lug_thickness={w.lug_thickness!r}")
+    return ov
+
+
+def _scenario(exp: Experiment, overrides: list[str], what: str) -> Scenario:
+    try:
+        return load_scenario(exp.dem.base, overrides)
+    except ScenarioError as e:
+        raise ExperimentError(f"{exp.source}: {what}: {e}") from None
+
+
+def base_scenario(exp: Experiment) -> Scenario:
+    """The base scenario with the DEM choices and the user's overrides (no calibration, the
+    first wheel): what the calibration starts from, and what the geometry is sized on."""
+    sc = _scenario(exp, [*dem_overrides(exp), *exp.dem.overrides], "[dem] on the base scenario")
+    if sc.dim != 3:
+        raise ExperimentError(f"{exp.source}: [dem].base = {exp.dem.base!r}: a 2D scenario; the experiment is 3D")
+    geo = geometry(exp, sc)
+    return _scenario(
+        exp,
+        [*dem_overrides(exp), *geo.overrides(), *exp.dem.overrides, *wheel_overrides(exp.wheels[0])],
+        "[dem] on the base scenario",
+    )
+
+
+def run_scenario(exp: Experiment, geo: Geometry, calibrated: list[str], w: WheelSpec, slip: float) -> Scenario:
+    """One run's scenario: base + DEM choices + the user's overrides + calibrated + the wheel."""
+    ov = [
+        *dem_overrides(exp),
+        *geo.overrides(),
+        *exp.dem.overrides,
+        *calibrated,
+        *wheel_overrides(w),
+        f"scenario.name={exp.name}-{w.name}",
+        f"wheel.slip={engine_slip(exp, w, slip)!r}",
+    ]
+    return _scenario(exp, ov, f"wheel {w.name!r} at slip {slip:g}")
+
+
+# ------------------------------------------------------------------------ calibration
+
+
+class Calibration:
+    """The lab-to-DEM calibration (ooc_dem.app.calibrate), imported when it is needed."""
+
+    @staticmethod
+    def _module() -> Any:
+        # imported by name: the experiment runs without it when the file gives the overrides
+        return importlib.import_module("ooc_dem.app.calibrate")
+
+    @classmethod
+    def read(cls, out: Path) -> dict[str, Any] | None:
+        doc: dict[str, Any] | None = cls._module().read_calibration(out)
+        return doc
+
+    @classmethod
+    def run(cls, sc: Scenario, exp: Experiment, out: Path, progress: Callable[[str], object] | None) -> dict[str, Any]:
+        mod = cls._module()
+        lab = mod.LabSoil(
+            friction_angle=exp.soil.friction_angle, cohesion=exp.soil.cohesion, bulk_density=exp.soil.bulk_density
+        )
+        doc: dict[str, Any] = mod.run_calibrate(sc, lab, out, progress)
+        return doc
+
+
+def calibrated_overrides(exp: Experiment, out: Path, say: Callable[[str], None]) -> tuple[list[str], dict[str, Any]]:
+    """The calibration's overrides: given in the file, or the finished calibration in
+    OUT/calibration, or a calibration run now (from the lab properties only)."""
+    if exp.dem.calibrated is not None:
+        src = exp.dem.calibrated_from or str(exp.source)
+        return list(exp.dem.calibrated), {"given": True, "source": src, "overrides": list(exp.dem.calibrated)}
+    where = out / CALIBRATION_DIR
+    doc = Calibration.read(where)
+    if doc is None:
+        say(f"calibrating the soil from its lab properties into {where} (tens of minutes)")
+        doc = Calibration.run(base_scenario(exp), exp, where, say)
+    else:
+        say(f"calibration: reusing {where}")
+    ov = doc.get("overrides")
+    if not isinstance(ov, list) or not all(isinstance(x, str) for x in ov):
+        raise ExperimentError(f"{where}: the calibration gives no overrides")
+    return list(ov), {"given": False, "source": str(where), **doc}
+
+
+# ------------------------------------------------------------------------------- runs
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    wheel: WheelSpec
+    slip: float
+    scenario: Scenario
+    out: Path
+
+
+def _same_run(sc: Scenario, d: Path) -> None:
+    """A run directory must hold this run (a changed experiment file needs a new --out)."""
+    from .runfiles import read_run_scenario
+
+    stored = read_run_scenario(d)
+    if stored is not None and stored.to_toml() != sc.to_toml():
+        raise RunError(
+            f"{d}: holds a run of another scenario (the experiment file or the calibration changed); "
+            f"use a new --out, or delete {d}"
+        )
+
+
+def finished_summary(run: PlannedRun) -> dict[str, Any] | None:
+    """The run's summary if it ran to its planned end, else None."""
+    from .runfiles import read_summary
+
+    summary = read_summary(run.out, complete=False)
+    if summary is None or summary.get("steps") != total_steps(run.scenario, RunOptions()):
+        return None
+    return summary
+
+
+def execute(run: PlannedRun, progress: bool) -> str:
+    """Run ``run`` to its end: reuse it when finished, resume it when stopped, start it
+    otherwise. Returns what was done: "reused", "resumed" or "ran"."""
+    from .run import Simulation, resume_simulation
+    from .run_setup import stopped_before_first_commit
+
+    d, sc = run.out, run.scenario
+    if d.exists():
+        _same_run(sc, d)
+        if finished_summary(run) is not None:
+            return "reused"
+        if any(d.iterdir()) and not stopped_before_first_commit(d):
+            sim = resume_simulation(d, steps=total_steps(sc, RunOptions()), progress=progress, figures=False)
+            if sim is not None:
+                sim.run()
+            return "resumed"
+    Simulation(sc, d, RunOptions(progress=progress, figures=False)).run()
+    return "ran"
+
+
+# --------------------------------------------------------------------------- pipeline
+
+
+def _wait_for_root(comm: MPI.Comm | None, work: Callable[[], Any]) -> Any:
+    """``work()`` on rank 0 while the other ranks sleep (not spin: a calibration takes
+    minutes), then its result (or its one-line error) on every rank."""
+    if comm is None:
+        return work()
+    result: Any = None
+    error: str | None = None
+    if comm.Get_rank() == 0:
+        try:
+            result = work()
+        except OocDemError as e:
+            error = str(e)
+    req = comm.Ibarrier()
+    while not req.Test():
+        time.sleep(0.2)
+    result, error = comm.bcast((result, error), root=0)
+    if error is not None:
+        raise RunError(error)
+    return result
+
+
+def run_experiment(
+    path: str | Path,
+    out: Path,
+    only: list[str] | None = None,
+    slips: list[float] | None = None,
+    progress: bool = True,
+    comm: MPI.Comm | None = None,
+    plan_only: bool = False,
+) -> dict[str, Any] | None:
+    """The experiment end to end (see the module's docstring). Returns experiment.json's
+    content on rank 0 (None on the other ranks); ``plan_only``: the plan, nothing run."""
+    from .experiment_file import load_experiment
+
+    rank, ranks = (comm.Get_rank(), comm.Get_size()) if comm is not None else (0, 1)
+
+    def say(text: str) -> None:
+        if progress and rank == 0:
+            print(f"ooc-dem experiment: {text}", file=sys.stderr, flush=True)
+
+    exp = load_experiment(path)
+    wheels = list(exp.wheels)
+    if only:
+        unknown = [w for w in only if w not in {x.name for x in wheels}]
+        if unknown:
+            raise ExperimentError(f"--only {unknown[0]!r}: no such wheel (wheels: {', '.join(x.name for x in wheels)})")
+        wheels = [w for w in wheels if w.name in only]
+    base = base_scenario(exp)
+    geo = geometry(exp, base)
+    # every run's scenario planned and checked (uncalibrated) before anything runs
+    pairs = []
+    for w in wheels:
+        chosen = exp.slips_of(w.name) if not slips else [s for s in slips if s in exp.slips_of(w.name)]
+        if slips and not chosen:
+            raise ExperimentError(f"--slips: none of them is a slip of wheel {w.name!r} ({exp.slips_of(w.name)})")
+        pairs += [(w, s) for s in chosen]
+    for w, s in pairs:
+        sc = run_scenario(exp, geo, [], w, s)
+        try:
+            plan_run(sc, RunOptions())
+        except OocDemError as e:
+            raise ExperimentError(f"{exp.source}: wheel {w.name!r} at slip {s:g}: {e}") from None
+        if not -1.0 <= sc.wheel.slip < 1.0:
+            raise ExperimentError(f"{exp.source}: wheel {w.name!r} at slip {s:g}: engine slip {sc.wheel.slip:g}")
+    if plan_only:
+        return plan_summary(exp, base, geo, pairs) if rank == 0 else None
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "experiment.toml").write_bytes(Path(path).read_bytes())
+    calibrated, calibration = _wait_for_root(comm, lambda: calibrated_overrides(exp, out, say))
+    runs = [
+        PlannedRun(w, s, run_scenario(exp, geo, calibrated, w, s), out / w.name / run_dir_name(s)) for w, s in pairs
+    ]
+    for r in runs:
+        if r.out.exists():
+            _same_run(r.scenario, r.out)
+
+    def settle() -> None:
+        from .bed import settled_bed
+        from .progress import settling_progress
+
+        todo = {r.scenario.bed_hash(): r.scenario for r in runs if finished_summary(r) is None}
+        for sc in todo.values():
+            say(f"settling the bed ({sc.soil.n} spheres, cached by its hash)")
+            settled_bed(sc, progress=settling_progress(sc) if progress else None)
+
+    _wait_for_root(comm, settle)
+    failure: str | None = None
+    done: dict[int, str] = {}
+    for i in range(rank, len(runs), ranks):
+        r = runs[i]
+        try:
+            done[i] = execute(r, progress and ranks == 1)
+        except Exception as e:  # noqa: BLE001 - reported by rank 0 as the experiment's one-line error
+            failure = f"wheel {r.wheel.name}, slip {r.slip:g}{f' (rank {rank})' if ranks > 1 else ''}: {e}"
+            if comm is None:
+                raise
+            break
+        print(f"{r.wheel.name} slip {r.slip:.3f}: {done[i]} ({r.out})" + (f" (rank {rank})" if ranks > 1 else ""))
+    parts = comm.gather((done, failure), root=0) if comm is not None else [(done, failure)]
+    if rank != 0 or parts is None:
+        return None
+    failures = [f for _, f in parts if f]
+    if failures:
+        raise RunError(failures[0])
+    status = {i: s for m, _ in parts for i, s in m.items()}
+    from .experiment_report import write_report
+
+    return write_report(exp, out, runs, [status[i] for i in range(len(runs))], geo, calibration, ranks)
+
+
+def plan_summary(
+    exp: Experiment, base: Scenario, geo: Geometry, pairs: list[tuple[WheelSpec, float]]
+) -> dict[str, Any]:
+    """What `--plan` prints: the model and its runs, from the uncalibrated scenario."""
+    steps = total_steps(base, RunOptions())
+    return {
+        "experiment": exp.name,
+        "base": exp.dem.base,
+        "spheres": geo.n,
+        "bin_m": [geo.length, geo.width, geo.height],
+        "bed_depth_m": exp.dem.bed_depth,
+        "tiles": {"tile": geo.tile, "across": geo.tiles_across},
+        "solid_fraction": geo.solid_fraction,
+        "x0_m": geo.x0,
+        "longest_travel_m": geo.travel,
+        "dt_s": base.physics.dt,
+        "steps_per_run": steps,
+        "runs": [
+            {
+                "wheel": w.name,
+                "slip": s,
+                "engine_slip": engine_slip(exp, w, s),
+                "carriage_speed_m_s": (1.0 - engine_slip(exp, w, s)) * w.radius * exp.dem.omega,
+            }
+            for w, s in pairs
+        ],
+        "calibration": "given in the file"
+        if exp.dem.calibrated is not None
+        else f"run from the lab properties (or reused from OUT/{CALIBRATION_DIR})",
+    }

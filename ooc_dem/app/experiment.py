@@ -288,7 +288,13 @@ def finished_summary(run: PlannedRun) -> dict[str, Any] | None:
     return summary
 
 
-def execute(run: PlannedRun, progress: bool) -> str:
+def run_options(exp: Experiment, sc: Scenario, progress: bool) -> RunOptions:
+    """A run's options: monolithic, no figures, an epoch every [dem].checkpoint_interval."""
+    every = max(1, round(exp.dem.checkpoint_interval / sc.physics.dt))
+    return RunOptions(progress=progress, figures=False, checkpoint_every=every)
+
+
+def execute(exp: Experiment, run: PlannedRun, progress: bool) -> str:
     """Run ``run`` to its end: reuse it when finished, resume it when stopped, start it
     otherwise. Returns what was done: "reused", "resumed" or "ran"."""
     from .run import Simulation, resume_simulation
@@ -304,7 +310,7 @@ def execute(run: PlannedRun, progress: bool) -> str:
             if sim is not None:
                 sim.run()
             return "resumed"
-    Simulation(sc, d, RunOptions(progress=progress, figures=False)).run()
+    Simulation(sc, d, run_options(exp, sc, progress)).run()
     return "ran"
 
 
@@ -370,7 +376,7 @@ def run_experiment(
     for w, s in pairs:
         sc = run_scenario(exp, geo, [], w, s)
         try:
-            plan_run(sc, RunOptions())
+            plan_run(sc, run_options(exp, sc, False))
         except OocDemError as e:
             raise ExperimentError(f"{exp.source}: wheel {w.name!r} at slip {s:g}: {e}") from None
         if not -1.0 <= sc.wheel.slip < 1.0:
@@ -403,7 +409,7 @@ def run_experiment(
     for i in range(rank, len(runs), ranks):
         r = runs[i]
         try:
-            done[i] = execute(r, progress and ranks == 1)
+            done[i] = execute(exp, r, progress and ranks == 1)
         except Exception as e:  # noqa: BLE001 - reported by rank 0 as the experiment's one-line error
             failure = f"wheel {r.wheel.name}, slip {r.slip:g}{f' (rank {rank})' if ranks > 1 else ''}: {e}"
             if comm is None:

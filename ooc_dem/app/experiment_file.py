@@ -72,6 +72,7 @@ class DemChoices:
     steady_start: float = 0.5  # s of travel
     steady_end: float = 0.0  # s of travel; 0: travel_time
     series_interval: float = 0.01  # s
+    checkpoint_interval: float = 0.1  # s of simulated time between a run's committed epochs
     passages_per_block: int = 1  # lug passages per confidence-interval block
     block_time: float = 0.0  # s, a smooth wheel's block; 0: the lug period of the file's first lugged wheel
     overrides: tuple[str, ...] = ()
@@ -400,6 +401,7 @@ def _dem(src: str, data: Any, path: Path) -> DemChoices:
         steady_start=steady_start,
         steady_end=steady_end,
         series_interval=t.number("series_interval", d.series_interval, *_POS),
+        checkpoint_interval=t.number("checkpoint_interval", d.checkpoint_interval, *_POS),
         passages_per_block=t.integer("passages_per_block", 1, 1, 1000),
         block_time=t.number("block_time", 0.0, *_NONNEG),
         overrides=t.strings("overrides"),

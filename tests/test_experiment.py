@@ -212,3 +212,44 @@ def test_changed_experiment_refuses_an_old_run(tmp_path):
 
     (run / "scenario.toml").write_text(load_scenario("quick-3d").to_toml())
     one_line_error(cli_in_process("experiment", SMALL, "--out", out, "--no-progress"), "another scenario")
+
+
+def test_calibration_from_the_lab_properties_is_run_once(tmp_path, monkeypatch):
+    """Without [dem].calibrated the pipeline calls calibrate.run_calibrate with the lab
+    properties (never the wheel data) and reuses the finished calibration afterwards."""
+    import types
+
+    from ooc_dem.app import experiment as ex
+    from ooc_dem.app.experiment_file import load_experiment
+
+    calls = []
+    fake = types.ModuleType("ooc_dem.app.calibrate")
+
+    class LabSoil:
+        def __init__(self, friction_angle, cohesion=0.0, bulk_density=0.0):
+            self.friction_angle, self.cohesion, self.bulk_density = friction_angle, cohesion, bulk_density
+
+    def run_calibrate(sc, lab, out, progress=None):
+        calls.append((sc, lab, out))
+        out.mkdir(parents=True)
+        doc = {"overrides": ["contact.soil_soil.friction=0.45"], "achieved": {"friction_angle": 30.2}}
+        (out / "calibration.json").write_text(json.dumps(doc))
+        return doc
+
+    def read_calibration(out):
+        f = out / "calibration.json"
+        return json.loads(f.read_text()) if f.is_file() else None
+
+    fake.LabSoil, fake.run_calibrate, fake.read_calibration = LabSoil, run_calibrate, read_calibration
+    monkeypatch.setitem(sys.modules, "ooc_dem.app.calibrate", fake)
+    f = tmp_path / "e.toml"
+    f.write_text("\n".join(ln for ln in SMALL.read_text().splitlines() if not ln.startswith("calibrated =")))
+    exp = load_experiment(f)
+    assert exp.dem.calibrated is None
+    for _ in range(2):
+        ov, doc = ex.calibrated_overrides(exp, tmp_path / "out", lambda text: None)
+        assert ov == ["contact.soil_soil.friction=0.45"] and doc["given"] is False
+    assert len(calls) == 1
+    sc, lab, out = calls[0]
+    assert (lab.friction_angle, lab.cohesion, lab.bulk_density) == (30.0, 0.0, 1500.0)
+    assert out == tmp_path / "out" / "calibration" and sc.soil.r_min == 0.003 and sc.dim == 3

@@ -271,7 +271,11 @@ def _same_run(sc: Scenario, d: Path) -> None:
     from .runfiles import read_run_scenario
 
     stored = read_run_scenario(d)
-    if stored is not None and stored.to_toml() != sc.to_toml():
+    # the physics (the hash leaves out [output]) and the series' rows; the steady window is
+    # the statistics', read from the file each time
+    if stored is not None and (
+        stored.hash() != sc.hash() or stored.output.series_interval != sc.output.series_interval
+    ):
         raise RunError(
             f"{d}: holds a run of another scenario (the experiment file or the calibration changed); "
             f"use a new --out, or delete {d}"

@@ -32,7 +32,7 @@ class ExperimentError(OocDemError, ValueError):
 
 
 @dataclass(frozen=True)
-class LabSoil:
+class LabProperties:
     """[soil]: the soil's lab properties. friction_angle, cohesion and bulk_density are the
     calibration's targets; the Bekker and Janosi values are recorded in the report only."""
 
@@ -125,7 +125,7 @@ class Measured:
 class Experiment:
     name: str
     source: Path
-    soil: LabSoil
+    soil: LabProperties
     dem: DemChoices
     conventions: Conventions
     wheels: tuple[WheelSpec, ...]
@@ -322,7 +322,7 @@ def experiment_from_dict(data: dict[str, Any], path: Path) -> Experiment:
     return exp
 
 
-def _lab_soil(src: str, data: Any) -> LabSoil:
+def _lab_soil(src: str, data: Any) -> LabProperties:
     t = _Table(src, "[soil]", data, _SOIL)
     sizes: tuple[float, ...] = ()
     passing: tuple[float, ...] = ()
@@ -334,7 +334,7 @@ def _lab_soil(src: str, data: Any) -> LabSoil:
             raise ExperimentError(
                 f"{src}: [soil.grading]: sizes (increasing, m) and passing (%) must be arrays of the same length"
             )
-    return LabSoil(
+    return LabProperties(
         friction_angle=t.number("friction_angle", None, lambda v: 0 < v < 90, "an angle in (0, 90) degrees"),
         cohesion=t.number("cohesion", 0.0, *_NONNEG),
         bulk_density=t.number("bulk_density", 0.0, *_NONNEG),

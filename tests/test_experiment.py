@@ -211,6 +211,8 @@ def test_changed_experiment_refuses_an_old_run(tmp_path):
     from ooc_dem.model.scenario import load_scenario
 
     (run / "scenario.toml").write_text(load_scenario("quick-3d").to_toml())
+    one_line_error(cli_in_process("experiment", SMALL, "--out", out, "--no-progress"), "holds no experiment")
+    (out / "experiment.toml").write_text(SMALL.read_text())
     one_line_error(cli_in_process("experiment", SMALL, "--out", out, "--no-progress"), "another scenario")
 
 

@@ -387,6 +387,13 @@ def run_experiment(
             raise ExperimentError(f"{exp.source}: wheel {w.name!r} at slip {s:g}: engine slip {sc.wheel.slip:g}")
     if plan_only:
         return plan_summary(exp, base, geo, pairs) if rank == 0 else None
+    problem: str | None = None
+    if rank == 0 and out.is_dir() and any(out.iterdir()) and not (out / "experiment.toml").is_file():
+        problem = f"--out {out}: directory exists, is not empty and holds no experiment (use a new directory)"
+    if comm is not None:
+        problem = comm.bcast(problem, root=0)
+    if problem:
+        raise RunError(problem)
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
         (out / "experiment.toml").write_bytes(Path(path).read_bytes())

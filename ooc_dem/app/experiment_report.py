@@ -170,7 +170,7 @@ def _json_default(v: object) -> object:
         return str(v)
     if isinstance(v, (np.floating, np.integer)):
         return v.item()
-    raise TypeError(type(v).__name__)
+    return str(v)  # anything else the calibration's record holds, as text
 
 
 def _lug_gain(exp: Experiment, rows: list[dict[str, Any]], stats_of: dict[tuple[str, float], Any]) -> None:

@@ -159,7 +159,7 @@ def _series(run: Path) -> np.ndarray:
 def test_small_experiment_killed_and_continued(tmp_path):
     """The small experiment killed during its first run, then continued: the stopped run
     resumes (its series equal to an uninterrupted run's), the others run, the report is
-    written; a third invocation reuses every run."""
+    written; a third invocation reuses every run; under mpiexec -n 2 the same runs."""
     ref = tmp_path / "ref"
     run_cli("experiment", SMALL, "--out", ref, "--only", "smooth", "--slips", "0.2", "--no-progress", check=True)
     out = tmp_path / "out"
@@ -201,6 +201,14 @@ def test_small_experiment_killed_and_continued(tmp_path):
     cp = run_cli("experiment", SMALL, "--out", out, "--no-progress", check=True)
     assert cp.stdout.count(": reused (") == 4
     assert stamps == {p: p.stat().st_mtime_ns for p in out.glob("*/slip_*/summary.json")}
+
+    # under mpiexec the runs fan out over the ranks, each the same run as in one process
+    from support.mpi import run_mpi
+
+    cp = run_mpi(2, "experiment", SMALL, "--out", tmp_path / "mpi", "--only", "lugged", "--no-progress")
+    assert "lugged slip 0.400: ran" in cp.stdout and "(rank 1)" in cp.stdout
+    for s in ("slip_0.200", "slip_0.400"):
+        assert np.array_equal(_series(tmp_path / "mpi" / "lugged" / s), _series(out / "lugged" / s), equal_nan=True)
 
 
 def test_changed_experiment_refuses_an_old_run(tmp_path):

@@ -21,7 +21,8 @@ from .outputs import write_text_atomic
 from .runfiles import read_series, read_summary
 
 if TYPE_CHECKING:
-    from .experiment import Geometry, PlannedRun
+    from .experiment import PlannedRun
+    from .experiment_setup import Geometry
 
 # the compared quantities: (key, label, unit, the measured key)
 QUANTITIES = (

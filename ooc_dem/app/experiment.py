@@ -67,7 +67,7 @@ def calibrated_overrides(exp: Experiment, out: Path, say: Callable[[str], None])
         src = exp.dem.calibrated_from or str(exp.source)
         return list(exp.dem.calibrated), {"given": True, "source": src, "overrides": list(exp.dem.calibrated)}
     where = out / CALIBRATION_DIR
-    doc = Calibration.read(where)
+    doc = Calibration.read(where) if where.is_dir() else None
     if doc is None:
         say(f"calibrating the soil from its lab properties into {where} (tens of minutes)")
         doc = Calibration.run(base_scenario(exp), exp, where, say)

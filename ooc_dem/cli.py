@@ -15,6 +15,7 @@ from .app.cli_commands import (
     cmd_animate,
     cmd_check,
     cmd_compare,
+    cmd_experiment,
     cmd_export_trajectory,
     cmd_prepare,
     cmd_profile,
@@ -45,6 +46,7 @@ COMMANDS = {
     "compare": cmd_compare,
     "sweep": cmd_sweep,
     "calibrate": cmd_calibrate,
+    "experiment": cmd_experiment,
     "shear": cmd_shear,
     "sinkage": cmd_sinkage,
     "profile": cmd_profile,
@@ -59,7 +61,7 @@ def main(argv=None) -> int:
 
         if launched()[0] > 1:  # under mpiexec: rank 0 runs the command, the others serve it
             return run_ranks(lambda: _dispatch(args, known))
-    if args.command == "sweep":
+    if args.command in ("sweep", "experiment"):
         from .engine.mpi import launched, run_everywhere, world
 
         if launched()[0] > 1:  # under mpiexec: the slips' runs fan out over the ranks

@@ -107,13 +107,14 @@ class CalibrateOptions:
 
 
 def soil_key(sc: Scenario) -> str:
-    """A digest of what a calibration of ``sc`` depends on (its physics, soil, pour and
-    contact laws; not its bin, wheel or outputs): a calibration is reused only for a
+    """A digest of what a calibration of ``sc`` depends on (its physics, grains, pour and
+    contact laws; not its bin, grain count, wheel or outputs): a calibration is reused only for a
     scenario of the same key."""
     import hashlib
 
     d = sc.to_dict()
     keep = {k: d[k] for k in ("physics", "soil", "contact")}
+    keep["soil"] = {k: v for k, v in d["soil"].items() if k != "n"}  # the box holds its own count
     keep["bed"] = {k: d["bed"][k] for k in ("settle_speed", "max_settle_time", "fill_friction")}
     return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:16]
 

@@ -285,6 +285,35 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_experiment(args: argparse.Namespace) -> int:
+    from .experiment import run_experiment
+
+    try:
+        slips = [float(s) for s in args.slips.split(",") if s.strip()]
+    except ValueError:
+        raise CliError(f"--slips {args.slips!r}: must be comma-separated numbers") from None
+    doc = run_experiment(
+        args.file,
+        Path(args.out),
+        only=args.only or None,
+        slips=slips or None,
+        progress=not args.no_progress,
+        comm=getattr(args, "comm", None),
+        plan_only=args.plan,
+    )
+    if doc is None:  # a rank other than 0
+        return 0
+    if args.plan:
+        print(json.dumps(doc, indent=2))
+        return 0
+    print(doc["table"])
+    out = Path(args.out)
+    print(
+        f"report: {out / 'comparison.md'}  {out / 'comparison.csv'}  {out / 'experiment.json'}  figure: {doc['figure']}"
+    )
+    return 0
+
+
 def cmd_shear(args: argparse.Namespace) -> int:
     from .shear import ShearOptions, mohr_coulomb_line, run_shear
 

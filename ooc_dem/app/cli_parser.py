@@ -356,4 +356,18 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--slips", required=True, help="comma-separated slips, e.g. 0.1,0.2,0.4")
     q.add_argument("--out", required=True)
     q.add_argument("--no-progress", action="store_true")
+
+    q = sub.add_parser(
+        "experiment",
+        help="a single-wheel testbed experiment end to end: calibrate the soil from its lab properties, "
+        "run every wheel's slips (resumable), compare with the measured points",
+    )
+    q.add_argument("file", metavar="FILE", help="the experiment file (docs/reference/experiment.md)")
+    q.add_argument("--out", required=True, help="output directory; run the command again on it to continue")
+    q.add_argument("--only", action="append", default=[], metavar="WHEEL", help="only this wheel (repeatable)")
+    q.add_argument("--slips", default="", help="comma-separated subset of the file's slips")
+    q.add_argument(
+        "--plan", action="store_true", help="check the file and print the model and its runs as JSON (nothing run)"
+    )
+    q.add_argument("--no-progress", action="store_true")
     return p

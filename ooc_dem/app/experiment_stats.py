@@ -17,49 +17,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-# past this many degrees of freedom the t quantile is the normal one to 4 decimals
-_NORMAL_DOF = 100_000
-_Z975 = 1.959963984540054
-
-
-def _t_two_sided_mass(t: float, dof: int) -> float:
-    """P(|T| < t) for Student's t with an integer number of degrees of freedom (the closed
-    finite series in theta = atan(t / sqrt(dof)); Abramowitz & Stegun 26.7.3-4)."""
-    theta = math.atan(t / math.sqrt(dof))
-    c2 = math.cos(theta) ** 2
-    s = math.sin(theta)
-    if dof % 2 == 1:
-        term, total = 1.0, 1.0 if dof > 1 else 0.0
-        for k in range(1, (dof - 3) // 2 + 1):
-            term *= c2 * (2 * k) / (2 * k + 1)
-            total += term
-        return (2.0 / math.pi) * (theta + (s * math.cos(theta) * total if dof > 1 else 0.0))
-    term, total = 1.0, 1.0
-    for k in range(1, (dof - 2) // 2 + 1):
-        term *= c2 * (2 * k - 1) / (2 * k)
-        total += term
-    return s * total
-
-
 def t_quantile_975(dof: int) -> float:
     """The 97.5 % quantile of Student's t (the half-width factor of a two-sided 95 %
     interval) for ``dof`` >= 1 degrees of freedom."""
+    from scipy.stats import t
+
     if dof < 1:
         raise ValueError(f"degrees of freedom {dof}: must be >= 1")
-    if dof >= _NORMAL_DOF:
-        return _Z975
-    lo, hi = 0.0, 20.0
-    while _t_two_sided_mass(hi, dof) < 0.95:
-        hi *= 2.0
-    for _ in range(200):  # bisection to the double's resolution
-        mid = 0.5 * (lo + hi)
-        if mid in (lo, hi):
-            break
-        if _t_two_sided_mass(mid, dof) < 0.95:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
+    return float(t.ppf(0.975, dof))
 
 
 @dataclass(frozen=True)

@@ -64,6 +64,7 @@ def test_the_fragment_is_the_overrides_as_toml():
         (["--friction-angle", "30", "--sigma", "3e3,x"], "--sigma"),
         (["--friction-angle", "30", "--evaluations", "1"], "--evaluations"),
         (["--friction-angle", "30", "--cohesion", "-5"], "--cohesion"),
+        (["--friction-angle", "30", "--vary", "restitution"], "--vary"),
     ],
 )
 def test_calibrate_refuses_bad_targets_and_options_in_one_line(tmp_path, args, words):
@@ -145,3 +146,36 @@ def test_calibrate_chooses_the_nearest_measured_test_and_shear_reproduces_it(tmp
     )
     fit = json.loads((tmp_path / "check" / "shear.json").read_text())["peak_fit"]
     assert fit["phi_deg"] == best["phi_deg"] and fit["c"] == best["c"]
+
+
+@pytest.mark.slow
+def test_calibrate_can_search_the_rolling_friction_instead(tmp_path):
+    """--vary rolling_friction: the friction stays the scenario's in every test, the rolling
+    friction moves and is the value written."""
+    out = tmp_path / "cal"
+    cli_in_process(
+        "calibrate",
+        "quick",
+        "--friction-angle",
+        "30",
+        "--grains",
+        300,
+        "--sigma",
+        "2e3,4e3,8e3",
+        "--evaluations",
+        "2",
+        "--vary",
+        "rolling_friction",
+        "--no-progress",
+        "--out",
+        out,
+        check=True,
+    )
+    result = read_calibration(out)
+    assert result is not None
+    quick = load_scenario("quick").contact.soil_soil
+    assert [e["friction"] for e in result["evaluations"]] == [quick.friction] * len(result["evaluations"])
+    assert result["evaluations"][0]["rolling_friction"] == quick.rolling_friction
+    best = result["evaluations"][result["chosen"]]
+    assert f"contact.soil_soil.rolling_friction={best['rolling_friction']!r}" in result["overrides"]
+    assert not any(o.startswith("contact.soil_soil.friction=") for o in result["overrides"])

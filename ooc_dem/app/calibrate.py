@@ -15,10 +15,11 @@ The search is small and stated, every value it reports measured:
    the calibrated scenario's bed is poured as the sample was.
 2. **Friction angle and cohesion**: the direct shear test (``shear.run_shear``) of that one
    sample at ``sigmas`` (the stresses under the wheel by default), the Mohr-Coulomb fit of
-   the peaks (or residuals: ``envelope``) giving phi and c. The soil-soil friction mu moves
-   tan(phi), the cohesion energy density k moves c, nearly independently: each evaluation
-   takes a secant step in each (the first from the scenario's mu without cohesion, the
-   second from a proportional guess of mu and a Rumpf-type guess of k), until both are
+   the peaks (or residuals: ``envelope``) giving phi and c. The soil-soil friction mu (or,
+   ``vary``, its rolling friction) moves tan(phi), the cohesion energy density k moves c,
+   nearly independently: each evaluation takes a secant step in each (the first from the
+   scenario's value without cohesion, the second from a proportional guess of the value and
+   a Rumpf-type guess of k), until both are
    within tolerance or ``evaluations`` shear tests are spent. The chosen parameters are
    those of the evaluation nearest the targets; its measured phi, c and their standard
    errors are the result.
@@ -56,7 +57,7 @@ if TYPE_CHECKING:
 CALIBRATION_JSON = "calibration.json"
 FRAGMENT_TOML = "calibrated.toml"
 FILL_MAX = 2.0  # the loosest pour's friction tried
-MU_RANGE = (0.01, 3.0)  # the soil-soil friction searched
+VARIED = {"friction": (0.01, 3.0), "rolling_friction": (0.0, 1.0)}  # what moves phi, and its range
 COORDINATION = 6.0  # the guess of k's contacts per grain (Rumpf)
 
 
@@ -86,6 +87,7 @@ class CalibrateOptions:
     sigmas: tuple[float, ...] = (3.0e3, 6.0e3, 9.0e3, 12.0e3)  # Pa, the shear tests' normal stresses
     grains: int = 2000  # grains in the shear box
     envelope: str = "peak"  # "peak" or "residual": the Mohr-Coulomb line calibrated
+    vary: str = "friction"  # the soil-soil value that moves phi: "friction" or "rolling_friction"
     inertial: float = 1.0e-3  # the shear tests' inertial number at the smallest stress
     displacement: float = 0.10  # the shear displacement, a fraction of the box's length
     evaluations: int = 5  # shear tests at most
@@ -95,6 +97,8 @@ class CalibrateOptions:
     density_tolerance: float = 0.01  # relative
 
     def check(self) -> None:
+        if self.vary not in VARIED:
+            raise CalibrationError(f"--vary {self.vary!r}: must be one of {', '.join(VARIED)}")
         if self.envelope not in ("peak", "residual"):
             raise CalibrationError(f"--envelope {self.envelope!r}: must be 'peak' or 'residual'")
         if self.grains < 200:
@@ -119,14 +123,12 @@ def soil_key(sc: Scenario) -> str:
     return hashlib.sha256(json.dumps(keep, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def with_values(sc: Scenario, fill: float | None = None, mu: float | None = None, k: float | None = None) -> Scenario:
-    """The scenario with the pour's friction, the soil-soil friction and cohesion set."""
+def with_values(sc: Scenario, fill: float | None = None, **pair_values: float) -> Scenario:
+    """The scenario with the pour's friction and soil-soil values (friction, rolling_friction,
+    cohesion) set."""
     bed = sc.bed if fill is None else dataclasses.replace(sc.bed, fill_friction=fill)
-    pair = sc.contact.soil_soil
-    if mu is not None:
-        pair = dataclasses.replace(pair, friction=mu)
-    if k is not None:
-        pair = dataclasses.replace(pair, cohesion=k)
+    values: dict[str, Any] = dict(pair_values)
+    pair = dataclasses.replace(sc.contact.soil_soil, **values)
     return dataclasses.replace(sc, bed=bed, contact=dataclasses.replace(sc.contact, soil_soil=pair))
 
 
@@ -274,11 +276,15 @@ def run_calibrate(
     evaluations: list[dict[str, Any]] = []
     results: list[dict[str, Any]] = []
 
-    def evaluate(mu: float, k: float) -> dict[str, Any]:
-        res = run_shear(with_values(base, mu=mu, k=k), shear_opts, out=None, figures=False, sample=sample)
+    vary = opts.vary
+
+    def evaluate(x: float, k: float) -> dict[str, Any]:
+        tested = with_values(base, **{vary: x}, cohesion=k)
+        res = run_shear(tested, shear_opts, out=None, figures=False, sample=sample)
         fit = res[f"{opts.envelope}_fit"]
         ev = {
-            "friction": mu,
+            "friction": tested.contact.soil_soil.friction,
+            "rolling_friction": tested.contact.soil_soil.rolling_friction,
             "cohesion_energy": k,
             "phi_deg": fit["phi_deg"],
             "phi_se_deg": fit["phi_se_deg"],
@@ -291,14 +297,15 @@ def run_calibrate(
         cse = "" if fit["c_se"] is None else f" +- {fit['c_se']:.0f}"
         pse = "" if fit["phi_se_deg"] is None else f" +- {fit['phi_se_deg']:.2f}"
         say(
-            f"shear test {len(evaluations)}: friction {mu:.4g}, cohesion {k:.4g} J/m^3 -> "
+            f"shear test {len(evaluations)}: {vary.replace('_', ' ')} {x:.4g}, cohesion {k:.4g} J/m^3 -> "
             f"phi {fit['phi_deg']:.2f}{pse} deg, c {fit['c']:.0f}{cse} Pa"
         )
         return ev
 
     tan_t = math.tan(math.radians(lab.friction_angle))
-    mu0 = sc.contact.soil_soil.friction
-    a = evaluate(mu0, 0.0)
+    x0 = float(getattr(sc.contact.soil_soil, vary))
+    lo_x, hi_x = VARIED[vary]
+    a = evaluate(x0, 0.0)
     c_floor = a["c"]
     # a cohesion the cohesionless sample already exceeds is out of reach of k >= 0: the
     # search then keeps k = 0 and spends its tests on the friction angle (a note says so)
@@ -306,8 +313,9 @@ def run_calibrate(
     b: dict[str, Any] | None = None
     while len(evaluations) < opts.evaluations and _miss(evaluations[-1], lab, opts, reach_c) > 1.0:
         last = evaluations[-1]
-        if b is None:  # the first step: a proportional mu and a Rumpf-type k
-            mu = last["friction"] * tan_t / math.tan(math.radians(last["phi_deg"]))
+        ratio = tan_t / math.tan(math.radians(last["phi_deg"]))
+        if b is None:  # the first step: a proportional value (a step of 0.05 from 0) and a Rumpf-type k
+            x = last[vary] * ratio if last[vary] > 0 else (0.05 if ratio > 1 else 0.0)
             k = 0.0
             if reach_c:
                 solid = 1.0 - float(measured["porosity"])
@@ -320,26 +328,28 @@ def run_calibrate(
                 )
         else:
             prev = evaluations[-2]
-            step_mu = _secant(
-                prev["friction"],
+            step_x = _secant(
+                prev[vary],
                 math.tan(math.radians(prev["phi_deg"])),
-                last["friction"],
+                last[vary],
                 math.tan(math.radians(last["phi_deg"])),
                 tan_t,
             )
-            mu = last["friction"] * tan_t / math.tan(math.radians(last["phi_deg"])) if step_mu is None else step_mu
+            x = last[vary] * ratio if step_x is None else step_x
             k = last["cohesion_energy"]
             if reach_c:
                 step_k = _secant(prev["cohesion_energy"], prev["c"], last["cohesion_energy"], last["c"], lab.cohesion)
                 if step_k is not None:
                     k = step_k
-        mu = min(max(mu, MU_RANGE[0]), MU_RANGE[1])
+        x = min(max(x, lo_x), hi_x)
         k = max(k, 0.0)
-        b = evaluate(mu, k)
+        if any(e[vary] == x and e["cohesion_energy"] == k for e in evaluations):
+            break  # a range's end tested already: nothing new to learn
+        b = evaluate(x, k)
     best_i = min(range(len(evaluations)), key=lambda i: _miss(evaluations[i], lab, opts, reach_c))
     best = evaluations[best_i]
     notes += _limits(lab, opts, evaluations, best, c_floor, reach_c)
-    overrides = [f"contact.soil_soil.friction={best['friction']!r}"]
+    overrides = [f"contact.soil_soil.{vary}={best[vary]!r}"]
     if lab.cohesion > 0 or sc.contact.soil_soil.cohesion > 0:
         overrides.append(f"contact.soil_soil.cohesion={best['cohesion_energy']!r}")
     overrides.append(f"bed.fill_friction={fill!r}")
@@ -412,11 +422,21 @@ def _limits(
             f"cohesion: the fit's standard error {best['c_se']:.0f} Pa exceeds the tolerance "
             f"({opts.cohesion_tolerance:.0%} of {lab.cohesion:g} Pa): c is not resolved better than that"
         )
-    top = max(evaluations, key=lambda e: e["friction"])
-    if top["friction"] >= MU_RANGE[1] and top["phi_deg"] < lab.friction_angle - opts.angle_tolerance:
+    vary = opts.vary
+    lo_x, hi_x = VARIED[vary]
+    other = "rolling_friction" if vary == "friction" else "friction"
+    top = max(evaluations, key=lambda e: e[vary])
+    if top[vary] >= hi_x and top["phi_deg"] < lab.friction_angle - opts.angle_tolerance:
         notes.append(
-            f"friction angle: friction {MU_RANGE[1]:g} reaches only {top['phi_deg']:.1f} deg with this rolling "
-            f"friction; raise contact.soil_soil.rolling_friction"
+            f"friction angle: {vary} {hi_x:g} reaches only {top['phi_deg']:.1f} deg; raise "
+            f"contact.soil_soil.{other} or calibrate with --vary {other}"
+        )
+    bottom = min(evaluations, key=lambda e: e[vary])
+    if bottom[vary] <= lo_x and bottom["phi_deg"] > lab.friction_angle + opts.angle_tolerance:
+        notes.append(
+            f"friction angle: {vary} {lo_x:g} still gives {bottom['phi_deg']:.1f} deg on this sample; lower "
+            f"contact.soil_soil.{other} or calibrate with --vary {other} (a looser sample, e.g. a larger grain "
+            "density for the same bulk density, has a lower peak)"
         )
     if _miss(best, lab, opts, reach_c) > 1.0:
         notes.append(f"not within tolerance after {len(evaluations)} shear tests (the nearest is reported)")
@@ -449,13 +469,13 @@ def fragment_toml(result: dict[str, Any]) -> str:
 def calibration_lines(result: dict[str, Any]) -> list[str]:
     """The calibration's table as printed: every test, the chosen values, the achieved
     properties against the targets, the notes."""
-    lines = [f"{'test':>4} {'friction':>9} {'k (J/m3)':>10} {'phi (deg)':>14} {'c (Pa)':>14}"]
+    lines = [f"{'test':>4} {'friction':>9} {'rolling':>8} {'k (J/m3)':>10} {'phi (deg)':>14} {'c (Pa)':>14}"]
     for i, ev in enumerate(result["evaluations"]):
         pse = "" if ev["phi_se_deg"] is None else f" +- {ev['phi_se_deg']:.2f}"
         cse = "" if ev["c_se"] is None else f" +- {ev['c_se']:.0f}"
         mark = " <- chosen" if i == result["chosen"] else ""
         lines.append(
-            f"{i + 1:>4} {ev['friction']:>9.4f} {ev['cohesion_energy']:>10.4g} {ev['phi_deg']:>6.2f}{pse:>8} "
+            f"{i + 1:>4} {ev['friction']:>9.4f} {ev['rolling_friction']:>8.4f} {ev['cohesion_energy']:>10.4g} {ev['phi_deg']:>6.2f}{pse:>8} "
             f"{ev['c']:>6.0f}{cse:>8}{mark}"
         )
     a, t, e = result["achieved"], result["targets"], result["errors"]

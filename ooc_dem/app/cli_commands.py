@@ -353,7 +353,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     except ValueError:
         raise CliError(f"--sigma {args.sigma!r}: must be comma-separated numbers (Pa)") from None
     lab = LabSoil(friction_angle=args.friction_angle, cohesion=args.cohesion, bulk_density=args.bulk_density)
-    opts = CalibrateOptions(sigmas=sigmas, grains=args.grains, envelope=args.envelope, evaluations=args.evaluations)
+    opts = CalibrateOptions(
+        sigmas=sigmas, grains=args.grains, envelope=args.envelope, evaluations=args.evaluations, vary=args.vary
+    )
     lab.check()
     opts.check()
     sc = _load(args)

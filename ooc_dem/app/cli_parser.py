@@ -332,6 +332,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     q.add_argument("--grains", type=_nonneg_int, default=2000, help="grains in the shear box (default 2000)")
     q.add_argument("--envelope", choices=["peak", "residual"], default="peak", help="the envelope calibrated")
+    q.add_argument(
+        "--vary",
+        choices=["friction", "rolling_friction"],
+        default="friction",
+        help="the soil-soil value searched for the friction angle (default friction)",
+    )
     q.add_argument("--evaluations", type=_nonneg_int, default=5, help="shear tests at most (default 5)")
     q.add_argument("--out", required=True)
     q.add_argument("--no-progress", action="store_true")

@@ -53,7 +53,9 @@ def calibrated_overrides(exp: Experiment, out: Path, say: Callable[[str], None])
             friction_angle=exp.soil.friction_angle, cohesion=exp.soil.cohesion, bulk_density=exp.soil.bulk_density
         )
         k = exp.calibration
-        opts = CalibrateOptions(sigmas=k.sigmas, grains=k.grains, envelope=k.envelope, evaluations=k.evaluations)
+        opts = CalibrateOptions(
+            sigmas=k.sigmas, grains=k.grains, envelope=k.envelope, evaluations=k.evaluations, vary=k.vary
+        )
         doc = run_calibrate(base, lab, where, say, opts)
     elif doc.get("soil_key") != soil_key(base):
         raise ExperimentError(

@@ -89,6 +89,7 @@ class CalibrationChoices:
     sigmas: tuple[float, ...] = (3.0e3, 6.0e3, 9.0e3, 12.0e3)  # Pa, the shear tests' normal stresses
     envelope: str = "peak"  # the Mohr-Coulomb line calibrated: "peak" or "residual"
     evaluations: int = 5  # shear tests at most
+    vary: str = "friction"  # the soil-soil value searched for the friction angle (or "rolling_friction")
 
 
 @dataclass(frozen=True)
@@ -225,7 +226,7 @@ _NONNEG = (lambda v: v >= 0, "a number >= 0")
 _SLIP = (lambda v: 0 <= v < 1, "a slip in [0, 1)")
 
 _TOP = ("experiment", "soil", "dem", "calibration", "conventions", "wheel", "measured")
-_CALIBRATION = ("grains", "sigmas", "envelope", "evaluations")
+_CALIBRATION = ("grains", "sigmas", "envelope", "evaluations", "vary")
 _EXPERIMENT = ("name", "reference", "notes", "slips")
 _SOIL = (
     "friction_angle",
@@ -294,6 +295,7 @@ def experiment_from_dict(data: dict[str, Any], path: Path) -> Experiment:
         sigmas=sigmas,
         envelope=k.text("envelope", d0.envelope, ("peak", "residual")),
         evaluations=k.integer("evaluations", d0.evaluations, 2, 50),
+        vary=k.text("vary", d0.vary, ("friction", "rolling_friction")),
     )
     c = _Table(src, "[conventions]", data.get("conventions", {}), _CONVENTIONS)
     conventions = Conventions(

@@ -68,7 +68,7 @@ CASE = "quick-3d"
 RUN_STEPS = 3000
 FIRST_STEPS = 20  # every step up to here, then the checkpoints
 SETTLE_CHECKPOINTS = (100, 500, 1000, 2000, 5000, 10000)
-RUN_CHECKPOINTS = (100, 500, 1000, 2000, 3000)
+RUN_CHECKPOINTS = (100, 500, 1000, 2000, RUN_STEPS)
 # the other pinned Hertz case: its constants and its tile's fill (not stepped here)
 OTHER = {"bed3d-20000-hertz": ("bed3d-20000", ["contact.soil_soil.law=hertz", "contact.soil_wall.law=hertz"])}
 # wheel angles whose lug cos and sin are checked (quick-3d's wheel turns only after 5000 steps)

@@ -196,18 +196,26 @@ def pour_scenario(sc: Scenario) -> Scenario:
     return dataclasses.replace(sc, contact=dataclasses.replace(sc.contact, soil_soil=pair))
 
 
+def settle_schedule(sc: Scenario) -> tuple[int, int, int]:
+    """(chunk, min_steps, max_steps) of ``settle``: the speed is checked every chunk steps (5 ms
+    of simulated time), from min_steps (50 ms) on, up to max_steps (bed.max_settle_time)."""
+    dt = sc.physics.dt
+    # bed.max_settle_time / dt is at most MAX_STEPS (scenario validation); the fixed
+    # intervals below are capped so that a tiny dt cannot make them overflow
+    max_steps = int(math.ceil(sc.bed.max_settle_time / dt))
+    chunk = max(1, min(max_steps, int(round(min(0.005 / dt, MAX_STEPS)))))
+    min_steps = int(round(min(0.05 / dt, MAX_STEPS + 1)))
+    return chunk, min_steps, max_steps
+
+
 def settle(sc: Scenario, p: Particles, progress: SettleProgress | None = None) -> tuple[Particles, int]:
     """Deposit under gravity until the mean speed < settle_speed (with bed.fill_friction, if
     set). Returns (bed, steps)."""
     model = Model.from_scenario(pour_scenario(sc)).without_wheel()
     stepper = DomainStepper(p, model)
     dt = sc.physics.dt
-    # bed.max_settle_time / dt is at most MAX_STEPS (scenario validation); the fixed
-    # intervals below are capped so that a tiny dt cannot make them overflow
-    max_steps = int(math.ceil(sc.bed.max_settle_time / dt))
-    chunk = max(1, min(max_steps, int(round(min(0.005 / dt, MAX_STEPS)))))  # check every 5 ms of simulated time
+    chunk, min_steps, max_steps = settle_schedule(sc)
     step = 0
-    min_steps = int(round(min(0.05 / dt, MAX_STEPS + 1)))
     while True:
         stepper.advance(step, chunk)
         step += chunk

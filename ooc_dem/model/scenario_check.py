@@ -29,6 +29,7 @@ from .schema import (
     ScenarioError,
     SoilGrading,
     big,
+    did_you_mean,
     show,
     show_key,
     steps_for_duration,
@@ -179,7 +180,11 @@ def _build(cls, data: Any, path: str, defaults):
     unknown = sorted(set(data) - set(fields))
     if unknown:
         where = f"{path}.{show_key(unknown[0])}" if path else show_key(unknown[0])
-        raise ScenarioError(f"{where}: unknown key (allowed: {', '.join(fields)})")
+        hint = did_you_mean(unknown[0], fields)
+        if unknown[0] == "base" and path:
+            hint = "; base goes at the top of the file, before any [section]"
+        what = "unknown section" if not path else "unknown key"
+        raise ScenarioError(f"{where}: {what} (allowed: {', '.join(fields)}){hint}")
     kwargs = {}
     for name, f in fields.items():
         default = getattr(defaults, name)

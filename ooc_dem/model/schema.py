@@ -8,10 +8,12 @@ Checking the values is model/scenario_check.py's, loading them model/scenario.py
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import hashlib
 import json
 import re
 from dataclasses import dataclass
+from collections.abc import Iterable
 from typing import Any
 
 from ..errors import OocDemError
@@ -63,6 +65,14 @@ def show(value: Any, limit: int = 60) -> str:
 def show_key(key: str) -> str:
     """A key as it may appear in a one-line message (a plain key as itself)."""
     return key if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", key) else show(key, 40)
+
+
+def did_you_mean(word: object, choices: Iterable[str]) -> str:
+    """'; did you mean 'x'?' for the choice closest to a mistyped word (difflib), or ''."""
+    if not isinstance(word, str) or len(word) > 200:
+        return ""
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def big(n: int) -> str:

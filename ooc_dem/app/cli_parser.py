@@ -256,7 +256,13 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--fps", type=_count(1, 120), default=20, help="frames per second (default 20)")
     q.add_argument("--no-progress", action="store_true")
 
-    sub.add_parser("scenarios", help="list built-in scenarios")
+    q = sub.add_parser("scenarios", help="list built-in scenarios")
+    q.add_argument(
+        "--show",
+        metavar="NAME",
+        help="print the resolved scenario NAME (a built-in or a file) as a complete TOML, "
+        "every key commented with its unit and meaning",
+    )
 
     q = sub.add_parser(
         "check",

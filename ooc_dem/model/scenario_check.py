@@ -134,6 +134,22 @@ _PAIR_CONSTRAINTS = {
 }
 
 
+def allowed_values(table: str, key: str) -> str:
+    """What a key may hold, as the checks say it (``table``: ``physics``, ``contact.soil_soil``,
+    ``soil.grading``); the checks of keys against each other are not listed."""
+    if table.startswith("contact."):
+        if key == "no_tension":
+            return "true, false or unset"
+        return _PAIR_CONSTRAINTS[key][1]
+    if table == "soil.grading":
+        if key == "kind":
+            return f"one of {', '.join(map(repr, KINDS))}"
+        return "the kind's own keys only (docs/reference/grading.md)"
+    if (table, key) in _CONSTRAINTS:
+        return str(_CONSTRAINTS[(table, key)][1])
+    return "true or false" if key == "enabled" else "any"
+
+
 def _type_name(t) -> str:
     return {float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(t, str(t))
 

@@ -437,7 +437,10 @@ def cmd_profile(args: argparse.Namespace) -> int:
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in PROFILED_MODES]
     if not modes or bad:
-        raise CliError(f"--modes {args.modes!r}: each must be one of {', '.join(PROFILED_MODES)}")
+        from ..model.schema import did_you_mean
+
+        hint = did_you_mean(bad[0], PROFILED_MODES) if bad else ""
+        raise CliError(f"--modes {args.modes!r}: each must be one of {', '.join(PROFILED_MODES)}{hint}")
     _load(args)  # validate the scenario and overrides before spawning anything
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):

@@ -65,7 +65,7 @@ def scenario_warnings(
     raw tables of the file it came from: ``scenario.scenario_tables``)."""
     out: list[str] = []
     if sc.wheel.enabled:
-        out += _wheel_warnings(sc, plan)
+        out += _wheel_warnings(sc)
     if plan is not None:
         out += _block_warnings(sc, plan)
     if tables is not None and base is None:
@@ -73,7 +73,7 @@ def scenario_warnings(
     return out
 
 
-def _wheel_warnings(sc: Scenario, plan: RunPlan | None) -> list[str]:
+def _wheel_warnings(sc: Scenario) -> list[str]:
     out = []
     w, s = sc.wheel, sc.soil
     grain = "spheres" if sc.dim == 3 else "discs"
@@ -110,9 +110,8 @@ def _wheel_warnings(sc: Scenario, plan: RunPlan | None) -> list[str]:
                 f"so the walls hold soil the wheel moves and bias its traction and sinkage; "
                 f"bin.width >= {w.width + 2.0 * want:.3g} m with the wheel at mid-width"
             )
+    # the scenario's own travel (a run cut short by --steps or --duration is the user's choice)
     travel = w.travel_time
-    if plan is not None:
-        travel = min(travel, max(0.0, plan.simulated_time_s - w.settle_time))
     o = sc.output
     if travel < o.steady_end:
         covered = max(0.0, travel - o.steady_start)
@@ -120,7 +119,7 @@ def _wheel_warnings(sc: Scenario, plan: RunPlan | None) -> list[str]:
         out.append(
             f"the wheel travels {travel:.3g} s but the steady window is output.steady_start .. "
             f"steady_end = {o.steady_start:g} .. {o.steady_end:g} s of travel: {what}; travel "
-            f"longer (wheel.travel_time, --steps, --duration) or end the window sooner"
+            f"longer (wheel.travel_time) or end the window sooner"
         )
     return out
 

@@ -14,7 +14,8 @@ wins as ``--set`` does:
 - a ``[materials.<body>]`` table naming a ``preset`` drops the base's own elastic constants
   of that body (``youngs_modulus``, ``poisson_ratio``) unless it gives them too.
 
-Chains are allowed; a cycle or a missing base is refused in one line.
+The ``[scenario]`` name is inherited too (runs go to ``runs/<name>``): set it when the file is
+a scenario of its own. Chains are allowed; a cycle or a missing base is refused in one line.
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+
 def t_quantile_975(dof: int) -> float:
     """The 97.5 % quantile of Student's t (the half-width factor of a two-sided 95 %
     interval) for ``dof`` >= 1 degrees of freedom."""

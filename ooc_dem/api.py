@@ -80,7 +80,9 @@ def load_scenario(
     Parameters
     ----------
     name_or_path : str or os.PathLike
-        ``"quick"``, ``"paper2008"``, ``"bed-100k"`` (see ``ooc-dem scenarios``) or a TOML file.
+        ``"quick"``, ``"paper2008"``, ``"bed-100k"`` (see ``ooc-dem scenarios``) or a TOML file;
+        a file may start with ``base = "quick-3d"`` and hold only what it changes
+        (docs/parameters.md lists every key).
     overrides : mapping or list of str, optional
         Values replacing the scenario's, as ``{"wheel.slip": 0.3}``, nested as
         ``{"wheel": {"slip": 0.3}, "contact": {"soil_soil": {"kn": 1e5}}}``, or as the CLI's

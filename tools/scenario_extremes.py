@@ -77,7 +77,8 @@ def verdict(res: dict) -> str | None:
         return f"traceback ({res.get('exc') or 'exit ' + str(rc)})"
     if rc == 0:
         return None
-    lines = [ln for ln in err.splitlines() if ln.strip()]
+    # (the warnings `run` prints before it starts are not the refusal's)
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("ooc-dem: warning: ")]
     if rc == 2 and len(lines) == 1:
         return None
     return f"exit {rc} with {len(lines)} lines on stderr"

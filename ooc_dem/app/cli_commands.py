@@ -13,10 +13,12 @@ from typing import TYPE_CHECKING, Any, TextIO
 from .cli_parser import EXIT_OOM, CliError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from ..model.scenario import Scenario
     from ..model.state import Particles
     from .bed import SettleProgress
-    from .plan import RunOptions
+    from .plan import RunOptions, RunPlan
 
 
 def _load(args: argparse.Namespace) -> Scenario:
@@ -25,9 +27,28 @@ def _load(args: argparse.Namespace) -> Scenario:
     return load_scenario(args.scenario, args.set)
 
 
+def _load_advised(args: argparse.Namespace) -> tuple[Scenario, Callable[[RunPlan], None]]:
+    """The scenario, and what prints its warnings (app/advice.py) once its run is planned."""
+    from ..model.scenario import scenario_tables
+    from ..model.scenario_check import scenario_from_dict
+    from .advice import scenario_warnings
+
+    tables, base = scenario_tables(args.scenario, args.set)
+    sc = scenario_from_dict(tables)
+
+    def warn(plan: RunPlan) -> None:
+        for line in scenario_warnings(sc, plan, tables, base):
+            print(f"ooc-dem: warning: {line}", file=sys.stderr, flush=True)
+
+    return sc, warn
+
+
 def cmd_scenarios(args: argparse.Namespace) -> int:
     from ..model.scenario import builtin_names, load_scenario
 
+    if args.show is not None:
+        print(_shown_scenario(args.show), end="")
+        return 0
     for name in builtin_names():
         if name == "bed-N":
             print("bed-N        bare bed of N discs (e.g. bed-7000, bed-100k, bed-1m), tiled from `bed`")
@@ -41,6 +62,24 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
         sc = load_scenario(name)
         print(f"{name:12s} {sc.scenario.description}")
     return 0
+
+
+def _shown_scenario(source: str) -> str:
+    """`scenarios --show`: the resolved scenario as a complete, commented TOML."""
+    from ..model.scenario import load_scenario
+    from ..model.scenario_doc import commented_toml
+
+    sc = load_scenario(source)
+    return commented_toml(
+        sc,
+        [
+            f"{sc.name}: {' '.join(sc.scenario.description.split())}",
+            f"The resolved scenario of {source!r} with every key, its [unit] and meaning",
+            "(docs/parameters.md; `ooc-dem scenarios --show` prints it). A file that changes",
+            f'a few keys may instead start with base = "{source}" and hold only those.',
+            f"scenario_hash = {sc.hash()}",
+        ],
+    )
 
 
 def cmd_prepare(args: argparse.Namespace) -> int:
@@ -118,9 +157,10 @@ def _run_options(args: argparse.Namespace) -> RunOptions:
 def cmd_run(args: argparse.Namespace) -> int:
     from .run import Simulation
 
-    sc = _load(args)
+    sc, warn = _load_advised(args)
     out = args.out or os.path.join("runs", sc.name)
     sim = Simulation(sc, out, _run_options(args))  # plans and checks everything (ooc-dem check)
+    warn(sim.plan)
     if sim.opts.memory is not None:
         from ..engine.budget import fmt_bytes
 
@@ -145,8 +185,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     """`run`'s validation and planning (Simulation's own plan_run), without a run."""
     from .plan import plan_run
 
-    sc = _load(args)
+    sc, warn = _load_advised(args)
     plan = plan_run(sc, _run_options(args))
+    warn(plan)
     print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict()}, indent=2))
     return 0
 
@@ -398,7 +439,10 @@ def cmd_profile(args: argparse.Namespace) -> int:
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = [m for m in modes if m not in PROFILED_MODES]
     if not modes or bad:
-        raise CliError(f"--modes {args.modes!r}: each must be one of {', '.join(PROFILED_MODES)}")
+        from ..model.schema import did_you_mean
+
+        hint = did_you_mean(bad[0], PROFILED_MODES) if bad else ""
+        raise CliError(f"--modes {args.modes!r}: each must be one of {', '.join(PROFILED_MODES)}{hint}")
     _load(args)  # validate the scenario and overrides before spawning anything
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):

@@ -25,8 +25,26 @@ def one_line(text: object) -> str:
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:  # one line, no usage dump
-        print(f"ooc-dem: error: {message} (see `{self.prog} --help`)", file=sys.stderr)
+        print(f"ooc-dem: error: {message}{_suggestion(message)} (see `{self.prog} --help`)", file=sys.stderr)
         sys.exit(EXIT_USAGE)
+
+
+def _suggestion(message: str) -> str:
+    """'; did you mean ...?' for argparse's "invalid choice: 'x' (choose from 'a', 'b')"."""
+    import ast
+    import re
+
+    from ..model.schema import did_you_mean
+
+    m = re.search(r"invalid choice: (.*?) \(choose from (.*)\)$", message)
+    if m is None:
+        return ""
+    try:
+        word = ast.literal_eval(m.group(1))
+        choices = ast.literal_eval(f"[{m.group(2)}]")
+    except (ValueError, SyntaxError, MemoryError, RecursionError):
+        return ""
+    return did_you_mean(word, [str(c) for c in choices])
 
 
 def _positive_int(text: str) -> int:
@@ -256,7 +274,13 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--fps", type=_count(1, 120), default=20, help="frames per second (default 20)")
     q.add_argument("--no-progress", action="store_true")
 
-    sub.add_parser("scenarios", help="list built-in scenarios")
+    q = sub.add_parser("scenarios", help="list built-in scenarios")
+    q.add_argument(
+        "--show",
+        metavar="NAME",
+        help="print the resolved scenario NAME (a built-in or a file) as a complete TOML, "
+        "every key commented with its unit and meaning",
+    )
 
     q = sub.add_parser(
         "check",

@@ -15,7 +15,7 @@ from ..errors import OocDemError
 from ..engine.modes import MODES, mode_names
 from ..model.scenario import Scenario
 from ..model.scenario_check import critical_time_step
-from ..model.schema import MAX_DOMAINS, MAX_STEPS, big, show, steps_for_duration
+from ..model.schema import MAX_DOMAINS, MAX_STEPS, big, did_you_mean, show, steps_for_duration
 from ..storage import BACKENDS
 from .metrics import N_SERIES
 
@@ -189,7 +189,9 @@ def plan_run(sc: Scenario, opts: RunOptions, streamed: bool | None = None) -> Ru
     """Resolve and check a run's options against its scenario and this machine (no allocation,
     no file, no bed): the shared planning of `run`, `check` and `resume`."""
     if opts.mode not in MODES:
-        raise RunError(f"--mode {show(opts.mode)}: must be one of {', '.join(mode_names())}")
+        raise RunError(
+            f"--mode {show(opts.mode)}: must be one of {', '.join(mode_names())}" + did_you_mean(opts.mode, MODES)
+        )
     if opts.backend not in BACKENDS:
         raise RunError(f"--backend {show(opts.backend)}: must be one of {', '.join(BACKENDS)}")
     _check_compression(opts)

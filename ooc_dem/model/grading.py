@@ -239,3 +239,16 @@ def grading_of_soil(soil: Soil) -> Grading:
         sizes=tuple(g.sizes),
         passing=tuple(g.passing),
     )
+
+
+def mean_power(g: Grading, p: int, k: int) -> float:
+    """The mean of r^p over the grains of grading g (by number); k: the exponent of mass in
+    size (3 spheres, 2 discs) that a sieve curve is read with."""
+    lo, hi = g.r_min, g.r_max
+    if g.kind == "uniform":
+        if hi <= lo:
+            return float(lo**p)
+        return float((hi ** (p + 1) - lo ** (p + 1)) / ((p + 1) * (hi - lo)))
+    log_r, cdf = number_cdf(g, k)
+    mid = np.exp(0.5 * (log_r[1:] + log_r[:-1]))
+    return float(np.sum(mid**p * np.diff(cdf)))

@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .schema import ScenarioError, show, show_key
+from .schema import ScenarioError, did_you_mean, show, show_key
 
 # elastic constants of common materials (room temperature; handbook values, rounded)
 PRESETS: dict[str, dict[str, float]] = {
@@ -89,7 +89,10 @@ def _material(raw: Any, body: str) -> dict[str, Any]:
         raise ScenarioError(f"{where} = {show(raw)}: must be a table")
     unknown = sorted(set(raw) - set(MATERIAL_KEYS))
     if unknown:
-        raise ScenarioError(f"{where}.{show_key(unknown[0])}: unknown key (allowed: {', '.join(MATERIAL_KEYS)})")
+        raise ScenarioError(
+            f"{where}.{show_key(unknown[0])}: unknown key (allowed: {', '.join(MATERIAL_KEYS)})"
+            + did_you_mean(unknown[0], MATERIAL_KEYS)
+        )
     out: dict[str, Any] = {}
     if "preset" in raw:
         name = raw["preset"]
@@ -129,7 +132,10 @@ def resolve_materials(data: dict) -> dict:
         raise ScenarioError(f"materials = {show(raw)}: must be a table")
     unknown = sorted(set(raw) - set(BODIES))
     if unknown:
-        raise ScenarioError(f"materials.{show_key(unknown[0])}: unknown material (allowed: {', '.join(BODIES)})")
+        raise ScenarioError(
+            f"materials.{show_key(unknown[0])}: unknown material (allowed: {', '.join(BODIES)})"
+            + did_you_mean(unknown[0], BODIES)
+        )
     mats = {body: _material(raw.get(body, {}), body) for body in BODIES}
     physics = data.get("physics", {})
     dim = physics.get("dim", 2) if isinstance(physics, dict) else 2

@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from .scenario_check import scenario_from_dict
-from .schema import MAX_SCENARIO_FILE, NAME_RE, Scenario, ScenarioError, show, show_key
+from .inherit import merge_tables
+from .schema import MAX_SCENARIO_FILE, NAME_RE, Scenario, ScenarioError, did_you_mean, show, show_key
 
 __all__ = [
     "Scenario",
@@ -28,7 +29,10 @@ __all__ = [
     "builtin_names",
     "load_scenario",
     "scenario_from_toml",
+    "scenario_tables",
 ]
+
+MAX_BASES = 32  # bases in one chain (a longer chain is a mistake, and each is a file read)
 
 
 def builtin_names() -> list[str]:
@@ -158,48 +162,94 @@ def _parse_toml(text: str, src: str) -> dict:
 
 
 def load_scenario(source: str | Path, overrides: list[str] | None = None) -> Scenario:
-    """Load a built-in scenario by name (``paper2008``, ``quick``, ``bed-100k``) or a TOML file."""
-    text = None
-    data: dict
+    """Load a built-in scenario by name (``paper2008``, ``quick``, ``bed-100k``) or a TOML file
+    (which may name a ``base`` it changes: model/inherit.py)."""
+    return scenario_from_dict(scenario_tables(source, overrides)[0])
+
+
+def scenario_tables(source: str | Path, overrides: list[str] | None = None) -> tuple[dict, str | None]:
+    """The raw tables of a scenario before its defaults are filled in (its bases merged in,
+    the overrides applied) and the ``base`` the file names (None: none)."""
     src = str(source)
+    data, base = _resolve(src, None, ())
+    return apply_overrides(data, overrides or []), base
+
+
+def _builtin_tables(src: str) -> dict | None:
+    """The tables of a built-in name (``quick``, ``bed-7000``), or None if src is not one."""
     if src.startswith("bed3d-") and _builtin_text(src) is None:
         n = _parse_count(src[6:])
         if n is None:
             raise ScenarioError(
                 f"scenario {show(src, 400)}: bed3d-N needs a sphere count N such as bed3d-20000, bed3d-100k, bed3d-1m"
             )
-        data = bed3d_scenario_dict(n)
-    elif src.startswith("bed-") and _builtin_text(src) is None:
+        return bed3d_scenario_dict(n)
+    if src.startswith("bed-") and _builtin_text(src) is None:
         n = _parse_count(src[4:])
         if n is None:
             raise ScenarioError(
                 f"scenario {show(src, 400)}: bed-N needs a disc count N such as bed-7000, bed-100k, bed-1m"
             )
-        data = bed_scenario_dict(n)
+        return bed_scenario_dict(n)
+    text = _builtin_text(src)
+    return None if text is None else _parse_toml(text, src)
+
+
+def _file_text(p: Path, src: str, what: str) -> str:
+    """The text of a scenario file; ``what`` starts the one-line refusal (naming how it was given)."""
+    try:
+        is_file = p.is_file()
+        size = p.stat().st_size if is_file else 0
+    except (OSError, ValueError):  # name too long, NUL byte
+        is_file, size = False, 0
+    if not is_file:
+        names = builtin_names()
+        raise ScenarioError(
+            f"{what}: not a built-in ({', '.join(names)}) and no such file" + did_you_mean(src, names[:-2])
+        )
+    if size > MAX_SCENARIO_FILE:
+        raise ScenarioError(f"{what}: {size} bytes; a scenario file is at most {MAX_SCENARIO_FILE} bytes")
+    try:
+        return p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ScenarioError(f"{what}: cannot read ({_first_line(e)})") from None
+
+
+def _resolve(src: str, naming: tuple[Path, str] | None, chain: tuple[tuple[str, str], ...]) -> tuple[dict, str | None]:
+    """(tables, the base they name) of a built-in or a file, its chain of bases merged in.
+    ``naming``: the file that names src as its base and how it was given (a relative path
+    is taken from that file's directory); ``chain``: (identity, as given) of the files
+    and built-ins that led here (a cycle is refused)."""
+    what = f"scenario {show(src, 400)}"
+    if naming is not None:
+        what = f"scenario {show(naming[1], 400)}: base = {show(src, 400)}"
+    data = _builtin_tables(src)
+    path: Path | None = None
+    if data is not None:
+        identity = f"built-in {src}"
     else:
-        text = _builtin_text(src)
-        if text is None:
-            p = Path(src)
-            try:
-                is_file = p.is_file()
-                size = p.stat().st_size if is_file else 0
-            except (OSError, ValueError):  # name too long, NUL byte
-                is_file, size = False, 0
-            if not is_file:
-                raise ScenarioError(
-                    f"scenario {show(src, 400)}: not a built-in ({', '.join(builtin_names())}) and no such file"
-                )
-            if size > MAX_SCENARIO_FILE:
-                raise ScenarioError(
-                    f"scenario {show(src, 400)}: {size} bytes; a scenario file is at most {MAX_SCENARIO_FILE} bytes"
-                )
-            try:
-                text = p.read_text(encoding="utf-8")
-            except (OSError, UnicodeDecodeError) as e:
-                raise ScenarioError(f"scenario {show(src, 400)}: cannot read ({_first_line(e)})") from None
+        path = Path(src) if naming is None else naming[0].parent / src
+        text = _file_text(path, src, what)
+        try:
+            identity = str(path.resolve())
+        except (OSError, RuntimeError):  # a symlink loop: the path as given
+            identity = str(path)
         data = _parse_toml(text, src)
-    data = apply_overrides(data, overrides or [])
-    return scenario_from_dict(data)
+    if identity in (ident for ident, _ in chain):
+        cycle = " -> ".join([shown for _, shown in chain] + [src])
+        raise ScenarioError(f"{what}: the bases make a cycle ({show(cycle, 400)})")
+    base = data.pop("base", None)
+    if base is None:
+        return data, None
+    if not isinstance(base, str) or not base:
+        raise ScenarioError(
+            f"scenario {show(src, 400)}: base = {show(base)}: must be a built-in name or a scenario file (a string)"
+        )
+    if len(chain) >= MAX_BASES:
+        raise ScenarioError(f"{what}: more than {MAX_BASES} bases in a chain")
+    origin = path if path is not None else Path.cwd() / "(built-in)"
+    parent, _ = _resolve(base, (origin, src), (*chain, (identity, src)))
+    return merge_tables(parent, data), base
 
 
 def scenario_from_toml(text: str) -> Scenario:

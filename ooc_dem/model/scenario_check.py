@@ -29,6 +29,7 @@ from .schema import (
     ScenarioError,
     SoilGrading,
     big,
+    did_you_mean,
     show,
     show_key,
     steps_for_duration,
@@ -133,6 +134,22 @@ _PAIR_CONSTRAINTS = {
 }
 
 
+def allowed_values(table: str, key: str) -> str:
+    """What a key may hold, as the checks say it (``table``: ``physics``, ``contact.soil_soil``,
+    ``soil.grading``); the checks of keys against each other are not listed."""
+    if table.startswith("contact."):
+        if key == "no_tension":
+            return "true, false or unset"
+        return _PAIR_CONSTRAINTS[key][1]
+    if table == "soil.grading":
+        if key == "kind":
+            return f"one of {', '.join(map(repr, KINDS))}"
+        return "the kind's own keys only (docs/reference/grading.md)"
+    if (table, key) in _CONSTRAINTS:
+        return str(_CONSTRAINTS[(table, key)][1])
+    return "true or false" if key == "enabled" else "any"
+
+
 def _type_name(t) -> str:
     return {float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(t, str(t))
 
@@ -179,7 +196,11 @@ def _build(cls, data: Any, path: str, defaults):
     unknown = sorted(set(data) - set(fields))
     if unknown:
         where = f"{path}.{show_key(unknown[0])}" if path else show_key(unknown[0])
-        raise ScenarioError(f"{where}: unknown key (allowed: {', '.join(fields)})")
+        hint = did_you_mean(unknown[0], fields)
+        if unknown[0] == "base" and path:
+            hint = "; base goes at the top of the file, before any [section]"
+        what = "unknown section" if not path else "unknown key"
+        raise ScenarioError(f"{where}: {what} (allowed: {', '.join(fields)}){hint}")
     kwargs = {}
     for name, f in fields.items():
         default = getattr(defaults, name)

@@ -8,11 +8,13 @@ Checking the values is model/scenario_check.py's, loading them model/scenario.py
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import hashlib
 import json
 import re
 from dataclasses import dataclass
-from typing import Any
+from collections.abc import Iterable
+from typing import Any, TypeVar
 
 from ..errors import OocDemError
 
@@ -65,6 +67,14 @@ def show_key(key: str) -> str:
     return key if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", key) else show(key, 40)
 
 
+def did_you_mean(word: object, choices: Iterable[str]) -> str:
+    """'; did you mean 'x'?' for the choice closest to a mistyped word (difflib), or ''."""
+    if not isinstance(word, str) or len(word) > 200:
+        return ""
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 def big(n: int) -> str:
     """A large round count as people write it: 1e10, 2e9."""
     return f"{n:.0e}".replace("e+0", "e").replace("e+", "e")
@@ -82,30 +92,47 @@ def steps_for_duration(seconds: float, dt: float, what: str) -> int:
 
 
 # ---------------------------------------------------------------- sections
+# Every key is declared with key(default, unit, meaning): the unit ("" for a pure number or
+# a word) and a short meaning are what docs/parameters.md (tools/gen_parameters_doc.py) and
+# `ooc-dem scenarios --show` print beside it; its allowed range is scenario_check's.
+
+_T = TypeVar("_T")
+
+
+def key(default: _T, unit: str, meaning: str) -> _T:
+    """A section's key: its default, with its unit and meaning as the field's metadata."""
+    return dataclasses.field(default=default, metadata={"unit": unit, "meaning": meaning})
+
+
+def key_doc(f: dataclasses.Field[Any]) -> tuple[str, str]:
+    """(unit, meaning) of a section's key."""
+    return f.metadata.get("unit", ""), f.metadata.get("meaning", "")
 
 
 @dataclass(frozen=True)
 class Meta:
-    name: str = "unnamed"
-    description: str = ""
+    name: str = key("unnamed", "", "the scenario's name; runs go to runs/<name> unless --out says otherwise")
+    description: str = key("", "", "one line saying what the scenario is")
 
 
 @dataclass(frozen=True)
 class Physics:
-    gravity: float = 9.80  # m/s^2, acts in -y
-    thickness: float = 0.10  # m, discs are cylinders of this length
-    dt: float = 1.0e-5  # s
-    contacts_per_disc: float = 4.0  # used for the critical-step estimate
-    dim: int = 2  # 2: discs in the x-y plane; 3: spheres (z across the bin)
-    impact_speed: float = 1.0  # m/s, largest expected impact speed (3D Hertz time-step check)
-    history_capacity: int = 0  # contacts a particle may hold (0: 8 in 2D, 12 in 3D; never a result bit)
+    gravity: float = key(9.80, "m/s^2", "gravitational acceleration, acts in -y")
+    thickness: float = key(0.10, "m", "2D: discs are cylinders of this length (the slice thickness)")
+    dt: float = key(1.0e-5, "s", "time step; refused above the critical step of the stiffest contact")
+    contacts_per_disc: float = key(4.0, "", "contacts per particle assumed by the critical-step check")
+    dim: int = key(2, "", "2: discs in the x-y plane; 3: spheres (z across the bin)")
+    impact_speed: float = key(1.0, "m/s", "largest expected impact speed (3D Hertz time-step check)")
+    history_capacity: int = key(
+        0, "", "contacts a particle may hold (0: 8 in 2D, 12 in 3D; never changes a result bit)"
+    )
 
 
 @dataclass(frozen=True)
 class Bin:
-    length: float = 0.60  # m
-    height: float = 0.40  # m, top of the neighbour grid (open top)
-    width: float = 0.10  # m, across the bin (z; 3D only: side walls at z = 0 and width)
+    length: float = key(0.60, "m", "length of the bin along the travel (x); end walls at 0 and length")
+    height: float = key(0.40, "m", "top of the neighbour grid (the bin is open at the top)")
+    width: float = key(0.10, "m", "3D: width across the bin (z); side walls at z = 0 and width")
 
 
 @dataclass(frozen=True)
@@ -113,101 +140,103 @@ class SoilGrading:
     """How the radii are drawn between soil.r_min and soil.r_max (model/grading.py,
     docs/reference/grading.md); each kind reads only its own keys."""
 
-    kind: str = "uniform"  # "uniform", "normal", "lognormal" or "sieve"
-    r_mean: float = 0.0  # m, normal: mean radius
-    r_std: float = 0.0  # m, normal: standard deviation of the radius
-    r_median: float = 0.0  # m, lognormal: median radius
-    gsd: float = 0.0  # lognormal: geometric standard deviation of the radius (> 1)
-    sizes: tuple[float, ...] = ()  # m, sieve: openings (diameters), increasing
-    passing: tuple[float, ...] = ()  # %, sieve: percent by mass passing each opening
+    kind: str = key("uniform", "", "radius distribution: uniform, normal, lognormal or sieve")
+    r_mean: float = key(0.0, "m", "normal: mean radius")
+    r_std: float = key(0.0, "m", "normal: standard deviation of the radius")
+    r_median: float = key(0.0, "m", "lognormal: median radius")
+    gsd: float = key(0.0, "", "lognormal: geometric standard deviation of the radius (> 1)")
+    sizes: tuple[float, ...] = key((), "m", "sieve: openings (diameters), increasing")
+    passing: tuple[float, ...] = key((), "%", "sieve: percent by mass passing each opening")
 
 
 @dataclass(frozen=True)
 class Soil:
-    n: int = 6986
-    r_min: float = 0.0018
-    r_max: float = 0.0022
-    density: float = 2650.0
-    seed: int = 2008
-    grading: SoilGrading = SoilGrading()
+    n: int = key(6986, "", "number of grains (discs or spheres)")
+    r_min: float = key(0.0018, "m", "smallest grain radius")
+    r_max: float = key(0.0022, "m", "largest grain radius")
+    density: float = key(2650.0, "kg/m^3", "grain (solid) density")
+    seed: int = key(2008, "", "random seed of the bed's radii and fill")
+    grading: SoilGrading = key(SoilGrading(), "", "how the radii are drawn between r_min and r_max")
 
 
 @dataclass(frozen=True)
 class Bed:
-    settle_speed: float = 1.0e-4  # m/s, mean speed that ends deposition
-    max_settle_time: float = 5.0  # s, refuse beds that never settle
-    tile: int = 0  # >0: build the bed by tiling a settled tile of this many discs
-    skin: float = 0.0006  # m, Verlet skin of the neighbour lists
-    tiles_across: int = 1  # 3D tiled beds: tiles across the width (z)
+    settle_speed: float = key(1.0e-4, "m/s", "mean grain speed that ends the bed's settling")
+    max_settle_time: float = key(5.0, "s", "a bed not settled by then is refused")
+    tile: int = key(0, "", ">0: build the bed by tiling a settled tile of this many grains")
+    skin: float = key(0.0006, "m", "Verlet skin of the neighbour lists (speed only; never a result bit)")
+    tiles_across: int = key(1, "", "3D tiled beds: tiles across the width (z)")
     # soil-soil friction while the bed is poured (< 0: the contact's own): lower pours denser
-    fill_friction: float = -1.0
+    fill_friction: float = key(-1.0, "", "soil-soil friction while the bed is poured (-1: the contact's own)")
 
 
 @dataclass(frozen=True)
 class ContactPair:
-    kn: float = 2.0e5
-    ks: float = 2.0e5 / 3.0
-    damping_n: float = 1.0  # ratio of critical, normal
-    damping_t: float = 1.0  # ratio of critical, tangential
-    friction: float = 0.5
-    rolling_friction: float = 0.0  # limit mu_r * r_eff * Fn
-    rolling_damping: float = 0.0  # ratio of critical, rolling
-    law: str = "linear"  # "linear" (kn, ks, damping_*) or "hertz" (3D: Hertz-Mindlin)
-    youngs_modulus: float = 1.0e7  # Pa, hertz: both surfaces of the pair
-    poisson_ratio: float = 0.3  # hertz
-    restitution: float = (
-        0.5  # hertz: coefficient of restitution (sets the damping); linear: sets damping_n if that is not given
+    kn: float = key(2.0e5, "N/m", "linear law: normal stiffness")
+    ks: float = key(2.0e5 / 3.0, "N/m", "linear law: tangential stiffness")
+    damping_n: float = key(1.0, "", "linear law: normal damping, ratio of critical (reduced mass)")
+    damping_t: float = key(1.0, "", "linear law: tangential damping, ratio of critical")
+    friction: float = key(0.5, "", "Coulomb friction coefficient")
+    rolling_friction: float = key(0.0, "", "rolling resistance: limit mu_r * r_eff * Fn")
+    rolling_damping: float = key(0.0, "", "rolling damping, ratio of critical")
+    law: str = key("linear", "", "linear (kn, ks, damping_*) or hertz (3D: Hertz-Mindlin)")
+    youngs_modulus: float = key(1.0e7, "Pa", "hertz: Young's modulus of both surfaces of the pair")
+    poisson_ratio: float = key(0.3, "", "hertz: Poisson's ratio")
+    restitution: float = key(
+        0.5, "", "hertz: restitution coefficient (sets the damping); linear: sets damping_n if that is not given"
     )
-    youngs_modulus_2: float = 0.0  # Pa, hertz: the second surface (wall, wheel); 0: the same as the first
-    poisson_ratio_2: float = 0.0  # hertz: the second surface; with youngs_modulus_2 = 0 unused
-    cohesion: float = 0.0  # J/m^3, simplified-JKR cohesion energy density (0: none)
+    youngs_modulus_2: float = key(0.0, "Pa", "hertz: the second surface (wall, wheel); 0: the same as the first")
+    poisson_ratio_2: float = key(0.0, "", "hertz: the second surface's; unused with youngs_modulus_2 = 0")
+    cohesion: float = key(0.0, "J/m^3", "simplified-JKR cohesion energy density (0: none)")
     # clamp the normal force at zero (the damping cannot pull); unset: default_no_tension(law)
-    no_tension: bool | None = None
+    no_tension: bool | None = key(None, "", "clamp the normal force at zero (unset: on for linear, off for hertz)")
 
 
 @dataclass(frozen=True)
 class Contacts:
-    soil_soil: ContactPair = ContactPair(rolling_friction=0.10, rolling_damping=0.3)
-    soil_wall: ContactPair = ContactPair()
-    soil_wheel: ContactPair = ContactPair(friction=0.4)
+    soil_soil: ContactPair = key(
+        ContactPair(rolling_friction=0.10, rolling_damping=0.3), "", "contacts between two grains"
+    )
+    soil_wall: ContactPair = key(ContactPair(), "", "contacts of a grain with the floor and the bin's walls")
+    soil_wheel: ContactPair = key(ContactPair(friction=0.4), "", "contacts of a grain with the wheel (rim, lugs)")
 
 
 @dataclass(frozen=True)
 class Wheel:
-    enabled: bool = True
-    radius: float = 0.100
-    width: float = 0.100
-    load: float = 19.6  # N, dead weight (mass = load / g)
-    n_lugs: int = 18
-    lug_tip_radius: float = 0.110  # m, outermost point of a lug
-    lug_thickness: float = 0.002  # m, capsule diameter
-    x0: float = 0.15  # m, initial centre
-    drop_gap: float = 0.002  # m, gap between lug tips and the surface at placement
-    omega: float = 0.138  # rad/s, clockwise, drives in +x
-    control: str = "drawbar"  # "drawbar" (free x) or "slip" (prescribed forward speed)
-    drawbar_load: float = 10.0  # N, opposes travel
-    drawbar_ramp: float = 1.0  # s
-    slip: float = 0.0  # prescribed slip when control = "slip"
-    settle_time: float = 1.0  # s, omega = 0, x held
-    travel_time: float = 45.0  # s
-    z0: float = 0.0  # m, 3D: lateral centre of the wheel (0: the bin's mid-width)
+    enabled: bool = key(True, "", "a wheel run (false: a bare bed)")
+    radius: float = key(0.100, "m", "rim radius")
+    width: float = key(0.100, "m", "3D: the wheel's width (z)")
+    load: float = key(19.6, "N", "dead weight (mass = load / gravity)")
+    n_lugs: int = key(18, "", "number of lugs")
+    lug_tip_radius: float = key(0.110, "m", "radius of the lugs' outermost point (lug height = this - radius)")
+    lug_thickness: float = key(0.002, "m", "lug thickness (capsule diameter)")
+    x0: float = key(0.15, "m", "initial centre along the bin")
+    drop_gap: float = key(0.002, "m", "gap between the lug tips and the bed's surface at placement")
+    omega: float = key(0.138, "rad/s", "angular speed, clockwise (drives in +x)")
+    control: str = key("drawbar", "", "drawbar (x free, a drawbar load) or slip (prescribed forward speed)")
+    drawbar_load: float = key(10.0, "N", "drawbar load opposing the travel")
+    drawbar_ramp: float = key(1.0, "s", "time over which the drawbar load ramps up")
+    slip: float = key(0.0, "", "prescribed slip when control = slip")
+    settle_time: float = key(1.0, "s", "settling before travel: omega = 0, x held")
+    travel_time: float = key(45.0, "s", "travel after settling")
+    z0: float = key(0.0, "m", "3D: lateral centre of the wheel (0: the bin's mid-width)")
 
 
 @dataclass(frozen=True)
 class Output:
-    series_interval: float = 0.01  # s, time-series row interval (means over it)
-    steady_start: float = 9.6  # s of travel
-    steady_end: float = 45.0  # s of travel
-    run_steps: int = 0  # bare beds: default step count of `run`
-    snapshot_interval: float = 0.0  # s, trajectory frame interval (RUN/trajectory/); 0 = none
+    series_interval: float = key(0.01, "s", "time-series row interval (means over it)")
+    steady_start: float = key(9.6, "s", "start of the steady window, in seconds of travel")
+    steady_end: float = key(45.0, "s", "end of the steady window, in seconds of travel")
+    run_steps: int = key(0, "", "bare beds: `run`'s default step count")
+    snapshot_interval: float = key(0.0, "s", "trajectory frame interval (RUN/trajectory/); 0: none")
 
 
 @dataclass(frozen=True)
 class Decomposition:
-    policy: str = "wheel"  # "wheel" (paper) or "equal"
-    domains: int = 6
-    block: int = 1  # temporal blocking K (steps per epoch)
-    margin: float = 0.01  # m, wheel slab margin beyond the lug tips
+    policy: str = key("wheel", "", "slab boundaries: wheel (the paper's) or equal")
+    domains: int = key(6, "", "number of sub-domains D (ddm, ooc)")
+    block: int = key(1, "", "temporal blocking K: steps per epoch")
+    margin: float = key(0.01, "m", "wheel slab margin beyond the lug tips")
 
 
 @dataclass(frozen=True)
@@ -216,26 +245,26 @@ class Repose:
     ``soil.n`` spheres, a cylinder of ``column_radius`` standing on the floor at the bin's
     centre, is released at step 0; its heap's flank angle is measured at the end."""
 
-    enabled: bool = False
-    column_radius: float = 0.02  # m, radius of the released column
-    fit_low: float = 0.2  # flank fit from this fraction of the heap height ...
-    fit_high: float = 0.8  # ... to this one
-    sectors: int = 8  # azimuthal sectors, one profile and one fit each
-    bin_width: float = 0.005  # m, radial bins of the surface profile
+    enabled: bool = key(False, "", "release the settled column and measure its heap's angle")
+    column_radius: float = key(0.02, "m", "radius of the released column (2D: half its width)")
+    fit_low: float = key(0.2, "", "flank fit from this fraction of the heap height ...")
+    fit_high: float = key(0.8, "", "... to this one")
+    sectors: int = key(8, "", "3D: azimuthal sectors, one profile and one fit each")
+    bin_width: float = key(0.005, "m", "radial bins of the surface profile (2D: bins along x)")
 
 
 @dataclass(frozen=True)
 class Scenario:
-    scenario: Meta = Meta()
-    physics: Physics = Physics()
-    bin: Bin = Bin()
-    soil: Soil = Soil()
-    bed: Bed = Bed()
-    contact: Contacts = Contacts()
-    wheel: Wheel = Wheel()
-    output: Output = Output()
-    decomposition: Decomposition = Decomposition()
-    repose: Repose = Repose()
+    scenario: Meta = key(Meta(), "", "the scenario's name and description")
+    physics: Physics = key(Physics(), "", "gravity, time step and dimension")
+    bin: Bin = key(Bin(), "", "the soil bin")
+    soil: Soil = key(Soil(), "", "the grains")
+    bed: Bed = key(Bed(), "", "how the bed is poured and settled")
+    contact: Contacts = key(Contacts(), "", "the contact law of each pair of bodies")
+    wheel: Wheel = key(Wheel(), "", "the lugged wheel")
+    output: Output = key(Output(), "", "what a run records")
+    decomposition: Decomposition = key(Decomposition(), "", "sub-domains and blocking of ddm and ooc")
+    repose: Repose = key(Repose(), "", "the angle-of-repose test")
 
     # ---- derived values
     @property

@@ -108,10 +108,16 @@ def cli_in_process(*args, check=False, timeout=900) -> CliResult:
     return res
 
 
+def error_lines(stderr: str) -> list[str]:
+    """The non-empty lines of a command's stderr but its warnings (`check` and `run` warn of
+    a scenario before they start: ``ooc-dem: warning: ...``)."""
+    return [ln for ln in stderr.splitlines() if ln.strip() and not ln.startswith("ooc-dem: warning: ")]
+
+
 def one_line_error(cp, *needles) -> str:
     """Assert the bad-input rule on a finished `ooc-dem` (a process or ``cli_in_process``): exit
-    code 2 (not a signal), exactly one non-empty line on stderr, no traceback, every needle in
-    that line; return it."""
+    code 2 (not a signal), exactly one non-empty line on stderr (but warnings), no traceback,
+    every needle in that line; return it."""
     if cp.returncode < 0:
         pytest.fail(
             f"killed by {signal.Signals(-cp.returncode).name} instead of exit 2; stderr ends: "
@@ -119,7 +125,7 @@ def one_line_error(cp, *needles) -> str:
         )
     assert cp.returncode == 2, (cp.returncode, cp.stdout[-2000:], cp.stderr[-3000:])
     assert "Traceback" not in cp.stderr, cp.stderr[-3000:]
-    lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
+    lines = error_lines(cp.stderr)
     assert len(lines) == 1, cp.stderr[-3000:]
     for n in needles:
         assert n in lines[0], (n, lines[0])

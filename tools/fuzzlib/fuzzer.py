@@ -30,7 +30,8 @@ def _command_of(argv) -> tuple[str, str | None]:
 
 
 def _stderr_lines(text: str) -> list[str]:
-    return [ln for ln in text.splitlines() if ln.strip()]
+    """The non-empty stderr lines but the warnings `check` and `run` print before they start."""
+    return [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("ooc-dem: warning: ")]
 
 
 def failure_class(rec: dict, err: str | None = None) -> str:

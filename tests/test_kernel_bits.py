@@ -71,7 +71,11 @@ BED100K_150 = "mset-v2:bd623b5985dec3c4272d35d05f00dd4ac42e8453687dabfdb73cb01c4
 # on the AMD EPYC machines and in CI. The linear 3D case and every 2D
 # case give one value on both. Not explained yet: not numpy (2.3.5 gives the second too),
 # not numba 0.68.0 against 0.68.1, not the CPU model LLVM tunes for (NUMBA_CPU_NAME=znver4
-# gives the second too); log(e) of the restitution is correctly rounded on the Xeon.
+# gives the second too); log(e) of the restitution is correctly rounded on the Xeon. An AMD
+# EPYC (Zen 5, AVX-512) gave the second value too on 2026-12-07: the value follows AVX-512,
+# not the vendor. There numpy's vectorised pow for the masses' r**3 differs from glibc's on
+# 144 of quick-3d's 2900 radii (tests/test_trace_bits.py, docs/reference/bits.md), yet with
+# numpy's AVX-512 paths disabled the run gives a third value: a second cause remains.
 QUICK3D_3000 = (
     "mset-v2:2d0621bb10b9a219307bc226315cdcb1b82f3b5471ed342cd357f15003fcc99a",
     "mset-v2:2c733ac178bf5b8ea432271bf7ab80093b8a524e46d5908047bc45d035911026",

@@ -23,9 +23,9 @@ from test_wheel3d import BASE as WHEEL3D_BASE
 pytestmark = pytest.mark.slow
 
 # (scenario, overrides, steps, checkpoint interval): the wheel placed on the bed, one of its
-# 36 lugs pointing down, settles onto it (its lug tips start at the highest grain under it,
-# wherever that is: it falls up to a grain's size), then the torque ramps in over 1 ms and
-# turns it within the run
+# 36 lugs pointing down, settles onto it (its lug tips start level with the highest grain
+# under its footprint, wherever that is: it falls until it meets the surface), then the torque
+# ramps in and turns it within the run
 LUGS = ["wheel.n_lugs=36", "wheel.drop_gap=0.0"]
 CASES = {
     "2d-torque": (
@@ -59,7 +59,7 @@ CASES = {
         [
             *WHEEL3D_BASE,
             *LUGS,
-            "wheel.settle_time=0.02",
+            "wheel.settle_time=0.06",  # the wheel lands at 0.05 s (its lug tips start at the highest sphere)
             "wheel.travel_time=0.006",
             "wheel.control=torque",
             "wheel.torque=3.0",
@@ -71,8 +71,8 @@ CASES = {
             "output.steady_end=0.006",
             "output.series_interval=0.0005",
         ],
-        1200,
-        200,
+        3200,
+        800,
     ),
 }
 

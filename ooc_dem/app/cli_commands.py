@@ -318,8 +318,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         slips = [float(s) for s in args.slips.split(",") if s.strip()]
     except ValueError:
         raise CliError(f"--slips {args.slips!r}: must be comma-separated numbers") from None
-    if not slips or any(not (0.0 <= s < 1.0) for s in slips):
-        raise CliError(f"--slips {args.slips!r}: each slip must be in [0, 1)")
+    # negative slips brake (wheel.slip's range)
+    if not slips or any(not (-1.0 <= s < 1.0) for s in slips):
+        raise CliError(f"--slips {args.slips!r}: each slip must be in [-1, 1)")
     run_slip_sweep(
         args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress, comm=getattr(args, "comm", None)
     )

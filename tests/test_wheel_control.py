@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import ooc_dem
+from support.cli import cli_in_process
 from ooc_dem.engine.stepper import DomainStepper, Model, wheel_inertia
 from ooc_dem.model.scenario import load_scenario
 from ooc_dem.model.schema import ScenarioError
@@ -197,3 +198,13 @@ def test_fixed_height_holds_the_axle_to_the_bit(tmp_path):
     y = rec["y"][travel]
     assert np.all(y == y[0])
     assert math.isfinite(res.summary["vertical_force"]["whole_travel"]["value"])
+
+
+def test_run_prints_the_measured_omega(tmp_path):
+    """A free-spinning wheel's run prints its measured omega; a prescribed one's does not."""
+    sets = ["--set", "wheel.control=towed", "--set", "wheel.speed=0.1", "--set", "wheel.settle_time=0.0"]
+    args = ("--steps", "300", "--no-figures", "--no-progress")
+    towed = cli_in_process("run", "quick", *sets, *args, "--out", tmp_path / "towed", check=True)
+    assert "wheel omega (measured, rad/s): " in towed.stdout
+    plain = cli_in_process("run", "quick", *args, "--out", tmp_path / "plain", check=True)
+    assert "wheel omega" not in plain.stdout

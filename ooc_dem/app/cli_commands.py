@@ -197,6 +197,15 @@ def _print_run_result(summary: dict[str, Any], out: str | os.PathLike[str]) -> N
 
     if "slip" in summary:
         print(print_table(summary))
+    omega = summary.get("omega")  # a free-spinning wheel's (wheel.control torque, towed)
+    if isinstance(omega, dict):
+        shown = [
+            f"{win.replace('_', ' ')} {omega[win]['value']:.4f}"
+            for win in ("steady", "whole_travel")
+            if isinstance(omega.get(win), dict) and isinstance(omega[win].get("value"), float)
+        ]
+        if shown:
+            print(f"wheel omega (measured, rad/s): {', '.join(shown)}")
     print(
         f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
         f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}"

@@ -39,7 +39,7 @@ print("discs within 5 cm of the axle along x:", int((abs(discs["x"] - df["x"].il
 
 # 4. for ParaView: the trajectory frames as one XDMF time series (it refers to the frame
 #    files in RUN/trajectory/: keep both), and the final state as VTK (or XDMF, CSV).
-#    Open the .xdmf with "Xdmf3 Reader (Top Level Partition)", the .vtp directly.
+#    ParaView opens both (File > Open; an XDMF reader for the .xdmf).
 export = run_dir.parent / f"{run_dir.name}-export"
 export.mkdir(exist_ok=True)
 subprocess.run(["ooc-dem", "export-trajectory", str(run_dir), "--out", str(export / "trajectory.xdmf")], check=True)

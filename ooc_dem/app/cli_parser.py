@@ -170,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
             default="none",
             choices=["none", "zstd", "blosc", "gzip", "lzf"],
             help="compress the store's arrays: zarr zstd|blosc, hdf5 gzip|lzf (default "
-            "none: see the README's Disk economy)",
+            "none: see docs/format.md, Disk economy)",
         )
         q.add_argument(
             "--io-overlap",

@@ -30,7 +30,7 @@ from ..model.state import Particles
 from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE
 from .bed import bed_info, settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
-from .plan import RunError, RunOptions, plan_run, streamable
+from .plan import RunError, RunInterrupted, RunOptions, plan_run, streamable
 from .progress import Progress, settling_progress
 from .resume import ResumeEpoch, check_engine_attrs, open_resume_epoch, stored_run
 from .run_setup import StreamedBed, place_wheel, stopped_before_first_commit
@@ -362,11 +362,31 @@ class Simulation:
                     self.commit()
         except EngineError as e:
             raise RunError(f"{e} (last committed epoch kept in {self.out})") from None
+        except KeyboardInterrupt:
+            raise RunInterrupted(self.interrupted_message()) from None
         finally:
             bar.close()
         summary = self.finish()
         self.close()
         return summary
+
+    def interrupted_message(self) -> str:
+        """What an interrupted run tells: its directory and the step `resume` continues from."""
+        # read back from the store: a Ctrl-C can land after a commit reached the disk and before
+        # anything in this process recorded it
+        at: int | None = None
+        if self.store is not None:
+            try:
+                cur = self.store.manifest(fresh=True)["current"]
+                at = None if cur is None else int(cur["step"])
+            except Exception:  # noqa: BLE001 - the message falls back to what this process saw
+                at = self.store.current()
+        if at is None:
+            return f"interrupted before the first epoch was committed: {self.out} holds no run yet (run it again)"
+        return (
+            f"interrupted at step {self.step}: `ooc-dem resume {self.out}` continues from step {at} "
+            f"(t = {at * self.sc.physics.dt:.6g} s, the last committed epoch)"
+        )
 
     def close(self) -> None:
         """Release the store (and its write lock); the outputs stay in the run directory."""

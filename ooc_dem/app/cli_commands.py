@@ -315,7 +315,7 @@ def _report_sweeps(dirs: list[Path], overlay: str | None) -> int:
 
     for d in dirs:
         if not is_sweep(d):
-            raise CliError(f"{d}: not a sweep's directory (no sweep.json); several directories are sweeps overlaid")
+            raise CliError(f"{d}: not a sweep's directory (no sweep.json): only sweeps are overlaid (--out, several)")
     if len(dirs) > 1 and overlay is None:
         raise CliError("report: several sweeps are overlaid in one figure: --out PNG names it")
     if overlay is not None and not overlay.lower().endswith(".png"):

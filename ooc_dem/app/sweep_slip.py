@@ -125,16 +125,35 @@ def _write_sweep(out: Path, scenario: str, overrides: list[str], slips: list[flo
     write_text_atomic(out / SWEEP_FILE, json.dumps(doc, indent=2))
 
 
-def _same_sweep_run(sc: Scenario, d: Path, out: Path, sweep: dict[str, Any]) -> None:
-    """A slip's directory must hold a run of this scenario at this slip (the physics: the
-    scenario's hash, and its outputs: the steady window and the series' rows)."""
-    stored = read_run_scenario(d)
-    if stored is not None and (stored.hash() != sc.hash() or stored.output != sc.output):
-        given = " ".join(f"--set {o}" for o in sweep["overrides"])
-        raise RunError(
-            f"--out {out}: a sweep of {sweep['scenario']!r}{' ' + given if given else ''}, whose {d.name} is "
-            f"another scenario than this one; extend a sweep with its own scenario and --set, or use a new --out"
-        )
+def _same_scenario(a: Scenario, b: Scenario) -> bool:
+    """The same run: the physics (the scenario's hash) and the outputs (the steady window,
+    the series' rows), which the hash leaves out."""
+    return a.hash() == b.hash() and a.output == b.output
+
+
+def _another_scenario(out: Path, sweep: dict[str, Any], where: str) -> RunError:
+    given = " ".join(f"--set {o}" for o in sweep["overrides"])
+    return RunError(
+        f"--out {out}: a sweep of {sweep['scenario']!r}{' ' + given if given else ''}, {where} another scenario "
+        f"than this one; extend a sweep with its own scenario and --set, or use a new --out"
+    )
+
+
+def _check_extension(out: Path, sweep: dict[str, Any], slips: list[float], scs: list[Scenario]) -> None:
+    """An existing sweep is extended only by its own scenario: the one its sweep.json names
+    (when it still loads) and the one every slip directory holds."""
+    from ..errors import OocDemError
+
+    try:
+        theirs = slip_scenario(sweep["scenario"], sweep["overrides"], slips[0])
+    except OocDemError:  # a scenario file moved or changed beyond loading: the runs decide
+        theirs = None
+    if theirs is not None and not _same_scenario(theirs, scs[0]):
+        raise _another_scenario(out, sweep, "which is")
+    for s, sc in zip(slips, scs):
+        stored = read_run_scenario(slip_dir(out, s)) if slip_dir(out, s).exists() else None
+        if stored is not None and not _same_scenario(stored, sc):
+            raise _another_scenario(out, sweep, f"whose {slip_dir(out, s).name} is")
 
 
 # ------------------------------------------------------------------------------ runs
@@ -184,10 +203,10 @@ def run_slip_sweep(
     sweep = existing or {"scenario": scenario, "overrides": overrides}
     # every run planned (and checked), and every existing run checked to be of this
     # scenario, before the first one starts (on every rank alike)
-    for s, sc in zip(every, scs):
+    for sc in scs:
         plan_run(sc, opts)
-        if slip_dir(out, s).exists():
-            _same_sweep_run(sc, slip_dir(out, s), out, sweep)
+    if existing:
+        _check_extension(out, existing, every, scs)
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
         # written first: a sweep stopped part-way is continued by running it again

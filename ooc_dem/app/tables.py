@@ -104,11 +104,13 @@ def print_table(summary: dict[str, Any], reference: dict[str, float] | None = No
     if isinstance(blocks, int):
         passages = summary_field(summary, "net_traction", "steady", "passages")
         what = f"{blocks} lug passages" if passages is not None else f"{blocks} blocks"
-        sw = summary_field(summary, "net_traction", "steady", "stats_window_s")
-        where = f", t = {sw[0]:.4g}–{sw[1]:.4g} s" if isinstance(sw, list) and len(sw) == 2 else ""
+        used = summary_field(summary, "net_traction", "steady", "stats_window_s")
+        where = f", t = {used[0]:.4g}–{used[1]:.4g} s" if isinstance(used, list) and len(used) == 2 else ""
         notes.append(
             f"± : 95 % confidence half-width of the steady mean from {what}{where} "
             "(Student t over the blocks' means; docs/reference/statistics.md)"
+            if blocks >= 2
+            else f"no confidence interval: the steady window holds {what} (at least 2 are needed)"
         )
     flag = summary_field(summary, "net_traction", "steady", "flag")
     if isinstance(flag, str):

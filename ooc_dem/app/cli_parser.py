@@ -290,8 +290,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_args(q)
     add_plan_args(q)
 
-    q = sub.add_parser("report", help="regenerate figures and print the wheel-performance table")
-    q.add_argument("store")
+    q = sub.add_parser(
+        "report",
+        help="regenerate figures and print the wheel-performance table (of a run, or the drawbar pull - "
+        "slip curve of a sweep; several sweeps: overlaid in one figure)",
+    )
+    q.add_argument("store", nargs="+", metavar="DIR", help="a run's or a sweep's directory; or several sweeps'")
+    q.add_argument(
+        "--out", default=None, metavar="PNG", help="several sweeps: the overlay figure's file (required with them)"
+    )
 
     q = sub.add_parser("compare", help="compare two runs (Table 3 style) and their final states")
     q.add_argument("a")
@@ -384,7 +391,12 @@ def build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)
     q.add_argument("--slips", required=True, help="comma-separated slips, e.g. 0.1,0.2,0.4")
-    q.add_argument("--out", required=True)
+    q.add_argument(
+        "--out",
+        required=True,
+        help="a new directory, or an existing sweep of the same scenario and --set to add slips to "
+        "(its finished runs reused)",
+    )
     q.add_argument("--no-progress", action="store_true")
 
     q = sub.add_parser(

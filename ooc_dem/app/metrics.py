@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from .run_stats import dp_w_entry, series_columns, summary_spread
 from ..physics.layout import REC_DB, REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y
 
 if TYPE_CHECKING:
@@ -259,10 +260,14 @@ class WheelMetrics:
             if win.get("steps"):
                 mr[name] = {"value": win["gross_traction"] - win["net_traction"], "window_s": win["window_s"]}
         out["motion_resistance"] = {"unit": "N", **mr}
+        out["dp_w"] = dp_w_entry(out["net_traction"], self.sc.wheel.load)
         out["sinkage"]["static"] = {
             "value": static.get("sinkage"),
             "window_s": static.get("window_s"),
             "note": "mean over the last part of the settling phase (omega = 0)",
         }
         out["surface_height"] = {"unit": "m", "value": self.surface}
+        # the steady entries' spread, from the series rows (the values above are the step
+        # accumulator's and stay as they are)
+        summary_spread(out, series_columns(self.series()), self.sc)
         return out

@@ -48,6 +48,7 @@ __all__ = [
     "Simulation",
     "plan_run",
     "resume_simulation",
+    "run_to_end",
 ]
 
 
@@ -486,6 +487,35 @@ def resume_simulation(
     if sim is None:
         store.close()
     return sim
+
+
+def finished_summary(out: Path, sc: Scenario, opts: RunOptions) -> dict[str, Any] | None:
+    """The summary of the run in ``out`` if it ran to its planned end, else None."""
+    from .plan import total_steps
+    from .runfiles import read_summary
+
+    summary = read_summary(out, complete=False)
+    if summary is None or summary.get("steps") != total_steps(sc, opts):
+        return None
+    return summary
+
+
+def run_to_end(sc: Scenario, out: Path, opts: RunOptions) -> str:
+    """Run ``sc`` in ``out`` to its planned end: reuse it when finished, resume it when
+    stopped after a commit, start it otherwise (the caller has checked that ``out`` holds
+    a run of ``sc``). Returns what was done: "reused", "resumed" or "ran"."""
+    from .plan import total_steps
+
+    if out.exists():
+        if finished_summary(out, sc, opts) is not None:
+            return "reused"
+        if any(out.iterdir()) and not stopped_before_first_commit(out):
+            sim = resume_simulation(out, steps=total_steps(sc, opts), progress=opts.progress, figures=opts.figures)
+            if sim is not None:
+                sim.run()
+            return "resumed"
+    Simulation(sc, out, opts).run()
+    return "ran"
 
 
 def _reopen(

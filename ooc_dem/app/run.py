@@ -31,7 +31,7 @@ from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE
 from .bed import bed_info, settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
 from .plan import RunError, RunInterrupted, RunOptions, plan_run, streamable
-from .progress import Progress, settling_progress
+from .progress import COMPILING, Progress, kernels_cached, settling_progress
 from .resume import ResumeEpoch, check_engine_attrs, open_resume_epoch, stored_run
 from .run_setup import StreamedBed, place_wheel, stopped_before_first_commit
 from .runfiles import read_bed_info
@@ -330,6 +330,8 @@ class Simulation:
             self.start()
         engine = self._engine()
         dt = self.sc.physics.dt
+        if self.opts.progress and self.step < self.steps and not kernels_cached(self.sc.dim):
+            print(f"ooc-dem: {COMPILING}", file=sys.stderr, flush=True)
         bar = Progress(self.opts.progress, self.steps - self.step, dt, f"{self.sc.name} [{self.opts.mode}]")
         chunk_pref = engine.preferred_chunk
         t_start = time.time() - self.wall_time

@@ -183,12 +183,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_check(args: argparse.Namespace) -> int:
     """`run`'s validation and planning (Simulation's own plan_run), without a run."""
-    from .plan import plan_run
+    from .plan import estimate_wall_time, plan_run
 
     sc, warn = _load_advised(args)
     plan = plan_run(sc, _run_options(args))
     warn(plan)
-    print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict()}, indent=2))
+    estimate = estimate_wall_time(sc, plan.steps)
+    print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict(), "estimated_wall_time": estimate}, indent=2))
     return 0
 
 

@@ -93,9 +93,9 @@ class RunPlan:
 
 # ns per particle-step of a whole run (kernels compiled, the machine's threads), fitted on the
 # 2-core machine of docs/benchmarks.md: quick (2D, 1500 discs, 220 000 steps, 32 s) and the
-# Ding 2011 lugged wheel (3D Hertz, 49 350 spheres, one thread); linear 3D from its kernel's
-# share of Hertz's (docs/benchmarks.md). A rough guide, not a promise.
-COST_NS = {(2, "linear"): 97.0, (3, "linear"): 300.0, (3, "hertz"): 400.0}
+# Ding 2011 wheels (3D Hertz, 49 350 spheres, one thread); 3D linear not fitted apart
+# (docs/benchmarks.md). A rough guide, not a promise.
+COST_NS = {(2, "linear"): 97.0, (3, "linear"): 400.0, (3, "hertz"): 400.0}
 COST_BASIS = (
     "fitted cost model: particles x steps x {ns:g} ns (this dimension and law on the 2-core machine of "
     "docs/benchmarks.md, kernels compiled; first run: + a few minutes of compiling); rough, +-50 %"

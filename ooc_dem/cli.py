@@ -79,8 +79,10 @@ def _dispatch(args, known, quiet: bool = False) -> int:
         if not quiet:
             print(f"ooc-dem: error: {msg}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("ooc-dem: interrupted (the last committed epoch is kept; `ooc-dem resume` continues)", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        # a run says where it stopped and from which step `resume` continues
+        said = str(e) if e.args else "interrupted (the last committed epoch is kept; `ooc-dem resume` continues)"
+        print(f"ooc-dem: {said}", file=sys.stderr)
         return 130
     except OSError as e:
         where = f"{e.filename}: " if e.filename else ""

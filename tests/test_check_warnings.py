@@ -135,3 +135,17 @@ def test_cli_doc_is_current():
     committed = (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
     assert committed == gen_cli_doc.render(), "docs/cli.md is stale: run `python tools/gen_cli_doc.py`"
     assert "`ooc-dem checkpoint export`" in committed and "`--show` `NAME`" in committed
+
+
+def test_check_estimates_the_wall_time_by_its_stated_cost_model():
+    """`check` prints the run's estimated wall time: particles x steps x the fitted ns of the
+    dimension and law, with the basis named."""
+    import json
+
+    from ooc_dem.app.plan import COST_NS
+
+    cp = cli_in_process("check", "quick", "--steps", "1000")
+    assert cp.returncode == 0, cp.stderr
+    est = json.loads(cp.stdout)["estimated_wall_time"]
+    assert est["seconds"] == round(1500 * 1000 * COST_NS[(2, "linear")] * 1e-9, 1)
+    assert "fitted cost model" in est["basis"] and "docs/benchmarks.md" in est["basis"]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ooc_dem.app.experiment_stats import difference, t_quantile_975, window_stats
+from ooc_dem.app.stats import difference, t_quantile_975, window_stats
 from support.cli import cli_in_process, one_line_error, run_cli
 from support.runs import kill_after_first_commit
 

@@ -110,3 +110,44 @@ def test_resume_extends_run_to_same_bits(tmp_path, mode):
     ha = cli_in_process("checkpoint", "hash", a, check=True).stdout.strip()
     hb = cli_in_process("checkpoint", "hash", b, check=True).stdout.strip()
     assert ha == hb
+
+
+@pytest.mark.slow
+def test_ctrl_c_names_the_run_directory_and_the_step_resume_continues_from(tmp_path):
+    """SIGINT (Ctrl-C) after the first committed epoch: exit 130, one line naming the run
+    directory and the step of the last committed epoch, which is where `resume` continues."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from support.stores import committed_step
+
+    out = tmp_path / "run"
+    cmd = [
+        sys.executable,
+        "-m",
+        "ooc_dem.cli",
+        "run",
+        "quick",
+        "--steps",
+        "400000",
+        "--checkpoint-every",
+        "200",
+        "--no-progress",
+        "--no-figures",
+        "--out",
+        str(out),
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 600
+    while time.time() < deadline and proc.poll() is None and committed_step(out) < 400:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    at = committed_step(out)
+    assert f"ooc-dem resume {out}` continues from step {at} " in lines[0], lines[0]
+    assert at >= 400 and at % 200 == 0

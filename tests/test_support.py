@@ -88,3 +88,16 @@ def test_a_command_that_changes_the_process_fails_the_test(what, monkeypatch, tm
         for h in held:
             h.set() if isinstance(h, threading.Event) else h.close()
     assert (os.getcwd(), dict(os.environ), signal.getsignal(signal.SIGUSR1)) == before  # put back
+
+
+def test_the_compile_notice_follows_numbas_cache_index(tmp_path, monkeypatch):
+    """kernels_cached reads numba's own cache index of the step kernel: False where it is
+    absent (the first run compiles, and says so), True once it exists."""
+    from ooc_dem.app.progress import kernels_cached
+    from ooc_dem.physics import kernels
+
+    cache_file = kernels(2).run_steps._cache._cache_file
+    monkeypatch.setattr(cache_file, "_index_path", str(tmp_path / "run_steps.nbi"))
+    assert kernels_cached(2) is False
+    (tmp_path / "run_steps.nbi").write_bytes(b"")
+    assert kernels_cached(2) is True

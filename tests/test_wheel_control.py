@@ -208,3 +208,18 @@ def test_run_prints_the_measured_omega(tmp_path):
     assert "wheel omega (measured, rad/s): " in towed.stdout
     plain = cli_in_process("run", "quick", *args, "--out", tmp_path / "plain", check=True)
     assert "wheel omega" not in plain.stdout
+
+
+def test_a_sweep_takes_braking_slips(tmp_path):
+    """sweep --slips=-0.2,0.1: both runs, the CSV in slip order, and the sweep reads back
+    (report re-plots it)."""
+    sets = [
+        a
+        for o in ("wheel.settle_time=0.0", "wheel.drop_gap=0.0", "wheel.travel_time=0.01", "output.steady_start=0.0")
+        for a in ("--set", o)
+    ]
+    out = tmp_path / "sweep"
+    cli_in_process("sweep", "quick", *sets, "--slips=-0.2,0.1", "--out", out, "--no-progress", check=True)
+    data = np.genfromtxt(out / "drawbar_pull_slip.csv", delimiter=",", names=True)
+    assert list(data["slip"]) == [-0.2, 0.1]
+    cli_in_process("report", out, check=True)

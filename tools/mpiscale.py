@@ -14,7 +14,7 @@ wheel set down at those x (the load balance changes as the wheel travels: the pa
 wheel slab is half of paper2008's bin), so one report covers the run's start and end.
 
 Then a ping-pong of ``Sendrecv`` between two ranks through the MPI's shared memory gives
-the latency and bandwidth, and the model (README, "Scaling model") predicts the
+the latency and bandwidth, and the model (docs/benchmarks.md, "Scaling model") predicts the
 efficiency of R ranks on a larger bed from: the time per particle-step of one rank, the
 halo rows and messages per block measured here, and those two MPI numbers.
 

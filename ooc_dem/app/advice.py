@@ -1,8 +1,8 @@
-"""What `check` and `run` warn about before a run: a scenario that passes every check but
-will not measure what its user wants (a bed too shallow for the wheel, side walls inside the
-soil the wheel moves, lugs a grain high, a steady window past the end of the travel, an
-out-of-core run writing the whole bed every step, a file whose unset keys take the defaults
-of the other dimension). Warnings, not errors: each is one line and the run may go ahead.
+"""What `check`, `run` and `sweep` warn about before a run: a scenario that passes every
+check but will not measure what its user wants (a bed too shallow for the wheel, side walls
+inside the soil the wheel moves, lugs a grain high, a steady window past the end of the
+travel or shorter than three lug passages, an out-of-core run writing the whole bed every
+step, a file whose unset keys take the defaults of the other dimension). Warnings, not errors: each is one line and the run may go ahead.
 
 The estimates and the rules they are checked against are stated in each message and here.
 """
@@ -18,6 +18,7 @@ from ..model.grading import grading_of_soil, mean_power
 from ..model.scenario import Scenario
 from ..model.schema import Wheel, show
 from .plan import RunPlan
+from .run_stats import MIN_BLOCKS, SMOOTH_BLOCK_ANGLE, block_period, planned_blocks
 
 # solid fraction of a poured, settled bed: 2D discs ~0.80 (paper2008's 1165-disc tile is
 # 0.18 m deep over 0.1 m: 0.82), 3D spheres ~0.60 (paper2008-3d's 10000 spheres make ~7 cm:
@@ -129,6 +130,22 @@ def _wheel_warnings(sc: Scenario) -> list[str]:
             f"the wheel travels {travel:.3g} s but the steady window is output.steady_start .. "
             f"steady_end = {o.steady_start:g} .. {o.steady_end:g} s of travel: {what}; travel "
             f"longer (wheel.travel_time) or end the window sooner"
+        )
+    end = min(travel, o.steady_end)
+    blocks = planned_blocks(sc)
+    if end > o.steady_start and blocks < MIN_BLOCKS:
+        period = block_period(sc)
+        if not math.isfinite(period):
+            unit = "blocks (the wheel does not turn: wheel.omega = 0)"
+        elif w.n_lugs > 0:
+            unit = f"lug passages (2 pi / (wheel.n_lugs wheel.omega) = {period:.3g} s each)"
+        else:
+            unit = f"blocks ({period:.3g} s each, the rim turning {math.degrees(SMOOTH_BLOCK_ANGLE):g} degrees)"
+        out.append(
+            f"the steady window {o.steady_start:g} .. {end:g} s of travel holds {blocks:.2f} {unit}: fewer "
+            f"than {MIN_BLOCKS}, so the steady means have no reliable confidence interval (one block per "
+            f"passage) and the summary flags them; travel longer (wheel.travel_time, output.steady_end) or "
+            f"start the window sooner (output.steady_start)"
         )
     return out
 

@@ -183,12 +183,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_check(args: argparse.Namespace) -> int:
     """`run`'s validation and planning (Simulation's own plan_run), without a run."""
-    from .plan import plan_run
+    from .plan import estimate_wall_time, plan_run
 
     sc, warn = _load_advised(args)
     plan = plan_run(sc, _run_options(args))
     warn(plan)
-    print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict()}, indent=2))
+    estimate = estimate_wall_time(sc, plan.steps)
+    print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict(), "estimated_wall_time": estimate}, indent=2))
     return 0
 
 
@@ -292,11 +293,15 @@ def cmd_animate(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from .plots import make_figures
-    from .runfiles import read_summary
+    from .run_stats import read_summary_with_spread
+    from .sweep_slip import is_sweep
     from .tables import print_table
 
-    out = Path(args.store)
-    summary = read_summary(out)  # validated: a hostile or foreign file is a one-line error
+    dirs = [Path(d) for d in args.store]
+    if len(dirs) > 1 or args.out is not None or is_sweep(dirs[0]):
+        return _report_sweeps(dirs, args.out)
+    out = dirs[0]
+    summary = read_summary_with_spread(out)  # validated: a hostile or foreign file is a one-line error
     if "slip" in summary:
         figs = make_figures(out)
         print(print_table(summary))
@@ -310,6 +315,27 @@ def cmd_report(args: argparse.Namespace) -> int:
         # repose goes beside it, to stderr
         print(json.dumps(summary, indent=2))
         _print_repose(summary, sys.stderr)
+    return 0
+
+
+def _report_sweeps(dirs: list[Path], overlay: str | None) -> int:
+    """`report SWEEP...`: each sweep's curve written again and printed; several (or
+    ``--out``): their overlay figure."""
+    from .sweep_slip import is_sweep, sweep_overlay, sweep_report
+
+    for d in dirs:
+        if not is_sweep(d):
+            raise CliError(f"{d}: not a sweep's directory (no sweep.json): only sweeps are overlaid (--out, several)")
+    if len(dirs) > 1 and overlay is None:
+        raise CliError("report: several sweeps are overlaid in one figure: --out PNG names it")
+    if overlay is not None and not overlay.lower().endswith(".png"):
+        raise CliError(f"--out {overlay}: the overlay figure is a .png file")
+    for k, d in enumerate(dirs):
+        table, figure = sweep_report(d)
+        print(("\n" if k else "") + table)
+        print(f"curve: {d / 'drawbar_pull_slip.csv'}  figure: {figure}")
+    if overlay is not None:
+        print(f"overlay: {sweep_overlay(dirs, Path(overlay))}")
     return 0
 
 
@@ -330,10 +356,22 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     # negative slips brake (wheel.slip's range)
     if not slips or any(not (-1.0 <= s < 1.0) for s in slips):
         raise CliError(f"--slips {args.slips!r}: each slip must be in [-1, 1)")
-    run_slip_sweep(
-        args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress, comm=getattr(args, "comm", None)
-    )
+    comm = getattr(args, "comm", None)
+    if comm is None or comm.Get_rank() == 0:
+        _sweep_warnings(args, slips[0])
+    run_slip_sweep(args.scenario, args.set, slips, Path(args.out), progress=not args.no_progress, comm=comm)
     return 0
+
+
+def _sweep_warnings(args: argparse.Namespace, slip: float) -> None:
+    """What `check` would warn of the sweep's scenario (at its first slip), on stderr."""
+    from ..model.scenario import scenario_tables
+    from ..model.scenario_check import scenario_from_dict
+    from .advice import scenario_warnings
+
+    tables, base = scenario_tables(args.scenario, [*args.set, "wheel.control=slip", f"wheel.slip={slip!r}"])
+    for line in scenario_warnings(scenario_from_dict(tables), None, tables, base):
+        print(f"ooc-dem: warning: {line}", file=sys.stderr, flush=True)
 
 
 def cmd_experiment(args: argparse.Namespace) -> int:

@@ -170,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
             default="none",
             choices=["none", "zstd", "blosc", "gzip", "lzf"],
             help="compress the store's arrays: zarr zstd|blosc, hdf5 gzip|lzf (default "
-            "none: see the README's Disk economy)",
+            "none: see docs/format.md, Disk economy)",
         )
         q.add_argument(
             "--io-overlap",
@@ -290,8 +290,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_scenario_args(q)
     add_plan_args(q)
 
-    q = sub.add_parser("report", help="regenerate figures and print the wheel-performance table")
-    q.add_argument("store")
+    q = sub.add_parser(
+        "report",
+        help="regenerate figures and print the wheel-performance table (of a run, or the drawbar pull - "
+        "slip curve of a sweep; several sweeps: overlaid in one figure)",
+    )
+    q.add_argument("store", nargs="+", metavar="DIR", help="a run's or a sweep's directory; or several sweeps'")
+    q.add_argument(
+        "--out", default=None, metavar="PNG", help="several sweeps: the overlay figure's file (required with them)"
+    )
 
     q = sub.add_parser("compare", help="compare two runs (Table 3 style) and their final states")
     q.add_argument("a")
@@ -388,7 +395,12 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="comma-separated slips in [-1, 1), e.g. 0.1,0.2,0.4 (negative: braking; write --slips=-0.2,0.1)",
     )
-    q.add_argument("--out", required=True)
+    q.add_argument(
+        "--out",
+        required=True,
+        help="a new directory, or an existing sweep of the same scenario and --set to add slips to "
+        "(its finished runs reused)",
+    )
     q.add_argument("--no-progress", action="store_true")
 
     q = sub.add_parser(

@@ -8,7 +8,7 @@ wheel), its bed settled once (the bed cache), and for each wheel and slip a slip
 run in OUT/<wheel>/slip_<s>/ as `ooc-dem sweep` makes them: a finished run is reused, a
 stopped one resumed from its last committed epoch, any other started. Under mpiexec the
 runs fan out over the ranks (run i on rank i mod R). The statistics
-(``experiment_stats``) and the report (``experiment_report``) follow.
+(``stats``) and the report (``experiment_report``) follow.
 """
 
 from __future__ import annotations
@@ -99,12 +99,9 @@ def _same_run(sc: Scenario, d: Path) -> None:
 
 def finished_summary(run: PlannedRun) -> dict[str, Any] | None:
     """The run's summary if it ran to its planned end, else None."""
-    from .runfiles import read_summary
+    from .run import finished_summary as finished
 
-    summary = read_summary(run.out, complete=False)
-    if summary is None or summary.get("steps") != total_steps(run.scenario, RunOptions()):
-        return None
-    return summary
+    return finished(run.out, run.scenario, RunOptions())
 
 
 def run_options(exp: Experiment, sc: Scenario, progress: bool) -> RunOptions:
@@ -116,21 +113,11 @@ def run_options(exp: Experiment, sc: Scenario, progress: bool) -> RunOptions:
 def execute(exp: Experiment, run: PlannedRun, progress: bool) -> str:
     """Run ``run`` to its end: reuse it when finished, resume it when stopped, start it
     otherwise. Returns what was done: "reused", "resumed" or "ran"."""
-    from .run import Simulation, resume_simulation
-    from .run_setup import stopped_before_first_commit
+    from .run import run_to_end
 
-    d, sc = run.out, run.scenario
-    if d.exists():
-        _same_run(sc, d)
-        if finished_summary(run) is not None:
-            return "reused"
-        if any(d.iterdir()) and not stopped_before_first_commit(d):
-            sim = resume_simulation(d, steps=total_steps(sc, RunOptions()), progress=progress, figures=False)
-            if sim is not None:
-                sim.run()
-            return "resumed"
-    Simulation(sc, d, run_options(exp, sc, progress)).run()
-    return "ran"
+    if run.out.exists():
+        _same_run(run.scenario, run.out)
+    return run_to_end(run.scenario, run.out, run_options(exp, run.scenario, progress))
 
 
 # --------------------------------------------------------------------------- pipeline

@@ -16,7 +16,7 @@ import numpy as np
 
 from .drawing import pyplot, save_figure
 from .experiment_file import Experiment, WheelSpec
-from .experiment_stats import WindowStats, difference, window_stats
+from .stats import WindowStats, difference, window_stats
 from .outputs import write_text_atomic
 from .runfiles import read_series, read_summary
 

@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from .run_stats import dp_w_entry, series_columns, summary_spread
 from ..physics.layout import REC_DB, REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y
 
 if TYPE_CHECKING:
@@ -286,6 +287,7 @@ class WheelMetrics:
             if win.get("steps"):
                 mr[name] = {"value": win["gross_traction"] - win["net_traction"], "window_s": win["window_s"]}
         out["motion_resistance"] = {"unit": "N", **mr}
+        out["dp_w"] = dp_w_entry(out["net_traction"], self.sc.wheel.load)
         out["sinkage"]["static"] = {
             "value": static.get("sinkage"),
             "window_s": static.get("window_s"),
@@ -299,4 +301,7 @@ class WheelMetrics:
                 if win.get("steps"):
                     omega[name] = {"value": float(self.wspin[k] / win["steps"]), "window_s": win["window_s"]}
             out["omega"] = {"unit": "rad/s", **omega, "note": f"measured (wheel.control = {w.control})"}
+        # the steady entries' spread, from the series rows (the values above are the step
+        # accumulator's and stay as they are)
+        summary_spread(out, series_columns(self.series()), self.sc)
         return out

@@ -24,6 +24,11 @@ class RunError(OocDemError, RuntimeError):
     """A run cannot start or continue (message is one line)."""
 
 
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped by Ctrl-C (SIGINT); its message names the run directory and the step
+    `resume` continues from."""
+
+
 @dataclass
 class RunOptions:
     mode: str = "monolithic"
@@ -84,6 +89,24 @@ class RunPlan:
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+# ns per particle-step of a whole run (kernels compiled, the machine's threads), fitted on the
+# 2-core machine of docs/benchmarks.md: quick (2D, 1500 discs, 220 000 steps, 32 s) and the
+# Ding 2011 wheels (3D Hertz, 49 350 spheres, one thread); 3D linear not fitted apart
+# (docs/benchmarks.md). A rough guide, not a promise.
+COST_NS = {(2, "linear"): 97.0, (3, "linear"): 400.0, (3, "hertz"): 400.0}
+COST_BASIS = (
+    "fitted cost model: particles x steps x {ns:g} ns (this dimension and law on the 2-core machine of "
+    "docs/benchmarks.md, kernels compiled; first run: + a few minutes of compiling); rough, +-50 %"
+)
+
+
+def estimate_wall_time(sc: Scenario, steps: int) -> dict[str, Any]:
+    """The run's wall time by the fitted cost model (``COST_NS``): seconds and the basis."""
+    law = sc.contact.soil_soil.law if sc.dim == 3 else "linear"
+    ns = COST_NS.get((sc.dim, law), COST_NS[(3, "hertz")])
+    return {"seconds": round(sc.soil.n * steps * ns * 1e-9, 1), "basis": COST_BASIS.format(ns=ns)}
 
 
 _fmt_bytes = budget.fmt_bytes

@@ -44,6 +44,27 @@ class Progress:
             self.bar.close()
 
 
+def kernels_cached(dim: int) -> bool:
+    """Whether numba's cache holds this dimension's step kernel (False: the first step
+    compiles the kernels, a few minutes). True when it cannot tell."""
+    import os
+
+    from ..physics import kernels
+
+    try:
+        step: Any = kernels(dim).run_steps
+        index = step._cache._cache_file._index_path  # numba's cache index file
+    except AttributeError:
+        return True
+    return bool(os.path.exists(index))
+
+
+COMPILING = (
+    "compiling the kernels: the first run on this machine takes a few minutes before its first step "
+    "(later runs load them from numba's cache)"
+)
+
+
 def settling_progress(sc: Scenario) -> SettleProgress:
     """The bed's settling as one line on stderr, rewritten at most once a second: the settling
     time reached and the mean speed against the scenario's target (bed.settle_speed)."""

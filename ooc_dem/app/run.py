@@ -30,8 +30,8 @@ from ..model.state import Particles
 from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE
 from .bed import bed_info, settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
-from .plan import RunError, RunOptions, plan_run, streamable
-from .progress import Progress, settling_progress
+from .plan import RunError, RunInterrupted, RunOptions, plan_run, streamable
+from .progress import COMPILING, Progress, kernels_cached, settling_progress
 from .resume import ResumeEpoch, check_engine_attrs, open_resume_epoch, stored_run
 from .run_setup import StreamedBed, place_wheel, stopped_before_first_commit
 from .runfiles import read_bed_info
@@ -48,6 +48,7 @@ __all__ = [
     "Simulation",
     "plan_run",
     "resume_simulation",
+    "run_to_end",
 ]
 
 
@@ -329,6 +330,8 @@ class Simulation:
             self.start()
         engine = self._engine()
         dt = self.sc.physics.dt
+        if self.opts.progress and self.step < self.steps and not kernels_cached(self.sc.dim):
+            print(f"ooc-dem: {COMPILING}", file=sys.stderr, flush=True)
         bar = Progress(self.opts.progress, self.steps - self.step, dt, f"{self.sc.name} [{self.opts.mode}]")
         chunk_pref = engine.preferred_chunk
         t_start = time.time() - self.wall_time
@@ -362,11 +365,31 @@ class Simulation:
                     self.commit()
         except EngineError as e:
             raise RunError(f"{e} (last committed epoch kept in {self.out})") from None
+        except KeyboardInterrupt:
+            raise RunInterrupted(self.interrupted_message()) from None
         finally:
             bar.close()
         summary = self.finish()
         self.close()
         return summary
+
+    def interrupted_message(self) -> str:
+        """What an interrupted run tells: its directory and the step `resume` continues from."""
+        # read back from the store: a Ctrl-C can land after a commit reached the disk and before
+        # anything in this process recorded it
+        at: int | None = None
+        if self.store is not None:
+            try:
+                cur = self.store.manifest(fresh=True)["current"]
+                at = None if cur is None else int(cur["step"])
+            except Exception:  # noqa: BLE001 - the message falls back to what this process saw
+                at = self.store.current()
+        if at is None:
+            return f"interrupted before the first epoch was committed: {self.out} holds no run yet (run it again)"
+        return (
+            f"interrupted at step {self.step}: `ooc-dem resume {self.out}` continues from step {at} "
+            f"(t = {at * self.sc.physics.dt:.6g} s, the last committed epoch)"
+        )
 
     def close(self) -> None:
         """Release the store (and its write lock); the outputs stay in the run directory."""
@@ -466,6 +489,35 @@ def resume_simulation(
     if sim is None:
         store.close()
     return sim
+
+
+def finished_summary(out: Path, sc: Scenario, opts: RunOptions) -> dict[str, Any] | None:
+    """The summary of the run in ``out`` if it ran to its planned end, else None."""
+    from .plan import total_steps
+    from .runfiles import read_summary
+
+    summary = read_summary(out, complete=False)
+    if summary is None or summary.get("steps") != total_steps(sc, opts):
+        return None
+    return summary
+
+
+def run_to_end(sc: Scenario, out: Path, opts: RunOptions) -> str:
+    """Run ``sc`` in ``out`` to its planned end: reuse it when finished, resume it when
+    stopped after a commit, start it otherwise (the caller has checked that ``out`` holds
+    a run of ``sc``). Returns what was done: "reused", "resumed" or "ran"."""
+    from .plan import total_steps
+
+    if out.exists():
+        if finished_summary(out, sc, opts) is not None:
+            return "reused"
+        if any(out.iterdir()) and not stopped_before_first_commit(out):
+            sim = resume_simulation(out, steps=total_steps(sc, opts), progress=opts.progress, figures=opts.figures)
+            if sim is not None:
+                sim.run()
+            return "resumed"
+    Simulation(sc, out, opts).run()
+    return "ran"
 
 
 def _reopen(

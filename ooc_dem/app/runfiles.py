@@ -113,6 +113,11 @@ WHEEL_QUANTITIES = (
     "sinkage",
     "motion_resistance",
 )
+# in a wheel run's summary when present (runs made before they were written lack them)
+OPTIONAL_QUANTITIES = ("dp_w",)
+# a steady entry's spread (run_stats.py): numbers or null, counts, windows and a flag
+SPREAD_NUMBERS = ("mean", "std", "ci95", "block_s")
+SPREAD_COUNTS = ("blocks", "passages")
 WINDOWS = ("whole_travel", "steady", "static")
 
 
@@ -141,9 +146,9 @@ def validate_summary(summary: object, f: str | os.PathLike[str], complete: bool 
         if key in engine and not _type_ok(engine[key], int):
             raise RunFileError(f"{f}: 'engine.{key}' must be an integer")
     wheel = "slip" in summary
-    for q in WHEEL_QUANTITIES:
+    for q in WHEEL_QUANTITIES + OPTIONAL_QUANTITIES:
         if q not in summary:
-            if wheel and complete:
+            if wheel and complete and q not in OPTIONAL_QUANTITIES:
                 raise RunFileError(f"{f}: missing key {q!r} (a wheel run's summary has it)")
             continue
         entry = summary[q]
@@ -158,9 +163,18 @@ def validate_summary(summary: object, f: str | os.PathLike[str], complete: bool 
                 raise RunFileError(f"{f}: {where!r} must be an object")
             if w.get("value") is not None and not _is_number(w["value"]):
                 raise RunFileError(f"{f}: '{where}.value' must be a number or null")
-            ws = w.get("window_s")
-            if ws is not None and not (isinstance(ws, list) and len(ws) == 2 and all(map(_is_number, ws))):
-                raise RunFileError(f"{f}: '{where}.window_s' must be [start, end] in s or null")
+            for key in ("window_s", "stats_window_s"):
+                ws = w.get(key)
+                if ws is not None and not (isinstance(ws, list) and len(ws) == 2 and all(map(_is_number, ws))):
+                    raise RunFileError(f"{f}: '{where}.{key}' must be [start, end] in s or null")
+            for key in SPREAD_NUMBERS:
+                if w.get(key) is not None and not _is_number(w[key]):
+                    raise RunFileError(f"{f}: '{where}.{key}' must be a number or null")
+            for key in SPREAD_COUNTS:
+                if w.get(key) is not None and not _type_ok(w[key], int):
+                    raise RunFileError(f"{f}: '{where}.{key}' must be an integer or null")
+            if w.get("flag") is not None and not (isinstance(w["flag"], str) and len(w["flag"]) <= 200):
+                raise RunFileError(f"{f}: '{where}.flag' must be a short string or null")
     if "bed" in summary:
         validate_bed_info(summary["bed"], f, "'bed'")
     surf = summary.get("surface_height")
@@ -362,6 +376,15 @@ def summary_value(summary: dict[str, Any] | None, key: str, name: str) -> float 
         v = summary[key][name]["value"]
         return None if v is None else float(v)
     except (KeyError, TypeError, ValueError):
+        return None
+
+
+def summary_field(summary: dict[str, Any] | None, key: str, name: str, field: str) -> Any:
+    """Field ``field`` (``ci95``, ``blocks``, ``flag``...) of quantity ``key`` over window
+    ``name`` of a summary (None if absent)."""
+    try:
+        return None if summary is None else summary[key][name].get(field)
+    except (KeyError, TypeError, AttributeError):
         return None
 
 

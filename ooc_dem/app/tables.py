@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .runfiles import summary_value, summary_window
+from .runfiles import summary_field, summary_value, summary_window
 
 
 # Nakashima (2008) Table 3, without DDM, whole 45 s of travel
@@ -47,6 +47,14 @@ def print_table(summary: dict[str, Any], reference: dict[str, float] | None = No
             return "—"
         return "nan" if not math.isfinite(v) else f"{v:.{digits}f}"
 
+    def cell(key: str, col: str, scale: float, digits: int) -> str:
+        """The value, and ± the 95 % half-width of the steady mean when the summary has it."""
+        text = fmt(summary_value(summary, key, col), scale, digits)
+        ci = summary_field(summary, key, col, "ci95")
+        if col == "steady" and text not in ("—", "nan") and isinstance(ci, (int, float)):
+            text += f" ± {fmt(ci, scale, digits)}"
+        return text
+
     rows = []
     spec = (
         ("wheel slip (-)", "slip", 1.0, 3),
@@ -54,9 +62,12 @@ def print_table(summary: dict[str, Any], reference: dict[str, float] | None = No
         ("gross traction (N)", "gross_traction", 1.0, 3),
         ("motion resistance (N)", "motion_resistance", 1.0, 3),
         ("torque (N m)", "torque", 1.0, 4),
+        ("DP/W (-)", "dp_w", 1.0, 4),
     )
     for label, key, scale, digits in spec:
-        row = [label] + [fmt(summary_value(summary, key, c), scale, digits) for c in cols]
+        if key == "dp_w" and "dp_w" not in summary:
+            continue  # a run made before DP/W was reported
+        row = [label] + [cell(key, c, scale, digits) for c in cols]
         if reference:
             row.append(fmt(reference.get(key), 1.0, digits))
         rows.append(row)
@@ -65,7 +76,7 @@ def print_table(summary: dict[str, Any], reference: dict[str, float] | None = No
     if reference:
         row.append("—")
     rows.append(row)
-    row = ["travelling sinkage (mm)"] + [fmt(summary_value(summary, "sinkage", c), 1e3, 1) for c in cols]
+    row = ["travelling sinkage (mm)"] + [cell("sinkage", c, 1e3, 1) for c in cols]
     if reference:
         row.append("—")
     rows.append(row)
@@ -85,7 +96,25 @@ def print_table(summary: dict[str, Any], reference: dict[str, float] | None = No
     extra = ", ".join(str(summary[k]) for k in ("mode", "backend") if summary.get(k))
     title = f"Wheel performance — {name}" + (f" ({extra})" if extra else "")
     out = [title, line(header), "  ".join("-" * w for w in widths)] + [line(r) for r in rows]
-    notes = ["windows in s of travel (0 = end of the wheel's settling); motion resistance = gross − net"]
+    notes = [
+        "windows in s of travel (0 = end of the wheel's settling); motion resistance = gross − net; "
+        "DP/W = net traction / wheel load"
+    ]
+    blocks = summary_field(summary, "net_traction", "steady", "blocks")
+    if isinstance(blocks, int):
+        passages = summary_field(summary, "net_traction", "steady", "passages")
+        what = f"{blocks} lug passages" if passages is not None else f"{blocks} blocks"
+        used = summary_field(summary, "net_traction", "steady", "stats_window_s")
+        where = f", t = {used[0]:.4g}–{used[1]:.4g} s" if isinstance(used, list) and len(used) == 2 else ""
+        notes.append(
+            f"± : 95 % confidence half-width of the steady mean from {what}{where} "
+            "(Student t over the blocks' means; docs/reference/statistics.md)"
+            if blocks >= 2
+            else f"no confidence interval: the steady window holds {what} (at least 2 are needed)"
+        )
+    flag = summary_field(summary, "net_traction", "steady", "flag")
+    if isinstance(flag, str):
+        notes.append(f"steady window flagged: {flag} (the spread is not reliable; travel longer)")
     sw = summary_window(summary, "sinkage", "static")
     if static is not None:
         notes.append(

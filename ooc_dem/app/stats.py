@@ -1,7 +1,8 @@
-"""Steady-window statistics of a run's series for `ooc-dem experiment`: the window cut to a
-whole number of lug passages, the mean and standard deviation over its rows, and a 95 %
-confidence interval of the mean from block averages (one block per lug passage, or per
-group of passages; Student t with nb - 1 degrees of freedom).
+"""Steady-window statistics of a run's series (a run's summary, `ooc-dem sweep`, `ooc-dem
+experiment`; docs/reference/statistics.md): the window cut to a whole number of lug
+passages, the mean and standard deviation over its rows, and a 95 % confidence interval of
+the mean from block averages (one block per lug passage, or per group of passages; Student
+t with nb - 1 degrees of freedom).
 
 A lugged wheel's forces oscillate with the lug passage period 2 pi / (n_lugs omega): a
 window of whole passages averages whole oscillations (its mean does not depend on where

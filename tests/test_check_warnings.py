@@ -77,6 +77,20 @@ def test_steady_window_past_the_travel():
     assert any("cover only 0.57 s" in w for w in got), got
 
 
+def test_control_keys_the_control_ignores():
+    got = _checked("quick", "--set", "wheel.torque=2.0", "--set", "wheel.speed=0.1")
+    line = "wheel.torque = 2.0, wheel.speed = 0.1: have no effect with wheel.control = 'drawbar'"
+    assert any(w.startswith(line) for w in got), got
+    got = _checked("quick", "--set", "wheel.control=torque", "--set", "wheel.speed=0.1")
+    assert any(w.startswith("wheel.speed = 0.1: has no effect with wheel.control = 'torque'") for w in got), got
+    for ok in (
+        ["wheel.control=torque", "wheel.torque=2.0", "wheel.carriage=speed", "wheel.speed=0.1"],
+        ["wheel.control=towed", "wheel.speed=0.1", "wheel.inertia=0.02"],
+    ):
+        got = _checked("quick", *[a for o in ok for a in ("--set", o)])
+        assert not any("no effect with wheel.control" in w for w in got), got
+
+
 def test_out_of_core_with_k_1_gets_a_k():
     got = _checked("quick", "--mode", "ooc", "--domains", "2", "--block", "1")
     assert any("K = 1" in w and "--block 2" in w for w in got), got

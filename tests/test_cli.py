@@ -24,6 +24,8 @@ BAD_INPUTS = [
     (["run", "quick", "--duration", "nan"], "--duration"),
     (["run", "bed-12x"], "bed-12x"),
     (["sweep", "quick", "--slips", "0.1,abc", "--out", "x"], "--slips"),
+    (["sweep", "quick", "--slips=-1.5,0.2", "--out", "x"], "each slip must be in [-1, 1)"),
+    (["run", "quick", "--set", "wheel.control=towed"], "wheel.speed"),
     (["frobnicate"], "frobnicate"),
 ]
 

@@ -16,6 +16,7 @@ from ..engine.modes import MODES
 from ..engine.sweep import auto_block
 from ..model.grading import grading_of_soil, mean_power
 from ..model.scenario import Scenario
+from ..model.schema import Wheel, show
 from .plan import RunPlan
 from .run_stats import MIN_BLOCKS, SMOOTH_BLOCK_ANGLE, block_period, planned_blocks
 
@@ -111,6 +112,14 @@ def _wheel_warnings(sc: Scenario) -> list[str]:
                 f"so the walls hold soil the wheel moves and bias its traction and sinkage; "
                 f"bin.width >= {w.width + 2.0 * want:.3g} m with the wheel at mid-width"
             )
+    unused = _unused_control_keys(sc)
+    if unused:
+        shown = ", ".join(f"wheel.{k} = {show(getattr(w, k))}" for k in unused)
+        out.append(
+            f"{shown}: {'has' if len(unused) == 1 else 'have'} no effect with wheel.control = "
+            f"{show(w.control)} (torque, torque_ramp, carriage: control = torque; inertia: torque, "
+            f"towed; speed: towed, or torque with carriage = speed)"
+        )
     # the scenario's own travel (a run cut short by --steps or --duration is the user's choice)
     travel = w.travel_time
     o = sc.output
@@ -139,6 +148,18 @@ def _wheel_warnings(sc: Scenario) -> list[str]:
             f"start the window sooner (output.steady_start)"
         )
     return out
+
+
+def _unused_control_keys(sc: Scenario) -> list[str]:
+    """The free-spin and carriage keys set away from their defaults that wheel.control ignores."""
+    w, default = sc.wheel, Wheel()
+    used = {"torque", "torque_ramp", "carriage", "inertia"} if w.control == "torque" else set()
+    if w.control == "towed":
+        used |= {"inertia", "speed"}
+    if w.control == "torque" and w.carriage == "speed":
+        used.add("speed")
+    keys = ("torque", "torque_ramp", "carriage", "inertia", "speed")
+    return [k for k in keys if k not in used and getattr(w, k) != getattr(default, k)]
 
 
 def _block_warnings(sc: Scenario, plan: RunPlan) -> list[str]:

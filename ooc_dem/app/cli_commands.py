@@ -198,6 +198,15 @@ def _print_run_result(summary: dict[str, Any], out: str | os.PathLike[str]) -> N
 
     if "slip" in summary:
         print(print_table(summary))
+    omega = summary.get("omega")  # a free-spinning wheel's (wheel.control torque, towed)
+    if isinstance(omega, dict):
+        shown = [
+            f"{win.replace('_', ' ')} {omega[win]['value']:.4f}"
+            for win in ("steady", "whole_travel")
+            if isinstance(omega.get(win), dict) and isinstance(omega[win].get("value"), float)
+        ]
+        if shown:
+            print(f"wheel omega (measured, rad/s): {', '.join(shown)}")
     print(
         f"steps: {summary['steps']}  simulated: {summary['simulated_time_s']:.4f} s  "
         f"wall: {summary['wall_time_s']:.1f} s  discs: {summary['n_discs']}"
@@ -344,8 +353,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         slips = [float(s) for s in args.slips.split(",") if s.strip()]
     except ValueError:
         raise CliError(f"--slips {args.slips!r}: must be comma-separated numbers") from None
-    if not slips or any(not (0.0 <= s < 1.0) for s in slips):
-        raise CliError(f"--slips {args.slips!r}: each slip must be in [0, 1)")
+    # negative slips brake (wheel.slip's range)
+    if not slips or any(not (-1.0 <= s < 1.0) for s in slips):
+        raise CliError(f"--slips {args.slips!r}: each slip must be in [-1, 1)")
     comm = getattr(args, "comm", None)
     if comm is None or comm.Get_rank() == 0:
         _sweep_warnings(args, slips[0])

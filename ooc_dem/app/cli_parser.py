@@ -390,7 +390,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("sweep", help="drawbar pull - slip curve (slip-controlled runs)")
     add_scenario_args(q)
-    q.add_argument("--slips", required=True, help="comma-separated slips, e.g. 0.1,0.2,0.4")
+    q.add_argument(
+        "--slips",
+        required=True,
+        help="comma-separated slips in [-1, 1), e.g. 0.1,0.2,0.4 (negative: braking; write --slips=-0.2,0.1)",
+    )
     q.add_argument(
         "--out",
         required=True,

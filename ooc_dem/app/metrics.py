@@ -4,7 +4,9 @@ Sign conventions: the wheel drives in +x turning clockwise at omega > 0;
 net traction = horizontal soil force on the wheel (+ forward);
 torque = soil torque on the wheel, counter-clockwise positive (it resists the
 clockwise drive, so it is positive when driving); gross traction = torque / R;
-slip s = 1 - v / (R omega); sinkage = initial surface height - lowest rim point.
+slip s = 1 - v / (R omega), omega the prescribed one, or the measured one when the
+wheel's spin is free (wheel.control torque, towed); sinkage = initial surface height -
+lowest rim point.
 
 Accumulation is sequential, step by step, so the numbers do not depend on how
 the steps were grouped into blocks (modes and restarts give the same bits).
@@ -131,6 +133,17 @@ def _accumulate(
             iacc[:] = 0.0
 
 
+@njit(cache=True)
+def _accumulate_spin(rec: NDArray[np.float64], windows: NDArray[np.float64], wspin: NDArray[np.float64]) -> None:
+    """Sum each window's measured omega (-wz) step by step (sequentially): the distance the
+    rim rolled when the spin is free."""
+    for s in range(rec.shape[0]):
+        t = rec[s, REC_T]
+        for k in range(windows.shape[0]):
+            if t >= windows[k, 0] and t < windows[k, 1]:
+                wspin[k] -= rec[s, REC_WZ]
+
+
 class WheelMetrics:
     """Time series and window averages of the wheel's performance."""
 
@@ -154,6 +167,9 @@ class WheelMetrics:
             ]
         )
         self.wacc = np.zeros((len(self.windows), N_WACC))
+        # omega free (torque, towed): the slip is that of the measured omega
+        self.free_spin = w.control in ("torque", "towed")
+        self.wspin = np.zeros(len(self.windows))
 
     def add(self, rec: NDArray[np.float64], step0: int) -> None:
         if len(rec) == 0:
@@ -173,6 +189,8 @@ class WheelMetrics:
             w.radius,
             w.omega,
         )
+        if self.free_spin:
+            _accumulate_spin(rec, self.windows, self.wspin)
 
     def _reserve(self, rows: int) -> None:
         """Room for at least ``rows`` series rows (never fewer than before; the new rows NaN)."""
@@ -190,6 +208,7 @@ class WheelMetrics:
             "metrics_iacc": self.iacc.copy(),
             "metrics_wacc": self.wacc.copy(),
             "metrics_rows": self.rows[:n].copy(),
+            **({"metrics_wspin": self.wspin.copy()} if self.free_spin else {}),
         }
 
     def load_state(self, arrays: Mapping[str, NDArray[Any]]) -> None:
@@ -199,11 +218,17 @@ class WheelMetrics:
         self._reserve(len(rows))
         self.rows[: len(rows)] = rows
         self.nrows[0] = len(rows)
+        if self.free_spin:
+            self.wspin[:] = arrays["metrics_wspin"]
 
     # ---- results -----------------------------------------------------------
     def series(self) -> NDArray[np.float64]:
         rows = self.rows[: int(self.nrows[0])].copy()
         rows[:, S_T_TRAVEL] = rows[:, S_T] - self.sc.wheel.settle_time
+        if self.free_spin:  # the slip of the interval's measured omega (NaN while it is 0)
+            rolled = self.sc.wheel.radius * rows[:, S_OMEGA]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rows[:, S_SLIP] = np.where(rolled != 0.0, 1.0 - rows[:, S_VX] / rolled, np.nan)
         return rows
 
     def _window(self, k: int) -> dict[str, Any]:
@@ -223,6 +248,8 @@ class WheelMetrics:
         dist = a[W_X1] - a[W_X0]
         # slip needs a distance the rim would roll; a vanishing radius or omega has none
         rolled = w.radius * w.omega * dur
+        if self.free_spin:
+            rolled = w.radius * (self.wspin[k] / n) * dur
         return {
             "steps": int(n),
             "window_s": [float(t0), float(t1)],
@@ -267,6 +294,13 @@ class WheelMetrics:
             "note": "mean over the last part of the settling phase (omega = 0)",
         }
         out["surface_height"] = {"unit": "m", "value": self.surface}
+        if self.free_spin:
+            w = self.sc.wheel
+            omega = {}
+            for name, win, k in (("whole_travel", whole, 0), ("steady", steady, 1)):
+                if win.get("steps"):
+                    omega[name] = {"value": float(self.wspin[k] / win["steps"]), "window_s": win["window_s"]}
+            out["omega"] = {"unit": "rad/s", **omega, "note": f"measured (wheel.control = {w.control})"}
         # the steady entries' spread, from the series rows (the values above are the step
         # accumulator's and stay as they are)
         summary_spread(out, series_columns(self.series()), self.sc)

@@ -106,10 +106,10 @@ def read_sweep(out: Path) -> dict[str, Any]:
     if slips is None and isinstance(rows, list) and all(isinstance(r, dict) for r in rows):
         slips = [r.get("slip") for r in rows]
     ok = isinstance(slips, list) and all(
-        isinstance(s, (int, float)) and not isinstance(s, bool) and 0.0 <= s < 1.0 for s in slips
+        isinstance(s, (int, float)) and not isinstance(s, bool) and -1.0 <= s < 1.0 for s in slips
     )
     if not ok:
-        raise RunFileError(f"{f}: 'slips' must be a list of slips in [0, 1)")
+        raise RunFileError(f"{f}: 'slips' must be a list of slips in [-1, 1)")
     return {"scenario": doc["scenario"], "overrides": list(overrides), "slips": [float(s) for s in slips], "raw": doc}
 
 

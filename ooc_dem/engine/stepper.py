@@ -256,7 +256,22 @@ def wheel_records(sc) -> tuple[np.ndarray, np.ndarray]:
         c["drawbar"] = w.drawbar_load
         c["ramp"] = w.drawbar_ramp
         c["slip"] = w.slip
+        free_spin = w.control in ("torque", "towed")
+        c["spinmode"] = 1.0 if free_spin else 0.0
+        c["torque"] = w.torque if w.control == "torque" else 0.0
+        c["torque_ramp"] = w.torque_ramp
+        c["inertia"] = wheel_inertia(sc)
+        c["speedmode"] = 1.0 if w.control == "towed" or (w.control == "torque" and w.carriage == "speed") else 0.0
+        c["speed"] = w.speed
+        c["yfixed"] = 1.0 if w.vertical == "fixed" else 0.0
     return wg, wc
+
+
+def wheel_inertia(sc) -> float:
+    """The wheel's moment of inertia about its axle (kg m^2): wheel.inertia, or that of a
+    uniform disc of its mass and rim radius (m R^2 / 2) when it is 0."""
+    w = sc.wheel
+    return w.inertia if w.inertia > 0.0 else 0.5 * (w.load / sc.physics.gravity) * w.radius * w.radius
 
 
 def wheel_z0(sc) -> float:

@@ -28,6 +28,7 @@ from .schema import (
     Scenario,
     ScenarioError,
     SoilGrading,
+    WHEEL_CONTROLS,
     big,
     did_you_mean,
     show,
@@ -93,10 +94,16 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("wheel", "x0"): _GAP,
     ("wheel", "drop_gap"): _GAP,
     ("wheel", "omega"): _within(0.0, 1000.0),
-    ("wheel", "control"): (lambda v: v in ("drawbar", "slip"), "one of 'drawbar', 'slip'"),
+    ("wheel", "control"): (lambda v: v in WHEEL_CONTROLS, "one of " + ", ".join(map(repr, WHEEL_CONTROLS))),
     ("wheel", "drawbar_load"): _within(0.0, 1e6),
     ("wheel", "drawbar_ramp"): _NONNEG,
     ("wheel", "slip"): (lambda v: -1 <= v < 1, "a number in [-1, 1)"),
+    ("wheel", "torque"): _within(-1e6, 1e6),
+    ("wheel", "torque_ramp"): _NONNEG,
+    ("wheel", "inertia"): _within(0.0, 1e6),
+    ("wheel", "carriage"): (lambda v: v in ("drawbar", "speed"), "one of 'drawbar', 'speed'"),
+    ("wheel", "speed"): _within(0.0, 100.0),
+    ("wheel", "vertical"): (lambda v: v in ("free", "fixed"), "one of 'free', 'fixed'"),
     ("wheel", "settle_time"): _NONNEG,
     ("wheel", "travel_time"): _NONNEG,
     ("wheel", "z0"): _GAP,
@@ -278,6 +285,8 @@ def _check_ranges(sc: Scenario) -> None:
             )
         if sc.physics.gravity <= 0:
             raise ScenarioError("physics.gravity = 0: a wheel needs gravity > 0 (its mass is load / g)")
+        if w.control == "towed" and w.speed <= 0.0:
+            raise ScenarioError("wheel.speed = 0.0: a towed wheel needs a carriage speed > 0 (control = towed)")
     _check_grading(sc)
     _check_repose(sc)
     _check_tile(sc)

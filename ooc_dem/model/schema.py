@@ -213,10 +213,29 @@ class Wheel:
     x0: float = key(0.15, "m", "initial centre along the bin")
     drop_gap: float = key(0.002, "m", "gap between the lug tips and the bed's surface at placement")
     omega: float = key(0.138, "rad/s", "angular speed, clockwise (drives in +x)")
-    control: str = key("drawbar", "", "drawbar (x free, a drawbar load) or slip (prescribed forward speed)")
+    control: str = key(
+        "drawbar",
+        "",
+        "drawbar (omega prescribed, x free under a drawbar load), slip (omega and forward speed prescribed), "
+        "torque (omega free under a driving torque) or towed (omega free, no torque, the carriage at wheel.speed)",
+    )
     drawbar_load: float = key(10.0, "N", "drawbar load opposing the travel")
     drawbar_ramp: float = key(1.0, "s", "time over which the drawbar load ramps up")
-    slip: float = key(0.0, "", "prescribed slip when control = slip")
+    slip: float = key(0.0, "", "prescribed slip when control = slip (negative: braking, the carriage outruns the rim)")
+    torque: float = key(
+        0.0, "N m", "control = torque: driving torque about the axle (clockwise positive: drives in +x)"
+    )
+    torque_ramp: float = key(1.0, "s", "control = torque: time over which the driving torque ramps up")
+    inertia: float = key(
+        0.0, "kg m^2", "moment of inertia about the axle when omega is free (0: a uniform disc, mass radius^2 / 2)"
+    )
+    carriage: str = key(
+        "drawbar", "", "control = torque: the carriage free under the drawbar load (drawbar) or at wheel.speed (speed)"
+    )
+    speed: float = key(0.0, "m/s", "the carriage's forward speed (control = towed; torque with carriage = speed)")
+    vertical: str = key(
+        "free", "", "free (the axle carries the load) or fixed (its height held from the end of settling)"
+    )
     settle_time: float = key(1.0, "s", "settling before travel: omega = 0, x held")
     travel_time: float = key(45.0, "s", "travel after settling")
     z0: float = key(0.0, "m", "3D: lateral centre of the wheel (0: the bin's mid-width)")
@@ -353,6 +372,12 @@ _HASH_NEUTRAL = {
     ("wheel", "z0"): 0.0,
     ("soil", "grading"): dataclasses.asdict(SoilGrading()),  # added with gradings
     ("bed", "fill_friction"): -1.0,
+    ("wheel", "torque"): 0.0,  # added with the free-spin controls and the fixed carriage height
+    ("wheel", "torque_ramp"): 1.0,
+    ("wheel", "inertia"): 0.0,
+    ("wheel", "carriage"): "drawbar",
+    ("wheel", "speed"): 0.0,
+    ("wheel", "vertical"): "free",
 }
 _PAIR_HASH_NEUTRAL = {
     "law": "linear",
@@ -377,6 +402,8 @@ def clamps(pair: ContactPair) -> bool:
 
 
 LAWS = ("linear", "hertz")
+# wheel.control: omega prescribed (drawbar, slip) or free (torque, towed)
+WHEEL_CONTROLS = ("drawbar", "slip", "torque", "towed")
 REPOSE_MEASUREMENT_KEYS = ("fit_low", "fit_high", "sectors", "bin_width")
 
 

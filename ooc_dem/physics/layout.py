@@ -16,7 +16,7 @@ Records:
 - ``WHEEL_GEOMETRY``  rigid wheel with capsule lugs
 - ``WHEEL_STATE``     wheel kinematics (``wz`` is the spin about the axle z, clockwise
                       negative; export.py writes these names)
-- ``WHEEL_CONTROLS``  prescribed motion and drawbar
+- ``WHEEL_CONTROLS``  prescribed motion, drawbar load, driving torque
 - ``WHEEL_RECORD``    one row per step of a wheel run
 - ``LUG_DIRECTION``   unit vector of one lug at the current wheel angle
 - ``ERRORS``          kernel error flags
@@ -146,8 +146,44 @@ WS_NAMES = WHEEL_STATE.names
 WS_X, WS_Y, WS_VX, WS_VY, WS_THETA, WS_WZ = range(6)
 WS_SIZE = len(WS_NAMES)
 
-WHEEL_CONTROLS = record_dtype(("settle", "omega", "slipmode", "drawbar", "ramp", "slip"))
-WC_SETTLE, WC_OMEGA, WC_SLIPMODE, WC_DRAWBAR, WC_RAMP, WC_SLIP = range(6)
+# the first six fields are the prescribed-spin controls (drawbar, slip); the rest came
+# with the free-spin controls (torque, towed) and the fixed carriage height:
+# spinmode 1: omega free, the wheel a rigid body of the given inertia about its axle,
+# driven by torque (N m, clockwise positive: drives in +x) ramped in over torque_ramp;
+# speedmode 1: the carriage at the prescribed forward speed (no drawbar load);
+# yfixed 1: the axle's height held while travelling (vy = 0)
+WHEEL_CONTROLS = record_dtype(
+    (
+        "settle",
+        "omega",
+        "slipmode",
+        "drawbar",
+        "ramp",
+        "slip",
+        "spinmode",
+        "torque",
+        "torque_ramp",
+        "inertia",
+        "speedmode",
+        "speed",
+        "yfixed",
+    )
+)
+(
+    WC_SETTLE,
+    WC_OMEGA,
+    WC_SLIPMODE,
+    WC_DRAWBAR,
+    WC_RAMP,
+    WC_SLIP,
+    WC_SPINMODE,
+    WC_TORQUE,
+    WC_TORQUE_RAMP,
+    WC_INERTIA,
+    WC_SPEEDMODE,
+    WC_SPEED,
+    WC_YFIXED,
+) = range(13)
 WC_SIZE = len(WHEEL_CONTROLS.names)
 
 WHEEL_RECORD = record_dtype(("t", "x", "y", "vx", "vy", "wz", "theta", "fx", "fy", "torque", "drawbar", "contacts"))

@@ -1,6 +1,6 @@
 """The rigid lugged wheel, the same in both dimensions (numba, no I/O): its lugs'
-directions, the soil's reaction summed canonically, its prescribed motion and its
-leapfrog integration.
+directions, the soil's reaction summed canonically, its prescribed motion (or its
+driving torque, when its spin is free) and its leapfrog integration.
 
 State at step n: positions x_n, velocities v_(n-1/2), contact history at n.
 v_(n+1/2) = v_(n-1/2) + a_n dt;  x_(n+1) = x_n + v_(n+1/2) dt.
@@ -109,21 +109,39 @@ def apply_wheel_controls(t, ws, wg, wc):
     if wheel_phase(t, wc) == 0:
         s.wz = 0.0
         s.vx = 0.0
+    elif c.spinmode > 0.5:
+        # omega free (integrate_wheel); the carriage free under the drawbar or at a speed
+        if c.speedmode > 0.5:
+            s.vx = c.speed
     else:
         s.wz = -c.omega  # clockwise drives in +x
         if c.slipmode > 0.5:
             s.vx = (1.0 - c.slip) * wg[0].radius * c.omega
+    if c.yfixed > 0.5 and wheel_phase(t, wc) == 1:
+        s.vy = 0.0
 
 
 @njit(cache=True)
 def drawbar_force(t, wc):
     """Horizontal drawbar force on the wheel (negative: opposes travel), ramped in."""
     c = wc[0]
-    if c.slipmode > 0.5 or t < c.settle:
+    if c.slipmode > 0.5 or c.speedmode > 0.5 or t < c.settle:
         return 0.0
     ramp = c.ramp
     f = 1.0 if ramp <= 0.0 else min(1.0, (t - c.settle) / ramp)
     return -c.drawbar * f
+
+
+@njit(cache=True)
+def drive_torque(t, wc):
+    """Driving torque on a free-spinning wheel (clockwise positive: drives in +x), ramped
+    in over torque_ramp; 0 while settling and when omega is prescribed."""
+    c = wc[0]
+    if c.spinmode < 0.5 or t < c.settle:
+        return 0.0
+    ramp = c.torque_ramp
+    f = 1.0 if ramp <= 0.0 else min(1.0, (t - c.settle) / ramp)
+    return c.torque * f
 
 
 @njit(cache=True)
@@ -144,19 +162,28 @@ def record_and_integrate_wheel(rec, s, t, ws, wg, wc, fx_soil, fy_soil, torque_s
     r0.torque = torque_soil
     r0.drawbar = drawbar_force(t, wc)
     r0.contacts = contacts
-    integrate_wheel(t, ws, wg, wc, fx_soil, fy_soil, gy, dt)
+    integrate_wheel(t, ws, wg, wc, fx_soil, fy_soil, gy, dt, torque_soil)
 
 
 @njit(cache=True)
-def integrate_wheel(t, ws, wg, wc, fx_soil, fy_soil, gy, dt):
+def integrate_wheel(t, ws, wg, wc, fx_soil, fy_soil, gy, dt, torque_soil):
+    """The wheel's leapfrog: the free components of its velocity from the soil's reaction,
+    the drawbar load, gravity and the driving torque, then its position and angle. The
+    soil's torque is counter-clockwise positive, the driving torque clockwise positive."""
     m = wg[0].mass
     s = ws[0]
+    c = wc[0]
     phase = wheel_phase(t, wc)
-    if phase == 1 and wc[0].slipmode < 0.5:
+    if phase == 1 and c.slipmode < 0.5 and c.speedmode < 0.5:
         s.vx += (fx_soil + drawbar_force(t, wc)) / m * dt
-    s.vy += (fy_soil / m + gy) * dt
+    held = phase == 1 and c.yfixed > 0.5  # the axle's height held: vy = 0, y as it is
+    if not held:
+        s.vy += (fy_soil / m + gy) * dt
     s.x += s.vx * dt
-    s.y += s.vy * dt
+    if not held:
+        s.y += s.vy * dt
+    if phase == 1 and c.spinmode > 0.5:
+        s.wz += (torque_soil - drive_torque(t, wc)) / c.inertia * dt
     s.theta += s.wz * dt
     # keep theta bounded without changing lug positions
     if s.theta < -2.0 * math.pi:

@@ -5,6 +5,8 @@ import re
 import shlex
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 README_MAX_BYTES = 12 * 1024
@@ -61,3 +63,31 @@ def test_readme_quickstart_comes_first():
     sections = re.findall(r"^## (.*)$", text, re.M)
     assert sections[:2] == ["Install", "Quickstart"], sections
     assert "pip install . && ooc-dem run quick" in text
+
+
+@pytest.mark.parametrize(
+    "script, doc",
+    [("gen_api_docs", "api.md"), ("gen_cli_doc", "cli.md"), ("gen_parameters_doc", "parameters.md")],
+)
+def test_generated_docs_are_current(script, doc):
+    """docs/api.md, cli.md and parameters.md are what their generators make now."""
+    import importlib
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        gen = importlib.import_module(script)
+    finally:
+        sys.path.pop(0)
+    committed = (ROOT / "docs" / doc).read_text(encoding="utf-8")
+    assert committed == gen.render(), f"docs/{doc} is stale: run `python tools/{script}.py`"
+
+
+def test_the_generated_references_hold_every_key_and_command():
+    from ooc_dem.model.scenario_doc import every_key
+
+    params = (ROOT / "docs" / "parameters.md").read_text(encoding="utf-8")
+    for info in every_key():
+        assert f"| `{info.name}` |" in params, info.path
+    cli = (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
+    assert "`ooc-dem checkpoint export`" in cli and "`--show` `NAME`" in cli

@@ -8,10 +8,11 @@ tests/test_api.py runs the check, so the committed file cannot go stale.
 
 from __future__ import annotations
 
-import argparse
 import inspect
 import sys
 from pathlib import Path
+
+from gendoc import generator_main
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "api.md"
@@ -97,19 +98,7 @@ def render() -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--check", action="store_true", help="compare instead of writing")
-    args = ap.parse_args(argv)
-    text = render()
-    if args.check:
-        if not OUT.is_file() or OUT.read_text(encoding="utf-8") != text:
-            print(f"{OUT.relative_to(ROOT)} is stale: run `python tools/gen_api_docs.py`", file=sys.stderr)
-            return 1
-        print(f"{OUT.relative_to(ROOT)} matches the docstrings")
-        return 0
-    OUT.write_text(text, encoding="utf-8")
-    print(f"wrote {OUT.relative_to(ROOT)}")
-    return 0
+    return generator_main(render, OUT, "gen_api_docs.py", "the docstrings", __doc__, argv)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from gendoc import generator_main
+
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "cli.md"
 
@@ -118,19 +120,7 @@ def render() -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--check", action="store_true", help="compare instead of writing")
-    args = ap.parse_args(argv)
-    text = render()
-    if args.check:
-        if not OUT.is_file() or OUT.read_text(encoding="utf-8") != text:
-            print(f"{OUT.relative_to(ROOT)} is stale: run `python tools/gen_cli_doc.py`", file=sys.stderr)
-            return 1
-        print(f"{OUT.relative_to(ROOT)} matches the parser")
-        return 0
-    OUT.write_text(text, encoding="utf-8")
-    print(f"wrote {OUT.relative_to(ROOT)}")
-    return 0
+    return generator_main(render, OUT, "gen_cli_doc.py", "the parser", __doc__, argv)
 
 
 if __name__ == "__main__":

@@ -10,11 +10,12 @@ tests/test_scenario_inherit.py runs the check, so the committed file cannot go s
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import inspect
 import sys
 from pathlib import Path
+
+from gendoc import generator_main
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "parameters.md"
@@ -106,19 +107,7 @@ def render() -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--check", action="store_true", help="compare instead of writing")
-    args = ap.parse_args(argv)
-    text = render()
-    if args.check:
-        if not OUT.is_file() or OUT.read_text(encoding="utf-8") != text:
-            print(f"{OUT.relative_to(ROOT)} is stale: run `python tools/gen_parameters_doc.py`", file=sys.stderr)
-            return 1
-        print(f"{OUT.relative_to(ROOT)} matches the scenario's schema")
-        return 0
-    OUT.write_text(text, encoding="utf-8")
-    print(f"wrote {OUT.relative_to(ROOT)}")
-    return 0
+    return generator_main(render, OUT, "gen_parameters_doc.py", "the scenario's schema", __doc__, argv)
 
 
 if __name__ == "__main__":

@@ -4,18 +4,10 @@ on a cohesive soil) and 3D (a cohesive bed of spheres)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
-import numba
-import numpy as np
 import pytest
 
 import ooc_dem
-from support.cli import run_cli
-from support.runs import kill_after_first_commit
-from support.mpi import ENV, mpiexec
+from support.modes import assert_same_state, killed_and_resumed, runs_in_every_mode
 
 # mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
 pytestmark = pytest.mark.slow
@@ -39,48 +31,14 @@ CASES = {
 }
 
 
-def _sets(overrides):
-    out = []
-    for o in overrides:
-        out += ["--set", o]
-    return out
-
-
 @pytest.fixture(scope="module", params=sorted(CASES))
 def runs(request, tmp_path_factory):
     name, overrides, steps = CASES[request.param]
     work = tmp_path_factory.mktemp(f"cohesion-{request.param}")
-    kw = dict(overrides=overrides, steps=steps)
-    out = {"monolithic": ooc_dem.run(name, work / "mono", **kw)}
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        out["monolithic-1-thread"] = ooc_dem.run(name, work / "mono1", **kw)
-    finally:
-        numba.set_num_threads(old)
-    out["ddm-3"] = ooc_dem.run(name, work / "ddm", mode="ddm", domains=3, **kw)
-    out["ooc-hdf5-10"] = ooc_dem.run(name, work / "ooc", mode="ooc", domains=3, block=10, checkpoint_every=20, **kw)
-    cp = subprocess.run(
-        [mpiexec(), "-n", "2", sys.executable, "-m", "ooc_dem.cli", "run", name, *_sets(overrides)]
-        + ["--mode", "mpi", "--domains", "3", "--steps", str(steps), "--out", str(work / "mpi")]
-        + ["--no-progress", "--no-figures"],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={**os.environ, **ENV},
-    )
-    assert cp.returncode == 0, cp.stderr[-3000:]
-    out["mpi-2-ranks"] = ooc_dem.open_run(work / "mpi")
+    out = runs_in_every_mode(name, overrides, steps, 20, work, timeout=600)
     out["_bare"] = ooc_dem.run(name, work / "bare", steps=steps)  # the same run without cohesion
     out["_args"] = (name, overrides, steps, work)
     return out
-
-
-def _same(a, b, what):
-    sa, sb = a.state(), b.state()
-    assert sa.keys() == sb.keys()
-    for k in sa:
-        assert np.array_equal(sa[k], sb[k]), (what, k)
 
 
 def test_cohesion_acts(runs):
@@ -93,16 +51,10 @@ def test_every_mode_gives_the_same_bits_with_cohesion(runs):
         if name.startswith("_") or name == "monolithic":
             continue
         assert res.summary["state_hash"] == ref.summary["state_hash"], name
-        _same(ref, res, name)
+        assert_same_state(ref, res, name)
 
 
 def test_a_sigkilled_cohesive_run_resumes_to_the_same_bits(runs):
     name, overrides, steps, work = runs["_args"]
-    out = work / "killed"
-    cmd = [sys.executable, "-m", "ooc_dem.cli", "run", name, *_sets(overrides)]
-    cmd += ["--mode", "ooc", "--domains", "3", "--block", "10", "--steps", str(steps)]
-    cmd += ["--checkpoint-every", "20", "--out", str(out), "--no-progress", "--no-figures"]
-    if not kill_after_first_commit(cmd, out):
-        pytest.skip("the run finished before it could be killed")
-    run_cli("resume", out, "--no-progress", "--no-figures", check=True)
-    _same(runs["ooc-hdf5-10"], ooc_dem.open_run(out), "killed and resumed")
+    resumed = killed_and_resumed(name, overrides, steps, 20, work / "killed")
+    assert_same_state(runs["ooc-hdf5-10"], resumed, "killed and resumed")

@@ -5,18 +5,10 @@ SIGKILLed out-of-core run resumed; in 2D (the quick bed) and 3D (test_wheel3d's 
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
-import numba
 import numpy as np
 import pytest
 
-import ooc_dem
-from support.cli import run_cli
-from support.mpi import ENV, mpiexec
-from support.runs import kill_after_first_commit
+from support.modes import assert_same_state, killed_and_resumed, runs_in_every_mode
 from test_wheel3d import BASE as WHEEL3D_BASE
 
 # mode-equivalence and whole-run checks: outside the fast subset (pytest -m "not slow")
@@ -77,47 +69,13 @@ CASES = {
 }
 
 
-def _sets(overrides):
-    out = []
-    for o in overrides:
-        out += ["--set", o]
-    return out
-
-
 @pytest.fixture(scope="module", params=sorted(CASES))
 def runs(request, tmp_path_factory):
     name, overrides, steps, every = CASES[request.param]
     work = tmp_path_factory.mktemp(f"control-{request.param}")
-    kw = dict(overrides=overrides, steps=steps)
-    out = {"monolithic": ooc_dem.run(name, work / "mono", **kw)}
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        out["monolithic-1-thread"] = ooc_dem.run(name, work / "mono1", **kw)
-    finally:
-        numba.set_num_threads(old)
-    out["ddm-3"] = ooc_dem.run(name, work / "ddm", mode="ddm", domains=3, **kw)
-    out["ooc-hdf5-10"] = ooc_dem.run(name, work / "ooc", mode="ooc", domains=3, block=10, checkpoint_every=every, **kw)
-    cp = subprocess.run(
-        [mpiexec(), "-n", "2", sys.executable, "-m", "ooc_dem.cli", "run", name, *_sets(overrides)]
-        + ["--mode", "mpi", "--domains", "3", "--steps", str(steps), "--out", str(work / "mpi")]
-        + ["--no-progress", "--no-figures"],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        env={**os.environ, **ENV},
-    )
-    assert cp.returncode == 0, cp.stderr[-3000:]
-    out["mpi-2-ranks"] = ooc_dem.open_run(work / "mpi")
+    out = runs_in_every_mode(name, overrides, steps, every, work)
     out["_args"] = (name, overrides, steps, every, work)
     return out
-
-
-def _same(a, b, what):
-    sa, sb = a.state(), b.state()
-    assert sa.keys() == sb.keys()
-    for k in sa:
-        assert np.array_equal(sa[k], sb[k]), (what, k)
 
 
 def test_the_wheel_turns_by_itself(runs):
@@ -135,21 +93,14 @@ def test_every_mode_gives_the_same_bits_with_a_free_spin(runs):
         if name.startswith("_") or name == "monolithic":
             continue
         assert res.summary["state_hash"] == ref.summary["state_hash"], name
-        _same(ref, res, name)
+        assert_same_state(ref, res, name)
         for q in ("omega", "slip", "torque", "net_traction", "vertical_force"):
             assert res.summary[q] == ref.summary[q], (name, q)
 
 
 def test_a_sigkilled_free_spin_run_resumes_to_the_same_bits(runs):
     name, overrides, steps, every, work = runs["_args"]
-    out = work / "killed"
-    cmd = [sys.executable, "-m", "ooc_dem.cli", "run", name, *_sets(overrides)]
-    cmd += ["--mode", "ooc", "--domains", "3", "--block", "10", "--steps", str(steps)]
-    cmd += ["--checkpoint-every", str(every), "--out", str(out), "--no-progress", "--no-figures"]
-    if not kill_after_first_commit(cmd, out, timeout=600):
-        pytest.skip("the run finished before it could be killed")
-    run_cli("resume", out, "--no-progress", "--no-figures", check=True)
-    resumed = ooc_dem.open_run(out)
-    _same(runs["ooc-hdf5-10"], resumed, "killed and resumed")
+    resumed = killed_and_resumed(name, overrides, steps, every, work / "killed")
+    assert_same_state(runs["ooc-hdf5-10"], resumed, "killed and resumed")
     for q in ("omega", "slip", "torque"):
         assert resumed.summary[q] == runs["ooc-hdf5-10"].summary[q], q

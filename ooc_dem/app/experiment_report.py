@@ -8,6 +8,7 @@ import csv
 import io
 import json
 import math
+import textwrap
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -328,6 +329,8 @@ def plot_experiment(exp: Experiment, rows: list[dict[str, Any]], png: Path) -> P
         ax.grid(True, lw=0.3, alpha=0.6)
         ax.axhline(0.0, color="0.5", lw=0.6)
     axes[0, 0].legend(fontsize=8, loc="best")
-    fig.suptitle(f"{exp.name}" + (f" — {exp.reference[:90]}" if exp.reference else ""), fontsize=10)
+    # the reference wrapped, not cut: a title must say whose data these are
+    title = f"{exp.name}" + (f" — {exp.reference}" if exp.reference else "")
+    fig.suptitle("\n".join(textwrap.wrap(title, 110)[:3]), fontsize=9)
     png.parent.mkdir(parents=True, exist_ok=True)
     return save_figure(fig, png)

@@ -212,3 +212,23 @@ def test_sweep_plot(tmp_path):
     csv.write_text("\n".join(rows) + "\n")
     png = sweep_plot(csv, tmp_path / "figs" / "sweep.png")
     assert_png(png, min_bytes=10_000)
+
+
+def test_report_also_writes_pdf_and_svg_on_request(run_dir):
+    """`report --formats pdf,svg`: each figure also as a PDF and an SVG beside its PNG (the
+    files are what a PDF reader and an XML parser take); an unknown format is one line."""
+    import xml.etree.ElementTree as ET
+
+    from support.cli import cli_in_process, one_line_error
+
+    from ooc_dem.app.drawing import also_saved_as
+
+    out, final, _ = run_dir
+    with also_saved_as(("pdf", "svg")):  # what `report --formats pdf,svg` wraps its figures in
+        make_figures(out, final=final)
+    for name in ("series", "deformation", "displacement"):
+        png = out / "figures" / f"{name}.png"
+        assert_png(png)
+        assert (out / "figures" / f"{name}.pdf").read_bytes().startswith(b"%PDF")
+        assert ET.parse(out / "figures" / f"{name}.svg").getroot().tag.endswith("svg")
+    one_line_error(cli_in_process("report", out, "--formats", "eps"), "--formats")

@@ -292,6 +292,17 @@ def cmd_animate(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from .drawing import EXTRA_FORMATS, also_saved_as
+
+    formats = tuple(f.strip().lower() for f in args.formats.split(",") if f.strip())
+    bad = [f for f in formats if f not in EXTRA_FORMATS]
+    if bad:
+        raise CliError(f"--formats {args.formats!r}: {bad[0]!r} is not one of {', '.join(EXTRA_FORMATS)}")
+    with also_saved_as(formats):
+        return _report(args)
+
+
+def _report(args: argparse.Namespace) -> int:
     from .plots import make_figures
     from .run_stats import read_summary_with_spread
     from .sweep_slip import is_sweep

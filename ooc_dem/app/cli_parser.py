@@ -299,6 +299,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument(
         "--out", default=None, metavar="PNG", help="several sweeps: the overlay figure's file (required with them)"
     )
+    q.add_argument(
+        "--formats",
+        default="",
+        metavar="pdf,svg",
+        help="also write every figure in these formats (pdf, svg), beside its PNG",
+    )
 
     q = sub.add_parser("compare", help="compare two runs (Table 3 style) and their final states")
     q.add_argument("a")

@@ -9,7 +9,9 @@ Everything runs headless (Agg backend); discs are drawn at their true radii with
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -145,10 +147,31 @@ def layer_count(depth: float, r: np.ndarray) -> int:
 FIGURE_BYTES = 16 << 10
 
 
+EXTRA_FORMATS = ("pdf", "svg")  # what a figure may also be written as, beside its PNG
+_ALSO: ContextVar[tuple[str, ...]] = ContextVar("figure_formats", default=())
+
+
+@contextmanager
+def also_saved_as(formats: tuple[str, ...]) -> Iterator[None]:
+    """Within: every figure saved is also written in these formats (EXTRA_FORMATS), beside the
+    PNG under the same name."""
+    token = _ALSO.set(tuple(formats))
+    try:
+        yield
+    finally:
+        _ALSO.reset(token)
+
+
 def save_figure(fig: Figure, path: Path) -> Path:
     # under a temporary name, renamed when complete: a kill never leaves a torn figure that a
     # resume would take for a finished one
     write_replacing(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"), need=FIGURE_BYTES)
+    for fmt in _ALSO.get():
+
+        def write(tmp: Any, fmt: str = fmt) -> None:
+            fig.savefig(tmp, dpi=DPI, format=fmt)
+
+        write_replacing(path.with_suffix(f".{fmt}"), write, need=FIGURE_BYTES)
     import matplotlib.pyplot as plt
 
     plt.close(fig)

@@ -186,6 +186,8 @@ def animate(
                     text = f"t = {fr['time']:7.3f} s"
                     if wheel is not None:
                         w = wheel
+                        # the figures' time origin: travel time, 0 at the end of the wheel's settling
+                        text = f"t = {fr['time'] - w.settle_time:7.3f} s of travel"
                         wpatch.set_xy(
                             wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
                         )

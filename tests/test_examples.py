@@ -41,15 +41,20 @@ def test_own_wheel(tmp_path):
     assert "net_traction" in out and (tmp_path / "run" / "figures" / "series.png").is_file()
 
 
+@pytest.mark.slow
 def test_slip_sweep_with_error_bars(tmp_path):
+    """The sweep, extended by one slip (its two runs reused), re-plotted by report: three
+    points, each with a 95 % interval."""
+    import csv
+
     out = run_example(tmp_path, str(EXAMPLES / "02_slip_sweep.sh"), "sweep")
-    lines = (tmp_path / "sweep" / "drawbar_pull_slip_errorbars.csv").read_text().splitlines()
-    assert lines[0] == "slip,drawbar_pull,standard_error" and len(lines) == 4
-    for line in lines[1:]:
-        slip, pull, se = map(float, line.split(","))
-        assert 0.0 < slip < 1.0 and se > 0.0
-    assert (tmp_path / "sweep" / "drawbar_pull_slip_errorbars.png").is_file()
-    assert out.count(" ± ") == 3
+    with open(tmp_path / "sweep" / "drawbar_pull_slip.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [float(r["slip"]) for r in rows] == [0.1, 0.3, 0.5]
+    for r in rows:
+        assert float(r["drawbar_pull_ci95"]) > 0.0
+    assert (tmp_path / "sweep" / "drawbar_pull_slip.png").is_file()
+    assert " ± " in out
 
 
 @pytest.mark.slow

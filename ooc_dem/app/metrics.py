@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from .run_stats import dp_w_entry, series_columns, summary_spread
+from .run_stats import dp_w_entry, summary_spread
 from ..physics.layout import REC_DB, REC_FX, REC_FY, REC_T, REC_TQ, REC_VX, REC_WZ, REC_X, REC_Y
 
 if TYPE_CHECKING:
@@ -303,5 +303,6 @@ class WheelMetrics:
             out["omega"] = {"unit": "rad/s", **omega, "note": f"measured (wheel.control = {w.control})"}
         # the steady entries' spread, from the series rows (the values above are the step
         # accumulator's and stay as they are)
-        summary_spread(out, series_columns(self.series()), self.sc)
+        rows = self.series()
+        summary_spread(out, {name: rows[:, k] for k, name in enumerate(SERIES_COLUMNS)}, self.sc)
         return out

@@ -24,11 +24,6 @@ class RunError(OocDemError, RuntimeError):
     """A run cannot start or continue (message is one line)."""
 
 
-class RunInterrupted(KeyboardInterrupt):
-    """A run stopped by Ctrl-C (SIGINT); its message names the run directory and the step
-    `resume` continues from."""
-
-
 @dataclass
 class RunOptions:
     mode: str = "monolithic"

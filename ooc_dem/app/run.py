@@ -30,7 +30,7 @@ from ..model.state import Particles
 from ..physics.layout import AX_X, AX_Y, AX_Z, REC_X, WS_SIZE
 from .bed import bed_info, settled_bed, surface_height, wheel_footprint
 from .outputs import complete_outputs, run_summary, write_outputs
-from .plan import RunError, RunInterrupted, RunOptions, plan_run, streamable
+from .plan import RunError, RunOptions, plan_run, streamable
 from .progress import COMPILING, Progress, kernels_cached, settling_progress
 from .resume import ResumeEpoch, check_engine_attrs, open_resume_epoch, stored_run
 from .run_setup import StreamedBed, place_wheel, stopped_before_first_commit
@@ -366,7 +366,8 @@ class Simulation:
         except EngineError as e:
             raise RunError(f"{e} (last committed epoch kept in {self.out})") from None
         except KeyboardInterrupt:
-            raise RunInterrupted(self.interrupted_message()) from None
+            # still a KeyboardInterrupt (every handler of Ctrl-C sees one), now saying where it stopped
+            raise KeyboardInterrupt(self.interrupted_message()) from None
         finally:
             bar.close()
         summary = self.finish()

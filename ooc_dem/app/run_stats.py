@@ -73,11 +73,6 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def series_columns(rows: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
-    """A series array (metrics.SERIES_COLUMNS in order) as columns by name."""
-    from .metrics import SERIES_COLUMNS
-
-    return {name: rows[:, k] for k, name in enumerate(SERIES_COLUMNS)}
 
 
 def _fallback(t: NDArray[np.float64], values: NDArray[np.float64], start: float, end: float) -> WindowStats:

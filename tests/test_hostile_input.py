@@ -580,6 +580,7 @@ def test_memory_backend_run_writes_its_outputs(tmp_path):
 
 CHECK_KEYS = {
     "scenario",
+    "estimated_wall_time",
     "scenario_hash",
     "mode",
     "backend",

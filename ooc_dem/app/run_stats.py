@@ -73,8 +73,6 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-
-
 def _fallback(t: NDArray[np.float64], values: NDArray[np.float64], start: float, end: float) -> WindowStats:
     """A window shorter than one block: the mean and std over all its rows, no interval."""
     idx, step = window_rows(t, start, end)

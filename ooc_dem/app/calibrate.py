@@ -495,15 +495,27 @@ def calibration_lines(result: dict[str, Any]) -> list[str]:
     return lines
 
 
+MAX_CALIBRATION_BYTES = 1 << 20  # a calibration.json is a few kB; it is read as untrusted input
+
+
 def read_calibration(out: Path) -> dict[str, Any] | None:
     """The finished calibration in OUT (its calibration.json), or None."""
-    path = out / CALIBRATION_JSON
-    if not path.is_file():
-        return None
+    from .runfiles import run_file
+
+    path = run_file(out, CALIBRATION_JSON)  # a regular file inside OUT, never a link out of it
+    return None if path is None else read_calibration_file(path)
+
+
+def read_calibration_file(path: Path) -> dict[str, Any]:
+    """A calibration.json, checked: an object whose "overrides" is an array of
+    "section.key=value" strings (CalibrationError: one line)."""
     try:
-        result: dict[str, Any] = json.loads(path.read_text())
-    except (OSError, ValueError) as e:
-        raise CalibrationError(f"{path}: not a calibration ({e})") from None
-    if not isinstance(result, dict) or not isinstance(result.get("overrides"), list):
+        if path.stat().st_size > MAX_CALIBRATION_BYTES:
+            raise CalibrationError(f"{path}: too large for a calibration (at most {MAX_CALIBRATION_BYTES} bytes)")
+        result: dict[str, Any] = json.loads(path.read_bytes())
+    except (OSError, ValueError, RecursionError) as e:
+        raise CalibrationError(f"{path}: not a calibration ({type(e).__name__})") from None
+    ov = result.get("overrides") if isinstance(result, dict) else None
+    if not isinstance(ov, list) or not all(isinstance(x, str) and "=" in x for x in ov):
         raise CalibrationError(f"{path}: not a calibration (no list of overrides)")
     return result

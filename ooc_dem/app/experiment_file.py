@@ -440,15 +440,14 @@ def _dem(src: str, data: Any, path: Path) -> DemChoices:
 def read_calibrated_overrides(path: Path, where: str) -> tuple[str, ...]:
     """The overrides of a finished calibration: its calibration.json (or the directory
     holding one), whose "overrides" is an array of "section.key=value" strings."""
-    import json
+    from .calibrate import CalibrationError, read_calibration_file
 
     f = path / "calibration.json" if path.is_dir() else path
     try:
-        doc = json.loads(f.read_bytes()) if f.is_file() and f.stat().st_size <= MAX_EXPERIMENT_FILE else None
-    except (OSError, ValueError, RecursionError):
-        doc = None
-    ov = doc.get("overrides") if isinstance(doc, dict) else None
-    if not isinstance(ov, list) or not all(isinstance(x, str) and "=" in x for x in ov):
+        ov = read_calibration_file(f)["overrides"] if f.is_file() else None
+    except CalibrationError:
+        ov = None
+    if ov is None:
         raise ExperimentError(
             f"{where} = {show(str(path), 200)}: not a calibration.json (or a directory holding one) with "
             f'"overrides": ["section.key=value", ...]'

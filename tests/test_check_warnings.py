@@ -137,3 +137,14 @@ def test_check_estimates_the_wall_time_by_its_stated_cost_model():
     est = json.loads(cp.stdout)["estimated_wall_time"]
     assert est["seconds"] == round(1500 * 1000 * COST_NS[(2, "linear")] * 1e-9, 1)
     assert "fitted cost model" in est["basis"] and "docs/benchmarks.md" in est["basis"]
+
+
+def test_check_prints_derived_numbers_without_float_noise():
+    """steps x dt is 46.00000000000001 s in binary; `check` prints what a person reads."""
+    import json
+
+    cp = cli_in_process("check", "paper2008-3d")
+    assert cp.returncode == 0, cp.stderr
+    plan = json.loads(cp.stdout)
+    assert plan["simulated_time_s"] == 46.0 and "46.0," in cp.stdout
+    assert len(repr(plan["dt_critical_s"]).replace("e-05", "")) <= 14

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -189,8 +190,21 @@ def cmd_check(args: argparse.Namespace) -> int:
     plan = plan_run(sc, _run_options(args))
     warn(plan)
     estimate = estimate_wall_time(sc, plan.steps)
-    print(json.dumps({"scenario_hash": sc.hash(), **plan.as_dict(), "estimated_wall_time": estimate}, indent=2))
+    doc = {"scenario_hash": sc.hash(), **plan.as_dict(), "estimated_wall_time": estimate}
+    print(json.dumps(human_floats(doc), indent=2))
     return 0
+
+
+def human_floats(obj: Any) -> Any:
+    """``obj`` with every float cut to 12 significant digits: derived values print as people
+    read them (46.0 s, not 46.00000000000001); the files keep full precision."""
+    if isinstance(obj, float):
+        return float(f"{obj:.12g}") if math.isfinite(obj) else obj
+    if isinstance(obj, dict):
+        return {k: human_floats(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [human_floats(v) for v in obj]
+    return obj
 
 
 def _print_run_result(summary: dict[str, Any], out: str | os.PathLike[str]) -> None:

@@ -250,8 +250,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument(
         "--format",
         choices=["xdmf", "vtk", "csv"],
-        help="xdmf (NAME.xdmf + NAME.h5), vtk (legacy ASCII .vtk, or XML if --out ends in "
-        ".vtp) or csv; default from the --out suffix",
+        help="xdmf (NAME.xdmf + NAME.h5), vtk (legacy ASCII .vtk, or VTK XML if --out ends in "
+        ".vtu or .vtp) or csv; default from the --out suffix",
     )
     c.add_argument("--out", required=True, metavar="FILE", help="output file")
     c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")

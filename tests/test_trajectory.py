@@ -287,6 +287,8 @@ def test_xdmf_time_series_reads_in_vtk_and_meshio(tmp_path, runs):
     rw.UpdateInformation()
     with Trajectory.of_run(run) as t, meshio.xdmf.TimeSeriesReader(out) as m:
         assert np.array_equal(times, t.times) and m.num_steps == len(t)
+        points, cells = m.read_points_cells()  # the first frame's: meshio's reader shares one mesh
+        assert np.array_equal(points, t[0]["pos"]) and len(cells[0].data) == 1500
         for i, tv in enumerate(times):
             fr = t[i]
             r.UpdateTimeStep(tv)

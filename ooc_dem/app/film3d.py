@@ -22,7 +22,9 @@ CHUNK_FRAGMENTS = 1 << 22  # fragments generated at a time (memory: ~20 bytes ea
 LIGHT = np.array([-0.45, 0.55, 0.70])  # from the upper left, towards the viewer
 AMBIENT, DIFFUSE = 0.35, 0.65
 EMPTY = np.iinfo(np.uint64).max
-SLABS = 8  # depth slabs drawn nearest first, the hidden spheres of each skipped
+# depth slabs drawn nearest first, the hidden spheres of each skipped: the first is 1/2^SLABS
+# of the depth (a few grains, enough to cover most of a bed's face), each next one twice as deep
+SLABS = 7
 SLAB_MIN_SPHERES = 20000
 
 
@@ -105,7 +107,7 @@ class SphereSplatter:
             sel = np.flatnonzero(seen)
             cx, cy, rad = cx[sel], cy[sel], rad[sel]
             depth, rr = -pos[sel, 2], r[sel]  # the viewer is on the +z side: a larger z is nearer
-        radii = np.unique(rad)
+        radii = np.flatnonzero(np.bincount(rad))
         key = tuple(radii.tolist())
         sp = self._sprites.get(key)
         if sp is None:
@@ -115,28 +117,36 @@ class SphereSplatter:
         db = 64 - tb - sb
         if db < 12:
             raise ValueError(f"{len(sel)} spheres: too many to draw in one picture")
-        near, far = float(np.min(depth - rr)), float(np.max(depth))
+        front = depth - rr  # each sphere's nearest point
+        near, far = float(np.min(front)), float(np.max(depth))
         dscale = ((1 << db) - 1) / max(far - near, 1e-300)
         zbuf = np.full(H * W, EMPTY, np.uint64)
-        shift = np.uint64(sb + tb)
-        q_near = np.clip((depth - rr - near) * dscale, 0, (1 << db) - 1).astype(np.uint64)
-        inside = (cx >= 0) & (cx < W) & (cy >= 0) & (cy < H)
-        reach = int(radii[-1])
-        # nearest depth slabs first; a sphere of a later slab whose nearest point lies behind
-        # every surface already drawn around it (the farthest one over a window of the
-        # largest sprite about its centre, every pixel in it covered) cannot show: skipped
         slabs = SLABS if len(sel) > SLAB_MIN_SPHERES else 1
-        slab = np.minimum(((depth - near) / max(far - near, 1e-300) * slabs).astype(np.int64), slabs - 1)
-        by_slab = np.argsort(slab, kind="stable")
-        bounds = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=slabs))])
-        for j in range(slabs):
-            members = by_slab[bounds[j] : bounds[j + 1]]
-            if j and len(members):
-                behind = _window_max((zbuf >> shift).reshape(H, W), reach)
-                c = members[inside[members]]
-                hidden = q_near[c] > behind[cy[c], cx[c]]
-                members = np.concatenate([members[~inside[members]], c[~hidden]])
-            self._draw(zbuf, members, rad, cx, cy, depth, rr, sp, near, dscale, db, sb, tb)
+        if slabs == 1:
+            self._draw(zbuf, np.arange(len(sel)), rad, cx, cy, depth, rr, sp, near, dscale, db, sb, tb)
+        else:
+            # nearest depth slabs first; a sphere of a later slab whose nearest point lies
+            # behind every surface already drawn around it (the farthest one over a window of
+            # the largest sprite about its centre, every pixel in it covered) cannot show
+            shift = np.uint64(sb + tb)
+            front -= near
+            front *= dscale
+            q_near = np.minimum(front, (1 << db) - 1).astype(np.uint64)
+            inside = (cx >= 0) & (cx < W) & (cy >= 0) & (cy < H)
+            centre = np.where(inside, cy * W + cx, 0)
+            reach = int(radii[-1])
+            # slab j: the depths in [2^(j - slabs), 2^(j + 1 - slabs)) of the range (j > 0)
+            frac = np.maximum((depth - near) / max(far - near, 1e-300), 1e-300)
+            slab = np.clip(np.frexp(frac)[1] + (slabs - 1), 0, slabs - 1).astype(np.int8)
+            by_slab = np.argsort(slab, kind="stable")  # a radix sort of small integers
+            bounds = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=slabs))])
+            for j in range(slabs):
+                members = by_slab[bounds[j] : bounds[j + 1]]
+                if j and len(members):
+                    behind = _window_max((zbuf >> shift).reshape(H, W), reach).ravel()
+                    shows = (q_near[members] <= behind[centre[members]]) | ~inside[members]
+                    members = members[shows]
+                self._draw(zbuf, members, rad, cx, cy, depth, rr, sp, near, dscale, db, sb, tb)
         hit = np.flatnonzero(zbuf != EMPTY)
         k = zbuf[hit]
         ent = (k & np.uint64((1 << tb) - 1)).astype(np.int64)
@@ -163,8 +173,9 @@ class SphereSplatter:
     ) -> None:
         """Put the fragments of spheres ``members`` into the z-buffer, radius by radius."""
         W, H = self.width, self.height
-        for rho in map(int, np.unique(rad[members])):
-            group = members[rad[members] == rho]
+        of = rad[members]
+        for rho in map(int, np.flatnonzero(np.bincount(of))):
+            group = members[of == rho]
             a, m = sp.start[rho], sp.count[rho]
             dy, dx, lift = sp.dy[a : a + m], sp.dx[a : a + m], sp.lift[a : a + m]
             entry = np.arange(a, a + m, dtype=np.uint64)

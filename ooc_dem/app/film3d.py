@@ -182,13 +182,22 @@ class SphereSplatter:
             per = max(1, CHUNK_FRAGMENTS // m)
             for c in range(0, len(group), per):
                 idx = group[c : c + per]
-                px = cx[idx, None] + dx
-                py = cy[idx, None] + dy
-                ok = (px >= 0) & (px < W) & (py >= 0) & (py < H)
+                x, y = cx[idx], cy[idx]
+                at = (y * W + x)[:, None] + (dy * W + dx)  # the fragments' pixels
                 d = depth[idx, None] - rr[idx, None] * lift
-                q = np.clip((d - near) * dscale, 0, (1 << db) - 1).astype(np.uint64)
-                k = (q << np.uint64(sb + tb)) | (idx.astype(np.uint64)[:, None] << np.uint64(tb)) | entry
-                np.minimum.at(zbuf, (py * W + px)[ok], k[ok])
+                d -= near
+                d *= dscale
+                q = np.minimum(d, (1 << db) - 1).astype(np.uint64)  # d >= 0: near is the front
+                q <<= np.uint64(sb + tb)
+                q |= idx.astype(np.uint64)[:, None] << np.uint64(tb)
+                q |= entry
+                if x.min() >= rho and x.max() < W - rho and y.min() >= rho and y.max() < H - rho:
+                    np.minimum.at(zbuf, at.ravel(), q.ravel())
+                else:  # fragments off the picture are dropped
+                    px = x[:, None] + dx
+                    py = y[:, None] + dy
+                    ok = (px >= 0) & (px < W) & (py >= 0) & (py < H)
+                    np.minimum.at(zbuf, at[ok], q[ok])
 
 
 def _window_max(q: NDArray[np.uint64], reach: int) -> NDArray[np.uint64]:

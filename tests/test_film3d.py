@@ -161,3 +161,27 @@ def test_export_trajectory_3d_reads_in_meshio(tmp_path, tiny3d):
     mesh = rd.GetOutputDataObject(0)
     v, tri = wheel_surface(g, *last_ws[[0, 1, 4]])
     assert mesh.GetNumberOfCells() == len(tri) and np.allclose(mesh.GetPoint(0), v[0], rtol=0, atol=1e-15)
+
+
+def test_film_speed_tool_prints_its_times():
+    """tools/film_speed.py (the renderer's timing, not asserted: printed as JSON)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    cp = subprocess.run(
+        [sys.executable, str(root / "tools" / "film_speed.py"), "--n", "30000", "--repeat", "1"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        check=True,
+    )
+    got = json.loads(cp.stdout)
+    print(cp.stdout)
+    assert got["spheres"] == 30000 and got["covered_px_side"] > 0
+    assert set(got["seconds"]) == {"colour", "side", "cut", "compose", "frame"}

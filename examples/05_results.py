@@ -37,8 +37,9 @@ discs = pd.DataFrame(
 print(discs.describe().round(4))
 print("discs within 5 cm of the axle along x:", int((abs(discs["x"] - df["x"].iloc[-1]) < 0.05).sum()))
 
-# 4. for ParaView: the trajectory frames as one XDMF time series (it refers to the frame
-#    files in RUN/trajectory/: keep both), and the final state as VTK (or XDMF, CSV).
+# 4. for ParaView (or meshio): the trajectory frames as XDMF 3 time series (the discs in
+#    trajectory.xdmf + .h5, the wheel in trajectory-wheel.xdmf + .h5), and the final state
+#    as VTK (or XDMF, CSV).
 #    ParaView opens both (File > Open; an XDMF reader for the .xdmf).
 export = run_dir.parent / f"{run_dir.name}-export"
 export.mkdir(exist_ok=True)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -76,28 +75,41 @@ def test_export_xdmf_read_by_meshio(store3d, tmp_path, capsys):
     s = res.state()
     f = tmp_path / "s.xdmf"
     assert _cli(capsys, "checkpoint", "export", out, "--out", f)[0] == 0
-    tree = ET.parse(f)  # meshio 5.3 refuses Grid-centred attributes (see test_checkpoint_tool)
-    grid = tree.getroot().find("Domain/Grid")
-    for a in [a for a in grid.findall("Attribute") if a.get("Center") == "Grid"]:
-        grid.remove(a)
-    plain = tmp_path / "plain.xdmf"
-    tree.write(plain)
-    m = meshio.read(plain)
+    m = meshio.read(f)  # the file as written
     assert np.array_equal(m.points, s["pos"]) and s["pos"][:, 2].std() > 0.01
     assert np.array_equal(m.point_data["radius"], s["r"])
     assert np.array_equal(m.point_data["velocity"], s["vel"])
     assert np.array_equal(m.point_data["spin"], s["spin"])
 
 
+def test_export_vtk_read_by_meshio(store3d, tmp_path, capsys):
+    meshio = pytest.importorskip("meshio")
+    out, res = store3d
+    s = res.state()
+    for name in ("s.vtk", "s.vtu"):  # meshio has no VTK XML PolyData (.vtp) reader
+        f = tmp_path / name
+        assert _cli(capsys, "checkpoint", "export", out, "--out", f)[0] == 0
+        m = meshio.read(f)
+        assert np.array_equal(m.points, s["pos"]), name
+        assert np.array_equal(m.point_data["radius"].ravel(), s["r"]), name
+        assert np.array_equal(m.point_data["velocity"], s["vel"]), name
+        assert np.array_equal(m.point_data["spin"], s["spin"]), name
+        assert m.cells[0].type == "vertex" and len(m.cells[0].data) == len(s["r"]), name
+
+
 def test_export_vtk_read_by_vtk(store3d, tmp_path, capsys):
     pytest.importorskip("vtkmodules")
     from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkIOLegacy import vtkPolyDataReader
-    from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
+    from vtkmodules.vtkIOLegacy import vtkUnstructuredGridReader
+    from vtkmodules.vtkIOXML import vtkXMLPolyDataReader, vtkXMLUnstructuredGridReader
 
     out, res = store3d
     s = res.state()
-    for name, reader in (("s.vtk", vtkPolyDataReader()), ("s.vtp", vtkXMLPolyDataReader())):
+    for name, reader in (
+        ("s.vtk", vtkUnstructuredGridReader()),
+        ("s.vtp", vtkXMLPolyDataReader()),
+        ("s.vtu", vtkXMLUnstructuredGridReader()),
+    ):
         f = tmp_path / name
         assert _cli(capsys, "checkpoint", "export", out, "--out", f)[0] == 0
         reader.SetFileName(str(f))

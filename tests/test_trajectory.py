@@ -264,46 +264,52 @@ def test_half_written_temporary_is_ignored_then_removed_on_resume(tmp_path, quic
         assert list(t.steps) == [0, 10]
 
 
-def test_xdmf_time_series_reads_in_vtk(tmp_path, runs):
-    """export-trajectory: an XDMF temporal collection that vtkXdmfReader reads at every time:
-    1500 disc points with their arrays from the frame files, and the wheel outline polygon."""
+def test_xdmf_time_series_reads_in_vtk_and_meshio(tmp_path, runs):
+    """export-trajectory: XDMF 3 time series that vtkXdmfReader (ParaView) and meshio read at
+    every time: 1500 disc points a frame, sorted by id, with their arrays, and the wheel's
+    outline as a fan of triangles in a second series."""
     vtk = pytest.importorskip("vtk")
+    meshio = pytest.importorskip("meshio")
     from ooc_dem.model.scenario import load_scenario
 
     run = runs["ooc"]
     out = tmp_path / "traj.xdmf"
     cp = cli_in_process("export-trajectory", run, "--out", out, check=True)
     assert "5 frames" in cp.stdout
-    assert out.stat().st_size < 200_000  # references, not a copy of the data
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["traj-wheel.h5", "traj-wheel.xdmf", "traj.h5", "traj.xdmf"]
     sc = load_scenario("quick")
     r = vtk.vtkXdmfReader()
     r.SetFileName(str(out))
     r.UpdateInformation()
     times = r.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
-    assert f"{TRAJECTORY_DIR}/{frame_name(123)}:/pos" in out.read_text()
-    with Trajectory.of_run(run) as t:
-        assert np.allclose(times, t.times, rtol=0, atol=1e-15)
+    rw = vtk.vtkXdmfReader()
+    rw.SetFileName(str(tmp_path / "traj-wheel.xdmf"))
+    rw.UpdateInformation()
+    with Trajectory.of_run(run) as t, meshio.xdmf.TimeSeriesReader(out) as m:
+        assert np.array_equal(times, t.times) and m.num_steps == len(t)
+        points, cells = m.read_points_cells()  # the first frame's: meshio's reader shares one mesh
+        assert np.array_equal(points, t[0]["pos"]) and len(cells[0].data) == 1500
         for i, tv in enumerate(times):
-            with h5py.File(t.file(i), "r") as f:
-                raw = {k: f[k][:] for k in ("pos", "r", "id")}
+            fr = t[i]
             r.UpdateTimeStep(tv)
-            mb = r.GetOutputDataObject(0)
-            assert mb.GetNumberOfBlocks() == 2
-            discs, wheel = mb.GetBlock(0), mb.GetBlock(1)
+            discs = r.GetOutputDataObject(0)
             assert discs.GetNumberOfPoints() == 1500
-            start, _ = t.rows(i)
             j = 777
-            assert discs.GetPoint(j)[:2] == tuple(raw["pos"][start + j])
+            assert discs.GetPoint(j)[:2] == tuple(fr["pos"][j])
             pd = discs.GetPointData()
-            assert pd.GetArray("radius").GetValue(j) == raw["r"][start + j]
-            assert pd.GetArray("id").GetValue(j) == raw["id"][start + j]
+            assert pd.GetArray("radius").GetValue(j) == fr["r"][j]
+            assert pd.GetArray("id").GetValue(j) == fr["id"][j]
             assert pd.GetArray("velocity").GetNumberOfComponents() == 3
+            time, data, _ = m.read_data(i)
+            assert time == tv and np.array_equal(data["radius"], fr["r"]) and np.array_equal(data["id"], fr["id"])
             ws = t.wheel_states[i]
             poly = wheel_outline(
                 ws[0], ws[1], ws[4], sc.wheel.radius, sc.wheel.n_lugs, sc.wheel.lug_tip_radius, sc.wheel.lug_thickness
             )
-            assert wheel.GetNumberOfPoints() == len(poly) and wheel.GetNumberOfCells() == 1
-            assert np.allclose(wheel.GetPoint(0)[:2], poly[0])
+            rw.UpdateTimeStep(tv)
+            wheel = rw.GetOutputDataObject(0)
+            assert wheel.GetNumberOfPoints() == len(poly) + 1 and wheel.GetNumberOfCells() == len(poly)
+            assert np.allclose(wheel.GetPoint(1)[:2], poly[0], rtol=0, atol=1e-15)
 
 
 @pytest.mark.parametrize("suffix", [".gif", ".mp4"])

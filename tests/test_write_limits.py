@@ -42,9 +42,9 @@ STEPS = [
 _NO_PRECHECK = """
 import sys
 import ooc_dem.storage.writeguard as wg, ooc_dem.storage.store as st, ooc_dem.app.export as ex, ooc_dem.app.trajectory as tr
-import ooc_dem.app.animate as an, ooc_dem.storage.atomic as at
+import ooc_dem.app.animate as an, ooc_dem.storage.atomic as at, ooc_dem.app.trajectory_export as te
 none = lambda *a, **k: None
-wg.check_room = ex.check_room = tr.check_room = an.check_room = at.check_room = none
+wg.check_room = ex.check_room = tr.check_room = an.check_room = at.check_room = te.check_room = none
 st.shortfall = none
 from ooc_dem.cli import main
 sys.exit(main(sys.argv[1:]))
@@ -123,7 +123,7 @@ def test_export_of_the_issue_under_a_100_kb_file_size_limit_is_one_line(base, tm
 
 @pytest.mark.parametrize("precheck", [True, False], ids=["checked-before", "failing-during"])
 def test_every_export_format_under_every_file_size_limit(base, tmp_path, precheck):
-    formats = {"xdmf": "e.xdmf", "vtk": "e.vtk", "vtp": "e.vtp", "csv": "e.csv"}
+    formats = {"xdmf": "e.xdmf", "vtk": "e.vtk", "vtp": "e.vtp", "vtu": "e.vtu", "csv": "e.csv"}
 
     def job(limit):
         out = {}
@@ -140,6 +140,24 @@ def test_every_export_format_under_every_file_size_limit(base, tmp_path, prechec
     codes = sweep(job)
     # the smallest limit refuses every format, the largest lets every one through
     assert set(codes[LIMITS[0]].values()) == {2} and set(codes[LIMITS[-1]].values()) == {0}, codes
+
+
+@pytest.mark.parametrize("precheck", [True, False], ids=["checked-before", "failing-during"])
+def test_trajectory_export_under_every_file_size_limit(base, tmp_path, precheck):
+    """export-trajectory's four files (the particles' and the wheel's XDMF + HDF5): all
+    published, or a one-line refusal and none of them."""
+
+    def job(limit):
+        d = tmp_path / f"t-{limit}"
+        d.mkdir()
+        cp = cli_limited(["export-trajectory", base, "--out", d / "t.xdmf"], limit, precheck)
+        assert_clean_outcome(cp, d)
+        names = sorted(p.name for p in d.iterdir())
+        assert names == ([] if cp.returncode else ["t-wheel.h5", "t-wheel.xdmf", "t.h5", "t.xdmf"]), (limit, names)
+        return cp.returncode
+
+    codes = sweep(job)
+    assert codes[LIMITS[0]] == 2 and codes[LIMITS[-1]] == 0, codes
 
 
 @pytest.mark.parametrize("backend", ["hdf5", "zarr"])

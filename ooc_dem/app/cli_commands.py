@@ -277,18 +277,19 @@ def cmd_resume(args: argparse.Namespace) -> int:
 def cmd_export_trajectory(args: argparse.Namespace) -> int:
     from .outfile import ExportError
     from .runfiles import read_run_scenario
-    from .trajectory import write_xdmf
+    from .trajectory_export import write_xdmf
     from .trajectory_read import Trajectory
 
     with Trajectory.of_run(args.run) as traj:
         try:
-            out = write_xdmf(traj, args.out, read_run_scenario(Path(args.run)))
+            files = write_xdmf(traj, args.out, read_run_scenario(Path(args.run)))
         except ExportError as e:
             raise CliError(str(e)) from None
         n, t = len(traj), (float(traj.times[-1]) if len(traj) else 0.0)
     print(
-        f"exported {n} frames (t = 0 .. {t:.6f} s) of {traj.path} as XDMF: {out} "
-        f"(open it in ParaView; it refers to the files of {traj.path.name}, keep both)"
+        f"exported {n} frames (t = 0 .. {t:.6f} s) of {traj.path} as XDMF 3 time series: "
+        + ", ".join(map(str, files))
+        + " (ParaView, meshio)"
     )
     return 0
 
@@ -298,7 +299,7 @@ def cmd_animate(args: argparse.Namespace) -> int:
     from .outfile import ExportError
 
     try:
-        out, n = animate(args.run, args.out, fps=args.fps, progress=not args.no_progress)
+        out, n = animate(args.run, args.out, fps=args.fps, progress=not args.no_progress, colour=args.colour)
     except ExportError as e:
         raise CliError(str(e)) from None
     print(f"animation: {out} ({n} frames at {args.fps} fps)")

@@ -250,16 +250,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument(
         "--format",
         choices=["xdmf", "vtk", "csv"],
-        help="xdmf (NAME.xdmf + NAME.h5), vtk (legacy ASCII .vtk, or XML if --out ends in "
-        ".vtp) or csv; default from the --out suffix",
+        help="xdmf (NAME.xdmf + NAME.h5), vtk (legacy ASCII .vtk, or VTK XML if --out ends in "
+        ".vtu or .vtp) or csv; default from the --out suffix",
     )
     c.add_argument("--out", required=True, metavar="FILE", help="output file")
     c.add_argument("--epoch", type=_nonneg_int, help="epoch step (default: current)")
 
     q = sub.add_parser(
         "export-trajectory",
-        help="write a run's trajectory as an XDMF time series "
-        "for ParaView (refers to the frame files in RUN/trajectory/, no copy)",
+        help="write a run's trajectory as XDMF 3 time series (+ HDF5) for ParaView and meshio: "
+        "FILE.xdmf the particles, FILE-wheel.xdmf the wheel's surface",
     )
     q.add_argument("run", metavar="RUN", help="run directory (with trajectory/)")
     q.add_argument("--out", required=True, metavar="FILE.xdmf", help="XDMF file to write (outside the run)")
@@ -272,6 +272,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="FILE.mp4 (ffmpeg from imageio-ffmpeg) or FILE.gif; default RUN.mp4 beside the run directory",
     )
     q.add_argument("--fps", type=_count(1, 120), default=20, help="frames per second (default 20)")
+    q.add_argument(
+        "--colour",
+        choices=["speed", "height"],
+        default="speed",
+        help="3D runs: colour the spheres by their speed or their height (2D runs keep their layer colours)",
+    )
     q.add_argument("--no-progress", action="store_true")
 
     q = sub.add_parser("scenarios", help="list built-in scenarios")

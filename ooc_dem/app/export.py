@@ -1,4 +1,4 @@
-"""Export one committed epoch: XDMF 3 (+ HDF5), VTK PolyData (legacy ASCII or XML .vtp), CSV.
+"""Export one committed epoch: XDMF 3 (+ HDF5), VTK (legacy ASCII .vtk, XML .vtu or .vtp), CSV.
 
 Every format holds one point per disc, sorted by id, with the disc's radius,
 velocity, spin, id, mass and material, plus the wheel state, the step and the
@@ -10,10 +10,12 @@ simulated time:
   ``/wheel_state`` (x, y, vx, vy, theta, wz: ``layout.WHEEL_STATE``) with ``step``/``time``
   attributes.
   The XDMF file is one Uniform grid with a Polyvertex topology and node-centred
-  attributes; the wheel state, step and time are Grid-centred attributes (field
-  data in ParaView's XDMF 3 reader).
-* ``vtk``: legacy ASCII ``.vtk`` PolyData (points + VERTICES, POINT_DATA, dataset
-  FIELD data for the wheel), or VTK XML PolyData if the file name ends in ``.vtp``.
+  attributes (read by ParaView and meshio); the wheel state, step and time are in the
+  HDF5 file only (Grid-centred attributes, ParaView's field data, are refused by meshio).
+* ``vtk``: legacy ASCII ``.vtk`` (file version 5.1) UnstructuredGrid (points, one vertex
+  cell each, POINT_DATA, dataset FIELD data for the wheel); VTK XML UnstructuredGrid if
+  the file name ends in ``.vtu``, or PolyData (Verts) if in ``.vtp``. meshio reads the
+  ``.vtk`` and ``.vtu`` files (it has no VTK XML PolyData reader); ParaView all three.
 * ``csv``: ``#`` comment lines (epoch, time, wheel state), a header row
   ``id,x,y,vx,vy,w,r,mass,mat`` (2D; the vector columns named from the axes,
   ``vector_columns(dim)``) and one row per disc; 3D:
@@ -50,7 +52,7 @@ from .export_formats import Snapshot, output_files, read_records, record_dtype, 
 from .outfile import ExportError, check_targets, write_failure
 
 FORMATS = ("xdmf", "vtk", "csv")
-_SUFFIX_FORMAT = {".xdmf": "xdmf", ".xmf": "xdmf", ".vtk": "vtk", ".vtp": "vtk", ".csv": "csv"}
+_SUFFIX_FORMAT = {".xdmf": "xdmf", ".xmf": "xdmf", ".vtk": "vtk", ".vtp": "vtk", ".vtu": "vtk", ".csv": "csv"}
 
 
 def infer_format(out: str | os.PathLike[str]) -> str | None:

@@ -1,6 +1,6 @@
 """The export formats (export.py's module docstring describes them): a ``Snapshot`` (the
-exported content of one epoch, in id order) written as XDMF (+ HDF5), VTK (legacy or XML
-.vtp) or CSV, each under a temporary name (``outfile.AtomicFile``)."""
+exported content of one epoch, in id order) written as XDMF (+ HDF5), VTK (legacy .vtk, XML
+.vtu or .vtp) or CSV, each under a temporary name (``outfile.AtomicFile``)."""
 
 from __future__ import annotations
 
@@ -131,7 +131,8 @@ def write_snapshot(snap: Snapshot, fmt: str, out: Path) -> list[Path]:
     if fmt == "xdmf":
         return _write_xdmf(snap, out)
     if fmt == "vtk":
-        return [_write_vtp(snap, out) if out.suffix.lower() == ".vtp" else _write_vtk_legacy(snap, out)]
+        xml = out.suffix.lower() in (".vtp", ".vtu")
+        return [_write_vtk_xml(snap, out) if xml else _write_vtk_legacy(snap, out)]
     return [_write_csv(snap, out)]
 
 
@@ -286,14 +287,9 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
             f"        {item(name, dims, dt.kind, dt.itemsize)}",
             "      </Attribute>",
         ]
-    # per-epoch values: Grid-centred attributes = field data in ParaView's XDMF 3 reader
-    for name, kind, text in _field_items(snap):
-        typ = "Int" if kind == "i" else "Float"
-        lines += [
-            f'      <Attribute Name="{name}" AttributeType="Scalar" Center="Grid">',
-            f'        <DataItem Dimensions="1" DataType="{typ}" Precision="8" Format="XML">{text}</DataItem>',
-            "      </Attribute>",
-        ]
+    # the per-epoch values (step, time, wheel state) stay in the HDF5 file (/wheel_state and
+    # its attributes) and the comment above: as Grid-centred attributes (field data to
+    # ParaView) they would make the file unreadable to meshio, which refuses that centre
     lines += ["    </Grid>", "  </Domain>", "</Xdmf>", ""]
     with AtomicFile(out) as f:
         f.write("\n".join(lines))
@@ -317,19 +313,26 @@ def _spin_columns(dim: int) -> list[str]:
 
 
 def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
+    # version 5.1 (VTK >= 9, ParaView >= 5.9): its cells are offsets + connectivity, and
+    # meshio reads it with its 64-bit integer arrays (its 4.2 reader knows no vtktypeint64)
     n = len(snap)
     with AtomicFile(out) as f:
-        f.write("# vtk DataFile Version 4.2\n")
+        f.write("# vtk DataFile Version 5.1\n")
         f.write(_description(snap)[:255] + "\n")
-        f.write("ASCII\nDATASET POLYDATA\n")
+        f.write("ASCII\nDATASET UNSTRUCTURED_GRID\n")
         items = _field_items(snap)
         f.write(f"FIELD FieldData {len(items)}\n")
         for name, kind, text in items:
             f.write(f"{name} 1 1 {'vtktypeint64' if kind == 'i' else 'double'}\n{text}\n")
         f.write(f"POINTS {n} double\n")
         _write_columns(f, snap, lambda s, c: _xyz(c), " ")
-        f.write(f"VERTICES {n} {2 * n}\n")
-        _write_columns(f, snap, lambda s, c: [np.ones(len(c["id"]), np.int64), _index(s, c)], " ")
+        # one vertex cell a point
+        f.write(f"CELLS {n + 1} {n}\nOFFSETS vtktypeint64\n")
+        _write_columns(f, snap, lambda s, c: [_index(s, c)], " ")
+        f.write(f"{n}\nCONNECTIVITY vtktypeint64\n")
+        _write_columns(f, snap, lambda s, c: [_index(s, c)], " ")
+        f.write(f"CELL_TYPES {n}\n")
+        _write_columns(f, snap, lambda s, c: [np.ones(len(c["id"]), np.int64)], " ")
         f.write(f"POINT_DATA {n}\n")
         f.write("SCALARS radius double 1\nLOOKUP_TABLE default\n")
         _write_columns(f, snap, lambda s, c: [c["r"]], " ")
@@ -345,7 +348,7 @@ def _write_vtk_legacy(snap: Snapshot, out: Path) -> Path:
     return out
 
 
-_VTP_TYPE = {"f8": "Float64", "i8": "Int64", "i4": "Int32"}
+_VTP_TYPE = {"f8": "Float64", "i8": "Int64", "i4": "Int32", "u1": "UInt8"}
 
 
 def _vtp_array(
@@ -364,27 +367,33 @@ def _vtp_array(
     f.write(f"{indent}</DataArray>\n")
 
 
-def _write_vtp(snap: Snapshot, out: Path) -> Path:
+def _write_vtk_xml(snap: Snapshot, out: Path) -> Path:
+    """VTK XML: PolyData (.vtp, the points as Verts) or UnstructuredGrid (.vtu, one vertex
+    cell a point; meshio reads this one, it has no PolyData reader)."""
     n = len(snap)
     f8, i8 = np.dtype(np.float64), np.dtype(np.int64)
+    kind = "UnstructuredGrid" if out.suffix.lower() == ".vtu" else "PolyData"
     with AtomicFile(out) as f:
         f.write('<?xml version="1.0"?>\n')
         f.write(f"<!-- {_xml_comment(_description(snap))} -->\n")
         f.write(
-            '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
-            'header_type="UInt64">\n  <PolyData>\n    <FieldData>\n'
+            f'<VTKFile type="{kind}" version="1.0" byte_order="LittleEndian" '
+            f'header_type="UInt64">\n  <{kind}>\n    <FieldData>\n'
         )
-        for name, kind, text in _field_items(snap):
-            t = "Int64" if kind == "i" else "Float64"
+        for name, kind_of, text in _field_items(snap):
+            t = "Int64" if kind_of == "i" else "Float64"
             f.write(
                 f'      <DataArray type="{t}" Name={quoteattr(name)} NumberOfTuples="1" '
                 f'format="ascii">{text}</DataArray>\n'
             )
         f.write("    </FieldData>\n")
-        f.write(
-            f'    <Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
-            f'NumberOfStrips="0" NumberOfPolys="0">\n'
-        )
+        if kind == "PolyData":
+            f.write(
+                f'    <Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+                f'NumberOfStrips="0" NumberOfPolys="0">\n'
+            )
+        else:
+            f.write(f'    <Piece NumberOfPoints="{n}" NumberOfCells="{n}">\n')
         f.write('      <PointData Scalars="radius" Vectors="velocity">\n')
         for name, col in (("radius", "r"), ("id", "id"), ("mass", "mass"), ("material", "mat")):
             _vtp_array(f, snap, name, _columns([col]), snap.dtype[col])
@@ -393,10 +402,13 @@ def _write_vtp(snap: Snapshot, out: Path) -> Path:
         _vtp_array(f, snap, "velocity", lambda s, c: _xyz(c, "v"), f8, 3)
         f.write("      </PointData>\n      <Points>\n")
         _vtp_array(f, snap, "positions", lambda s, c: _xyz(c), f8, 3)
-        f.write("      </Points>\n      <Verts>\n")
+        cells = "Verts" if kind == "PolyData" else "Cells"
+        f.write(f"      </Points>\n      <{cells}>\n")
         _vtp_array(f, snap, "connectivity", lambda s, c: [_index(s, c)], i8)
         _vtp_array(f, snap, "offsets", lambda s, c: [_index(s, c) + 1], i8)
-        f.write("      </Verts>\n    </Piece>\n  </PolyData>\n</VTKFile>\n")
+        if kind == "UnstructuredGrid":
+            _vtp_array(f, snap, "types", lambda s, c: [np.ones(len(c["id"]), np.uint8)], np.dtype(np.uint8))
+        f.write(f"      </{cells}>\n    </Piece>\n  </{kind}>\n</VTKFile>\n")
     return out
 
 

@@ -8,14 +8,13 @@
   on an x-z grid (the sinkage map), with the wheel's width marked;
 - ``figures/lateral_flow.png``: the spheres' mean lateral displacement dz on the same
   grid (soil pushed out sideways from under the wheel, and its mean across the rut);
-- ``wheel.vtk``: the wheel at its final pose as a surface mesh (legacy VTK polydata:
-  rim cylinder with end caps and one box per lug), to load in ParaView next to the
-  particles of ``ooc-dem checkpoint export RUN --format vtk|xdmf``.
+- ``wheel.vtk``: the wheel at its final pose as a surface mesh (legacy VTK, written by
+  meshio: the triangles of ``wheel_surface.py``, rim cylinder with end caps and one box per
+  lug), to load in ParaView next to the particles of ``ooc-dem checkpoint export RUN``.
 """
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -32,72 +31,21 @@ MIDWIDTH_FIGURE = "deformation_midwidth.png"
 RUT_FIGURE = "rut.png"
 LATERAL_FIGURE = "lateral_flow.png"
 WHEEL_MESH = "wheel.vtk"
-RIM_SEGMENTS = 72
-
-
-def wheel_mesh(
-    sc: Scenario, ws: NDArray[np.float64], segments: int = RIM_SEGMENTS
-) -> tuple[NDArray[np.float64], list[list[int]]]:
-    """(points (P, 3), polygons as point-index lists) of the wheel at state ws: the rim
-    cylinder (segments quads, two end-cap polygons) and each lug as a closed box from R to
-    the lug tip, lug_thickness thick, across the wheel's width (the plates the kernels use,
-    without their rounded edges)."""
-    from ..engine.stepper import wheel_z0
-
-    w = sc.wheel
-    X, Y, th = float(ws[WS_X]), float(ws[WS_Y]), float(ws[WS_THETA])
-    z0 = wheel_z0(sc)
-    za, zb = z0 - 0.5 * w.width, z0 + 0.5 * w.width
-    pts: list[tuple[float, float, float]] = []
-    polys: list[list[int]] = []
-    phi = th + 2.0 * math.pi * np.arange(segments) / segments
-    for z in (za, zb):
-        for a in phi:
-            pts.append((X + w.radius * math.cos(a), Y + w.radius * math.sin(a), z))
-    for k in range(segments):
-        k1 = (k + 1) % segments
-        polys.append([k, k1, segments + k1, segments + k])
-    polys.append(list(range(segments - 1, -1, -1)))
-    polys.append(list(range(segments, 2 * segments)))
-    half = 0.5 * w.lug_thickness
-    for lug in range(w.n_lugs):
-        a = th + 2.0 * math.pi * lug / w.n_lugs
-        ux, uy = math.cos(a), math.sin(a)
-        vx, vy = -uy, ux
-        base = len(pts)
-        for z in (za, zb):
-            for s, t in ((w.radius, -half), (w.lug_tip_radius, -half), (w.lug_tip_radius, half), (w.radius, half)):
-                pts.append((X + s * ux + t * vx, Y + s * uy + t * vy, z))
-        b = base
-        polys += [
-            [b, b + 1, b + 2, b + 3],
-            [b + 4, b + 7, b + 6, b + 5],
-            [b, b + 4, b + 5, b + 1],
-            [b + 1, b + 5, b + 6, b + 2],
-            [b + 2, b + 6, b + 7, b + 3],
-            [b + 3, b + 7, b + 4, b],
-        ]
-    return np.array(pts, np.float64), polys
 
 
 def write_wheel_vtk(path: str | os.PathLike[str], sc: Scenario, ws: NDArray[np.float64]) -> Path:
-    """The wheel mesh (``wheel_mesh``) as a legacy ASCII VTK polydata file (atomic)."""
-    from ..storage.atomic import write_replacing
+    """The wheel's surface (``wheel_surface.wheel_surface`` at state ws: the triangles of the
+    rim cylinder and the lug boxes, as the trajectory export gives them) as a legacy
+    VTK file written by meshio (binary, an unstructured grid of triangles; atomic)."""
+    import meshio
 
-    pts, polys = wheel_mesh(sc, ws)
-    lines = [
-        "# vtk DataFile Version 3.0",
-        f"ooc-dem wheel of {sc.name}",
-        "ASCII",
-        "DATASET POLYDATA",
-        f"POINTS {len(pts)} double",
-    ]
-    lines += [f"{float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in pts]
-    lines.append(f"POLYGONS {len(polys)} {sum(len(p) + 1 for p in polys)}")
-    lines += [" ".join(map(str, [len(p), *p])) for p in polys]
-    text = "\n".join(lines) + "\n"
+    from ..storage.atomic import write_replacing
+    from .wheel_surface import WheelGeometry, wheel_surface
+
+    pts, tris = wheel_surface(WheelGeometry.of_scenario(sc), ws[WS_X], ws[WS_Y], ws[WS_THETA])
+    mesh = meshio.Mesh(pts, [("triangle", tris)])
     path = Path(path)
-    write_replacing(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    write_replacing(path, lambda tmp: meshio.write(tmp, mesh, file_format="vtk"))
     return path
 
 

@@ -65,7 +65,7 @@ def mesh_wheel(tri: np.ndarray, cell: float) -> MeshWheel:
 def closest_on_triangle(px, py, pz, t):
     """The point of triangle t ((3, 3) vertices a, b, c) closest to p, by the region of
     the triangle p projects into: a vertex, an edge or the face (Ericson, Real-Time
-    Collision Detection, 5.1.5)."""
+    Collision Detection, 5.1.5, ClosestPtPointTriangle; the face's point by projection)."""
     ax, ay, az = t[0, 0], t[0, 1], t[0, 2]
     bx, by, bz = t[1, 0], t[1, 1], t[1, 2]
     cx, cy, cz = t[2, 0], t[2, 1], t[2, 2]
@@ -98,10 +98,20 @@ def closest_on_triangle(px, py, pz, t):
     if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
         w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
         return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz)
-    denom = 1.0 / (va + vb + vc)
-    v = vb * denom
-    w = vc * denom
-    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w
+    # the face: p moved onto the plane along its unit normal (rather than Ericson's
+    # barycentric sum): a plane normal to an axis then gives q and the normal exactly, the
+    # bits of an analytic wall there
+    nx = aby * acz - abz * acy
+    ny = abz * acx - abx * acz
+    nz = abx * acy - aby * acx
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if nn == 0.0:  # a degenerate triangle (a line or a point): its vertex a
+        return ax, ay, az
+    ux = nx / nn
+    uy = ny / nn
+    uz = nz / nn
+    h = apx * ux + apy * uy + apz * uz
+    return px - h * ux, py - h * uy, pz - h * uz
 
 
 @njit(inline="always", cache=True)

@@ -34,8 +34,8 @@ TIP_SEGMENTS = 8  # facets of a lug's rounded tip
 def rim(radius: float, width: float, segments: int = SEGMENTS, rings: int = RINGS) -> trimesh.Trimesh:
     """A closed cylinder about z, z in -width/2 .. width/2, its end faces in rings."""
     phi = 2.0 * math.pi * np.arange(segments) / segments
-    verts = []
-    faces = []
+    verts: list[tuple[float, float, float]] = []
+    faces: list[tuple[int, int, int]] = []
     for side, z in ((-1, -0.5 * width), (1, 0.5 * width)):
         base = len(verts)
         verts.append((0.0, 0.0, z))
@@ -80,7 +80,7 @@ def loft(sections: list[np.ndarray], zs: list[float]) -> trimesh.Trimesh:
             a, b = k * m + j, k * m + (j + 1) % m
             c, d = b + m, a + m
             faces += [(a, b, c), (a, c, d)]
-    ends = []
+    ends: list[np.ndarray] = []
     for k, flip in ((0, True), (len(zs) - 1, False)):
         centre = len(verts) + len(ends)
         ends.append(np.append(sections[k][:, :2].mean(axis=0), zs[k]))
@@ -107,7 +107,7 @@ def grousered_wheel(
     for k in range(n_lugs):
         s = turned(sec, 2.0 * math.pi * k / n_lugs)
         parts.append(loft([s, s], [-0.5 * width, 0.5 * width]))
-    return trimesh.util.concatenate(parts)
+    return _joined(parts)
 
 
 def chevron_wheel(
@@ -131,7 +131,14 @@ def chevron_wheel(
         phi = 2.0 * math.pi * k / n_lugs
         secs = [turned(sec, phi + math.radians(sweep_deg) * abs(z) / (0.5 * width)) for z in zs]
         parts.append(loft(secs, zs))
-    return trimesh.util.concatenate(parts)
+    return _joined(parts)
+
+
+def _joined(parts: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    """The parts as one mesh (their triangles one after another, in order)."""
+    mesh = trimesh.util.concatenate(parts)
+    assert isinstance(mesh, trimesh.Trimesh)
+    return mesh
 
 
 def main(argv: list[str]) -> int:

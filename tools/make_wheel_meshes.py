@@ -3,8 +3,8 @@ z through the origin, z = 0 at the wheel's mid-width) into examples/meshes/:
 
 - grousered.stl: paper2008-3d's built-in wheel as a mesh: the rim cylinder (R = 0.1 m,
   0.1 m wide) and 18 straight lugs, each a plate 4 mm thick with a rounded tip at
-  R = 0.110 m, across the whole width (the built-in lugs' rounded ends beyond the
-  width are left out);
+  R = 0.110 m, across the whole width and rounded beyond it, as the built-in lugs
+  (capsules swept over a rectangle) are;
 - chevron.stl: the same rim with 18 chevron lugs, each a V whose arms sweep back by
   15 degrees from the mid-width to the rim's edges.
 
@@ -28,7 +28,8 @@ import trimesh
 
 SEGMENTS = 144  # sagitta R (1 - cos(pi / n)) = 24 um at R = 0.1 m (< 0.2 mm)
 RINGS = 8  # rings of each end face
-TIP_SEGMENTS = 8  # facets of a lug's rounded tip
+TIP_SEGMENTS = 8  # facets of a lug's rounded tip (and of its root)
+END_SLICES, END_ANGLE = 4, 80.0  # a straight lug's rounded ends beyond the width: slices, degrees
 
 
 def rim(radius: float, width: float, segments: int = SEGMENTS, rings: int = RINGS) -> trimesh.Trimesh:
@@ -59,14 +60,18 @@ def rim(radius: float, width: float, segments: int = SEGMENTS, rings: int = RING
     return trimesh.Trimesh(np.array(verts), np.array(faces), process=False)
 
 
-def lug_section(root: float, tip_centre: float, cap: float, tip_segments: int = TIP_SEGMENTS) -> np.ndarray:
+def lug_section(root: float, tip: float, rho: float, tip_segments: int = TIP_SEGMENTS) -> np.ndarray:
     """A straight lug's cross-section (s along the lug, t across it), counter-clockwise:
-    a plate 2 cap thick from s = root to a half-round tip centred at s = tip_centre."""
-    arc = [
-        (tip_centre + cap * math.cos(a), cap * math.sin(a))
+    the points within rho of the segment s = root .. tip (both ends half-round)."""
+    out = [
+        (tip + rho * math.cos(a), rho * math.sin(a))
         for a in np.linspace(-0.5 * math.pi, 0.5 * math.pi, tip_segments + 1)
     ]
-    return np.array([(root, -cap), *arc, (root, cap)])
+    out += [
+        (root + rho * math.cos(a), rho * math.sin(a))
+        for a in np.linspace(0.5 * math.pi, 1.5 * math.pi, tip_segments + 1)
+    ]
+    return np.array(out)
 
 
 def loft(sections: list[np.ndarray], zs: list[float]) -> trimesh.Trimesh:
@@ -99,14 +104,21 @@ def turned(section: np.ndarray, phi: float) -> np.ndarray:
 def grousered_wheel(
     radius=0.1, width=0.1, n_lugs=18, lug_tip_radius=0.110, lug_thickness=0.004, segments=SEGMENTS, rings=RINGS
 ) -> trimesh.Trimesh:
-    """The built-in wheel (engine.stepper.wheel_records: lugs from the rim to lug_tip_radius,
-    2 cap = lug_thickness thick, the tip round) as one mesh; lug k at angle 2 pi k / n_lugs."""
+    """The built-in wheel (engine.stepper.wheel_records) as one mesh: the rim, and each lug
+    the points within cap = lug_thickness / 2 of the rectangle from the rim to
+    lug_tip_radius - cap across the width (its ends beyond the width rounded in
+    END_SLICES steps); lug k at angle 2 pi k / n_lugs."""
     cap = 0.5 * lug_thickness
-    sec = lug_section(radius - 2.0 * cap, max(radius, lug_tip_radius - cap), cap)
+    tip = max(radius, lug_tip_radius - cap)
+    # the rounded ends: the section within cap cos(b) of the lug's axis at cap sin(b)
+    # beyond the rim's face, b from END_ANGLE down to 0 (the last sliver left flat)
+    betas = np.linspace(math.radians(END_ANGLE), 0.0, END_SLICES + 1)
+    zs = [-0.5 * width - cap * math.sin(b) for b in betas] + [0.5 * width + cap * math.sin(b) for b in betas[::-1]]
+    rhos = [cap * math.cos(b) for b in betas] + [cap * math.cos(b) for b in betas[::-1]]
     parts = [rim(radius, width, segments, rings)]
     for k in range(n_lugs):
-        s = turned(sec, 2.0 * math.pi * k / n_lugs)
-        parts.append(loft([s, s], [-0.5 * width, 0.5 * width]))
+        phi = 2.0 * math.pi * k / n_lugs
+        parts.append(loft([turned(lug_section(radius, tip, rho), phi) for rho in rhos], zs))
     return _joined(parts)
 
 
@@ -124,7 +136,7 @@ def chevron_wheel(
     """The rim with chevron lugs: lug k at angle 2 pi k / n_lugs at the mid-width, its arms
     turned back by sweep_deg at the edges (linearly in |z|, ``slices`` steps each half)."""
     cap = 0.5 * lug_thickness
-    sec = lug_section(radius - 2.0 * cap, max(radius, lug_tip_radius - cap), cap)
+    sec = lug_section(radius, max(radius, lug_tip_radius - cap), cap)
     zs = list(np.linspace(-0.5 * width, 0.5 * width, 2 * slices + 1))
     parts = [rim(radius, width, segments, rings)]
     for k in range(n_lugs):

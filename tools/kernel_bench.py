@@ -47,14 +47,14 @@ def _phase_loops(produce, gather_integrate):
     from numba import njit
 
     @njit
-    def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err):
+    def p_loop(k, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, dt, err):
         for _ in range(k):
-            produce(0, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err)
+            produce(0, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, dt, err)
 
     @njit
-    def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err, force, torque, gravity, part):
+    def pg_loop(k, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, dt, err, force, torque, gravity, part):
         for _ in range(k):
-            produce(0, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err)
+            produce(0, n, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, dt, err)
             gather_integrate(0, n, d, pl, bd, force, torque, gravity, dt, part, err)
 
     return p_loop, pg_loop
@@ -88,7 +88,7 @@ def one(family: str, n: int, law: str, steps: int, warmup: int) -> dict:
     # timed inside compiled loops: a call from Python types its record arguments each time
     # (~8 ms, more than a whole step of a small bed); produce alone, then produce + gather
     p_loop, pg_loop = _phase_loops(kern.produce, kern.gather_integrate)
-    args = (n, d, pl, bd, kp.cp, kp.walls, kp.wg, ws, st.plates, lugdir, kp.dt, err)
+    args = (n, d, pl, bd, kp.cp, kp.walls, kp.wg, ws, st.plates, lugdir, kp.mesh, kp.dt, err)
     gargs = (forces.force, forces.torque, kp.gravity, part)
     p_loop(1, *args)
     pg_loop(1, *args, *gargs)  # compile both before timing

@@ -68,8 +68,10 @@ from ..physics.layout import (
     Bodies,
     Forces,
     KernelParams,
+    MeshWheel,
     Pairs,
     discs_of,
+    no_mesh,
     field_names,
     record,
     spin_width,
@@ -101,6 +103,7 @@ class Model:
     r_max: float
     dim: int = 2  # 2 for every current scenario; picks the kernel module
     hist_cap: int = 0  # contact-history capacity C per particle (0: the dimension's default)
+    mesh: MeshWheel | None = None  # 3D: the wheel's triangles (None: the built-in rim and lugs)
 
     def __post_init__(self):
         if not self.hist_cap:
@@ -156,6 +159,11 @@ class Model:
         cp = np.ascontiguousarray(table).view(np.float64).reshape(L3.N_TYPES, L3.N_TYPES, L3.N_FIELDS).copy()
         walls = L3.walls_record(sc.bin.length, sc.bin.width).view(np.float64).copy()
         wg, wc = wheel_records(sc)
+        mesh = None
+        if sc.wheel.enabled and sc.wheel.mesh:
+            from ..model.mesh_wheel import load_wheel_mesh
+
+            mesh = load_wheel_mesh(sc)
         return cls(
             dt=sc.physics.dt,
             gravity=np.array(sc.gravity_vector, np.float64),
@@ -168,6 +176,7 @@ class Model:
             r_max=sc.soil.r_max,
             dim=3,
             hist_cap=sc.hist_cap,
+            mesh=mesh,
         )
 
     @property
@@ -194,7 +203,8 @@ class Model:
     def kernel_params(self) -> KernelParams:
         """The kernels' parameters (layout.KernelParams; records are views, no copies)."""
         cp, walls, wg, wc = self.records()
-        return KernelParams(float(self.dt), self.gravity, float(self.skin), cp, walls, wg, wc)
+        mesh = self.mesh if self.mesh is not None else no_mesh()
+        return KernelParams(float(self.dt), self.gravity, float(self.skin), cp, walls, wg, wc, mesh)
 
     def kernels(self):
         """The step-kernel module of this model's dimension (run_steps, spatial_order)."""
@@ -229,7 +239,7 @@ class Model:
             self.r_max,
             self.dim,
             self.hist_cap,
-        )
+        )  # no wheel: no mesh
 
 
 def wheel_records(sc) -> tuple[np.ndarray, np.ndarray]:

@@ -172,7 +172,20 @@ def scenario_tables(source: str | Path, overrides: list[str] | None = None) -> t
     the overrides applied) and the ``base`` the file names (None: none)."""
     src = str(source)
     data, base = _resolve(src, None, ())
-    return apply_overrides(data, overrides or []), base
+    data = apply_overrides(data, overrides or [])
+    _anchor_mesh(data, Path.cwd())  # given by --set or by a built-in: from the working directory
+    return data, base
+
+
+def _anchor_mesh(data: dict, directory: Path) -> None:
+    """wheel.mesh made absolute when it is a relative path (taken from ``directory``), so that
+    the stored scenario of a run names the same file wherever it is resumed."""
+    wheel = data.get("wheel")
+    if not isinstance(wheel, dict):
+        return
+    mesh = wheel.get("mesh")
+    if isinstance(mesh, str) and mesh and "\0" not in mesh and not Path(mesh).is_absolute():
+        wheel["mesh"] = str(directory / mesh)
 
 
 def _builtin_tables(src: str) -> dict | None:
@@ -235,6 +248,7 @@ def _resolve(src: str, naming: tuple[Path, str] | None, chain: tuple[tuple[str, 
         except (OSError, RuntimeError):  # a symlink loop: the path as given
             identity = str(path)
         data = _parse_toml(text, src)
+        _anchor_mesh(data, path.parent.absolute())
     if identity in (ident for ident, _ in chain):
         cycle = " -> ".join([shown for _, shown in chain] + [src])
         raise ScenarioError(f"{what}: the bases make a cycle ({show(cycle, 400)})")

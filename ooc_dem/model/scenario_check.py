@@ -107,6 +107,9 @@ _CONSTRAINTS: dict[tuple[str, str], tuple] = {
     ("wheel", "settle_time"): _NONNEG,
     ("wheel", "travel_time"): _NONNEG,
     ("wheel", "z0"): _GAP,
+    ("wheel", "mesh_scale"): _within(0.0, 1e6, lo_open=True),
+    ("wheel", "mesh_rotate"): (lambda v: len(v) in (0, 3), "three angles (x, y, z) or none"),
+    ("wheel", "mesh_offset"): (lambda v: len(v) in (0, 3), "three lengths (x, y, z) or none"),
     ("output", "series_interval"): _POS,
     ("output", "steady_start"): _NONNEG,
     ("output", "steady_end"): _NONNEG,
@@ -275,6 +278,8 @@ def _check_ranges(sc: Scenario) -> None:
     if sc.dim == 3 and 2 * s.r_max >= sc.bin.width:
         raise ScenarioError(f"bin.width = {sc.bin.width!r}: must exceed the largest sphere diameter (physics.dim = 3)")
     w = sc.wheel
+    if w.enabled and w.mesh and sc.dim != 3:
+        raise ScenarioError(f"wheel.mesh = {show(w.mesh)}: a mesh wheel needs physics.dim = 3")
     if w.enabled:
         if w.lug_tip_radius < w.radius:
             raise ScenarioError(f"wheel.lug_tip_radius = {w.lug_tip_radius!r}: must be >= wheel.radius ({w.radius!r})")

@@ -239,6 +239,18 @@ class Wheel:
     settle_time: float = key(1.0, "s", "settling before travel: omega = 0, x held")
     travel_time: float = key(45.0, "s", "travel after settling")
     z0: float = key(0.0, "m", "3D: lateral centre of the wheel (0: the bin's mid-width)")
+    mesh: str = key(
+        "",
+        "",
+        "3D: the wheel's surface as a triangle mesh file (STL or OBJ; a relative path is taken from the "
+        "scenario file's directory), replacing the rim and lugs for the contact (docs/reference/mesh-wheel.md); "
+        "empty: the built-in wheel",
+    )
+    mesh_scale: float = key(1.0, "m/unit", "metres per mesh unit (0.001: a mesh in millimetres)")
+    mesh_rotate: tuple[float, ...] = key(
+        (), "deg", "the mesh's rotation into the wheel's frame (axle along z): angles about x, y, z, in that order"
+    )
+    mesh_offset: tuple[float, ...] = key((), "m", "the mesh's translation after the rotation (x, y, z)")
 
 
 @dataclass(frozen=True)
@@ -378,6 +390,10 @@ _HASH_NEUTRAL = {
     ("wheel", "carriage"): "drawbar",
     ("wheel", "speed"): 0.0,
     ("wheel", "vertical"): "free",
+    ("wheel", "mesh"): "",  # added with mesh wheels
+    ("wheel", "mesh_scale"): 1.0,
+    ("wheel", "mesh_rotate"): (),
+    ("wheel", "mesh_offset"): (),
 }
 _PAIR_HASH_NEUTRAL = {
     "law": "linear",

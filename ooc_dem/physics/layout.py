@@ -250,9 +250,16 @@ LAW_ROW = LAW_BLOCK + 8
 Discs = namedtuple(
     "Discs", ["pos", "vel", "spin", "r", "mass", "inertia", "mat", "gid", "hist_n", "hist_id", "hist_s", "hist_m"]
 )
-# the model's kernel parameters: dt, gravity (D,), skin, and the records CONTACT_PARAMS
-# table, WALLS, WHEEL_GEOMETRY, WHEEL_CONTROLS (engine.stepper.Model.kernel_params)
-KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc"])
+# the model's kernel parameters: dt, gravity (D,), skin, the records CONTACT_PARAMS
+# table, WALLS, WHEEL_GEOMETRY, WHEEL_CONTROLS (engine.stepper.Model.kernel_params) and
+# the wheel's triangle mesh (MeshWheel; no triangle: the built-in rim and lugs)
+KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc", "mesh"])
+# a 3D wheel's surface as triangles in its body frame (axle along z through the origin,
+# z = 0 at the wheel's z0; physics.mesh): tri (T, 3, 3) vertex coordinates; a uniform grid
+# over their bounding box, grid = (x, y, z of its low corner, cell size), dims (3,) cells
+# along x, y, z, and each cell's triangles in CSR form (cell_start (cells + 1), cell_tri,
+# ascending within a cell); bounds = (the farthest point from the axle, lowest z, highest z)
+MeshWheel = namedtuple("MeshWheel", ["tri", "grid", "dims", "cell_start", "cell_tri", "bounds"])
 # per-particle contact force (N, D) and torque (N, R) of the last step; length 0 when not kept
 Forces = namedtuple("Forces", ["force", "torque"])
 # the plates' table (PLATE, (P,): their state, moved by the step) and their records of the
@@ -269,6 +276,18 @@ Bodies = namedtuple("Bodies", ["rows", "count"])
 def no_plates() -> Plates:
     """An empty plates argument (no plate: the step is that of a run without plates)."""
     return Plates(np.zeros(0, PLATE), np.zeros(0, PLATE_RECORD))
+
+
+def no_mesh() -> MeshWheel:
+    """An empty wheel mesh (no triangle: the wheel is the built-in rim and lugs)."""
+    return MeshWheel(
+        np.zeros((0, 3, 3)),
+        np.zeros(4),
+        np.zeros(3, np.int64),
+        np.zeros(1, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros(3),
+    )
 
 
 def discs_of(p) -> Discs:

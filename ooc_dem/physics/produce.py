@@ -56,8 +56,8 @@ block_law = slot(
 put_pair_rows = slot("put_pair_rows(k, slot, law_out, rows): a block's results into their rows")
 body_scene = slot("body_scene(walls, wg, ws): the walls' and the wheel's geometry this step, as a tuple")
 body_rows = slot(
-    "body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt): particle i's rows "
-    "with the wheel, the plates and the walls from body row bat on (bend: the chunk's end); "
+    "body_rows(i, d, cp, scene, with_plates, pscene, lugdir, mesh, body, bat, bend, dt): particle i's rows "
+    "with the wheel (mesh: layout.MeshWheel, its triangles if it has any), the plates and the walls from body row bat on (bend: the chunk's end); "
     "with_plates: a constant at each call (False: no plate, and the plates' code folds away), "
     "pscene: plates.plate_scene of the table; returns (next row, whether one did not fit)"
 )
@@ -148,7 +148,7 @@ def pair_rows(k, law_in, law_out, slot, side_a, side_b, was_on, d, rows, cp, dt)
     put_pair_rows(k, slot, law_out, rows)
 
 
-def body_chunk(ch, first, end, d, cp, scene, with_plates, pscene, lugdir, body, bcount, bcap, dt, err, any_full):
+def body_chunk(ch, first, end, d, cp, scene, with_plates, pscene, lugdir, mesh, body, bcount, bcap, dt, err, any_full):
     """Chunk ch's body rows (the first pass of ``produce``); with_plates is a constant at
     each call, so that a step without plates compiles to the loop it had before plates."""
     lo, hi = chunk_range(ch, first, end)
@@ -156,7 +156,7 @@ def body_chunk(ch, first, end, d, cp, scene, with_plates, pscene, lugdir, body, 
     bend = bat + bcap
     full = False
     for i in range(lo, hi):
-        bat, over = body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt)
+        bat, over = body_rows(i, d, cp, scene, with_plates, pscene, lugdir, mesh, body, bat, bend, dt)
         full = full or over
     bcount[ch] = bat - ch * bcap
     if full:
@@ -164,7 +164,7 @@ def body_chunk(ch, first, end, d, cp, scene, with_plates, pscene, lugdir, body, 
         any_full[0] = True
 
 
-def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err):
+def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, dt, err):
     """Phase 1: one row per contact of particles first..end-1 at time n (module doc): their
     wall and wheel rows and the rows of their own half lists (pairs whose lower id is one
     of them).
@@ -173,7 +173,8 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err):
     body rows), cp: the dimension's CONTACT_PARAMS table [type_a, type_b], walls: its
     WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE records (1,), plates: the
     PLATE table (physics.plates; length 0: none), lugdir:
-    LUG_DIRECTION of each lug at the wheel's angle. Sets err[ERR_BODY_CAPACITY] when a
+    LUG_DIRECTION of each lug at the wheel's angle, mesh: the wheel's triangles
+    (layout.MeshWheel; none: the built-in rim and lugs). Sets err[ERR_BODY_CAPACITY] when a
     chunk's body buffer is full (grow, rerun): then no pair row is made."""
     pos, r = d.pos, d.r
     half_off, pair_a, pair_b, on, rows = pl.half_off, pl.pair_a, pl.pair_b, pl.on, pl.rows
@@ -185,10 +186,10 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, dt, err):
     # two loops, the flag a constant in each: without plates the plates' code is not there
     if plates.shape[0] == 0:
         for ch in prange(N_CHUNKS):
-            body_chunk(ch, first, end, d, cp, scene, False, pscene, lugdir, body, bcount, bcap, dt, err, any_full)
+            body_chunk(ch, first, end, d, cp, scene, False, pscene, lugdir, mesh, body, bcount, bcap, dt, err, any_full)
     else:
         for ch in prange(N_CHUNKS):
-            body_chunk(ch, first, end, d, cp, scene, True, pscene, lugdir, body, bcount, bcap, dt, err, any_full)
+            body_chunk(ch, first, end, d, cp, scene, True, pscene, lugdir, mesh, body, bcount, bcap, dt, err, any_full)
     if any_full[0]:
         return  # no pair row made: rerunnable after growing the body rows
     # ---------------------------------------------------------- pairs (i = a, lower id)

@@ -41,7 +41,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, pt, err, rec, rebuild_no
     global step step0.
 
     kp: layout.KernelParams (dt, gravity (D,), skin, the dimension's CONTACT_PARAMS table
-    cp and WALLS, wg, wc); d: layout.Discs; pl: Pairs; bd: Bodies; forces: layout.Forces
+    cp and WALLS, wg, wc, mesh: the wheel's triangles, layout.MeshWheel); d: layout.Discs; pl: Pairs; bd: Bodies; forces: layout.Forces
     (length 0: not kept); ws: WHEEL_STATE record; pt: layout.Plates (the plates' table,
     moved, and their records: P rows a step; P = 0, ``layout.no_plates()``: none); rec:
     WHEEL_RECORD rows, one per step (wheel runs). Returns (steps done, rebuilds). Stops early with err[ERR_PAIR_CAPACITY]
@@ -96,7 +96,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, pt, err, rec, rebuild_no
         if s < spans.shape[0]:
             first = spans[s, 0]
             end = spans[s, 1]
-        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, pt.table, lugdir, dt, err)
+        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, pt.table, lugdir, kp.mesh, dt, err)
         if err[ERR_BODY_CAPACITY] != 0:
             # no pair row of this step was made (produce): the rows still hold the springs
             # of the last step, so the sync leaves the particles whole; nothing was advanced

@@ -12,7 +12,7 @@ import numpy as np
 from ooc_dem.engine.stepper import EngineError
 from ooc_dem.physics import d3
 from ooc_dem.physics.d3 import N_CHUNKS
-from ooc_dem.physics.layout import EVERY_PARTICLE, NO_CONE, index_dtype, no_plates
+from ooc_dem.physics.layout import EVERY_PARTICLE, NO_CONE, index_dtype, no_mesh, no_plates
 from ooc_dem.physics.d3.layout import (
     BODY_ROW,
     ERR_BODY_CAPACITY,
@@ -135,6 +135,7 @@ class Sim:
             np.ascontiguousarray(walls),
             np.zeros(1, WHEEL_GEOMETRY),
             np.zeros(1, WHEEL_CONTROLS),
+            no_mesh(),
         )
         self.ws = np.zeros(1, WHEEL_STATE)
         self.rec = np.zeros(1, WHEEL_RECORD)

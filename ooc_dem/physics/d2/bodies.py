@@ -154,10 +154,11 @@ def body_scene(walls, wg, ws):
 
 
 @njit(inline="always", cache=True)
-def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt):
+def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, mesh, body, bat, bend, dt):
     """Disc i's rows with the wheel's lugs and rim, then the plates (with_plates: a
     constant; pscene: ``plates.plate_scene``), then the walls, from body row bat on (bend:
-    its chunk's end). Returns (the next row, whether a row did not fit)."""
+    its chunk's end; mesh: unused, a 2D wheel has no mesh). Returns (the next row, whether
+    a row did not fit)."""
     (
         length,
         has_left,

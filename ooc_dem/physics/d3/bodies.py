@@ -4,7 +4,9 @@ the wheel (axle along z, spanning z0 -+ width/2: a rim cylinder of radius R, its
 end faces included, and nlugs plates: the points within cap of the rectangle
 X + s u (s in lug_in..lug_out) times that z span) and the plates (``physics.plates``:
 axis-aligned rectangles with one active face), made into body rows
-(``layout.BODY_ROW``) for ``physics.produce``.
+(``layout.BODY_ROW``) for ``physics.produce``. A wheel given as a triangle mesh
+(``physics.mesh``) replaces the rim and the lugs: one contact with the whole mesh, id
+ID_RIM (``mesh_rows``).
 
 Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM, the
 plates ID_PLATE0 + k, then the walls back -5, front -4, right -3, left -2, bottom -1; a
@@ -20,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from ..history import lookup
+from ..mesh import mesh_contact
 from ..layout import AX_X, AX_Y, AX_Z, ID_PLATE0, SP_X3, SP_Y3, SP_Z3
 from ..plates import other_axes
 from ..wheel import lug_axis_offset
@@ -261,6 +264,60 @@ def plate_rows(i, d, cp, plates, body, bat, bend, p, dt):
     return bat, p, full
 
 
+@njit(cache=True)
+def mesh_rows(i, d, cp, mesh, dxw, dyw, dzw, theta, VX, VY, WZ, wmass, body, bat, bend, p, dt):
+    """Sphere i's row with a wheel given as a triangle mesh (physics.mesh: one contact,
+    at the closest point of the whole mesh, partner id ID_RIM) from body row bat on, p
+    its history cursor; (dxw, dyw, dzw): its centre from the axle point (X, Y, z0).
+    The centre goes into the wheel's body frame (turned by -theta about the axle), the
+    contact's normal and point back. Returns (the next row, p, whether a row did not fit).
+    A call of its own, like ``plate_rows``."""
+    ri = d.r[i]
+    c = math.cos(theta)
+    s = math.sin(theta)
+    found, qbx, qby, qbz, dist = mesh_contact(mesh, c * dxw + s * dyw, c * dyw - s * dxw, dzw, ri)
+    if not found:
+        return bat, p, False
+    # the normal from the closest point to the centre (an edge or a vertex: rounded)
+    nbx = (c * dxw + s * dyw - qbx) / dist
+    nby = (c * dyw - s * dxw - qby) / dist
+    nz = (dzw - qbz) / dist
+    mi = d.mass[i]
+    p, wrote = _wheel_contact(
+        body,
+        bat,
+        bend,
+        i,
+        ID_RIM,
+        d.hist_id,
+        d.hist_s,
+        d.hist_m,
+        d.hist_n[i],
+        p,
+        cp[T_WHEEL, d.mat[i]],
+        c * nbx - s * nby,
+        s * nbx + c * nby,
+        nz,
+        ri - dist,
+        c * qbx - s * qby,
+        s * qbx + c * qby,
+        VX,
+        VY,
+        WZ,
+        d.vel[i, AX_X],
+        d.vel[i, AX_Y],
+        d.vel[i, AX_Z],
+        d.spin[i, SP_X3],
+        d.spin[i, SP_Y3],
+        d.spin[i, SP_Z3],
+        ri,
+        mi * wmass / (mi + wmass),
+        d.inertia[i],
+        dt,
+    )
+    return bat + wrote, p, wrote == 0
+
+
 @njit(inline="always", cache=True)
 def body_force(row):
     """A body row's force on its sphere as (fx, fy, fz) (physics.plates)."""
@@ -282,8 +339,8 @@ def body_scene(walls, wg, ws):
     """The walls' and the wheel's geometry this step (body_rows' scene): the box's length
     and width and which walls there are (in ascending id order: back, front, right, left,
     bottom); whether there is a wheel, its radius, lugs, mass, z span, axle point,
-    velocity and spin, and its reach (the farthest point of a lug or the rim from the
-    axle)."""
+    velocity and spin, its reach (the farthest point of a lug or the rim from the
+    axle), its lateral centre z0 and its angle."""
     wl = walls[0]
     flags = np.array([wl.back > 0.5, wl.front > 0.5, wl.right > 0.5, wl.left > 0.5, wl.bottom > 0.5])
     g = wg[0]
@@ -311,14 +368,17 @@ def body_scene(walls, wg, ws):
         w0.vy,
         w0.wz,
         reach,
+        g.z0,
+        w0.theta,
     )
 
 
 @njit(inline="always", cache=True)
-def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt):
-    """Sphere i's rows with the wheel's lugs and rim, then the plates (with_plates: a
-    constant; pscene: ``plates.plate_scene``), then the walls, from body row bat on (bend:
-    its chunk's end). Returns (the next row, whether a row did not fit)."""
+def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, mesh, body, bat, bend, dt):
+    """Sphere i's rows with the wheel's lugs and rim (or its triangle mesh, when mesh has
+    triangles: ``mesh_rows``), then the plates (with_plates: a constant; pscene:
+    ``plates.plate_scene``), then the walls, from body row bat on (bend: its chunk's end).
+    Returns (the next row, whether a row did not fit)."""
     (
         length,
         width,
@@ -338,6 +398,8 @@ def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt)
         VY,
         WZ,
         reach,
+        z0,
+        theta,
     ) = scene
     pos = d.pos
     xi = pos[i, AX_X]
@@ -357,8 +419,13 @@ def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt)
     dxw = xi - X
     dyw = yi - Y
     d2 = dxw * dxw + dyw * dyw
-    zm = cap_r + ri
-    near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri) and zi > zlo - zm and zi < zhi + zm
+    with_mesh = mesh.tri.shape[0] > 0
+    if with_mesh:  # within the mesh's reach and z extent
+        mb = mesh.bounds
+        near_wheel = wheel_on and d2 < (mb[0] + ri) * (mb[0] + ri) and zi > z0 + mb[1] - ri and zi < z0 + mb[2] + ri
+    else:
+        zm = cap_r + ri
+        near_wheel = wheel_on and d2 < (reach + ri) * (reach + ri) and zi > zlo - zm and zi < zhi + zm
     near_plate = False
     if with_plates:
         _, x_lo, x_hi, y_lo, y_hi, z_lo, z_hi = pscene
@@ -386,7 +453,10 @@ def body_rows(i, d, cp, scene, with_plates, pscene, lugdir, body, bat, bend, dt)
     hn = d.hist_n[i]
     p = 0
     # ------------------------------------------------------ wheel
-    if near_wheel:
+    if near_wheel and with_mesh:
+        bat, p, over = mesh_rows(i, d, cp, mesh, dxw, dyw, zi - z0, theta, VX, VY, WZ, wmass, body, bat, bend, p, dt)
+        full = full or over
+    elif near_wheel:
         meff = mi * wmass / (mi + wmass)
         zc = min(max(zi, zlo), zhi)
         for lug in range(nlugs):

@@ -1,0 +1,110 @@
+"""A 3D wheel's surface read from a triangle mesh file (``wheel.mesh``: STL or OBJ, read
+with trimesh), placed in the wheel's body frame (scaled by ``wheel.mesh_scale``, turned by
+``wheel.mesh_rotate``, moved by ``wheel.mesh_offset``; the axle along z through the
+origin) and indexed for the contact kernel (``physics.mesh.mesh_wheel``).
+
+A file that cannot serve is refused with one line (``ScenarioError``): missing,
+unreadable, not a triangle mesh, no triangle, more than MAX_TRIANGLES, a non-finite
+vertex, or a surface that does not enclose the axle."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..physics.layout import MeshWheel
+from ..physics.mesh import mesh_wheel
+from .schema import ScenarioError, show
+
+MAX_TRIANGLES = 2_000_000
+MAX_MESH_FILE = 512 * 1024 * 1024  # bytes (a binary STL of MAX_TRIANGLES is 100 MB)
+MESH_TYPES = (".stl", ".obj")
+
+
+def read_mesh_triangles(path: str | Path) -> np.ndarray:
+    """The triangles (T, 3, 3) of a mesh file, as the file gives them (no merging, no
+    reordering: the triangle index is the file's)."""
+    import trimesh
+
+    p = Path(path)
+    what = f"wheel.mesh = {show(str(path), 300)}"
+    try:
+        is_file = p.is_file()
+        size = p.stat().st_size if is_file else 0
+    except (OSError, ValueError):
+        is_file, size = False, 0
+    if not is_file:
+        raise ScenarioError(f"{what}: no such file")
+    if p.suffix.lower() not in MESH_TYPES:
+        raise ScenarioError(f"{what}: not an STL or OBJ file (the name must end in .stl or .obj)")
+    if size > MAX_MESH_FILE:
+        raise ScenarioError(f"{what}: {size} bytes; a mesh file is at most {MAX_MESH_FILE} bytes")
+    try:
+        mesh = trimesh.load(str(p), file_type=p.suffix.lower()[1:], force="mesh", process=False)
+    except Exception as e:  # trimesh's readers raise many kinds on a damaged file
+        first = (str(e).splitlines() or [type(e).__name__])[0][:160]
+        raise ScenarioError(f"{what}: unreadable ({first})") from None
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise ScenarioError(f"{what}: not a triangle mesh")
+    faces = np.asarray(mesh.faces)
+    verts = np.asarray(mesh.vertices, np.float64)
+    if faces.ndim != 2 or faces.shape[0] == 0:
+        raise ScenarioError(f"{what}: no triangle")
+    if faces.shape[1] != 3:
+        raise ScenarioError(f"{what}: not a triangle mesh")
+    if faces.shape[0] > MAX_TRIANGLES:
+        raise ScenarioError(f"{what}: {faces.shape[0]} triangles; at most {MAX_TRIANGLES}")
+    if not np.isfinite(verts).all():
+        raise ScenarioError(f"{what}: a vertex is not finite")
+    return np.ascontiguousarray(verts[faces])
+
+
+def rotation(angles_deg) -> np.ndarray:
+    """The rotation matrix of angles (degrees) about x, then y, then z (fixed axes)."""
+    if len(angles_deg) == 0:
+        return np.eye(3)
+    ax, ay, az = (math.radians(a) for a in angles_deg)
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def winding_number(tri: np.ndarray, point=(0.0, 0.0, 0.0)) -> float:
+    """The winding number of the closed surface tri (T, 3, 3) about a point (the signed
+    solid angles of the triangles, Van Oosterom and Strackee, over 4 pi): +-1 inside, 0
+    outside."""
+    a = tri - np.asarray(point, np.float64)
+    la = np.linalg.norm(a, axis=2)
+    x, y, z = a[:, 0], a[:, 1], a[:, 2]
+    lx, ly, lz = la[:, 0], la[:, 1], la[:, 2]
+    num = np.einsum("ij,ij->i", x, np.cross(y, z))
+    den = lx * ly * lz + np.einsum("ij,ij->i", x, y) * lz + np.einsum("ij,ij->i", y, z) * lx
+    den += np.einsum("ij,ij->i", z, x) * ly
+    return float(np.sum(2.0 * np.arctan2(num, den)) / (4.0 * math.pi))
+
+
+def body_frame_triangles(sc) -> np.ndarray:
+    """The scenario's wheel mesh in the wheel's body frame (T, 3, 3), checked."""
+    w = sc.wheel
+    tri = read_mesh_triangles(w.mesh) * w.mesh_scale
+    tri = tri @ rotation(w.mesh_rotate).T
+    if len(w.mesh_offset):
+        tri = tri + np.asarray(w.mesh_offset, np.float64)
+    tri = np.ascontiguousarray(tri)
+    if not np.isfinite(tri).all():
+        raise ScenarioError(f"wheel.mesh = {show(w.mesh, 300)}: a vertex is not finite once scaled")
+    if abs(winding_number(tri)) < 0.5:
+        raise ScenarioError(
+            f"wheel.mesh = {show(w.mesh, 300)}: the surface does not enclose the axle "
+            f"(the origin of the wheel's frame; wheel.mesh_offset, wheel.mesh_rotate place it)"
+        )
+    return tri
+
+
+def load_wheel_mesh(sc) -> MeshWheel:
+    """The kernel's mesh of the scenario's wheel: its triangles in the body frame and
+    their grid (cells of the largest sphere's diameter)."""
+    return mesh_wheel(body_frame_triangles(sc), 2.0 * sc.soil.r_max)

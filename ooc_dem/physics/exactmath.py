@@ -10,7 +10,7 @@ correctly rounded double but for a value lying within 10^-(PRECISION - 17) of a 
 between two doubles; whatever it is, it is the same on every machine.
 
 Scalars for the set-up constants; ``exp_array`` and ``ln_array`` for the grid and the draws
-of a non-uniform grading (about 10 to 30 microseconds a value).
+of a non-uniform grading (one value at a time: docs/benchmarks.md says what that costs).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""sin and cos of the same bits on every machine (numba; + - * and floor only).
+"""sin and cos of the same bits on every machine (numba; + - *, floor and frexp only).
 
 A libm's sin and cos (glibc's, picked per CPU, or Intel's SVML when numba finds it) round as
 each implementation does; the wheel's lugs take their directions from them every step, so a
@@ -8,9 +8,9 @@ written with IEEE operations only, in a fixed order, compiled without fastmath (
 contraction): the argument reduced by pi/2 with a three-part Cody-Waite split (fdlibm's
 ``__ieee754_rem_pio2``, medium range, its extra rounds chosen by the exponents as there),
 then fdlibm's degree-13 sin and degree-14 cos polynomials on [-pi/4, pi/4] with the
-reduction's tail, each in Horner order. Error below one ulp for |x| < 2^19 pi (about
-1.6e6 rad); beyond that (a wheel that has turned 260 000 times) the reduction is not exact
-and the value, still the same on every machine, is less accurate.
+reduction's tail, each in Horner order. Error below one ulp (fdlibm's bound) for
+|x| < 2^19 pi (about 1.6e6 rad); beyond that (a wheel that has turned 260 000 times) the
+reduction is not exact and the value, still the same on every machine, is less accurate.
 """
 
 import math

@@ -169,10 +169,11 @@ def test_a_bed_member_of_deflated_zeros_is_refused_from_its_header(bomb_bed, tmp
 def test_a_bed_cache_entry_of_deflated_zeros_is_rebuilt_with_a_warning(bomb_bed, tmp_path):
     """The cache entry is refused from its header (never inflated), settled again and
     cached again; the run says so in one warning line."""
+    from ooc_dem.app.bed import BED_CACHE_VERSION
     from ooc_dem.model.scenario import load_scenario
 
     sc = load_scenario("quick", BED_SETS[1::2])
-    entry = tmp_path / "cache" / "beds" / f"{sc.bed_hash()}.v2.npz"
+    entry = tmp_path / "cache" / "beds" / f"{sc.bed_hash()}.v{BED_CACHE_VERSION}.npz"
     entry.parent.mkdir(parents=True)
     shutil.copy(bomb_bed, entry)
     r, lines = rm.measure(

@@ -354,9 +354,11 @@ def test_run_refuses_a_bad_bed_in_one_line(prepared_bed, tmp_path, case):
 def test_a_refused_cache_entry_is_rebuilt_with_a_warning(prepared_bed, tmp_path):
     """A cached bed with one disc removed (a consistent file: it loads) is refused against
     soil.n, rebuilt and cached again; the run says so in one warning line."""
+    from ooc_dem.app.bed import BED_CACHE_VERSION
+
     cache = tmp_path / "cache"
     shutil.copytree(prepared_bed / "cache", cache)
-    (entry,) = (cache / "beds").glob("*.v2.npz")
+    (entry,) = (cache / "beds").glob(f"*.v{BED_CACHE_VERSION}.npz")
     with np.load(entry) as z:
         arrays = {k: z[k][:-1] for k in z.files}
     np.savez(entry, **arrays)

@@ -6,9 +6,9 @@ the machine's facts and the path of the machine's own trace (docs/reference/bits
 
 - the trace of this machine is the fixture's, stage by stage, and ends at the state hash
   pinned for `ooc-dem run quick-3d --steps 3000`;
-- the contact table's constants computed with libm's log (and sqrt(5/6)) are correctly
-  rounded (numpy's r**3 of the masses and libm's cos and sin of the lugs are not everywhere:
-  the trace counts them);
+- the set-up values are correctly rounded: the contact table's constants made with ln
+  (exactmath) and sqrt(5/6), every sphere's mass and inertia (exact operations in the
+  model's order, no pow); the lugs' cos and sin (detmath) are counted only;
 - a doctored trace is reported at its first differing stage with the entries that differ.
 """
 
@@ -42,7 +42,7 @@ def this_trace(tmp_path_factory):
 def test_trace_is_the_fixtures(this_trace):
     got, path = this_trace
     want = json.loads(FIXTURE.read_text())
-    assert want["state_hash"] in QUICK3D_3000  # the fixture is a trace of the pinned run
+    assert want["state_hash"] == QUICK3D_3000  # the fixture is a trace of the pinned run
     problem = trace_bits.first_difference(want, got)
     if problem is None:
         return
@@ -64,15 +64,21 @@ def test_trace_is_the_fixtures(this_trace):
     )
 
 
-def test_setup_constants_are_correctly_rounded(this_trace):
-    """The contact table's constants computed with libm (log of the restitution in beta) and
-    sqrt(5/6) are the correctly rounded values here. numpy's r**3 of the masses and libm's
-    cos and sin of the lugs are not everywhere (the trace's ``correctly_rounded`` counts
-    them; their bits are the trace's ``fill`` and ``lug directions`` stages)."""
+def test_setup_values_are_correctly_rounded(this_trace):
+    """The contact table's constants made with ln (exactmath: decimal, no libm) and sqrt(5/6)
+    are the correctly rounded values; every mass and inertia of the pinned fills is its
+    formula's value with each operation correctly rounded (r * r * r, not a SIMD pow)."""
     got, _ = this_trace
-    constants = [c for c in got["correctly_rounded"] if c["kind"] == "constant"]
-    assert {c["name"] for c in constants} >= {"log(0.3)", "sqrt(5/6)"}
-    wrong = [f"{c['name']} = {c['value']} (correct: {c['correct']}) in {c['where']}" for c in constants if not c["ok"]]
+    checked = [c for c in got["correctly_rounded"] if c["kind"] in ("constant", "array")]
+    assert {c["name"] for c in checked} >= {"ln(0.3)", "sqrt(5/6)"}
+    assert sum(1 for c in checked if c["kind"] == "array") == 2  # quick-3d and bed3d-20000's tile
+    wrong = [
+        f"{c['name']} = {c['value']} (correct: {c['correct']}) in {c['where']}"
+        if c["kind"] == "constant"
+        else f"{c['name']}: {c['wrong']} wrong in {c['where']}"
+        for c in checked
+        if not c["ok"]
+    ]
     assert not wrong, "not correctly rounded: " + "; ".join(wrong)
 
 

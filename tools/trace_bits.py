@@ -26,9 +26,10 @@ takes them), vectors one component at a time (``pos[y]``, ``hist_s[z]``); ``orde
 ids in the stepper's memory order. A trace also holds, as information never compared: the
 machine's facts (CPU, glibc, numpy and its SIMD targets, numba and its target CPU),
 ``cached_bed`` (whether this machine's bed cache holds the bed just settled: the pinned
-runs read the cache), and ``correctly_rounded``: the set-up constants that come from libm
-or numpy's pow (``log`` of the restitution, ``r**3`` of the masses, the lugs' ``cos`` and
-``sin``) against their correctly rounded values (decimal and fractions arithmetic, no libm).
+runs read the cache), and ``correctly_rounded``: the set-up values against their correctly
+rounded values (decimal and fractions arithmetic, no libm): ``ln`` of the restitution
+(exactmath), the masses and inertias (exact operations in the model's order), and, counted
+only, the lugs' ``cos`` and ``sin`` (detmath: within an ulp, not always correctly rounded).
 
 Usage:
     python tools/trace_bits.py                 # this machine's trace, JSON on stdout
@@ -284,13 +285,22 @@ def cr_cos_sin(x: float) -> tuple[float, float]:
         return _cr(cos), _cr(sin)
 
 
-def cr_cube(r: float) -> float:
-    return float(Fraction(r) ** 3)  # Fraction to float: correctly rounded
+def cr_product(*factors: float) -> float:
+    """The product of doubles taken left to right, each product correctly rounded to a
+    double (fractions: exact, then rounded), as IEEE 754 multiplies."""
+    out = Fraction(factors[0])
+    for f in factors[1:]:
+        out = Fraction(float(out * Fraction(f)))
+    return float(out)
 
 
 def correctly_rounded(cases: dict[str, Any], wheel_thetas: list[float]) -> list[dict[str, Any]]:
-    """The set-up constants computed with libm (or numpy's pow) against their correctly
-    rounded values: one entry a constant (``ok``: bit-equal), arrays as counts."""
+    """The set-up values against their correctly rounded values (decimal and fractions, no
+    libm): the restitution's ln (exactmath), sqrt(5/6), each sphere's mass and inertia as
+    exact operations in the model's order (``state.Particles.new``); one entry a constant
+    (``ok``: bit-equal), arrays as counts. The lugs' cos and sin (detmath: within an ulp,
+    not always correctly rounded) are counted as information."""
+    from ooc_dem.physics import exactmath
     from ooc_dem.physics.d3 import contact as C3
     from ooc_dem.physics.layout import LUG_DIRECTION
     from ooc_dem.physics.wheel import lug_directions
@@ -318,21 +328,24 @@ def correctly_rounded(cases: dict[str, Any], wheel_thetas: list[float]) -> list[
         }
     )
     for e in restitutions:
-        add(f"log({e!r})", "physics/d3/layout.py beta_of_restitution", math.log(e), cr_log(e))
+        add(f"ln({e!r})", "physics/exactmath.py ln (beta_of_restitution)", exactmath.ln(e), cr_log(e))
     add("sqrt(5/6)", "physics/d3/contact.py SQRT_5_6", C3.SQRT_5_6, cr_sqrt(5.0 / 6.0))
     for label, sc in cases.items():
-        r = pinned_fill(sc).r
-        cubes = r**3  # as state.Particles.new takes them
-        wrong = [k for k in range(len(r)) if cubes[k] != cr_cube(float(r[k]))]
+        fill = pinned_fill(sc)
+        c = sc.soil.density * (4.0 / 3.0) * math.pi
+        wrong = []
+        for k in range(len(fill.r)):
+            r = float(fill.r[k])
+            mass = cr_product(c, cr_product(r, r, r))
+            if fill.mass[k] != mass or fill.inertia[k] != cr_product(0.4, mass, r, r):
+                wrong.append(k)
         out.append(
             {
-                "name": f"r**3 of {label}'s fill ({len(r)} radii)",
+                "name": f"mass, inertia of {label}'s fill ({len(fill.r)} spheres)",
                 "kind": "array",
-                "where": "model/state.py Particles.new (numpy power)",
+                "where": "model/state.py Particles.new (rho 4/3 pi (r r r), 0.4 m r r)",
                 "wrong": len(wrong),
-                "first_wrong": [exact(r[k]) for k in wrong[:3]],
-                # numpy's own SIMD pow (on AVX-512 CPUs) or libm's pow
-                "not_libm": int(sum(1 for k in range(len(r)) if cubes[k] != math.pow(float(r[k]), 3.0))),
+                "first_wrong": [exact(fill.r[k]) for k in wrong[:3]],
                 "ok": not wrong,
             }
         )
@@ -340,7 +353,7 @@ def correctly_rounded(cases: dict[str, Any], wheel_thetas: list[float]) -> list[
     lugdir = np.zeros(nlugs, LUG_DIRECTION)
     for theta in wheel_thetas:
         lug_directions(theta, nlugs, lugdir)
-        wrong: list[int] = []
+        wrong = []
         for k in range(nlugs):
             phi = theta + 2.0 * math.pi * k / nlugs  # as the kernel computes it
             cos, sin = cr_cos_sin(phi)
@@ -350,7 +363,7 @@ def correctly_rounded(cases: dict[str, Any], wheel_thetas: list[float]) -> list[
             {
                 "name": f"lug cos/sin at theta = {exact(theta)}",
                 "kind": "step",
-                "where": "physics/wheel.py lug_directions (numba: libm cos, sin)",
+                "where": "physics/wheel.py lug_directions (detmath: within an ulp, the same bits everywhere)",
                 "wrong": len(wrong),
                 "first_wrong": [exact(theta + 2.0 * math.pi * k / nlugs) for k in wrong[:3]],
                 "ok": not wrong,
@@ -363,9 +376,9 @@ def correctly_rounded(cases: dict[str, Any], wheel_thetas: list[float]) -> list[
 def cached_bed(sc, bed) -> dict[str, Any]:
     """Whether this machine's bed cache holds the bed just settled (information: a cache
     made by other code, or on another machine, gives a run other bits)."""
-    from ooc_dem.app.bed import cache_dir, read_bed
+    from ooc_dem.app.bed import bed_cache_path, read_bed
 
-    path = cache_dir() / "beds" / f"{sc.bed_hash()}.v2.npz"
+    path = bed_cache_path(sc)
     if not path.is_file():
         return {"path": str(path), "present": False}
     try:

@@ -130,10 +130,14 @@ def initial_fill_3d(sc: Scenario) -> Particles:
 
 
 def mean_speed(p: Particles) -> float:
-    """Mean particle speed (2D: hypot of the two components, as ever)."""
-    if p.dim == 2:
-        return float(np.mean(np.hypot(p.vel[:, AX_X], p.vel[:, AX_Y])))
-    return float(np.mean(np.sqrt(np.einsum("ij,ij->i", p.vel, p.vel))))
+    """Mean particle speed; each speed the square root of its components' squares summed in
+    axis order (exact operations: libm's hypot and einsum's vectorised sums may round
+    otherwise on another machine, and the speed decides when settling stops)."""
+    v = p.vel
+    sq = v[:, 0] * v[:, 0]
+    for k in range(1, p.dim):
+        sq = sq + v[:, k] * v[:, k]
+    return float(np.mean(np.sqrt(sq)))
 
 
 def wheel_footprint(sc: Scenario) -> tuple[float, float] | None:
@@ -262,7 +266,8 @@ def settled_column(sc: Scenario, progress: SettleProgress | None = None) -> Part
     col = _zero_motion(col).sorted_by_id()
     R = sc.repose.column_radius
     if sc.dim == 3:
-        radial = np.hypot(col.pos[:, AX_X] - R, col.pos[:, AX_Z] - R)
+        dx, dz = col.pos[:, AX_X] - R, col.pos[:, AX_Z] - R
+        radial = np.sqrt(dx * dx + dz * dz)  # exact operations, not libm's hypot
         inside = np.flatnonzero(radial <= R - sc.soil.r_max)
     else:  # the box of width 2R is the column: every disc is inside
         inside = np.flatnonzero(np.abs(col.pos[:, AX_X] - R) <= R)
@@ -358,28 +363,35 @@ def read_bed(path: str | os.PathLike[str], sc: Scenario, label: str) -> Particle
     return p
 
 
+# The bed cache's version: a bed is cached under <bed hash>.v<N>.npz, N raised whenever the
+# code that generates or settles a bed gives other bits, so that no older bed is reused
+# (and an older engine sharing the cache never sees, nor deletes, the new ones).
+# 3: masses as r * r * r, restitution logs and grading radii correctly rounded (the same
+# bits on every machine); 2: the state's format 2 (pos, vel, ...).
+BED_CACHE_VERSION = 3
+
+
+def bed_cache_path(sc: Scenario) -> Path:
+    """The bed cache's file of a scenario's settled bed."""
+    return cache_dir() / "beds" / f"{sc.bed_hash()}.v{BED_CACHE_VERSION}.npz"
+
+
 def _cached(
     sc: Scenario, build: Callable[[SettleProgress | None], Particles], progress: SettleProgress | None = None
 ) -> Particles:
-    # format-2 beds (pos, vel, ...) under their own name, so that an engine of format 1
-    # sharing the cache never sees (and deletes) them; a format-1 cache (x, y, ...) still
-    # loads: Particles converts it (state.upgrade_v1)
-    beds = cache_dir() / "beds"
-    path = beds / f"{sc.bed_hash()}.v2.npz"
+    path = bed_cache_path(sc)
     from ..model.state_check import StateError
 
-    for f in (path, beds / f"{sc.bed_hash()}.npz"):
-        if f.is_file():
-            try:
-                p = read_bed(f, sc, "cached bed")  # the cache is a file like any other
-                # the capacity is no part of the bed's bits (nor of its hash): a bed cached
-                # at another capacity is refitted to this scenario's
-                return p if p.hist_cap == sc.hist_cap else p.with_hist_cap(sc.hist_cap)
-            except Exception as e:
-                if isinstance(e, StateError):
-                    print(f"ooc-dem: warning: {e}; rebuilding it", file=sys.stderr, flush=True)
-                if f == path:
-                    path.unlink(missing_ok=True)
+    if path.is_file():
+        try:
+            p = read_bed(path, sc, "cached bed")  # the cache is a file like any other
+            # the capacity is no part of the bed's bits (nor of its hash): a bed cached
+            # at another capacity is refitted to this scenario's
+            return p if p.hist_cap == sc.hist_cap else p.with_hist_cap(sc.hist_cap)
+        except Exception as e:
+            if isinstance(e, StateError):
+                print(f"ooc-dem: warning: {e}; rebuilding it", file=sys.stderr, flush=True)
+            path.unlink(missing_ok=True)
     p = build(progress)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")

@@ -135,7 +135,7 @@ class LiveDomains:
         # the compiled sweeps' per-sub-domain flags, lane plan and rebuild thresholds
         self.flags = [np.zeros(4, np.int64) for _ in range(self.D)]
         self._lane_plan = self._lanes()
-        self._rebuild2 = np.array([0.25 * st.model.skin**2 for st in self.steppers])
+        self._rebuild2 = np.array([0.25 * (st.model.skin * st.model.skin) for st in self.steppers])
         # the refresh and the ownership share the rows between the threads in pieces
         self._pieces = row_pieces(self.off)
         self._part = np.zeros((len(self._pieces), 2))

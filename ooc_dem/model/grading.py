@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..physics import exactmath
+
 if TYPE_CHECKING:
     from .schema import Soil
 
@@ -153,7 +155,8 @@ def draw_radii(g: Grading, n: int, rng: np.random.Generator, k: int) -> NDArray[
     if g.kind == "uniform":
         return rng.uniform(g.r_min, g.r_max, n)
     log_r, cdf = number_cdf(g, k)
-    r = np.exp(np.interp(rng.random(n), cdf, log_r))
+    # exp correctly rounded (exactmath), not numpy's: a drawn radius is the same on every machine
+    r = exactmath.exp_array(np.interp(rng.random(n), cdf, log_r))
     return np.clip(r, g.r_min, g.r_max)
 
 
@@ -169,24 +172,25 @@ def number_cdf(g: Grading, k: int) -> tuple[NDArray[np.float64], NDArray[np.floa
 def _tabulated(g: Grading, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(ln r, the number CDF not yet normalised) on number_cdf's grid."""
     lo, hi = g.r_min, g.r_max
-    m = max(2, int(math.log10(hi / lo) * _POINTS_PER_DECADE) + 1)
-    log_r = np.linspace(math.log(lo), math.log(hi), m)
-    r = np.exp(log_r)
+    # every ln and exp of the grid correctly rounded (exactmath): the same CDF on every machine
+    m = max(2, int(exactmath.log10(hi / lo) * _POINTS_PER_DECADE) + 1)
+    log_r = np.linspace(exactmath.ln(lo), exactmath.ln(hi), m)
+    r = exactmath.exp_array(log_r)
     if g.kind == "normal":
         with np.errstate(over="ignore", under="ignore"):  # far tails of a narrow law: 0
-            density = np.exp(-0.5 * ((r - g.r_mean) / g.r_std) ** 2) * r  # per unit ln r
+            density = exactmath.exp_array(-0.5 * ((r - g.r_mean) / g.r_std) ** 2) * r  # per unit ln r
     elif g.kind == "lognormal":
         with np.errstate(over="ignore", under="ignore"):
-            density = np.exp(-0.5 * ((log_r - math.log(g.r_median)) / math.log(g.gsd)) ** 2)
+            density = exactmath.exp_array(-0.5 * ((log_r - exactmath.ln(g.r_median)) / exactmath.ln(g.gsd)) ** 2)
     else:
         # mass per unit ln d: the slope of the log-linear passing curve between two sieves,
         # none below the first sieve or above the last (the curve says nothing there)
-        log_d = np.log(np.asarray(g.sizes, np.float64))
+        log_d = exactmath.ln_array(g.sizes)
         slope = np.diff(np.asarray(g.passing, np.float64)) / np.diff(log_d)
-        x = log_r + math.log(2.0)
+        x = log_r + exactmath.ln(2.0)
         seg = np.clip(np.searchsorted(log_d, x, side="right") - 1, 0, len(slope) - 1)
         inside = (x >= log_d[0]) & (x <= log_d[-1])
-        density = np.where(inside, slope[seg], 0.0) * np.exp(-k * log_r)  # number = mass / d^k
+        density = np.where(inside, slope[seg], 0.0) * exactmath.exp_array(-k * log_r)  # number = mass / d^k
     cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(log_r))])
     return log_r, cdf
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from ..physics import exactmath
 from .schema import ScenarioError, did_you_mean, show, show_key
 
 # elastic constants of common materials (room temperature; handbook values, rounded)
@@ -67,10 +68,11 @@ LEGACY_RESTITUTION = 0.5
 
 def zeta_of_restitution(e: float) -> float:
     """The damping ratio of a linear spring-dashpot whose rebound has restitution e (the
-    force allowed to pull): -ln e / sqrt(pi^2 + ln^2 e); 0 for e = 1."""
+    force allowed to pull): -ln e / sqrt(pi^2 + ln^2 e); 0 for e = 1. ln correctly rounded
+    (the same on every machine: exactmath)."""
     if e >= 1.0:
         return 0.0
-    le = math.log(e)
+    le = exactmath.ln(e)
     return -le / math.sqrt(le * le + math.pi * math.pi)
 
 
@@ -79,7 +81,7 @@ def restitution_of_zeta(zeta: float) -> float:
     allowed to pull): exp(-pi zeta / sqrt(1 - zeta^2)); 0 from zeta = 1 on."""
     if zeta >= 1.0:
         return 0.0
-    return math.exp(-math.pi * zeta / math.sqrt(1.0 - zeta * zeta))
+    return exactmath.exp(-math.pi * zeta / math.sqrt(1.0 - zeta * zeta))
 
 
 def _material(raw: Any, body: str) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..physics.detmath import det_cos, det_sin
 from ..physics.layout import MeshWheel
 from ..physics.mesh import mesh_wheel
 from .schema import ScenarioError, show
@@ -62,14 +63,26 @@ def read_mesh_triangles(path: str | Path) -> np.ndarray:
 
 
 def rotation(angles_deg) -> np.ndarray:
-    """The rotation matrix of angles (degrees) about x, then y, then z (fixed axes)."""
+    """The rotation matrix of angles (degrees) about x, then y, then z (fixed axes). Made
+    with the kernels' deterministic cos/sin and products written out in a fixed order (no
+    libm, no BLAS), so the wheel's vertices are the same bits on every machine."""
     if len(angles_deg) == 0:
         return np.eye(3)
     ax, ay, az = (math.radians(a) for a in angles_deg)
-    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
-    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
-    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
-    return rz @ ry @ rx
+    rx = [[1.0, 0.0, 0.0], [0.0, det_cos(ax), -det_sin(ax)], [0.0, det_sin(ax), det_cos(ax)]]
+    ry = [[det_cos(ay), 0.0, det_sin(ay)], [0.0, 1.0, 0.0], [-det_sin(ay), 0.0, det_cos(ay)]]
+    rz = [[det_cos(az), -det_sin(az), 0.0], [det_sin(az), det_cos(az), 0.0], [0.0, 0.0, 1.0]]
+    return np.array(_product(rz, _product(ry, rx)))
+
+
+def _product(a: list[list[float]], b: list[list[float]]) -> list[list[float]]:
+    return [[a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j] for j in range(3)] for i in range(3)]
+
+
+def rotate(tri: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """tri (..., 3) turned by rot, each component summed in a fixed order (not matmul)."""
+    x, y, z = tri[..., 0], tri[..., 1], tri[..., 2]
+    return np.stack([rot[i, 0] * x + rot[i, 1] * y + rot[i, 2] * z for i in range(3)], axis=-1)
 
 
 def winding_number(tri: np.ndarray, point=(0.0, 0.0, 0.0)) -> float:
@@ -90,7 +103,8 @@ def body_frame_triangles(sc) -> np.ndarray:
     """The scenario's wheel mesh in the wheel's body frame (T, 3, 3), checked."""
     w = sc.wheel
     tri = read_mesh_triangles(w.mesh) * w.mesh_scale
-    tri = tri @ rotation(w.mesh_rotate).T
+    if len(w.mesh_rotate):
+        tri = rotate(tri, rotation(w.mesh_rotate))
     if len(w.mesh_offset):
         tri = tri + np.asarray(w.mesh_offset, np.float64)
     tri = np.ascontiguousarray(tri)

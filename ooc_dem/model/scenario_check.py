@@ -450,7 +450,8 @@ def repose_fill(sc: Scenario) -> tuple[int, float]:
     if sc.dim == 2:  # the box is the column: its discs are all kept (initial_fill's rows)
         return s.n, 2 * s.r_max + (-(-s.n // across) - 1) * pitch
     inner = max(R - s.r_max, 0.5 * s.r_max)
-    n_fill = int(math.ceil(REPOSE_FILL_MARGIN * s.n * (2 * R / inner) ** 2 / math.pi))
+    ratio = 2 * R / inner
+    n_fill = int(math.ceil(REPOSE_FILL_MARGIN * s.n * (ratio * ratio) / math.pi))
     rows = -(-n_fill // (across * across))
     return n_fill, 2 * s.r_max + (rows - 1) * pitch
 

@@ -221,7 +221,8 @@ class Particles:
             p.mass[:] = density * np.pi * p.r * p.r * thickness
             p.inertia[:] = 0.5 * p.mass * p.r * p.r
         else:
-            p.mass[:] = density * (4.0 / 3.0) * np.pi * p.r**3
+            # r * r * r, not r**3: numpy's pow rounds per CPU (its AVX-512 pow is not libm's)
+            p.mass[:] = density * (4.0 / 3.0) * np.pi * (p.r * p.r * p.r)
             p.inertia[:] = 0.4 * p.mass * p.r * p.r
         if mat is not None:
             p.mat[:] = mat

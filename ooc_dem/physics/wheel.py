@@ -18,17 +18,19 @@ import numpy as np
 from numba import njit
 
 from .chunks import N_CHUNKS
+from .detmath import det_cos, det_sin
 from .layout import ID_RIM
 
 
 @njit(cache=True)
 def lug_directions(theta, nlugs, lugdir):
     """Unit vectors of the lugs at wheel angle theta (lug k at theta + 2 pi k / n);
-    lugdir: LUG_DIRECTION records."""
+    lugdir: LUG_DIRECTION records. cos and sin of the same bits on every machine (detmath),
+    not libm's."""
     for k in range(nlugs):
         phi = theta + 2.0 * math.pi * k / nlugs
-        lugdir[k].ux = math.cos(phi)
-        lugdir[k].uy = math.sin(phi)
+        lugdir[k].ux = det_cos(phi)
+        lugdir[k].uy = det_sin(phi)
 
 
 @njit(inline="always", cache=True)

@@ -21,6 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
+from ..detmath import det_cos, det_sin
 from ..history import lookup
 from ..mesh import mesh_contact
 from ..layout import AX_X, AX_Y, AX_Z, ID_PLATE0, SP_X3, SP_Y3, SP_Z3
@@ -273,8 +274,9 @@ def mesh_rows(i, d, cp, mesh, dxw, dyw, dzw, theta, VX, VY, WZ, wmass, body, bat
     contact's normal and point back. Returns (the next row, p, whether a row did not fit).
     A call of its own, like ``plate_rows``."""
     ri = d.r[i]
-    c = math.cos(theta)
-    s = math.sin(theta)
+    # the lugs' deterministic cos/sin: libm's may round otherwise on another machine
+    c = det_cos(theta)
+    s = det_sin(theta)
     found, qbx, qby, qbz, dist = mesh_contact(mesh, c * dxw + s * dyw, c * dyw - s * dxw, dzw, ri)
     if not found:
         return bat, p, False

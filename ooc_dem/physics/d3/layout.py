@@ -37,6 +37,7 @@ import numpy as np
 # the records both dimensions share (physics.layout): the wheel's, the error flags, the
 # material types, the law blocks' sizes, the partner ids of the wheel's parts and of the
 # walls 2D has too
+from .. import exactmath
 from ..layout import (
     ERR_BODY_CAPACITY,  # noqa: F401
     ERR_HIST_OVERFLOW,  # noqa: F401
@@ -199,10 +200,11 @@ def effective_shear_modulus(E1, nu1, E2=math.inf, nu2=0.0):
 
 
 def beta_of_restitution(e):
-    """beta = ln e / sqrt(ln^2 e + pi^2) (<= 0; 0 for e = 1)."""
+    """beta = ln e / sqrt(ln^2 e + pi^2) (<= 0; 0 for e = 1); ln correctly rounded (the same
+    on every machine: exactmath)."""
     if e >= 1.0:
         return 0.0
-    le = math.log(e)
+    le = exactmath.ln(e)
     return le / math.sqrt(le * le + math.pi * math.pi)
 
 

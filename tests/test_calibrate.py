@@ -179,3 +179,48 @@ def test_calibrate_can_search_the_rolling_friction_instead(tmp_path):
     best = result["evaluations"][result["chosen"]]
     assert f"contact.soil_soil.rolling_friction={best['rolling_friction']!r}" in result["overrides"]
     assert not any(o.startswith("contact.soil_soil.friction=") for o in result["overrides"])
+
+
+def test_friction_step_brackets_a_noisy_flat_friction_angle():
+    """The shear tests of a loose sample (grain density 2900 kg/m^3, a sensitivity run of
+    the Ding soil): phi 34.22 deg at mu 0.5 but 34.48 at 0.458 (noise: phi is flat in mu
+    there), so a secant through them steps up, away from the 31.9 deg target. The bracketed
+    step goes down, faster while the tests stay above, and inside the bracket once one
+    is below."""
+    from ooc_dem.app.calibrate import friction_step
+
+    def tan(deg):
+        return math.tan(math.radians(deg))
+
+    target = tan(31.9)
+    tested = [(0.5, tan(34.2222)), (0.4576, tan(34.4796))]
+    x = friction_step(tested, target)
+    assert x < 0.4576 * target / tan(34.4796) < 0.4576  # down, and by more than one ratio
+    tested.append((0.01, tan(10.03)))
+    x = friction_step(tested, target)
+    assert 0.01 + 0.1 * 0.4476 <= x <= 0.4576 - 0.1 * 0.4476
+    # noise inverts the bracket (a test below the target at a higher mu): bisect it
+    assert friction_step([(0.3, tan(33.0)), (0.35, tan(31.0))], target) == pytest.approx(0.325, rel=1e-12)
+    # regula falsi landing near an end of the bracket: bisect instead
+    assert friction_step([(0.5, tan(40.0)), (0.1, tan(31.89))], target) == pytest.approx(0.3, rel=1e-12)
+
+
+def test_friction_step_converges_on_a_monotone_angle():
+    """phi(mu) rising steeply then flat (as the shear tests show), from the scenario's 0.5
+    and the search's proportional first step: within the search's 0.5 deg of the target
+    in at most 8 tests (the default), for a flat and a gentler curve."""
+    from ooc_dem.app.calibrate import friction_step
+
+    for phi in (
+        lambda m: 10.0 + 26.0 * (1.0 - math.exp(-m / 0.08)),
+        lambda m: 15.0 + 30.0 * (1.0 - math.exp(-m / 0.25)),
+    ):
+        target = math.tan(math.radians(31.9))
+        tested = [(0.5, math.tan(math.radians(phi(0.5))))]
+        x = 0.5 * target / tested[0][1]
+        for _ in range(7):
+            tested.append((x, math.tan(math.radians(phi(x)))))
+            if abs(phi(x) - 31.9) < 0.5:
+                break
+            x = min(max(friction_step(tested, target, 0.01), 0.01), 3.0)
+        assert abs(phi(tested[-1][0]) - 31.9) < 0.5, tested

@@ -17,9 +17,10 @@ The search is small and stated, every value it reports measured:
    sample at ``sigmas`` (the stresses under the wheel by default), the Mohr-Coulomb fit of
    the peaks (or residuals: ``envelope``) giving phi and c. The soil-soil friction mu (or,
    ``vary``, its rolling friction) moves tan(phi), the cohesion energy density k moves c,
-   nearly independently: each evaluation takes a secant step in each (the first from the
-   scenario's value without cohesion, the second from a proportional guess of the value and
-   a Rumpf-type guess of k), until both are
+   nearly independently: the first test takes the scenario's value without cohesion, the
+   second a proportional guess of the value and a Rumpf-type guess of k; then each test
+   takes a bracketed step in the value (``friction_step``: phi is noisy and can be flat in
+   it) and a secant step in k, until both are
    within tolerance or ``evaluations`` shear tests are spent. The chosen parameters are
    those of the evaluation nearest the targets; its measured phi, c and their standard
    errors are the result.
@@ -90,7 +91,7 @@ class CalibrateOptions:
     vary: str = "friction"  # the soil-soil value that moves phi: "friction" or "rolling_friction"
     inertial: float = 1.0e-3  # the shear tests' inertial number at the smallest stress
     displacement: float = 0.10  # the shear displacement, a fraction of the box's length
-    evaluations: int = 5  # shear tests at most
+    evaluations: int = 8  # shear tests at most
     pours: int = 6  # pours at most (density)
     angle_tolerance: float = 0.5  # deg
     cohesion_tolerance: float = 0.10  # relative
@@ -230,6 +231,44 @@ def _secant(x0: float, y0: float, x1: float, y1: float, target: float) -> float 
     return x1 + (target - y1) * (x1 - x0) / (y1 - y0)
 
 
+def friction_step(tested: list[tuple[float, float]], target: float, lowest: float = 0.0) -> float:
+    """The next value of the varied parameter x for tan(phi) = target, from the (x, tan phi)
+    tested so far, in order. phi rises with x, but flatly where the packing, not the
+    friction, holds the sample, and a shear test's phi is noisy (its standard error, a
+    fraction of a degree to two), so a plain secant can step the wrong way or barely move.
+    Once tests lie on both sides of the target, the next x is regula falsi inside that
+    bracket, or its midpoint when the last two tests fell on one side (so the bracket at
+    least halves every other test), when regula falsi would land near an end, or when noise
+    inverts the bracket. Before, x takes the farther of the ratio of the tangents (raised
+    to 1, 2, 4, ... while the tests stay on one side) and a secant of positive slope
+    through the last two, not below ``lowest``."""
+    below = [t for t in tested if t[1] < target]
+    above = [t for t in tested if t[1] >= target]
+    if below and above:
+        a = max(below)  # the highest x still below the target
+        b = min(above)  # the lowest x already above it
+        mid = 0.5 * (a[0] + b[0])
+        if a[0] >= b[0] or (len(tested) >= 2 and (tested[-1][1] < target) == (tested[-2][1] < target)):
+            return mid
+        w = b[0] - a[0]
+        x = a[0] + (target - a[1]) * w / (b[1] - a[1])
+        return x if a[0] + 0.1 * w <= x <= b[0] - 0.1 * w else mid
+    last_x, last_tan = tested[-1]
+    run = 1  # the tests so far on the last one's side
+    while run < len(tested) and (tested[-1 - run][1] < target) == (last_tan < target):
+        run += 1
+    ratio = target / last_tan
+    if last_x <= 0.0:
+        return 0.05 if ratio > 1.0 else 0.0
+    x = last_x * ratio ** (2 ** min(run - 1, 6))
+    if len(tested) >= 2:
+        step = _secant(*tested[-2], *tested[-1], target)
+        px, ptan = tested[-2]
+        if step is not None and (last_tan - ptan) * (last_x - px) > 0:  # phi rising with x
+            x = max(x, step) if ratio > 1.0 else min(x, step)
+    return max(x, lowest)
+
+
 def _miss(ev: dict[str, Any], lab: LabSoil, opts: CalibrateOptions, cohesion: bool = True) -> float:
     """An evaluation's distance from the targets in units of the tolerances (``cohesion``
     False: the friction angle's only)."""
@@ -328,14 +367,7 @@ def run_calibrate(
                 )
         else:
             prev = evaluations[-2]
-            step_x = _secant(
-                prev[vary],
-                math.tan(math.radians(prev["phi_deg"])),
-                last[vary],
-                math.tan(math.radians(last["phi_deg"])),
-                tan_t,
-            )
-            x = last[vary] * ratio if step_x is None else step_x
+            x = friction_step([(e[vary], math.tan(math.radians(e["phi_deg"]))) for e in evaluations], tan_t, lo_x)
             k = last["cohesion_energy"]
             if reach_c:
                 step_k = _secant(prev["cohesion_energy"], prev["c"], last["cohesion_energy"], last["c"], lab.cohesion)

@@ -381,7 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="friction",
         help="the soil-soil value searched for the friction angle (default friction)",
     )
-    q.add_argument("--evaluations", type=_nonneg_int, default=5, help="shear tests at most (default 5)")
+    q.add_argument("--evaluations", type=_nonneg_int, default=8, help="shear tests at most")
     q.add_argument("--out", required=True)
     q.add_argument("--no-progress", action="store_true")
 

@@ -88,7 +88,7 @@ class CalibrationChoices:
     grains: int = 2000  # grains in the shear box
     sigmas: tuple[float, ...] = (3.0e3, 6.0e3, 9.0e3, 12.0e3)  # Pa, the shear tests' normal stresses
     envelope: str = "peak"  # the Mohr-Coulomb line calibrated: "peak" or "residual"
-    evaluations: int = 5  # shear tests at most
+    evaluations: int = 8  # shear tests at most
     vary: str = "friction"  # the soil-soil value searched for the friction angle (or "rolling_friction")
 
 

@@ -155,6 +155,8 @@ def allowed_values(table: str, key: str) -> str:
         if key == "kind":
             return f"one of {', '.join(map(repr, KINDS))}"
         return "the kind's own keys only (docs/reference/grading.md)"
+    if (table, key) == ("wheel", "outline"):
+        return "a file's path or an array of 3 to 1e5 points [x, y] (checked when the wheel is on)"
     if (table, key) in _CONSTRAINTS:
         return str(_CONSTRAINTS[(table, key)][1])
     return "true or false" if key == "enabled" else "any"

@@ -21,6 +21,7 @@ from ooc_dem.model.wheel_outline import builtin_outline, check_outline
 from ooc_dem.physics.d2.bodies import outline_rows
 from ooc_dem.physics.d2.contact import contact
 from ooc_dem.physics.d2.layout import BODY_ROW
+from ooc_dem.physics.detmath import det_cos, det_sin
 from ooc_dem.physics.layout import ID_RIM, T_WHEEL, discs_of
 from ooc_dem.physics.outline import nearest_point, wheel_outline
 
@@ -54,7 +55,7 @@ def _row(sc, vert, p, wheel=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), mass=2.0):
     X, Y, VX, VY, WZ, theta = wheel
     cp = Model.from_scenario(sc).records()[0]
     body = np.zeros(2, BODY_ROW)
-    oscene = (True, X, Y, VX, VY, WZ, math.cos(theta), math.sin(theta), mass)
+    oscene = (True, X, Y, VX, VY, WZ, det_cos(theta), det_sin(theta), mass)
     ol = wheel_outline(vert, 2.0 * sc.soil.r_max)
     bat, full = outline_rows(0, discs_of(p), cp, oscene, ol, body, 0, 2, DT)
     assert not full
@@ -130,7 +131,7 @@ def test_a_disc_at_a_convex_vertex_against_hand_values(sc):
 def test_a_rotated_and_moved_wheel_gives_the_rotated_contact(sc):
     r, delta, theta = 0.002, 1e-4, 0.3
     X, Y = 0.2, 0.15
-    c, s = math.cos(theta), math.sin(theta)
+    c, s = det_cos(theta), det_sin(theta)
     lx, ly = 0.01, H + r - delta  # the centre in the body frame
     p = _disc(sc, X + c * lx - s * ly, Y + s * lx + c * ly, r)
     row = _row(sc, SQUARE, p, (X, Y, 0.0, 0.0, 0.0, theta))
@@ -197,6 +198,13 @@ def test_a_bad_outline_file_is_refused(text, needle, tmp_path):
     one_line_error(cp, "wheel.outline", needle)
     cp = cli_in_process("run", "quick", "--set", "wheel.outline=nowhere.xy", "--steps", "1", "--out", tmp_path / "p")
     one_line_error(cp, "wheel.outline", "no such file")
+
+
+def test_an_outline_of_too_many_points_is_refused(tmp_path):
+    a = np.linspace(0.0, 2.0 * np.pi, 100_001, endpoint=False)
+    np.savetxt(tmp_path / "w.xy", 0.1 * np.column_stack([np.cos(a), np.sin(a)]))
+    with pytest.raises(ScenarioError, match="100001 points; an outline has at most 100000"):
+        load_scenario("quick", [f"wheel.outline={tmp_path / 'w.xy'}"])
 
 
 def test_a_3d_scenario_with_an_outline_is_refused():

@@ -23,6 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .detmath import det_cos, det_sin
 from .layout import WheelOutline
 
 MAX_GRID_CELLS = 1 << 20  # the grid's cells at most (a coarser cell beyond)
@@ -167,7 +168,8 @@ def outline_scene(wg, ws, ol):
     g = wg[0]
     s = ws[0]
     on = g.enabled > 0.5 and ol.vert.shape[0] > 0
-    return on, s.x, s.y, s.vx, s.vy, s.wz, math.cos(s.theta), math.sin(s.theta), g.mass
+    # the turn into the body frame of the same bits on every machine (physics.detmath)
+    return on, s.x, s.y, s.vx, s.vy, s.wz, det_cos(s.theta), det_sin(s.theta), g.mass
 
 
 @njit(cache=True)

@@ -4,6 +4,9 @@ about the axle) and lugs (capsules of radius cap along each lug's direction from
 to lug_out), and the plates (``physics.plates``: segments along x or y with one active
 side), made into body rows (``layout.BODY_ROW``) for ``physics.produce``.
 
+A wheel given as an outline (``physics.outline``) replaces the rim and lugs: its one row
+a disc, of id ID_RIM, is ``outline_rows``' (the built-in parts are then off in the scene).
+
 Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM,
 plates ID_PLATE0 + k, right wall -3, left -2, bottom -1; a disc's rows in that ascending
 order), with the disc's springs from its history (zero for a new contact). A wheel row

@@ -182,12 +182,8 @@ def no_outline_rows(i, d, cp, oscene, ol, body, bat, bend, dt):
 def self_intersection(vert):
     """A pair of non-adjacent segments of the closed polyline vert that meet (touching
     counts), as (k, j), or (-1, -1); tests only the pairs that share a grid cell."""
-    ol = wheel_outline_grid(vert)
+    _, _, _, nx, ny, cell_start, cell_seg = segment_grid(vert)
     nv = vert.shape[0]
-    nx = ol[3]
-    ny = ol[4]
-    cell_start = ol[5]
-    cell_seg = ol[6]
     for c in range(nx * ny):
         for p in range(cell_start[c], cell_start[c + 1]):
             k = cell_seg[p]
@@ -201,9 +197,9 @@ def self_intersection(vert):
 
 
 @njit(cache=True)
-def wheel_outline_grid(vert):
-    """The segment grid of ``wheel_outline`` with a cell of about the mean segment length
-    (for the self-intersection test): (x0, y0, h, nx, ny, cell_start, cell_seg)."""
+def segment_grid(vert):
+    """A segment grid as ``wheel_outline``'s with a cell of twice the mean segment length
+    (the self-intersection test's): (x0, y0, h, nx, ny, cell_start, cell_seg)."""
     nv = vert.shape[0]
     lx = vert[0, 0]
     hx = vert[0, 0]

@@ -69,6 +69,7 @@ from ..physics.layout import (
     Forces,
     KernelParams,
     MeshWheel,
+    WheelOutline,
     Pairs,
     discs_of,
     no_mesh,
@@ -77,6 +78,7 @@ from ..physics.layout import (
     spin_width,
 )
 from ..model.state import Particles, default_hist_cap
+from ..physics.outline import wheel_outline
 from ..errors import OocDemError
 
 SERIAL_BELOW = 3000  # discs; below this a domain runs on one thread
@@ -104,6 +106,7 @@ class Model:
     dim: int = 2  # 2 for every current scenario; picks the kernel module
     hist_cap: int = 0  # contact-history capacity C per particle (0: the dimension's default)
     mesh: MeshWheel | None = None  # 3D: the wheel's triangles (None: the built-in rim and lugs)
+    outline: WheelOutline | None = None  # 2D: the wheel as a closed polyline (None: the built-in rim and lugs)
 
     def __post_init__(self):
         if not self.hist_cap:
@@ -133,6 +136,11 @@ class Model:
         record(walls, WALLS)[0] = (sc.bin.length, 1.0, 1.0, 1.0)
         wg, wc = wheel_records(sc)
         w = sc.wheel
+        outline = None
+        if w.enabled and w.outline:
+            from ..model.wheel_outline import outline_points
+
+            outline = wheel_outline(outline_points(sc), 2.0 * sc.soil.r_max)
         return cls(
             dt=sc.physics.dt,
             gravity=np.array(sc.gravity_vector, np.float64),
@@ -145,6 +153,7 @@ class Model:
             r_max=sc.soil.r_max,
             dim=sc.dim,
             hist_cap=sc.hist_cap,
+            outline=outline,
         )
 
     @classmethod
@@ -204,7 +213,8 @@ class Model:
         """The kernels' parameters (layout.KernelParams; records are views, no copies)."""
         cp, walls, wg, wc = self.records()
         mesh = self.mesh if self.mesh is not None else no_mesh()
-        return KernelParams(float(self.dt), self.gravity, float(self.skin), cp, walls, wg, wc, mesh)
+        params = (float(self.dt), self.gravity, float(self.skin), cp, walls, wg, wc, mesh)
+        return KernelParams(*params) if self.outline is None else KernelParams(*params, self.outline)
 
     def kernels(self):
         """The step-kernel module of this model's dimension (run_steps, spatial_order)."""

@@ -173,19 +173,21 @@ def scenario_tables(source: str | Path, overrides: list[str] | None = None) -> t
     src = str(source)
     data, base = _resolve(src, None, ())
     data = apply_overrides(data, overrides or [])
-    _anchor_mesh(data, Path.cwd())  # given by --set or by a built-in: from the working directory
+    _anchor_paths(data, Path.cwd())  # given by --set or by a built-in: from the working directory
     return data, base
 
 
-def _anchor_mesh(data: dict, directory: Path) -> None:
-    """wheel.mesh made absolute when it is a relative path (taken from ``directory``), so that
-    the stored scenario of a run names the same file wherever it is resumed."""
+def _anchor_paths(data: dict, directory: Path) -> None:
+    """wheel.mesh and wheel.outline made absolute when they are relative paths (taken from
+    ``directory``), so that the stored scenario of a run names the same files wherever it
+    is resumed."""
     wheel = data.get("wheel")
     if not isinstance(wheel, dict):
         return
-    mesh = wheel.get("mesh")
-    if isinstance(mesh, str) and mesh and "\0" not in mesh and not Path(mesh).is_absolute():
-        wheel["mesh"] = str(directory / mesh)
+    for name in ("mesh", "outline"):
+        path = wheel.get(name)
+        if isinstance(path, str) and path and "\0" not in path and not Path(path).is_absolute():
+            wheel[name] = str(directory / path)
 
 
 def _builtin_tables(src: str) -> dict | None:
@@ -248,7 +250,7 @@ def _resolve(src: str, naming: tuple[Path, str] | None, chain: tuple[tuple[str, 
         except (OSError, RuntimeError):  # a symlink loop: the path as given
             identity = str(path)
         data = _parse_toml(text, src)
-        _anchor_mesh(data, path.parent.absolute())
+        _anchor_paths(data, path.parent.absolute())
     if identity in (ident for ident, _ in chain):
         cycle = " -> ".join([shown for _, shown in chain] + [src])
         raise ScenarioError(f"{what}: the bases make a cycle ({show(cycle, 400)})")

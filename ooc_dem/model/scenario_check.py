@@ -155,6 +155,8 @@ def allowed_values(table: str, key: str) -> str:
         if key == "kind":
             return f"one of {', '.join(map(repr, KINDS))}"
         return "the kind's own keys only (docs/reference/grading.md)"
+    if (table, key) == ("wheel", "outline"):
+        return "a file's path or an array of 3 to 1e5 points [x, y] (checked when the wheel is on)"
     if (table, key) in _CONSTRAINTS:
         return str(_CONSTRAINTS[(table, key)][1])
     return "true or false" if key == "enabled" else "any"
@@ -199,6 +201,24 @@ def _coerce(path: str, value: Any, typ) -> Any:
 _OPTIONAL_TYPES = {("ContactPair", "no_tension"): bool}
 
 
+def _coerce_outline(path: str, value: Any) -> str | tuple:
+    """wheel.outline: a file's path (a string) or an array of [x, y] (a tuple of pairs)."""
+    from .wheel_outline import MAX_OUTLINE_VERTICES
+
+    if isinstance(value, str):
+        return _coerce(path, value, str)
+    if not isinstance(value, (list, tuple)):
+        raise ScenarioError(f"{path} = {show(value)}: must be a file's path or an array of [x, y]")
+    if len(value) > MAX_OUTLINE_VERTICES:
+        raise ScenarioError(f"{path}: an array of {len(value)} points; at most {MAX_OUTLINE_VERTICES}")
+    points = []
+    for k, p in enumerate(value):
+        if not isinstance(p, (list, tuple)) or len(p) != 2:
+            raise ScenarioError(f"{path}[{k}] = {show(p)}: must be a point [x, y]")
+        points.append((_coerce(f"{path}[{k}][0]", p[0], float), _coerce(f"{path}[{k}][1]", p[1], float)))
+    return tuple(points)
+
+
 def _build(cls, data: Any, path: str, defaults):
     if not isinstance(data, dict):
         raise ScenarioError(f"{path} = {show(data)}: must be a table")
@@ -225,6 +245,8 @@ def _build(cls, data: Any, path: str, defaults):
             typ = _OPTIONAL_TYPES.get((cls.__name__, name), type(default))
             if data[name] is None and (cls.__name__, name) in _OPTIONAL_TYPES:
                 kwargs[name] = None  # a dict (not TOML) may hold an unset optional key
+            elif (cls.__name__, name) == ("Wheel", "outline"):
+                kwargs[name] = _coerce_outline(sub, data[name])
             else:
                 kwargs[name] = _coerce(sub, data[name], typ)
     return cls(**kwargs)
@@ -280,6 +302,12 @@ def _check_ranges(sc: Scenario) -> None:
     w = sc.wheel
     if w.enabled and w.mesh and sc.dim != 3:
         raise ScenarioError(f"wheel.mesh = {show(w.mesh)}: a mesh wheel needs physics.dim = 3")
+    if w.enabled and w.outline:
+        if sc.dim != 2:
+            raise ScenarioError("wheel.outline: an outline wheel needs physics.dim = 2 (3D wheels are rim and lugs)")
+        from .wheel_outline import outline_points
+
+        outline_points(sc)  # refused here, with the scenario, when it is not a simple outline
     if w.enabled:
         if w.lug_tip_radius < w.radius:
             raise ScenarioError(f"wheel.lug_tip_radius = {w.lug_tip_radius!r}: must be >= wheel.radius ({w.radius!r})")

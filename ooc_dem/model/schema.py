@@ -251,6 +251,13 @@ class Wheel:
         (), "deg", "the mesh's rotation into the wheel's frame (axle along z): angles about x, y, z, in that order"
     )
     mesh_offset: tuple[float, ...] = key((), "m", "the mesh's translation after the rotation (x, y, z)")
+    outline: str | tuple = key(
+        "",
+        "m",
+        "2D: the wheel as a closed counter-clockwise polyline in its body frame (axle at the origin), "
+        "replacing the rim and lugs for the contact: an array of [x, y] or a file of 'x y' lines "
+        "(relative to the scenario file); empty: the built-in wheel (docs/physics.md)",
+    )
 
 
 @dataclass(frozen=True)
@@ -394,6 +401,7 @@ _HASH_NEUTRAL = {
     ("wheel", "mesh_scale"): 1.0,
     ("wheel", "mesh_rotate"): (),
     ("wheel", "mesh_offset"): (),
+    ("wheel", "outline"): "",  # added with outline wheels
 }
 _PAIR_HASH_NEUTRAL = {
     "law": "linear",

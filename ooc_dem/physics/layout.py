@@ -250,16 +250,43 @@ LAW_ROW = LAW_BLOCK + 8
 Discs = namedtuple(
     "Discs", ["pos", "vel", "spin", "r", "mass", "inertia", "mat", "gid", "hist_n", "hist_id", "hist_s", "hist_m"]
 )
-# the model's kernel parameters: dt, gravity (D,), skin, the records CONTACT_PARAMS
-# table, WALLS, WHEEL_GEOMETRY, WHEEL_CONTROLS (engine.stepper.Model.kernel_params) and
-# the wheel's triangle mesh (MeshWheel; no triangle: the built-in rim and lugs)
-KernelParams = namedtuple("KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc", "mesh"])
 # a 3D wheel's surface as triangles in its body frame (axle along z through the origin,
 # z = 0 at the wheel's z0; physics.mesh): tri (T, 3, 3) vertex coordinates; a uniform grid
 # over their bounding box, grid = (x, y, z of its low corner, cell size), dims (3,) cells
 # along x, y, z, and each cell's triangles in CSR form (cell_start (cells + 1), cell_tri,
 # ascending within a cell); bounds = (the farthest point from the axle, lowest z, highest z)
 MeshWheel = namedtuple("MeshWheel", ["tri", "grid", "dims", "cell_start", "cell_tri", "bounds"])
+
+
+# a 2D wheel's outline as a closed polyline in its body frame (physics.outline; axle at the
+# origin, counter-clockwise): vert (V, 2) its vertices (segment k from vertex k to k + 1,
+# the last back to 0), turn (V,) at each vertex +1 convex, -1 reflex, 0 straight; a uniform
+# grid over its bounding box, grid = (x, y of its low corner, cell size), dims (2,) cells
+# along x and y, each cell's segments in CSR form (cell_start (cells + 1), cell_seg,
+# ascending within a cell); reach (1,) its farthest point from the axle. No vertex: none.
+WheelOutline = namedtuple("WheelOutline", ["vert", "turn", "grid", "dims", "cell_start", "cell_seg", "reach"])
+
+
+def no_outline() -> WheelOutline:
+    """An empty wheel outline (no vertex: the wheel is the built-in rim and lugs)."""
+    return WheelOutline(
+        np.zeros((0, 2)),
+        np.zeros(0),
+        np.zeros(3),
+        np.zeros(2, np.int64),
+        np.zeros(1, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros(1),
+    )
+
+
+# the model's kernel parameters: dt, gravity (D,), skin, the records CONTACT_PARAMS
+# table, WALLS, WHEEL_GEOMETRY, WHEEL_CONTROLS (engine.stepper.Model.kernel_params), the
+# wheel's triangle mesh (MeshWheel; no triangle: the built-in rim and lugs) and the 2D
+# wheel's outline (WheelOutline; none by default)
+KernelParams = namedtuple(
+    "KernelParams", ["dt", "gravity", "skin", "cp", "walls", "wg", "wc", "mesh", "outline"], defaults=(no_outline(),)
+)
 # per-particle contact force (N, D) and torque (N, R) of the last step; length 0 when not kept
 Forces = namedtuple("Forces", ["force", "torque"])
 # the plates' table (PLATE, (P,): their state, moved by the step) and their records of the

@@ -32,6 +32,7 @@ from numba import njit, prange
 
 from .axes import DIM, SPIN
 from .chunks import N_CHUNKS, chunk_range, chunks_range
+from .outline import builtin_off, outline_scene
 from .plates import plate_scene
 from .layout import AX_X, ERR_BODY_CAPACITY, LAW_BLOCK, LAW_ROW, N_TYPES
 from .twins import slot
@@ -60,6 +61,11 @@ body_rows = slot(
     "with the wheel (mesh: layout.MeshWheel, its triangles if it has any), the plates and the walls from body row bat on (bend: the chunk's end); "
     "with_plates: a constant at each call (False: no plate, and the plates' code folds away), "
     "pscene: plates.plate_scene of the table; returns (next row, whether one did not fit)"
+)
+outline_rows = slot(
+    "outline_rows(i, d, cp, oscene, ol, body, bat, bend, dt): particle i's row with a wheel given as "
+    "an outline (physics.outline; oscene: outline.outline_scene), before its body_rows; returns (next row, "
+    "whether it did not fit); optional (physics.outline.no_outline_rows: none)"
 )
 
 
@@ -148,14 +154,22 @@ def pair_rows(k, law_in, law_out, slot, side_a, side_b, was_on, d, rows, cp, dt)
     put_pair_rows(k, slot, law_out, rows)
 
 
-def body_chunk(ch, first, end, d, cp, scene, with_plates, pscene, lugdir, mesh, body, bcount, bcap, dt, err, any_full):
+def body_chunk(
+    ch, first, end, d, cp, scene, with_plates, pscene, lugdir, mesh, oscene, ol, body, bcount, bcap, dt, err, any_full
+):
     """Chunk ch's body rows (the first pass of ``produce``); with_plates is a constant at
-    each call, so that a step without plates compiles to the loop it had before plates."""
+    each call, so that a step without plates compiles to the loop it had before plates.
+    A wheel given as an outline (oscene[0]; ol: layout.WheelOutline) makes its row first
+    (its id is the rim's, below the plates' and the walls')."""
     lo, hi = chunk_range(ch, first, end)
     bat = ch * bcap
     bend = bat + bcap
     full = False
+    with_outline = oscene[0]
     for i in range(lo, hi):
+        if with_outline:
+            bat, over = outline_rows(i, d, cp, oscene, ol, body, bat, bend, dt)
+            full = full or over
         bat, over = body_rows(i, d, cp, scene, with_plates, pscene, lugdir, mesh, body, bat, bend, dt)
         full = full or over
     bcount[ch] = bat - ch * bcap
@@ -164,7 +178,7 @@ def body_chunk(ch, first, end, d, cp, scene, with_plates, pscene, lugdir, mesh, 
         any_full[0] = True
 
 
-def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, dt, err):
+def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, ol, dt, err):
     """Phase 1: one row per contact of particles first..end-1 at time n (module doc): their
     wall and wheel rows and the rows of their own half lists (pairs whose lower id is one
     of them).
@@ -174,22 +188,64 @@ def produce(first, end, d, pl, bd, cp, walls, wg, ws, plates, lugdir, mesh, dt, 
     WALLS record (1,); wg / ws: WHEEL_GEOMETRY / WHEEL_STATE records (1,), plates: the
     PLATE table (physics.plates; length 0: none), lugdir:
     LUG_DIRECTION of each lug at the wheel's angle, mesh: the wheel's triangles
-    (layout.MeshWheel; none: the built-in rim and lugs). Sets err[ERR_BODY_CAPACITY] when a
+    (layout.MeshWheel; none: the built-in rim and lugs), ol: the 2D wheel's outline
+    (layout.WheelOutline; no vertex: the built-in rim and lugs). Sets err[ERR_BODY_CAPACITY] when a
     chunk's body buffer is full (grow, rerun): then no pair row is made."""
     pos, r = d.pos, d.r
     half_off, pair_a, pair_b, on, rows = pl.half_off, pl.pair_a, pl.pair_b, pl.on, pl.rows
     body, bcount = bd.rows, bd.count
     bcap = body.shape[0] // N_CHUNKS
     scene = body_scene(walls, wg, ws)
+    oscene = outline_scene(wg, ws, ol)
+    if oscene[0]:  # the outline replaces the built-in rim and lugs
+        scene = body_scene(walls, builtin_off(wg), ws)
     pscene = plate_scene(plates)
     any_full = np.zeros(1, np.bool_)
     # two loops, the flag a constant in each: without plates the plates' code is not there
     if plates.shape[0] == 0:
         for ch in prange(N_CHUNKS):
-            body_chunk(ch, first, end, d, cp, scene, False, pscene, lugdir, mesh, body, bcount, bcap, dt, err, any_full)
+            body_chunk(
+                ch,
+                first,
+                end,
+                d,
+                cp,
+                scene,
+                False,
+                pscene,
+                lugdir,
+                mesh,
+                oscene,
+                ol,
+                body,
+                bcount,
+                bcap,
+                dt,
+                err,
+                any_full,
+            )
     else:
         for ch in prange(N_CHUNKS):
-            body_chunk(ch, first, end, d, cp, scene, True, pscene, lugdir, mesh, body, bcount, bcap, dt, err, any_full)
+            body_chunk(
+                ch,
+                first,
+                end,
+                d,
+                cp,
+                scene,
+                True,
+                pscene,
+                lugdir,
+                mesh,
+                oscene,
+                ol,
+                body,
+                bcount,
+                bcap,
+                dt,
+                err,
+                any_full,
+            )
     if any_full[0]:
         return  # no pair row made: rerunnable after growing the body rows
     # ---------------------------------------------------------- pairs (i = a, lower id)

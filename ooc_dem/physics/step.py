@@ -21,7 +21,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from . import gather, history, plates as plates_mod, produce as produce_mod
+from . import gather, history, outline as outline_mod, plates as plates_mod, produce as produce_mod
 from .chunks import N_CHUNKS
 from .layout import AX_Y, ERR_BODY_CAPACITY, ERR_HIST_OVERFLOW, ERR_PAIR_CAPACITY, LUG_DIRECTION
 from .twins import slot, bindings, no_parfors, slots_of, specialise
@@ -41,7 +41,8 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, pt, err, rec, rebuild_no
     global step step0.
 
     kp: layout.KernelParams (dt, gravity (D,), skin, the dimension's CONTACT_PARAMS table
-    cp and WALLS, wg, wc, mesh: the wheel's triangles, layout.MeshWheel); d: layout.Discs; pl: Pairs; bd: Bodies; forces: layout.Forces
+    cp and WALLS, wg, wc, mesh: the wheel's triangles, layout.MeshWheel, outline: the 2D wheel's
+    outline, layout.WheelOutline); d: layout.Discs; pl: Pairs; bd: Bodies; forces: layout.Forces
     (length 0: not kept); ws: WHEEL_STATE record; pt: layout.Plates (the plates' table,
     moved, and their records: P rows a step; P = 0, ``layout.no_plates()``: none); rec:
     WHEEL_RECORD rows, one per step (wheel runs). Returns (steps done, rebuilds). Stops early with err[ERR_PAIR_CAPACITY]
@@ -96,7 +97,7 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, pt, err, rec, rebuild_no
         if s < spans.shape[0]:
             first = spans[s, 0]
             end = spans[s, 1]
-        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, pt.table, lugdir, kp.mesh, dt, err)
+        produce(first, end, d, pl, bd, kp.cp, kp.walls, wg, ws, pt.table, lugdir, kp.mesh, kp.outline, dt, err)
         if err[ERR_BODY_CAPACITY] != 0:
             # no pair row of this step was made (produce): the rows still hold the springs
             # of the last step, so the sync leaves the particles whole; nothing was advanced
@@ -128,6 +129,8 @@ def run_steps(nsteps, step0, kp, d, pl, bd, forces, ws, pt, err, rec, rebuild_no
 
 # what a dimension's package gives instantiate: every Slot of these templates' modules
 DIMENSION_SLOTS = tuple(sorted({name for mod in (history, gather, produce_mod, plates_mod) for name in slots_of(mod)}))
+# the slots a dimension may leave out, with what they then are (3D has no outline wheel)
+OPTIONAL_SLOTS = {"outline_rows": outline_mod.no_outline_rows}
 
 
 def instantiate(name: str, *modules) -> SimpleNamespace:
@@ -140,7 +143,8 @@ def instantiate(name: str, *modules) -> SimpleNamespace:
     ``build_pairs``), ``run_steps``, and the one-thread twins serial DDM runs its
     sub-domains with (``run_steps_serial``, ``sync_history_serial``): the same source
     compiled without a parallel region, calling each other's twins."""
-    par = bindings(DIMENSION_SLOTS, *modules)
+    given = [n for n in DIMENSION_SLOTS if n not in OPTIONAL_SLOTS or any(hasattr(m, n) for m in modules)]
+    par = {**OPTIONAL_SLOTS, **bindings(given, *modules)}
     # the phases' inline helpers (no parallel loop): one compilation serves both variants
     for t in (
         produce_mod.list_pair,

@@ -4,6 +4,9 @@ about the axle) and lugs (capsules of radius cap along each lug's direction from
 to lug_out), and the plates (``physics.plates``: segments along x or y with one active
 side), made into body rows (``layout.BODY_ROW``) for ``physics.produce``.
 
+A wheel given as an outline (``physics.outline``) replaces the rim and lugs: its one row
+a disc, of id ID_RIM, is ``outline_rows``' (the built-in parts are then off in the scene).
+
 Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM,
 plates ID_PLATE0 + k, right wall -3, left -2, bottom -1; a disc's rows in that ascending
 order), with the disc's springs from its history (zero for a new contact). A wheel row
@@ -30,6 +33,7 @@ from ..layout import (
     T_WALL,
     T_WHEEL,
 )
+from ..outline import nearest_point
 from ..wheel import lug_axis_offset
 from .contact import contact
 
@@ -112,6 +116,79 @@ def plate_rows(i, d, cp, plates, body, bat, bend, p, dt):
             else:
                 full = True
     return bat, p, full
+
+
+@njit(cache=True)
+def outline_rows(i, d, cp, oscene, ol, body, bat, bend, dt):
+    """Disc i's row with a wheel given as an outline (``physics.outline``; oscene:
+    ``outline.outline_scene``) from body row bat on: one contact at the outline's point q
+    nearest the centre, of partner id ID_RIM, the disc's velocity taken relative to q's,
+    V + W x (q - C), the reaction's torque about the axle. Returns (the next row, whether
+    the row did not fit). A call of its own: only a wheel with an outline takes it."""
+    on, X, Y, VX, VY, WZ, c, sn, wmass = oscene
+    if not on:
+        return bat, False
+    xi = d.pos[i, AX_X]
+    yi = d.pos[i, AX_Y]
+    ri = d.r[i]
+    dxw = xi - X
+    dyw = yi - Y
+    reach = ol.reach[0] + ri
+    if dxw * dxw + dyw * dyw >= reach * reach:
+        return bat, False
+    # the centre in the body frame (rotated by -theta)
+    lx = c * dxw + sn * dyw
+    ly = c * dyw - sn * dxw
+    k, qx, qy, dist, inside = nearest_point(ol, lx, ly, ri)
+    if k < 0:
+        return bat, False
+    if dist > 0.0:
+        nbx = (lx - qx) / dist
+        nby = (ly - qy) / dist
+        if inside:
+            nbx = -nbx
+            nby = -nby
+    else:  # on the outline: the segment's outward normal
+        nv = ol.vert.shape[0]
+        j = k + 1 if k + 1 < nv else 0
+        ex = ol.vert[j, 0] - ol.vert[k, 0]
+        ey = ol.vert[j, 1] - ol.vert[k, 1]
+        el = math.sqrt(ex * ex + ey * ey)
+        nbx = ey / el
+        nby = -ex / el
+    delta = ri + dist if inside else ri - dist
+    if not delta > 0.0:
+        return bat, False
+    # back to the world frame: the normal, and q's offset from the axle
+    nx = c * nbx - sn * nby
+    ny = sn * nbx + c * nby
+    rqx = c * qx - sn * qy
+    rqy = sn * qx + c * qy
+    vqx = VX - WZ * rqy
+    vqy = VY + WZ * rqx
+    mi = d.mass[i]
+    hn = d.hist_n[i]
+    ti = d.mat[i]
+    _, s_old, m_old = _springs(d.hist_id, d.hist_s, d.hist_m, i, hn, 0, ID_RIM)
+    fn, ft, s_new, mom, m_new = contact(
+        cp[T_WHEEL, ti],
+        nx,
+        ny,
+        delta,
+        d.vel[i, AX_X] - vqx,
+        d.vel[i, AX_Y] - vqy,
+        WZ,
+        d.spin[i, SP_Z],
+        0.0,
+        ri,
+        mi * wmass / (mi + wmass),
+        d.inertia[i],
+        ri,
+        s_old,
+        m_old,
+        dt,
+    )
+    return _wheel_row(body, bat, bend, i, ID_RIM, fn, ft, s_new, mom, m_new, nx, ny, rqx, rqy, ri)
 
 
 @njit(inline="always", cache=True)

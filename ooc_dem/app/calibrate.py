@@ -260,7 +260,7 @@ def friction_step(tested: list[tuple[float, float]], target: float, lowest: floa
     ratio = target / last_tan
     if last_x <= 0.0:
         return 0.05 if ratio > 1.0 else 0.0
-    x: float = last_x * ratio ** (2 ** min(run - 1, 6))
+    x = last_x * float(ratio ** (2 ** min(run - 1, 6)))
     if len(tested) >= 2:
         step = _secant(*tested[-2], *tested[-1], target)
         px, ptan = tested[-2]

@@ -309,3 +309,25 @@ def test_quick_3d_with_its_wheel_as_a_mesh(tmp_path):
     for q in ("net_traction", "torque", "sinkage"):  # slip: printed only
         a, b = pairs[q]
         assert abs(b - a) <= NOISE * abs(a), (q, a, b)
+
+
+def test_films_and_exports_draw_the_mesh_at_the_kernels_pose():
+    """The films' and exports' wheel surface of a mesh wheel is the mesh itself (its
+    triangles, not the built-in rim and lugs), turned as the kernel turns it: the body
+    frame's point (R, 0, 0) at angle pi/2 is straight above the axle."""
+    from ooc_dem.app.wheel_surface import WheelGeometry, mesh_at_pose, wheel_surface
+
+    mesh = Path(__file__).resolve().parents[1] / "examples" / "meshes" / "chevron.stl"
+    sc = load_scenario("paper2008-3d", overrides=[f"wheel.mesh={mesh}"])
+    g = WheelGeometry.of_scenario(sc)
+    assert g.mesh is not None
+    verts, tris = wheel_surface(g, 0.3, 0.2, 0.7)
+    assert tris.shape == (len(g.mesh), 3) and verts.shape == (3 * len(g.mesh), 3)
+    assert np.array_equal(verts[tris].reshape(-1, 3), mesh_at_pose(g, 0.3, 0.2, 0.7).reshape(-1, 3))
+    g1 = WheelGeometry(g.radius, g.width, g.z_centre, 0, 0.0, 0.0, np.array([[[0.1, 0.0, 0.0]] * 3]))
+    p = mesh_at_pose(g1, 0.3, 0.2, math.pi / 2)[0, 0]
+    assert p == pytest.approx([0.3, 0.3, g.z_centre], abs=1e-15)
+    # the kernel's body frame: the centre d turned by -theta (bodies.mesh_rows)
+    d = p[:2] - np.array([0.3, 0.2])
+    c, s = math.cos(math.pi / 2), math.sin(math.pi / 2)
+    assert [c * d[0] + s * d[1], c * d[1] - s * d[0]] == pytest.approx([0.1, 0.0], abs=1e-15)

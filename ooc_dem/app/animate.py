@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,7 +30,7 @@ from .runfiles import read_initial, read_run_scenario, run_file
 from .trajectory import wheel_outline
 from .trajectory_format import TrajectoryError
 from .trajectory_read import Frame, Trajectory
-from .wheel_surface import WheelGeometry
+from .wheel_surface import WheelGeometry, mesh_at_pose
 
 if TYPE_CHECKING:
     from imageio.core.format import Format
@@ -152,6 +152,18 @@ def _wheel_patch(ax: Axes, visible: bool, fill: bool = True) -> Polygon:
     return patch
 
 
+def _mesh_patch(ax: Any, fill: bool) -> Any:
+    """The collection a mesh wheel's projected triangles are drawn with."""
+    from matplotlib.collections import PolyCollection
+
+    if fill:  # the cut: the triangles crossing the slab, edged so the rim's side shows as a ring
+        coll = PolyCollection([], facecolors="#b8c2d0", edgecolors="#404858", linewidths=0.8, zorder=5)
+    else:  # the side view: a shadow (unedged, not antialiased: no seams between triangles)
+        coll = PolyCollection([], facecolors="#8090a8", alpha=0.3, linewidths=0.0, antialiased=False, zorder=5)
+    ax.add_collection(coll)
+    return coll
+
+
 def _outline(wheel: Wheel, ws: NDArray[np.float64]) -> NDArray[np.float64]:
     w = wheel
     return wheel_outline(ws[0], ws[1], ws[4], w.radius, w.n_lugs, w.lug_tip_radius, w.lug_thickness)
@@ -261,8 +273,9 @@ class Scene3D:
             xa = float(np.min(pos0[:, 0] - r0, initial=0.0))
             xb = float(np.max(pos0[:, 0] + r0, initial=1.0))
             r_max = float(np.max(r0, initial=0.0))
-        if self.wheel is not None and sc is not None:
-            self.z_cut = WheelGeometry.of_scenario(sc).z_centre
+        self.geometry = WheelGeometry.of_scenario(sc) if self.wheel is not None and sc is not None else None
+        if self.geometry is not None:
+            self.z_cut = self.geometry.z_centre
         else:
             self.z_cut = float(np.median(pos0[:, 2])) if len(r0) else 0.0
         self.half = self.CUT_HALF_WIDTH * r_max
@@ -299,7 +312,12 @@ class Scene3D:
             self.images.append(
                 ax.imshow(blank, extent=(xa, xb, ya, yb), origin="upper", interpolation="nearest", zorder=1)
             )
-            self.patches.append(_wheel_patch(ax, self.wheel is not None, fill=k == 1))
+            if self.geometry is not None and self.geometry.mesh is not None:
+                # a mesh wheel: its triangles projected on x-y, a shadow over the side view,
+                # those near the mid-plane filled in the cut
+                self.patches.append(_mesh_patch(ax, fill=k == 1))
+            else:
+                self.patches.append(_wheel_patch(ax, self.wheel is not None, fill=k == 1))
             ax.text(0.99, 0.98, caption, transform=ax.transAxes, va="top", ha="right", fontsize=12, zorder=10)
             if k == 1:
                 ax.axhline(yb, color="0.3", linewidth=1.5, zorder=10)
@@ -331,7 +349,14 @@ class Scene3D:
     def draw(self, fr: Frame) -> None:
         for image, picture in zip(self.images, self.pictures(fr)):
             image.set_data(picture)
-        if self.wheel is not None:
+        if self.geometry is not None and self.geometry.mesh is not None:
+            ws = fr["wheel_state"]
+            tri = mesh_at_pose(self.geometry, ws[0], ws[1], ws[4])
+            z = tri[..., 2]
+            near = (z.min(axis=1) < self.z_cut + self.half) & (z.max(axis=1) > self.z_cut - self.half)
+            self.patches[0].set_verts(tri[..., :2])
+            self.patches[1].set_verts(tri[near][..., :2])
+        elif self.wheel is not None:
             outline = _outline(self.wheel, fr["wheel_state"])
             for patch in self.patches:
                 patch.set_xy(outline)

@@ -41,9 +41,10 @@ _BOX_TRIANGLES = np.array(
 )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class WheelGeometry:
-    """The built-in lugged wheel: rim radius, width and lateral centre (z), and its lugs."""
+    """The wheel: rim radius, width and lateral centre (z), its lugs, and, for a mesh wheel,
+    its triangles in the wheel's body frame (T, 3, 3), which then replace rim and lugs."""
 
     radius: float
     width: float
@@ -51,16 +52,38 @@ class WheelGeometry:
     n_lugs: int
     lug_tip_radius: float
     lug_thickness: float
+    mesh: NDArray[np.float64] | None = None
 
     @classmethod
     def of_scenario(cls, sc: Scenario) -> WheelGeometry:
         from ..engine.stepper import wheel_z0
+        from ..model.mesh_wheel import body_frame_triangles
 
         w = sc.wheel
         z = wheel_z0(sc) if sc.dim == 3 else 0.0
+        mesh = body_frame_triangles(sc) if sc.dim == 3 and w.mesh else None
         return cls(
-            float(w.radius), float(w.width), float(z), int(w.n_lugs), float(w.lug_tip_radius), float(w.lug_thickness)
+            float(w.radius),
+            float(w.width),
+            float(z),
+            int(w.n_lugs),
+            float(w.lug_tip_radius),
+            float(w.lug_thickness),
+            mesh,
         )
+
+
+def mesh_at_pose(geometry: WheelGeometry, x: float, y: float, angle: float) -> NDArray[np.float64]:
+    """A mesh wheel's triangles (T, 3, 3) at centre (x, y) turned by ``angle`` about the
+    axle (the kernel's body frame: world = centre + R(angle) body)."""
+    assert geometry.mesh is not None
+    b = geometry.mesh
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.empty_like(b)
+    out[..., 0] = x + c * b[..., 0] - s * b[..., 1]
+    out[..., 1] = y + s * b[..., 0] + c * b[..., 1]
+    out[..., 2] = geometry.z_centre + b[..., 2]
+    return out
 
 
 def _rim(
@@ -116,7 +139,11 @@ def wheel_surface(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """(vertices (V, 3), triangles (T, 3) of vertex indices) of the wheel at centre (x, y)
     turned by ``angle`` (the trajectory's wheel state): the rim cylinder in ``segments``
-    facets with its end caps (4 segments triangles), then 12 triangles per lug box."""
+    facets with its end caps (4 segments triangles), then 12 triangles per lug box; a mesh
+    wheel's own triangles instead."""
+    if geometry.mesh is not None:
+        tri = mesh_at_pose(geometry, float(x), float(y), float(angle))
+        return tri.reshape(-1, 3), np.arange(3 * len(tri), dtype=np.int64).reshape(-1, 3)
     rp, rt = _rim(geometry, float(x), float(y), float(angle), segments)
     lp, lt = _lug_boxes(geometry, float(x), float(y), float(angle))
     return np.vstack([rp, lp]).astype(np.float64), np.vstack([rt, lt + len(rp)]).astype(np.int64)

@@ -4,7 +4,6 @@ exported content of one epoch, in id order) written as XDMF (+ HDF5), VTK (legac
 
 from __future__ import annotations
 
-import contextlib
 import os
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -14,12 +13,10 @@ from xml.sax.saxutils import escape, quoteattr
 import numpy as np
 from numpy.typing import NDArray
 
-from ooc_dem.storage.writeguard import close_h5, create_h5
 
-from ..storage.atomic import new_temp
 from ..physics.layout import AXIS_NAMES, WS_NAMES, axes, spin_width
 from ..model.state import FIELD_DTYPES
-from .outfile import AtomicFile, ExportError, remove_file, write_failure
+from .outfile import AtomicFile, ExportError, write_h5_replacing
 
 # a slice of a snapshot: its columns by name (snapshot_columns)
 Chunk: TypeAlias = dict[str, NDArray[Any]]
@@ -224,15 +221,8 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
     spin_shape = (n,) if spin_width(snap.dim) == 1 else (n, 3)
     shapes = {"positions": (n, 3), "velocity": (n, 3), "spin": spin_shape, "connectivity": (n, 1)}
     dtypes = {"id": snap.dtype["id"], "material": snap.dtype["mat"], "connectivity": np.dtype(np.int64)}
-    try:
-        tmp = new_temp(h5)
-    except OSError as e:
-        raise ExportError(write_failure(h5, e)) from None
-    f = guard = None
-    try:
-        # through the write guard: a full disk or the file-size limit must reach us as an
-        # OSError, never reach HDF5 (which crashes after a failed write)
-        f, guard = create_h5(tmp, exclusive=False)
+
+    def fill(f: Any, guard: Any) -> None:
         sets = {
             k: f.create_dataset(k, shape=shapes.get(k, (n,)), dtype=dtypes.get(k, np.dtype(np.float64))) for k in data
         }
@@ -246,17 +236,8 @@ def _write_xdmf(snap: Snapshot, out: Path) -> list[Path]:
         f.attrs["step"] = np.int64(snap.step)
         f.attrs["time"] = np.float64(snap.time)
         f.attrs["description"] = _description(snap)
-        f, g = None, f
-        close_h5(g, guard)
-        os.replace(tmp, h5)
-    except BaseException as e:
-        if guard is not None:
-            with contextlib.suppress(Exception):
-                close_h5(f, guard)
-        remove_file(tmp)
-        if isinstance(e, OSError):
-            raise ExportError(write_failure(h5, e)) from None
-        raise
+
+    write_h5_replacing(h5, fill)
 
     def item(name: str, dims: str, kind: str, size: int) -> str:
         typ = "Int" if kind in "iu" else "Float"

@@ -5,10 +5,12 @@ failure is an ``ExportError`` with one line naming the file."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 from pathlib import Path
 from types import TracebackType
+from collections.abc import Callable
 from typing import IO, Any, Literal
 
 from ..errors import OocDemError
@@ -112,3 +114,32 @@ def write_failure(path: str | os.PathLike[str], e: BaseException) -> str:
     """The one-line message of an OSError `e` writing `path`."""
     detail = getattr(e, "strerror", None) or " ".join(str(e).split()) or type(e).__name__
     return f"{path}: cannot write ({detail})"
+
+
+def write_h5_replacing(h5: Path, fill: Callable[[Any, Any], None]) -> None:
+    """Write the HDF5 file ``h5`` by ``fill(file, guard)`` into a temporary that replaces it
+    when complete (a failed or interrupted write leaves no file). The file is written
+    through the write guard: a full disk or the file-size limit reaches us as an OSError
+    (an ExportError naming ``h5``), never HDF5, which crashes after a failed write; ``fill``
+    calls ``guard.check()`` after each block it writes to stop at the first failure."""
+    from ..storage.writeguard import close_h5, create_h5
+
+    try:
+        tmp = new_temp(h5)
+    except OSError as e:
+        raise ExportError(write_failure(h5, e)) from None
+    f = guard = None
+    try:
+        f, guard = create_h5(tmp, exclusive=False)
+        fill(f, guard)
+        f, g = None, f
+        close_h5(g, guard)
+        os.replace(tmp, h5)
+    except BaseException as e:
+        if guard is not None:
+            with contextlib.suppress(Exception):
+                close_h5(f, guard)
+        remove_file(tmp)
+        if isinstance(e, OSError):
+            raise ExportError(write_failure(h5, e)) from None
+        raise

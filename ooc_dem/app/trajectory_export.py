@@ -24,10 +24,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room, close_h5, create_h5
+from ooc_dem.storage.writeguard import H5_OVERHEAD, check_room
 
-from ..storage.atomic import new_temp
-from .outfile import AtomicFile, ExportError, check_targets, remove_file, write_failure
+from .outfile import AtomicFile, ExportError, check_targets, remove_file, write_failure, write_h5_replacing
 from .trajectory import wheel_outline
 from .trajectory_format import row_bytes
 from .trajectory_read import Trajectory
@@ -151,33 +150,17 @@ def write_xdmf(traj: Trajectory, out: str | os.PathLike[str], sc: Scenario | Non
 def _write_series(traj: Trajectory, xdmf: Path, h5: Path, step_of: Any) -> None:
     """One time series: every frame's (points, cells, point data) from ``step_of(frame)``
     into ``h5`` (a temporary renamed when complete), then ``xdmf`` referring to it."""
-    try:
-        tmp = new_temp(h5)
-    except OSError as e:
-        raise ExportError(write_failure(h5, e)) from None
-    f = guard = None
-    try:
-        # through the write guard: a full disk or the file-size limit must reach us as an
-        # OSError, never reach HDF5 (which crashes after a failed write)
-        f, guard = create_h5(tmp, exclusive=False)
+    writer: Any = None
+
+    def fill(f: Any, guard: Any) -> None:
+        nonlocal writer
         writer = _series_writer()(xdmf, h5.name, f)
         for fr in traj:  # one frame at a time
             points, cells, data = step_of(fr)
             writer.write_step(f"step {fr['step']}", fr["time"], points, cells, data)
             guard.check()
-        f, g = None, f
-        close_h5(g, guard)
-        os.replace(tmp, h5)
-    except BaseException as e:
-        if guard is not None:
-            try:
-                close_h5(f, guard)
-            except Exception:
-                pass
-        remove_file(tmp)
-        if isinstance(e, OSError):
-            raise ExportError(write_failure(h5, e)) from None
-        raise
+
+    write_h5_replacing(h5, fill)
     try:
         with AtomicFile(xdmf) as x:
             x.write(writer.xml())

@@ -139,7 +139,15 @@ def test_ctrl_c_names_the_run_directory_and_the_step_resume_continues_from(tmp_p
         "--out",
         str(out),
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # a suite started in the background of a non-interactive shell inherits SIGINT ignored,
+    # and Python keeps an ignored SIGINT ignored: the run is given the default disposition
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.time() + 600
     while time.time() < deadline and proc.poll() is None and committed_step(out) < 400:
         time.sleep(0.05)

@@ -272,6 +272,57 @@ def test_the_cli_refuses_a_missing_mesh_with_exit_2(tmp_path):
     assert "no such file" in cp.stderr and len(cp.stderr.strip().splitlines()) == 1
 
 
+# ------------------------------------------------------------------ the wheel's inertia
+
+
+def test_a_closed_mesh_gives_the_inertia_of_its_solid():
+    """solid_axle_inertia against trimesh's mass properties (the same solid: 1e-12) and the
+    analytic m R^2 / 2 of a cylinder and m (a^2 + b^2) / 2 of a tube (their tessellation:
+    2e-4 at 512 segments); the sign of the winding and the order of the triangles do not
+    change it (the order: not one bit)."""
+    from ooc_dem.model.mesh_wheel import is_closed_surface, solid_axle_inertia
+
+    m = 3.0
+    for mesh, exact in (
+        (trimesh.creation.cylinder(radius=0.15, height=0.1, sections=512), 0.5 * m * 0.15**2),
+        (trimesh.creation.annulus(r_min=0.12, r_max=0.15, height=0.1, sections=512), 0.5 * m * (0.12**2 + 0.15**2)),
+    ):
+        tri = np.ascontiguousarray(mesh.triangles, np.float64)
+        assert is_closed_surface(tri)
+        got = solid_axle_inertia(tri, m)
+        assert got == pytest.approx(m / mesh.volume * mesh.moment_inertia[2, 2], rel=1e-12)
+        assert got == pytest.approx(exact, rel=2e-4)
+        # inward winding: both integrals flip sign (each term rounded anew: equal to 1e-14)
+        assert solid_axle_inertia(tri[:, ::-1], m) == pytest.approx(got, rel=1e-14)
+        assert solid_axle_inertia(tri[::-1], m) == got  # fsum: exactly rounded in any order
+
+
+def test_a_free_spinning_mesh_wheel_takes_its_meshs_inertia(tmp_path):
+    """torque and towed control: the model's inertia is the mesh solid's at the wheel's mass
+    (wheel.inertia, when given, wins); slip control keeps the disc's (omega is prescribed);
+    an open surface under free spin is refused in one line, naming wheel.inertia."""
+    from ooc_dem.model.mesh_wheel import body_frame_triangles, solid_axle_inertia
+    from ooc_dem.physics.layout import WHEEL_CONTROLS, record
+
+    path = _mesh_file(tmp_path, trimesh.creation.cylinder(radius=0.1, height=0.1, sections=64))
+    towed = [f"wheel.mesh={path}", "wheel.control=towed", "wheel.speed=0.05"]
+    sc = load_scenario("quick-3d", towed)
+    want = solid_axle_inertia(body_frame_triangles(sc), sc.wheel_mass)
+    assert record(Model.from_scenario(sc).wc, WHEEL_CONTROLS)["inertia"] == want
+    sc = load_scenario("quick-3d", [*towed, "wheel.inertia=0.02"])
+    assert record(Model.from_scenario(sc).wc, WHEEL_CONTROLS)["inertia"] == 0.02
+    sc = load_scenario("quick-3d", [f"wheel.mesh={path}"])
+    assert sc.wheel.control != "towed"
+    assert record(Model.from_scenario(sc).wc, WHEEL_CONTROLS)["inertia"] == 0.5 * sc.wheel_mass * sc.wheel.radius**2
+    open_cup = trimesh.creation.cylinder(radius=0.1, height=0.1, sections=64)
+    open_cup.update_faces(open_cup.face_normals[:, 2] < 0.5)  # the top cap removed
+    path = _mesh_file(tmp_path, open_cup, "cup.stl")
+    sc = load_scenario("quick-3d", [f"wheel.mesh={path}", "wheel.control=towed", "wheel.speed=0.05"])
+    with pytest.raises(ScenarioError, match="not a closed surface.*wheel.inertia") as e:
+        Model.from_scenario(sc)
+    assert "\n" not in str(e.value)
+
+
 # ------------------------------------------------------------------ whole runs
 
 

@@ -170,9 +170,12 @@ class Model:
         wg, wc = wheel_records(sc)
         mesh = None
         if sc.wheel.enabled and sc.wheel.mesh:
-            from ..model.mesh_wheel import load_wheel_mesh
+            from ..model.mesh_wheel import body_frame_triangles, load_wheel_mesh, wheel_axle_inertia
 
-            mesh = load_wheel_mesh(sc)
+            tri = body_frame_triangles(sc)
+            mesh = load_wheel_mesh(sc, tri)
+            if sc.wheel.control in FREE_SPIN_CONTROLS:
+                record(wc, WHEEL_CONTROLS)["inertia"] = wheel_axle_inertia(sc, tri)
         return cls(
             dt=sc.physics.dt,
             gravity=np.array(sc.gravity_vector, np.float64),
@@ -252,6 +255,9 @@ class Model:
         )  # no wheel: no mesh
 
 
+FREE_SPIN_CONTROLS = ("torque", "towed")  # omega free: the wheel's inertia matters
+
+
 def wheel_records(sc) -> tuple[np.ndarray, np.ndarray]:
     """(WHEEL_GEOMETRY, WHEEL_CONTROLS) flat vectors of a scenario's wheel (zeros without
     one); the same in 2D and 3D (3D reads width and z0 too)."""
@@ -276,7 +282,7 @@ def wheel_records(sc) -> tuple[np.ndarray, np.ndarray]:
         c["drawbar"] = w.drawbar_load
         c["ramp"] = w.drawbar_ramp
         c["slip"] = w.slip
-        free_spin = w.control in ("torque", "towed")
+        free_spin = w.control in FREE_SPIN_CONTROLS
         c["spinmode"] = 1.0 if free_spin else 0.0
         c["torque"] = w.torque if w.control == "torque" else 0.0
         c["torque_ramp"] = w.torque_ramp
@@ -289,7 +295,8 @@ def wheel_records(sc) -> tuple[np.ndarray, np.ndarray]:
 
 def wheel_inertia(sc) -> float:
     """The wheel's moment of inertia about its axle (kg m^2): wheel.inertia, or that of a
-    uniform disc of its mass and rim radius (m R^2 / 2) when it is 0."""
+    uniform disc of its mass and rim radius (m R^2 / 2) when it is 0 (a mesh wheel's:
+    ``mesh_wheel.wheel_axle_inertia``)."""
     w = sc.wheel
     return w.inertia if w.inertia > 0.0 else 0.5 * (w.load / sc.physics.gravity) * w.radius * w.radius
 

@@ -118,7 +118,56 @@ def body_frame_triangles(sc) -> np.ndarray:
     return tri
 
 
-def load_wheel_mesh(sc) -> MeshWheel:
-    """The kernel's mesh of the scenario's wheel: its triangles in the body frame and
-    their grid (cells of the largest sphere's diameter)."""
-    return mesh_wheel(body_frame_triangles(sc), 2.0 * sc.soil.r_max)
+def is_closed_surface(tri: np.ndarray) -> bool:
+    """Whether the triangles form a closed surface (every edge shared by exactly two
+    triangles, the vertices merged where they coincide), by trimesh."""
+    import trimesh
+
+    faces = np.arange(3 * len(tri), dtype=np.int64).reshape(-1, 3)
+    return bool(trimesh.Trimesh(vertices=tri.reshape(-1, 3), faces=faces, process=True).is_watertight)
+
+
+def solid_axle_inertia(tri: np.ndarray, mass: float) -> float:
+    """The moment of inertia about the axle (z through the origin) of the solid that the
+    closed surface ``tri`` bounds, holding ``mass`` uniformly: mass * (integral of x^2 + y^2
+    over the solid) / its volume. Both integrals are sums over the signed tetrahedra
+    (origin, triangle): V = a.(b x c)/6 and the integral of x^2 = V/10 (xa^2 + xb^2 + xc^2 +
+    xa xb + xb xc + xc xa). Elementwise IEEE operations and math.fsum's exactly rounded
+    sums: the same bits on every machine, whatever the summation order of numpy's."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    vol6 = (
+        a[:, 0] * (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1])
+        + a[:, 1] * (b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2])
+        + a[:, 2] * (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0])
+    )
+
+    def second_moment(k: int) -> np.ndarray:
+        xa, xb, xc = a[:, k], b[:, k], c[:, k]
+        return xa * xa + xb * xb + xc * xc + xa * xb + xb * xc + xc * xa
+
+    volume6 = math.fsum(vol6.tolist())
+    # sum of V/10 (...) over tetrahedra = (1/60) sum of vol6 (...)
+    radial60 = math.fsum((vol6 * (second_moment(0) + second_moment(1))).tolist())
+    return mass * (radial60 / 10.0) / volume6
+
+
+def wheel_axle_inertia(sc, tri: np.ndarray) -> float:
+    """A free-spinning mesh wheel's moment of inertia about its axle: wheel.inertia when
+    given, else the mesh's solid holding the wheel's mass (wheel.load / gravity) uniformly;
+    an open surface bounds no solid and needs wheel.inertia."""
+    if sc.wheel.inertia > 0.0:
+        return float(sc.wheel.inertia)
+    if not is_closed_surface(tri):
+        raise ScenarioError(
+            f"wheel.mesh = {show(sc.wheel.mesh, 300)}: not a closed surface, so it bounds no solid whose "
+            f"moment of inertia a free-spinning wheel (wheel.control = {sc.wheel.control}) could take: "
+            f"give wheel.inertia"
+        )
+    return solid_axle_inertia(tri, sc.wheel_mass)
+
+
+def load_wheel_mesh(sc, tri: np.ndarray | None = None) -> MeshWheel:
+    """The kernel's mesh of the scenario's wheel: its triangles in the body frame
+    (``body_frame_triangles``, unless given) and their grid (cells of the largest
+    sphere's diameter)."""
+    return mesh_wheel(body_frame_triangles(sc) if tri is None else tri, 2.0 * sc.soil.r_max)

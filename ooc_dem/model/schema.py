@@ -227,7 +227,10 @@ class Wheel:
     )
     torque_ramp: float = key(1.0, "s", "control = torque: time over which the driving torque ramps up")
     inertia: float = key(
-        0.0, "kg m^2", "moment of inertia about the axle when omega is free (0: a uniform disc, mass radius^2 / 2)"
+        0.0,
+        "kg m^2",
+        "moment of inertia about the axle when omega is free (0: a uniform disc, mass radius^2 / 2; "
+        "a mesh wheel: its solid holding the mass uniformly)",
     )
     carriage: str = key(
         "drawbar", "", "control = torque: the carriage free under the drawbar load (drawbar) or at wheel.speed (speed)"

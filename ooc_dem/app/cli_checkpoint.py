@@ -162,7 +162,8 @@ def _checkpoint_export(store: Store, args: argparse.Namespace) -> int:
         raise CliError(str(e)) from None
     _warn_fallback(store)  # after the work: a refusal stays one line
     print(
-        f"exported epoch {snap.step} ({len(snap)} discs, t = {snap.time:.6f} s) as {fmt}: " + ", ".join(map(str, files))
+        f"exported epoch {snap.step} ({len(snap)} {'spheres' if dim == 3 else 'discs'}, t = {snap.time:.6f} s) "
+        f"as {fmt}: " + ", ".join(map(str, files))
     )
     return 0
 

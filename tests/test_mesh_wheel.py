@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -28,7 +29,7 @@ from ooc_dem.model.scenario import ScenarioError, load_scenario
 from ooc_dem.physics.d3 import bodies
 from ooc_dem.physics.d3.layout import (
     BODY_ROW,
-    ID_RIM,
+    ID_LUG0,
     ID_WALL_BOTTOM,
     T_SOIL,
     T_WALL,
@@ -39,7 +40,8 @@ from ooc_dem.physics.d3.layout import (
     hertz_params,
     walls_record,
 )
-from ooc_dem.physics.layout import LUG_DIRECTION, no_mesh, no_plates
+from ooc_dem.physics.layout import ID_RIM, LUG_DIRECTION, no_mesh, no_plates
+from ooc_dem.physics.wheel import lug_directions
 from ooc_dem.physics.mesh import closest_on_triangle, mesh_contact, mesh_wheel
 from ooc_dem.physics.plates import plate_scene
 
@@ -108,7 +110,7 @@ def _history(mesh_on: bool, path):
         sp.pos[0], sp.vel[0], sp.spin[0] = pos, vel, spin
         rows = _rows(sp, scene, mesh)
         _keep_history(sp, rows)
-        assert len(rows) == 1 and rows[0]["pid"] == (ID_RIM if mesh_on else ID_WALL_BOTTOM)
+        assert len(rows) == 1 and rows[0]["pid"] == (ID_LUG0 if mesh_on else ID_WALL_BOTTOM)  # mesh: part 0
         out.append([rows[0][f] for f in FORCE])
     return np.array(out)
 
@@ -143,8 +145,8 @@ def test_no_jump_across_the_shared_edge():
         rows = _rows(sp, scene, mesh)
         assert len(rows) == 1
         forces.append([rows[0]["bx"], rows[0]["by"], rows[0]["bz"]])
-        found, qx, qy, qz, dist = mesh_contact(mesh, sp.pos[0, 0], y, sp.pos[0, 2], R_SPHERE)
-        assert found and abs(dist - y) <= 1e-15 and abs(qy) <= 1e-18
+        found, part, qx, qy, qz, dist, more = mesh_contact(mesh, sp.pos[0, 0], y, sp.pos[0, 2], R_SPHERE, -1)
+        assert found and part == 0 and not more and abs(dist - y) <= 1e-15 and abs(qy) <= 1e-18
     f = np.array(forces)
     jump = np.abs(np.diff(f, axis=0)).max() / np.abs(f).max()
     assert jump <= 1e-12, jump
@@ -162,7 +164,7 @@ def test_edge_and_vertex_contacts():
     assert np.allclose(closest_on_triangle(0.002, 0.003, -0.004, t), (0.002, 0.003, 0.0), atol=1e-18)
     mesh = mesh_wheel(t[None], 0.01)
     r = 0.005
-    found, qx, qy, qz, dist = mesh_contact(mesh, *p, r)
+    found, _, qx, qy, qz, dist, _ = mesh_contact(mesh, *p, r, -1)
     d_edge = math.sqrt(2 * 0.002**2 + 0.003**2)
     assert found and math.isclose(dist, d_edge, rel_tol=1e-14)
     # the row's force lies along the rounded normal (p - q) / |p - q| (no sliding: normal only)
@@ -179,13 +181,13 @@ def test_edge_and_vertex_contacts():
     assert np.allclose(f / np.linalg.norm(f), n, rtol=0, atol=1e-12)
     # the vertex: normal from (0.01, 0, 0), overlap r - |p - v|
     pv = (0.012, -0.001, 0.002)
-    found, qx, qy, qz, dist = mesh_contact(mesh, *pv, r)
+    found, _, qx, qy, qz, dist, _ = mesh_contact(mesh, *pv, r, -1)
     assert found and (qx, qy, qz) == (0.01, 0.0, 0.0) and math.isclose(dist, math.sqrt(9e-6), rel_tol=1e-14)
     sp.pos[0] = (0.1 + pv[0], pv[1], pv[2])
     f = np.array([[row["bx"], row["by"], row["bz"]] for row in _rows(sp, scene, mesh)])[0]
     assert np.allclose(f / np.linalg.norm(f), np.array([0.002, -0.001, 0.002]) / 0.003, rtol=0, atol=1e-12)
     # out of reach: no contact
-    assert not mesh_contact(mesh, 0.0, 0.0, 0.0051, r)[0]
+    assert not mesh_contact(mesh, 0.0, 0.0, 0.0051, r, -1)[0]
 
 
 def test_the_wheel_turns_its_mesh():
@@ -202,6 +204,125 @@ def test_the_wheel_turns_its_mesh():
     rows = _rows(sp, scene, mesh)
     assert len(rows) == 1 and rows[0]["by"] < 0.0
     assert abs(rows[0]["bx"]) <= 1e-12 * abs(rows[0]["by"])
+
+
+# ------------------------------------------------------------------ parts
+
+
+def test_surface_parts_are_the_pieces_joined_by_shared_vertices():
+    """Two boxes apart, then overlapping (no shared vertex): two parts each; the parts are
+    numbered in the order of their first triangle, interleaved triangles included."""
+    from ooc_dem.physics.mesh import surface_parts
+
+    a = np.asarray(trimesh.creation.box((1.0, 1.0, 1.0)).triangles)
+    b = np.asarray(trimesh.creation.box((1.0, 1.0, 1.0)).apply_translation((3.0, 0, 0)).triangles)
+    c = np.asarray(trimesh.creation.box((0.5, 2.0, 0.5)).triangles)  # through a, no vertex shared
+    assert np.array_equal(surface_parts(np.concatenate([b, a])), np.repeat([0, 1], 12))
+    assert np.array_equal(surface_parts(np.concatenate([a, c])), np.repeat([0, 1], 12))
+    mixed = np.empty((24, 3, 3))
+    mixed[0::2], mixed[1::2] = b, a
+    assert np.array_equal(surface_parts(mixed), np.tile([0, 1], 12))
+    sphere = np.asarray(trimesh.creation.icosphere(subdivisions=3).triangles)
+    assert np.array_equal(surface_parts(sphere), np.zeros(len(sphere), np.int64))
+
+
+def _corner(joined: bool):
+    """A floor square (y = 0) and a wall square (x = 0.02, facing -x) meeting along z:
+    one part if they share the corner's vertices, else two."""
+    floor = flat_square(0.02)  # its corners (0.02, 0, -0.02) and (0.02, 0, 0.02) among them
+    gap = 0.0 if joined else 1e-3  # apart: the wall starts 1 mm above the floor
+    w0, w1, w2, w3 = (0.02, gap, -0.02), (0.02, gap, 0.02), (0.02, 0.04, 0.02), (0.02, 0.04, -0.02)
+    wall = np.array([[w0, w2, w1], [w0, w3, w2]], np.float64)
+    return np.concatenate([floor, wall])
+
+
+def test_a_grain_between_two_parts_feels_both():
+    """A sphere pressed into the corner of a floor and a wall: as two parts, two contacts
+    (partner ids ID_LUG0 + 0 and + 1, ascending), each the force of its face alone; as one
+    part (the corner's vertices shared), one contact, the nearer face's."""
+    from ooc_dem.physics.mesh import surface_parts
+
+    joined, apart = _corner(True), _corner(False)
+    assert surface_parts(joined).max() == 0 and surface_parts(apart).max() == 1
+    sp = make_spheres([(0.02 - R_SPHERE + 2e-5, R_SPHERE - 3e-5, 0.0)], R_SPHERE, density=2650.0)
+    scene = _scene(True)
+    rows = _rows(sp, scene, mesh_wheel(apart, 2.0 * R_SPHERE))
+    assert list(rows["pid"]) == [ID_LUG0, ID_LUG0 + 1]
+    floor_only = _rows(sp, scene, mesh_wheel(apart[:2], 2.0 * R_SPHERE))
+    wall_only = _rows(sp, scene, mesh_wheel(apart[2:], 2.0 * R_SPHERE))
+    for row, alone in ((rows[0], floor_only[0]), (rows[1], wall_only[0])):
+        assert [row[f] for f in FORCE] == [alone[f] for f in FORCE]
+    assert rows[0]["by"] > 0.0 and rows[1]["bx"] < 0.0
+    one = _rows(sp, scene, mesh_wheel(joined, 2.0 * R_SPHERE))
+    assert len(one) == 1 and one[0]["pid"] == ID_LUG0 and one[0]["by"] > 0.0  # the floor: 30 um in
+
+
+def test_the_builtin_wheel_and_its_fine_mesh_give_the_same_forces():
+    """quick-3d's wheel, built in and as a finely tessellated mesh (rim facets within
+    0.12 um of the circle, lug tips within 0.15 um), at rest, with spheres pressed 0.2 mm
+    into the rim between two lugs, into the corner of a lug and the rim (two contacts on
+    both wheels: lug and rim) and onto a lug's tip: every contact's force within 5e-3 of
+    the built-in wheel's (the facets' distance from the true surface over the overlap,
+    times 3/2 for Hertz), the normals within the facets' angle."""
+    sc = load_scenario("quick-3d")
+    w = sc.wheel
+    n, R, cap, r, dl = w.n_lugs, w.radius, 0.5 * w.lug_thickness, R_SPHERE, 2e-4
+    lug_out = w.lug_tip_radius - cap
+    C = np.array([0.3, 0.2])
+
+    def u(phi):
+        return np.array([math.cos(phi), math.sin(phi)])
+
+    k = 3 * n // 4  # a lug near the bottom
+    phik = 2.0 * math.pi * k / n
+    along = math.sqrt((R + r - dl) ** 2 - (cap + r - dl) ** 2)
+    v = np.array([-math.sin(phik), math.cos(phik)])  # across lug k
+    centres = [
+        C + (R + r - dl) * u(2.0 * math.pi * (k + 0.5) / n),  # the rim between lugs k and k + 1
+        C + along * u(phik) + (cap + r - dl) * v,  # lug k's side and the rim
+        C + (lug_out + cap + r - dl) * u(2.0 * math.pi * (k - 1) / n),  # lug k - 1's tip
+    ]
+    sp = make_spheres([(x, y, 0.0) for x, y in centres], r, density=2650.0)
+    mesh = grousered_wheel(R, w.width, n, w.lug_tip_radius, w.lug_thickness, segments=2048, tip_segments=128)
+    forces = {}
+    for label, model in (("builtin", Model.from_scenario(sc)), ("mesh", None)):
+        if model is None:
+            model = dataclasses.replace(Model.from_scenario(sc), mesh=mesh_wheel(np.asarray(mesh.triangles), 2.0 * r))
+        cp, walls, wg, _ = model.records()
+        ws = np.zeros(1, WHEEL_STATE)
+        ws[0]["x"], ws[0]["y"] = C
+        wg = wg.copy()
+        wg[0]["z0"] = 0.0
+        scene = bodies.body_scene(walls, wg, ws)
+        lugdir = np.empty(n, LUG_DIRECTION)
+        lug_directions(0.0, n, lugdir)
+        body = np.zeros(8, BODY_ROW)
+        got = []
+        for i in range(len(sp)):
+            cnt, full = bodies.body_rows(
+                i,
+                sp.discs(),
+                cp,
+                scene,
+                False,
+                plate_scene(no_plates().table),
+                lugdir,
+                model.kernel_params()[7],
+                body,
+                0,
+                8,
+                DT,
+            )
+            assert not full
+            rows = body[:cnt]
+            rows = rows[rows["pid"] <= ID_RIM]  # the wheel's rows
+            got.append(sorted((tuple(float(row[f]) for f in ("bx", "by", "bz")) for row in rows)))
+        forces[label] = got
+    for i, (b, m) in enumerate(zip(forces["builtin"], forces["mesh"])):
+        assert len(b) == len(m) == (2 if i == 1 else 1), (i, b, m)
+        for fb, fm in zip(b, m):
+            fb, fm = np.array(fb), np.array(fm)
+            assert np.linalg.norm(fm - fb) <= 5e-3 * np.linalg.norm(fb), (i, fb, fm)
 
 
 # ------------------------------------------------------------------ refusals
@@ -231,6 +352,19 @@ def test_a_scenario_loads_its_mesh_relative_to_its_file(tmp_path):
     assert np.allclose(tri.reshape(-1, 3).max(axis=0), (0.1, 0.1, 0.03))
 
 
+def _box_and_specks(n):
+    """A box about the axle and n separate small triangles beside it: n + 1 parts."""
+    specks = [
+        trimesh.Trimesh(
+            vertices=[(0.3 + 1e-3 * k, 0, 0), (0.3 + 1e-3 * k, 1e-3, 0), (0.3 + 1e-3 * k, 0, 1e-3)],
+            faces=[(0, 1, 2)],
+            process=False,
+        )
+        for k in range(n)
+    ]
+    return trimesh.util.concatenate([trimesh.creation.box((0.2, 0.2, 0.06)), *specks])
+
+
 @pytest.mark.parametrize(
     "make, message",
     [
@@ -238,6 +372,7 @@ def test_a_scenario_loads_its_mesh_relative_to_its_file(tmp_path):
         (lambda p: p.write_bytes(b"solid garbage\nthis is not an stl\n" * 3), "wheel.mesh"),
         (lambda p: p.write_bytes(bytes(range(256)) * 7), "wheel.mesh"),
         (lambda p: trimesh.creation.box((0.05, 0.05, 0.05)).apply_translation((0.2, 0, 0)).export(p), "enclose"),
+        (lambda p: _box_and_specks(900).export(p), "901 separate parts"),
     ],
 )
 def test_bad_meshes_are_refused(tmp_path, make, message):

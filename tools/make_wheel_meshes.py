@@ -102,7 +102,14 @@ def turned(section: np.ndarray, phi: float) -> np.ndarray:
 
 
 def grousered_wheel(
-    radius=0.1, width=0.1, n_lugs=18, lug_tip_radius=0.110, lug_thickness=0.004, segments=SEGMENTS, rings=RINGS
+    radius=0.1,
+    width=0.1,
+    n_lugs=18,
+    lug_tip_radius=0.110,
+    lug_thickness=0.004,
+    segments=SEGMENTS,
+    rings=RINGS,
+    tip_segments=TIP_SEGMENTS,
 ) -> trimesh.Trimesh:
     """The built-in wheel (engine.stepper.wheel_records) as one mesh: the rim, and each lug
     the points within cap = lug_thickness / 2 of the rectangle from the rim to
@@ -118,7 +125,7 @@ def grousered_wheel(
     parts = [rim(radius, width, segments, rings)]
     for k in range(n_lugs):
         phi = 2.0 * math.pi * k / n_lugs
-        parts.append(loft([turned(lug_section(radius, tip, rho), phi) for rho in rhos], zs))
+        parts.append(loft([turned(lug_section(radius, tip, rho, tip_segments), phi) for rho in rhos], zs))
     return _joined(parts)
 
 

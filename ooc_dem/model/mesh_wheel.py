@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from ..physics.detmath import det_cos, det_sin
-from ..physics.layout import MeshWheel
-from ..physics.mesh import mesh_wheel
+from ..physics.layout import MAX_MESH_PARTS, MeshWheel
+from ..physics.mesh import mesh_wheel, surface_parts
 from .schema import ScenarioError, show
 
 MAX_TRIANGLES = 2_000_000
@@ -168,6 +168,15 @@ def wheel_axle_inertia(sc, tri: np.ndarray) -> float:
 
 def load_wheel_mesh(sc, tri: np.ndarray | None = None) -> MeshWheel:
     """The kernel's mesh of the scenario's wheel: its triangles in the body frame
-    (``body_frame_triangles``, unless given) and their grid (cells of the largest
-    sphere's diameter)."""
-    return mesh_wheel(body_frame_triangles(sc) if tri is None else tri, 2.0 * sc.soil.r_max)
+    (``body_frame_triangles``, unless given), their parts (at most MAX_MESH_PARTS: each
+    part is a partner id of its own) and their grid (cells of the largest sphere's
+    diameter)."""
+    tri = body_frame_triangles(sc) if tri is None else tri
+    part = surface_parts(tri)
+    n_parts = int(part.max()) + 1
+    if n_parts > MAX_MESH_PARTS:
+        raise ScenarioError(
+            f"wheel.mesh = {show(sc.wheel.mesh, 300)}: {n_parts} separate parts (pieces not joined by a "
+            f"shared vertex); at most {MAX_MESH_PARTS}"
+        )
+    return mesh_wheel(tri, 2.0 * sc.soil.r_max, part)

@@ -225,6 +225,7 @@ ERR_NBR_OVERFLOW = ERR_PAIR_CAPACITY
 # A particle's body rows are summed in ascending id: lugs, rim, plates, walls
 ID_LUG0 = -1000  # lug k has id ID_LUG0 + k
 ID_RIM = -100
+MAX_MESH_PARTS = ID_RIM - ID_LUG0  # a mesh wheel's part k has id ID_LUG0 + k, below the rim's
 ID_PLATE0 = -90  # plate k of the table has id ID_PLATE0 + k (above the rim, below every wall)
 ID_WALL_RIGHT = -3
 ID_WALL_LEFT = -2
@@ -254,8 +255,10 @@ Discs = namedtuple(
 # z = 0 at the wheel's z0; physics.mesh): tri (T, 3, 3) vertex coordinates; a uniform grid
 # over their bounding box, grid = (x, y, z of its low corner, cell size), dims (3,) cells
 # along x, y, z, and each cell's triangles in CSR form (cell_start (cells + 1), cell_tri,
-# ascending within a cell); bounds = (the farthest point from the axle, lowest z, highest z)
-MeshWheel = namedtuple("MeshWheel", ["tri", "grid", "dims", "cell_start", "cell_tri", "bounds"])
+# ascending within a cell); bounds = (the farthest point from the axle, lowest z, highest z);
+# part (T,) each triangle's connected piece of the surface (its contacts' partner id:
+# ID_LUG0 + part, so at most MAX_MESH_PARTS pieces)
+MeshWheel = namedtuple("MeshWheel", ["tri", "grid", "dims", "cell_start", "cell_tri", "bounds", "part"])
 
 
 # a 2D wheel's outline as a closed polyline in its body frame (physics.outline; axle at the
@@ -314,6 +317,7 @@ def no_mesh() -> MeshWheel:
         np.zeros(1, np.int64),
         np.zeros(0, np.int64),
         np.zeros(3),
+        np.zeros(0, np.int64),
     )
 
 

@@ -5,8 +5,8 @@ end faces included, and nlugs plates: the points within cap of the rectangle
 X + s u (s in lug_in..lug_out) times that z span) and the plates (``physics.plates``:
 axis-aligned rectangles with one active face), made into body rows
 (``layout.BODY_ROW``) for ``physics.produce``. A wheel given as a triangle mesh
-(``physics.mesh``) replaces the rim and the lugs: one contact with the whole mesh, id
-ID_RIM (``mesh_rows``).
+(``physics.mesh``) replaces the rim and the lugs: one contact with each part of its
+surface (a connected piece: the rim, a grouser), id ID_LUG0 + part (``mesh_rows``).
 
 Each is evaluated once, the body as a (the lower id: lugs ID_LUG0 + k, rim ID_RIM, the
 plates ID_PLATE0 + k, then the walls back -5, front -4, right -3, left -2, bottom -1; a
@@ -267,57 +267,65 @@ def plate_rows(i, d, cp, plates, body, bat, bend, p, dt):
 
 @njit(cache=True)
 def mesh_rows(i, d, cp, mesh, dxw, dyw, dzw, theta, VX, VY, WZ, wmass, body, bat, bend, p, dt):
-    """Sphere i's row with a wheel given as a triangle mesh (physics.mesh: one contact,
-    at the closest point of the whole mesh, partner id ID_RIM) from body row bat on, p
-    its history cursor; (dxw, dyw, dzw): its centre from the axle point (X, Y, z0).
-    The centre goes into the wheel's body frame (turned by -theta about the axle), the
-    contact's normal and point back. Returns (the next row, p, whether a row did not fit).
-    A call of its own, like ``plate_rows``."""
+    """Sphere i's rows with a wheel given as a triangle mesh (physics.mesh: one contact a
+    part of the surface, at the part's closest point, partner id ID_LUG0 + part, in
+    ascending part) from body row bat on, p its history cursor; (dxw, dyw, dzw): its
+    centre from the axle point (X, Y, z0). The centre goes into the wheel's body frame
+    (turned by -theta about the axle), each contact's normal and point back. Returns (the
+    next row, p, whether a row did not fit). A call of its own, like ``plate_rows``."""
     ri = d.r[i]
     # the lugs' deterministic cos/sin: libm's may round otherwise on another machine
     c = det_cos(theta)
     s = det_sin(theta)
-    found, qbx, qby, qbz, dist = mesh_contact(mesh, c * dxw + s * dyw, c * dyw - s * dxw, dzw, ri)
-    if not found:
-        return bat, p, False
-    # the normal from the closest point to the centre (an edge or a vertex: rounded)
-    nbx = (c * dxw + s * dyw - qbx) / dist
-    nby = (c * dyw - s * dxw - qby) / dist
-    nz = (dzw - qbz) / dist
+    bx = c * dxw + s * dyw
+    by = c * dyw - s * dxw
     mi = d.mass[i]
-    p, wrote = _wheel_contact(
-        body,
-        bat,
-        bend,
-        i,
-        ID_RIM,
-        d.hist_id,
-        d.hist_s,
-        d.hist_m,
-        d.hist_n[i],
-        p,
-        cp[T_WHEEL, d.mat[i]],
-        c * nbx - s * nby,
-        s * nbx + c * nby,
-        nz,
-        ri - dist,
-        c * qbx - s * qby,
-        s * qbx + c * qby,
-        VX,
-        VY,
-        WZ,
-        d.vel[i, AX_X],
-        d.vel[i, AX_Y],
-        d.vel[i, AX_Z],
-        d.spin[i, SP_X3],
-        d.spin[i, SP_Y3],
-        d.spin[i, SP_Z3],
-        ri,
-        mi * wmass / (mi + wmass),
-        d.inertia[i],
-        dt,
-    )
-    return bat + wrote, p, wrote == 0
+    after = -1
+    while True:
+        found, part, qbx, qby, qbz, dist, more = mesh_contact(mesh, bx, by, dzw, ri, after)
+        if found:
+            # the normal from the closest point to the centre (an edge or a vertex: rounded)
+            nbx = (bx - qbx) / dist
+            nby = (by - qby) / dist
+            nz = (dzw - qbz) / dist
+            p, wrote = _wheel_contact(
+                body,
+                bat,
+                bend,
+                i,
+                ID_LUG0 + part,
+                d.hist_id,
+                d.hist_s,
+                d.hist_m,
+                d.hist_n[i],
+                p,
+                cp[T_WHEEL, d.mat[i]],
+                c * nbx - s * nby,
+                s * nbx + c * nby,
+                nz,
+                ri - dist,
+                c * qbx - s * qby,
+                s * qbx + c * qby,
+                VX,
+                VY,
+                WZ,
+                d.vel[i, AX_X],
+                d.vel[i, AX_Y],
+                d.vel[i, AX_Z],
+                d.spin[i, SP_X3],
+                d.spin[i, SP_Y3],
+                d.spin[i, SP_Z3],
+                ri,
+                mi * wmass / (mi + wmass),
+                d.inertia[i],
+                dt,
+            )
+            if wrote == 0:
+                return bat, p, True
+            bat += wrote
+        if not more:
+            return bat, p, False
+        after = part
 
 
 @njit(inline="always", cache=True)

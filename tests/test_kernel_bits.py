@@ -100,6 +100,9 @@ LINEAR = [
     "contact.soil_soil.friction=0.5",
 ]
 
+# a fresh numba cache (compiled for that target, not read from the host's) and bed cache
+GENERIC = {"NUMBA_CPU_NAME": "generic", "NUMBA_CACHE_DIR": None, "OOC_DEM_CACHE": None}
+
 CASES = {
     "quick-monolithic": (["quick", *QUICK, "--steps", 6000], {}, QUICK_6000),
     "quick-ddm6": (["quick", *QUICK, "--steps", 6000, "--mode", "ddm", "--domains", 6], {}, QUICK_6000),
@@ -116,6 +119,11 @@ CASES = {
     "quick-3d-ddm3": (["quick-3d", "--steps", 3000, "--mode", "ddm", "--domains", 3], {}, QUICK3D_3000),
     "bed3d-hertz": (["bed3d-20000", *HERTZ, "--steps", 400], {}, BED3D_HERTZ_400),
     "bed3d-linear": (["bed3d-20000", *LINEAR, "--steps", 400], {}, BED3D_LINEAR_400),
+    # the kernels compiled for numba's generic x86-64 (no AVX, no FMA), the bed settled by
+    # them too (an empty bed cache): the bits may not depend on the instructions the host's
+    # compile chose (docs/reference/bits.md)
+    "quick-generic": (["quick", *QUICK, "--steps", 6000], GENERIC, QUICK_6000),
+    "quick-3d-generic": (["quick-3d", "--steps", 3000], GENERIC, QUICK3D_3000),
 }
 
 
@@ -134,6 +142,7 @@ def _args(spec):
 @pytest.mark.parametrize("case", list(CASES))
 def test_state_hash_unchanged(case, tmp_path):
     spec, env, expected = CASES[case]
+    env = {k: str(tmp_path / k.lower()) if v is None else v for k, v in env.items()}
     out = tmp_path / "run"
     run_cli("run", *_args(spec), "--out", out, "--no-progress", "--no-figures", check=True, env=env)
     summary = json.loads((out / "summary.json").read_text())

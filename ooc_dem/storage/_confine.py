@@ -39,12 +39,14 @@ _OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLO
 
 
 def _short(v: object) -> str:
-    """A value from a store as a message may show it: short, and never an int-to-decimal
-    conversion past Python's digit limit (which raises)."""
+    """A value from a store as a message may show it: short (at most 80 characters, the
+    middle of a longer one cut out), and never an int-to-decimal conversion past Python's
+    digit limit (which raises)."""
     if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 200:
         return f"<an integer of {v.bit_length()} bits>"
     r = repr(v)
-    return r if len(r) <= 80 else r[:77] + "..."
+    # a long path's end names what it points at: keep both ends
+    return r if len(r) <= 80 else r[:38] + "..." + r[-39:]
 
 
 def rel_path(value: object, what: str) -> str:

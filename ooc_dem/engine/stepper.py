@@ -174,7 +174,7 @@ class Model:
 
             tri = body_frame_triangles(sc)
             mesh = load_wheel_mesh(sc, tri)
-            if sc.wheel.control in FREE_SPIN_CONTROLS:
+            if sc.wheel.control in FREE_SPIN_CONTROLS and sc.wheel.inertia == 0.0:  # else wheel_inertia's
                 record(wc, WHEEL_CONTROLS)["inertia"] = wheel_axle_inertia(sc, tri)
         return cls(
             dt=sc.physics.dt,

@@ -152,11 +152,9 @@ def solid_axle_inertia(tri: np.ndarray, mass: float) -> float:
 
 
 def wheel_axle_inertia(sc, tri: np.ndarray) -> float:
-    """A free-spinning mesh wheel's moment of inertia about its axle: wheel.inertia when
-    given, else the mesh's solid holding the wheel's mass (wheel.load / gravity) uniformly;
+    """A free-spinning mesh wheel's moment of inertia about its axle when wheel.inertia is
+    not given: the mesh's solid holding the wheel's mass (wheel.load / gravity) uniformly;
     an open surface bounds no solid and needs wheel.inertia."""
-    if sc.wheel.inertia > 0.0:
-        return float(sc.wheel.inertia)
     if not is_closed_surface(tri):
         raise ScenarioError(
             f"wheel.mesh = {show(sc.wheel.mesh, 300)}: not a closed surface, so it bounds no solid whose "
@@ -166,12 +164,10 @@ def wheel_axle_inertia(sc, tri: np.ndarray) -> float:
     return solid_axle_inertia(tri, sc.wheel_mass)
 
 
-def load_wheel_mesh(sc, tri: np.ndarray | None = None) -> MeshWheel:
-    """The kernel's mesh of the scenario's wheel: its triangles in the body frame
-    (``body_frame_triangles``, unless given), their parts (at most MAX_MESH_PARTS: each
-    part is a partner id of its own) and their grid (cells of the largest sphere's
-    diameter)."""
-    tri = body_frame_triangles(sc) if tri is None else tri
+def load_wheel_mesh(sc, tri: np.ndarray) -> MeshWheel:
+    """The kernel's mesh of the scenario's wheel from its triangles in the body frame
+    (``body_frame_triangles``): their parts (at most MAX_MESH_PARTS: each part is a
+    partner id of its own) and their grid (cells of the largest sphere's diameter)."""
     part = surface_parts(tri)
     n_parts = int(part.max()) + 1
     if n_parts > MAX_MESH_PARTS:

@@ -2,7 +2,7 @@
 """Serial DDM against the monolithic step at one state, and what the difference is made
 of. Prints JSON.
 
-    python tools/ddm_cost.py RUN_DIR [--domains 6] [--steps 2000] [--threads 2] [--repeat 2]
+    python tools/ddm_cost.py RUN_DIR [--domains 6] [--block 1] [--steps 2000] [--threads 2] [--repeat 2]
 
 RUN_DIR: a run's store (``ooc-dem run ... --out RUN_DIR``); its last committed epoch is
 the state (e.g. paper2008 stopped mid-travel). Everything runs in this process after a
@@ -34,6 +34,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("run", help="a run's store (its last committed epoch is the state)")
     ap.add_argument("--domains", type=int, default=6)
+    ap.add_argument("--block", type=int, default=1, help="serial DDM's K: steps a sub-domain takes per sweep")
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=2)
@@ -84,7 +85,7 @@ def main(argv=None) -> int:
         if mode == "mono":
             eng = MonolithicEngine(p, ws0.copy(), model)
         else:
-            eng = DdmEngine.create(sc, model, p, ws0.copy(), domains=a.domains, block=1)
+            eng = DdmEngine.create(sc, model, p, ws0.copy(), domains=a.domains, block=a.block)
         eng.advance(step0, warm)
         return eng
 
@@ -98,6 +99,7 @@ def main(argv=None) -> int:
         "step": step0,
         "discs": len(discs),
         "domains": a.domains,
+        "block": a.block,
         "threads": a.threads,
         "steps": a.steps,
     }

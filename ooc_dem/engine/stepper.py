@@ -511,8 +511,9 @@ class DomainStepper:
         p = self.p
         if self.err[ERR_HIST_OVERFLOW]:
             raise EngineError(
-                f"contact history overflow at step {at}: a disc has more than "
-                f"{p.hist_id.shape[1]} contacts (overlaps too large: check dt, kn, or the bed)"
+                f"contact history overflow at step {at}: a particle has more than "
+                f"{p.hist_id.shape[1]} contacts (a wide grading's large grains touch more small ones: "
+                f"raise physics.history_capacity; or overlaps too large: check dt, kn, or the bed)"
             )
         if not np.isfinite(p.pos).all():
             raise EngineError(f"non-finite position at step {at}: the run is unstable")

@@ -21,7 +21,6 @@ import argparse
 import hashlib
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -32,19 +31,9 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
 from test_kernel_bits import CASES, _args  # noqa: E402  (the pinned cases, one definition)
+from trace_bits import machine  # noqa: E402  (the facts a difference between machines may come from)
 
 TARGETS = ["host", "generic", "haswell", "skylake-avx512", "znver3"]
-
-
-def cpu_model() -> str:
-    """The CPU's model name as Linux reports it (else the machine's architecture)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.machine()
 
 
 def cached_objects_digest(cache: Path) -> tuple[str, int]:
@@ -101,13 +90,11 @@ def main() -> int:
             for t in targets:
                 rows.append(run_case(case, t, work))
                 print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
-    import llvmlite.binding as llvm
-
     per_case = {
         c: sorted({str(r.get("state_hash")) for r in rows if r["case"] == c and "state_hash" in r}) for c in cases
     }
     result = {
-        "machine": {"cpu": cpu_model(), "host_cpu_name": llvm.get_host_cpu_name()},
+        "machine": machine(),
         "runs": rows,
         "one_hash_per_case": all(len(v) == 1 for v in per_case.values()),
         "all_pinned": all(r.get("pinned") is True for r in rows),

@@ -50,6 +50,9 @@ def main(argv=None) -> int:
         blocks_k = sorted({int(k) for k in a.blocks.split(",")})
     except ValueError:
         blocks_k = []
+    if a.block < 1:
+        print(f"ddm_cost: --block {a.block}: K >= 1", file=sys.stderr)
+        return 2
     if not blocks_k or min(blocks_k) < 1:
         print(f"ddm_cost: --blocks {a.blocks!r}: comma-separated K values >= 1", file=sys.stderr)
         return 2
